@@ -1,0 +1,43 @@
+"""msgspec JSON codec: one strict, typed decoder per message type.
+
+Payloads are published with zenoh encoding ``application/json`` so that zenoh tooling
+(``z_sub``, the zenohd REST plugin, curl) shows them as text.
+"""
+
+from __future__ import annotations
+
+from typing import TypeVar
+
+import msgspec
+
+from schemas.messages import MESSAGE_TYPES
+
+ENCODING = "application/json"
+
+MessageT = TypeVar("MessageT", bound=msgspec.Struct)
+
+
+class BadInput(ValueError):
+    """Input a service drops and counts (SPEC section 8); the message is the reason."""
+
+
+class BadMessage(BadInput):
+    """A payload that does not decode into the expected message type."""
+
+
+_encoder = msgspec.json.Encoder()
+_decoders: dict[type, msgspec.json.Decoder] = {t: msgspec.json.Decoder(t) for t in MESSAGE_TYPES}
+
+
+def encode(message: msgspec.Struct) -> bytes:
+    return _encoder.encode(message)
+
+
+def decode(message_type: type[MessageT], payload: bytes) -> MessageT:
+    """Decode ``payload`` as ``message_type``; raise BadMessage with msgspec's reason."""
+    try:
+        return _decoders[message_type].decode(payload)
+    except msgspec.ValidationError as error:
+        raise BadMessage(str(error)) from None
+    except msgspec.DecodeError as error:
+        raise BadMessage(f"not JSON: {error}") from None

@@ -1,0 +1,165 @@
+"""The key space of SPEC section 2, as one function of the robot name.
+
+No key string is spelled anywhere else: services, tools and tests build every key from
+:class:`Keys`, and :func:`schema_for_key` maps a concrete key back to its message type.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from enum import StrEnum
+
+import msgspec
+
+from schemas.messages import BumpEvent, NoArguments, PDGains, TimedDoubleSeq, TimedPosition, TimedVelocity
+
+ROOT = "invent"
+DEFAULT_ROBOT = "rh0"
+_ROBOT_NAME = re.compile(r"[A-Za-z0-9_\-.]+")
+
+
+class Service(StrEnum):
+    MOTOR = "motor"
+    ODOMETRY = "odometry"
+    SIM = "sim"
+    LOCALIZATION = "localization"
+    DRIVE = "drive"
+
+
+class Topic(StrEnum):
+    """Data keys, relative to ``invent/<robot>/``."""
+
+    SIM_WHEEL_ANGLES = "sim/wheel_angles"
+    SIM_BODY_POSE = "sim/body_pose"
+    SIM_BUMP = "sim/bump"
+    MOTOR_TORQUE = "motor/torque"
+    MOTOR_WHEEL_ANGLES = "motor/wheel_angles"
+    MOTOR_SIM_POSE_GUI = "motor/sim_pose/gui"
+    MOTOR_SIM_POSE_LOCALIZATION = "motor/sim_pose/localization"
+    DRIVE_TARGET_VELOCITY = "drive/target_velocity"
+    ODOMETRY_POSE = "odometry/pose"
+    LOCALIZATION_POSE = "localization/pose"
+
+
+TOPIC_TYPES: dict[Topic, type[msgspec.Struct]] = {
+    Topic.SIM_WHEEL_ANGLES: TimedDoubleSeq,
+    Topic.SIM_BODY_POSE: TimedDoubleSeq,
+    Topic.SIM_BUMP: BumpEvent,
+    Topic.MOTOR_TORQUE: TimedDoubleSeq,
+    Topic.MOTOR_WHEEL_ANGLES: TimedDoubleSeq,
+    Topic.MOTOR_SIM_POSE_GUI: TimedDoubleSeq,
+    Topic.MOTOR_SIM_POSE_LOCALIZATION: TimedDoubleSeq,
+    Topic.DRIVE_TARGET_VELOCITY: TimedVelocity,
+    Topic.ODOMETRY_POSE: TimedPosition,
+    Topic.LOCALIZATION_POSE: TimedPosition,
+}
+
+BODY_POSE_LENGTH = 12
+"""``sim/body_pose``: x, y, z, then the 3x3 rotation matrix row-major."""
+SIM_POSE_LENGTH = 4
+"""``motor/sim_pose/*``: x, y, z, theta."""
+
+
+class MethodFamily(StrEnum):
+    """The two providers of the Motor interface (the seed's InventGUIProvPort and BumpProvPort)."""
+
+    GUI = "gui"
+    BUMP = "bump"
+
+
+class Method(StrEnum):
+    SET_PD_GAIN = "set_pd_gain"
+    START = "start"
+    FINISH = "finish"
+    CLEAR = "clear"
+    STOP = "stop"
+
+
+METHOD_ARGUMENTS: dict[Method, type[msgspec.Struct]] = {
+    Method.SET_PD_GAIN: PDGains,
+    Method.START: NoArguments,
+    Method.FINISH: NoArguments,
+    Method.CLEAR: NoArguments,
+    Method.STOP: NoArguments,
+}
+
+_STATUS = "status"
+_ALIVE = "alive"
+
+
+def validate_robot_name(name: str) -> str:
+    """Return ``name`` if it is one key chunk (no ``/``, wildcards or spaces), else raise ValueError."""
+    if not _ROBOT_NAME.fullmatch(name):
+        raise ValueError(f"robot name {name!r} must match {_ROBOT_NAME.pattern}")
+    return name
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Every key of one robot. ``Keys("rh0").motor_torque == "invent/rh0/motor/torque"``."""
+
+    robot: str = DEFAULT_ROBOT
+
+    def __post_init__(self) -> None:
+        validate_robot_name(self.robot)
+
+    @property
+    def prefix(self) -> str:
+        return f"{ROOT}/{self.robot}"
+
+    @property
+    def everything(self) -> str:
+        return f"{self.prefix}/**"
+
+    def topic(self, topic: Topic) -> str:
+        return f"{self.prefix}/{topic}"
+
+    def method(self, family: MethodFamily, method: Method) -> str:
+        return f"{self.prefix}/{Service.MOTOR}/{family}/{method}"
+
+    def status(self, service: Service) -> str:
+        return f"{self.prefix}/{service}/{_STATUS}"
+
+    def alive(self, service: Service) -> str:
+        """The liveliness token a running service holds."""
+        return f"{self.prefix}/{service}/{_ALIVE}"
+
+    sim_wheel_angles = property(lambda self: self.topic(Topic.SIM_WHEEL_ANGLES))
+    sim_body_pose = property(lambda self: self.topic(Topic.SIM_BODY_POSE))
+    sim_bump = property(lambda self: self.topic(Topic.SIM_BUMP))
+    motor_torque = property(lambda self: self.topic(Topic.MOTOR_TORQUE))
+    motor_wheel_angles = property(lambda self: self.topic(Topic.MOTOR_WHEEL_ANGLES))
+    motor_sim_pose_gui = property(lambda self: self.topic(Topic.MOTOR_SIM_POSE_GUI))
+    motor_sim_pose_localization = property(lambda self: self.topic(Topic.MOTOR_SIM_POSE_LOCALIZATION))
+    drive_target_velocity = property(lambda self: self.topic(Topic.DRIVE_TARGET_VELOCITY))
+    odometry_pose = property(lambda self: self.topic(Topic.ODOMETRY_POSE))
+    localization_pose = property(lambda self: self.topic(Topic.LOCALIZATION_POSE))
+
+
+def all_robots_alive() -> str:
+    """Key expression matching the liveliness token of every service of every robot."""
+    return f"{ROOT}/*/*/{_ALIVE}"
+
+
+def all_robots_status() -> str:
+    return f"{ROOT}/*/*/{_STATUS}"
+
+
+def parse_alive_key(key: str) -> tuple[str, Service] | None:
+    """``invent/rh0/motor/alive`` -> ``("rh0", Service.MOTOR)``; None for any other key."""
+    parts = key.split("/")
+    if len(parts) != 4 or parts[0] != ROOT or parts[3] != _ALIVE or parts[2] not in Service._value2member_map_:
+        return None
+    return parts[1], Service(parts[2])
+
+
+def schema_for_key(key: str) -> type[msgspec.Struct] | None:
+    """The message type a concrete data key carries, or None when the key is not a data key."""
+    parts = key.split("/", 2)
+    if len(parts) != 3 or parts[0] != ROOT:
+        return None
+    try:
+        return TOPIC_TYPES[Topic(parts[2])]
+    except ValueError:
+        return None

@@ -1,0 +1,1 @@
+"""invent-zenoh services: the runtime, the configuration, the CLI and each service."""

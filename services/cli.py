@@ -1,0 +1,152 @@
+"""``invent``: the command line of invent-zenoh. ``invent --help`` lists every subcommand."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from schemas.keys import DEFAULT_ROBOT
+from services import tools
+from services.config import ConfigError
+from services.runtime import DEFAULT_ENDPOINT, configure_logging, open_session, session_config, stop_on_signals
+from services.service import ServiceCommand, config_from_args, run_service
+
+EXIT_CONFIG = 2
+
+SERVICE_COMMANDS: list[ServiceCommand] = []
+
+
+def _connection_flags() -> argparse.ArgumentParser:
+    flags = argparse.ArgumentParser(add_help=False)
+    group = flags.add_argument_group("zenoh connection")
+    group.add_argument(
+        "--connect",
+        metavar="EP",
+        action="append",
+        default=[],
+        help=f"endpoint to connect to (repeatable; default {DEFAULT_ENDPOINT}, or $ZENOH_CONFIG)",
+    )
+    group.add_argument("--listen", metavar="EP", action="append", default=[], help="endpoint to listen on (repeatable)")
+    group.add_argument(
+        "--log-level", default="info", choices=["debug", "info", "warning", "error"], help="log level (default info)"
+    )
+    return flags
+
+
+def _service_flags() -> argparse.ArgumentParser:
+    flags = argparse.ArgumentParser(add_help=False)
+    group = flags.add_argument_group("robot description")
+    group.add_argument("--robot", metavar="NAME", help=f"robot name, the key prefix invent/NAME/ (default {DEFAULT_ROBOT})")
+    group.add_argument("--config", metavar="FILE", help="robot description TOML file (see docs/configuration.md)")
+    group.add_argument(
+        "--set",
+        metavar="SECTION.KEY=VALUE",
+        action="append",
+        help="override one config value, e.g. --set motor.p_gain_l=3.0 (repeatable)",
+    )
+    return flags
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="invent",
+        description="invent-zenoh: a differential-drive robot stack on zenoh (motor, odometry, "
+        "localization, drive and a PyBullet simulator, each a service).",
+    )
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    connection, service = _connection_flags(), _service_flags()
+
+    router = commands.add_parser(
+        "router",
+        parents=[connection],
+        help="run a zenoh router in Python (no zenohd needed)",
+        description=f"A zenoh router; services connect to it. Default listen: {DEFAULT_ENDPOINT}.",
+    )
+    router.set_defaults(handler=_router)
+
+    echo = commands.add_parser(
+        "echo",
+        parents=[connection],
+        help="print samples as JSON lines, decoded with their key's schema",
+        description="Subscribe to KEYEXPR and print one JSON line per sample: its key and its payload "
+        "decoded with the schema that key carries (raw text for unknown keys).",
+    )
+    echo.add_argument("keyexpr", metavar="KEYEXPR", help="zenoh key expression, e.g. 'invent/rh0/**'")
+    echo.add_argument("--count", type=int, metavar="N", help="exit after N samples")
+    echo.set_defaults(handler=_echo)
+
+    call = commands.add_parser(
+        "call",
+        parents=[connection],
+        help="query a key (a Motor method, a status) and print the replies",
+        description="Send a query to KEY with an optional JSON payload and print each reply as JSON. "
+        "Exits 1 on an error reply or when nothing answers.",
+    )
+    call.add_argument("key", metavar="KEY", help="e.g. invent/rh0/motor/gui/stop")
+    call.add_argument("payload", metavar="JSON", nargs="?", help='e.g. \'{"p_gain_l": 5, ...}\'')
+    call.add_argument("--timeout", type=float, default=2.0, metavar="S", help="seconds to wait (default 2)")
+    call.set_defaults(handler=_call)
+
+    status = commands.add_parser(
+        "status",
+        parents=[connection],
+        help="list the services alive and their status",
+        description="List the services alive (from their liveliness tokens) and print each one's status reply.",
+    )
+    status.add_argument("--robot", metavar="NAME", help="only this robot (default: every robot)")
+    status.add_argument("--timeout", type=float, default=1.0, metavar="S", help="seconds to wait (default 1)")
+    status.set_defaults(handler=_status)
+
+    for command in SERVICE_COMMANDS:
+        sub = commands.add_parser(
+            str(command.service), parents=[connection, service], help=command.help, description=command.description
+        )
+        command.add_arguments(sub)
+        sub.set_defaults(handler=_serve, service_command=command)
+    return parser
+
+
+def _router(args: argparse.Namespace) -> int:
+    config = session_config(listen=args.listen, connect=args.connect, mode="router")
+    stop = stop_on_signals()
+    with open_session(config) as session:
+        return tools.run_router(session, args.listen or [DEFAULT_ENDPOINT], stop)
+
+
+def _echo(args: argparse.Namespace) -> int:
+    stop = stop_on_signals()
+    with open_session(session_config(connect=args.connect, listen=args.listen)) as session:
+        return tools.run_echo(session, args.keyexpr, args.count, stop)
+
+
+def _call(args: argparse.Namespace) -> int:
+    with open_session(session_config(connect=args.connect, listen=args.listen)) as session:
+        return tools.run_call(session, args.key, args.payload, args.timeout)
+
+
+def _status(args: argparse.Namespace) -> int:
+    with open_session(session_config(connect=args.connect, listen=args.listen)) as session:
+        return tools.run_status(session, args.robot, args.timeout)
+
+
+def _serve(args: argparse.Namespace) -> int:
+    command: ServiceCommand = args.service_command
+    config = config_from_args(command, args)
+    stop = stop_on_signals()
+    with open_session(session_config(connect=args.connect, listen=args.listen)) as session:
+        return run_service(command, session, config, args, stop)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    configure_logging(args.log_level)
+    try:
+        return args.handler(args)
+    except ConfigError as error:
+        print(f"invent {args.command}: invalid configuration: {error}", file=sys.stderr)
+        return EXIT_CONFIG
+
+
+if __name__ == "__main__":
+    sys.exit(main())

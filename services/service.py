@@ -1,0 +1,89 @@
+"""What a service subcommand is, and how one runs: alone (its own session) or composed.
+
+A service module defines one :class:`ServiceCommand`. ``invent <service>`` loads the robot
+description (``--config`` file, then ``--set`` overrides, then the service's own flags),
+opens a zenoh session, builds the service around a :class:`~services.runtime.Node` and runs it
+until SIGINT/SIGTERM or until it finishes by itself. :func:`start_service` builds one on an
+existing session instead, so several services can share one process and one session.
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import zenoh
+
+from schemas.keys import Keys, Service
+from services.config import Config, load_config, parse_override
+from services.runtime import Node
+
+
+class RunningService(Protocol):
+    def run(self, stop: threading.Event) -> int:
+        """Serve until ``stop`` is set (or the service's own end); return the exit code."""
+        ...
+
+    def close(self) -> None:
+        """Release what the service holds beyond its node (files, simulators)."""
+        ...
+
+
+ServiceFactory = Callable[[Node, Config, argparse.Namespace], RunningService]
+
+
+@dataclass(frozen=True)
+class ServiceCommand:
+    service: Service
+    help: str
+    description: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    """Adds the service's own flags to its subcommand."""
+    overrides: Callable[[argparse.Namespace], dict[str, Any]]
+    """Maps the service's flags to config keys ({"motor.target_angle": args.target_angle}); None = unset."""
+    factory: ServiceFactory
+
+
+def no_flags(_parser: argparse.ArgumentParser) -> None:
+    """For a service without flags of its own."""
+
+
+def no_overrides(_args: argparse.Namespace) -> dict[str, Any]:
+    return {}
+
+
+def config_from_args(command: ServiceCommand, args: argparse.Namespace) -> Config:
+    """The robot description for ``args``: file, then ``--set``, then ``--robot`` and service flags."""
+    overrides: dict[str, Any] = {}
+    for text in args.set or ():
+        path, value = parse_override(text)
+        overrides[".".join(path)] = value
+    overrides["robot.name"] = args.robot
+    overrides.update(command.overrides(args))
+    return load_config(args.config, overrides)
+
+
+def start_service(
+    command: ServiceCommand, session: zenoh.Session, config: Config, args: argparse.Namespace
+) -> tuple[Node, RunningService]:
+    """Build ``command``'s service on ``session`` (opened by the caller, maybe shared)."""
+    node = Node(session, Keys(config.robot.name), command.service)
+    try:
+        return node, command.factory(node, config, args)
+    except BaseException:
+        node.close()
+        raise
+
+
+def run_service(
+    command: ServiceCommand, session: zenoh.Session, config: Config, args: argparse.Namespace, stop: threading.Event
+) -> int:
+    node, service = start_service(command, session, config, args)
+    try:
+        return service.run(stop)
+    finally:
+        service.close()
+        node.close()

@@ -1,0 +1,145 @@
+"""The zenoh tools of the ``invent`` CLI: router, echo, call, status.
+
+Each writes JSON lines to stdout (one per sample or reply) so that its output can be piped
+to ``jq`` or read by tests, and errors as one line on stderr.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import sys
+import threading
+import time
+from typing import Any
+
+import msgspec
+import zenoh
+
+from schemas.codec import ENCODING, BadMessage, decode
+from schemas.keys import Keys, all_robots_alive, parse_alive_key, schema_for_key
+
+EXIT_NO_ANSWER = 1
+
+
+def _print_json(value: Any, stream=sys.stdout) -> None:
+    stream.write(json.dumps(value, separators=(", ", ": ")) + "\n")
+    stream.flush()
+
+
+def _payload_value(payload: bytes) -> Any:
+    """A reply payload as JSON when it is JSON, else as text."""
+    try:
+        return json.loads(payload)
+    except ValueError:
+        return payload.decode("utf-8", errors="replace")
+
+
+def describe_sample(key: str, payload: bytes) -> dict[str, Any]:
+    """A sample as ``{"key", "value"}``: decoded with the key's schema, raw text for unknown keys.
+
+    A payload that does not decode with its key's schema is shown as text with the reason.
+    """
+    schema = schema_for_key(key)
+    if schema is None:
+        return {"key": key, "value": payload.decode("utf-8", errors="replace")}
+    try:
+        return {"key": key, "value": msgspec.to_builtins(decode(schema, payload))}
+    except BadMessage as error:
+        return {"key": key, "value": payload.decode("utf-8", errors="replace"), "error": str(error)}
+
+
+def run_router(session: zenoh.Session, listen: list[str], stop: threading.Event) -> int:
+    """Serve as the zenoh router until SIGINT/SIGTERM."""
+    print(f"invent router {session.zid()} listening on {', '.join(listen)}; Ctrl-C stops it", file=sys.stderr, flush=True)
+    while not stop.wait(0.2):
+        pass
+    return 0
+
+
+def run_echo(session: zenoh.Session, key_expr: str, count: int | None, stop: threading.Event) -> int:
+    """Print one JSON line per sample on ``key_expr``; stop after ``count`` samples if given."""
+    samples: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+    with session.declare_subscriber(
+        key_expr, lambda sample: samples.put((str(sample.key_expr), sample.payload.to_bytes()))
+    ):
+        printed = 0
+        while not stop.is_set() and (count is None or printed < count):
+            try:
+                key, payload = samples.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            _print_json(describe_sample(key, payload))
+            printed += 1
+    return 0
+
+
+def _wait_for_match(querier: zenoh.Querier, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not querier.matching_status.matching:
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True
+
+
+def run_call(session: zenoh.Session, key: str, payload: str | None, timeout: float) -> int:
+    """Query ``key`` and print each reply; non-zero exit on ``reply_err`` or when nothing answers."""
+    querier = session.declare_querier(key, timeout=timeout)
+    try:
+        if not _wait_for_match(querier, timeout):
+            print(f"invent call: nothing answers on {key} (is the service running?)", file=sys.stderr)
+            return EXIT_NO_ANSWER
+        replies = 0
+        failed = False
+        for reply in querier.get(payload=payload, encoding=zenoh.Encoding(ENCODING) if payload else None):
+            if reply.ok is not None:
+                _print_json({"key": str(reply.ok.key_expr), "value": _payload_value(reply.ok.payload.to_bytes())})
+                replies += 1
+            else:
+                error = _payload_value(reply.err.payload.to_bytes())
+                print(f"invent call: {key} replied with an error: {json.dumps(error)}", file=sys.stderr)
+                failed = True
+        if not replies and not failed:
+            print(f"invent call: no reply from {key} within {timeout} s", file=sys.stderr)
+            return EXIT_NO_ANSWER
+        return EXIT_NO_ANSWER if failed else 0
+    finally:
+        querier.undeclare()
+
+
+def alive_services(session: zenoh.Session, key_expr: str, timeout: float, settle: float = 0.1) -> list[str]:
+    """Liveliness tokens under ``key_expr``: waits up to ``timeout`` for the first, then ``settle`` for the rest."""
+    tokens: queue.SimpleQueue[str] = queue.SimpleQueue()
+    found: list[str] = []
+    with session.liveliness().declare_subscriber(
+        key_expr, lambda sample: tokens.put(str(sample.key_expr)), history=True
+    ):
+        wait = timeout
+        while True:
+            try:
+                found.append(tokens.get(timeout=wait))
+            except queue.Empty:
+                break
+            wait = settle
+    return sorted(set(found))
+
+
+def run_status(session: zenoh.Session, robot: str | None, timeout: float) -> int:
+    """Print the services alive and each one's status reply; non-zero exit when none is alive."""
+    key_expr = Keys(robot).prefix + "/*/alive" if robot else all_robots_alive()
+    tokens = alive_services(session, key_expr, timeout)
+    if not tokens:
+        print(f"invent status: no service alive on {key_expr}", file=sys.stderr)
+        return EXIT_NO_ANSWER
+    for token in tokens:
+        parsed = parse_alive_key(token)
+        if parsed is None:
+            continue
+        robot_name, service = parsed
+        status: Any = None
+        for reply in session.get(Keys(robot_name).status(service), timeout=timeout):
+            sample = reply.ok if reply.ok is not None else reply.err
+            status = _payload_value(sample.payload.to_bytes())
+        _print_json({"robot": robot_name, "service": str(service), "alive": True, "status": status})
+    return 0

@@ -1,0 +1,158 @@
+"""Test harness: real zenoh sessions on free ports and real ``invent`` processes.
+
+Nothing here mocks zenoh: every test gets its own router on a free loopback port, and waits
+on conditions with timeouts (matching, liveliness, replies), never on bare sleeps.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+import msgspec
+import zenoh
+
+from schemas.codec import decode
+from services.runtime import session_config
+
+REPO = Path(__file__).resolve().parent.parent
+T = TypeVar("T")
+MessageT = TypeVar("MessageT", bound=msgspec.Struct)
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def wait_until(predicate: Callable[[], T], timeout: float = 10.0, what: str = "condition") -> T:
+    """Poll ``predicate`` until it returns a truthy value; fail the test after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.005)
+
+
+def open_router(endpoint: str) -> zenoh.Session:
+    return zenoh.open(session_config(listen=[endpoint], mode="router"))
+
+
+def open_peer(endpoint: str) -> zenoh.Session:
+    return zenoh.open(session_config(connect=[endpoint]))
+
+
+class Collector:
+    """Subscribes to a key and queues its decoded samples for the test thread."""
+
+    def __init__(self, session: zenoh.Session, key: str, message_type: type[MessageT] | None = None) -> None:
+        self.key = key
+        self.samples: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._type = message_type
+        self._subscriber = session.declare_subscriber(key, lambda s: self.samples.put(s.payload.to_bytes()))
+
+    def get(self, timeout: float = 5.0) -> Any:
+        try:
+            payload = self.samples.get(timeout=timeout)
+        except queue.Empty:
+            raise AssertionError(f"no sample on {self.key} within {timeout} s") from None
+        return decode(self._type, payload) if self._type else payload
+
+    def drain(self) -> list[Any]:
+        items = []
+        while True:
+            try:
+                payload = self.samples.get_nowait()
+            except queue.Empty:
+                return items
+            items.append(decode(self._type, payload) if self._type else payload)
+
+    def close(self) -> None:
+        self._subscriber.undeclare()
+
+
+def call(session: zenoh.Session, key: str, payload: bytes | str | None = None, timeout: float = 5.0) -> tuple[bool, Any]:
+    """Query ``key`` once something answers it; return (ok, JSON value) of the single reply."""
+    querier = session.declare_querier(key, timeout=timeout)
+    try:
+        wait_until(lambda: querier.matching_status.matching, timeout, f"a queryable on {key}")
+        replies = list(querier.get(payload=payload))
+    finally:
+        querier.undeclare()
+    assert len(replies) == 1, f"expected one reply from {key}, got {len(replies)}"
+    reply = replies[0]
+    sample = reply.ok if reply.ok is not None else reply.err
+    return reply.ok is not None, json.loads(sample.payload.to_bytes())
+
+
+def wait_alive(session: zenoh.Session, token_key: str, timeout: float = 20.0) -> None:
+    """Block until a liveliness token on ``token_key`` exists."""
+    seen = threading.Event()
+    with session.liveliness().declare_subscriber(token_key, lambda _s: seen.set(), history=True):
+        if not seen.wait(timeout):
+            raise AssertionError(f"{token_key} not alive within {timeout} s")
+
+
+def invent_command(*args: str) -> list[str]:
+    return [sys.executable, "-m", "services.cli", *args]
+
+
+class InventProcess:
+    """An ``invent`` subcommand in its own process, stopped with SIGINT at the end."""
+
+    def __init__(self, *args: str, env: dict[str, str] | None = None) -> None:
+        self.args = args
+        self.process = subprocess.Popen(
+            invent_command(*args),
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, **(env or {})},
+        )
+
+    def stop(self, timeout: float = 15.0) -> tuple[int, str, str]:
+        """SIGINT, wait, and return (exit code, stdout, stderr)."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+        try:
+            out, err = self.process.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            out, err = self.process.communicate()
+            raise AssertionError(f"invent {' '.join(self.args)} did not stop on SIGINT; stderr:\n{err}") from None
+        return self.process.returncode, out, err
+
+    def __enter__(self) -> InventProcess:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.communicate()
+
+
+def run_invent(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(invent_command(*args), cwd=REPO, capture_output=True, text=True, timeout=timeout)
+
+
+def json_lines(text: str) -> list[Any]:
+    return [json.loads(line) for line in text.splitlines() if line.strip()]
+
+
+def connect_flags(endpoint: str) -> Sequence[str]:
+    return ("--connect", endpoint)
