@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from collections.abc import Sequence
 
@@ -14,7 +15,13 @@ from services.service import ServiceCommand, config_from_args, run_service
 
 EXIT_CONFIG = 2
 
-SERVICE_COMMANDS: list[ServiceCommand] = []
+SERVICE_MODULES = (
+)
+"""Modules that each define ``COMMAND: ServiceCommand``; one ``invent <service>`` subcommand each."""
+
+
+def service_commands() -> list[ServiceCommand]:
+    return [importlib.import_module(name).COMMAND for name in SERVICE_MODULES]
 
 
 def _connection_flags() -> argparse.ArgumentParser:
@@ -98,7 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
     status.add_argument("--timeout", type=float, default=1.0, metavar="S", help="seconds to wait (default 1)")
     status.set_defaults(handler=_status)
 
-    for command in SERVICE_COMMANDS:
+    for command in service_commands():
         sub = commands.add_parser(
             str(command.service), parents=[connection, service], help=command.help, description=command.description
         )
