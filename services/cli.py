@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import sys
 from collections.abc import Sequence
+
+import msgspec
 
 from schemas.keys import DEFAULT_ROBOT
 from services import tools
@@ -105,6 +108,15 @@ def build_parser() -> argparse.ArgumentParser:
     status.add_argument("--timeout", type=float, default=1.0, metavar="S", help="seconds to wait (default 1)")
     status.set_defaults(handler=_status)
 
+    config = commands.add_parser(
+        "config",
+        parents=[service],
+        help="print the resolved robot description (file + overrides) as JSON",
+        description="Load the robot description as a service would (--config file, then --set overrides) "
+        "and print it as JSON. Exits 2 naming the field when it is invalid.",
+    )
+    config.set_defaults(handler=_config, log_level="info")
+
     for command in service_commands():
         sub = commands.add_parser(
             str(command.service), parents=[connection, service], help=command.help, description=command.description
@@ -135,6 +147,11 @@ def _call(args: argparse.Namespace) -> int:
 def _status(args: argparse.Namespace) -> int:
     with open_session(session_config(connect=args.connect, listen=args.listen)) as session:
         return tools.run_status(session, args.robot, args.timeout)
+
+
+def _config(args: argparse.Namespace) -> int:
+    print(json.dumps(msgspec.to_builtins(config_from_args(None, args)), indent=2))
+    return 0
 
 
 def _serve(args: argparse.Namespace) -> int:

@@ -55,14 +55,15 @@ def no_overrides(_args: argparse.Namespace) -> dict[str, Any]:
     return {}
 
 
-def config_from_args(command: ServiceCommand, args: argparse.Namespace) -> Config:
-    """The robot description for ``args``: file, then ``--set``, then ``--robot`` and service flags."""
+def config_from_args(command: ServiceCommand | None, args: argparse.Namespace) -> Config:
+    """The robot description for ``args``: file, then ``--set``, then ``--robot`` and ``command``'s flags."""
     overrides: dict[str, Any] = {}
     for text in args.set or ():
         path, value = parse_override(text)
         overrides[".".join(path)] = value
     overrides["robot.name"] = args.robot
-    overrides.update(command.overrides(args))
+    if command is not None:
+        overrides.update(command.overrides(args))
     return load_config(args.config, overrides)
 
 

@@ -1,0 +1,152 @@
+"""The service runtime: handoff to the service thread, the bad-input policy, liveliness, config."""
+
+import json
+import logging
+import threading
+
+import pytest
+
+from schemas import BadInput, Keys, Service, Time, TimedDoubleSeq
+from services.runtime import DEFAULT_ENDPOINT, Node, session_config
+from tests.harness import call, wait_until
+
+
+@pytest.fixture
+def node(session):
+    node = Node(session, Keys("rh0"), Service.ODOMETRY)
+    yield node
+    node.close()
+
+
+def _publisher(session, key):
+    return session.declare_publisher(key)
+
+
+def _spin_until(node, predicate, timeout=10.0):
+    """Handle the node's events on this thread until ``predicate()`` holds."""
+
+    def spun_and_holds():
+        node.spin_once(0.01)
+        return predicate()
+
+    wait_until(spun_and_holds, timeout)
+
+
+def test_handlers_run_on_the_service_thread_not_in_zenoh_callbacks(session, node):
+    threads = []
+    node.subscribe(node.keys.motor_wheel_angles, TimedDoubleSeq, lambda _m: threads.append(threading.current_thread()))
+    publisher = _publisher(session, node.keys.motor_wheel_angles)
+    wait_until(lambda: publisher.matching_status.matching)
+    publisher.put(b'{"tm":{"sec":0,"nsec":1},"data":[0.0,0.0]}')
+    _spin_until(node, lambda: threads)
+    assert threads == [threading.main_thread()]
+
+
+def test_bad_input_is_dropped_counted_and_logged_once_per_interval(session, node, caplog):
+    received = []
+    key = node.keys.motor_wheel_angles
+    node.subscribe(key, TimedDoubleSeq, received.append)
+    publisher = _publisher(session, key)
+    wait_until(lambda: publisher.matching_status.matching)
+    with caplog.at_level(logging.WARNING, logger="invent"):
+        publisher.put(b"garbage")
+        publisher.put(b'{"tm":{"sec":0,"nsec":1},"data":[1e999]}')
+        publisher.put(b'{"tm":{"sec":0,"nsec":2},"data":[1.0]}')
+        _spin_until(node, lambda: received)
+    assert received == [TimedDoubleSeq(Time(0, 2), [1.0])]
+    counts = node.status()["bad_input"]
+    assert counts["total"] == 2
+    assert counts["by_key"][key]["count"] == 2
+    assert "out of range" in counts["by_key"][key]["last_reason"]
+    lines = [r.getMessage() for r in caplog.records if "bad input" in r.getMessage()]
+    assert len(lines) == 1
+    assert key in lines[0] and "not JSON" in lines[0]
+
+
+def test_a_handler_raising_bad_input_is_counted_and_the_node_goes_on(session, node):
+    seen = []
+
+    def handler(message: TimedDoubleSeq) -> None:
+        if message.tm.nsec == 1:
+            raise BadInput("dt <= 0")
+        seen.append(message)
+
+    key = node.keys.motor_wheel_angles
+    node.subscribe(key, TimedDoubleSeq, handler)
+    publisher = _publisher(session, key)
+    wait_until(lambda: publisher.matching_status.matching)
+    publisher.put(b'{"tm":{"sec":0,"nsec":1},"data":[]}')
+    publisher.put(b'{"tm":{"sec":0,"nsec":2},"data":[]}')
+    _spin_until(node, lambda: seen)
+    assert node.bad_inputs.by_key[key].last_reason == "dt <= 0"
+
+
+def test_a_bug_in_a_handler_is_logged_counted_and_not_fatal(session, node):
+    seen = []
+
+    def handler(message: TimedDoubleSeq) -> None:
+        seen.append(1 / message.data[0])
+
+    key = node.keys.motor_wheel_angles
+    node.subscribe(key, TimedDoubleSeq, handler)
+    publisher = _publisher(session, key)
+    wait_until(lambda: publisher.matching_status.matching)
+    publisher.put(b'{"tm":{"sec":0,"nsec":1},"data":[0.0]}')
+    publisher.put(b'{"tm":{"sec":0,"nsec":2},"data":[4.0]}')
+    _spin_until(node, lambda: seen)
+    assert seen == [0.25]
+    assert node.status()["internal_errors"] == 1
+
+
+def test_status_and_queryables_answer_from_the_service_thread(session, node):
+    node.set_status(lambda: {"state": "running"})
+    stop = threading.Event()
+    spinner = threading.Thread(target=node.spin, args=(stop,))
+    spinner.start()
+    try:
+        ok, status = call(session, node.keys.status(Service.ODOMETRY))
+        assert ok and status["state"] == "running" and status["service"] == "odometry"
+
+        def reject(payload: bytes):
+            raise BadInput(f"bad argument {payload.decode()}")
+
+        key = node.keys.prefix + "/odometry/reset"
+        node.queryable(key, reject)
+        ok, error = call(session, key, "x")
+        assert not ok and error == {"error": "bad argument x"}
+    finally:
+        stop.set()
+        spinner.join()
+
+
+def test_close_withdraws_the_liveliness_token(session):
+    keys = Keys("rh5")
+    events = []
+    subscriber = session.liveliness().declare_subscriber(keys.alive(Service.SIM), lambda s: events.append(str(s.kind)))
+    node = Node(session, keys, Service.SIM)
+    wait_until(lambda: events, what="the token")
+    node.close()
+    wait_until(lambda: len(events) == 2, what="the token to be withdrawn")
+    assert events == ["SampleKind.PUT", "SampleKind.DELETE"]
+    subscriber.undeclare()
+
+
+def test_session_config_defaults_to_peer_with_explicit_endpoint(monkeypatch):
+    monkeypatch.delenv("ZENOH_CONFIG", raising=False)
+    config = json.loads(str(session_config()))
+    assert config["mode"] == "peer"
+    assert config["scouting"]["multicast"]["enabled"] is False
+    assert config["connect"]["endpoints"] == [DEFAULT_ENDPOINT]
+    router = json.loads(str(session_config(mode="router")))
+    assert router["listen"]["endpoints"] == [DEFAULT_ENDPOINT]
+
+
+def test_session_config_flags_override_zenoh_config_file(tmp_path, monkeypatch):
+    path = tmp_path / "zenoh.json5"
+    path.write_text('{ mode: "client", connect: { endpoints: ["tcp/127.0.0.1:1111"] } }')
+    monkeypatch.setenv("ZENOH_CONFIG", str(path))
+    from_file = json.loads(str(session_config()))
+    assert from_file["mode"] == "client" and from_file["connect"]["endpoints"] == ["tcp/127.0.0.1:1111"]
+    overridden = json.loads(str(session_config(connect=["tcp/127.0.0.1:2222"], listen=["tcp/127.0.0.1:3333"])))
+    assert overridden["connect"]["endpoints"] == ["tcp/127.0.0.1:2222"]
+    assert overridden["listen"]["endpoints"] == ["tcp/127.0.0.1:3333"]

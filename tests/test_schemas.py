@@ -1,0 +1,204 @@
+"""The wire contract: round trips, strict rejection, and the key space."""
+
+import math
+
+import msgspec
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from schemas import (
+    BadMessage,
+    BumpEvent,
+    Keys,
+    Method,
+    MethodFamily,
+    PDGains,
+    Service,
+    Time,
+    TimedDoubleSeq,
+    TimedPosition,
+    TimedVelocity,
+    Topic,
+    decode,
+    encode,
+    schema_for_key,
+)
+from schemas.keys import TOPIC_TYPES, parse_alive_key
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+times = st.builds(Time, st.integers(0, 2**40), st.integers(0, 999_999_999))
+ids = st.lists(st.integers(-(2**31), 2**31 - 1), max_size=4)
+
+EXAMPLES = [
+    Time(3, 250),
+    TimedDoubleSeq(Time(1, 2), [0.5, -1.25, 3.0]),
+    TimedVelocity(Time(1, 2), [7], 0.3, 0.0, -0.1, [0.0]),
+    TimedPosition(Time(1, 2), [], 1.0, -2.0, math.pi, []),
+    BumpEvent(Time(4, 0), "box_1", 1.0, 0.2, 0.1),
+    PDGains(5.0, 5.0, 2.0, 2.0),
+]
+
+
+@pytest.mark.parametrize("message", EXAMPLES, ids=lambda m: type(m).__name__)
+def test_every_message_type_round_trips(message):
+    assert decode(type(message), encode(message)) == message
+
+
+@given(times, st.lists(finite, max_size=16))
+def test_timed_double_seq_round_trips_any_finite_data(tm, data):
+    message = TimedDoubleSeq(tm, data)
+    assert decode(TimedDoubleSeq, encode(message)) == message
+
+
+@given(times, ids, finite, finite, finite, st.lists(finite, max_size=3))
+def test_timed_velocity_round_trips(tm, id_, vx, vy, w, error):
+    message = TimedVelocity(tm, id_, vx, vy, w, error)
+    assert decode(TimedVelocity, encode(message)) == message
+
+
+@given(times, ids, finite, finite, finite, st.lists(finite, max_size=3))
+def test_timed_position_round_trips(tm, id_, x, y, theta, error):
+    message = TimedPosition(tm, id_, x, y, theta, error)
+    assert decode(TimedPosition, encode(message)) == message
+
+
+def test_payload_is_json_text_with_idl_field_order():
+    payload = encode(TimedVelocity(Time(1, 0), [], 0.5, 0.0, 0.25, []))
+    assert payload == b'{"tm":{"sec":1,"nsec":0},"id":[],"vx":0.5,"vy":0.0,"w":0.25,"error":[]}'
+
+
+VALID_SEQ = '{"tm":{"sec":1,"nsec":0},"data":[1.0,2.0]}'
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        ('{"tm":{"sec":1,"nsec":0},"data":["a"]}', "Expected `float`, got `str`"),
+        ('{"tm":{"sec":"1","nsec":0},"data":[]}', "Expected `int`, got `str`"),
+        ('{"tm":{"sec":1,"nsec":0},"data":1.0}', "Expected `array`"),
+        ('{"tm":{"sec":1,"nsec":0}}', "missing required field `data`"),
+        ('{"data":[1.0]}', "missing required field `tm`"),
+        ('{"tm":{"sec":1,"nsec":0},"data":[1.0],"extra":0}', "unknown field `extra`"),
+        ('{"tm":{"sec":1,"nsec":0,"usec":0},"data":[]}', "unknown field `usec`"),
+        ('{"tm":{"sec":1,"nsec":0},"data":[NaN]}', "malformed"),
+        ('{"tm":{"sec":1,"nsec":0},"data":[Infinity]}', "malformed"),
+        ('{"tm":{"sec":1,"nsec":0},"data":[1e999]}', "out of range"),
+        ('{"tm":{"sec":1,"nsec":0},"data":[null]}', "got `null`"),
+        ('{"tm":{"sec":-1,"nsec":0},"data":[]}', ">= 0"),
+        ('{"tm":{"sec":1,"nsec":1000000000},"data":[]}', "<= 999999999"),
+        ("garbage", "not JSON"),
+        ("", "not JSON"),
+    ],
+)
+def test_timed_double_seq_rejects(payload, reason):
+    with pytest.raises(BadMessage, match=reason):
+        decode(TimedDoubleSeq, payload.encode())
+    assert decode(TimedDoubleSeq, VALID_SEQ.encode()).data == [1.0, 2.0]
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [
+        '{"tm":{"sec":1,"nsec":0},"id":[],"vx":1e999,"vy":0,"w":0,"error":[]}',
+        '{"tm":{"sec":1,"nsec":0},"id":[],"vx":0,"vy":0,"w":0,"error":[-1e999]}',
+        '{"tm":{"sec":1,"nsec":0},"id":[1.5],"vx":0,"vy":0,"w":0,"error":[]}',
+        '{"tm":{"sec":1,"nsec":0},"id":[],"vx":0,"vy":0,"error":[]}',
+        '{"tm":{"sec":1,"nsec":0},"id":[],"vx":0,"vy":0,"w":0,"error":[],"z":0}',
+        '[1, 2, 3]',
+    ],
+)
+def test_timed_velocity_rejects(payload):
+    with pytest.raises(BadMessage):
+        decode(TimedVelocity, payload.encode())
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [
+        '{"tm":{"sec":1,"nsec":0},"id":[],"x":0,"y":0,"theta":1e400,"error":[]}',
+        '{"tm":{"sec":1,"nsec":0},"id":[],"x":"0","y":0,"theta":0,"error":[]}',
+        '{"tm":{"sec":1,"nsec":0},"id":[],"x":0,"y":0,"error":[]}',
+        '{"tm":{"sec":1,"nsec":0},"id":[],"x":0,"y":0,"theta":0,"error":[],"vx":0}',
+    ],
+)
+def test_timed_position_rejects(payload):
+    with pytest.raises(BadMessage):
+        decode(TimedPosition, payload.encode())
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+def test_non_finite_messages_cannot_be_built(value):
+    with pytest.raises(ValueError, match="non-finite"):
+        TimedDoubleSeq(Time(0, 0), [value])
+    with pytest.raises(ValueError, match="non-finite"):
+        TimedVelocity(Time(0, 0), [], value, 0.0, 0.0, [])
+
+
+def test_pd_gains_reject_negative():
+    with pytest.raises(BadMessage, match=">= 0"):
+        decode(PDGains, b'{"p_gain_l":-1,"p_gain_r":1,"d_gain_l":1,"d_gain_r":1}')
+
+
+@given(st.integers(0, 10**15))
+def test_time_nanoseconds_round_trip(total_ns):
+    assert Time.from_nanoseconds(total_ns).to_nanoseconds() == total_ns
+
+
+def test_time_from_seconds_carries_into_seconds():
+    assert Time.from_seconds(2.9999999999) == Time(3, 0)
+    assert Time.from_seconds(1.5).to_seconds() == 1.5
+
+
+def test_keys_are_a_function_of_the_robot_name():
+    keys = Keys("rh1")
+    assert keys.sim_wheel_angles == "invent/rh1/sim/wheel_angles"
+    assert keys.motor_sim_pose_localization == "invent/rh1/motor/sim_pose/localization"
+    assert keys.method(MethodFamily.BUMP, Method.STOP) == "invent/rh1/motor/bump/stop"
+    assert keys.status(Service.ODOMETRY) == "invent/rh1/odometry/status"
+    assert keys.alive(Service.SIM) == "invent/rh1/sim/alive"
+    assert Keys().robot == "rh0"
+
+
+def test_every_spec_data_key_has_its_schema():
+    keys = Keys("rh0")
+    spec = {
+        "sim/wheel_angles": TimedDoubleSeq,
+        "sim/body_pose": TimedDoubleSeq,
+        "motor/torque": TimedDoubleSeq,
+        "motor/wheel_angles": TimedDoubleSeq,
+        "motor/sim_pose/gui": TimedDoubleSeq,
+        "motor/sim_pose/localization": TimedDoubleSeq,
+        "drive/target_velocity": TimedVelocity,
+        "odometry/pose": TimedPosition,
+        "localization/pose": TimedPosition,
+        "sim/bump": BumpEvent,
+    }
+    assert {str(topic): schema for topic, schema in TOPIC_TYPES.items()} == spec
+    for suffix, schema in spec.items():
+        assert schema_for_key(f"{keys.prefix}/{suffix}") is schema
+    assert schema_for_key(keys.topic(Topic.ODOMETRY_POSE)) is TimedPosition
+
+
+@pytest.mark.parametrize("key", ["invent/rh0/motor/status", "other/rh0/sim/body_pose", "invent/rh0", "invent"])
+def test_unknown_keys_have_no_schema(key):
+    assert schema_for_key(key) is None
+
+
+@pytest.mark.parametrize("name", ["", "a/b", "r*", "r h", "$x"])
+def test_robot_names_must_be_one_key_chunk(name):
+    with pytest.raises(ValueError, match="robot name"):
+        Keys(name)
+
+
+def test_alive_keys_parse_back():
+    assert parse_alive_key(Keys("rh2").alive(Service.DRIVE)) == ("rh2", Service.DRIVE)
+    assert parse_alive_key("invent/rh2/nothing/alive") is None
+    assert parse_alive_key(Keys("rh2").status(Service.DRIVE)) is None
+
+
+def test_msgspec_structs_are_strict_and_frozen():
+    message = TimedDoubleSeq(Time(0, 0), [1.0])
+    with pytest.raises(AttributeError):
+        message.tm = Time(1, 0)
+    assert msgspec.structs.asdict(message)["data"] == [1.0]
