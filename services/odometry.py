@@ -1,0 +1,119 @@
+"""``invent odometry``: the OdometryRTC port (SPEC section 5), a thin shell around odometry_core.
+
+Subscribes ``motor/wheel_angles`` and ``localization/pose``; publishes ``odometry/pose`` (with
+the ``tm`` of the wheel-angle sample) for every accepted sample, the first one included. A
+localized pose overwrites the pose the next step starts from. ``--trace FILE`` writes one JSON
+line per accepted wheel-angle sample (docs/odometry.md describes the fields).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import threading
+from pathlib import Path
+from typing import IO, Any
+
+import msgspec
+
+from schemas.keys import Service
+from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+from services.config import Config, ConfigError
+from services.odometry_core import Branch, Odometry, OdometryParameters, Step
+from services.runtime import Node
+from services.service import ServiceCommand, no_overrides
+
+STATE_IDLE = "idle"
+"""No wheel angles seen yet: the pose is the starting (or localized) pose."""
+STATE_RUNNING = "running"
+
+
+class OdometryService:
+    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+        self.node = node
+        self.odometry = Odometry(OdometryParameters.from_config(config))
+        self.samples = 0
+        self.localization_resets = 0
+        self.branches = dict.fromkeys(Branch, 0)
+        self.last_tm: Time | None = None
+        self._trace = open_trace(args.trace) if args.trace else None
+        self._encoder = msgspec.json.Encoder()
+        self._pose = node.publisher(node.keys.odometry_pose)
+        node.subscribe(node.keys.motor_wheel_angles, TimedDoubleSeq, self.on_wheel_angles)
+        node.subscribe(node.keys.localization_pose, TimedPosition, self.on_localized_pose)
+        node.set_status(self.status)
+
+    def on_wheel_angles(self, sample: TimedDoubleSeq) -> None:
+        step = self.odometry.step(sample.tm.to_nanoseconds(), sample.data)
+        self.samples += 1
+        self.branches[step.branch] += 1
+        self.last_tm = sample.tm
+        if self._trace is not None:
+            self._trace.write(self._trace_line(sample, step))
+        self._pose.put(TimedPosition(tm=sample.tm, id=[], x=step.x, y=step.y, theta=step.theta, error=[]))
+
+    def on_localized_pose(self, pose: TimedPosition) -> None:
+        self.odometry.reset(pose.x, pose.y, pose.theta)
+        self.localization_resets += 1
+
+    def _trace_line(self, sample: TimedDoubleSeq, step: Step) -> bytes:
+        record = {"tm": sample.tm, **step._asdict(), "localization_resets": self.localization_resets}
+        return self._encoder.encode(record) + b"\n"
+
+    def status(self) -> dict[str, Any]:
+        pose = self.odometry.pose
+        v, omega = self.odometry.velocity
+        parameters = self.odometry.parameters
+        return {
+            "state": STATE_RUNNING if self.odometry.initialised else STATE_IDLE,
+            "pose": pose._asdict(),
+            "velocity": {"v": v, "omega": omega},
+            "last_wheel_angles_tm": self.last_tm,
+            "counters": {
+                "wheel_angle_samples": self.samples,
+                "localization_resets": self.localization_resets,
+                "branches": {str(branch): count for branch, count in self.branches.items()},
+            },
+            "parameters": {
+                **dataclasses.asdict(parameters),
+                "left_radius": parameters.left_radius,
+                "right_radius": parameters.right_radius,
+                "half_axle": parameters.half_axle,
+            },
+        }
+
+    def run(self, stop: threading.Event) -> int:
+        self.node.spin(stop)
+        return 0
+
+    def close(self) -> None:
+        if self._trace is not None:
+            self._trace.close()
+
+
+def open_trace(path: str) -> IO[bytes]:
+    """The trace file, unbuffered: each line is on disk once its pose is published."""
+    try:
+        return Path(path).open("wb", buffering=0)
+    except OSError as error:
+        raise ConfigError(f"--trace {path}: {error.strerror}") from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--trace",
+        metavar="FILE",
+        help="write one JSON line per wheel-angle sample (inputs, branch taken, pose) to FILE",
+    )
+
+
+COMMAND = ServiceCommand(
+    service=Service.ODOMETRY,
+    help="dead-reckoned pose from wheel angles, reset by localized poses",
+    description="The OdometryRTC port: integrates motor/wheel_angles into odometry/pose (one pose per "
+    "sample, stamped with the sample's tm); every localization/pose overwrites the pose the next step "
+    "starts from. Parameters: [robot] geometry and [odometry] in the robot description.",
+    add_arguments=add_arguments,
+    overrides=no_overrides,
+    factory=OdometryService,
+)

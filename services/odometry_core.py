@@ -1,0 +1,252 @@
+"""Dead reckoning from wheel angles: the OdometryRTC integration of SPEC section 5, pure.
+
+No zenoh here. :class:`Odometry` holds the state between samples (last wheel angles and time,
+last body speed, pose) and :meth:`Odometry.step` integrates one wheel-angle sample exactly as
+the SPEC writes it, with b = axle/2::
+
+    vL = r_L·(qL − qL_old)/Δt          vR = r_R·(qR − qR_old)/Δt
+    V  = (vR + vL)/2                   Ω  = (vR − vL)/(2b)
+    Δφ = Ω·Δt                          θ  = wrap(θ_old + Δφ)
+    if Δφ == 0:                      ΔL = (V + V_old)/2·Δt                 straight
+    else: ρ = b·(vR + vL)/(vR − vL)
+          if |ρ| > RhoBorder:        ΔL = (V + V_old)/2·Δt, ρ clamped      rho_border
+          elif |Δφ| < RotationAngleBorder: ΔL = ρ·Δφ                      small_angle
+          else:                      ΔL = 2ρ·sin(Δφ/2)                    chord
+    x = x_old + ΔL·cos(θ_old + Δφ/2)    y = y_old + ΔL·sin(θ_old + Δφ/2)
+
+The chord branch is exact for motion of constant curvature; the small-angle branch takes arc
+length for chord, a relative error of at most RotationAngleBorder²/24 (1.3e-5 at the default).
+
+The first sample only initialises (the robot is taken to be at rest: V_old = 0). A localized
+pose (:meth:`Odometry.reset`) overwrites (x_old, y_old, θ_old) before the next step. The hot
+path runs thousands of times a second: plain floats, no allocation beyond the returned step.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import NamedTuple
+
+from schemas.codec import BadInput
+from services.config import Config
+from services.planar import Pose, wrap_angle
+
+__all__ = ["Branch", "Odometry", "OdometryParameters", "Pose", "Step", "wrap_angle"]
+
+NANOSECONDS_PER_SECOND = 1e9
+
+
+class Branch(StrEnum):
+    """Which formula a step took for ΔL (names used in the trace and in ``status``)."""
+
+    INITIAL = "initial"
+    """The first sample: nothing integrated, the pose is the starting pose."""
+    STRAIGHT = "straight"
+    """Δφ == 0: trapezoid of V and V_old."""
+    RHO_BORDER = "rho_border"
+    """|ρ| > RhoBorder: as straight, ρ clamped to ±RhoBorder."""
+    SMALL_ANGLE = "small_angle"
+    """|Δφ| < RotationAngleBorder: arc length ρ·Δφ."""
+    CHORD = "chord"
+    """Otherwise: the exact chord 2ρ·sin(Δφ/2)."""
+
+
+class Step(NamedTuple):
+    """One integrated sample: its inputs, the intermediate values and the new pose.
+
+    ``rho`` is None where the SPEC computes no ρ (initial, straight); clamped to ±RhoBorder in
+    the rho_border branch. For the initial sample every rate and increment is 0.
+    """
+
+    branch: Branch
+    q_left: float
+    q_right: float
+    dt: float
+    v_left: float
+    v_right: float
+    v: float
+    omega: float
+    dphi: float
+    rho: float | None
+    dl: float
+    x: float
+    y: float
+    theta: float
+
+    @property
+    def pose(self) -> Pose:
+        return Pose(self.x, self.y, self.theta)
+
+
+@dataclass(frozen=True)
+class OdometryParameters:
+    """Everything the integration reads, locked at activation (SPEC section 3)."""
+
+    left_wheel_id: int
+    right_wheel_id: int
+    radius_of_left_wheel: float
+    radius_of_right_wheel: float
+    length_of_axle: float
+    rotation_angle_border: float
+    rho_border: float
+    left_radius_scale: float
+    right_radius_scale: float
+    axle_scale: float
+
+    @classmethod
+    def from_config(cls, config: Config) -> OdometryParameters:
+        robot, odometry = config.robot, config.odometry
+        return cls(
+            left_wheel_id=robot.left_wheel_id,
+            right_wheel_id=robot.right_wheel_id,
+            radius_of_left_wheel=robot.radius_of_left_wheel,
+            radius_of_right_wheel=robot.radius_of_right_wheel,
+            length_of_axle=robot.length_of_axle,
+            rotation_angle_border=odometry.rotation_angle_border,
+            rho_border=odometry.rho_border,
+            left_radius_scale=odometry.left_radius_scale,
+            right_radius_scale=odometry.right_radius_scale,
+            axle_scale=odometry.axle_scale,
+        )
+
+    @property
+    def left_radius(self) -> float:
+        """r_L used by the integration: the configured radius times its calibration multiplier."""
+        return self.radius_of_left_wheel * self.left_radius_scale
+
+    @property
+    def right_radius(self) -> float:
+        return self.radius_of_right_wheel * self.right_radius_scale
+
+    @property
+    def half_axle(self) -> float:
+        """b = calibrated axle length / 2."""
+        return self.length_of_axle * self.axle_scale / 2.0
+
+    @property
+    def wheel_angles_needed(self) -> int:
+        """The shortest wheel-angle sequence that holds both wheel ids."""
+        return max(self.left_wheel_id, self.right_wheel_id) + 1
+
+
+class Odometry:
+    """The integrator's state and its two inputs: wheel-angle samples and localized poses."""
+
+    __slots__ = (
+        "parameters",
+        "_left_id",
+        "_right_id",
+        "_needed",
+        "_r_left",
+        "_r_right",
+        "_b",
+        "_angle_border",
+        "_rho_border",
+        "_time_ns",
+        "_q_left",
+        "_q_right",
+        "_v",
+        "_omega",
+        "_x",
+        "_y",
+        "_theta",
+    )
+
+    def __init__(self, parameters: OdometryParameters, start: Pose = Pose(0.0, 0.0, 0.0)) -> None:
+        self.parameters = parameters
+        self._left_id = parameters.left_wheel_id
+        self._right_id = parameters.right_wheel_id
+        self._needed = parameters.wheel_angles_needed
+        self._r_left = parameters.left_radius
+        self._r_right = parameters.right_radius
+        self._b = parameters.half_axle
+        self._angle_border = parameters.rotation_angle_border
+        self._rho_border = parameters.rho_border
+        self._time_ns: int | None = None
+        self._q_left = self._q_right = 0.0
+        self._v = self._omega = 0.0
+        self._x, self._y, self._theta = 0.0, 0.0, 0.0
+        self.reset(*start)
+
+    @property
+    def initialised(self) -> bool:
+        """True once the first wheel-angle sample has arrived."""
+        return self._time_ns is not None
+
+    @property
+    def pose(self) -> Pose:
+        return Pose(self._x, self._y, self._theta)
+
+    @property
+    def velocity(self) -> tuple[float, float]:
+        """(V, Ω) of the last step, in m/s and rad/s; (0, 0) before any step."""
+        return self._v, self._omega
+
+    def reset(self, x: float, y: float, theta: float) -> Pose:
+        """Overwrite the pose with a localized one (θ wrapped); the next step starts from it."""
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
+            raise BadInput(f"pose ({x}, {y}, {theta}) is not finite")
+        self._x, self._y, self._theta = x, y, wrap_angle(theta)
+        return self.pose
+
+    def step(self, time_ns: int, wheel_angles: Sequence[float]) -> Step:
+        """Integrate one sample taken at ``time_ns`` (nanoseconds); the wheels are picked by id.
+
+        Raises BadInput (state unchanged) for a sequence too short for the wheel ids, a
+        non-finite angle, Δt <= 0, or a step whose result would not be finite.
+        """
+        if len(wheel_angles) < self._needed:
+            raise BadInput(
+                f"{len(wheel_angles)} wheel angles, wheel ids {self._left_id} and {self._right_id} "
+                f"need at least {self._needed}"
+            )
+        q_left = wheel_angles[self._left_id]
+        q_right = wheel_angles[self._right_id]
+        if not (math.isfinite(q_left) and math.isfinite(q_right)):
+            raise BadInput(f"wheel angles ({q_left}, {q_right}) are not finite")
+        if self._time_ns is None:
+            self._time_ns, self._q_left, self._q_right = time_ns, q_left, q_right
+            return Step(
+                Branch.INITIAL, q_left, q_right, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, None, 0.0, self._x, self._y, self._theta
+            )
+        elapsed_ns = time_ns - self._time_ns
+        if elapsed_ns <= 0:
+            raise BadInput(f"dt = {elapsed_ns / NANOSECONDS_PER_SECOND} s <= 0")
+        dt = elapsed_ns / NANOSECONDS_PER_SECOND
+        b = self._b
+        v_left = self._r_left * (q_left - self._q_left) / dt
+        v_right = self._r_right * (q_right - self._q_right) / dt
+        v = (v_right + v_left) / 2.0
+        omega = (v_right - v_left) / (2.0 * b)
+        dphi = omega * dt
+        if not (math.isfinite(v) and math.isfinite(dphi)):
+            raise BadInput(f"wheel angles ({q_left}, {q_right}) over dt = {dt} s give a non-finite speed")
+        theta_old = self._theta
+        rho: float | None
+        if dphi == 0.0:
+            branch, rho = Branch.STRAIGHT, None
+            dl = (v + self._v) / 2.0 * dt
+        else:
+            rho = b * (v_right + v_left) / (v_right - v_left)
+            if abs(rho) > self._rho_border:
+                branch, rho = Branch.RHO_BORDER, math.copysign(self._rho_border, rho)
+                dl = (v + self._v) / 2.0 * dt
+            elif abs(dphi) < self._angle_border:
+                branch = Branch.SMALL_ANGLE
+                dl = rho * dphi
+            else:
+                branch = Branch.CHORD
+                dl = 2.0 * rho * math.sin(dphi / 2.0)
+        heading = theta_old + dphi / 2.0
+        x = self._x + dl * math.cos(heading)
+        y = self._y + dl * math.sin(heading)
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise BadInput(f"wheel angles ({q_left}, {q_right}) over dt = {dt} s give a non-finite pose")
+        theta = wrap_angle(theta_old + dphi)
+        self._time_ns, self._q_left, self._q_right = time_ns, q_left, q_right
+        self._v, self._omega = v, omega
+        self._x, self._y, self._theta = x, y, theta
+        return Step(branch, q_left, q_right, dt, v_left, v_right, v, omega, dphi, rho, dl, x, y, theta)

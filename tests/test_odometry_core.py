@@ -1,0 +1,452 @@
+"""The odometry core (SPEC section 5) against hand-computed values and analytic motion."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from schemas.codec import BadInput
+from services.config import load_config
+from services.odometry_core import Branch, Odometry, OdometryParameters, Pose, Step, wrap_angle
+
+NS = 1_000_000_000
+SMALL_ANGLE_TOLERANCE_PER_METRE = 2e-5
+"""SPEC bound of the small-angle branch (arc length for chord): border²/24 = 1.3e-5 < 2e-5."""
+CHORD_TOLERANCE = 1e-9
+DEFAULT_BORDER = math.pi / 180.0
+
+
+def parameters(**overrides: float) -> OdometryParameters:
+    """Parameters from the robot description; ``overrides`` use dotted config keys with '__' for '.'."""
+    return OdometryParameters.from_config(
+        load_config(overrides={key.replace("__", "."): value for key, value in overrides.items()})
+    )
+
+
+def simple() -> OdometryParameters:
+    """r = 0.1 m both wheels, b = 0.2 m: easy numbers to compute by hand."""
+    return parameters(robot__length_of_axle=0.4)
+
+
+def angle_error(a: float, b: float) -> float:
+    return abs(wrap_angle(a - b))
+
+
+def analytic_pose(start: Pose, v: float, omega: float, duration: float) -> Pose:
+    """Exact pose after ``duration`` s at constant (v, omega): the chord in the mean heading.
+
+    Written with sin(h)/h so that it stays exact as omega -> 0 (no R = v/omega cancellation).
+    """
+    half = omega * duration / 2.0
+    chord = v * duration * (math.sin(half) / half if half != 0.0 else 1.0)
+    heading = start.theta + half
+    return Pose(
+        start.x + chord * math.cos(heading),
+        start.y + chord * math.sin(heading),
+        wrap_angle(start.theta + omega * duration),
+    )
+
+
+def body_velocity(p: OdometryParameters, left_rate: float, right_rate: float) -> tuple[float, float]:
+    """(V, Omega) of wheels turning at ``left_rate``, ``right_rate`` rad/s."""
+    v_left, v_right = p.left_radius * left_rate, p.right_radius * right_rate
+    return (v_right + v_left) / 2.0, (v_right - v_left) / (2.0 * p.half_axle)
+
+
+def drive(
+    odometry: Odometry, start: Pose, left_rate: float, right_rate: float, duration_ns: int, steps: int
+) -> list[Step]:
+    """Constant wheel rates for ``duration_ns`` in ``steps`` samples, from ``start``, in steady motion.
+
+    A warm-up step at the same rates first (then a reset to ``start``) makes V_old = V, as for
+    a robot already moving: the straight branch's trapezoid then integrates exactly.
+    """
+    warm_up_ns = NS
+    odometry.step(0, [-left_rate, -right_rate])
+    odometry.step(warm_up_ns, [0.0, 0.0])
+    odometry.reset(*start)
+    taken = []
+    for k in range(1, steps + 1):
+        elapsed_ns = k * duration_ns // steps
+        seconds = elapsed_ns / NS
+        taken.append(odometry.step(warm_up_ns + elapsed_ns, [left_rate * seconds, right_rate * seconds]))
+    return taken
+
+
+def assert_pose_close(actual: Pose, expected: Pose, tolerance: float) -> None:
+    distance = math.hypot(actual.x - expected.x, actual.y - expected.y)
+    assert distance <= tolerance, f"{actual} is {distance} m from {expected} (tolerance {tolerance})"
+    assert angle_error(actual.theta, expected.theta) <= 1e-9, f"{actual} heading differs from {expected}"
+
+
+# --- wrap ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("angle", "wrapped"),
+    [
+        (0.0, 0.0),
+        (1.0, 1.0),
+        (-1.0, -1.0),
+        (math.pi, math.pi),
+        (-math.pi, math.pi),
+        (3.0 * math.pi, math.pi),
+        (-1.5 * math.pi, 0.5 * math.pi),
+        (2.0 * math.pi + 0.25, 0.25),
+        (-2.0 * math.pi - 0.25, -0.25),
+    ],
+)
+def test_wrap_angle_maps_into_half_open_interval(angle: float, wrapped: float) -> None:
+    assert wrap_angle(angle) == pytest.approx(wrapped, abs=1e-12)
+
+
+@given(st.floats(min_value=-1e6, max_value=1e6))
+def test_wrap_angle_keeps_direction_and_lands_in_interval(angle: float) -> None:
+    wrapped = wrap_angle(angle)
+    assert -math.pi < wrapped <= math.pi
+    assert math.cos(wrapped) == pytest.approx(math.cos(angle), abs=1e-9)
+    assert math.sin(wrapped) == pytest.approx(math.sin(angle), abs=1e-9)
+
+
+# --- parameters ------------------------------------------------------------------------------------
+
+
+def test_parameters_come_from_the_robot_description_with_calibration() -> None:
+    p = parameters(
+        robot__radius_of_left_wheel=0.2,
+        robot__radius_of_right_wheel=0.3,
+        robot__length_of_axle=0.5,
+        odometry__left_radius_scale=1.5,
+        odometry__right_radius_scale=0.5,
+        odometry__axle_scale=2.0,
+    )
+    assert (p.left_radius, p.right_radius, p.half_axle) == pytest.approx((0.3, 0.15, 0.5))
+
+
+def test_default_parameters_are_the_seeds() -> None:
+    p = parameters()
+    assert (p.left_wheel_id, p.right_wheel_id) == (0, 1)
+    assert (p.left_radius, p.right_radius, p.half_axle) == (0.1, 0.1, 0.2205)
+    assert p.rotation_angle_border == DEFAULT_BORDER
+    assert p.rho_border == 10000.0
+
+
+# --- first sample, hand-computed steps ---------------------------------------------------------
+
+
+def test_first_sample_initialises_and_reports_the_starting_pose() -> None:
+    odometry = Odometry(simple())
+    assert not odometry.initialised
+    first = odometry.step(5 * NS, [3.0, 7.0])
+    assert first.branch is Branch.INITIAL
+    assert first.pose == Pose(0.0, 0.0, 0.0)
+    assert odometry.initialised
+    assert odometry.velocity == (0.0, 0.0)
+    # The angles of the first sample are the reference: no motion yet, so nothing moves.
+    assert odometry.step(6 * NS, [3.0, 7.0]).pose == Pose(0.0, 0.0, 0.0)
+
+
+def test_localized_pose_before_the_first_sample_is_the_starting_pose() -> None:
+    odometry = Odometry(simple())
+    odometry.reset(1.0, -2.0, 0.5)
+    assert odometry.step(0, [0.0, 0.0]).pose == Pose(1.0, -2.0, 0.5)
+
+
+def test_chord_step_by_hand() -> None:
+    # r = 0.1, b = 0.2, dt = 0.1: vL = 1, vR = 3, V = 2, Omega = 5, dphi = 0.5, rho = 0.4.
+    odometry = Odometry(simple())
+    odometry.step(0, [0.0, 0.0])
+    step = odometry.step(NS // 10, [1.0, 3.0])
+    assert step.branch is Branch.CHORD
+    assert (step.dt, step.v_left, step.v_right, step.v, step.omega) == pytest.approx((0.1, 1.0, 3.0, 2.0, 5.0))
+    assert (step.dphi, step.rho) == pytest.approx((0.5, 0.4))
+    chord = 2 * 0.4 * math.sin(0.25)
+    assert step.dl == pytest.approx(chord)
+    assert step.pose == pytest.approx((chord * math.cos(0.25), chord * math.sin(0.25), 0.5))
+    assert odometry.velocity == pytest.approx((2.0, 5.0))
+
+
+def test_small_angle_step_by_hand() -> None:
+    # dt = 1: vL = 0.1, vR = 0.101, Omega = 0.0025 rad/s, dphi = 0.0025 < pi/180, rho = 40.2.
+    odometry = Odometry(simple())
+    odometry.step(0, [0.0, 0.0])
+    step = odometry.step(NS, [1.0, 1.01])
+    assert step.branch is Branch.SMALL_ANGLE
+    assert (step.dphi, step.rho) == pytest.approx((0.0025, 40.2))
+    assert step.dl == pytest.approx(40.2 * 0.0025)
+    assert step.pose == pytest.approx((0.1005 * math.cos(0.00125), 0.1005 * math.sin(0.00125), 0.0025))
+
+
+def test_straight_step_is_the_trapezoid_of_v_and_v_old() -> None:
+    odometry = Odometry(simple())
+    odometry.step(0, [0.0, 0.0])
+    first = odometry.step(NS, [2.0, 2.0])  # V = 0.2, V_old = 0 (at rest before)
+    assert first.branch is Branch.STRAIGHT
+    assert first.rho is None
+    assert first.dl == pytest.approx(0.1)
+    second = odometry.step(2 * NS, [6.0, 6.0])  # V = 0.4, V_old = 0.2
+    assert second.dl == pytest.approx(0.3)
+    assert second.pose == pytest.approx((0.4, 0.0, 0.0))
+
+
+def test_wheels_are_picked_by_their_ids() -> None:
+    odometry = Odometry(parameters(robot__left_wheel_id=2, robot__right_wheel_id=0, robot__length_of_axle=0.4))
+    odometry.step(0, [0.0, 99.0, 0.0])
+    step = odometry.step(NS // 10, [3.0, -50.0, 1.0])  # left = data[2] = 1, right = data[0] = 3
+    assert (step.q_left, step.q_right) == (1.0, 3.0)
+    assert (step.v_left, step.v_right) == pytest.approx((1.0, 3.0))
+
+
+def test_calibration_multipliers_scale_radii_and_axle() -> None:
+    odometry = Odometry(
+        parameters(
+            robot__length_of_axle=0.4,
+            odometry__left_radius_scale=2.0,
+            odometry__right_radius_scale=0.5,
+            odometry__axle_scale=1.25,
+        )
+    )
+    odometry.step(0, [0.0, 0.0])
+    step = odometry.step(NS, [1.0, 4.0])
+    # r_L = 0.2, r_R = 0.05, b = 0.25: vL = vR = 0.2, so straight; V = 0.2.
+    assert (step.v_left, step.v_right, step.omega) == pytest.approx((0.2, 0.2, 0.0))
+    spin = odometry.step(2 * NS, [0.0, 8.0])  # vL = -0.2, vR = 0.2: Omega = 0.4 / 0.5
+    assert spin.omega == pytest.approx(0.8)
+
+
+# --- analytic motion -------------------------------------------------------------------------------
+
+
+def test_straight_line_from_rest_loses_half_a_first_step() -> None:
+    odometry = Odometry(simple())
+    odometry.step(0, [0.0, 0.0])
+    dt_ns, rate = NS // 100, 2.0  # V = 0.2 m/s
+    for k in range(1, 101):
+        step = odometry.step(k * dt_ns, [rate * k / 100, rate * k / 100])
+        assert step.branch is Branch.STRAIGHT
+    # The trapezoid with V_old = 0 on the first step: x = V (T - dt/2).
+    assert odometry.pose == pytest.approx((0.2 * (1.0 - 0.005), 0.0, 0.0), abs=1e-12)
+
+
+def test_straight_line_in_steady_motion_is_exact() -> None:
+    start = Pose(1.0, 2.0, 0.7)
+    steps = drive(Odometry(simple()), start, 3.0, 3.0, 2 * NS, 200)
+    assert {s.branch for s in steps} == {Branch.STRAIGHT}
+    assert_pose_close(steps[-1].pose, analytic_pose(start, 0.3, 0.0, 2.0), 1e-12)
+
+
+def test_arc_in_small_angle_steps_is_within_the_arc_length_bound() -> None:
+    p = simple()
+    left, right = 4.0, 5.0  # V = 0.45 m/s, Omega = 0.25 rad/s, rho = 1.8 m
+    v, omega = body_velocity(p, left, right)
+    duration = 10.0
+    steps = drive(Odometry(p), Pose(0.0, 0.0, 0.0), left, right, int(duration * NS), 500)
+    assert {s.branch for s in steps} == {Branch.SMALL_ANGLE}
+    assert_pose_close(steps[-1].pose, analytic_pose(Pose(0, 0, 0), v, omega, duration),
+                      SMALL_ANGLE_TOLERANCE_PER_METRE * v * duration)
+
+
+def test_arc_in_chord_steps_is_exact() -> None:
+    p = simple()
+    left, right = 2.0, 8.0  # V = 0.5 m/s, Omega = 1.5 rad/s: 0.03 rad (> pi/180) per 20 ms step
+    v, omega = body_velocity(p, left, right)
+    start = Pose(-1.0, 0.5, 3.0)
+    steps = drive(Odometry(p), start, left, right, 5 * NS, 250)
+    assert {s.branch for s in steps} == {Branch.CHORD}
+    assert_pose_close(steps[-1].pose, analytic_pose(start, v, omega, 5.0), CHORD_TOLERANCE)
+
+
+def test_spin_in_place_turns_without_moving_and_wraps() -> None:
+    p = simple()
+    odometry = Odometry(p)
+    steps = drive(odometry, Pose(0.5, 0.5, 0.0), -4.0, 4.0, 3 * NS, 300)  # Omega = 2 rad/s for 3 s
+    assert {s.rho for s in steps} == {0.0}
+    assert odometry.pose.x == 0.5 and odometry.pose.y == 0.5
+    assert odometry.pose.theta == pytest.approx(6.0 - 2 * math.pi, abs=1e-9)
+
+
+def test_reverse_straight_and_reverse_arc() -> None:
+    p = simple()
+    straight = drive(Odometry(p), Pose(0.0, 0.0, 0.0), -2.0, -2.0, NS, 100)
+    assert_pose_close(straight[-1].pose, Pose(-0.2, 0.0, 0.0), 1e-12)
+    left, right = -2.0, -8.0
+    v, omega = body_velocity(p, left, right)
+    assert v < 0
+    start = Pose(0.0, 0.0, 0.3)
+    arc = drive(Odometry(p), start, left, right, 4 * NS, 200)
+    assert {s.branch for s in arc} == {Branch.CHORD}
+    assert_pose_close(arc[-1].pose, analytic_pose(start, v, omega, 4.0), CHORD_TOLERANCE)
+
+
+# --- branch boundaries -----------------------------------------------------------------------------
+
+
+def step_with(p: OdometryParameters, dphi: float, rho: float, dt: float = 0.01) -> Step:
+    """One step (after a first sample) whose wheel increments give ``dphi`` and ``rho``."""
+    b = p.half_axle
+    difference = 2.0 * b * dphi / dt  # vR - vL
+    total = rho * difference / b  # vR + vL
+    v_left, v_right = (total - difference) / 2.0, (total + difference) / 2.0
+    odometry = Odometry(p)
+    odometry.step(0, [0.0, 0.0])
+    return odometry.step(round(dt * NS), [v_left * dt / p.left_radius, v_right * dt / p.right_radius])
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_dphi_just_under_the_border_takes_arc_length(sign: float) -> None:
+    step = step_with(simple(), sign * DEFAULT_BORDER * (1 - 1e-6), rho=2.0)
+    assert abs(step.dphi) < DEFAULT_BORDER
+    assert step.branch is Branch.SMALL_ANGLE
+    assert step.dl == pytest.approx(step.rho * step.dphi, rel=1e-15)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_dphi_just_over_the_border_takes_the_chord(sign: float) -> None:
+    step = step_with(simple(), sign * DEFAULT_BORDER * (1 + 1e-6), rho=2.0)
+    assert abs(step.dphi) > DEFAULT_BORDER
+    assert step.branch is Branch.CHORD
+    assert step.dl == pytest.approx(2 * step.rho * math.sin(step.dphi / 2), rel=1e-15)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_rho_just_under_the_border_integrates_the_arc(sign: float) -> None:
+    step = step_with(simple(), 1e-6, rho=sign * 10000.0 * (1 - 1e-6))
+    assert abs(step.rho) < 10000.0
+    assert step.branch is Branch.SMALL_ANGLE
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_rho_just_over_the_border_is_clamped_and_integrates_straight(sign: float) -> None:
+    step = step_with(simple(), 1e-6, rho=sign * 10000.0 * (1 + 1e-6))
+    assert step.branch is Branch.RHO_BORDER
+    assert step.rho == sign * 10000.0
+    assert step.dl == pytest.approx(step.v / 2 * step.dt, rel=1e-15)  # (V + V_old)/2 dt, V_old = 0
+    assert step.theta == pytest.approx(step.dphi)  # the heading still turns
+
+
+def test_borders_come_from_the_parameters() -> None:
+    p = parameters(robot__length_of_axle=0.4, odometry__rotation_angle_border=0.1, odometry__rho_border=5.0)
+    assert step_with(p, 0.09, rho=2.0).branch is Branch.SMALL_ANGLE
+    assert step_with(p, 0.11, rho=2.0).branch is Branch.CHORD
+    assert step_with(p, 0.05, rho=5.1).branch is Branch.RHO_BORDER
+
+
+# --- localization reset ----------------------------------------------------------------------------
+
+
+def test_localized_pose_overwrites_the_pose_before_the_next_step() -> None:
+    p = simple()
+    odometry = Odometry(p)
+    odometry.step(0, [0.0, 0.0])
+    odometry.step(NS // 10, [1.0, 3.0])
+    assert odometry.reset(5.0, -1.0, 3.0 * math.pi) == Pose(5.0, -1.0, math.pi)
+    assert odometry.pose == Pose(5.0, -1.0, math.pi)
+    step = odometry.step(2 * NS // 10, [2.0, 6.0])  # the same chord step as the first one
+    v, omega = body_velocity(p, 10.0, 30.0)
+    assert_pose_close(step.pose, analytic_pose(Pose(5.0, -1.0, math.pi), v, omega, 0.1), CHORD_TOLERANCE)
+
+
+def test_localized_pose_must_be_finite() -> None:
+    odometry = Odometry(simple())
+    for bad in [(math.nan, 0.0, 0.0), (0.0, math.inf, 0.0), (0.0, 0.0, -math.inf)]:
+        with pytest.raises(BadInput, match="not finite"):
+            odometry.reset(*bad)
+    assert odometry.pose == Pose(0.0, 0.0, 0.0)
+
+
+# --- bad input leaves the state unchanged ----------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("time_ns", "angles", "reason"),
+    [
+        (NS, [5.0, 5.0], "dt = 0.0 s <= 0"),
+        (NS // 2, [5.0, 5.0], "dt = -0.5 s <= 0"),
+        (2 * NS, [5.0], "need at least 2"),
+        (2 * NS, [], "need at least 2"),
+        (2 * NS, [math.nan, 1.0], "not finite"),
+        (2 * NS, [1.0, math.inf], "not finite"),
+        (NS + 1, [1e308, -1e308], "non-finite speed"),
+    ],
+)
+def test_bad_sample_is_rejected_and_changes_nothing(time_ns: int, angles: list[float], reason: str) -> None:
+    p = simple()
+    odometry, reference = Odometry(p), Odometry(p)
+    for o in (odometry, reference):
+        o.step(0, [0.0, 0.0])
+        o.step(NS, [1.0, 3.0])
+    with pytest.raises(BadInput, match=reason):
+        odometry.step(time_ns, angles)
+    assert odometry.step(3 * NS, [2.0, 5.0]) == reference.step(3 * NS, [2.0, 5.0])
+
+
+def test_short_sample_for_high_wheel_ids_is_rejected() -> None:
+    odometry = Odometry(parameters(robot__left_wheel_id=4, robot__right_wheel_id=1))
+    with pytest.raises(BadInput, match="4 wheel angles, wheel ids 4 and 1 need at least 5"):
+        odometry.step(0, [0.0] * 4)
+    assert not odometry.initialised
+
+
+# --- properties ------------------------------------------------------------------------------------
+
+wheel_rates = st.floats(min_value=-20.0, max_value=20.0, allow_subnormal=False)
+coordinates = st.floats(min_value=-100.0, max_value=100.0)
+headings = st.floats(min_value=-math.pi, max_value=math.pi)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    left=wheel_rates,
+    right=wheel_rates,
+    duration_ms=st.integers(min_value=10, max_value=5000),
+    steps=st.integers(min_value=2, max_value=300),
+    start=st.builds(Pose, coordinates, coordinates, headings),
+    geometry=st.tuples(
+        st.floats(min_value=0.03, max_value=0.5), st.floats(min_value=0.03, max_value=0.5),
+        st.floats(min_value=0.1, max_value=1.0),
+    ),
+)
+def test_constant_curvature_in_n_steps_or_one_lands_on_the_same_pose(
+    left: float, right: float, duration_ms: int, steps: int, start: Pose, geometry: tuple[float, float, float]
+) -> None:
+    p = parameters(
+        robot__radius_of_left_wheel=geometry[0], robot__radius_of_right_wheel=geometry[1],
+        robot__length_of_axle=geometry[2],
+    )
+    v, omega = body_velocity(p, left, right)
+    duration_ns = duration_ms * 1_000_000
+    travelled = abs(v) * duration_ms / 1000
+    tolerance = SMALL_ANGLE_TOLERANCE_PER_METRE * travelled + CHORD_TOLERANCE
+    expected = analytic_pose(start, v, omega, duration_ns / NS)
+    many = drive(Odometry(p), start, left, right, duration_ns, steps)[-1].pose
+    one = drive(Odometry(p), start, left, right, duration_ns, 1)[-1].pose
+    assert_pose_close(many, expected, tolerance)
+    assert_pose_close(one, expected, tolerance)
+    assert_pose_close(many, one, tolerance)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.one_of(
+            st.tuples(st.just("step"), st.integers(1, 10**9), st.floats(-50, 50), st.floats(-50, 50)),
+            st.tuples(st.just("reset"), coordinates, coordinates, st.floats(-1e4, 1e4)),
+        ),
+        max_size=60,
+    )
+)
+def test_heading_is_always_in_the_half_open_interval(events: list[tuple]) -> None:
+    odometry = Odometry(simple())
+    time_ns, q_left, q_right = 0, 0.0, 0.0
+    odometry.step(time_ns, [q_left, q_right])
+    for kind, a, b, c in events:
+        if kind == "reset":
+            odometry.reset(a, b, c)
+        else:
+            time_ns, q_left, q_right = time_ns + a, q_left + b, q_right + c
+            step = odometry.step(time_ns, [q_left, q_right])
+            assert -math.pi < step.theta <= math.pi
+        assert -math.pi < odometry.pose.theta <= math.pi
