@@ -19,6 +19,8 @@ from services.service import ServiceCommand, config_from_args, run_service
 EXIT_CONFIG = 2
 
 SERVICE_MODULES = (
+    "services.motor",
+    "services.odometry",
     "services.odometry",
 )
 """Modules that each define ``COMMAND: ServiceCommand``; one ``invent <service>`` subcommand each."""

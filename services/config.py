@@ -55,17 +55,30 @@ class RobotConfig(_Section):
         return self.length_of_axle / 2.0
 
 
+TargetAngleMode = Literal["seed", "integrated"]
+"""``seed``: q_ref restarts from the measured angle each cycle (SPEC 4 step 3); ``integrated``:
+q_ref accumulates from the previous target angle, so the P term corrects drift (docs/motor.md)."""
+
+
 class MotorConfig(_Section):
     p_gain_l: NonNegative = 5.0
+    """P gain of the left wheel (the seed's PGainL); changeable at run time with set_pd_gain."""
     p_gain_r: NonNegative = 5.0
+    """P gain of the right wheel (PGainR)."""
     d_gain_l: NonNegative = 2.0
+    """D gain of the left wheel (DGainL)."""
     d_gain_r: NonNegative = 2.0
+    """D gain of the right wheel (DGainR)."""
     simulated_offset_x: float = 0.0
+    """m, model origin -> axle centre along the model's x (SimulatedOffsetX); locked at start."""
     simulated_offset_y: float = 0.0
+    """m, model origin -> axle centre along the model's y (SimulatedOffsetY; RH0: 0.045795)."""
     simulated_offset_angle: float = 0.0
+    """rad, heading of the model's zero direction from +x (SimulatedOffsetAngle; RH0: 1.5708)."""
     command_timeout: NonNegative = 0.5
     """Seconds of wheel-angle time without a target velocity before braking to zero; 0 disables."""
-    target_angle: Literal["seed", "integrated"] = "seed"
+    target_angle: TargetAngleMode = "seed"
+    """How the target wheel angle is formed (see TargetAngleMode)."""
     max_vx: Positive | None = None
     """Limit on |vx| in m/s; None (default) = no limit, the seed's behaviour."""
     max_ax: Positive | None = None
@@ -78,44 +91,68 @@ class MotorConfig(_Section):
 
 class OdometryConfig(_Section):
     rotation_angle_border: Positive = math.pi / 180.0
+    """|dphi| below which a step takes arc length for chord (the seed's RotationAngleBorder), rad."""
     rho_border: Positive = 10000.0
+    """|rho| above which a step integrates as straight, rho clamped (the seed's RhoBorder), m."""
     left_radius_scale: Positive = 1.0
     """Calibration multiplier on the left wheel radius (SPEC 9.6: 1.0 = no calibration)."""
     right_radius_scale: Positive = 1.0
+    """Calibration multiplier on the right wheel radius (1.0 = no calibration)."""
     axle_scale: Positive = 1.0
+    """Calibration multiplier on the axle length (1.0 = no calibration)."""
+
+
+SimMode = Literal["lockstep", "realtime"]
+"""``lockstep``: every step waits for its torque; ``realtime``: steps paced to the wall clock (SPEC 6)."""
 
 
 class SimConfig(_Section):
-    mode: Literal["lockstep", "realtime"] = "lockstep"
+    mode: SimMode = "lockstep"
     step: Positive = 0.001
     """Simulated seconds per physics step."""
     lockstep_timeout: Positive = 0.5
     """Wall seconds a lockstep step waits for its torque before applying zero and going on."""
     realtime_factor: Positive = 1.0
     """Realtime mode: simulated seconds per wall second."""
+    torque_max_age: Positive = 0.01
+    """Realtime mode: simulated seconds after which the newest torque is stale (zero is applied)."""
     world: str | None = None
-    """World file (TOML); None = an empty floor."""
+    """World file (TOML) or built-in world name (sim_bridge/worlds/); None = an empty floor."""
     body_mass: Positive = 20.0
+    """kg; the body's centre of mass sits on the axle centre."""
     body_height: Positive = 0.15
+    """m; the body is a cylinder of radius robot.radius_of_body_area whose bottom is at axle height."""
     wheel_mass: Positive = 1.0
+    """kg, each drive wheel."""
     wheel_width: Positive = 0.04
+    """m, each drive wheel."""
     caster_mass: Positive = 0.5
+    """kg, each of the two frictionless casters (front and rear)."""
     max_wheel_torque: Positive = 20.0
     """Motor torque limit in N·m; commanded torques are saturated to ±this."""
     wheel_friction: Positive = 1.0
+    """Lateral friction coefficient of the drive wheels."""
+    bump_release: Positive = 0.05
+    """Simulated seconds without contact before touching the same obstacle again is a new bump."""
 
 
 class LocalizationConfig(_Section):
     initial_x: float = 0.0
+    """Initial pose published before the first fix: x in m."""
     initial_y: float = 0.0
+    """Initial pose: y in m."""
     initial_theta: float = 0.0
+    """Initial pose: heading in rad."""
     rate: Positive = 1.0
     """Fixes per second of simulation time."""
     noise_x: NonNegative = 0.0
+    """Standard deviation of the Gaussian noise added to a fix's x, in m (0 = exact)."""
     noise_y: NonNegative = 0.0
+    """Standard deviation of the noise on y, in m."""
     noise_theta: NonNegative = 0.0
-    seed: int | None = None
-    """Random seed for the noise; None draws one from the OS."""
+    """Standard deviation of the noise on theta, in rad."""
+    seed: Annotated[int, msgspec.Meta(ge=0)] | None = None
+    """Random seed for the noise (>= 0); None draws one from the OS (shown in status)."""
 
 
 class DriveConfig(_Section):
@@ -128,9 +165,16 @@ class DriveConfig(_Section):
     lookahead: Positive = 0.25
     """Pure pursuit lookahead distance in m."""
     goal_tolerance: Positive = 0.02
-    """Distance in m at which the last waypoint counts as reached."""
+    """Distance in m at which a waypoint counts as reached (passing it along the path counts too)."""
     turn_in_place_angle: Positive = math.radians(45.0)
-    """Heading error above which the follower stops and turns in place."""
+    """Heading error above which the follower stops and turns in place (also: a corner sharper
+    than this is a stop)."""
+    heading_tolerance: Positive = math.radians(2.0)
+    """Heading error below which a turn in place ends and the follower drives on."""
+    max_acceleration: Positive = 0.5
+    """Path follower limit on the rate of change of vx in m/s^2 (a step in wheel speed slips)."""
+    max_angular_acceleration: Positive = 2.0
+    """Path follower limit on the rate of change of w in rad/s^2."""
 
 
 class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):

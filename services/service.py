@@ -63,7 +63,7 @@ def config_from_args(command: ServiceCommand | None, args: argparse.Namespace) -
         overrides[".".join(path)] = value
     overrides["robot.name"] = args.robot
     if command is not None:
-        overrides.update(command.overrides(args))
+        overrides.update({key: value for key, value in command.overrides(args).items() if value is not None})
     return load_config(args.config, overrides)
 
 

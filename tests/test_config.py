@@ -119,3 +119,13 @@ def test_cli_exits_2_on_an_invalid_file(tmp_path):
     assert result.returncode == 2 and str(path) in result.stderr
     result = run_invent("config", "--config", str(tmp_path / "missing.toml"))
     assert result.returncode == 2 and "No such file" in result.stderr
+
+
+def test_an_unset_service_flag_keeps_the_set_override():
+    from services.cli import build_parser
+    from services.service import config_from_args
+
+    args = build_parser().parse_args(["motor", "--set", "motor.command_timeout=2.5"])
+    assert config_from_args(args.service_command, args).motor.command_timeout == 2.5
+    args = build_parser().parse_args(["motor", "--set", "motor.command_timeout=2.5", "--command-timeout", "1"])
+    assert config_from_args(args.service_command, args).motor.command_timeout == 1.0

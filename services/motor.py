@@ -1,0 +1,208 @@
+"""``invent motor``: MotorControl over zenoh (SPEC section 4), a thin shell around MotorCore.
+
+Every ``sim/wheel_angles`` sample gets exactly one ``motor/torque`` with the sample's own
+``tm``, then ``motor/wheel_angles`` (the input, same ``tm``). A wheel-angle sample that is bad
+input (undecodable, a wheel id out of range, dt <= 0) is dropped and gets no torque.
+Every ``sim/body_pose`` becomes ``motor/sim_pose/gui`` and ``motor/sim_pose/localization``.
+The Motor interface answers on ``motor/gui/<method>`` and ``motor/bump/<method>``.
+See docs/motor.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import threading
+import typing
+from functools import partial
+from typing import Any, BinaryIO
+
+import msgspec
+
+from schemas.codec import BadInput, decode
+from schemas.keys import METHOD_ARGUMENTS, Method, MethodFamily, Service
+from schemas.messages import NoArguments, PDGains, Time, TimedDoubleSeq, TimedVelocity
+from services.config import Config, ConfigError, TargetAngleMode
+from services.motor_core import MotorCore
+from services.runtime import Node
+from services.service import ServiceCommand
+
+
+class TraceRecord(msgspec.Struct, frozen=True):
+    """One control cycle: one line of ``--trace FILE``.
+
+    ``state`` is the state the cycle was computed in; ``target`` the last accepted target
+    (vx, w); ``command`` the (vx, w) controlled towards after stop, timeout and limits;
+    ``dq``, ``dq_ref``, ``q_ref`` are (left, right) or null when the cycle computed none
+    (first sample, ``idle``, ``finished``).
+    """
+
+    tm: Time
+    state: str
+    angles: list[float]
+    q: tuple[float, float]
+    dq: tuple[float, float] | None
+    target: tuple[float, float]
+    command: tuple[float, float]
+    dq_ref: tuple[float, float] | None
+    q_ref: tuple[float, float] | None
+    gains: PDGains
+    torque: list[float]
+
+
+class MotorService:
+    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+        self.node = node
+        self.core = MotorCore(config.robot, config.motor)
+        self.torques_published = 0
+        self._timeouts_logged = 0
+        self._trace_path: str | None = args.trace
+        self._trace: BinaryIO | None = None
+        if args.trace:
+            try:
+                self._trace = open(args.trace, "wb")  # noqa: SIM115 - closed in close()
+            except OSError as error:
+                raise ConfigError(f"--trace {args.trace}: {error.strerror}") from None
+        self._trace_encoder = msgspec.json.Encoder()
+
+        keys = node.keys
+        self._torque = node.publisher(keys.motor_torque)
+        self._wheel_angles = node.publisher(keys.motor_wheel_angles)
+        self._sim_pose_gui = node.publisher(keys.motor_sim_pose_gui)
+        self._sim_pose_localization = node.publisher(keys.motor_sim_pose_localization)
+        node.subscribe(keys.sim_wheel_angles, TimedDoubleSeq, self._on_wheel_angles)
+        node.subscribe(keys.sim_body_pose, TimedDoubleSeq, self._on_body_pose)
+        node.subscribe(keys.drive_target_velocity, TimedVelocity, self._on_target_velocity)
+        for family in MethodFamily:
+            for method in Method:
+                node.queryable(keys.method(family, method), partial(self._call, family, method))
+        node.set_status(self.status)
+        node.log.info(
+            "motor control: target_angle %s, command_timeout %g s, wheel ids %d/%d",
+            config.motor.target_angle,
+            config.motor.command_timeout,
+            config.robot.left_wheel_id,
+            config.robot.right_wheel_id,
+        )
+
+    def _on_wheel_angles(self, angles: TimedDoubleSeq) -> None:
+        tm = angles.tm
+        core = self.core
+        torques = core.step(tm.to_nanoseconds(), angles.data)
+        self._torque.put(TimedDoubleSeq(tm, torques))
+        self._wheel_angles.put(angles)
+        self.torques_published += 1
+        trace = self._trace
+        if trace is not None:
+            trace.write(self._trace_line(angles, torques))
+        if core.command_timeouts != self._timeouts_logged:
+            self._timeouts_logged = core.command_timeouts
+            self.node.log.warning(
+                "no %s for %g s of wheel-angle time: braking to zero until one arrives",
+                self.node.keys.drive_target_velocity,
+                core.motor.command_timeout,
+            )
+
+    def _trace_line(self, angles: TimedDoubleSeq, torques: list[float]) -> bytes:
+        core = self.core
+        record = TraceRecord(
+            tm=angles.tm,
+            state=core.cycle_state,
+            angles=angles.data,
+            q=core.q,
+            dq=core.dq,
+            target=core.target,
+            command=core.command,
+            dq_ref=core.dq_ref,
+            q_ref=core.q_ref,
+            gains=core.gains,
+            torque=torques,
+        )
+        return self._trace_encoder.encode(record) + b"\n"
+
+    def _on_body_pose(self, pose: TimedDoubleSeq) -> None:
+        sim_pose = TimedDoubleSeq(pose.tm, self.core.sim_pose(pose.data))
+        self._sim_pose_gui.put(sim_pose)
+        self._sim_pose_localization.put(sim_pose)
+
+    def _on_target_velocity(self, velocity: TimedVelocity) -> None:
+        if not self.core.set_target(velocity.vx, velocity.w):
+            self.node.log.debug("stopped: target velocity ignored until clear")
+
+    def _call(self, family: MethodFamily, method: Method, payload: bytes) -> dict[str, Any]:
+        arguments = _decode_arguments(method, payload)
+        core = self.core
+        if method is Method.SET_PD_GAIN:
+            core.set_pd_gain(typing.cast(PDGains, arguments))
+        elif method is Method.START:
+            core.start()
+        elif method is Method.FINISH:
+            core.finish()
+        elif method is Method.STOP:
+            core.stop()
+        elif method is Method.CLEAR:
+            core.clear()
+            self.node.bad_inputs.reset()
+        level = logging.WARNING if method is Method.STOP else logging.INFO
+        self.node.log.log(level, "%s/%s: state %s", family, method, core.state)
+        return self.node.status()
+
+    def status(self) -> dict[str, Any]:
+        return {**self.core.status(), "torques_published": self.torques_published, "trace": self._trace_path}
+
+    def run(self, stop: threading.Event) -> int:
+        self.node.spin(stop)
+        return 0
+
+    def close(self) -> None:
+        if self._trace is not None:
+            self._trace.close()
+            self._trace = None
+
+
+def _decode_arguments(method: Method, payload: bytes) -> msgspec.Struct:
+    """The method's arguments; an empty payload stands for ``{}`` for the argument-less methods."""
+    argument_type = METHOD_ARGUMENTS[method]
+    if argument_type is NoArguments and not payload.strip():
+        return NoArguments()
+    try:
+        return decode(argument_type, payload)
+    except BadInput as error:
+        raise BadInput(f"{method}: {error}") from None
+
+
+def _add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--trace", metavar="FILE", help="write one JSON line per control cycle (inputs, targets, torques, state)"
+    )
+    parser.add_argument(
+        "--target-angle",
+        choices=typing.get_args(TargetAngleMode),
+        help="how the target wheel angle is formed (sets motor.target_angle; see docs/motor.md)",
+    )
+    parser.add_argument(
+        "--command-timeout",
+        type=float,
+        metavar="S",
+        help="seconds of wheel-angle time without a target velocity before braking; 0 disables "
+        "(sets motor.command_timeout)",
+    )
+
+
+def _overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """Only the flags given: an unset flag must not mask the same key set with --set."""
+    flags = {"motor.target_angle": args.target_angle, "motor.command_timeout": args.command_timeout}
+    return {key: value for key, value in flags.items() if value is not None}
+
+
+COMMAND = ServiceCommand(
+    service=Service.MOTOR,
+    help="PD wheel-torque control from a target velocity (MotorControlRTC)",
+    description="MotorControl: answers every sim/wheel_angles sample with one motor/torque (PD control "
+    "towards drive/target_velocity) and passes the angles on to odometry; turns sim/body_pose into "
+    "motor/sim_pose/*; serves the Motor interface on motor/gui/<method> and motor/bump/<method> "
+    "(set_pd_gain, start, finish, clear, stop). See docs/motor.md.",
+    add_arguments=_add_arguments,
+    overrides=_overrides,
+    factory=MotorService,
+)

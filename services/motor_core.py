@@ -1,0 +1,338 @@
+"""MotorControl's pure core (SPEC section 4): no zenoh, plain floats, one control cycle per call.
+
+:class:`MotorCore` turns each wheel-angle sample into one torque vector: wheel speeds from
+the angle difference, target wheel speeds from the commanded body velocity, a target angle
+(mode ``seed`` or ``integrated``), and a PD law per wheel. It also holds the Motor
+interface's state machine (``idle``, ``running``, ``finished``, ``stopped``), the command
+timeout, the optional velocity and acceleration limits, and the body-pose conversion.
+
+Per-sample work is a handful of float operations on locals: a benchmark runs this at
+thousands of samples per second, so there is no numpy and no allocation beyond the torque list.
+"""
+
+from __future__ import annotations
+
+import math
+import typing
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any
+
+from schemas.codec import BadInput
+from schemas.keys import BODY_POSE_LENGTH
+from schemas.messages import NANOSECONDS_PER_SECOND, PDGains
+from services.config import MotorConfig, RobotConfig, TargetAngleMode
+from services.planar import wrap_angle
+
+SEED, INTEGRATED = typing.get_args(TargetAngleMode)
+"""The two ``motor.target_angle`` modes."""
+
+
+class MotorState(StrEnum):
+    IDLE = "idle"
+    """No wheel angles or no target velocity seen yet: zero torque."""
+    RUNNING = "running"
+    """Torque control towards the target velocity."""
+    FINISHED = "finished"
+    """After ``finish``: zero torque (coasting) until ``start``."""
+    STOPPED = "stopped"
+    """After ``stop``, latched until ``clear``: torque control towards zero velocity (braking)."""
+
+
+class SimPoseConverter:
+    """``sim/body_pose`` (x, y, z, 3x3 rotation row-major) -> [X, Y, Z, theta] of the axle centre.
+
+    SPEC section 4 with atan2 (correction 2): theta_o = atan2(-A12, A11); the offset
+    (offset_x, offset_y) is the axle centre in the model frame, turned by theta_o.
+    """
+
+    def __init__(self, offset_x: float = 0.0, offset_y: float = 0.0, offset_angle: float = 0.0) -> None:
+        self.offset_x, self.offset_y, self.offset_angle = offset_x, offset_y, offset_angle
+        self._length = math.hypot(offset_x, offset_y)
+        self._direction = math.atan2(offset_y, offset_x)
+
+    @classmethod
+    def from_config(cls, motor: MotorConfig) -> SimPoseConverter:
+        return cls(motor.simulated_offset_x, motor.simulated_offset_y, motor.simulated_offset_angle)
+
+    def __call__(self, data: Sequence[float]) -> list[float]:
+        if len(data) != BODY_POSE_LENGTH:
+            raise BadInput(f"body pose has {len(data)} values, expected {BODY_POSE_LENGTH}")
+        theta_o = math.atan2(-data[4], data[3])
+        bearing = theta_o + self._direction
+        return [
+            data[0] + self._length * math.cos(bearing),
+            data[1] + self._length * math.sin(bearing),
+            data[2],
+            wrap_angle(theta_o + self.offset_angle),
+        ]
+
+
+@dataclass(frozen=True)
+class SpeedLimiter:
+    """Velocity and acceleration limits on one commanded speed, as in ROS 2's diff_drive_controller.
+
+    The acceleration limit is applied first, then the velocity limit (SpeedLimiter::limit's order).
+    None disables a limit.
+    """
+
+    max_velocity: float | None = None
+    max_acceleration: float | None = None
+
+    @property
+    def enabled(self) -> bool:
+        return self.max_velocity is not None or self.max_acceleration is not None
+
+    def limit(self, value: float, previous: float, dt: float) -> float:
+        if self.max_acceleration is not None:
+            step = self.max_acceleration * dt
+            value = min(max(value, previous - step), previous + step)
+        if self.max_velocity is not None:
+            value = min(max(value, -self.max_velocity), self.max_velocity)
+        return value
+
+
+class MotorCore:
+    """The motor controller of one robot: geometry, offsets and options locked at construction.
+
+    Call :meth:`step` for every wheel-angle sample (it returns the torque vector),
+    :meth:`set_target` for every target velocity, :meth:`sim_pose` for every body pose, and
+    the Motor methods :meth:`set_pd_gain`, :meth:`start`, :meth:`finish`, :meth:`stop`,
+    :meth:`clear`. Bad input raises BadInput and changes nothing.
+
+    After each :meth:`step`, ``cycle_state``, ``dq``, ``dq_ref`` and ``q_ref`` describe that
+    cycle (None where the cycle computed no such value) for tracing.
+    """
+
+    def __init__(self, robot: RobotConfig, motor: MotorConfig) -> None:
+        self.robot = robot
+        self.motor = motor
+        self.gains = PDGains(motor.p_gain_l, motor.p_gain_r, motor.d_gain_l, motor.d_gain_r)
+        self._pose = SimPoseConverter.from_config(motor)
+        self.vx_limiter = SpeedLimiter(motor.max_vx, motor.max_ax)
+        self.w_limiter = SpeedLimiter(motor.max_w, motor.max_aw)
+        self._limited = self.vx_limiter.enabled or self.w_limiter.enabled
+        self._integrated = motor.target_angle == INTEGRATED
+        self._timeout_ns = round(motor.command_timeout * NANOSECONDS_PER_SECOND)
+        self._left, self._right = robot.left_wheel_id, robot.right_wheel_id
+        self._min_length = max(self._left, self._right) + 1
+        self._half_axle = robot.half_axle
+        self._radius_l, self._radius_r = robot.radius_of_left_wheel, robot.radius_of_right_wheel
+
+        self._stamp_ns: int | None = None
+        self.q: tuple[float, float] = (0.0, 0.0)
+
+        self._have_target = False
+        self.target: tuple[float, float] = (0.0, 0.0)
+        """The last accepted target (vx, w)."""
+        self._target_stamp_ns: int | None = None
+        self._timed_out = False
+        self.command: tuple[float, float] = (0.0, 0.0)
+        """The (vx, w) the last cycle controlled towards, after stop, timeout and limits."""
+
+        self._anchored = False
+        """Integrated mode: q_ref and dq_ref of the last cycle are the base of the next one."""
+
+        self._finished = False
+        self._stopped = False
+
+        self.wheel_angle_samples = 0
+        self.body_pose_samples = 0
+        self.target_velocity_samples = 0
+        self.targets_ignored = 0
+        self.command_timeouts = 0
+
+        self.cycle_state = MotorState.IDLE
+        self.dq: tuple[float, float] | None = None
+        self.dq_ref: tuple[float, float] | None = None
+        self.q_ref: tuple[float, float] | None = None
+
+    @property
+    def state(self) -> MotorState:
+        if self._stopped:
+            return MotorState.STOPPED
+        if self._finished:
+            return MotorState.FINISHED
+        if self._stamp_ns is None or not self._have_target:
+            return MotorState.IDLE
+        return MotorState.RUNNING
+
+    @property
+    def command_timed_out(self) -> bool:
+        return self._timed_out
+
+    def step(self, stamp_ns: int, angles: Sequence[float]) -> list[float]:
+        """One control cycle for the wheel angles ``angles`` stamped ``stamp_ns`` (nanoseconds).
+
+        Returns the torque vector: same length and order as ``angles``, zero except at the two
+        wheel ids, all zero on the first sample and in states ``idle`` and ``finished``.
+        """
+        count = len(angles)
+        if count < self._min_length:
+            raise BadInput(
+                f"{count} wheel angles, but wheel ids {self._left} and {self._right} need at least {self._min_length}"
+            )
+        q_l, q_r = angles[self._left], angles[self._right]
+        previous = self._stamp_ns
+        torques = [0.0] * count
+        if previous is None:
+            self.cycle_state = self.state
+            self._accept(stamp_ns, q_l, q_r)
+            self.dq = self.dq_ref = self.q_ref = None
+            return torques
+        if stamp_ns <= previous:
+            raise BadInput(f"dt = {(stamp_ns - previous) / NANOSECONDS_PER_SECOND:g} s <= 0")
+        dt = (stamp_ns - previous) / NANOSECONDS_PER_SECOND
+        old_l, old_r = self.q
+        dq_l, dq_r = (q_l - old_l) / dt, (q_r - old_r) / dt
+        if not (math.isfinite(dq_l) and math.isfinite(dq_r)):
+            raise BadInput(f"wheel speed overflows (angles {q_l}, {q_r} after {old_l}, {old_r} in {dt:g} s)")
+        state = self.state
+        self.cycle_state = state
+        self._accept(stamp_ns, q_l, q_r)
+        self.dq = (dq_l, dq_r)
+        if state is MotorState.IDLE or state is MotorState.FINISHED:
+            self._release()
+            self.dq_ref = self.q_ref = None
+            return torques
+
+        vx, w = self._command_velocity(stamp_ns, dt, state)
+        b = self._half_axle
+        dq_ref_l = (vx - b * w) / self._radius_l
+        dq_ref_r = (vx + b * w) / self._radius_r
+        half_dt = 0.5 * dt
+        if self._integrated and self._anchored:
+            old_q_ref_l, old_q_ref_r = self.q_ref  # type: ignore[misc]
+            old_dq_ref_l, old_dq_ref_r = self.dq_ref  # type: ignore[misc]
+            q_ref_l = old_q_ref_l + (old_dq_ref_l + dq_ref_l) * half_dt
+            q_ref_r = old_q_ref_r + (old_dq_ref_r + dq_ref_r) * half_dt
+        else:
+            q_ref_l = q_l + (dq_ref_l + dq_l) * half_dt
+            q_ref_r = q_r + (dq_ref_r + dq_r) * half_dt
+            self._anchored = self._integrated
+        self.dq_ref = (dq_ref_l, dq_ref_r)
+        self.q_ref = (q_ref_l, q_ref_r)
+
+        gains = self.gains
+        torques[self._left] = gains.p_gain_l * (q_ref_l - q_l) + gains.d_gain_l * (dq_ref_l - dq_l)
+        torques[self._right] = gains.p_gain_r * (q_ref_r - q_r) + gains.d_gain_r * (dq_ref_r - dq_r)
+        return torques
+
+    def _accept(self, stamp_ns: int, q_l: float, q_r: float) -> None:
+        self._stamp_ns = stamp_ns
+        self.q = (q_l, q_r)
+        self.wheel_angle_samples += 1
+        if self._have_target and self._target_stamp_ns is None:
+            self._target_stamp_ns = stamp_ns
+
+    def _release(self) -> None:
+        """Leave torque control: the next controlled cycle starts from rest and re-anchors."""
+        self.command = (0.0, 0.0)
+        self._anchored = False
+
+    def _command_velocity(self, stamp_ns: int, dt: float, state: MotorState) -> tuple[float, float]:
+        if state is MotorState.STOPPED:
+            self.command = (0.0, 0.0)
+            return self.command
+        vx, w = self.target
+        if self._timeout_ns and stamp_ns - self._target_stamp_ns > self._timeout_ns:  # type: ignore[operator]
+            vx = w = 0.0
+            if not self._timed_out:
+                self._timed_out = True
+                self.command_timeouts += 1
+        if self._limited:
+            previous_vx, previous_w = self.command
+            vx = self.vx_limiter.limit(vx, previous_vx, dt)
+            w = self.w_limiter.limit(w, previous_w, dt)
+        self.command = (vx, w)
+        return self.command
+
+    def set_target(self, vx: float, w: float) -> bool:
+        """Accept a target body velocity; False (ignored, counted) while stopped."""
+        if self._stopped:
+            self.targets_ignored += 1
+            return False
+        self.target = (vx, w)
+        self._have_target = True
+        self._target_stamp_ns = self._stamp_ns
+        self._timed_out = False
+        self.target_velocity_samples += 1
+        return True
+
+    def sim_pose(self, data: Sequence[float]) -> list[float]:
+        """[X, Y, Z, theta] of the axle centre for a ``sim/body_pose`` vector (offsets applied)."""
+        pose = self._pose(data)
+        self.body_pose_samples += 1
+        return pose
+
+    def set_pd_gain(self, gains: PDGains) -> None:
+        """All four gains, used from the next :meth:`step` on."""
+        self.gains = gains
+
+    def start(self) -> None:
+        """Leave ``finished``: torque control resumes (unless stopped, or still idle)."""
+        self._finished = False
+
+    def finish(self) -> None:
+        """Coast: zero torque until :meth:`start`."""
+        self._finished = True
+
+    def stop(self) -> None:
+        """Emergency stop, latched: brake towards zero velocity and ignore targets until :meth:`clear`.
+
+        The target is zeroed (clearing does not resume the old motion) and the braking bypasses
+        the acceleration limits; in ``integrated`` mode the target angle re-anchors at the
+        measured angle, so the wheels do not try to catch up distance lost in a collision.
+        """
+        self._stopped = True
+        self.target = (0.0, 0.0)
+        self._anchored = False
+
+    def clear(self) -> None:
+        """Release the stop latch. The zero target counts as a fresh command for the timeout."""
+        self._stopped = False
+        self._target_stamp_ns = self._stamp_ns
+        self._timed_out = False
+
+    def status(self) -> dict[str, Any]:
+        robot, motor = self.robot, self.motor
+        return {
+            "state": str(self.state),
+            "target_angle": motor.target_angle,
+            "gains": {
+                "p_gain_l": self.gains.p_gain_l,
+                "p_gain_r": self.gains.p_gain_r,
+                "d_gain_l": self.gains.d_gain_l,
+                "d_gain_r": self.gains.d_gain_r,
+            },
+            "geometry": {
+                "left_wheel_id": robot.left_wheel_id,
+                "right_wheel_id": robot.right_wheel_id,
+                "radius_of_left_wheel": robot.radius_of_left_wheel,
+                "radius_of_right_wheel": robot.radius_of_right_wheel,
+                "length_of_axle": robot.length_of_axle,
+            },
+            "offsets": {
+                "simulated_offset_x": motor.simulated_offset_x,
+                "simulated_offset_y": motor.simulated_offset_y,
+                "simulated_offset_angle": motor.simulated_offset_angle,
+            },
+            "limits": {
+                "max_vx": motor.max_vx,
+                "max_ax": motor.max_ax,
+                "max_w": motor.max_w,
+                "max_aw": motor.max_aw,
+            },
+            "command_timeout": motor.command_timeout,
+            "target": {"vx": self.target[0], "w": self.target[1]},
+            "command": {"vx": self.command[0], "w": self.command[1]},
+            "command_timed_out": self._timed_out,
+            "counters": {
+                "wheel_angle_samples": self.wheel_angle_samples,
+                "body_pose_samples": self.body_pose_samples,
+                "target_velocity_samples": self.target_velocity_samples,
+                "targets_ignored": self.targets_ignored,
+                "command_timeouts": self.command_timeouts,
+            },
+        }

@@ -1,0 +1,439 @@
+"""MotorCore against hand-computed values, and hypothesis properties of its invariants.
+
+Default robot: r = 0.1 m, lengthOfAxle 0.441 m (b = 0.2205 m), gains Kp 5, Kd 2.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import assume, given
+from hypothesis import strategies as st
+
+from schemas.codec import BadInput
+from schemas.messages import PDGains
+from services.config import MotorConfig, RobotConfig
+from services.motor_core import INTEGRATED, SEED, MotorCore, MotorState, SimPoseConverter
+from services.planar import wrap_angle
+
+MS = 1_000_000
+"""One millisecond in nanoseconds."""
+
+
+def core(robot: RobotConfig | None = None, **motor: object) -> MotorCore:
+    return MotorCore(robot or RobotConfig(), MotorConfig(**motor))
+
+
+def running(robot: RobotConfig | None = None, vx: float = 0.0, w: float = 0.0, **motor: object) -> MotorCore:
+    """A core that saw its first sample (angles 0 at t = 0) and a target: the next step controls."""
+    motor_core = core(robot, **motor)
+    motor_core.set_target(vx, w)
+    angles = [0.0] * (max(motor_core.robot.left_wheel_id, motor_core.robot.right_wheel_id) + 1)
+    assert motor_core.step(0, angles) == [0.0] * len(angles)
+    assert motor_core.state is MotorState.RUNNING
+    return motor_core
+
+
+def yaw_pose(x: float, y: float, z: float, yaw: float) -> list[float]:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return [x, y, z, c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0]
+
+
+# --- torque: hand-computed -------------------------------------------------------------------
+
+
+def test_straight_w0_hand_computed():
+    motor_core = running(vx=0.5)
+    # dq_ref = 0.5 / 0.1 = 5 both; dq = (4, 6); q_ref - q = (5 + dq) * 0.001 / 2
+    torques = motor_core.step(1 * MS, [0.004, 0.006])
+    assert motor_core.dq_ref == pytest.approx((5.0, 5.0))
+    assert motor_core.dq == pytest.approx((4.0, 6.0))
+    assert motor_core.q_ref == pytest.approx((0.0085, 0.0115))
+    assert torques == pytest.approx([5 * 0.0045 + 2 * 1.0, 5 * 0.0055 + 2 * -1.0])
+    assert torques == pytest.approx([2.0225, -1.9725])
+
+
+def test_spin_in_place_hand_computed():
+    motor_core = running(w=1.0)
+    # dq_ref = (-0.2205, +0.2205) / 0.1; dt = 2 ms, dq = (-2, 2); q_ref - q = (dq_ref + dq) * 0.001
+    torques = motor_core.step(2 * MS, [-0.004, 0.004])
+    assert motor_core.dq_ref == pytest.approx((-2.205, 2.205))
+    assert torques == pytest.approx([-0.431025, 0.431025])
+
+
+def test_different_left_and_right_radii_hand_computed():
+    robot = RobotConfig(radius_of_left_wheel=0.1, radius_of_right_wheel=0.2)
+    motor_core = running(robot, vx=0.5, w=1.0)
+    # dq_ref_L = (0.5 - 0.2205) / 0.1 = 2.795, dq_ref_R = (0.5 + 0.2205) / 0.2 = 3.6025; wheels still
+    torques = motor_core.step(1 * MS, [0.0, 0.0])
+    assert motor_core.dq_ref == pytest.approx((2.795, 3.6025))
+    assert torques == pytest.approx([5 * 2.795 * 0.0005 + 2 * 2.795, 5 * 3.6025 * 0.0005 + 2 * 3.6025])
+    assert torques == pytest.approx([5.5969875, 7.21400625])
+
+
+def test_non_default_wheel_ids_in_a_three_joint_vector():
+    robot = RobotConfig(left_wheel_id=1, right_wheel_id=0)
+    motor_core = core(robot)
+    motor_core.set_target(0.5, 0.0)
+    assert motor_core.step(0, [0.0, 0.0, 0.7]) == [0.0, 0.0, 0.0]
+    # the straight case with left and right swapped in the vector; joint 2 is no wheel
+    torques = motor_core.step(1 * MS, [0.006, 0.004, 0.9])
+    assert len(torques) == 3
+    assert torques[:2] == pytest.approx([-1.9725, 2.0225])
+    assert torques[2] == 0.0
+
+
+def test_wheel_id_out_of_range_is_bad_input():
+    motor_core = core(RobotConfig(left_wheel_id=0, right_wheel_id=2))
+    with pytest.raises(BadInput, match="need at least 3"):
+        motor_core.step(0, [0.0, 0.0])
+    assert motor_core.wheel_angle_samples == 0
+
+
+def test_set_pd_gain_applies_from_the_next_step():
+    motor_core = running(vx=0.5)
+    motor_core.step(1 * MS, [0.004, 0.006])
+    motor_core.set_pd_gain(PDGains(p_gain_l=10.0, p_gain_r=0.0, d_gain_l=1.0, d_gain_r=3.0))
+    # dq = (4, 4); q_ref - q = (5 + 4) * 0.0005 = 0.0045; dq_ref - dq = 1
+    torques = motor_core.step(2 * MS, [0.008, 0.010])
+    assert torques == pytest.approx([10 * 0.0045 + 1 * 1.0, 0 * 0.0045 + 3 * 1.0])
+
+
+# --- target_angle modes ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("mode", "expected"),
+    [
+        # seed: q_ref restarts from the measured q: q_ref - q = (5 + 2) * 0.0005 = 0.0035 each lagging cycle
+        (SEED, [2.0225, 5 * 0.0035 + 2 * 3, 5 * 0.0035 + 2 * 3]),
+        # integrated: q_ref = 0.0085, then + 5 * 0.001 per cycle, so the lag accumulates in the P term:
+        # cycle 2: 0.0135 - 0.006 = 0.0075; cycle 3: 0.0185 - 0.008 = 0.0105
+        (INTEGRATED, [2.0225, 5 * 0.0075 + 2 * 3, 5 * 0.0105 + 2 * 3]),
+    ],
+)
+def test_target_angle_modes_hand_computed(mode, expected):
+    motor_core = running(vx=0.5, target_angle=mode)
+    torques = [motor_core.step(k * MS, [q, q])[0] for k, q in ((1, 0.004), (2, 0.006), (3, 0.008))]
+    assert torques == pytest.approx(expected)
+
+
+def test_integrated_mode_reanchors_on_stop():
+    motor_core = running(vx=0.5, target_angle=INTEGRATED)
+    for k, q in ((1, 0.004), (2, 0.006), (3, 0.008)):
+        motor_core.step(k * MS, [q, q])
+    motor_core.stop()
+    # anchored again at the measured angle: q_ref = q + (0 + dq) * dt / 2, no catch-up of the lag
+    motor_core.step(4 * MS, [0.010, 0.010])
+    assert motor_core.q_ref == pytest.approx((0.010 + 2 * 0.0005, 0.010 + 2 * 0.0005))
+
+
+# --- states and Motor methods ----------------------------------------------------------------
+
+
+def test_first_sample_only_initialises():
+    motor_core = core()
+    motor_core.set_target(0.5, 0.0)
+    assert motor_core.step(5 * MS, [1.0, 2.0]) == [0.0, 0.0]
+    assert motor_core.dq is None and motor_core.q_ref is None
+    assert motor_core.state is MotorState.RUNNING
+
+
+def test_idle_without_target_gives_zero_torque():
+    motor_core = core()
+    motor_core.step(0, [0.0, 0.0])
+    assert motor_core.step(1 * MS, [0.004, 0.006]) == [0.0, 0.0]
+    assert motor_core.state is MotorState.IDLE
+    assert motor_core.cycle_state is MotorState.IDLE
+
+
+def test_finish_coasts_until_start():
+    motor_core = running(vx=0.5)
+    motor_core.finish()
+    assert motor_core.state is MotorState.FINISHED
+    assert motor_core.step(1 * MS, [0.004, 0.006]) == [0.0, 0.0]
+    motor_core.set_target(0.4, 0.0)
+    assert motor_core.step(2 * MS, [0.008, 0.012]) == [0.0, 0.0]
+    motor_core.start()
+    assert motor_core.state is MotorState.RUNNING
+    # dq = (4, 6), dq_ref = 4: back under control with the latest target
+    assert motor_core.step(3 * MS, [0.012, 0.018]) == pytest.approx([5 * 0.004, 5 * 0.005 + 2 * -2.0])
+
+
+def test_stop_brakes_and_ignores_targets_until_clear():
+    motor_core = running(vx=0.5)
+    motor_core.stop()
+    assert motor_core.state is MotorState.STOPPED
+    assert motor_core.set_target(1.0, 0.5) is False
+    assert motor_core.targets_ignored == 1
+    # wheels at 5 rad/s, target 0: q_ref - q = 5 * 0.0005, dq_ref - dq = -5
+    torques = motor_core.step(1 * MS, [0.005, 0.005])
+    assert motor_core.command == (0.0, 0.0)
+    assert torques == pytest.approx([5 * 0.0025 - 10.0] * 2)
+    motor_core.clear()
+    assert motor_core.state is MotorState.RUNNING
+    assert motor_core.target == (0.0, 0.0)
+    assert motor_core.set_target(0.3, 0.0) is True
+    motor_core.step(2 * MS, [0.010, 0.010])
+    assert motor_core.command == (0.3, 0.0)
+
+
+def test_clear_returns_to_the_underlying_state():
+    motor_core = core()
+    motor_core.stop()
+    assert motor_core.state is MotorState.STOPPED
+    motor_core.clear()
+    assert motor_core.state is MotorState.IDLE
+    motor_core.finish()
+    motor_core.stop()
+    motor_core.clear()
+    assert motor_core.state is MotorState.FINISHED
+
+
+def test_dt_not_positive_is_bad_input_and_changes_nothing():
+    motor_core = running(vx=0.5)
+    motor_core.step(1 * MS, [0.004, 0.006])
+    for stamp in (1 * MS, 0):
+        with pytest.raises(BadInput, match="<= 0"):
+            motor_core.step(stamp, [9.0, 9.0])
+    assert motor_core.wheel_angle_samples == 2
+    # dq from the last good sample: (0.008 - 0.004) / 0.001 = 4 on both wheels
+    motor_core.step(2 * MS, [0.008, 0.010])
+    assert motor_core.dq == pytest.approx((4.0, 4.0))
+
+
+# --- command timeout and limits --------------------------------------------------------------
+
+
+def test_command_timeout_brakes_once_then_rearms():
+    motor_core = running(vx=0.5)  # target arrived at wheel-angle time 0; timeout 0.5 s
+    motor_core.step(500 * MS, [0.0, 0.0])
+    assert motor_core.command == (0.5, 0.0)
+    motor_core.step(501 * MS, [0.0, 0.0])
+    assert motor_core.command == (0.0, 0.0)
+    assert motor_core.command_timed_out and motor_core.command_timeouts == 1
+    motor_core.step(502 * MS, [0.0, 0.0])
+    assert motor_core.command_timeouts == 1
+    motor_core.set_target(0.2, 0.0)
+    motor_core.step(503 * MS, [0.0, 0.0])
+    assert motor_core.command == (0.2, 0.0)
+    assert not motor_core.command_timed_out
+
+
+def test_command_timeout_zero_disables():
+    motor_core = running(vx=0.5, command_timeout=0.0)
+    motor_core.step(100_000 * MS, [0.0, 0.0])
+    assert motor_core.command == (0.5, 0.0)
+    assert motor_core.command_timeouts == 0
+
+
+def test_velocity_limits_clamp_the_command():
+    motor_core = running(vx=0.5, w=-2.0, max_vx=0.3, max_w=1.0)
+    motor_core.step(1 * MS, [0.0, 0.0])
+    assert motor_core.command == (0.3, -1.0)
+
+
+def test_acceleration_limits_ramp_the_command():
+    motor_core = running(vx=0.5, w=1.0, max_ax=1.0, max_aw=2.0)
+    motor_core.step(1 * MS, [0.0, 0.0])
+    assert motor_core.command == pytest.approx((0.001, 0.002))
+    motor_core.step(3 * MS, [0.0, 0.0])
+    assert motor_core.command == pytest.approx((0.003, 0.006))
+    motor_core.stop()
+    motor_core.step(4 * MS, [0.0, 0.0])
+    assert motor_core.command == (0.0, 0.0), "an emergency stop bypasses the acceleration limit"
+    motor_core.clear()
+    motor_core.set_target(0.5, 1.0)
+    motor_core.step(5 * MS, [0.0, 0.0])
+    assert motor_core.command == pytest.approx((0.001, 0.002)), "after clear the ramp starts from zero"
+
+
+# --- body pose ---------------------------------------------------------------------------------
+
+
+def test_pose_without_offsets_is_the_model_pose():
+    assert SimPoseConverter()(yaw_pose(1.0, 2.0, 0.3, 0.5)) == pytest.approx([1.0, 2.0, 0.3, 0.5])
+
+
+def test_seed_rh0_offsets_hand_computed():
+    rh0 = core(simulated_offset_y=0.045795, simulated_offset_angle=1.5708)
+    # model unrotated: its forward (+y) is world +y, so heading 1.5708; axle centre 0.045795 along +y
+    assert rh0.sim_pose(yaw_pose(1.0, 2.0, 0.3, 0.0)) == pytest.approx([1.0, 2.045795, 0.3, 1.5708], abs=1e-12)
+    # model turned by -pi/2: its forward is world +x, heading ~0, axle centre 0.045795 along +x
+    x, y, z, theta = rh0.sim_pose([1.0, 2.0, 0.3, 0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+    assert (x, y, z) == pytest.approx((1.045795, 2.0, 0.3), abs=1e-12)
+    assert theta == pytest.approx(1.5708 - math.pi / 2, abs=1e-12)
+    assert rh0.body_pose_samples == 2
+
+
+def test_heading_wraps_into_minus_pi_pi():
+    assert SimPoseConverter(offset_angle=0.5)(yaw_pose(0, 0, 0, 3.0))[3] == pytest.approx(3.5 - 2 * math.pi)
+    assert SimPoseConverter(offset_angle=-0.5)(yaw_pose(0, 0, 0, -3.0))[3] == pytest.approx(2 * math.pi - 3.5)
+    # a half turn with A12 = 0.0: atan2(-0.0, -1) = -pi, reported as +pi
+    half_turn = [0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0]
+    assert SimPoseConverter()(half_turn)[3] == math.pi
+    assert wrap_angle(-math.pi) == math.pi
+    assert wrap_angle(math.pi) == math.pi
+    assert wrap_angle(3 * math.pi) == math.pi
+
+
+@pytest.mark.parametrize("length", [11, 13, 0])
+def test_body_pose_of_wrong_length_is_bad_input(length):
+    motor_core = core()
+    with pytest.raises(BadInput, match="expected 12"):
+        motor_core.sim_pose([0.0] * length)
+    assert motor_core.body_pose_samples == 0
+
+
+def test_status_reports_state_gains_geometry_and_counters():
+    motor_core = running(vx=0.5, max_vx=1.0)
+    motor_core.step(1 * MS, [0.0, 0.0])
+    status = motor_core.status()
+    assert status["state"] == "running"
+    assert status["target_angle"] == SEED
+    assert status["gains"] == {"p_gain_l": 5.0, "p_gain_r": 5.0, "d_gain_l": 2.0, "d_gain_r": 2.0}
+    assert status["geometry"]["length_of_axle"] == 0.441
+    assert status["limits"]["max_vx"] == 1.0 and status["limits"]["max_ax"] is None
+    assert status["target"] == {"vx": 0.5, "w": 0.0}
+    assert status["counters"]["wheel_angle_samples"] == 2
+    assert status["counters"]["target_velocity_samples"] == 1
+
+
+# --- properties ----------------------------------------------------------------------------------
+
+finite = st.floats(min_value=-1e3, max_value=1e3, allow_nan=False)
+gain = st.floats(min_value=0.0, max_value=100.0)
+speed = st.floats(min_value=-2.0, max_value=2.0)
+step_ns = st.integers(min_value=100_000, max_value=50 * MS)
+
+
+@given(vx=speed, w=speed, kp=gain, kd=gain, dt_ns=step_ns, q0=st.floats(-100, 100))
+def test_seed_mode_at_target_speed_leaves_only_the_p_lead(vx, w, kp, kd, dt_ns, q0):
+    """Wheels already at the target speed: the D term vanishes, and the seed's q_ref - q is
+    (dq_ref + dq) * dt / 2 = dq_ref * dt, so the torque is Kp * dq_ref * dt (zero when Kp = 0
+    or the target is zero): the seed's P term is only a one-step lead, not a position loop."""
+    motor_core = core(p_gain_l=kp, p_gain_r=kp, d_gain_l=kd, d_gain_r=kd, target_angle=SEED)
+    motor_core.set_target(vx, w)
+    motor_core.step(0, [q0, q0])
+    dt = dt_ns / 1e9
+    b, r = 0.2205, 0.1
+    dq_ref = ((vx - b * w) / r, (vx + b * w) / r)
+    torques = motor_core.step(dt_ns, [q0 + dq_ref[0] * dt, q0 + dq_ref[1] * dt])
+    for torque, target in zip(torques, dq_ref, strict=True):
+        assert torque == pytest.approx(kp * target * dt, abs=1e-12 * (1 + kd + kp) * (1 + abs(q0)) / dt)
+    if kp == 0.0 or (vx == 0.0 and w == 0.0):
+        assert torques == pytest.approx([0.0, 0.0], abs=1e-12 * (1 + kd) * (1 + abs(q0)) / dt)
+
+
+@given(x=finite, y=finite, z=finite, yaw=st.floats(-10.0, 10.0))
+def test_pose_conversion_is_exact_for_any_pure_yaw(x, y, z, yaw):
+    pose = SimPoseConverter()(yaw_pose(x, y, z, yaw))
+    assert pose[:3] == [x, y, z]
+    assert math.remainder(pose[3] - yaw, math.tau) == pytest.approx(0.0, abs=1e-12)
+
+
+@given(
+    x=finite,
+    y=finite,
+    yaw=st.floats(-10.0, 10.0),
+    dx=st.floats(-1.0, 1.0),
+    dy=st.floats(-1.0, 1.0),
+    dtheta=st.floats(-4.0, 4.0),
+)
+def test_pose_offset_is_the_offset_vector_turned_by_the_yaw(x, y, yaw, dx, dy, dtheta):
+    X, Y, _, theta = SimPoseConverter(dx, dy, dtheta)(yaw_pose(x, y, 0.0, yaw))
+    c, s = math.cos(yaw), math.sin(yaw)
+    assert X == pytest.approx(x + c * dx - s * dy, abs=1e-9)
+    assert Y == pytest.approx(y + s * dx + c * dy, abs=1e-9)
+    assert -math.pi < theta <= math.pi
+    assert math.remainder(theta - yaw - dtheta, math.tau) == pytest.approx(0.0, abs=1e-12)
+
+
+joint_count = st.integers(min_value=2, max_value=6)
+
+
+@st.composite
+def wheel_layout(draw):
+    count = draw(joint_count)
+    left = draw(st.integers(0, count - 1))
+    right = draw(st.integers(0, count - 1).filter(lambda i: i != left))
+    return count, RobotConfig(left_wheel_id=left, right_wheel_id=right)
+
+
+@given(
+    layout=wheel_layout(),
+    samples=st.lists(st.tuples(step_ns, st.lists(st.floats(-10, 10), min_size=6, max_size=6)), max_size=8),
+    events=st.lists(st.sampled_from(["target", "start", "finish", "stop", "clear", "none"]), min_size=8, max_size=8),
+)
+def test_torque_vector_matches_the_input_and_is_zero_off_the_wheels(layout, samples, events):
+    count, robot = layout
+    motor_core = core(robot)
+    stamp = 0
+    for (dt_ns, angles), event in zip(samples, events, strict=False):
+        if event == "target":
+            motor_core.set_target(0.3, 0.4)
+        elif event != "none":
+            getattr(motor_core, event)()
+        stamp += dt_ns
+        state = motor_core.state
+        torques = motor_core.step(stamp, angles[:count])
+        assert len(torques) == count
+        wheels = {robot.left_wheel_id, robot.right_wheel_id}
+        assert all(t == 0.0 for i, t in enumerate(torques) if i not in wheels)
+        if state in (MotorState.IDLE, MotorState.FINISHED):
+            assert torques == [0.0] * count
+
+
+@given(
+    targets=st.lists(st.tuples(speed, speed), min_size=1, max_size=20),
+    dt_ns=step_ns,
+    max_v=st.floats(0.01, 1.0),
+    max_a=st.floats(0.01, 5.0),
+)
+def test_limited_command_respects_velocity_and_acceleration(targets, dt_ns, max_v, max_a):
+    motor_core = running(max_vx=max_v, max_ax=max_a, max_w=max_v, max_aw=max_a, command_timeout=0.0)
+    previous = (0.0, 0.0)
+    dt = dt_ns / 1e9
+    for k, (vx, w) in enumerate(targets, start=1):
+        motor_core.set_target(vx, w)
+        motor_core.step(k * dt_ns, [0.0, 0.0])
+        for now, before in zip(motor_core.command, previous, strict=True):
+            assert abs(now) <= max_v
+            assert abs(now - before) <= max_a * dt * (1 + 1e-9)
+        previous = motor_core.command
+
+
+@given(
+    vx=speed,
+    wheel_angles=st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=10),
+    dt_ns=step_ns,
+)
+def test_integrated_target_angle_is_anchor_plus_integral_of_target_speed(vx, wheel_angles, dt_ns):
+    """Whatever the wheels do, q_ref integrates the target speed from its anchor (the first cycle)."""
+    motor_core = running(vx=vx, target_angle=INTEGRATED, command_timeout=0.0)
+    dt = dt_ns / 1e9
+    dq_ref = vx / 0.1
+    motor_core.step(dt_ns, [wheel_angles[0]] * 2)
+    anchor = motor_core.q_ref[0]
+    for k, q in enumerate(wheel_angles[1:], start=1):
+        motor_core.step((k + 1) * dt_ns, [q, q])
+        assert motor_core.q_ref[0] == pytest.approx(anchor + dq_ref * dt * k, abs=1e-9)
+
+
+@given(
+    samples=st.lists(st.tuples(step_ns, st.floats(-1.0, 1.0)), min_size=2, max_size=10),
+    bad_at=st.integers(0, 9),
+)
+def test_a_bad_sample_changes_nothing(samples, bad_at):
+    assume(bad_at < len(samples))
+    clean, noisy = running(vx=0.4, w=0.2), running(vx=0.4, w=0.2)
+    stamp = 0
+    for k, (dt_ns, q) in enumerate(samples):
+        stamp += dt_ns
+        if k == bad_at:
+            with pytest.raises(BadInput):
+                noisy.step(stamp - dt_ns, [5.0, 5.0])
+            with pytest.raises(BadInput):
+                noisy.step(stamp, [5.0])
+        assert noisy.step(stamp, [q, -q]) == clean.step(stamp, [q, -q])
