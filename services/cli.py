@@ -21,6 +21,10 @@ EXIT_CONFIG = 2
 SERVICE_MODULES = (
     "services.motor",
     "services.odometry",
+    "services.localization",
+    "services.drive",
+    "services.motor",
+    "services.odometry",
     "services.odometry",
 )
 """Modules that each define ``COMMAND: ServiceCommand``; one ``invent <service>`` subcommand each."""

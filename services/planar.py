@@ -1,4 +1,4 @@
-"""Planar poses and angles shared by the localization and drive cores (pure)."""
+"""Planar poses and angles shared by the services' cores (pure, no zenoh)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,233 @@
+"""``invent drive``: the velocity source (the seed's DriveControlRTC), SPEC section 7.
+
+Publishes ``drive/target_velocity`` at ``drive.rate`` per second of simulation time. The
+clock is the stamps on ``sim/wheel_angles``: scenario time starts at the first stamp seen once
+someone (the motor) subscribes to the target velocity, and a command is stamped with the
+sim time it was computed at. Waypoint segments close the loop on ``odometry/pose`` (odometry
+is reset by every ``localization/pose`` fix, so this is the localized pose corrected by
+odometry). Both inputs are sampled (:meth:`~services.runtime.Node.latest`): the drive acts on
+the newest clock stamp and pose, never on a backlog.
+
+When the scenario ends the drive publishes zero velocity on :data:`FINAL_ZERO_TICKS`
+successive ticks, so the stop is not lost, and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import threading
+from typing import Any
+
+from schemas.keys import Service
+from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
+from services.config import Config, ConfigError, DriveConfig
+from services.path_following import FollowerParams
+from services.planar import Pose
+from services.runtime import SAMPLING_POLL_S, Node
+from services.scenarios import (
+    BUILTIN_SCENARIOS,
+    ConstantSegment,
+    Scenario,
+    ScenarioRunner,
+    WaypointSegment,
+    describe,
+    load_scenario,
+    parse_waypoints,
+)
+from services.service import ServiceCommand
+from services.sim_time import PeriodicSchedule, StampClock
+
+FINAL_ZERO_TICKS = 3
+"""Ticks on which the final zero velocity is published before the drive exits."""
+
+
+def _argument(parse):
+    """An argparse ``type`` from a parser raising ConfigError: argparse then exits 2 with the reason."""
+
+    def convert(text: str):
+        try:
+            return parse(text)
+        except ConfigError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+
+    convert.__name__ = parse.__name__
+    return convert
+
+
+def _positive_seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ConfigError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise ConfigError(f"duration must be > 0 seconds, got {text}")
+    return value
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ConfigError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ConfigError(f"{text} is not finite")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    what = parser.add_argument_group("what to drive (exactly one of --for, --scenario, --waypoints)")
+    mode = what.add_mutually_exclusive_group(required=True)
+    mode.add_argument(
+        "--for", dest="duration", type=_argument(_positive_seconds), metavar="S",
+        help="constant velocity (--vx, --w) for S seconds of simulation time",
+    )
+    mode.add_argument(
+        "--scenario", type=_argument(load_scenario), metavar="NAME|FILE",
+        help=f"a built-in scenario ({', '.join(BUILTIN_SCENARIOS)}) or a scenario TOML file (docs/drive.md)",
+    )
+    mode.add_argument(
+        "--waypoints", type=_argument(parse_waypoints), metavar='"X,Y X,Y ..."',
+        help='follow a path through these points (world frame, m), e.g. "1,0 1,1 0,1 0,0"',
+    )
+    what.add_argument("--vx", type=_argument(_finite), metavar="M/S", help="with --for: forward speed (default 0)")
+    what.add_argument("--w", type=_argument(_finite), metavar="RAD/S", help="with --for: turn rate (default 0)")
+    what.add_argument("--loop", action="store_true", help="start the scenario over when it ends, forever")
+    parser.add_argument(
+        "--rate",
+        type=float,
+        metavar="HZ",
+        help=f"commands per second of simulation time (drive.rate, default {DriveConfig().rate:g})",
+    )
+
+
+def overrides(args: argparse.Namespace) -> dict[str, Any]:
+    return {"drive.rate": args.rate}
+
+
+def scenario_from_args(args: argparse.Namespace) -> tuple[str, Scenario]:
+    """(mode, scenario) for the flags: ``constant``, ``scenario`` or ``waypoints``."""
+    if args.duration is None and (args.vx is not None or args.w is not None):
+        raise ConfigError("--vx and --w go with --for (a constant velocity for a duration)")
+    if args.scenario is not None:
+        return "scenario", args.scenario
+    if args.waypoints is not None:
+        return "waypoints", Scenario(name="waypoints", segments=[WaypointSegment(waypoints=args.waypoints)])
+    segment = ConstantSegment(vx=args.vx or 0.0, w=args.w or 0.0, duration=args.duration)
+    return "constant", Scenario(name="constant", segments=[segment])
+
+
+class DriveService:
+    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+        self.node = node
+        self.rate_hz = config.drive.rate
+        self.pose_timeout_ns = round(config.drive.pose_timeout * NANOSECONDS_PER_SECOND)
+        self.mode, scenario = scenario_from_args(args)
+        self.runner = ScenarioRunner(scenario, FollowerParams.from_config(config.drive), loop=args.loop)
+        self.clock = StampClock()
+        self.schedule: PeriodicSchedule | None = None
+        self.pose: Pose | None = None
+        self.pose_stamp_ns: int | None = None
+        self.commands_published = 0
+        self.final_zeros = 0
+        self.finished = False
+        self.publisher = node.publisher(node.keys.drive_target_velocity)
+        self.clock_input = node.latest(node.keys.sim_wheel_angles, TimedDoubleSeq)
+        self.pose_input = node.latest(node.keys.odometry_pose, TimedPosition)
+        node.set_status(self.status)
+        node.log.info(
+            "%s %r%s at %g Hz of simulation time:\n%s",
+            self.mode, scenario.name, " (looping)" if args.loop else "", self.rate_hz, describe(scenario),
+        )
+
+    @property
+    def state(self) -> str:
+        if self.runner.done:
+            return "done"
+        if self.schedule is None:
+            return "waiting_for_clock" if self.clock.last_ns is None else "waiting_for_subscriber"
+        return "waiting_for_pose" if self.runner.waiting_for_pose else "running"
+
+    def _on_pose(self, message: TimedPosition) -> None:
+        self.pose = Pose(message.x, message.y, message.theta)
+        self.pose_stamp_ns = message.tm.to_nanoseconds()
+
+    @property
+    def pose_age_s(self) -> float | None:
+        """Simulated seconds from the latest pose's stamp to the latest clock stamp."""
+        if self.pose_stamp_ns is None or self.clock.last_ns is None:
+            return None
+        return (self.clock.last_ns - self.pose_stamp_ns) / NANOSECONDS_PER_SECOND
+
+    def _fresh_pose(self, now_ns: int) -> Pose | None:
+        """The latest pose, unless it is older than ``pose_timeout`` (odometry stopped): then None."""
+        if self.pose_stamp_ns is None or now_ns - self.pose_stamp_ns > self.pose_timeout_ns:
+            return None
+        return self.pose
+
+    def _on_clock(self, message: TimedDoubleSeq) -> None:
+        now_ns = message.tm.to_nanoseconds()
+        self.clock.advance(now_ns)
+        if self.schedule is None:
+            # Commands sent before the motor listens would be lost: the scenario starts once it does.
+            if not self.publisher.matched:
+                return
+            self.schedule = PeriodicSchedule(self.rate_hz, now_ns)
+        if self.finished or not self.schedule.due(now_ns):
+            return
+        self.pose_input.take(self._on_pose)
+        command = self.runner.step(now_ns, self._fresh_pose(now_ns))
+        self.publisher.put(
+            TimedVelocity(tm=Time.from_nanoseconds(now_ns), id=[], vx=command.vx, vy=0.0, w=command.w, error=[])
+        )
+        self.commands_published += 1
+        if self.runner.done:
+            self.final_zeros += 1
+            if self.final_zeros == 1:
+                self.node.log.info("scenario ended after %.3f s of simulation time", self.runner.elapsed_s)
+            if self.final_zeros >= FINAL_ZERO_TICKS:
+                self.finished = True
+
+    def status(self) -> dict[str, Any]:
+        runner = self.runner
+        return {
+            "state": self.state,
+            "mode": self.mode,
+            "scenario": runner.scenario.name,
+            "loop": runner.loop,
+            "iteration": runner.iteration,
+            "segment_index": runner.segment_index,
+            "segments": len(runner.scenario.segments),
+            "elapsed_s": runner.elapsed_s,
+            "command": {"vx": runner.command.vx, "w": runner.command.w},
+            "waypoint_index": runner.waypoint_index,
+            "follower_phase": runner.phase,
+            "done": runner.done,
+            "rate_hz": self.rate_hz,
+            "commands_published": self.commands_published,
+            "pose": None if self.pose is None else self.pose._asdict(),
+            "pose_age_s": self.pose_age_s,
+        }
+
+    def run(self, stop: threading.Event) -> int:
+        while not stop.is_set() and not self.finished:
+            self.node.spin_once(SAMPLING_POLL_S)
+            self.clock_input.take(self._on_clock)
+        return 0
+
+    def close(self) -> None:
+        """Nothing beyond the node to release."""
+
+
+COMMAND = ServiceCommand(
+    service=Service.DRIVE,
+    help="publish target velocities: a constant, a scenario or a waypoint path (sim time)",
+    description="Publish drive/target_velocity at drive.rate per second of simulation time (clock: the "
+    "stamps on sim/wheel_angles). Waypoint paths are followed (pure pursuit, turn-in-place at sharp "
+    "corners) on odometry/pose. Publishes zero velocity at the end and exits 0 (unless --loop). "
+    "Examples: invent drive --vx 0.3 --w 0.1 --for 5; invent drive --scenario square; "
+    'invent drive --waypoints "1,0 1,1 0,1 0,0". See docs/drive.md.',
+    add_arguments=add_arguments,
+    overrides=overrides,
+    factory=DriveService,
+)

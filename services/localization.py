@@ -1,0 +1,126 @@
+"""``invent localization``: the localization stub (the seed's LocalizationRTC), SPEC section 7.
+
+Subscribes ``motor/sim_pose/localization`` ([x, y, z, θ] stamped with simulation time) and
+publishes ``localization/pose``: first the configured initial pose, stamped with the first
+simulation time seen once someone (odometry) subscribes, then every 1/rate seconds of
+simulation time the latest simulated pose plus optional Gaussian noise
+(:mod:`services.localization_core`). Odometry resets its pose on every fix.
+
+The simulated pose is sampled (:meth:`~services.runtime.Node.latest`): a fix is always the
+newest pose, never one from a backlog, which odometry would take for the present.
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+from typing import Any
+
+from schemas.keys import Service
+from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+from services.config import Config, LocalizationConfig
+from services.localization_core import Fix, Localizer, resolve_seed
+from services.runtime import SAMPLING_POLL_S, Node
+from services.service import ServiceCommand
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    defaults = LocalizationConfig()
+    group = parser.add_argument_group("localization (each flag overrides its localization.* config key)")
+    group.add_argument(
+        "--rate", type=float, metavar="HZ", help=f"fixes per second of simulation time (default {defaults.rate:g})"
+    )
+    group.add_argument(
+        "--noise", type=float, nargs=3, metavar=("SX", "SY", "STHETA"),
+        help="standard deviations of the Gaussian noise on x, y (m) and theta (rad) "
+        f"(default {defaults.noise_x:g} {defaults.noise_y:g} {defaults.noise_theta:g})",
+    )
+    group.add_argument("--seed", type=int, metavar="N", help="random seed of the noise (default: from the OS)")
+    group.add_argument(
+        "--initial", type=float, nargs=3, metavar=("X", "Y", "THETA"),
+        help="initial pose published before the first fix "
+        f"(default {defaults.initial_x:g} {defaults.initial_y:g} {defaults.initial_theta:g})",
+    )
+
+
+def overrides(args: argparse.Namespace) -> dict[str, Any]:
+    noise = args.noise or (None, None, None)
+    initial = args.initial or (None, None, None)
+    return {
+        "localization.rate": args.rate,
+        "localization.noise_x": noise[0],
+        "localization.noise_y": noise[1],
+        "localization.noise_theta": noise[2],
+        "localization.seed": args.seed,
+        "localization.initial_x": initial[0],
+        "localization.initial_y": initial[1],
+        "localization.initial_theta": initial[2],
+    }
+
+
+def _pose_dict(fix: Fix | None) -> dict[str, Any] | None:
+    if fix is None:
+        return None
+    return {"t": fix.stamp_ns / 1e9, **fix.pose._asdict(), "initial": fix.initial}
+
+
+class LocalizationService:
+    def __init__(self, node: Node, config: Config, _args: argparse.Namespace) -> None:
+        self.node = node
+        self.config = config.localization
+        self.seed = resolve_seed(self.config.seed)
+        self.localizer = Localizer.from_config(self.config, self.seed)
+        self.publisher = node.publisher(node.keys.localization_pose)
+        self.sim_pose_input = node.latest(node.keys.motor_sim_pose_localization, TimedDoubleSeq)
+        node.set_status(self.status)
+        node.log.info(
+            "fixes at %g Hz of simulation time, noise σ = (%g m, %g m, %g rad), seed %d",
+            self.config.rate, self.config.noise_x, self.config.noise_y, self.config.noise_theta, self.seed,
+        )
+
+    def _on_sim_pose(self, message: TimedDoubleSeq) -> None:
+        # The initial pose must reach odometry: the schedule starts once someone listens.
+        fix = self.localizer.on_sim_pose(
+            message.tm.to_nanoseconds(), message.data, may_start=self.localizer.started or self.publisher.matched
+        )
+        if fix is not None:
+            x, y, theta = fix.pose
+            stamp = Time.from_nanoseconds(fix.stamp_ns)
+            self.publisher.put(TimedPosition(tm=stamp, id=[], x=x, y=y, theta=theta, error=[]))
+
+    def status(self) -> dict[str, Any]:
+        if self.localizer.started:
+            state = "running"
+        else:
+            state = "waiting_for_sim_pose" if self.localizer.last_sim_pose is None else "waiting_for_subscriber"
+        return {
+            "state": state,
+            "fixes_published": self.localizer.fixes,
+            "last_fix": _pose_dict(self.localizer.last_fix),
+            "rate_hz": self.config.rate,
+            "noise": {"x": self.config.noise_x, "y": self.config.noise_y, "theta": self.config.noise_theta},
+            "seed": self.seed,
+            "seed_from_config": self.config.seed is not None,
+            "initial_pose": self.localizer.initial._asdict(),
+        }
+
+    def run(self, stop: threading.Event) -> int:
+        while not stop.is_set():
+            self.node.spin_once(SAMPLING_POLL_S)
+            self.sim_pose_input.take(self._on_sim_pose)
+        return 0
+
+    def close(self) -> None:
+        """Nothing beyond the node to release."""
+
+
+COMMAND = ServiceCommand(
+    service=Service.LOCALIZATION,
+    help="the localization stub: initial pose, then noisy fixes of the simulated pose (sim time)",
+    description="Publish localization/pose: the initial pose (localization.initial_*), then every "
+    "1/rate seconds of simulation time the latest motor/sim_pose/localization plus Gaussian noise "
+    "(localization.noise_*, seeded by localization.seed). See docs/localization.md.",
+    add_arguments=add_arguments,
+    overrides=overrides,
+    factory=LocalizationService,
+)
