@@ -19,6 +19,11 @@ from services.service import ServiceCommand, config_from_args, run_service
 EXIT_CONFIG = 2
 
 SERVICE_MODULES = (
+    "sim_bridge.bridge",
+    "services.motor",
+    "services.odometry",
+    "services.localization",
+    "services.drive",
     "services.motor",
     "services.odometry",
     "services.localization",

@@ -112,6 +112,8 @@ class SimConfig(_Section):
     """Simulated seconds per physics step."""
     lockstep_timeout: Positive = 0.5
     """Wall seconds a lockstep step waits for its torque before applying zero and going on."""
+    lockstep_max_late: Annotated[int, msgspec.Meta(ge=1)] = 3
+    """Late torques in a row after which lockstep steps at real-time pace until the motor control answers again."""
     realtime_factor: Positive = 1.0
     """Realtime mode: simulated seconds per wall second."""
     torque_max_age: Positive = 0.01
@@ -175,6 +177,9 @@ class DriveConfig(_Section):
     """Path follower limit on the rate of change of vx in m/s^2 (a step in wheel speed slips)."""
     max_angular_acceleration: Positive = 2.0
     """Path follower limit on the rate of change of w in rad/s^2."""
+    pose_timeout: Positive = 0.5
+    """Seconds of simulation time after which an odometry pose is too old to follow a path on:
+    the drive then commands zero until a fresh one arrives."""
 
 
 class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):

@@ -1,0 +1,431 @@
+"""``invent sim``: the PyBullet simulator bridge (SPEC section 6), a thin shell around the simulator core.
+
+Every step publishes ``sim/wheel_angles`` then ``sim/body_pose`` stamped with simulation time,
+applies the wheel torques and steps:
+
+- **lockstep** (default): before stepping, wait for the ``motor/torque`` whose ``tm`` is this
+  step's; a torque with any other ``tm`` is stale (counted, ignored). The wait happens only
+  while a motor control is alive (its liveliness token ``motor/alive``): with none, steps run
+  without waiting, zero torque. An answer later than ``sim.lockstep_timeout`` means zero
+  torque, a (rate-limited) warning and the next step. After ``sim.lockstep_max_late`` late
+  answers in a row the motor control counts as silent: each step then waits only one
+  real-time period for its torque (the sim runs at real-time pace, zero torque, slow enough
+  for a motor control to work off its backlog) until a torque from it arrives again.
+- **realtime**: steps paced to the wall clock times ``sim.realtime_factor``; each applies the
+  newest torque, or zero when the newest is older than ``sim.torque_max_age``.
+
+When the robot begins touching an obstacle it publishes ``sim/bump`` and calls
+``motor/bump/stop`` without waiting for the answer (the reply is only counted).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import threading
+import time
+import typing
+from functools import partial
+from typing import TYPE_CHECKING, Any
+
+import zenoh
+
+from schemas.codec import BadInput, encode
+from schemas.keys import Method, MethodFamily, Service
+from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, NoArguments, Time, TimedDoubleSeq
+from services.config import Config, SimConfig, SimMode
+from services.runtime import Node
+from services.service import ServiceCommand
+from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, read_world, resolve_world
+
+if TYPE_CHECKING:
+    from sim_bridge.simulator import Contact
+
+LOCKSTEP, REALTIME = typing.get_args(SimMode)
+MOTOR_QUERY_TIMEOUT_S = 1.0
+"""Upper bound on the start-up liveliness query for a motor control (the router answers at once)."""
+BUMP_STOP_TIMEOUT_S = 1.0
+"""How long a ``motor/bump/stop`` call stays open for its reply."""
+POLL_S = 0.1
+"""Longest a wait goes without checking for SIGINT/SIGTERM."""
+WARNING_INTERVAL_S = 1.0
+"""At most one warning line per kind per interval."""
+MAX_REALTIME_LAG_S = 0.1
+"""Realtime mode: a loop this far behind the wall clock restarts its schedule instead of bursting."""
+_BUMP_STOP_PAYLOAD = encode(NoArguments())
+
+
+class _RateLimitedWarning:
+    def __init__(self, node: Node) -> None:
+        self._log = node.log
+        self._last = float("-inf")
+        self._suppressed = 0
+
+    def __call__(self, message: str, *args: Any) -> None:
+        now = time.monotonic()
+        if now - self._last < WARNING_INTERVAL_S:
+            self._suppressed += 1
+            return
+        more = f" ({self._suppressed} more since the last line)" if self._suppressed else ""
+        self._log.warning(message + more, *args)
+        self._last, self._suppressed = now, 0
+
+
+COUNTERS = (
+    "torques_applied",
+    "late_torques",
+    "missing_torques",
+    "stale_torques",
+    "bumps",
+    "bump_stop_calls",
+    "bump_stop_acks",
+    "bump_stop_errors",
+    "realtime_resyncs",
+)
+"""The counters of ``sim/status`` (docs/sim.md explains each)."""
+
+
+class SimService:
+    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+        self.node = node
+        self.parameters = config.sim
+        self.mode = config.sim.mode
+        self.duration: float | None = args.duration
+        self.counters = dict.fromkeys(COUNTERS, 0)
+        self.motor_alive = False
+        self.motor_silent = False
+        """Alive but not answering: lockstep steps at real-time pace until its next torque."""
+        self._late_in_a_row = 0
+        self._silent_wait_s = config.sim.step / config.sim.realtime_factor
+        self.finished = False
+        self._started: float | None = None
+        self._awaited_ns = -1
+        self._answered = False
+        self._newest_torque: list[float] | None = None
+        self._newest_ns = -1
+        self._max_age_ns = round(config.sim.torque_max_age * NANOSECONDS_PER_SECOND)
+        self._warn_late = _RateLimitedWarning(node)
+        # Imported here, not at the top: every `invent` command imports this module for its flags,
+        # and importing PyBullet prints its build banner.
+        from sim_bridge.simulator import Simulator
+
+        self.world_file = resolve_world(config.sim.world)
+        self.sim = Simulator(config.robot, config.sim, read_world(self.world_file), gui=args.gui)
+        self._end_step = (
+            math.inf if args.duration is None else round(args.duration * NANOSECONDS_PER_SECOND / self.sim.step_ns)
+        )
+        try:
+            self._declare()
+        except BaseException:
+            self.sim.close()
+            raise
+
+    def _declare(self) -> None:
+        node, keys = self.node, self.node.keys
+        self._pose_publisher = node.publisher(keys.sim_body_pose)
+        self._angles_publisher = node.publisher(keys.sim_wheel_angles)
+        self._bump_publisher = node.publisher(keys.sim_bump)
+        node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque)
+        self._motor_key = keys.alive(Service.MOTOR)
+        self._bump_stop = node.session.declare_querier(
+            keys.method(MethodFamily.BUMP, Method.STOP), timeout=BUMP_STOP_TIMEOUT_S
+        )
+        self._motor_watch = node.session.liveliness().declare_subscriber(
+            self._motor_key, self._on_motor_liveliness, history=True
+        )
+        node.set_status(self.status)
+
+    # --- zenoh callbacks: they only hand over to the service thread ---
+
+    def _on_motor_liveliness(self, sample: zenoh.Sample) -> None:
+        self.node.post(partial(self._set_motor_alive, sample.kind == zenoh.SampleKind.PUT))
+
+    def _on_bump_stop_reply(self, reply: zenoh.Reply) -> None:
+        ok = reply.ok is not None
+        reason = "" if ok else reply.err.payload.to_string()
+        self.node.post(partial(self._record_bump_stop_reply, ok, reason))
+
+    # --- service thread ---
+
+    def _set_motor_alive(self, alive: bool) -> None:
+        if alive == self.motor_alive:
+            return
+        self.motor_alive = alive
+        self._set_motor_silent(False)
+        lockstep = self.mode == LOCKSTEP
+        if alive:
+            effect = "steps wait for its torques" if lockstep else "applying its torques"
+        else:
+            effect = "stepping on with zero torque" if lockstep else "zero torque"
+        self.node.log.info("motor control %s: %s", "alive" if alive else "gone", effect)
+
+    def _set_motor_silent(self, silent: bool) -> None:
+        self._late_in_a_row = 0
+        if silent == self.motor_silent:
+            return
+        self.motor_silent = silent
+        if silent:
+            self.node.log.warning(
+                "motor control alive but silent for %d steps: stepping at real-time pace until it answers",
+                self.parameters.lockstep_max_late,
+            )
+        elif self.motor_alive:
+            self.node.log.info("motor control answers again: steps wait for its torques")
+
+    def _record_bump_stop_reply(self, ok: bool, reason: str) -> None:
+        if ok:
+            self.counters["bump_stop_acks"] += 1
+        else:
+            self.counters["bump_stop_errors"] += 1
+            self.node.log.warning("motor/bump/stop answered with an error: %s", reason)
+
+    def _on_torque(self, torque: TimedDoubleSeq) -> None:
+        if len(torque.data) != self.sim.wheel_count:
+            raise BadInput(f"{len(torque.data)} torques, expected {self.sim.wheel_count} (one per wheel id)")
+        tm_ns = torque.tm.to_nanoseconds()
+        if self.mode == LOCKSTEP:
+            if self.motor_silent:
+                self._set_motor_silent(False)
+            if tm_ns != self._awaited_ns or self._answered:
+                self.counters["stale_torques"] += 1
+                return
+            self.sim.set_torques(torque.data)
+            self._answered = True
+        elif tm_ns > self._newest_ns:
+            self._newest_torque, self._newest_ns = torque.data, tm_ns
+
+    def _motor_present(self) -> bool:
+        """Ask the router once at start, so the first steps already know whether to wait."""
+        replies = self.node.session.liveliness().get(self._motor_key, timeout=MOTOR_QUERY_TIMEOUT_S)
+        return any(reply.ok is not None for reply in replies)
+
+    def _publish_state(self) -> int:
+        sim = self.sim
+        tm_ns = sim.time_ns
+        tm = Time.from_nanoseconds(tm_ns)
+        # Wheel angles first: they trigger the motor's torque, which the next step waits for.
+        self._angles_publisher.put(TimedDoubleSeq(tm=tm, data=sim.wheel_angles()))
+        self._pose_publisher.put(TimedDoubleSeq(tm=tm, data=sim.body_pose()))
+        return tm_ns
+
+    def _step(self) -> None:
+        for contact in self.sim.step():
+            self._bump(contact)
+
+    def _bump(self, contact: Contact) -> None:
+        self.counters["bumps"] += 1
+        tm = Time.from_nanoseconds(self.sim.time_ns)
+        self.node.log.info(
+            "bump: began touching %r at (%.3f, %.3f, %.3f), t = %.3f s; calling motor/bump/stop",
+            contact.obstacle,
+            contact.x,
+            contact.y,
+            contact.z,
+            tm.to_seconds(),
+        )
+        self._bump_publisher.put(BumpEvent(tm=tm, obstacle=contact.obstacle, x=contact.x, y=contact.y, z=contact.z))
+        self.counters["bump_stop_calls"] += 1
+        self._bump_stop.get(self._on_bump_stop_reply, payload=_BUMP_STOP_PAYLOAD)
+
+    def _lockstep_torque(self, tm_ns: int, stop: threading.Event) -> None:
+        """Set this step's torque: the motor's answer for ``tm_ns``, or zero."""
+        node, counters = self.node, self.counters
+        self._awaited_ns, self._answered = tm_ns, False
+        if self.motor_alive:
+            silent = self.motor_silent
+            deadline = time.monotonic() + (self._silent_wait_s if silent else self.parameters.lockstep_timeout)
+            while not self._answered and self.motor_alive and not stop.is_set():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    if silent:
+                        counters["missing_torques"] += 1
+                    else:
+                        self._late(tm_ns)
+                    break
+                node.spin_once(min(remaining, POLL_S))
+        else:
+            node.drain()
+            if not self._answered:
+                counters["missing_torques"] += 1
+        self._awaited_ns = -1
+        if self._answered:
+            self._late_in_a_row = 0
+            counters["torques_applied"] += 1
+        else:
+            self.sim.set_zero_torques()
+
+    def _late(self, tm_ns: int) -> None:
+        self.counters["late_torques"] += 1
+        self._warn_late(
+            "no motor/torque for t = %.3f s within %.3f s: zero torque",
+            tm_ns / NANOSECONDS_PER_SECOND,
+            self.parameters.lockstep_timeout,
+        )
+        self._late_in_a_row += 1
+        if self._late_in_a_row >= self.parameters.lockstep_max_late:
+            self._set_motor_silent(True)
+
+    def _run_lockstep(self, stop: threading.Event) -> None:
+        sim = self.sim
+        while sim.step_index < self._end_step and not stop.is_set():
+            self._lockstep_torque(self._publish_state(), stop)
+            self._step()
+
+    def _realtime_torque(self, tm_ns: int) -> None:
+        newest = self._newest_torque
+        if newest is not None and tm_ns - self._newest_ns <= self._max_age_ns:
+            self.sim.set_torques(newest)
+            self.counters["torques_applied"] += 1
+        else:
+            self.sim.set_zero_torques()
+            self.counters["missing_torques"] += 1
+
+    def _run_realtime(self, stop: threading.Event) -> None:
+        sim, node = self.sim, self.node
+        period = sim.step_ns / NANOSECONDS_PER_SECOND / self.parameters.realtime_factor
+        origin, origin_step = time.monotonic(), sim.step_index
+        while sim.step_index < self._end_step and not stop.is_set():
+            tm_ns = self._publish_state()
+            deadline = origin + (sim.step_index + 1 - origin_step) * period
+            while (remaining := deadline - time.monotonic()) > 0.0:
+                node.spin_once(min(remaining, POLL_S))
+            if -remaining > MAX_REALTIME_LAG_S:
+                self.counters["realtime_resyncs"] += 1
+                origin, origin_step = time.monotonic(), sim.step_index + 1
+            node.drain()
+            self._realtime_torque(tm_ns)
+            self._step()
+
+    def run(self, stop: threading.Event) -> int:
+        self._set_motor_alive(self._motor_present())
+        self.node.drain()
+        if self.motor_alive and self.mode == LOCKSTEP:
+            self._await_motor_subscription()
+        self.node.log.info(
+            "simulating %s in %s mode, step %g s%s",
+            self.world_file,
+            self.mode,
+            self.parameters.step,
+            "" if self.duration is None else f", for {self.duration:g} s",
+        )
+        self._started = time.monotonic()
+        {LOCKSTEP: self._run_lockstep, REALTIME: self._run_realtime}[self.mode](stop)
+        self.finished = self.sim.step_index >= self._end_step
+        self.node.log.info("%s: %s", "finished" if self.finished else "stopped", self._summary())
+        return 0
+
+    def _await_motor_subscription(self) -> None:
+        """Give the first wheel angles a subscriber to reach, so the first step does not time out."""
+        deadline = time.monotonic() + self.parameters.lockstep_timeout
+        while not self._angles_publisher.matched and time.monotonic() < deadline:
+            self.node.spin_once(POLL_S / 10.0)
+
+    def _elapsed(self) -> float:
+        return 0.0 if self._started is None else time.monotonic() - self._started
+
+    def _steps_per_second(self) -> float:
+        elapsed = self._elapsed()
+        return self.sim.step_index / elapsed if elapsed > 0.0 else 0.0
+
+    def _planar_pose(self) -> dict[str, float]:
+        x, y, _z, r00, _r01, _r02, r10 = self.sim.body_pose()[:7]
+        return {"x": x, "y": y, "theta": math.atan2(r10, r00)}
+
+    def _summary(self) -> str:
+        sim = self.sim
+        pose = self._planar_pose()
+        counters = ", ".join(f"{name} {count}" for name, count in self.counters.items())
+        return (
+            f"{sim.step_index} steps, {sim.time_ns / NANOSECONDS_PER_SECOND:.3f} s simulated "
+            f"in {self._elapsed():.3f} s "
+            f"({self._steps_per_second():.0f} steps/s); {counters}; "
+            f"pose x {pose['x']:.4f} m, y {pose['y']:.4f} m, theta {pose['theta']:.4f} rad"
+        )
+
+    def status(self) -> dict[str, Any]:
+        sim = self.sim
+        simulated = sim.time_ns / NANOSECONDS_PER_SECOND
+        elapsed = self._elapsed()
+        return {
+            "state": "finished" if self.finished else ("running" if self._started is not None else "starting"),
+            "mode": self.mode,
+            "world": str(self.world_file),
+            "motor_alive": self.motor_alive,
+            "motor_silent": self.motor_silent,
+            "sim_time_s": simulated,
+            "steps": sim.step_index,
+            "steps_per_second": self._steps_per_second(),
+            "realtime_factor_achieved": simulated / elapsed if elapsed > 0.0 else 0.0,
+            "torques": list(sim.applied_torques),
+            "pose": self._planar_pose(),
+            "counters": dict(self.counters),
+            "parameters": {
+                "step": self.parameters.step,
+                "duration": self.duration,
+                "lockstep_timeout": self.parameters.lockstep_timeout,
+                "lockstep_max_late": self.parameters.lockstep_max_late,
+                "realtime_factor": self.parameters.realtime_factor,
+                "torque_max_age": self.parameters.torque_max_age,
+                "max_wheel_torque": self.parameters.max_wheel_torque,
+            },
+        }
+
+    def close(self) -> None:
+        self._motor_watch.undeclare()
+        self._bump_stop.undeclare()
+        self.sim.close()
+
+
+def _positive_seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number of seconds")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    defaults = SimConfig()
+    group = parser.add_argument_group("simulation")
+    group.add_argument("--mode", choices=typing.get_args(SimMode), help=f"(default {defaults.mode})")
+    group.add_argument(
+        "--step", type=_positive_seconds, metavar="S", help=f"simulated seconds per step (default {defaults.step:g})"
+    )
+    group.add_argument("--duration", type=_positive_seconds, metavar="S", help="simulate S seconds, then exit 0")
+    group.add_argument(
+        "--realtime-factor",
+        type=_positive_seconds,
+        metavar="F",
+        help=f"realtime mode: simulated seconds per wall second (default {defaults.realtime_factor:g})",
+    )
+    group.add_argument(
+        "--world",
+        metavar="FILE",
+        help=f"world TOML file, or a built-in world ({', '.join(builtin_worlds())}); default: {DEFAULT_WORLD}",
+    )
+    group.add_argument("--gui", action="store_true", help="open a PyBullet window (needs a display)")
+
+
+def overrides(args: argparse.Namespace) -> dict[str, Any]:
+    return {
+        "sim.mode": args.mode,
+        "sim.step": args.step,
+        "sim.realtime_factor": args.realtime_factor,
+        "sim.world": args.world,
+    }
+
+
+COMMAND = ServiceCommand(
+    service=Service.SIM,
+    help="the PyBullet simulator: wheel angles and body pose out, wheel torques in",
+    description="Plays OpenHRP3 and its controller bridge with PyBullet: each step publishes sim/wheel_angles and "
+    "sim/body_pose stamped with simulation time, applies the motor/torque answer and steps. Lockstep (default) "
+    "waits for the torque of each step while a motor control is alive; realtime paces steps to the wall clock. "
+    "A contact with an obstacle publishes sim/bump and calls motor/bump/stop. Parameters: [robot] geometry and "
+    "[sim] in the robot description; worlds are TOML files (docs/sim.md).",
+    add_arguments=add_arguments,
+    overrides=overrides,
+    factory=SimService,
+)

@@ -1,0 +1,186 @@
+"""The stepping core of the sim bridge: one PyBullet world, no zenoh.
+
+Vectors follow the wire contract (SPEC sections 2 and 6): wheel angles and torques are
+indexed by wheel id (``robot.left_wheel_id``, ``robot.right_wheel_id``), their length is the
+largest id + 1 and the other entries are 0; the body pose is x, y, z of the axle-centre frame
+then its 3x3 rotation matrix row-major. Simulation time is ``step_index * step_ns``.
+
+The per-step path (``wheel_angles``, ``body_pose``, ``set_torques``, ``step``) is kept lean:
+the lockstep loop runs it thousands of times per second.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import pybullet as p
+
+from schemas.codec import BadInput
+from schemas.messages import NANOSECONDS_PER_SECOND
+from services.config import ConfigError, RobotConfig, SimConfig
+from sim_bridge.robot import RobotModel, build_robot
+from sim_bridge.world import World
+
+GRAVITY = 9.81
+"""m/s^2, along -z."""
+DISPLAY_VARIABLE = "DISPLAY"
+_NO_CONTACTS: tuple[Contact, ...] = ()
+_CONTACT_POSITION_ON_OBSTACLE = 6
+_CONTACT_DISTANCE = 8
+
+
+@dataclass(frozen=True)
+class Contact:
+    """The robot began touching ``obstacle`` at world point (x, y, z)."""
+
+    obstacle: str
+    x: float
+    y: float
+    z: float
+
+
+def connect(gui: bool) -> int:
+    """A physics client of its own: headless (DIRECT), or a GUI window when a display exists."""
+    if gui and not os.environ.get(DISPLAY_VARIABLE):
+        raise ConfigError(f"--gui needs a display, but ${DISPLAY_VARIABLE} is not set (run without --gui)")
+    client = p.connect(p.GUI if gui else p.DIRECT)
+    if client < 0:
+        raise ConfigError("--gui: PyBullet could not open a window" if gui else "PyBullet could not start")
+    return client
+
+
+class Simulator:
+    """A diff-drive robot in a world, stepped by :meth:`step` with the torques of :meth:`set_torques`."""
+
+    def __init__(self, robot: RobotConfig, sim: SimConfig, world: World, *, gui: bool = False) -> None:
+        self.step_ns = round(sim.step * NANOSECONDS_PER_SECOND)
+        if self.step_ns < 1:
+            raise ConfigError(f"`sim.step`: {sim.step} s is shorter than 1 ns")
+        self.robot_config, self.sim_config, self.world = robot, sim, world
+        self.wheel_count = max(robot.left_wheel_id, robot.right_wheel_id) + 1
+        self.max_torque = sim.max_wheel_torque
+        self._left, self._right = robot.left_wheel_id, robot.right_wheel_id
+        self._release_steps = max(1, round(sim.bump_release * NANOSECONDS_PER_SECOND / self.step_ns))
+        self.client = connect(gui)
+        self._build()
+
+    def _build(self) -> None:
+        client = self.client
+        p.resetSimulation(physicsClientId=client)
+        p.setPhysicsEngineParameter(
+            fixedTimeStep=self.step_ns / NANOSECONDS_PER_SECOND,
+            deterministicOverlappingPairs=1,
+            physicsClientId=client,
+        )
+        p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=client)
+        ground_shape = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=client)
+        ground = p.createMultiBody(0.0, ground_shape, physicsClientId=client)
+        p.changeDynamics(ground, -1, lateralFriction=self.world.ground.friction, physicsClientId=client)
+        self._obstacles = self._build_obstacles()
+        self.model: RobotModel = build_robot(client, self.robot_config, self.sim_config, self.world.initial_pose)
+        self._body = self.model.body
+        self._wheels = self.model.wheel_joints
+        self.step_index = 0
+        self._forces = [0.0, 0.0]
+        self.applied_torques = [0.0] * self.wheel_count
+        """The torques applied during the next step, by wheel id (after saturation)."""
+        self._last_contact_step: list[int | None] = [None] * len(self._obstacles)
+
+    def _build_obstacles(self) -> tuple[tuple[int, str], ...]:
+        client = self.client
+        built = []
+        for box in self.world.boxes:
+            half = tuple(length / 2.0 for length in box.size)
+            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=client)
+            body = p.createMultiBody(
+                box.mass,
+                shape,
+                basePosition=(box.x, box.y, half[2]),
+                baseOrientation=p.getQuaternionFromEuler((0.0, 0.0, box.yaw)),
+                physicsClientId=client,
+            )
+            built.append((body, box.name))
+        for cylinder in self.world.cylinders:
+            shape = p.createCollisionShape(
+                p.GEOM_CYLINDER, radius=cylinder.radius, height=cylinder.height, physicsClientId=client
+            )
+            body = p.createMultiBody(
+                cylinder.mass,
+                shape,
+                basePosition=(cylinder.x, cylinder.y, cylinder.height / 2.0),
+                physicsClientId=client,
+            )
+            built.append((body, cylinder.name))
+        return tuple(built)
+
+    @property
+    def time_ns(self) -> int:
+        """Simulation time of the current state."""
+        return self.step_index * self.step_ns
+
+    def wheel_angles(self) -> list[float]:
+        """Wheel joint angles in rad (unwrapped), by wheel id."""
+        left, right = p.getJointStates(self._body, self._wheels, physicsClientId=self.client)
+        angles = [0.0] * self.wheel_count
+        angles[self._left] = left[0]
+        angles[self._right] = right[0]
+        return angles
+
+    def body_pose(self) -> list[float]:
+        """x, y, z of the axle centre, then its rotation matrix row-major (12 values)."""
+        position, orientation = p.getBasePositionAndOrientation(self._body, physicsClientId=self.client)
+        return [*position, *p.getMatrixFromQuaternion(orientation)]
+
+    def set_torques(self, torques: Sequence[float]) -> None:
+        """Wheel torques in N·m by wheel id for the next step, each saturated at ``sim.max_wheel_torque``."""
+        if len(torques) != self.wheel_count:
+            raise BadInput(f"{len(torques)} torques, expected {self.wheel_count} (one per wheel id)")
+        limit = self.max_torque
+        left = min(max(torques[self._left], -limit), limit)
+        right = min(max(torques[self._right], -limit), limit)
+        self._forces[0] = self.applied_torques[self._left] = left
+        self._forces[1] = self.applied_torques[self._right] = right
+
+    def set_zero_torques(self) -> None:
+        self._forces[0] = self._forces[1] = 0.0
+        self.applied_torques[self._left] = self.applied_torques[self._right] = 0.0
+
+    def step(self) -> tuple[Contact, ...]:
+        """Apply the torques, advance one step; return the obstacle contacts that began in it."""
+        client = self.client
+        # PyBullet clears applied joint torques after every step: they must be set again each time.
+        p.setJointMotorControlArray(
+            self._body, self._wheels, p.TORQUE_CONTROL, forces=self._forces, physicsClientId=client
+        )
+        p.stepSimulation(physicsClientId=client)
+        self.step_index += 1
+        return self._new_contacts() if self._obstacles else _NO_CONTACTS
+
+    def _new_contacts(self) -> tuple[Contact, ...]:
+        began = []
+        for index, (obstacle, name) in enumerate(self._obstacles):
+            points = p.getContactPoints(bodyA=self._body, bodyB=obstacle, physicsClientId=self.client)
+            # Bullet also reports points within its contact margin, not yet touching.
+            touching = [point for point in points if point[_CONTACT_DISTANCE] <= 0.0]
+            if not touching:
+                continue
+            last = self._last_contact_step[index]
+            if last is None or self.step_index - last > self._release_steps:
+                began.append(Contact(name, *touching[0][_CONTACT_POSITION_ON_OBSTACLE]))
+            self._last_contact_step[index] = self.step_index
+        return tuple(began)
+
+    def reset(self) -> None:
+        """Back to the world's initial state at time 0 (the world is rebuilt, so runs repeat bit for bit)."""
+        self._build()
+
+    def close(self) -> None:
+        p.disconnect(physicsClientId=self.client)
+
+    def __enter__(self) -> Simulator:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()

@@ -1,0 +1,219 @@
+"""The simulator core (no zenoh): shapes, directions, saturation, determinism and bump contacts."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from schemas.codec import BadInput
+from services.config import ConfigError, RobotConfig, SimConfig
+from sim_bridge.simulator import DISPLAY_VARIABLE, Contact, Simulator, connect
+from sim_bridge.world import load_world, parse_world
+
+Torques = Callable[[int], list[float]]
+
+
+@pytest.fixture
+def sim() -> Iterator[Simulator]:
+    with Simulator(RobotConfig(), SimConfig(), load_world(None)) as simulator:
+        yield simulator
+
+
+def drive(sim: Simulator, torques: Torques, steps: int) -> list[Contact]:
+    """Step ``steps`` times with ``torques(step_index)``; return the contacts that began."""
+    began: list[Contact] = []
+    for _ in range(steps):
+        sim.set_torques(torques(sim.step_index))
+        began.extend(sim.step())
+    return began
+
+
+def constant(left: float, right: float) -> Torques:
+    return lambda _k: [left, right]
+
+
+def yaw(pose: list[float]) -> float:
+    return math.atan2(pose[6], pose[3])
+
+
+def rotation(pose: list[float]) -> np.ndarray:
+    return np.array(pose[3:12]).reshape(3, 3)
+
+
+def assert_proper_rotation(pose: list[float]) -> None:
+    matrix = rotation(pose)
+    np.testing.assert_allclose(matrix @ matrix.T, np.eye(3), atol=1e-9)
+    assert np.linalg.det(matrix) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_state_shapes_and_the_robot_at_rest(sim: Simulator):
+    angles, pose = sim.wheel_angles(), sim.body_pose()
+    assert angles == [0.0, 0.0]
+    assert len(pose) == 12 and all(isinstance(v, float) for v in pose)
+    assert pose[:3] == pytest.approx([0.0, 0.0, RobotConfig().radius_of_left_wheel])
+    np.testing.assert_allclose(rotation(pose), np.eye(3), atol=1e-12)
+    assert sim.time_ns == 0 and sim.step_ns == 1_000_000
+
+
+def test_simulation_time_counts_steps(sim: Simulator):
+    drive(sim, constant(0.0, 0.0), 25)
+    assert sim.step_index == 25 and sim.time_ns == 25_000_000
+
+
+def test_constant_positive_torque_drives_forward_without_slip(sim: Simulator):
+    drive(sim, constant(1.0, 1.0), 1000)
+    pose, (left, right) = sim.body_pose(), sim.wheel_angles()
+    radius = RobotConfig().radius_of_left_wheel
+    assert pose[0] > 0.1
+    assert abs(pose[1]) < 1e-6 and abs(yaw(pose)) < 1e-6
+    assert left > 0 and right > 0 and left == pytest.approx(right, rel=1e-6)
+    assert pose[0] == pytest.approx(left * radius, rel=0.02)
+
+
+def test_negative_torque_drives_backward(sim: Simulator):
+    drive(sim, constant(-1.0, -1.0), 500)
+    assert sim.body_pose()[0] < -0.02
+    assert all(angle < 0 for angle in sim.wheel_angles())
+
+
+def test_opposite_torques_spin_in_place(sim: Simulator):
+    drive(sim, constant(1.0, -1.0), 1000)
+    pose, (left, right) = sim.body_pose(), sim.wheel_angles()
+    assert yaw(pose) < -0.2, "left forward, right backward turns clockwise"
+    assert math.hypot(pose[0], pose[1]) < 0.01
+    assert left > 0 > right and left == pytest.approx(-right, rel=0.01)
+    assert_proper_rotation(pose)
+
+
+def test_the_yaw_matches_the_wheel_angles(sim: Simulator):
+    drive(sim, constant(-0.5, 0.5), 800)
+    (left, right), robot = sim.wheel_angles(), RobotConfig()
+    expected = (right - left) * robot.radius_of_left_wheel / robot.length_of_axle
+    assert yaw(sim.body_pose()) == pytest.approx(expected, rel=0.02)
+
+
+def test_wheel_angles_and_torques_follow_the_wheel_ids():
+    robot = RobotConfig(left_wheel_id=2, right_wheel_id=0)
+    with Simulator(robot, SimConfig(), load_world(None)) as sim:
+        assert sim.wheel_count == 3
+        drive(sim, lambda _k: [0.0, 0.0, 1.0], 500)
+        right, unused, left = sim.wheel_angles()
+        assert unused == 0.0 and left > 0.1 and abs(right) < left
+        assert yaw(sim.body_pose()) < 0, "only the left wheel driving turns clockwise"
+        assert sim.applied_torques == [0.0, 0.0, 1.0]
+
+
+def test_torques_are_saturated_at_the_motor_limit():
+    limit = SimConfig().max_wheel_torque
+    with (
+        Simulator(RobotConfig(), SimConfig(), load_world(None)) as over,
+        Simulator(RobotConfig(), SimConfig(), load_world(None)) as at_limit,
+    ):
+        over.set_torques([1e6, -1e6])
+        assert over.applied_torques == [limit, -limit]
+        drive(over, constant(1e6, -1e6), 200)
+        drive(at_limit, constant(limit, -limit), 200)
+        assert over.body_pose() == at_limit.body_pose()
+
+
+def test_zero_torques_clear_the_applied_torques(sim: Simulator):
+    sim.set_torques([2.0, 3.0])
+    sim.set_zero_torques()
+    assert sim.applied_torques == [0.0, 0.0]
+    sim.step()
+    assert sim.body_pose()[0] == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("torques", [[1.0], [1.0, 2.0, 3.0], []])
+def test_a_torque_vector_of_the_wrong_length_is_bad_input(sim: Simulator, torques: list[float]):
+    with pytest.raises(BadInput, match="expected 2"):
+        sim.set_torques(torques)
+
+
+def varying(k: int) -> list[float]:
+    return [3.0 * math.sin(k / 37.0) + 1.0, 2.0 * math.cos(k / 23.0)]
+
+
+def test_two_runs_with_the_same_torques_end_bit_identical():
+    with (
+        Simulator(RobotConfig(), SimConfig(), load_world("bump")) as first,
+        Simulator(RobotConfig(), SimConfig(), load_world("bump")) as second,
+    ):
+        drive(first, varying, 1500)
+        drive(second, varying, 1500)
+        assert first.body_pose() == second.body_pose()
+        assert first.wheel_angles() == second.wheel_angles()
+
+
+def test_reset_repeats_a_run_bit_for_bit(sim: Simulator):
+    drive(sim, varying, 700)
+    pose, angles = sim.body_pose(), sim.wheel_angles()
+    sim.reset()
+    assert sim.step_index == 0 and sim.wheel_angles() == [0.0, 0.0]
+    drive(sim, varying, 700)
+    assert sim.body_pose() == pose and sim.wheel_angles() == angles
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.floats(-30.0, 30.0), st.floats(-30.0, 30.0), st.integers(1, 150)), min_size=1, max_size=4
+    )
+)
+def test_the_body_rotation_is_always_proper(segments: list[tuple[float, float, int]]):
+    with Simulator(RobotConfig(), SimConfig(), load_world(None)) as sim:
+        for left, right, steps in segments:
+            drive(sim, constant(left, right), steps)
+            assert_proper_rotation(sim.body_pose())
+
+
+def test_the_initial_pose_comes_from_the_world():
+    world = parse_world("[initial_pose]\nx = 1.0\ny = -2.0\ntheta = 1.5707963267948966\n")
+    with Simulator(RobotConfig(), SimConfig(), world) as sim:
+        pose = sim.body_pose()
+        assert pose[:2] == pytest.approx([1.0, -2.0])
+        assert yaw(pose) == pytest.approx(math.pi / 2)
+        drive(sim, constant(1.0, 1.0), 500)
+        moved = sim.body_pose()
+        assert moved[1] > -2.0 + 0.02 and moved[0] == pytest.approx(1.0, abs=1e-4), "forward is +y when facing +y"
+
+
+def test_driving_into_the_box_begins_one_contact_on_its_near_face():
+    with Simulator(RobotConfig(), SimConfig(), load_world("bump")) as sim:
+        began = drive(sim, constant(2.0, 2.0), 2000)
+        (contact,) = began
+        box = sim.world.boxes[0]
+        assert contact.obstacle == "box"
+        assert contact.x == pytest.approx(box.x - box.size[0] / 2, abs=1e-3)
+        assert abs(contact.y) < RobotConfig().radius_of_body_area and 0.0 < contact.z < box.size[2]
+        touching_x = box.x - box.size[0] / 2 - RobotConfig().radius_of_body_area
+        assert sim.body_pose()[0] == pytest.approx(touching_x, abs=0.01), "the box stops the body"
+
+
+def test_the_ground_is_not_an_obstacle(sim: Simulator):
+    assert drive(sim, varying, 1000) == []
+
+
+def test_leaving_and_touching_again_is_a_second_bump():
+    with Simulator(RobotConfig(), SimConfig(), load_world("bump")) as sim:
+        first = drive(sim, constant(2.0, 2.0), 1200)
+        backing = drive(sim, constant(-3.0, -3.0), 400)
+        again = drive(sim, constant(3.0, 3.0), 1500)
+        assert [c.obstacle for c in first] == ["box"] and backing == []
+        assert [c.obstacle for c in again] == ["box"]
+
+
+def test_a_step_shorter_than_a_nanosecond_is_a_config_error():
+    with pytest.raises(ConfigError, match="sim.step"):
+        Simulator(RobotConfig(), SimConfig(step=1e-10), load_world(None))
+
+
+def test_gui_without_a_display_is_a_config_error(monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.delenv(DISPLAY_VARIABLE, raising=False)
+    with pytest.raises(ConfigError, match=r"--gui needs a display.*\$DISPLAY"):
+        connect(gui=True)
