@@ -12,8 +12,8 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
-run: $(STAMP)  ## the main job (for now the router services connect to)
-	$(BIN)/invent router
+run: $(STAMP)  ## the whole loop: router, sim, motor, odometry, localization, drive, then a report
+	$(BIN)/invent up
 
 test: $(STAMP)  ## the whole suite
 	$(BIN)/python -m pytest

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import msgspec
 
 from schemas.keys import DEFAULT_ROBOT
-from services import tools
+from services import tools, up
 from services.config import ConfigError
 from services.runtime import DEFAULT_ENDPOINT, configure_logging, open_session, session_config, stop_on_signals
 from services.service import ServiceCommand, config_from_args, run_service
@@ -24,13 +24,6 @@ SERVICE_MODULES = (
     "services.odometry",
     "services.localization",
     "services.drive",
-    "services.motor",
-    "services.odometry",
-    "services.localization",
-    "services.drive",
-    "services.motor",
-    "services.odometry",
-    "services.odometry",
 )
 """Modules that each define ``COMMAND: ServiceCommand``; one ``invent <service>`` subcommand each."""
 
@@ -129,6 +122,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     config.set_defaults(handler=_config, log_level="info")
 
+    up_parser = commands.add_parser(
+        "up",
+        parents=[connection, service],
+        help="run the whole loop (router, sim, motor, odometry, localization, drive) and write a report",
+        description="Start every service as its own process in this terminal, drive a scenario, then stop "
+        "everything and write a run report (report.json, trajectory.png, wheel_speeds.png). "
+        "--listen sets where its router listens (default %s); --connect joins an existing router instead. "
+        "Ctrl-C stops everything." % DEFAULT_ENDPOINT,
+    )
+    up.add_arguments(up_parser)
+    up_parser.set_defaults(handler=_up)
+
     for command in service_commands():
         sub = commands.add_parser(
             str(command.service), parents=[connection, service], help=command.help, description=command.description
@@ -164,6 +169,10 @@ def _status(args: argparse.Namespace) -> int:
 def _config(args: argparse.Namespace) -> int:
     print(json.dumps(msgspec.to_builtins(config_from_args(None, args)), indent=2))
     return 0
+
+
+def _up(args: argparse.Namespace) -> int:
+    return up.run_up(args, config_from_args(None, args))
 
 
 def _serve(args: argparse.Namespace) -> int:

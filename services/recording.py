@@ -1,0 +1,79 @@
+"""Records one run of the loop for the report, from zenoh, without slowing it down.
+
+Subscriber callbacks only append the raw payload (no decoding, no zenoh calls); decoding
+happens once, after the run, in :meth:`Recorder.recording`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from schemas.codec import BadInput, decode
+from schemas.keys import Keys
+from schemas.messages import TimedDoubleSeq, TimedPosition, TimedVelocity
+from services.config import RobotConfig
+from services.report import Recording, pose_from_body_pose
+
+
+class Recorder:
+    def __init__(self, session: zenoh.Session, keys: Keys, robot: RobotConfig) -> None:
+        self._robot = robot
+        self._payloads: dict[str, list[bytes]] = {}
+        self._subscribers = [
+            self._record(session, key)
+            for key in (
+                keys.sim_body_pose,
+                keys.odometry_pose,
+                keys.localization_pose,
+                keys.drive_target_velocity,
+                keys.motor_wheel_angles,
+            )
+        ]
+        self._keys = keys
+
+    def _record(self, session: zenoh.Session, key: str) -> zenoh.Subscriber:
+        payloads = self._payloads.setdefault(key, [])
+        return session.declare_subscriber(key, lambda sample: payloads.append(sample.payload.to_bytes()))
+
+    def close(self) -> None:
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+
+    def _decoded(self, key: str, message_type: type[Any], convert: Callable[[Any], Any]) -> list[Any]:
+        items = []
+        for payload in self._payloads[key]:
+            try:
+                message = decode(message_type, payload)
+            except BadInput:
+                continue
+            items.append((message.tm.to_seconds(), convert(message)))
+        items.sort(key=lambda item: item[0])
+        return items
+
+    def recording(self, until: float | None = None) -> Recording:
+        """The decoded series, sorted by time, cut at ``until`` simulated seconds when given."""
+        keys, robot = self._keys, self._robot
+
+        def position(message: TimedPosition) -> tuple[float, float, float]:
+            return message.x, message.y, message.theta
+
+        def wheels(message: TimedDoubleSeq) -> tuple[float, float]:
+            return message.data[robot.left_wheel_id], message.data[robot.right_wheel_id]
+
+        def command(message: TimedVelocity) -> tuple[float, float]:
+            return message.vx, message.w
+
+        recording = Recording(
+            ground_truth=self._decoded(keys.sim_body_pose, TimedDoubleSeq, lambda m: pose_from_body_pose(m.data)),
+            odometry=self._decoded(keys.odometry_pose, TimedPosition, position),
+            localization=self._decoded(keys.localization_pose, TimedPosition, position),
+            commands=[(t, *c) for t, c in self._decoded(keys.drive_target_velocity, TimedVelocity, command)],
+            wheel_angles=[(t, *w) for t, w in self._decoded(keys.motor_wheel_angles, TimedDoubleSeq, wheels)],
+        )
+        if until is not None:
+            for name in ("ground_truth", "odometry", "localization", "commands", "wheel_angles"):
+                setattr(recording, name, [item for item in getattr(recording, name) if item[0] <= until])
+        return recording

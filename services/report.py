@@ -1,0 +1,194 @@
+"""The run report of ``invent up``: metrics from a recording, plots, and a short summary.
+
+Pure apart from writing files: :func:`build_report` turns recorded series into the
+``report.json`` dictionary; :func:`write_plots` draws the trajectories and wheel speeds.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from services.config import RobotConfig
+from services.scenarios import distance_to_path
+
+Pose = tuple[float, float, float]
+Point = tuple[float, float]
+
+
+@dataclass
+class Recording:
+    """Time-stamped series of one run (time in simulated seconds)."""
+
+    ground_truth: list[tuple[float, Pose]] = field(default_factory=list)
+    odometry: list[tuple[float, Pose]] = field(default_factory=list)
+    localization: list[tuple[float, Pose]] = field(default_factory=list)
+    commands: list[tuple[float, float, float]] = field(default_factory=list)
+    """(t, vx, w) target velocities."""
+    wheel_angles: list[tuple[float, float, float]] = field(default_factory=list)
+    """(t, left, right) wheel angles."""
+
+
+def pose_from_body_pose(data: list[float]) -> Pose:
+    """x, y and heading of a ``sim/body_pose`` vector (x, y, z, rotation row-major)."""
+    return data[0], data[1], math.atan2(-data[4], data[3])
+
+
+def _pose_dict(pose: Pose | None) -> dict[str, float] | None:
+    return None if pose is None else {"x": pose[0], "y": pose[1], "theta": pose[2]}
+
+
+def odometry_errors(recording: Recording) -> list[float]:
+    """Position error of each odometry pose against the ground truth at the same stamp."""
+    truth = dict(recording.ground_truth)
+    return [
+        math.hypot(pose[0] - truth[t][0], pose[1] - truth[t][1]) for t, pose in recording.odometry if t in truth
+    ]
+
+
+def wheel_speeds(
+    recording: Recording, robot: RobotConfig
+) -> tuple[list[tuple[float, float, float]], list[tuple[float, float, float]]]:
+    """(commanded, measured) wheel speeds in rad/s as (t, left, right) series."""
+    b = robot.half_axle
+    commanded = [
+        (t, (vx - b * w) / robot.radius_of_left_wheel, (vx + b * w) / robot.radius_of_right_wheel)
+        for t, vx, w in recording.commands
+    ]
+    measured = [
+        (t1, (l1 - l0) / (t1 - t0), (r1 - r0) / (t1 - t0))
+        for (t0, l0, r0), (t1, l1, r1) in zip(recording.wheel_angles, recording.wheel_angles[1:])
+        if t1 > t0
+    ]
+    return commanded, measured
+
+
+def build_report(
+    recording: Recording,
+    *,
+    scenario: str,
+    mode: str,
+    planned_path: list[Point] | None,
+    wall_time_s: float,
+    steps: int,
+    bad_inputs: dict[str, int],
+) -> dict[str, Any]:
+    sim_time_s = recording.ground_truth[-1][0] if recording.ground_truth else 0.0
+    errors = odometry_errors(recording)
+    report: dict[str, Any] = {
+        "scenario": scenario,
+        "mode": mode,
+        "sim_time_s": sim_time_s,
+        "wall_time_s": wall_time_s,
+        "real_time_factor": sim_time_s / wall_time_s if wall_time_s > 0 else None,
+        "steps": steps,
+        "final": {
+            name: _pose_dict(series[-1][1] if series else None)
+            for name, series in (
+                ("ground_truth", recording.ground_truth),
+                ("odometry", recording.odometry),
+                ("localization", recording.localization),
+            )
+        },
+        "start": _pose_dict(recording.ground_truth[0][1] if recording.ground_truth else None),
+        "odometry_error": {"max_m": max(errors, default=None), "final_m": errors[-1] if errors else None},
+        "path_error": None,
+        "bad_inputs": bad_inputs,
+    }
+    if planned_path:
+        deviations = [distance_to_path((pose[0], pose[1]), planned_path) for _t, pose in recording.ground_truth]
+        report["path_error"] = {
+            "mean_m": sum(deviations) / len(deviations) if deviations else None,
+            "max_m": max(deviations, default=None),
+        }
+        report["planned_path"] = [list(point) for point in planned_path]
+    return report
+
+
+def summary(report: dict[str, Any]) -> str:
+    """A few lines for the terminal at the end of a run."""
+
+    def metres(value: float | None) -> str:
+        return "n/a" if value is None else f"{value * 100:.1f} cm"
+
+    final, start = report["final"]["ground_truth"], report["start"]
+    lines = [
+        f"scenario {report['scenario']} ({report['mode']}): {report['sim_time_s']:.2f} s simulated in "
+        f"{report['wall_time_s']:.2f} s wall, {report['real_time_factor'] or 0:.2f}x real time, {report['steps']} steps",
+    ]
+    if final and start:
+        lines.append(
+            f"ground truth ends at ({final['x']:.3f}, {final['y']:.3f}, {math.degrees(final['theta']):.1f} deg), "
+            f"{metres(math.hypot(final['x'] - start['x'], final['y'] - start['y']))} from the start"
+        )
+    lines.append(
+        f"odometry error max {metres(report['odometry_error']['max_m'])}, final {metres(report['odometry_error']['final_m'])}"
+    )
+    if report["path_error"]:
+        lines.append(f"path error mean {metres(report['path_error']['mean_m'])}, max {metres(report['path_error']['max_m'])}")
+    lines.append("bad inputs: " + ", ".join(f"{name} {count}" for name, count in report["bad_inputs"].items()))
+    return "\n".join(lines)
+
+
+def write_report(report: dict[str, Any], directory: Path) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / "report.json"
+    path.write_text(json.dumps(report, indent=2) + "\n")
+    return path
+
+
+def _downsample(series: list[Any], limit: int = 4000) -> list[Any]:
+    step = max(1, len(series) // limit)
+    return series[::step]
+
+
+def write_plots(recording: Recording, planned_path: list[Point] | None, robot: RobotConfig, directory: Path) -> list[Path]:
+    """``trajectory.png`` (ground truth, odometry, localization, planned path) and ``wheel_speeds.png``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    directory.mkdir(parents=True, exist_ok=True)
+    figure, axes = plt.subplots(figsize=(7, 7))
+    if planned_path:
+        xs, ys = zip(*planned_path)
+        axes.plot(xs, ys, "k--", linewidth=1, label="planned path")
+    for name, series, width in (("ground truth", recording.ground_truth, 4.0), ("odometry", recording.odometry, 1.2)):
+        points = _downsample(series)
+        if points:
+            axes.plot([p[0] for _t, p in points], [p[1] for _t, p in points], linewidth=width, alpha=0.8, label=name)
+    if recording.localization:
+        axes.plot(
+            [p[0] for _t, p in recording.localization], [p[1] for _t, p in recording.localization], "o", label="localization fixes"
+        )
+    axes.set_xlabel("x [m]")
+    axes.set_ylabel("y [m]")
+    axes.set_aspect("equal", adjustable="datalim")
+    axes.grid(True, alpha=0.3)
+    axes.legend(loc="best")
+    axes.set_title("trajectories")
+    trajectory = directory / "trajectory.png"
+    figure.savefig(trajectory, dpi=110, bbox_inches="tight")
+    plt.close(figure)
+
+    commanded, measured = wheel_speeds(recording, robot)
+    figure, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for index, side in ((1, "left"), (2, "right")):
+        panel = axes[index - 1]
+        measured_points = _downsample(measured)
+        panel.plot([m[0] for m in measured_points], [m[index] for m in measured_points], label="measured", linewidth=0.8)
+        panel.step([c[0] for c in commanded], [c[index] for c in commanded], where="post", label="commanded")
+        panel.set_ylabel(f"{side} wheel [rad/s]")
+        panel.grid(True, alpha=0.3)
+        panel.legend(loc="best")
+    axes[1].set_xlabel("simulated time [s]")
+    figure.suptitle("commanded vs measured wheel speeds")
+    speeds = directory / "wheel_speeds.png"
+    figure.savefig(speeds, dpi=110, bbox_inches="tight")
+    plt.close(figure)
+    return [trajectory, speeds]
+

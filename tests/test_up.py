@@ -1,0 +1,89 @@
+"""invent up: the whole loop in separate processes, its report, and its failure handling."""
+
+import json
+import math
+import os
+import re
+import signal
+import subprocess
+
+import pytest
+
+from tests.harness import REPO, free_port, invent_command, wait_until
+
+pytestmark = pytest.mark.slow
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def _child_pids(output: str) -> dict[str, int]:
+    return {name: int(pid) for name, pid in re.findall(r"started (\w+) \(pid (\d+)\)", output)}
+
+
+def test_up_square_returns_to_the_start_and_writes_the_report(tmp_path):
+    report_dir = tmp_path / "report"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    result = subprocess.run(
+        invent_command("up", "--scenario", "square", "--report", str(report_dir), "--listen", endpoint),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-2000:]
+    report = json.loads((report_dir / "report.json").read_text())
+    for field in ("scenario", "mode", "sim_time_s", "wall_time_s", "real_time_factor", "steps", "bad_inputs"):
+        assert field in report, field
+    assert (report["scenario"], report["mode"]) == ("square", "lockstep")
+    for estimate in ("ground_truth", "odometry", "localization"):
+        assert set(report["final"][estimate]) == {"x", "y", "theta"}, estimate
+    start, end = report["start"], report["final"]["ground_truth"]
+    assert math.hypot(end["x"] - start["x"], end["y"] - start["y"]) < 0.05
+    assert report["path_error"]["max_m"] < 0.10
+    assert report["odometry_error"]["max_m"] < 0.05
+    assert report["real_time_factor"] > 1.0
+    assert report["steps"] == pytest.approx(report["sim_time_s"] / 0.001, rel=0.01)
+    assert report["bad_inputs"] == {"motor": 0, "odometry": 0, "sim": 0, "localization": 0}
+    assert (report_dir / "trajectory.png").stat().st_size > 10_000
+    assert (report_dir / "wheel_speeds.png").stat().st_size > 10_000
+    assert "scenario square (lockstep)" in result.stdout
+    pids = _child_pids(result.stdout)
+    assert set(pids) == {"router", "motor", "odometry", "localization", "sim", "drive"}
+    assert not [name for name, pid in pids.items() if _pid_alive(pid)]
+
+
+def test_killing_the_motor_mid_run_stops_everything_and_exits_non_zero(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    process = subprocess.Popen(
+        invent_command("up", "--scenario", "square", "--report", str(tmp_path), "--listen", endpoint),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    output: list[str] = []
+    try:
+        def drive_started() -> bool:
+            line = process.stdout.readline()
+            output.append(line)
+            return "started drive" in line or not line
+
+        wait_until(drive_started, 60, "invent up to start the drive")
+        pids = _child_pids("".join(output))
+        os.kill(pids["motor"], signal.SIGKILL)
+        rest, _ = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    text = "".join(output) + rest
+    assert process.returncode != 0
+    assert "motor exited unexpectedly (killed by SIGKILL)" in text
+    wait_until(lambda: not [pid for pid in pids.values() if _pid_alive(pid)], 15, "every child to be gone")
+    assert not (tmp_path / "report.json").exists()
