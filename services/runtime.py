@@ -168,6 +168,31 @@ class LatestSample(Generic[MessageT]):
         self._subscriber.undeclare()
 
 
+class Executor:
+    """The event queue of one service thread: zenoh callbacks post, the thread handles.
+
+    A node gets an executor of its own; services composed in one process may share one, so a
+    single thread handles all their events in arrival order, with no thread switch between
+    them (as a ROS 2 single-threaded executor does).
+    """
+
+    def __init__(self) -> None:
+        self._events: queue.SimpleQueue[tuple[Callable[[Any], None], Any]] = queue.SimpleQueue()
+
+    def post(self, handle: Callable[[Any], None], item: Any) -> None:
+        """Queue ``handle(item)``; thread-safe, and cheap enough for a zenoh callback."""
+        self._events.put((handle, item))
+
+    def spin_once(self, timeout: float | None) -> bool:
+        """Handle one queued event, waiting up to ``timeout`` seconds; False if none came."""
+        try:
+            handle, item = self._events.get(timeout=timeout) if timeout != 0 else self._events.get_nowait()
+        except queue.Empty:
+            return False
+        handle(item)
+        return True
+
+
 class Node:
     """One service's presence on zenoh. See the module docstring.
 
@@ -181,6 +206,7 @@ class Node:
         keys: Keys,
         service: Service,
         status: Callable[[], dict[str, Any]] = dict,
+        executor: Executor | None = None,
     ) -> None:
         self.session = session
         self.keys = keys
@@ -189,7 +215,7 @@ class Node:
         self.bad_inputs = BadInputCounter(str(service))
         self.internal_errors = 0
         self._status = status
-        self._events: queue.SimpleQueue[tuple[Callable[..., None], Any]] = queue.SimpleQueue()
+        self.executor = executor or Executor()
         self._declarations: list[Any] = []
         self._publishers: list[Publisher] = []
         self._started = time.monotonic()
@@ -223,9 +249,9 @@ class Node:
         def dispatch(payload: bytes) -> None:
             self._guard(key, handler, payload)
 
-        events = self._events
+        post = self.executor.post
         self._declarations.append(
-            self.session.declare_subscriber(key, lambda sample: events.put((dispatch, sample.payload.to_bytes())))
+            self.session.declare_subscriber(key, lambda sample: post(dispatch, sample.payload.to_bytes()))
         )
 
     def queryable(self, key: str, handler: _QueryHandler) -> None:
@@ -253,8 +279,8 @@ class Node:
             finally:
                 query.drop()
 
-        events = self._events
-        self._declarations.append(self.session.declare_queryable(key, lambda query: events.put((answer, query))))
+        post = self.executor.post
+        self._declarations.append(self.session.declare_queryable(key, lambda query: post(answer, query)))
 
     def latest(self, key: str, message_type: type[MessageT]) -> LatestSample[MessageT]:
         """Sample ``key`` at the service's own pace instead of handling every sample (see LatestSample)."""
@@ -269,16 +295,24 @@ class Node:
 
     def post(self, callback: Callable[[], None]) -> None:
         """Run ``callback()`` on the service thread (thread-safe; usable from zenoh callbacks)."""
-        self._events.put((lambda _: callback(), None))
+        self.executor.post(lambda _: callback(), None)
+
+    def watch(self, service: Service, on_change: Callable[[bool], None]) -> None:
+        """Call ``on_change(alive)`` on the service thread whenever ``service``'s liveliness token
+        appears (True; also for one already there) or goes (False): a neighbour that dies and
+        comes back is then picked up again (SPEC section 8)."""
+        post = self.executor.post
+        self._declarations.append(
+            self.session.liveliness().declare_subscriber(
+                self.keys.alive(service),
+                lambda sample: post(on_change, sample.kind == zenoh.SampleKind.PUT),
+                history=True,
+            )
+        )
 
     def spin_once(self, timeout: float | None) -> bool:
         """Handle one queued event, waiting up to ``timeout`` seconds; False if none came."""
-        try:
-            handle, item = self._events.get(timeout=timeout) if timeout != 0 else self._events.get_nowait()
-        except queue.Empty:
-            return False
-        handle(item)
-        return True
+        return self.executor.spin_once(timeout)
 
     def spin(self, stop: threading.Event, poll_s: float = 0.1) -> None:
         """Handle events until ``stop`` is set."""

@@ -150,3 +150,31 @@ def test_session_config_flags_override_zenoh_config_file(tmp_path, monkeypatch):
     overridden = json.loads(str(session_config(connect=["tcp/127.0.0.1:2222"], listen=["tcp/127.0.0.1:3333"])))
     assert overridden["connect"]["endpoints"] == ["tcp/127.0.0.1:2222"]
     assert overridden["listen"]["endpoints"] == ["tcp/127.0.0.1:3333"]
+
+
+def test_watch_reports_a_neighbour_that_comes_and_goes_and_comes_back(session, node):
+    changes = []
+    node.watch(Service.SIM, changes.append)
+    for expected in ([True], [True, False], [True, False, True]):
+        if len(expected) % 2:
+            neighbour = Node(session, node.keys, Service.SIM)
+        else:
+            neighbour.close()
+        _spin_until(node, lambda expected=expected: changes == expected)
+    neighbour.close()
+
+
+def test_nodes_sharing_an_executor_are_handled_by_one_thread_in_order(session):
+    from services.runtime import Executor
+
+    executor = Executor()
+    keys = Keys("rh0")
+    first = Node(session, keys, Service.MOTOR, executor=executor)
+    second = Node(session, keys, Service.ODOMETRY, executor=executor)
+    order = []
+    first.post(lambda: order.append("first"))
+    second.post(lambda: order.append("second"))
+    assert second.spin_once(0) and first.spin_once(0)
+    assert order == ["first", "second"]
+    first.close()
+    second.close()
