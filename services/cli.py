@@ -172,7 +172,7 @@ def _config(args: argparse.Namespace) -> int:
 
 
 def _up(args: argparse.Namespace) -> int:
-    return up.run_up(args, config_from_args(None, args))
+    return up.run_up(args, config_from_args(None, args), build_parser())
 
 
 def _serve(args: argparse.Namespace) -> int:

@@ -19,7 +19,7 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from services.config import Config, load_config, parse_override
-from services.runtime import Node
+from services.runtime import Executor, Node
 
 
 class RunningService(Protocol):
@@ -68,10 +68,15 @@ def config_from_args(command: ServiceCommand | None, args: argparse.Namespace) -
 
 
 def start_service(
-    command: ServiceCommand, session: zenoh.Session, config: Config, args: argparse.Namespace
+    command: ServiceCommand,
+    session: zenoh.Session,
+    config: Config,
+    args: argparse.Namespace,
+    executor: Executor | None = None,
 ) -> tuple[Node, RunningService]:
-    """Build ``command``'s service on ``session`` (opened by the caller, maybe shared)."""
-    node = Node(session, Keys(config.robot.name), command.service)
+    """Build ``command``'s service on ``session`` (opened by the caller, maybe shared), its node
+    on ``executor`` (default: one of its own)."""
+    node = Node(session, Keys(config.robot.name), command.service, executor=executor)
     try:
         return node, command.factory(node, config, args)
     except BaseException:

@@ -5,7 +5,8 @@ the sim (so lockstep waits for the motor from the first step) and finally the dr
 scenario. Children's output is prefixed with their name. The run ends when the drive finishes
 its scenario (exit 0): ``up`` then records the services' status, stops every child with
 SIGINT and writes the report. A child that dies early makes ``up`` say which one, stop the
-others and exit 1. Ctrl-C stops everything cleanly (exit 130).
+others and exit 1. Ctrl-C stops everything cleanly (exit 130). With ``--composed`` the same
+services run in this one process instead (``services/composition.py``).
 """
 
 from __future__ import annotations
@@ -19,14 +20,16 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import zenoh
 
 from schemas.keys import Keys, Service
+from services.composition import Composition
 from services.config import Config
 from services.recording import Recorder
 from services.report import build_report, summary, write_plots, write_report
@@ -40,6 +43,11 @@ PROGRESS_INTERVAL_S = 1.0
 SERVICES_BEFORE_SIM = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
 
 _PR_SET_PDEATHSIG = 1
+NAME_WIDTH = max(len(str(service)) for service in Service)
+
+
+def say(text: str) -> None:
+    print(f"[{'up':<{NAME_WIDTH}}] {text}", flush=True)
 
 
 def _die_with_parent() -> None:
@@ -62,14 +70,15 @@ class Child:
     process: subprocess.Popen[str]
     pump: threading.Thread
 
+    def finished(self) -> int | None:
+        return self.process.poll()
+
 
 class Supervisor:
     """The children of one ``invent up`` run, their prefixed output, and their orderly stop."""
 
     def __init__(self) -> None:
         self.children: list[Child] = []
-        self.interrupted = threading.Event()
-        self._width = max(len(str(service)) for service in Service)
 
     def start(self, name: str, argv: Sequence[str]) -> Child:
         process = subprocess.Popen(
@@ -84,28 +93,22 @@ class Supervisor:
         pump.start()
         child = Child(name, process, pump)
         self.children.append(child)
-        self.say(f"started {name} (pid {process.pid}): invent {' '.join(argv)}")
+        say(f"started {name} (pid {process.pid}): invent {' '.join(argv)}")
         return child
-
-    def say(self, text: str) -> None:
-        print(f"[{'up':<{self._width}}] {text}", flush=True)
 
     def _pump(self, name: str, process: subprocess.Popen[str]) -> None:
         assert process.stdout is not None
         for line in process.stdout:
-            sys.stdout.write(f"[{name:<{self._width}}] {line}")
+            sys.stdout.write(f"[{name:<{NAME_WIDTH}}] {line}")
             sys.stdout.flush()
 
-    def first_exited(self) -> Child | None:
-        return next((child for child in self.children if child.process.poll() is not None), None)
-
-    def check(self, expected_to_finish: str | None = None) -> None:
-        """Raise Interrupted on Ctrl-C, ChildDied when a child other than ``expected_to_finish`` has exited."""
-        if self.interrupted.is_set():
-            raise Interrupted
+    def exited(self, exclude: str | None = None) -> tuple[str, str] | None:
+        """(name, reason) of a child other than ``exclude`` that has exited, or None."""
         for child in self.children:
-            if child.name != expected_to_finish and child.process.poll() is not None:
-                raise ChildDied(f"{child.name} exited unexpectedly ({_describe_exit(child.process.returncode)})")
+            code = child.process.poll()
+            if child.name != exclude and code is not None:
+                return child.name, _describe_exit(code)
+        return None
 
     def stop(self) -> dict[str, int]:
         """SIGINT every child, newest first; kill what does not stop in time. Returns exit codes."""
@@ -115,7 +118,7 @@ class Supervisor:
                 try:
                     child.process.wait(STOP_TIMEOUT_S)
                 except subprocess.TimeoutExpired:
-                    self.say(f"{child.name} did not stop within {STOP_TIMEOUT_S} s; killing it")
+                    say(f"{child.name} did not stop within {STOP_TIMEOUT_S} s; killing it")
                     child.process.kill()
                     child.process.wait()
             child.pump.join(timeout=2.0)
@@ -128,30 +131,76 @@ def _describe_exit(code: int) -> str:
     return f"exit code {code}"
 
 
-def _wait_alive(session: zenoh.Session, keys: Keys, services: Sequence[Service], supervisor: Supervisor) -> None:
-    alive: set[str] = set()
-    subscribers = [
-        session.liveliness().declare_subscriber(keys.alive(service), lambda s: alive.add(str(s.key_expr)), history=True)
-        for service in services
-    ]
-    try:
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while len(alive) < len(services):
-            supervisor.check()
-            if time.monotonic() > deadline:
-                missing = sorted(set(map(keys.alive, services)) - alive)
-                raise ChildDied(f"not alive after {STARTUP_TIMEOUT_S} s: {', '.join(missing)}")
-            time.sleep(0.02)
-    finally:
-        for subscriber in subscribers:
-            subscriber.undeclare()
+class Launcher(Protocol):
+    """How ``up`` runs services: as processes (:class:`Supervisor`) or composed in this process."""
+
+    def start(self, name: str, argv: Sequence[str]) -> Any: ...
+
+    def exited(self, exclude: str | None = None) -> tuple[str, str] | None: ...
+
+    def stop(self) -> dict[str, int]: ...
 
 
-def _status(session: zenoh.Session, keys: Keys, service: Service) -> dict[str, Any] | None:
-    for reply in session.get(keys.status(service), timeout=2.0):
-        if reply.ok is not None:
-            return json.loads(reply.ok.payload.to_bytes())
-    return None
+@dataclass
+class Run:
+    """One ``invent up`` run: the launcher, its session, and Ctrl-C."""
+
+    launcher: Launcher
+    session: zenoh.Session
+    keys: Keys
+    interrupted: threading.Event
+
+    def check(self, expected_to_finish: str | None = None) -> None:
+        """Raise Interrupted on Ctrl-C, ChildDied when a service other than ``expected_to_finish`` ended."""
+        if self.interrupted.is_set():
+            raise Interrupted
+        exited = self.launcher.exited(exclude=expected_to_finish)
+        if exited is not None:
+            raise ChildDied(f"{exited[0]} exited unexpectedly ({exited[1]})")
+
+    def wait_alive(self, services: Sequence[Service]) -> None:
+        alive: set[str] = set()
+        subscribers = [
+            self.session.liveliness().declare_subscriber(
+                self.keys.alive(service), lambda s: alive.add(str(s.key_expr)), history=True
+            )
+            for service in services
+        ]
+        try:
+            deadline = time.monotonic() + STARTUP_TIMEOUT_S
+            while len(alive) < len(services):
+                self.check()
+                if time.monotonic() > deadline:
+                    missing = sorted(set(map(self.keys.alive, services)) - alive)
+                    raise ChildDied(f"not alive after {STARTUP_TIMEOUT_S} s: {', '.join(missing)}")
+                time.sleep(0.02)
+        finally:
+            for subscriber in subscribers:
+                subscriber.undeclare()
+
+    def status(self, service: Service) -> dict[str, Any] | None:
+        for reply in self.session.get(self.keys.status(service), timeout=2.0):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_bytes())
+        return None
+
+    def supervise(self, drive: Any, started: float) -> dict[str, Any] | None:
+        """Wait for the drive to finish its scenario, printing progress; return the sim's last status."""
+        sim_status: dict[str, Any] | None = None
+        next_progress = time.monotonic()
+        while True:
+            self.check(expected_to_finish=drive.name)
+            code = drive.finished()
+            if time.monotonic() >= next_progress or code is not None:
+                sim_status = self.status(Service.SIM) or sim_status
+                next_progress = time.monotonic() + PROGRESS_INTERVAL_S
+                if sim_status:
+                    _progress(sim_status, time.monotonic() - started)
+            if code == 0:
+                return sim_status
+            if code is not None:
+                raise ChildDied(f"drive exited unexpectedly ({_describe_exit(code)})")
+            time.sleep(0.05)
 
 
 def _child_args(args: argparse.Namespace, endpoint: str) -> list[str]:
@@ -169,7 +218,33 @@ def _default_report_dir() -> Path:
     return Path("runs") / datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
 
 
-def run_up(args: argparse.Namespace, config: Config) -> int:
+@contextmanager
+def _launch(args: argparse.Namespace, endpoint: str, parser: argparse.ArgumentParser) -> Iterator[tuple[Launcher, zenoh.Session]]:
+    """The launcher and the session ``up`` watches through: separate processes around a router
+    child (or the router at ``--connect``), or one composed process whose session is itself the
+    router (so outside zenoh tools still see every key)."""
+    if args.composed:
+        mode_config = (
+            session_config(connect=[endpoint]) if args.connect else session_config(listen=[endpoint], mode="router")
+        )
+        with open_session(mode_config) as session:
+            composition = Composition(session, parser)
+            try:
+                yield composition, session
+            finally:
+                composition.stop()
+        return
+    supervisor = Supervisor()
+    try:
+        if not args.connect:
+            supervisor.start("router", ["router", "--listen", endpoint, "--log-level", args.log_level])
+        with open_session(session_config(connect=[endpoint])) as session:
+            yield supervisor, session
+    finally:
+        supervisor.stop()
+
+
+def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentParser) -> int:
     from services.scenarios import planned_path_for
 
     keys = Keys(config.robot.name)
@@ -177,85 +252,55 @@ def run_up(args: argparse.Namespace, config: Config) -> int:
     common = _child_args(args, endpoint)
     report_dir = Path(args.report) if args.report else _default_report_dir()
     mode = args.mode or config.sim.mode
-    supervisor = Supervisor()
-    signal.signal(signal.SIGINT, lambda *_: supervisor.interrupted.set())
-    signal.signal(signal.SIGTERM, lambda *_: supervisor.interrupted.set())
-    outcome = 0
+    interrupted = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: interrupted.set())
+    signal.signal(signal.SIGTERM, lambda *_: interrupted.set())
     try:
-        if not args.connect:
-            supervisor.start("router", ["router", "--listen", endpoint, "--log-level", args.log_level])
-        with open_session(session_config(connect=[endpoint])) as session:
+        with _launch(args, endpoint, parser) as (launcher, session):
+            run = Run(launcher, session, keys, interrupted)
             recorder = Recorder(session, keys, config.robot)
             for service in SERVICES_BEFORE_SIM:
-                supervisor.start(str(service), [str(service), *common])
-            _wait_alive(session, keys, SERVICES_BEFORE_SIM, supervisor)
-            sim_flags = ["--mode", mode] + (["--gui"] if args.gui else [])
-            supervisor.start("sim", ["sim", *common, *sim_flags])
-            _wait_alive(session, keys, (Service.SIM,), supervisor)
+                launcher.start(str(service), [str(service), *common])
+            run.wait_alive(SERVICES_BEFORE_SIM)
+            launcher.start("sim", ["sim", *common, "--mode", mode, *(["--gui"] if args.gui else [])])
+            run.wait_alive((Service.SIM,))
             started = time.monotonic()
-            drive = supervisor.start("drive", ["drive", *common, "--scenario", args.scenario])
-            sim_status = _supervise(session, keys, supervisor, drive, started)
+            drive = launcher.start("drive", ["drive", *common, "--scenario", args.scenario])
+            sim_status = run.supervise(drive, started)
             wall_time_s = time.monotonic() - started
-            statuses = {str(service): _status(session, keys, service) for service in Service if service != Service.DRIVE}
+            statuses = {str(service): run.status(service) for service in Service if service != Service.DRIVE}
             recorder.close()
-        exit_codes = supervisor.stop()
-        unclean = {name: code for name, code in exit_codes.items() if code != 0}
-        if unclean:
-            supervisor.say(f"children that did not exit cleanly: {unclean}")
-        recording = recorder.recording(until=sim_status.get("sim_time_s") if sim_status else None)
-        report = build_report(
-            recording,
-            scenario=args.scenario,
-            mode=mode,
-            planned_path=planned_path_for(args.scenario, recording.ground_truth[0][1] if recording.ground_truth else None),
-            wall_time_s=wall_time_s,
-            steps=int(sim_status["steps"]) if sim_status else 0,
-            bad_inputs={name: status["bad_input"]["total"] for name, status in statuses.items() if status},
-        )
-        path = write_report(report, report_dir)
-        plots = write_plots(recording, report.get("planned_path"), config.robot, report_dir)
-        print(summary(report), flush=True)
-        supervisor.say(f"report: {path}; plots: {', '.join(str(p) for p in plots)}")
+            unclean = {name: code for name, code in launcher.stop().items() if code != 0}
+            if unclean:
+                say(f"services that did not exit cleanly: {unclean}")
     except ChildDied as error:
-        supervisor.say(f"{error}; stopping everything")
-        outcome = EXIT_CHILD_DIED
+        say(f"{error}; stopped everything")
+        return EXIT_CHILD_DIED
     except Interrupted:
-        supervisor.say("interrupted; stopping everything")
-        outcome = EXIT_INTERRUPTED
-    finally:
-        supervisor.stop()
-    return outcome
+        say("interrupted; stopped everything")
+        return EXIT_INTERRUPTED
+    recording = recorder.recording(until=sim_status.get("sim_time_s") if sim_status else None)
+    report = build_report(
+        recording,
+        scenario=args.scenario,
+        mode=mode,
+        planned_path=planned_path_for(args.scenario, recording.ground_truth[0][1] if recording.ground_truth else None),
+        wall_time_s=wall_time_s,
+        steps=int(sim_status["steps"]) if sim_status else 0,
+        bad_inputs={name: status["bad_input"]["total"] for name, status in statuses.items() if status},
+    )
+    report["composed"] = args.composed
+    path = write_report(report, report_dir)
+    plots = write_plots(recording, report.get("planned_path"), config.robot, report_dir)
+    print(summary(report), flush=True)
+    say(f"report: {path}; plots: {', '.join(str(p) for p in plots)}")
+    return 0
 
 
-def _supervise(
-    session: zenoh.Session,
-    keys: Keys,
-    supervisor: Supervisor,
-    drive: Child,
-    started: float,
-) -> dict[str, Any] | None:
-    """Wait for the drive to finish its scenario, printing progress; return the sim's last status."""
-    sim_status: dict[str, Any] | None = None
-    next_progress = time.monotonic()
-    while True:
-        supervisor.check(expected_to_finish=drive.name)
-        if time.monotonic() >= next_progress or drive.process.poll() is not None:
-            sim_status = _status(session, keys, Service.SIM) or sim_status
-            next_progress = time.monotonic() + PROGRESS_INTERVAL_S
-            if sim_status:
-                _progress(supervisor, sim_status, time.monotonic() - started)
-        code = drive.process.poll()
-        if code == 0:
-            return sim_status
-        if code is not None:
-            raise ChildDied(f"drive exited unexpectedly ({_describe_exit(code)})")
-        time.sleep(0.05)
-
-
-def _progress(supervisor: Supervisor, sim_status: dict[str, Any], wall_s: float) -> None:
+def _progress(sim_status: dict[str, Any], wall_s: float) -> None:
     sim_time = sim_status.get("sim_time_s", 0.0)
     pose = sim_status.get("pose") or {}
-    supervisor.say(
+    say(
         f"sim {sim_time:7.2f} s | {sim_time / wall_s if wall_s > 0 else 0:5.2f}x real time | "
         f"pose x {pose.get('x', 0.0):+.3f} y {pose.get('y', 0.0):+.3f} theta {pose.get('theta', 0.0):+.3f}"
     )
@@ -268,4 +313,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--report", metavar="DIR", help="report directory (default runs/<timestamp>/)")
     parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
+    parser.add_argument(
+        "--composed",
+        action="store_true",
+        help="run the services in this one process on one zenoh session (no network hop between them; "
+        "the session is the router, so outside zenoh tools still see every key)",
+    )
 

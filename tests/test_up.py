@@ -87,3 +87,37 @@ def test_killing_the_motor_mid_run_stops_everything_and_exits_non_zero(tmp_path)
     assert "motor exited unexpectedly (killed by SIGKILL)" in text
     wait_until(lambda: not [pid for pid in pids.values() if _pid_alive(pid)], 15, "every child to be gone")
     assert not (tmp_path / "report.json").exists()
+
+
+def test_composed_runs_in_one_process_and_outside_tools_still_see_every_service(tmp_path):
+    from schemas.keys import Keys, Service
+    from tests.harness import open_peer, run_invent, wait_alive
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    process = subprocess.Popen(
+        invent_command("up", "--composed", "--scenario", "square", "--report", str(tmp_path), "--listen", endpoint),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        outside = open_peer(endpoint)
+        try:
+            wait_alive(outside, Keys("rh0").alive(Service.DRIVE), timeout=60)
+        finally:
+            outside.close()
+        status = run_invent("status", "--connect", endpoint)
+        output, _ = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    assert process.returncode == 0, output[-4000:]
+    seen = {line["service"] for line in map(json.loads, status.stdout.splitlines())}
+    assert {"sim", "motor", "odometry", "localization"} <= seen, status.stderr
+    assert "(pid" not in output, "composed mode must not start child processes"
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["composed"] is True and report["scenario"] == "square", report
+    assert report["path_error"]["max_m"] < 0.10
+    assert report["odometry_error"]["max_m"] < 0.05

@@ -1,0 +1,100 @@
+"""Services composed in one process on one zenoh session, as ROS 2 component containers do.
+
+The same service code and the same keys as separate processes, still visible to outside zenoh
+tools, without the network hop: sim, motor and odometry share one :class:`Executor`, and the
+sim's thread (its lockstep wait) handles all their events in order, so a step's exchange
+(wheel angles → motor → torque → sim) involves no thread switch. The drive and localization,
+which sample their inputs at their own pace, run on threads of their own.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import zenoh
+
+from schemas.keys import Service
+from services.runtime import Executor, Node
+from services.service import RunningService, ServiceCommand, config_from_args, start_service
+
+SHARED_EXECUTOR = frozenset({Service.SIM, Service.MOTOR, Service.ODOMETRY})
+DRIVES_SHARED_EXECUTOR = Service.SIM
+"""The one service of SHARED_EXECUTOR whose run loop spins it (the others get no thread)."""
+
+log = logging.getLogger("invent.composed")
+
+
+@dataclass
+class ComposedService:
+    name: str
+    node: Node
+    service: RunningService
+    thread: threading.Thread | None
+    exit_code: int | None = None
+    error: BaseException | None = field(default=None, repr=False)
+
+    def finished(self) -> int | None:
+        """The exit code once the service's run loop has returned (1 if it raised), else None."""
+        if self.thread is None or self.thread.is_alive():
+            return None
+        return self.exit_code if self.error is None else 1
+
+
+class Composition:
+    """Builds and runs services on one shared session; the in-process twin of ``up.Supervisor``."""
+
+    def __init__(self, session: zenoh.Session, parser: argparse.ArgumentParser) -> None:
+        self.session = session
+        self._parser = parser
+        self._stop = threading.Event()
+        self._shared = Executor()
+        self.services: list[ComposedService] = []
+
+    def start(self, name: str, argv: Sequence[str]) -> ComposedService:
+        """Build the service ``invent <argv>`` would run, here, and start its loop if it has one."""
+        args = self._parser.parse_args(list(argv))
+        command: ServiceCommand = args.service_command
+        service_name = command.service
+        config = config_from_args(command, args)
+        executor = self._shared if service_name in SHARED_EXECUTOR else Executor()
+        node, service = start_service(command, self.session, config, args, executor)
+        composed = ComposedService(name, node, service, None)
+        if service_name not in SHARED_EXECUTOR or service_name == DRIVES_SHARED_EXECUTOR:
+            composed.thread = threading.Thread(target=self._run, args=(composed,), name=name, daemon=True)
+            composed.thread.start()
+        self.services.append(composed)
+        log.info("started %s in this process: invent %s", name, " ".join(argv))
+        return composed
+
+    def _run(self, composed: ComposedService) -> None:
+        try:
+            composed.exit_code = composed.service.run(self._stop)
+        except BaseException as error:  # reported by check(), like a child process that died
+            composed.error = error
+            log.exception("%s crashed", composed.name)
+
+    def exited(self, exclude: str | None = None) -> tuple[str, str] | None:
+        """(name, reason) of a service other than ``exclude`` whose loop ended, or None."""
+        for composed in self.services:
+            code = composed.finished()
+            if composed.name != exclude and code is not None:
+                reason = f"crashed: {composed.error!r}" if composed.error else f"returned {code}"
+                return composed.name, reason
+        return None
+
+    def stop(self) -> dict[str, int]:
+        """Stop every loop, then close services and nodes, newest first."""
+        self._stop.set()
+        for composed in self.services:
+            if composed.thread is not None:
+                composed.thread.join()
+        for composed in reversed(self.services):
+            composed.service.close()
+            composed.node.close()
+        codes = {c.name: (c.finished() or 0) for c in self.services}
+        self.services.clear()
+        return codes
