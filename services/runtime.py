@@ -59,6 +59,8 @@ def session_config(
         config.insert_json5("scouting/multicast/enabled", "false")
         if mode == "router":
             listen = listen or [DEFAULT_ENDPOINT]
+            # With multicast scouting off a router has nothing to scout: don't wait 0.5 s for it.
+            config.insert_json5("scouting/delay", "0")
         else:
             connect = connect or [DEFAULT_ENDPOINT]
     if connect:
