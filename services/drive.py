@@ -10,6 +10,9 @@ the newest clock stamp and pose, never on a backlog.
 
 When the scenario ends the drive publishes zero velocity on :data:`FINAL_ZERO_TICKS`
 successive ticks, so the stop is not lost, and exits 0.
+
+A restarted simulator (its liveliness token appears, then its clock goes back) starts the
+scenario over from its first stamp: a new simulator is a new run, the robot back at its start.
 """
 
 from __future__ import annotations
@@ -131,9 +134,11 @@ class DriveService:
         self.commands_published = 0
         self.final_zeros = 0
         self.finished = False
+        self.sim_alive = False
         self.publisher = node.publisher(node.keys.drive_target_velocity)
         self.clock_input = node.latest(node.keys.sim_wheel_angles, TimedDoubleSeq)
         self.pose_input = node.latest(node.keys.odometry_pose, TimedPosition)
+        node.watch(Service.SIM, self._on_sim_liveliness)
         node.set_status(self.status)
         node.log.info(
             "%s %r%s at %g Hz of simulation time:\n%s",
@@ -160,14 +165,37 @@ class DriveService:
         return (self.clock.last_ns - self.pose_stamp_ns) / NANOSECONDS_PER_SECOND
 
     def _fresh_pose(self, now_ns: int) -> Pose | None:
-        """The latest pose, unless it is older than ``pose_timeout`` (odometry stopped): then None."""
-        if self.pose_stamp_ns is None or now_ns - self.pose_stamp_ns > self.pose_timeout_ns:
+        """The latest pose, unless its stamp is further than ``pose_timeout`` from ``now_ns``:
+        older (odometry stopped) or later (from before a simulator restart). Then None."""
+        if self.pose_stamp_ns is None or abs(now_ns - self.pose_stamp_ns) > self.pose_timeout_ns:
             return None
         return self.pose
 
+    def _on_sim_liveliness(self, alive: bool) -> None:
+        # Every PUT, not DELETE-then-PUT: zenoh shows a new token on the same key only once the
+        # old one is gone. Only a clock that then goes back is a new run: a PUT from the same
+        # simulator, after a reconnection, must not restart the scenario.
+        self.sim_alive = alive
+        if alive:
+            self.clock.allow_restart()
+
+    def _restart(self, now_ns: int) -> None:
+        """A new simulator, whose clock started again: the scenario starts over at ``now_ns``."""
+        runner = self.runner
+        self.runner = ScenarioRunner(runner.scenario, runner.params, loop=runner.loop)
+        self.schedule = None
+        self.pose, self.pose_stamp_ns = None, None
+        self.final_zeros = 0
+        self.node.log.info(
+            "simulation time went back to %.3f s (a new simulator): %r starts over",
+            now_ns / NANOSECONDS_PER_SECOND,
+            runner.scenario.name,
+        )
+
     def _on_clock(self, message: TimedDoubleSeq) -> None:
         now_ns = message.tm.to_nanoseconds()
-        self.clock.advance(now_ns)
+        if self.clock.advance(now_ns):
+            self._restart(now_ns)
         if self.schedule is None:
             # Commands sent before the motor listens would be lost: the scenario starts once it does.
             if not self.publisher.matched:
@@ -205,6 +233,8 @@ class DriveService:
             "done": runner.done,
             "rate_hz": self.rate_hz,
             "commands_published": self.commands_published,
+            "sim_alive": self.sim_alive,
+            "time_base_restarts": self.clock.restarts,
             "pose": None if self.pose is None else self.pose._asdict(),
             "pose_age_s": self.pose_age_s,
         }

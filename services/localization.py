@@ -4,7 +4,9 @@ Subscribes ``motor/sim_pose/localization`` ([x, y, z, θ] stamped with simulatio
 publishes ``localization/pose``: first the configured initial pose, stamped with the first
 simulation time seen once someone (odometry) subscribes, then every 1/rate seconds of
 simulation time the latest simulated pose plus optional Gaussian noise
-(:mod:`services.localization_core`). Odometry resets its pose on every fix.
+(:mod:`services.localization_core`). Odometry resets its pose on every fix. When the
+simulator's liveliness token appears and the next stamp is not after the last one (a restarted
+simulator's clock starts again at 0), that sample starts a new time base and takes a fix at once.
 
 The simulated pose is sampled (:meth:`~services.runtime.Node.latest`): a fix is always the
 newest pose, never one from a backlog, which odometry would take for the present.
@@ -70,19 +72,32 @@ class LocalizationService:
         self.config = config.localization
         self.seed = resolve_seed(self.config.seed)
         self.localizer = Localizer.from_config(self.config, self.seed)
+        self.sim_alive = False
         self.publisher = node.publisher(node.keys.localization_pose)
         self.sim_pose_input = node.latest(node.keys.motor_sim_pose_localization, TimedDoubleSeq)
+        node.watch(Service.SIM, self._on_sim_liveliness)
         node.set_status(self.status)
         node.log.info(
             "fixes at %g Hz of simulation time, noise σ = (%g m, %g m, %g rad), seed %d",
             self.config.rate, self.config.noise_x, self.config.noise_y, self.config.noise_theta, self.seed,
         )
 
+    def _on_sim_liveliness(self, alive: bool) -> None:
+        # Every PUT, not DELETE-then-PUT: zenoh shows a new token on the same key only once the
+        # old one is gone. Only a clock that then goes back is a new time base.
+        self.sim_alive = alive
+        if alive:
+            self.localizer.simulator_appeared()
+
     def _on_sim_pose(self, message: TimedDoubleSeq) -> None:
+        localizer = self.localizer
+        restarts = localizer.time_base_restarts
         # The initial pose must reach odometry: the schedule starts once someone listens.
-        fix = self.localizer.on_sim_pose(
-            message.tm.to_nanoseconds(), message.data, may_start=self.localizer.started or self.publisher.matched
+        fix = localizer.on_sim_pose(
+            message.tm.to_nanoseconds(), message.data, may_start=localizer.started or self.publisher.matched
         )
+        if localizer.time_base_restarts != restarts:
+            self.node.log.info("simulation time went back (a new simulator): a new time base, a fix at once")
         if fix is not None:
             x, y, theta = fix.pose
             stamp = Time.from_nanoseconds(fix.stamp_ns)
@@ -96,6 +111,8 @@ class LocalizationService:
         return {
             "state": state,
             "fixes_published": self.localizer.fixes,
+            "time_base_restarts": self.localizer.time_base_restarts,
+            "sim_alive": self.sim_alive,
             "last_fix": _pose_dict(self.localizer.last_fix),
             "rate_hz": self.config.rate,
             "noise": {"x": self.config.noise_x, "y": self.config.noise_y, "theta": self.config.noise_theta},

@@ -8,6 +8,11 @@ x, y, z, θ stamped with simulation time) into localized fixes:
   sample at or after the tick: that sample's pose plus Gaussian noise, independent per axis
   (σx, σy, σθ), θ wrapped into (−π, π].
 
+When the simulator restarts (:meth:`Localizer.simulator_appeared`, then a stamp not after the
+last one: its clock started again), that sample starts a new time base and, once the schedule
+runs, takes a fix at once (the simulated pose, with noise: not the initial pose again) and
+re-anchors the tick grid there.
+
 The noise comes from a seeded :class:`numpy.random.Generator`, so a run is repeatable.
 """
 
@@ -86,21 +91,32 @@ class Localizer:
             np.random.default_rng(seed),
         )
 
+    @property
+    def time_base_restarts(self) -> int:
+        return self._clock.restarts
+
+    def simulator_appeared(self) -> None:
+        """A simulator's liveliness token appeared: if the next stamp is not after the last one,
+        it was restarted (see the module docstring); otherwise nothing changes."""
+        self._clock.allow_restart()
+
     def on_sim_pose(self, stamp_ns: int, data: Sequence[float], may_start: bool = True) -> Fix | None:
         """Take one simulated pose [x, y, z, θ]; return the fix it triggers, if any.
 
         With ``may_start`` False the pose is only recorded and the schedule (with the initial
         pose) does not start yet. Raises BadInput (state unchanged) for a wrong length or a
-        stamp not after the previous one.
+        stamp not after the previous one (unless it starts a new time base).
         """
         if len(data) != SIM_POSE_LENGTH:
             raise BadInput(f"expected {SIM_POSE_LENGTH} values (x, y, z, theta), got {len(data)}")
-        self._clock.advance(stamp_ns)
+        restarted = self._clock.advance(stamp_ns)
         x, y, _z, theta = data
         self.last_sim_pose = Pose(x, y, theta)
         if self._schedule is None:
             if not may_start:
                 return None
+            self._schedule = PeriodicSchedule(self.rate_hz, stamp_ns)
+        elif restarted:
             self._schedule = PeriodicSchedule(self.rate_hz, stamp_ns)
         if not self._schedule.due(stamp_ns):
             return None

@@ -5,6 +5,8 @@ Every ``sim/wheel_angles`` sample gets exactly one ``motor/torque`` with the sam
 input (undecodable, a wheel id out of range, dt <= 0) is dropped and gets no torque.
 Every ``sim/body_pose`` becomes ``motor/sim_pose/gui`` and ``motor/sim_pose/localization``.
 The Motor interface answers on ``motor/gui/<method>`` and ``motor/bump/<method>``.
+Whenever the simulator's liveliness token appears, the wheel-angle time base starts again
+with the next sample (a restarted simulator's clock starts again at 0).
 See docs/motor.md.
 """
 
@@ -55,6 +57,7 @@ class MotorService:
         self.node = node
         self.core = MotorCore(config.robot, config.motor)
         self.torques_published = 0
+        self.sim_alive = False
         self._timeouts_logged = 0
         self._trace_path: str | None = args.trace
         self._trace: BinaryIO | None = None
@@ -76,6 +79,7 @@ class MotorService:
         for family in MethodFamily:
             for method in Method:
                 node.queryable(keys.method(family, method), partial(self._call, family, method))
+        node.watch(Service.SIM, self._on_sim_liveliness)
         node.set_status(self.status)
         node.log.info(
             "motor control: target_angle %s, command_timeout %g s, wheel ids %d/%d",
@@ -101,6 +105,20 @@ class MotorService:
                 "no %s for %g s of wheel-angle time: braking to zero until one arrives",
                 self.node.keys.drive_target_velocity,
                 core.motor.command_timeout,
+            )
+
+    def _on_sim_liveliness(self, alive: bool) -> None:
+        # Zenoh reports one token per key: a new simulator shows as a PUT only after the old one's
+        # DELETE, and not at all while both exist. So every PUT restarts the time base; a PUT from
+        # the same simulator (a reconnection) costs one zero-torque cycle.
+        self.sim_alive = alive
+        if not alive:
+            self.node.log.debug("simulator gone: waiting for wheel angles from the next one")
+            return
+        if self.core.restart_time_base():
+            self.node.log.info(
+                "simulator (re)appeared: wheel-angle time starts again with its next sample "
+                "(stop/finish latches, gains and target kept)"
             )
 
     def _trace_line(self, angles: TimedDoubleSeq, torques: list[float]) -> bytes:
@@ -148,7 +166,12 @@ class MotorService:
         return self.node.status()
 
     def status(self) -> dict[str, Any]:
-        return {**self.core.status(), "torques_published": self.torques_published, "trace": self._trace_path}
+        return {
+            **self.core.status(),
+            "sim_alive": self.sim_alive,
+            "torques_published": self.torques_published,
+            "trace": self._trace_path,
+        }
 
     def run(self, stop: threading.Event) -> int:
         self.node.spin(stop)

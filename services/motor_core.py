@@ -99,7 +99,8 @@ class MotorCore:
     Call :meth:`step` for every wheel-angle sample (it returns the torque vector),
     :meth:`set_target` for every target velocity, :meth:`sim_pose` for every body pose, and
     the Motor methods :meth:`set_pd_gain`, :meth:`start`, :meth:`finish`, :meth:`stop`,
-    :meth:`clear`. Bad input raises BadInput and changes nothing.
+    :meth:`clear`; :meth:`restart_time_base` when a simulator (re)appears. Bad input raises
+    BadInput and changes nothing.
 
     After each :meth:`step`, ``cycle_state``, ``dq``, ``dq_ref`` and ``q_ref`` describe that
     cycle (None where the cycle computed no such value) for tracing.
@@ -142,6 +143,7 @@ class MotorCore:
         self.target_velocity_samples = 0
         self.targets_ignored = 0
         self.command_timeouts = 0
+        self.time_base_restarts = 0
 
         self.cycle_state = MotorState.IDLE
         self.dq: tuple[float, float] | None = None
@@ -219,6 +221,24 @@ class MotorCore:
         torques[self._right] = gains.p_gain_r * (q_ref_r - q_r) + gains.d_gain_r * (dq_ref_r - dq_r)
         return torques
 
+    def restart_time_base(self) -> bool:
+        """A simulator (re)appeared: its clock may start again at 0, so forget the last stamp.
+
+        The next wheel-angle sample initialises like the very first one (zero torque, no Δt).
+        The latches (``stop``, ``finish``), gains, target and counters are kept; control
+        resumes from rest (limits ramp from zero, ``integrated`` re-anchors), and the target's
+        age for the command timeout counts again from that next sample (a timed-out command
+        stays timed out). Returns True if a time base was in use (and is now discarded).
+        """
+        in_use = self._stamp_ns is not None
+        self._stamp_ns = None
+        self._target_stamp_ns = None
+        self._release()
+        self.dq = self.dq_ref = self.q_ref = None
+        if in_use:
+            self.time_base_restarts += 1
+        return in_use
+
     def _accept(self, stamp_ns: int, q_l: float, q_r: float) -> None:
         self._stamp_ns = stamp_ns
         self.q = (q_l, q_r)
@@ -236,7 +256,10 @@ class MotorCore:
             self.command = (0.0, 0.0)
             return self.command
         vx, w = self.target
-        if self._timeout_ns and stamp_ns - self._target_stamp_ns > self._timeout_ns:  # type: ignore[operator]
+        # A timed-out command stays so until a new target, even across a restart of the time base.
+        if self._timed_out or (
+            self._timeout_ns and stamp_ns - self._target_stamp_ns > self._timeout_ns  # type: ignore[operator]
+        ):
             vx = w = 0.0
             if not self._timed_out:
                 self._timed_out = True
@@ -334,5 +357,6 @@ class MotorCore:
                 "target_velocity_samples": self.target_velocity_samples,
                 "targets_ignored": self.targets_ignored,
                 "command_timeouts": self.command_timeouts,
+                "time_base_restarts": self.time_base_restarts,
             },
         }

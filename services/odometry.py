@@ -3,7 +3,9 @@
 Subscribes ``motor/wheel_angles`` and ``localization/pose``; publishes ``odometry/pose`` (with
 the ``tm`` of the wheel-angle sample) for every accepted sample, the first one included. A
 localized pose overwrites the pose the next step starts from. ``--trace FILE`` writes one JSON
-line per accepted wheel-angle sample (docs/odometry.md describes the fields).
+line per accepted wheel-angle sample (docs/odometry.md describes the fields). Whenever the
+simulator's liveliness token appears, the next wheel-angle sample starts a new time base (the
+stamps are the simulator's, and a restarted simulator's clock starts again at 0).
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ class OdometryService:
         self.odometry = Odometry(OdometryParameters.from_config(config))
         self.samples = 0
         self.localization_resets = 0
+        self.time_base_restarts = 0
+        self.sim_alive = False
         self.branches = dict.fromkeys(Branch, 0)
         self.last_tm: Time | None = None
         self._trace = open_trace(args.trace) if args.trace else None
@@ -41,7 +45,16 @@ class OdometryService:
         self._pose = node.publisher(node.keys.odometry_pose)
         node.subscribe(node.keys.motor_wheel_angles, TimedDoubleSeq, self.on_wheel_angles)
         node.subscribe(node.keys.localization_pose, TimedPosition, self.on_localized_pose)
+        node.watch(Service.SIM, self.on_sim_liveliness)
         node.set_status(self.status)
+
+    def on_sim_liveliness(self, alive: bool) -> None:
+        # Every PUT, not DELETE-then-PUT: zenoh shows a new token on the same key only once the
+        # old one is gone, and a DELETE says nothing about the stamps still to come.
+        self.sim_alive = alive
+        if alive and self.odometry.restart_time_base():
+            self.time_base_restarts += 1
+            self.node.log.info("simulator (re)appeared: wheel-angle time starts again with its next sample (pose kept)")
 
     def on_wheel_angles(self, sample: TimedDoubleSeq) -> None:
         step = self.odometry.step(sample.tm.to_nanoseconds(), sample.data)
@@ -66,12 +79,14 @@ class OdometryService:
         parameters = self.odometry.parameters
         return {
             "state": STATE_RUNNING if self.odometry.initialised else STATE_IDLE,
+            "sim_alive": self.sim_alive,
             "pose": pose._asdict(),
             "velocity": {"v": v, "omega": omega},
             "last_wheel_angles_tm": self.last_tm,
             "counters": {
                 "wheel_angle_samples": self.samples,
                 "localization_resets": self.localization_resets,
+                "time_base_restarts": self.time_base_restarts,
                 "branches": {str(branch): count for branch, count in self.branches.items()},
             },
             "parameters": {

@@ -18,8 +18,10 @@ The chord branch is exact for motion of constant curvature; the small-angle bran
 length for chord, a relative error of at most RotationAngleBorder²/24 (1.3e-5 at the default).
 
 The first sample only initialises (the robot is taken to be at rest: V_old = 0). A localized
-pose (:meth:`Odometry.reset`) overwrites (x_old, y_old, θ_old) before the next step. The hot
-path runs thousands of times a second: plain floats, no allocation beyond the returned step.
+pose (:meth:`Odometry.reset`) overwrites (x_old, y_old, θ_old) before the next step.
+:meth:`Odometry.restart_time_base` (a restarted simulator, whose clock starts again) makes the
+next sample initialise again, keeping the pose. The hot path runs thousands of times a second:
+plain floats, no allocation beyond the returned step.
 """
 
 from __future__ import annotations
@@ -191,6 +193,18 @@ class Odometry:
             raise BadInput(f"pose ({x}, {y}, {theta}) is not finite")
         self._x, self._y, self._theta = x, y, wrap_angle(theta)
         return self.pose
+
+    def restart_time_base(self) -> bool:
+        """Forget the last sample's time and angles: the next sample initialises, like the first.
+
+        For a simulator that (re)appeared: its clock may start again at 0 and its wheel angles
+        belong to a new world. The pose is kept (the next localized pose corrects it); the
+        robot is taken to be at rest again (V_old = 0). Returns True if a time base was in use.
+        """
+        in_use = self._time_ns is not None
+        self._time_ns = None
+        self._v = self._omega = 0.0
+        return in_use
 
     def step(self, time_ns: int, wheel_angles: Sequence[float]) -> Step:
         """Integrate one sample taken at ``time_ns`` (nanoseconds); the wheels are picked by id.

@@ -14,19 +14,43 @@ from schemas.messages import NANOSECONDS_PER_SECOND
 
 
 class StampClock:
-    """Accepts a stream of strictly increasing stamps; anything else is bad input."""
+    """Accepts a stream of strictly increasing stamps; anything else is bad input.
+
+    A restarted simulator's clock starts again (at 0): after :meth:`allow_restart` (its
+    liveliness token appeared), a next stamp that is not after the last one starts a new time
+    base instead of being bad input. A stamp that is later just goes on: a simulator that only
+    reconnected keeps its clock, and a running scenario or fix schedule is not disturbed.
+    """
 
     def __init__(self) -> None:
         self.first_ns: int | None = None
+        """The first stamp of the current time base."""
         self.last_ns: int | None = None
+        self.restarts = 0
+        """Time bases started again since the first."""
+        self._restart_allowed = False
 
-    def advance(self, stamp_ns: int) -> None:
-        """Take ``stamp_ns`` as the new time; raise BadInput (state unchanged) unless it is later."""
-        if self.last_ns is not None and stamp_ns <= self.last_ns:
-            raise BadInput(f"stamp {stamp_ns} ns is not after the previous one ({self.last_ns} ns)")
+    def allow_restart(self) -> None:
+        """Let the next stamp start a new time base if it is not after the last one."""
+        self._restart_allowed = True
+
+    def advance(self, stamp_ns: int) -> bool:
+        """Take ``stamp_ns`` as the new time; True if it started a new time base.
+
+        Raises BadInput (state unchanged) if the stamp is not later and no restart is allowed.
+        """
+        last_ns = self.last_ns
+        restarted = False
+        if last_ns is not None and stamp_ns <= last_ns:
+            if not self._restart_allowed:
+                raise BadInput(f"stamp {stamp_ns} ns is not after the previous one ({last_ns} ns)")
+            self.first_ns, restarted = None, True
+            self.restarts += 1
+        self._restart_allowed = False
         if self.first_ns is None:
             self.first_ns = stamp_ns
         self.last_ns = stamp_ns
+        return restarted
 
 
 class PeriodicSchedule:

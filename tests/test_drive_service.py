@@ -21,6 +21,7 @@ from services.drive import FINAL_ZERO_TICKS
 from services.path_following import Command
 from services.planar import Pose
 from tests.harness import Collector, InventProcess, call, wait_alive, wait_until
+from tests.sim_presence import SimPresence
 from tests.test_path_following import unicycle
 
 KEYS = Keys()
@@ -159,3 +160,38 @@ def test_a_path_pauses_while_the_pose_is_stale_and_resumes_from_rest(endpoint: s
         assert max(steps) <= DRIVE.max_acceleration / DRIVE.rate + 1e-9, "resumes with a ramp from rest"
         code, _out, err = process.stop()
     assert code == 0, err
+
+
+def test_a_restarted_simulator_starts_the_scenario_over(endpoint: str, session: zenoh.Session) -> None:
+    commands = Collector(session, KEYS.drive_target_velocity, TimedVelocity)
+
+    def drive_status() -> dict:
+        ok, status = call(session, KEYS.status(Service.DRIVE))
+        assert ok, status
+        return status
+
+    with drive(endpoint, "--vx", "0.3", "--w", "0.1", "--for", "1") as process:
+        wait_alive(session, KEYS.alive(Service.DRIVE))
+        loop = SyntheticLoop(session, commands)
+        with SimPresence(endpoint, KEYS) as first_sim:
+            wait_until(lambda: drive_status()["sim_alive"], what="the drive to see the first simulator")
+            loop.now_ns = 5_000_000_000
+            command = loop.first_command()
+            for _ in range(10):
+                command = loop.next_command(command)
+            assert drive_status()["elapsed_s"] == pytest.approx(10 * TICK_NS / 1e9)
+            first_sim.leave(session)
+        wait_until(lambda: not drive_status()["sim_alive"], what="the drive to see the simulator go")
+        with SimPresence(endpoint, KEYS):
+            wait_until(lambda: drive_status()["sim_alive"], what="the drive to see the second simulator")
+            loop.now_ns = 0
+            first = loop.first_command()
+            status = drive_status()
+            assert (status["time_base_restarts"], status["elapsed_s"], status["bad_input"]["total"]) == (1, 0.0, 0)
+            received = loop.until_final_zeros(first)
+            assert process.process.wait(timeout=10) == 0, process.stop()[2]
+
+    ticks_per_second = round(DRIVE.rate)
+    expected = [(0.3, 0.0, 0.1)] * ticks_per_second + [(0.0, 0.0, 0.0)] * FINAL_ZERO_TICKS
+    assert [(c.vx, c.vy, c.w) for c in received] == expected, "the whole second, from the new clock's start"
+    assert [c.tm.to_nanoseconds() for c in received] == [k * TICK_NS for k in range(len(received))]

@@ -179,6 +179,63 @@ def test_stamp_clock_accepts_only_increasing_stamps() -> None:
     with pytest.raises(BadInput):
         clock.advance(6)
     assert (clock.first_ns, clock.last_ns) == (5, 6)
+    assert clock.restarts == 0
+
+
+def test_stamp_clock_restarts_only_when_allowed_and_the_stamp_goes_back() -> None:
+    clock = StampClock()
+    clock.allow_restart()
+    assert clock.advance(5) is False, "the first stamp is no restart"
+    clock.allow_restart()
+    assert clock.advance(9) is False, "a later stamp just goes on (a reconnection)"
+    assert (clock.first_ns, clock.last_ns, clock.restarts) == (5, 9, 0)
+    with pytest.raises(BadInput):
+        clock.advance(2)
+    clock.allow_restart()
+    assert clock.advance(2) is True
+    assert (clock.first_ns, clock.last_ns, clock.restarts) == (2, 2, 1)
+    with pytest.raises(BadInput):
+        clock.advance(2)
+
+
+def test_after_a_restart_the_first_sample_takes_a_fix_at_once_and_anchors_the_grid() -> None:
+    loc = localizer(rate=2.0, initial=Pose(5.0, 5.0, 0.0))
+    fixes = feed(loc, [k * 100 * MS for k in range(31)])  # 3 s: the initial pose, then 6 fixes
+    assert len(fixes) == 7 and loc.fixes == 7
+    with pytest.raises(BadInput):
+        loc.on_sim_pose(0, sim_pose(0))
+    loc.simulator_appeared()
+    restart_ns = 30 * MS  # the new clock starts again, before the old one's last stamp
+    first = loc.on_sim_pose(restart_ns, [1.0, 2.0, 0.0, 0.5])
+    assert first is not None and not first.initial, "a fix of the simulated pose, not the initial pose again"
+    assert (first.stamp_ns, first.pose) == (restart_ns, Pose(1.0, 2.0, 0.5))
+    assert loc.time_base_restarts == 1
+    later = feed(loc, [restart_ns + k * 100 * MS for k in range(1, 11)])
+    assert [fix.stamp_ns for _k, fix in later] == [restart_ns + 500 * MS, restart_ns + 1000 * MS]
+    assert loc.fixes == 10
+
+
+def test_a_simulator_appearing_with_a_clock_that_goes_on_changes_nothing() -> None:
+    appeared, reference = localizer(rate=2.0), localizer(rate=2.0)
+    stamps = [k * 100 * MS for k in range(21)]
+
+    def fix_stamps(loc: Localizer, taken: list[int]) -> list[int]:
+        return [fix.stamp_ns for stamp in taken if (fix := loc.on_sim_pose(stamp, sim_pose(0))) is not None]
+
+    before = fix_stamps(appeared, stamps[:7])
+    appeared.simulator_appeared()
+    expected = [0, 500 * MS, 1 * S, 1500 * MS, 2 * S]
+    assert before + fix_stamps(appeared, stamps[7:]) == fix_stamps(reference, stamps) == expected
+    assert appeared.time_base_restarts == 0
+
+
+def test_a_restart_before_the_schedule_starts_keeps_the_initial_pose_first() -> None:
+    loc = localizer(initial=Pose(5.0, 0.0, 0.0))
+    assert loc.on_sim_pose(9 * S, sim_pose(0), may_start=False) is None
+    loc.simulator_appeared()
+    first = loc.on_sim_pose(0, sim_pose(1))
+    assert first is not None and first.initial and first.stamp_ns == 0
+    assert loc.time_base_restarts == 1
 
 
 @pytest.mark.parametrize(

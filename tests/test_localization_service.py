@@ -16,6 +16,7 @@ from schemas.messages import Time, TimedDoubleSeq, TimedPosition
 from services.localization_core import Localizer, Noise
 from services.planar import Pose, wrap_angle
 from tests.harness import Collector, InventProcess, call, run_invent, wait_alive, wait_until
+from tests.sim_presence import SimPresence
 
 KEYS = Keys()
 STEP_NS = 10_000_000
@@ -126,6 +127,30 @@ def test_seeded_noise_is_the_cores_noise_for_that_seed(endpoint: str, session: z
         status = localization_status(session)
         assert status["seed"] == 11 and status["seed_from_config"]
         assert status["noise"] == {"x": 0.05, "y": 0.04, "theta": 0.02}
+        code, _out, err = process.stop()
+    assert code == 0, err
+
+
+def test_a_restarted_simulator_takes_a_fix_at_once_and_restarts_the_schedule(
+    endpoint: str, session: zenoh.Session
+) -> None:
+    fixes = Collector(session, KEYS.localization_pose, TimedPosition)
+    with localization(endpoint, "--rate", "2", "--initial", "0.5", "-0.25", "0.1") as process:
+        wait_alive(session, KEYS.alive(Service.LOCALIZATION))
+        publisher, k0, _initial = start_stream(session, fixes)
+        play(publisher, fixes, k0, SAMPLES_PER_SECOND, SAMPLES_PER_SECOND // 2)
+        with SimPresence(endpoint, KEYS):
+            wait_until(lambda: localization_status(session)["sim_alive"], what="the localization to see the simulator")
+            restart_k = 3  # the new clock starts again, long before the old one's last stamp
+            publisher.put(encode(sample(restart_k)))
+            first = fixes.get(timeout=5.0)
+            assert first.tm == sample(restart_k).tm
+            x, y, _z, theta = sim_pose(restart_k)
+            assert (first.x, first.y, first.theta) == (x, y, theta), "a fix of the simulated pose, not the initial"
+            received = play(publisher, fixes, restart_k, SAMPLES_PER_SECOND, SAMPLES_PER_SECOND // 2)
+            assert [fix.tm for fix in received] == [sample(restart_k + 50).tm, sample(restart_k + 100).tm]
+        status = localization_status(session)
+        assert (status["fixes_published"], status["time_base_restarts"], status["bad_input"]["total"]) == (6, 1, 0)
         code, _out, err = process.stop()
     assert code == 0, err
 

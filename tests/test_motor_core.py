@@ -203,6 +203,80 @@ def test_dt_not_positive_is_bad_input_and_changes_nothing():
     assert motor_core.dq == pytest.approx((4.0, 4.0))
 
 
+# --- a restarted simulator ------------------------------------------------------------------------
+
+
+def test_restart_time_base_initialises_again_and_keeps_gains_target_and_counters():
+    motor_core = running(vx=0.5)
+    motor_core.set_pd_gain(PDGains(1.0, 2.0, 3.0, 4.0))
+    motor_core.step(400 * MS, [2.0, 2.0])
+    with pytest.raises(BadInput, match="<= 0"):
+        motor_core.step(0, [0.0, 0.0])
+    assert motor_core.restart_time_base() is True
+    assert motor_core.state is MotorState.IDLE, "no wheel angles in the new time base yet"
+    assert motor_core.step(0, [0.0, 0.0]) == [0.0, 0.0], "the new clock's 0 initialises like a first sample"
+    assert motor_core.dq is None and motor_core.state is MotorState.RUNNING
+    # the straight case with gains (1, 2, 3, 4): dq = (4, 6), dq_ref = 5, q_ref - q = (5 + dq) * 0.0005
+    torques = motor_core.step(1 * MS, [0.004, 0.006])
+    assert torques == pytest.approx([1 * 0.0045 + 3 * 1.0, 2 * 0.0055 + 4 * -1.0])
+    assert motor_core.target == (0.5, 0.0)
+    assert motor_core.wheel_angle_samples == 4 and motor_core.target_velocity_samples == 1
+    assert motor_core.time_base_restarts == 1
+    assert motor_core.status()["counters"]["time_base_restarts"] == 1
+
+
+def test_restart_time_base_before_any_sample_changes_nothing():
+    motor_core = core()
+    assert motor_core.restart_time_base() is False
+    assert motor_core.time_base_restarts == 0
+    assert motor_core.step(7 * MS, [1.0, 1.0]) == [0.0, 0.0]
+
+
+@pytest.mark.parametrize("latch", ["stop", "finish"])
+def test_restart_time_base_keeps_the_stop_and_finish_latches(latch):
+    motor_core = running(vx=0.5)
+    getattr(motor_core, latch)()
+    state = motor_core.state
+    motor_core.restart_time_base()
+    assert motor_core.state is state
+    motor_core.step(0, [0.0, 0.0])
+    motor_core.step(1 * MS, [0.005, 0.005])
+    assert motor_core.state is state
+    if latch == "stop":
+        assert motor_core.command == (0.0, 0.0) and motor_core.set_target(0.5, 0.0) is False
+
+
+def test_restart_time_base_restarts_the_target_age_but_not_a_timeout():
+    motor_core = running(vx=0.5)  # target at wheel-angle time 0; timeout 0.5 s
+    motor_core.step(300 * MS, [0.0, 0.0])
+    motor_core.restart_time_base()
+    motor_core.step(0, [0.0, 0.0])  # the target's age counts from here
+    motor_core.step(500 * MS, [0.0, 0.0])
+    assert motor_core.command == (0.5, 0.0)
+    motor_core.step(501 * MS, [0.0, 0.0])
+    assert motor_core.command == (0.0, 0.0) and motor_core.command_timeouts == 1
+    motor_core.restart_time_base()
+    motor_core.step(0, [0.0, 0.0])
+    motor_core.step(1 * MS, [0.0, 0.0])
+    assert motor_core.command == (0.0, 0.0), "a timed-out command stays so across a restart"
+    assert motor_core.command_timed_out and motor_core.command_timeouts == 1
+    motor_core.set_target(0.2, 0.0)
+    motor_core.step(2 * MS, [0.0, 0.0])
+    assert motor_core.command == (0.2, 0.0)
+
+
+def test_restart_time_base_resumes_control_from_rest():
+    motor_core = running(vx=0.5, max_ax=1.0, target_angle=INTEGRATED, command_timeout=0.0)
+    for k in range(1, 50):
+        motor_core.step(k * MS, [0.0, 0.0])
+    assert motor_core.command[0] == pytest.approx(0.049)
+    motor_core.restart_time_base()
+    motor_core.step(0, [3.0, 3.0])
+    motor_core.step(1 * MS, [3.0, 3.0])
+    assert motor_core.command == pytest.approx((0.001, 0.0)), "the ramp starts from zero again"
+    assert motor_core.q_ref[0] == pytest.approx(3.0 + 0.01 * 0.0005), "integrated mode re-anchors at q"
+
+
 # --- command timeout and limits --------------------------------------------------------------
 
 
@@ -437,3 +511,26 @@ def test_a_bad_sample_changes_nothing(samples, bad_at):
             with pytest.raises(BadInput):
                 noisy.step(stamp, [5.0])
         assert noisy.step(stamp, [q, -q]) == clean.step(stamp, [q, -q])
+
+
+@given(
+    before=st.lists(st.tuples(step_ns, st.floats(-10.0, 10.0)), max_size=6),
+    after=st.lists(st.tuples(step_ns, st.floats(-10.0, 10.0)), min_size=1, max_size=6),
+    new_start_ns=st.integers(0, 10**12),
+    target=st.tuples(speed, speed),
+)
+def test_after_a_restart_the_torques_are_those_of_a_fresh_core(before, after, new_start_ns, target):
+    """Whatever came before (and wherever the new clock starts), a restarted core answers the
+    new stream exactly like a core that never saw the old one."""
+    restarted, fresh = core(command_timeout=0.0), core(command_timeout=0.0)
+    restarted.set_target(*target)
+    stamp = 0
+    for dt_ns, q in before:
+        stamp += dt_ns
+        restarted.step(stamp, [q, -q])
+    restarted.restart_time_base()
+    fresh.set_target(*target)
+    stamp = new_start_ns
+    for dt_ns, q in after:
+        assert restarted.step(stamp, [q, 2 * q]) == fresh.step(stamp, [q, 2 * q])
+        stamp += dt_ns

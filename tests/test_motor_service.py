@@ -36,6 +36,7 @@ from tests.harness import (
     wait_alive,
     wait_until,
 )
+from tests.sim_presence import SimPresence
 
 ROBOT = "mot1"
 OVERRIDES: dict[str, Any] = {
@@ -432,6 +433,70 @@ def test_trace_lines_and_command_timeout_warning_in_an_integrated_motor(tmp_path
     assert records[-1]["command"] == [0.0, 0.0]
     assert set(records[0]) == TRACE_FIELDS
     assert err.count("braking to zero") == 1
+
+
+def test_a_restarted_simulator_is_answered_again_from_its_new_clock(endpoint, session):
+    """Own process: a simulator plays 0, 1, 2 ... ms, leaves, and a new one plays from 0 again;
+    the motor, never restarted, answers every sample of both runs as a fresh motor would."""
+    robot = "mot3"
+    keys = Keys(robot)
+    config = load_config(overrides={"robot.name": robot, **OVERRIDES})
+    motor_link = MotorLink(session, keys, config)
+    samples = 12
+    try:
+        with InventProcess("motor", "--connect", endpoint, "--robot", robot, *set_flags(OVERRIDES)) as motor:
+            wait_alive(session, keys.alive(Service.MOTOR))
+            motor_link.wait_matched()
+            motor_link.target(0.4, 0.3)
+            for run in range(2):
+                with SimPresence(endpoint, keys) as sim:
+                    wait_until(
+                        lambda run=run: (status := motor_link.status())["sim_alive"]
+                        and status["counters"]["time_base_restarts"] == run,
+                        what="the motor to see the simulator appear",
+                    )
+                    motor_link.mirror = MotorCore(config.robot, config.motor)
+                    motor_link.mirror.set_target(0.4, 0.3)
+                    motor_link.time_ns = -STEP_NS  # the first sample is stamped 0
+                    answers = [motor_link.cycle(moving(k)) for k in range(samples)]
+                    assert answers[0][0] == [0.0, 0.0, 0.0], f"run {run}: the first sample only initialises"
+                    for torques, expected in answers[1:]:
+                        assert torques == expected and torques[1] != 0.0, f"run {run}"
+                    sim.leave(session)
+            status = motor_link.status()
+            code, _out, err = motor.stop()
+    finally:
+        motor_link.close()
+    assert code == 0, err
+    assert motor_link.torques.drain() == [], "exactly one torque per sample"
+    assert status["bad_input"]["total"] == 0
+    assert status["counters"]["time_base_restarts"] == 1
+    assert status["counters"]["wheel_angle_samples"] == 2 * samples
+    assert status["sim_alive"] is False
+    assert err.count("simulator (re)appeared") == 1
+
+
+def sim_summary(stderr: str) -> dict[str, int]:
+    """The counters of ``invent sim``'s last log line: "finished: ...; torques_applied 300, ...; pose ..."."""
+    summary = stderr.rsplit("finished: ", 1)[1].split(";")[1]
+    return {name: int(count) for name, count in (item.split() for item in summary.split(","))}
+
+
+def test_two_sim_runs_in_a_row_both_get_their_torques(endpoint, session):
+    """The real simulator, run twice against one motor: the second run's clock starts at 0 again."""
+    robot = "mot4"
+    keys = Keys(robot)
+    flags = ("--connect", endpoint, "--robot", robot)
+    with InventProcess("motor", *flags) as motor:
+        wait_alive(session, keys.alive(Service.MOTOR))
+        for run in range(2):
+            result = run_invent("sim", *flags, "--duration", "0.3", "--log-level", "info")
+            assert result.returncode == 0, result.stderr
+            counters = sim_summary(result.stderr)
+            assert counters["torques_applied"] == 300, (run, counters)
+            assert counters["late_torques"] == counters["missing_torques"] == 0, (run, counters)
+        code, _out, err = motor.stop()
+    assert code == 0, err
 
 
 @pytest.mark.parametrize(

@@ -357,6 +357,32 @@ def test_localized_pose_must_be_finite() -> None:
     assert odometry.pose == Pose(0.0, 0.0, 0.0)
 
 
+# --- a restarted simulator ------------------------------------------------------------------------
+
+
+def test_restart_time_base_initialises_again_from_the_kept_pose() -> None:
+    odometry = Odometry(simple())
+    odometry.step(0, [0.0, 0.0])
+    odometry.step(NS, [2.0, 2.0])  # V = 0.2: x = 0.1 (trapezoid from rest)
+    odometry.step(2 * NS, [4.0, 4.0])  # x = 0.3, V_old = 0.2
+    with pytest.raises(BadInput, match="<= 0"):
+        odometry.step(0, [0.0, 0.0])
+    assert odometry.restart_time_base() is True
+    assert not odometry.initialised and odometry.velocity == (0.0, 0.0)
+    first = odometry.step(0, [50.0, -7.0])
+    assert first.branch is Branch.INITIAL and first.pose == pytest.approx((0.3, 0.0, 0.0))
+    # from rest again: V = 0.2, V_old = 0, so dl = 0.1 (not 0.2 as with the old V_old)
+    step = odometry.step(NS, [52.0, -5.0])
+    assert step.dl == pytest.approx(0.1) and step.pose == pytest.approx((0.4, 0.0, 0.0))
+
+
+def test_restart_time_base_before_any_sample_changes_nothing() -> None:
+    odometry = Odometry(simple())
+    odometry.reset(1.0, 2.0, 0.5)
+    assert odometry.restart_time_base() is False
+    assert odometry.step(7 * NS, [1.0, 1.0]).pose == Pose(1.0, 2.0, 0.5)
+
+
 # --- bad input leaves the state unchanged ----------------------------------------------------------
 
 

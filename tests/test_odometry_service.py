@@ -33,6 +33,7 @@ from tests.harness import (
     wait_alive,
     wait_until,
 )
+from tests.sim_presence import SimPresence
 
 ROBOT = "odo1"
 OVERRIDES = {
@@ -260,6 +261,31 @@ def test_status_reports_pose_velocity_parameters_and_counters(link: OdometryLink
     assert parameters["half_axle"] == pytest.approx(0.441 * 1.1 / 2)
     assert parameters["rotation_angle_border"] == pytest.approx(math.pi / 180)
     assert parameters["rho_border"] == 10000.0
+
+
+def test_a_restarted_simulator_starts_a_new_time_base_from_the_kept_pose(
+    link: OdometryLink, module_endpoint: str, module_session: zenoh.Session
+) -> None:
+    """Two simulators in turn, each clock starting at 0 (before them, the module's samples at
+    100 s and later): each time the next sample initialises again, from the pose reached."""
+    before = link.status()
+    for run in (1, 2):
+        with SimPresence(module_endpoint, link.keys) as sim:
+            wait_until(
+                lambda run=run: link.status()["counters"]["time_base_restarts"]
+                == before["counters"]["time_base_restarts"] + run,
+                what="the odometry to see the simulator appear",
+            )
+            kept = link.mirror.pose
+            link.mirror = Odometry(link.mirror.parameters, start=kept)
+            step, pose = link.send_wheels(0, 4.0, -3.0)
+            assert step.branch is Branch.INITIAL and (pose.x, pose.y, pose.theta) == kept
+            for k in range(1, 6):
+                step, pose = link.advance(0.25, 0.25 + k * 2**-6, dt_ns=1_000_000)
+                assert_published(step, pose)
+            assert step.branch is not Branch.INITIAL and (pose.x, pose.y) != kept[:2]
+            sim.leave(module_session)
+    assert link.status()["bad_input"]["total"] == before["bad_input"]["total"]
 
 
 def test_trace_writes_one_line_per_accepted_step(link: OdometryLink, trace_path: Path) -> None:
