@@ -17,17 +17,17 @@ import logging
 import threading
 import typing
 from functools import partial
-from typing import Any, BinaryIO
+from typing import Any
 
 import msgspec
 
 from schemas.codec import BadInput, decode
 from schemas.keys import METHOD_ARGUMENTS, Method, MethodFamily, Service
 from schemas.messages import NoArguments, PDGains, Time, TimedDoubleSeq, TimedVelocity
-from services.config import Config, ConfigError, TargetAngleMode
+from services.config import Config, TargetAngleMode
 from services.motor_core import MotorCore
 from services.runtime import Node
-from services.service import ServiceCommand
+from services.service import ServiceCommand, TraceFile
 
 
 class TraceRecord(msgspec.Struct, frozen=True):
@@ -59,14 +59,7 @@ class MotorService:
         self.torques_published = 0
         self.sim_alive = False
         self._timeouts_logged = 0
-        self._trace_path: str | None = args.trace
-        self._trace: BinaryIO | None = None
-        if args.trace:
-            try:
-                self._trace = open(args.trace, "wb")  # noqa: SIM115 - closed in close()
-            except OSError as error:
-                raise ConfigError(f"--trace {args.trace}: {error.strerror}") from None
-        self._trace_encoder = msgspec.json.Encoder()
+        self._trace = TraceFile.from_flag(args.trace)
 
         keys = node.keys
         self._torque = node.publisher(keys.motor_torque)
@@ -98,7 +91,7 @@ class MotorService:
         self.torques_published += 1
         trace = self._trace
         if trace is not None:
-            trace.write(self._trace_line(angles, torques))
+            trace.write(self._trace_record(angles, torques))
         if core.command_timeouts != self._timeouts_logged:
             self._timeouts_logged = core.command_timeouts
             self.node.log.warning(
@@ -121,9 +114,9 @@ class MotorService:
                 "(stop/finish latches, gains and target kept)"
             )
 
-    def _trace_line(self, angles: TimedDoubleSeq, torques: list[float]) -> bytes:
+    def _trace_record(self, angles: TimedDoubleSeq, torques: list[float]) -> TraceRecord:
         core = self.core
-        record = TraceRecord(
+        return TraceRecord(
             tm=angles.tm,
             state=core.cycle_state,
             angles=angles.data,
@@ -136,7 +129,6 @@ class MotorService:
             gains=core.gains,
             torque=torques,
         )
-        return self._trace_encoder.encode(record) + b"\n"
 
     def _on_body_pose(self, pose: TimedDoubleSeq) -> None:
         sim_pose = TimedDoubleSeq(pose.tm, self.core.sim_pose(pose.data))
@@ -170,7 +162,7 @@ class MotorService:
             **self.core.status(),
             "sim_alive": self.sim_alive,
             "torques_published": self.torques_published,
-            "trace": self._trace_path,
+            "trace": None if self._trace is None else self._trace.path,
         }
 
     def run(self, stop: threading.Event) -> int:
@@ -180,7 +172,6 @@ class MotorService:
     def close(self) -> None:
         if self._trace is not None:
             self._trace.close()
-            self._trace = None
 
 
 def _decode_arguments(method: Method, payload: bytes) -> msgspec.Struct:

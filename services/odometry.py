@@ -13,17 +13,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import threading
-from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
-import msgspec
 
 from schemas.keys import Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
-from services.config import Config, ConfigError
-from services.odometry_core import Branch, Odometry, OdometryParameters, Step
+from services.config import Config
+from services.odometry_core import Branch, Odometry, OdometryParameters
 from services.runtime import Node
-from services.service import ServiceCommand, no_overrides
+from services.service import ServiceCommand, TraceFile, no_overrides
 
 STATE_IDLE = "idle"
 """No wheel angles seen yet: the pose is the starting (or localized) pose."""
@@ -40,8 +38,7 @@ class OdometryService:
         self.sim_alive = False
         self.branches = dict.fromkeys(Branch, 0)
         self.last_tm: Time | None = None
-        self._trace = open_trace(args.trace) if args.trace else None
-        self._encoder = msgspec.json.Encoder()
+        self._trace = TraceFile.from_flag(args.trace)
         self._pose = node.publisher(node.keys.odometry_pose)
         node.subscribe(node.keys.motor_wheel_angles, TimedDoubleSeq, self.on_wheel_angles)
         node.subscribe(node.keys.localization_pose, TimedPosition, self.on_localized_pose)
@@ -62,16 +59,12 @@ class OdometryService:
         self.branches[step.branch] += 1
         self.last_tm = sample.tm
         if self._trace is not None:
-            self._trace.write(self._trace_line(sample, step))
+            self._trace.write({"tm": sample.tm, **step._asdict(), "localization_resets": self.localization_resets})
         self._pose.put(TimedPosition(tm=sample.tm, id=[], x=step.x, y=step.y, theta=step.theta, error=[]))
 
     def on_localized_pose(self, pose: TimedPosition) -> None:
         self.odometry.reset(pose.x, pose.y, pose.theta)
         self.localization_resets += 1
-
-    def _trace_line(self, sample: TimedDoubleSeq, step: Step) -> bytes:
-        record = {"tm": sample.tm, **step._asdict(), "localization_resets": self.localization_resets}
-        return self._encoder.encode(record) + b"\n"
 
     def status(self) -> dict[str, Any]:
         pose = self.odometry.pose
@@ -104,14 +97,6 @@ class OdometryService:
     def close(self) -> None:
         if self._trace is not None:
             self._trace.close()
-
-
-def open_trace(path: str) -> IO[bytes]:
-    """The trace file, unbuffered: each line is on disk once its pose is published."""
-    try:
-        return Path(path).open("wb", buffering=0)
-    except OSError as error:
-        raise ConfigError(f"--trace {path}: {error.strerror}") from None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

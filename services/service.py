@@ -13,13 +13,38 @@ import argparse
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Protocol
 
+import msgspec
 import zenoh
 
 from schemas.keys import Keys, Service
-from services.config import Config, load_config, parse_override
+from services.config import Config, ConfigError, load_config, parse_override
 from services.runtime import Executor, Node
+
+
+class TraceFile:
+    """``--trace FILE``: one JSON line per cycle, unbuffered, so each line is on disk once the
+    cycle's output is published. An unwritable path is a configuration error (exit 2)."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        try:
+            self._file = Path(path).open("wb", buffering=0)
+        except OSError as error:
+            raise ConfigError(f"--trace {path}: {error.strerror}") from None
+        self._encoder = msgspec.json.Encoder()
+
+    @classmethod
+    def from_flag(cls, path: str | None) -> TraceFile | None:
+        return cls(path) if path else None
+
+    def write(self, record: Any) -> None:
+        self._file.write(self._encoder.encode(record) + b"\n")
+
+    def close(self) -> None:
+        self._file.close()
 
 
 class RunningService(Protocol):
