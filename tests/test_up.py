@@ -121,3 +121,20 @@ def test_composed_runs_in_one_process_and_outside_tools_still_see_every_service(
     assert report["composed"] is True and report["scenario"] == "square", report
     assert report["path_error"]["max_m"] < 0.10
     assert report["odometry_error"]["max_m"] < 0.05
+
+
+def test_up_straight_follows_the_waypoints_with_the_real_services(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    result = subprocess.run(
+        invent_command("up", "--scenario", "straight", "--report", str(tmp_path), "--listen", endpoint),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stdout[-4000:]
+    report = json.loads((tmp_path / "report.json").read_text())
+    goal = report["planned_path"][-1]
+    end = report["final"]["ground_truth"]
+    assert math.hypot(end["x"] - goal[0], end["y"] - goal[1]) < 0.05
+    assert report["path_error"]["max_m"] < 0.05
