@@ -63,7 +63,7 @@ class OdometryService:
         self._pose.put(TimedPosition(tm=sample.tm, id=[], x=step.x, y=step.y, theta=step.theta, error=[]))
 
     def on_localized_pose(self, pose: TimedPosition) -> None:
-        self.odometry.reset(pose.x, pose.y, pose.theta)
+        self.odometry.reset_at(pose.tm.to_nanoseconds(), pose.x, pose.y, pose.theta)
         self.localization_resets += 1
 
     def status(self) -> dict[str, Any]:

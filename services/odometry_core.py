@@ -27,6 +27,7 @@ plain floats, no allocation beyond the returned step.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
@@ -134,6 +135,10 @@ class OdometryParameters:
         return max(self.left_wheel_id, self.right_wheel_id) + 1
 
 
+FIX_HISTORY_STEPS = 4096
+"""Poses kept for fixes that arrive late: about 4 s of 1 ms steps."""
+
+
 class Odometry:
     """The integrator's state and its two inputs: wheel-angle samples and localized poses."""
 
@@ -155,6 +160,8 @@ class Odometry:
         "_x",
         "_y",
         "_theta",
+        "_history",
+        "_pending_fix",
     )
 
     def __init__(self, parameters: OdometryParameters, start: Pose = Pose(0.0, 0.0, 0.0)) -> None:
@@ -171,6 +178,8 @@ class Odometry:
         self._q_left = self._q_right = 0.0
         self._v = self._omega = 0.0
         self._x, self._y, self._theta = 0.0, 0.0, 0.0
+        self._history: deque[tuple[int, float, float, float]] = deque(maxlen=FIX_HISTORY_STEPS)
+        self._pending_fix: tuple[int, float, float, float] | None = None
         self.reset(*start)
 
     @property
@@ -194,6 +203,37 @@ class Odometry:
         self._x, self._y, self._theta = x, y, wrap_angle(theta)
         return self.pose
 
+    def reset_at(self, stamp_ns: int, x: float, y: float, theta: float) -> Pose:
+        """Apply a localized pose taken at simulation time ``stamp_ns``.
+
+        A fix stamped at the last sample's time is :meth:`reset` (SPEC section 5). Services run
+        asynchronously, so a fix may instead arrive after odometry has integrated past its stamp,
+        or before odometry has reached it. A past fix keeps the motion integrated since its stamp
+        on top of it (overwriting would throw that motion away: the pose would jump back by
+        speed × delay); a future fix waits and overwrites the pose when a sample reaches its time.
+        A fix older than the history (:data:`FIX_HISTORY_STEPS` samples) is a plain overwrite.
+        """
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
+            raise BadInput(f"pose ({x}, {y}, {theta}) is not finite")
+        if self._time_ns is None or stamp_ns == self._time_ns:
+            return self.reset(x, y, theta)
+        if stamp_ns > self._time_ns:
+            self._pending_fix = (stamp_ns, x, y, theta)
+            return self.pose
+        base = next((entry for entry in reversed(self._history) if entry[0] <= stamp_ns), None)
+        if base is None:
+            return self.reset(x, y, theta)
+        _t, base_x, base_y, base_theta = base
+        cos_base, sin_base = math.cos(base_theta), math.sin(base_theta)
+        dx, dy = self._x - base_x, self._y - base_y
+        forward, left = cos_base * dx + sin_base * dy, -sin_base * dx + cos_base * dy
+        cos_fix, sin_fix = math.cos(theta), math.sin(theta)
+        return self.reset(
+            x + cos_fix * forward - sin_fix * left,
+            y + sin_fix * forward + cos_fix * left,
+            theta + (self._theta - base_theta),
+        )
+
     def restart_time_base(self) -> bool:
         """Forget the last sample's time and angles: the next sample initialises, like the first.
 
@@ -204,6 +244,8 @@ class Odometry:
         in_use = self._time_ns is not None
         self._time_ns = None
         self._v = self._omega = 0.0
+        self._history.clear()
+        self._pending_fix = None
         return in_use
 
     def step(self, time_ns: int, wheel_angles: Sequence[float]) -> Step:
@@ -221,8 +263,13 @@ class Odometry:
         q_right = wheel_angles[self._right_id]
         if not (math.isfinite(q_left) and math.isfinite(q_right)):
             raise BadInput(f"wheel angles ({q_left}, {q_right}) are not finite")
+        pending = self._pending_fix
+        if pending is not None and time_ns >= pending[0]:
+            self._pending_fix = None
+            self.reset(*pending[1:])
         if self._time_ns is None:
             self._time_ns, self._q_left, self._q_right = time_ns, q_left, q_right
+            self._history.append((time_ns, self._x, self._y, self._theta))
             return Step(
                 Branch.INITIAL, q_left, q_right, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, None, 0.0, self._x, self._y, self._theta
             )
@@ -263,4 +310,5 @@ class Odometry:
         self._time_ns, self._q_left, self._q_right = time_ns, q_left, q_right
         self._v, self._omega = v, omega
         self._x, self._y, self._theta = x, y, theta
+        self._history.append((time_ns, x, y, theta))
         return Step(branch, q_left, q_right, dt, v_left, v_right, v, omega, dphi, rho, dl, x, y, theta)

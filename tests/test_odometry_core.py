@@ -476,3 +476,60 @@ def test_heading_is_always_in_the_half_open_interval(events: list[tuple]) -> Non
             step = odometry.step(time_ns, [q_left, q_right])
             assert -math.pi < step.theta <= math.pi
         assert -math.pi < odometry.pose.theta <= math.pi
+
+
+MS = 1_000_000
+
+
+def _driven(vr_per_step: float, vl_per_step: float, steps: int) -> Odometry:
+    """Odometry after ``steps`` samples 1 ms apart, the wheels turning by the given angles per step."""
+    odometry = Odometry(OdometryParameters.from_config(load_config()))
+    for k in range(steps + 1):
+        odometry.step(k * MS, [vl_per_step * k, vr_per_step * k])
+    return odometry
+
+
+def test_a_fix_stamped_now_is_the_seed_overwrite():
+    odometry = _driven(0.01, 0.01, 100)
+    assert odometry.reset_at(100 * MS, 2.0, -1.0, 0.5) == Pose(2.0, -1.0, 0.5)
+
+
+def test_a_late_fix_keeps_the_motion_integrated_since_its_stamp():
+    odometry = _driven(0.01, 0.01, 100)  # 1 mm per step along +x: x = 0.1 at 100 ms
+    pose = odometry.reset_at(50 * MS, 0.06, 0.0, 0.0)  # at 50 ms the robot was really at 0.06
+    assert pose.x == pytest.approx(0.06 + 0.05, abs=1e-12)
+    assert (pose.y, pose.theta) == (pytest.approx(0.0, abs=1e-12), 0.0)
+
+
+def test_a_late_fix_turns_the_motion_since_its_stamp_with_its_heading():
+    odometry = _driven(0.01, 0.01, 100)
+    pose = odometry.reset_at(50 * MS, 1.0, 2.0, math.pi / 2)  # the fix says: facing +y
+    assert (pose.x, pose.y, pose.theta) == (pytest.approx(1.0), pytest.approx(2.05), pytest.approx(math.pi / 2))
+
+
+def test_a_fix_from_the_future_waits_for_its_time():
+    odometry = _driven(0.01, 0.01, 10)
+    before = odometry.pose
+    assert odometry.reset_at(12 * MS, 5.0, 5.0, 0.0) == before
+    odometry.step(11 * MS, [0.11, 0.11])
+    assert odometry.pose.x == pytest.approx(before.x + 0.001)
+    odometry.step(12 * MS, [0.12, 0.12])
+    assert odometry.pose.x == pytest.approx(5.0 + 0.001) and odometry.pose.y == 5.0
+
+
+@settings(max_examples=50)
+@given(
+    st.floats(-0.02, 0.02), st.floats(-0.02, 0.02), st.integers(1, 200), st.integers(0, 200)
+)
+def test_a_late_fix_equal_to_the_odometry_of_its_time_changes_nothing(left, right, steps, back):
+    odometry = Odometry(OdometryParameters.from_config(load_config()))
+    poses = []
+    for k in range(steps + 1):
+        odometry.step(k * MS, [left * k, right * k])
+        poses.append(odometry.pose)
+    stamp = max(0, steps - back)
+    now = odometry.pose
+    after = odometry.reset_at(stamp * MS, *poses[stamp])
+    assert after.x == pytest.approx(now.x, abs=1e-9)
+    assert after.y == pytest.approx(now.y, abs=1e-9)
+    assert math.remainder(after.theta - now.theta, math.tau) == pytest.approx(0.0, abs=1e-9)
