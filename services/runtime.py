@@ -2,7 +2,8 @@
 
 A :class:`Node` wraps one service's zenoh declarations: a liveliness token, a ``status``
 queryable, typed subscriptions, queryables and publishers. Zenoh callbacks only hand their
-sample or query to the node's own queue; the service's thread drains it with
+sample or query to the node's own queue, and the samples of the inputs that pace a service
+wait in zenoh channels (:class:`ChannelInput`); the service's thread takes both with
 :meth:`Node.spin_once`, so decoding, the control core, publishing and replying all happen on
 one thread, never inside a zenoh callback (calling zenoh from there can deadlock).
 
@@ -12,10 +13,11 @@ key and the reason (at most one line per key per second), and counts it in ``sta
 
 from __future__ import annotations
 
+import collections
 import json
 import logging
+import math
 import os
-import queue
 import signal
 import threading
 import time
@@ -34,6 +36,22 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where services connect and ``invent router`` listens by default (rmw_zenoh's convention)."""
 
 ZENOH_CONFIG_VARIABLE = "ZENOH_CONFIG"
+LOW_LATENCY_VARIABLE = "INVENT_ZENOH_LOWLATENCY"
+"""Set to 1 to use :data:`LOW_LATENCY` (opt-in: see its caveats)."""
+LOW_LATENCY = {
+    "transport/unicast/lowlatency": "true",
+    "transport/unicast/qos/enabled": "false",
+    "scouting/gossip/autoconnect_strategy": json.dumps({"peer": {"to_router": "always", "to_peer": "greater-zid"}}),
+}
+"""Zenoh's low-latency unicast transport: a put writes to the socket itself, no batching thread
+(it needs QoS off). The separate-process lockstep loop gains about 15-20 % from it
+(benchmarks/README.md), but it is not the default, for what else was measured here with
+zenoh 1.10.2: no batching, so a loaded subscriber of a 1 kHz key falls further behind; no
+fragmentation, so a publication that does not fit in one batch is dropped (48 kB pass, 56 kB do
+not); with both peers of a pair connecting at once, declarations were lost at start-up (about
+one start in six; hence peers connecting one way only, to the greater id, which cured it); and
+once, the whole loop stalled in puts and a declaration for minutes. A peer or router without
+these settings (zenohd's defaults) still talks to these, over the ordinary transport."""
 BAD_INPUT_LOG_INTERVAL_S = 1.0
 MessageT = TypeVar("MessageT", bound=msgspec.Struct)
 
@@ -45,9 +63,9 @@ def session_config(
 ) -> zenoh.Config:
     """The zenoh configuration of a service or tool.
 
-    Default: ``mode`` (peer), multicast scouting off, connect to :data:`DEFAULT_ENDPOINT`.
-    A file named by ``$ZENOH_CONFIG`` replaces the default; ``connect``/``listen`` endpoints
-    override either.
+    Default: ``mode`` (peer), multicast scouting off, connect to :data:`DEFAULT_ENDPOINT`;
+    with ``$INVENT_ZENOH_LOWLATENCY=1`` also the :data:`LOW_LATENCY` transport. A file named by
+    ``$ZENOH_CONFIG`` replaces the default; ``connect``/``listen`` endpoints override either.
     """
     connect, listen = list(connect), list(listen)
     path = os.environ.get(ZENOH_CONFIG_VARIABLE)
@@ -63,6 +81,9 @@ def session_config(
             config.insert_json5("scouting/delay", "0")
         else:
             connect = connect or [DEFAULT_ENDPOINT]
+        if os.environ.get(LOW_LATENCY_VARIABLE) == "1":
+            for path_in_config, value in LOW_LATENCY.items():
+                config.insert_json5(path_in_config, value)
     if connect:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
@@ -161,10 +182,63 @@ class LatestSample(Generic[MessageT]):
         in the node's bad-input counters like any other bad input.
         """
         sample = self._subscriber.try_recv()
-        if sample is None:
+        if sample is None or _is_wake(sample):
             return False
         self._node._guard(self.key, lambda payload: handler(decode(self._type, payload)), sample.payload.to_bytes())
         return True
+
+    def undeclare(self) -> None:
+        self._subscriber.undeclare()
+
+
+CHANNEL_CAPACITY = 65536
+"""Samples a channel input holds before zenoh's receiving thread waits for the service thread."""
+WAKE_PERIOD_S = 0.01
+"""How often a service thread blocked in a channel receive is checked: woken once its wait is
+over or an event waits (zenoh's receive has no timeout). Waits shorter than this are timed waits."""
+_WAKE = b"invent-wake"
+"""The attachment of the session-local sample that wakes a blocked channel receive."""
+
+
+def _is_wake(sample: zenoh.Sample) -> bool:
+    attachment = sample.attachment
+    return attachment is not None and attachment.to_bytes() == _WAKE
+
+
+class ChannelInput:
+    """A subscription whose samples wait in a zenoh FIFO channel until the service thread takes them.
+
+    No Python runs in zenoh's thread and no thread switch happens on the way: the service thread,
+    idle, waits in the channel's receive itself, where a callback would hand each sample over
+    through zenoh-python's own thread (at thousands of samples per second those hand-offs cost
+    more than the work; benchmarks/README.md). An executor waits on its first channel input; the
+    samples of any other wait until the thread next wakes.
+    """
+
+    def __init__(self, session: zenoh.Session, key: str, dispatch: Callable[[bytes], None]) -> None:
+        self.key = key
+        self._session = session
+        self._dispatch = dispatch
+        self._subscriber = session.declare_subscriber(key, zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+
+    def take(self) -> bool:
+        """Handle the next waiting sample, if any; True if one was handled."""
+        while (sample := self._subscriber.try_recv()) is not None:
+            if not _is_wake(sample):
+                self._dispatch(sample.payload.to_bytes())
+                return True
+        return False
+
+    def receive(self) -> zenoh.Sample:
+        """The next sample, waiting as long as it takes (a wake sample included)."""
+        return self._subscriber.recv()
+
+    def handle(self, sample: zenoh.Sample) -> None:
+        self._dispatch(sample.payload.to_bytes())
+
+    def wake(self) -> None:
+        """End a :meth:`receive` in progress: an empty sample delivered to this session only."""
+        self._session.put(self.key, b"", attachment=_WAKE, allowed_destination=zenoh.Locality.SESSION_LOCAL)
 
     def undeclare(self) -> None:
         self._subscriber.undeclare()
@@ -175,24 +249,112 @@ class Executor:
 
     A node gets an executor of its own; services composed in one process may share one, so a
     single thread handles all their events in arrival order, with no thread switch between
-    them (as a ROS 2 single-threaded executor does).
+    them (as a ROS 2 single-threaded executor does). Besides posted events, the thread takes
+    the samples of its :class:`ChannelInput` s itself: first the posted events, then the
+    channel inputs in the order they were added.
+
+    Not a ``queue.SimpleQueue``: on CPython 3.11 its ``get(timeout)`` can wait forever (deaf to
+    signals too) when the thread is descheduled for longer than the timeout at the wrong moment,
+    which a loaded machine and millisecond polls make happen. A deque plus a lock that
+    :meth:`post` releases has no such window: ``Lock.acquire(timeout)`` recomputes its deadline.
     """
 
     def __init__(self) -> None:
-        self._events: queue.SimpleQueue[tuple[Callable[[Any], None], Any]] = queue.SimpleQueue()
+        self._events: collections.deque[tuple[Callable[[Any], None], Any]] = collections.deque()
+        self._posted = threading.Lock()
+        """Held while the thread has seen every event; a post releases it to wake the thread."""
+        self._posted.acquire()
+        self._inputs: list[ChannelInput] = []
+        self._received: tuple[ChannelInput, zenoh.Sample] | None = None
+        """A sample a blocking receive returned, handled after the events posted before it."""
+        self._blocked_until: float | None = None
+        """While the thread waits in a channel receive: when that wait is over (monotonic seconds)."""
+        self._waker: threading.Thread | None = None
+        self._waker_stop = threading.Event()
 
     def post(self, handle: Callable[[Any], None], item: Any) -> None:
         """Queue ``handle(item)``; thread-safe, and cheap enough for a zenoh callback."""
-        self._events.put((handle, item))
+        self._events.append((handle, item))
+        try:
+            self._posted.release()
+        except RuntimeError:  # already released by an earlier post the thread has not woken for yet
+            pass
+
+    def add_input(self, channel_input: ChannelInput) -> None:
+        self._inputs.append(channel_input)
+        if self._waker is None:
+            self._waker_stop.clear()
+            self._waker = threading.Thread(target=self._wake_blocked, name="invent-waker", daemon=True)
+            self._waker.start()
+
+    def remove_input(self, channel_input: ChannelInput) -> None:
+        self._inputs.remove(channel_input)
+        if self._received is not None and self._received[0] is channel_input:
+            self._received = None
+        if not self._inputs and self._waker is not None:
+            self._waker_stop.set()
+            self._waker.join()
+            self._waker = None
+
+    @property
+    def receiving(self) -> bool:
+        """True while the thread waits in a channel input's receive."""
+        return self._blocked_until is not None
 
     def spin_once(self, timeout: float | None) -> bool:
-        """Handle one queued event, waiting up to ``timeout`` seconds; False if none came."""
-        try:
-            handle, item = self._events.get(timeout=timeout) if timeout != 0 else self._events.get_nowait()
-        except queue.Empty:
+        """Handle one event or sample, waiting up to ``timeout`` seconds; False if none came."""
+        if self._take():
+            return True
+        if timeout == 0:
             return False
-        handle(item)
-        return True
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                return False
+            self._wait(remaining)
+            if self._take():
+                return True
+
+    def _take(self) -> bool:
+        events = self._events
+        if events:
+            handle, item = events.popleft()
+            handle(item)
+            return True
+        received = self._received
+        if received is not None:
+            self._received = None
+            channel_input, sample = received
+            channel_input.handle(sample)
+            return True
+        for channel_input in self._inputs:
+            if channel_input.take():
+                return True
+        return False
+
+    def _wait(self, remaining: float | None) -> None:
+        """Wait for something to take: in the first channel input's receive, or on posted events."""
+        inputs = self._inputs
+        if not inputs or (remaining is not None and remaining < WAKE_PERIOD_S):
+            self._posted.acquire(True, -1 if remaining is None else remaining)
+            return
+        channel_input = inputs[0]
+        self._blocked_until = math.inf if remaining is None else time.monotonic() + remaining
+        if self._events:  # posted after the last look: the waker may have checked before the mark
+            self._blocked_until = None
+            return
+        sample = channel_input.receive()
+        self._blocked_until = None
+        if not _is_wake(sample):
+            self._received = (channel_input, sample)
+
+    def _wake_blocked(self) -> None:
+        """The waker thread: ends a blocking receive whose wait is over or that events wait behind."""
+        while not self._waker_stop.wait(WAKE_PERIOD_S):
+            until, inputs = self._blocked_until, self._inputs
+            if until is not None and inputs and (self._events or time.monotonic() >= until):
+                inputs[0].wake()
 
 
 class Node:
@@ -219,6 +381,7 @@ class Node:
         self._status = status
         self.executor = executor or Executor()
         self._declarations: list[Any] = []
+        self._inputs: list[ChannelInput] = []
         self._publishers: list[Publisher] = []
         self._started = time.monotonic()
         self.queryable(keys.status(service), lambda _payload: self.status())
@@ -237,20 +400,31 @@ class Node:
             "internal_errors": self.internal_errors,
         }
 
-    def subscribe(self, key: str, message_type: type[MessageT], handler: Callable[[MessageT], None]) -> None:
-        """Call ``handler(message)`` on the service thread for every sample of ``key`` that decodes."""
+    def subscribe(
+        self, key: str, message_type: type[MessageT], handler: Callable[[MessageT], None], *, channel: bool = False
+    ) -> None:
+        """Call ``handler(message)`` on the service thread for every sample of ``key`` that decodes.
+
+        ``channel=True`` for the inputs that pace the service (the simulator's torque, the motor's
+        wheel angles): see :class:`ChannelInput`.
+        """
 
         def on_payload(payload: bytes) -> None:
             handler(decode(message_type, payload))
 
-        self.subscribe_raw(key, on_payload)
+        self.subscribe_raw(key, on_payload, channel=channel)
 
-    def subscribe_raw(self, key: str, handler: Callable[[bytes], None]) -> None:
+    def subscribe_raw(self, key: str, handler: Callable[[bytes], None], *, channel: bool = False) -> None:
         """Call ``handler(payload)`` on the service thread; it may raise BadInput."""
 
         def dispatch(payload: bytes) -> None:
             self._guard(key, handler, payload)
 
+        if channel:
+            channel_input = ChannelInput(self.session, key, dispatch)
+            self.executor.add_input(channel_input)
+            self._inputs.append(channel_input)
+            return
         post = self.executor.post
         self._declarations.append(
             self.session.declare_subscriber(key, lambda sample: post(dispatch, sample.payload.to_bytes()))
@@ -340,6 +514,10 @@ class Node:
 
     def close(self) -> None:
         """Withdraw the liveliness token and undeclare everything (the session stays open)."""
+        for channel_input in self._inputs:
+            self.executor.remove_input(channel_input)
+            channel_input.undeclare()
+        self._inputs.clear()
         for declaration in reversed(self._declarations):
             declaration.undeclare()
         for publisher in self._publishers:

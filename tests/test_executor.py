@@ -1,0 +1,146 @@
+"""The executor's waits and channel inputs (order, wake-ups), and the opt-in low-latency transport."""
+
+import json
+import threading
+import time
+
+import pytest
+
+from schemas import Keys, Service, Time, TimedDoubleSeq, encode
+from services.runtime import LOW_LATENCY_VARIABLE, Executor, Node, session_config
+from tests.harness import Collector, open_peer, wait_until
+
+KEYS = Keys("rh0")
+WAKER_THREAD = "invent-waker"
+
+
+def _sample(nsec: int) -> bytes:
+    return encode(TimedDoubleSeq(Time(0, nsec), [0.0, 0.0]))
+
+
+@pytest.fixture
+def node(session):
+    node = Node(session, KEYS, Service.MOTOR)
+    yield node
+    node.close()
+
+
+@pytest.fixture
+def remote(endpoint):
+    """A second peer: its samples reach the node over the network, not by same-session delivery."""
+    peer = open_peer(endpoint)
+    yield peer
+    peer.close()
+
+
+def _spin_in_thread(node: Node, timeout: float | None) -> tuple[threading.Thread, list]:
+    outcome: list = []
+
+    def spin() -> None:
+        started = time.monotonic()
+        outcome.append((node.spin_once(timeout), time.monotonic() - started))
+
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    return thread, outcome
+
+
+def _wait_blocked(node: Node) -> None:
+    wait_until(lambda: node.executor.receiving, 5, "the thread to block in the channel receive")
+
+
+def test_posted_events_come_first_then_channel_inputs_in_the_order_they_were_added(session, node):
+    handled = []
+    first, second = KEYS.sim_wheel_angles, KEYS.sim_body_pose
+    node.subscribe(first, TimedDoubleSeq, lambda m: handled.append(("first", m.tm.nsec)), channel=True)
+    node.subscribe(second, TimedDoubleSeq, lambda m: handled.append(("second", m.tm.nsec)), channel=True)
+    session.put(second, _sample(1))  # same session: delivered into the channel inside put
+    session.put(first, _sample(2))
+    session.put(first, _sample(3))
+    node.post(lambda: handled.append(("event", 0)))
+    while node.spin_once(0):
+        pass
+    assert handled == [("event", 0), ("first", 2), ("first", 3), ("second", 1)]
+
+
+def test_a_sample_from_another_process_ends_a_blocked_receive_at_once(node, remote):
+    handled = []
+    node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, handled.append, channel=True)
+    publisher = remote.declare_publisher(KEYS.sim_wheel_angles)
+    wait_until(lambda: publisher.matching_status.matching, what="the node's channel subscriber")
+    thread, outcome = _spin_in_thread(node, 30.0)
+    _wait_blocked(node)
+    publisher.put(_sample(7))
+    thread.join(5)
+    assert outcome and outcome[0][0] is True and outcome[0][1] < 5
+    assert [m.tm.nsec for m in handled] == [7]
+    publisher.undeclare()
+
+
+def test_a_posted_event_wakes_a_thread_blocked_in_a_channel_receive(node):
+    node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda _m: None, channel=True)
+    events = []
+    thread, outcome = _spin_in_thread(node, None)
+    _wait_blocked(node)
+    node.post(lambda: events.append(threading.current_thread()))
+    thread.join(5)
+    assert outcome and outcome[0][0] is True
+    assert events == [thread]
+
+
+def test_a_blocked_receive_ends_when_its_timeout_is_over_and_the_wake_is_seen_by_no_one(session, node, remote):
+    handled = []
+    key = KEYS.sim_wheel_angles
+    node.subscribe(key, TimedDoubleSeq, handled.append, channel=True)
+    sampled = node.latest(key, TimedDoubleSeq)
+    elsewhere = Collector(remote, key)
+    thread, outcome = _spin_in_thread(node, 0.3)
+    thread.join(5)
+    assert outcome and outcome[0][0] is False and 0.3 <= outcome[0][1] < 2.0
+    assert not node.spin_once(0), "the wake sample is not an input"
+    assert sampled.take(handled.append) is False, "nor a sample for a sampled input of the same session"
+    assert handled == [] and node.status()["bad_input"]["total"] == 0
+    assert elsewhere.drain() == [], "it never leaves the session"
+    elsewhere.close()
+
+
+def test_closing_the_node_stops_the_waker(session):
+    def wakers() -> int:
+        return sum(thread.name == WAKER_THREAD for thread in threading.enumerate())
+
+    before = wakers()
+    node = Node(session, KEYS, Service.SIM)
+    node.subscribe(KEYS.motor_torque, TimedDoubleSeq, lambda _m: None, channel=True)
+    assert wakers() == before + 1
+    node.close()
+    assert wakers() == before
+
+
+def test_a_short_wait_right_after_an_event_returns_every_time():
+    """``queue.SimpleQueue.get(timeout)`` on CPython 3.11 could wait forever in exactly this pattern."""
+    executor = Executor()
+    done = []
+
+    def cycles() -> None:
+        for _ in range(3000):
+            executor.post(lambda _: None, None)
+            executor.spin_once(None)
+            executor.spin_once(2e-6)
+        done.append(True)
+
+    thread = threading.Thread(target=cycles, daemon=True)
+    thread.start()
+    thread.join(30)
+    assert done, "spin_once(timeout) did not return"
+
+
+def test_the_low_latency_transport_is_opt_in(monkeypatch):
+    monkeypatch.delenv("ZENOH_CONFIG", raising=False)
+    monkeypatch.delenv(LOW_LATENCY_VARIABLE, raising=False)
+    assert json.loads(str(session_config()))["transport"]["unicast"]["lowlatency"] is False
+    monkeypatch.setenv(LOW_LATENCY_VARIABLE, "1")
+    for mode in ("peer", "router"):
+        config = json.loads(str(session_config(mode=mode)))
+        assert config["transport"]["unicast"]["lowlatency"] is True
+        assert config["transport"]["unicast"]["qos"]["enabled"] is False
+        assert config["scouting"]["gossip"]["autoconnect_strategy"]["peer"]["to_peer"] == "greater-zid"
