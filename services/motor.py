@@ -66,8 +66,10 @@ class MotorService:
         self._wheel_angles = node.publisher(keys.motor_wheel_angles)
         self._sim_pose_gui = node.publisher(keys.motor_sim_pose_gui)
         self._sim_pose_localization = node.publisher(keys.motor_sim_pose_localization)
-        node.subscribe(keys.sim_wheel_angles, TimedDoubleSeq, self._on_wheel_angles)
-        node.subscribe(keys.sim_body_pose, TimedDoubleSeq, self._on_body_pose)
+        # Channel inputs, wheel angles first: the thread waits on them and answers with the torque
+        # before it converts the body pose (targets and calls, posted events, come before both).
+        node.subscribe(keys.sim_wheel_angles, TimedDoubleSeq, self._on_wheel_angles, channel=True)
+        node.subscribe(keys.sim_body_pose, TimedDoubleSeq, self._on_body_pose, channel=True)
         node.subscribe(keys.drive_target_velocity, TimedVelocity, self._on_target_velocity)
         for family in MethodFamily:
             for method in Method:

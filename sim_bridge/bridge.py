@@ -12,7 +12,11 @@ applies the wheel torques and steps:
   real-time period for its torque (the sim runs at real-time pace, zero torque, slow enough
   for a motor control to work off its backlog) until a torque from it arrives again.
 - **realtime**: steps paced to the wall clock times ``sim.realtime_factor``; each applies the
-  newest torque, or zero when the newest is older than ``sim.torque_max_age``.
+  newest torque, or zero when the newest is older than ``sim.torque_max_age``. A step whose own
+  torque (the answer to its wheel angles) has not arrived when it is stepped counts as late.
+
+In both modes the status reports the torque latency (wheel angles published -> the torque with
+their ``tm`` received) as percentiles over the most recent steps (:mod:`sim_bridge.latency`).
 
 When the robot begins touching an obstacle it publishes ``sim/bump`` and calls
 ``motor/bump/stop`` without waiting for the answer (the reply is only counted).
@@ -36,6 +40,7 @@ from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, NoArguments, Tim
 from services.config import Config, SimConfig, SimMode
 from services.runtime import Node
 from services.service import ServiceCommand
+from sim_bridge.latency import TorqueLatency
 from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, read_world, resolve_world
 
 if TYPE_CHECKING:
@@ -81,6 +86,7 @@ COUNTERS = (
     "bump_stop_acks",
     "bump_stop_errors",
     "realtime_resyncs",
+    "realtime_late_steps",
 )
 """The counters of ``sim/status`` (docs/sim.md explains each)."""
 
@@ -111,6 +117,7 @@ class SimService:
 
         self.world_file = resolve_world(config.sim.world)
         self.sim = Simulator(config.robot, config.sim, read_world(self.world_file), gui=args.gui)
+        self.latency = TorqueLatency(self.sim.step_ns)
         self._end_step = (
             math.inf if args.duration is None else round(args.duration * NANOSECONDS_PER_SECOND / self.sim.step_ns)
         )
@@ -125,7 +132,9 @@ class SimService:
         self._pose_publisher = node.publisher(keys.sim_body_pose)
         self._angles_publisher = node.publisher(keys.sim_wheel_angles)
         self._bump_publisher = node.publisher(keys.sim_bump)
-        node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque)
+        # Lockstep waits in the torque channel's receive itself; realtime waits for its step's
+        # deadline, which a posted torque must interrupt.
+        node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, channel=self.mode == LOCKSTEP)
         self._motor_key = keys.alive(Service.MOTOR)
         self._bump_stop = node.session.declare_querier(
             keys.method(MethodFamily.BUMP, Method.STOP), timeout=BUMP_STOP_TIMEOUT_S
@@ -183,6 +192,7 @@ class SimService:
         if len(torque.data) != self.sim.wheel_count:
             raise BadInput(f"{len(torque.data)} torques, expected {self.sim.wheel_count} (one per wheel id)")
         tm_ns = torque.tm.to_nanoseconds()
+        self.latency.answered(tm_ns, time.perf_counter_ns())
         if self.mode == LOCKSTEP:
             if self.motor_silent:
                 self._set_motor_silent(False)
@@ -204,7 +214,9 @@ class SimService:
         tm_ns = sim.time_ns
         tm = Time.from_nanoseconds(tm_ns)
         # Wheel angles first: they trigger the motor's torque, which the next step waits for.
-        self._angles_publisher.put(TimedDoubleSeq(tm=tm, data=sim.wheel_angles()))
+        angles = TimedDoubleSeq(tm=tm, data=sim.wheel_angles())
+        self.latency.published(tm_ns, time.perf_counter_ns())
+        self._angles_publisher.put(angles)
         self._pose_publisher.put(TimedDoubleSeq(tm=tm, data=sim.body_pose()))
         return tm_ns
 
@@ -272,6 +284,8 @@ class SimService:
             self._step()
 
     def _realtime_torque(self, tm_ns: int) -> None:
+        if self._newest_ns != tm_ns:
+            self.counters["realtime_late_steps"] += 1
         newest = self._newest_torque
         if newest is not None and tm_ns - self._newest_ns <= self._max_age_ns:
             self.sim.set_torques(newest)
@@ -359,6 +373,8 @@ class SimService:
             "torques": list(sim.applied_torques),
             "pose": self._planar_pose(),
             "counters": dict(self.counters),
+            "torque_latency": self.latency.summary(),
+            "late_fraction": self._late_fraction(),
             "parameters": {
                 "step": self.parameters.step,
                 "duration": self.duration,
@@ -369,6 +385,11 @@ class SimService:
                 "max_wheel_torque": self.parameters.max_wheel_torque,
             },
         }
+
+    def _late_fraction(self) -> float:
+        """Steps whose torque came late: past the timeout (lockstep), after the step (realtime)."""
+        late = self.counters["late_torques" if self.mode == LOCKSTEP else "realtime_late_steps"]
+        return late / self.sim.step_index if self.sim.step_index else 0.0
 
     def close(self) -> None:
         self._motor_watch.undeclare()
