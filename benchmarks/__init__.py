@@ -1,0 +1,1 @@
+"""Benchmarks of invent-zenoh (``make bench``); never part of ``make test``."""

@@ -1,0 +1,280 @@
+"""The closed loop measured: as separate processes, through ``invent up`` (also ``--composed``),
+and its in-process limit.
+
+Each loop runs a constant-velocity scenario (a circle, long enough never to end). The benchmark
+joins its router with a session of its own, waits until the drive is alive and a warm-up has
+passed, then reads the sim's status at the start and at the end of a measuring window: steps
+per second = steps stepped / wall seconds between the two replies, so start-up and shut-down
+are left out. The two replies' latency histograms, subtracted, give the torque latency (wheel
+angles published -> matching torque received) of exactly the window's steps; their counters
+give the late and missing fractions. The processes are then stopped with SIGINT, as Ctrl-C would.
+
+The in-process limit steps the same robot (:class:`~sim_bridge.simulator.Simulator`) with the
+same PD law (:class:`~services.motor_core.MotorCore`) in one loop with no zenoh: read the
+wheel angles, compute the torques, apply them, step.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from schemas.keys import Keys, Service
+from services.config import Config
+from services.motor_core import MotorCore
+from services.runtime import open_session, session_config
+from sim_bridge.latency import percentiles
+
+REPO = Path(__file__).resolve().parent.parent
+VX, W = 0.3, 0.3
+"""The benchmark's constant command: a circle of 1 m radius, so any duration stays on the floor."""
+SCENARIO_SECONDS = 100_000.0
+"""Simulated seconds of the scenario: the run is always stopped before it ends."""
+START_TIMEOUT_S = 60.0
+STOP_TIMEOUT_S = 30.0
+STATUS_TIMEOUT_S = 2.0
+POLL_S = 0.05
+CLOCK_CHECK_STEPS = 500
+"""In-process limit: steps between two looks at the clock."""
+KEYS = Keys()
+
+
+@dataclass(frozen=True)
+class LoopResult:
+    steps_per_s: float
+    sim_seconds_per_s: float
+    latency_us: dict[str, float | None]
+    late_fraction: float
+    """Late steps / steps over the window (lockstep: timed out; realtime: stepped before their torque)."""
+    missing_fraction: float
+    steps: int
+    window_s: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "steps_per_s": self.steps_per_s,
+            "real_time_factor": self.sim_seconds_per_s,
+            "latency_us": self.latency_us,
+            "late_fraction": self.late_fraction,
+            "missing_fraction": self.missing_fraction,
+            "steps": self.steps,
+            "window_s": self.window_s,
+        }
+
+
+def inprocess_steps_per_s(seconds: float) -> float:
+    """Steps per second of Simulator + MotorCore in one loop, no zenoh, for ``seconds`` of wall time."""
+    from sim_bridge.simulator import Simulator
+    from sim_bridge.world import load_world
+
+    config = Config()
+    core = MotorCore(config.robot, config.motor)
+    core.set_target(VX, W)
+    with Simulator(config.robot, config.sim, load_world(None)) as sim:
+        started = time.perf_counter()
+        deadline = started + seconds
+        while True:
+            for _ in range(CLOCK_CHECK_STEPS):
+                sim.set_torques(core.step(sim.time_ns, sim.wheel_angles()))
+                sim.step()
+            now = time.perf_counter()
+            if now >= deadline:
+                return sim.step_index / (now - started)
+
+
+def scenario_file(directory: Path) -> Path:
+    path = directory / "bench_circle.toml"
+    path.write_text(
+        f'name = "bench circle"\n\n[[segments]]\ntype = "constant"\nvx = {VX}\nw = {W}\nduration = {SCENARIO_SECONDS}\n'
+    )
+    return path
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def _sim_status(session: zenoh.Session) -> dict[str, Any] | None:
+    for reply in session.get(KEYS.status(Service.SIM), timeout=STATUS_TIMEOUT_S):
+        if reply.ok is not None:
+            return json.loads(reply.ok.payload.to_bytes())
+    return None
+
+
+def _alive(session: zenoh.Session, service: Service) -> bool:
+    return any(reply.ok is not None for reply in session.liveliness().get(KEYS.alive(service), timeout=1.0))
+
+
+class UpRun:
+    """One ``invent up`` in the background, its output in a log file."""
+
+    def __init__(self, flags: Sequence[str], directory: Path) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        self.log_path = directory / f"up-{time.monotonic_ns()}.log"
+        argv = [
+            sys.executable, "-m", "services.cli", "up",
+            "--scenario", str(scenario_file(directory)),
+            "--listen", self.endpoint,
+            "--report", str(directory / "report"),
+            "--log-level", "warning",
+            *flags,
+        ]  # fmt: skip
+        self._log = self.log_path.open("w")
+        self.process = subprocess.Popen(argv, cwd=REPO, stdout=self._log, stderr=subprocess.STDOUT)
+
+    def output(self, lines: int = 30) -> str:
+        return "\n".join(self.log_path.read_text().splitlines()[-lines:])
+
+    def check(self) -> None:
+        if self.process.poll() is not None:
+            raise RuntimeError(f"invent up exited with {self.process.returncode}:\n{self.output()}")
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+            try:
+                self.process.wait(STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self._log.close()
+
+
+class ServicesRun:
+    """The loop's services as separate processes started here, as ``invent up`` starts them
+    (router, motor, odometry, localization, then the sim, then the drive), without ``up``'s
+    run recorder: the loop itself, nothing listening beside it."""
+
+    def __init__(self, flags: Sequence[str], directory: Path, env: Mapping[str, str] | None = None) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        self.log_path = directory / f"services-{time.monotonic_ns()}.log"
+        self._log = self.log_path.open("w")
+        self._directory = directory
+        self._sim_flags = list(flags)
+        self._env = {**os.environ, **(env or {})}
+        self.processes: dict[str, subprocess.Popen[bytes]] = {}
+        self._start("router", ["router", "--listen", self.endpoint])
+
+    def _start(self, name: str, argv: Sequence[str]) -> None:
+        self.processes[name] = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", *argv, "--log-level", "warning"],
+            cwd=REPO,
+            env=self._env,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+        )
+
+    def start_loop(self, session: zenoh.Session) -> None:
+        connect = ["--connect", self.endpoint]
+        for service in (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION):
+            self._start(str(service), [str(service), *connect])
+        for service in (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION):
+            _wait(lambda service=service: _alive(session, service), f"the {service}", self)
+        self._start("sim", ["sim", *connect, *self._sim_flags])
+        _wait(lambda: _alive(session, Service.SIM), "the sim", self)
+        self._start("drive", ["drive", *connect, "--scenario", str(scenario_file(self._directory))])
+
+    def output(self, lines: int = 30) -> str:
+        return "\n".join(self.log_path.read_text().splitlines()[-lines:])
+
+    def check(self) -> None:
+        for name, process in self.processes.items():
+            if process.poll() is not None:
+                raise RuntimeError(f"{name} exited with {process.returncode}:\n{self.output()}")
+
+    def stop(self) -> None:
+        for process in reversed(self.processes.values()):
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+        for process in reversed(self.processes.values()):
+            try:
+                process.wait(STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+        self._log.close()
+
+
+def _wait(predicate, what: str, run: UpRun | ServicesRun) -> None:
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while not predicate():
+        run.check()
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"timed out waiting for {what}:\n{run.output()}")
+        time.sleep(POLL_S)
+
+
+def measure_up(flags: Sequence[str], warmup_s: float, window_s: float) -> LoopResult:
+    """Run ``invent up`` with ``flags`` and measure the sim over ``window_s`` after ``warmup_s``."""
+    with tempfile.TemporaryDirectory(prefix="invent-bench-") as folder:
+        run = UpRun(flags, Path(folder))
+        try:
+            with open_session(session_config(connect=[run.endpoint])) as session:
+                return _measure(session, run, warmup_s, window_s)
+        finally:
+            run.stop()
+
+
+def measure_services(
+    sim_flags: Sequence[str], warmup_s: float, window_s: float, env: Mapping[str, str] | None = None
+) -> LoopResult:
+    """Start the services as separate processes (:class:`ServicesRun`, with ``env`` added to
+    their environment) and measure like :func:`measure_up`."""
+    with tempfile.TemporaryDirectory(prefix="invent-bench-") as folder:
+        run = ServicesRun(sim_flags, Path(folder), env)
+        try:
+            with open_session(session_config(connect=[run.endpoint])) as session:
+                run.start_loop(session)
+                return _measure(session, run, warmup_s, window_s)
+        finally:
+            run.stop()
+
+
+def window_latency(first: dict[str, Any], last: dict[str, Any]) -> dict[str, float | None]:
+    """p50, p99 and max (to the sim's bin width) of the torque latencies counted between two
+    ``torque_latency`` status entries: the difference of their histograms."""
+    counts = dict(map(tuple, last["histogram"]))
+    for index, count in first["histogram"]:
+        counts[index] -= count
+    window = {index: count for index, count in counts.items() if count > 0}
+    p50, p99, top = percentiles(window, (0.50, 0.99, 1.0))
+    return {"p50": p50, "p99": p99, "max": top}
+
+
+def _measure(session: zenoh.Session, run: UpRun | ServicesRun, warmup_s: float, window_s: float) -> LoopResult:
+    _wait(lambda: _alive(session, Service.DRIVE), "the drive", run)
+    _wait(lambda: (_sim_status(session) or {}).get("state") == "running", "the sim running", run)
+    time.sleep(warmup_s)
+    first, first_wall = _sim_status(session), time.monotonic()
+    time.sleep(window_s)
+    last, last_wall = _sim_status(session), time.monotonic()
+    run.check()
+    if first is None or last is None:
+        raise RuntimeError("the sim did not answer its status")
+    steps = last["steps"] - first["steps"]
+    wall = last_wall - first_wall
+    counters = {name: last["counters"][name] - first["counters"][name] for name in last["counters"]}
+    late_counter = "late_torques" if last["mode"] == "lockstep" else "realtime_late_steps"
+    return LoopResult(
+        steps_per_s=steps / wall,
+        sim_seconds_per_s=(last["sim_time_s"] - first["sim_time_s"]) / wall,
+        latency_us=window_latency(first["torque_latency"], last["torque_latency"]),
+        late_fraction=counters[late_counter] / steps if steps else 1.0,
+        missing_fraction=counters["missing_torques"] / steps if steps else 1.0,
+        steps=steps,
+        window_s=wall,
+    )

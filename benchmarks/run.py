@@ -1,0 +1,301 @@
+"""``make bench``: measure, print a table, write ``benchmarks/results/latest.json``.
+
+Sections (benchmarks/README.md explains each number and what was tried to push them):
+
+- ``lockstep``: steps per second of the real loop (router, motor, odometry, localization, sim
+  and drive, each its own process, started as ``invent up`` starts them), of ``invent up``
+  itself (its run recorder listening too), of the composed loop (``invent up --composed``) and
+  of the in-process limit, with their ratios; the step exchange latency measured by the sim.
+- ``realtime``: the same processes with the sim in realtime mode at 1 kHz: achieved rate,
+  late fraction, torque latency.
+- ``codec``: ns per encode + decode per message type, the project's codec against stdlib json.
+- ``machine``: where it ran.
+
+Loop figures are medians over ``--repeats`` runs, interleaved with the in-process limit so a
+ratio compares numbers taken under the same machine load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from benchmarks import codec, loop, machine
+from services.runtime import LOW_LATENCY_VARIABLE
+
+RESULTS = Path(__file__).resolve().parent / "results" / "latest.json"
+COMPOSED_FLAG = "--composed"
+
+TARGETS = {
+    "lockstep.ratio": 0.07,
+    "lockstep.composed_ratio": 0.25,
+    "realtime.late_fraction": 0.01,
+    "realtime.latency_us.p99": 1000.0,
+    "codec.min_ratio": 5.0,
+}
+"""The issue's "Must show": ratios are lower bounds, late fraction and latency upper bounds."""
+UPPER_BOUNDS = frozenset({"realtime.late_fraction", "realtime.latency_us.p99"})
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--repeats", type=int, default=3, help="lockstep runs per mode (median reported; default 3)")
+    parser.add_argument("--warmup", type=float, default=1.0, metavar="S", help="wall seconds before measuring")
+    parser.add_argument("--window", type=float, default=4.0, metavar="S", help="lockstep measuring window, wall s")
+    parser.add_argument(
+        "--realtime-window", type=float, default=10.0, metavar="S", help="realtime measuring window, wall s"
+    )
+    parser.add_argument("--inprocess", type=float, default=2.0, metavar="S", help="in-process limit run, wall s")
+    parser.add_argument("--codec-repeats", type=int, default=5, metavar="N", help="timed batches per codec figure")
+    parser.add_argument("--out", type=Path, default=RESULTS, help=f"results file (default {RESULTS})")
+    parser.add_argument("--quick", action="store_true", help="tiny durations: checks that everything runs")
+    return parser
+
+
+def composed_available() -> bool:
+    """Whether this checkout's ``invent up`` has ``--composed``."""
+    help_text = subprocess.run(
+        [sys.executable, "-m", "services.cli", "up", "--help"],
+        cwd=loop.REPO,
+        capture_output=True,
+        text=True,
+        check=False,
+    ).stdout
+    return COMPOSED_FLAG in help_text
+
+
+def _median(values: Sequence[float | None]) -> float | None:
+    present = [value for value in values if value is not None]
+    return statistics.median(present) if present else None
+
+
+def _ratio(numerator: float | None, denominator: float | None) -> float | None:
+    return numerator / denominator if numerator is not None and denominator else None
+
+
+def _timed(what: str, action: Callable[[], Any], failures: list[str]) -> Any:
+    """``action()``, timed on the console; None (and the reason in ``failures``) if a run failed."""
+    started = time.monotonic()
+    print(f"  {what} ...", end="", flush=True)
+    try:
+        result = action()
+    except RuntimeError as error:
+        print(f" failed: {str(error).splitlines()[0]}", flush=True)
+        failures.append(f"{what}: {error}")
+        return None
+    print(f" {time.monotonic() - started:.1f} s", flush=True)
+    return result
+
+
+def _loop_summary(runs: list[loop.LoopResult]) -> dict[str, Any]:
+    return {
+        "steps_per_s": _median([run.steps_per_s for run in runs]),
+        "latency_us": {
+            "p50": _median([run.latency_us["p50"] for run in runs]),
+            "p99": _median([run.latency_us["p99"] for run in runs]),
+        },
+        "late_fraction": _median([run.late_fraction for run in runs]),
+    }
+
+
+def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) -> dict[str, Any]:
+    inprocess: list[float] = []
+    separate: list[loop.LoopResult] = []
+    with_up: list[loop.LoopResult] = []
+    low_latency: list[loop.LoopResult] = []
+    together: list[loop.LoopResult] = []
+    for repeat in range(args.repeats):
+        print(f"lockstep, run {repeat + 1} of {args.repeats}", flush=True)
+        inprocess.append(_timed("in-process limit", lambda: loop.inprocess_steps_per_s(args.inprocess), failures))
+        separate.append(
+            _timed("separate processes", lambda: loop.measure_services([], args.warmup, args.window), failures)
+        )
+        low_latency.append(
+            _timed(
+                "separate, low-latency transport",
+                lambda: loop.measure_services([], args.warmup, args.window, {LOW_LATENCY_VARIABLE: "1"}),
+                failures,
+            )
+        )
+        with_up.append(
+            _timed("invent up (its recorder too)", lambda: loop.measure_up([], args.warmup, args.window), failures)
+        )
+        if composed:
+            together.append(
+                _timed("composed", lambda: loop.measure_up([COMPOSED_FLAG], args.warmup, args.window), failures)
+            )
+    inprocess = [value for value in inprocess if value is not None]
+    separate, with_up, low_latency, together = (
+        [run for run in runs if run is not None] for runs in (separate, with_up, low_latency, together)
+    )
+    limit = _median(inprocess)
+    alone, shared = _loop_summary(separate), _loop_summary(together) if together else None
+    return {
+        "steps_per_s": alone["steps_per_s"],
+        "inprocess_steps_per_s": limit,
+        "ratio": _ratio(alone["steps_per_s"], limit),
+        "latency_us": alone["latency_us"],
+        "late_fraction": alone["late_fraction"],
+        "up_steps_per_s": _median([run.steps_per_s for run in with_up]),
+        "lowlatency_steps_per_s": _median([run.steps_per_s for run in low_latency]),
+        "lowlatency_ratio": _ratio(_median([run.steps_per_s for run in low_latency]), limit),
+        "lowlatency_latency_us": _loop_summary(low_latency)["latency_us"],
+        "composed_steps_per_s": shared["steps_per_s"] if shared else None,
+        "composed_ratio": _ratio(shared["steps_per_s"], limit) if shared else None,
+        "composed_latency_us": shared["latency_us"] if shared else None,
+        "composed_note": None if composed else f"this checkout's `invent up` has no {COMPOSED_FLAG}",
+        "runs": {
+            "inprocess_steps_per_s": inprocess,
+            "separate": [run.as_dict() for run in separate],
+            "up": [run.as_dict() for run in with_up],
+            "lowlatency": [run.as_dict() for run in low_latency],
+            "composed": [run.as_dict() for run in together],
+        },
+    }
+
+
+def run_realtime(args: argparse.Namespace, failures: list[str]) -> dict[str, Any]:
+    print("realtime, 1 kHz", flush=True)
+    result = _timed(
+        "separate processes",
+        lambda: loop.measure_services(["--mode", "realtime"], args.warmup, args.realtime_window),
+        failures,
+    )
+    if result is None:
+        return {"rate_hz": None, "late_fraction": None, "latency_us": {"p50": None, "p99": None, "max": None}}
+    return {
+        "rate_hz": result.steps_per_s,
+        "real_time_factor": result.sim_seconds_per_s,
+        "late_fraction": result.late_fraction,
+        "missing_fraction": result.missing_fraction,
+        "latency_us": {
+            "p50": result.latency_us["p50"],
+            "p99": result.latency_us["p99"],
+            "max": result.latency_us["max"],
+        },
+        "steps": result.steps,
+        "window_s": result.window_s,
+    }
+
+
+def _lookup(results: dict[str, Any], dotted: str) -> Any:
+    value: Any = results
+    for part in dotted.split("."):
+        value = value.get(part) if isinstance(value, dict) else None
+    return value
+
+
+def check_targets(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    checks = {}
+    for name, target in TARGETS.items():
+        value = _lookup(results, name)
+        met = None if value is None else (value < target if name in UPPER_BOUNDS else value >= target)
+        checks[name] = {"target": target, "value": value, "met": met}
+    return checks
+
+
+def _fmt(value: Any, digits: int = 0) -> str:
+    if value is None:
+        return "n/a"
+    return f"{value:,.{digits}f}"
+
+
+def table(results: dict[str, Any]) -> str:
+    """The results as a Markdown table (printed, and pasted into the README)."""
+    lockstep, realtime, machine_info = results["lockstep"], results["realtime"], results["machine"]
+    rows = [
+        (
+            "lockstep, separate processes",
+            f"{_fmt(lockstep['steps_per_s'])} steps/s",
+            f"ratio {_fmt(lockstep['ratio'], 3)}",
+        ),
+        (
+            f"lockstep, separate, low-latency transport (opt-in, `{LOW_LATENCY_VARIABLE}=1`)",
+            f"{_fmt(lockstep['lowlatency_steps_per_s'])} steps/s",
+            f"ratio {_fmt(lockstep['lowlatency_ratio'], 3)}",
+        ),
+        (
+            "lockstep, `invent up` (its run recorder listening too)",
+            f"{_fmt(lockstep['up_steps_per_s'])} steps/s",
+            f"ratio {_fmt(_ratio(lockstep['up_steps_per_s'], lockstep['inprocess_steps_per_s']), 3)}",
+        ),
+        (
+            "lockstep, composed (`invent up --composed`)",
+            f"{_fmt(lockstep['composed_steps_per_s'])} steps/s",
+            f"ratio {_fmt(lockstep['composed_ratio'], 3)}",
+        ),
+        ("lockstep, in one process, no zenoh (limit)", f"{_fmt(lockstep['inprocess_steps_per_s'])} steps/s", "1"),
+        (
+            "lockstep torque latency, separate",
+            f"p50 {_fmt(lockstep['latency_us']['p50'])} µs",
+            f"p99 {_fmt(lockstep['latency_us']['p99'])} µs",
+        ),
+        (
+            "realtime 1 kHz, separate processes",
+            f"{_fmt(realtime['rate_hz'])} steps/s",
+            f"late {_fmt(None if realtime['late_fraction'] is None else 100 * realtime['late_fraction'], 2)} %",
+        ),
+        (
+            "realtime torque latency",
+            f"p50 {_fmt(realtime['latency_us']['p50'])} µs",
+            f"p99 {_fmt(realtime['latency_us']['p99'])} µs",
+        ),
+    ]
+    rows += [
+        (
+            f"codec {name}",
+            f"{_fmt(entry['codec_ns'])} ns (json {_fmt(entry['json_ns'])} ns)",
+            f"{_fmt(entry['ratio'], 1)}x",
+        )
+        for name, entry in results["codec"].items()
+    ]
+    lines = ["| measurement | value | ratio / detail |", "|---|---|---|"]
+    lines += [f"| {a} | {b} | {c} |" for a, b, c in rows]
+    lines.append("")
+    lines.append(
+        f"Machine: {machine_info['cores']} cores ({machine_info['cpu']}), Python {machine_info['python']}, "
+        f"zenoh {machine_info['zenoh']}, pybullet {machine_info['pybullet']}, msgspec {machine_info['msgspec']}; "
+        f"load average at start {machine_info['load_average_at_start']}; {machine_info['date']}."
+    )
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    if args.quick:
+        args.repeats, args.warmup, args.window, args.realtime_window = 1, 0.2, 0.5, 0.5
+        args.inprocess, args.codec_repeats = 0.2, 1
+    started = time.monotonic()
+    results: dict[str, Any] = {"machine": machine.describe()}
+    composed = composed_available()
+    failures: list[str] = []
+    results["lockstep"] = run_lockstep(args, composed, failures)
+    results["realtime"] = run_realtime(args, failures)
+    print("codec", flush=True)
+    results["codec"] = _timed("encode + decode per type", lambda: codec.run(args.codec_repeats), failures)
+    results["codec_min_ratio"] = min(entry["ratio"] for entry in results["codec"].values())
+    results["targets"] = check_targets({**results, "codec": {"min_ratio": results["codec_min_ratio"]}})
+    results["settings"] = {
+        key: getattr(args, key) for key in ("repeats", "warmup", "window", "realtime_window", "inprocess", "quick")
+    }
+    results["failures"] = failures
+    results["duration_s"] = time.monotonic() - started
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(results, indent=2) + "\n")
+    print()
+    print(table(results))
+    print()
+    for name, check in results["targets"].items():
+        verdict = {True: "met", False: "NOT met", None: "not measured"}[check["met"]]
+        print(f"target {name} {'<' if name in UPPER_BOUNDS else '>='} {check['target']}: {verdict} ({check['value']})")
+    for failure in failures:
+        print(f"FAILED {failure}")
+    print(f"\nwrote {args.out} in {results['duration_s']:.0f} s")
+    return 1 if failures else 0

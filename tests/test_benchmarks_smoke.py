@@ -1,0 +1,67 @@
+"""``python -m benchmarks --quick`` runs every section and writes the result fields (no speed asserted)."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from tests.harness import REPO
+
+pytestmark = pytest.mark.slow
+
+NUMBERS = (
+    "lockstep.steps_per_s",
+    "lockstep.inprocess_steps_per_s",
+    "lockstep.ratio",
+    "lockstep.up_steps_per_s",
+    "lockstep.lowlatency_steps_per_s",
+    "lockstep.composed_steps_per_s",
+    "lockstep.composed_ratio",
+    "lockstep.latency_us.p50",
+    "lockstep.latency_us.p99",
+    "realtime.rate_hz",
+    "realtime.late_fraction",
+    "realtime.latency_us.p50",
+    "realtime.latency_us.p99",
+    "machine.cores",
+)
+MESSAGE_TYPES = ("Time", "TimedDoubleSeq", "TimedVelocity", "TimedPosition", "BumpEvent", "PDGains", "NoArguments")
+
+
+def _lookup(results: dict, dotted: str):
+    value = results
+    for part in dotted.split("."):
+        value = value[part]
+    return value
+
+
+def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
+    out = tmp_path / "latest.json"
+    result = subprocess.run(
+        [sys.executable, "-m", "benchmarks", "--quick", "--out", str(out)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=240,
+        check=False,
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    results = json.loads(out.read_text())
+    assert results["failures"] == []
+    for name in NUMBERS:
+        value = _lookup(results, name)
+        lowest = 0 if name.endswith("late_fraction") else 1e-9
+        assert isinstance(value, (int, float)) and value >= lowest, (name, value)
+    for name in MESSAGE_TYPES:
+        entry = results["codec"][name]
+        assert entry["codec_ns"] > 0 and entry["json_ns"] > 0 and entry["ratio"] == entry["json_ns"] / entry["codec_ns"]
+    assert {"python", "zenoh", "pybullet", "date"} <= set(results["machine"])
+    assert set(results["targets"]) == {
+        "lockstep.ratio",
+        "lockstep.composed_ratio",
+        "realtime.late_fraction",
+        "realtime.latency_us.p99",
+        "codec.min_ratio",
+    }
+    assert "| lockstep, separate processes |" in result.stdout and f"wrote {out}" in result.stdout
