@@ -18,7 +18,6 @@ scenario over from its first stamp: a new simulator is a new run, the robot back
 from __future__ import annotations
 
 import argparse
-import math
 import threading
 from typing import Any
 
@@ -38,7 +37,7 @@ from services.scenarios import (
     load_scenario,
     parse_waypoints,
 )
-from services.service import ServiceCommand
+from services.service import ServiceCommand, finite_number, positive_seconds
 from services.sim_time import PeriodicSchedule, StampClock
 
 FINAL_ZERO_TICKS = 3
@@ -58,31 +57,11 @@ def _argument(parse):
     return convert
 
 
-def _positive_seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ConfigError(f"{text!r} is not a number of seconds") from None
-    if not (math.isfinite(value) and value > 0.0):
-        raise ConfigError(f"duration must be > 0 seconds, got {text}")
-    return value
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ConfigError(f"{text!r} is not a number") from None
-    if not math.isfinite(value):
-        raise ConfigError(f"{text} is not finite")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     what = parser.add_argument_group("what to drive (exactly one of --for, --scenario, --waypoints)")
     mode = what.add_mutually_exclusive_group(required=True)
     mode.add_argument(
-        "--for", dest="duration", type=_argument(_positive_seconds), metavar="S",
+        "--for", dest="duration", type=positive_seconds, metavar="S",
         help="constant velocity (--vx, --w) for S seconds of simulation time",
     )
     mode.add_argument(
@@ -93,8 +72,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--waypoints", type=_argument(parse_waypoints), metavar='"X,Y X,Y ..."',
         help='follow a path through these points (world frame, m), e.g. "1,0 1,1 0,1 0,0"',
     )
-    what.add_argument("--vx", type=_argument(_finite), metavar="M/S", help="with --for: forward speed (default 0)")
-    what.add_argument("--w", type=_argument(_finite), metavar="RAD/S", help="with --for: turn rate (default 0)")
+    what.add_argument("--vx", type=finite_number, metavar="M/S", help="with --for: forward speed (default 0)")
+    what.add_argument("--w", type=finite_number, metavar="RAD/S", help="with --for: turn rate (default 0)")
     what.add_argument("--loop", action="store_true", help="start the scenario over when it ends, forever")
     parser.add_argument(
         "--rate",

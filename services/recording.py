@@ -47,9 +47,9 @@ class Recorder:
         for payload in self._payloads[key]:
             try:
                 message = decode(message_type, payload)
-            except BadInput:
-                continue
-            items.append((message.tm.to_seconds(), convert(message)))
+                items.append((message.tm.to_seconds(), convert(message)))
+            except (BadInput, IndexError):
+                continue  # someone else's bad input on a recorded key: not part of the run
         items.sort(key=lambda item: item[0])
         return items
 

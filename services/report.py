@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from services.config import RobotConfig
+from services.motor_core import SimPoseConverter
 from services.scenarios import distance_to_path
 
 Pose = tuple[float, float, float]
@@ -32,9 +33,14 @@ class Recording:
     """(t, left, right) wheel angles."""
 
 
+_GROUND_TRUTH = SimPoseConverter()
+"""The motor's conversion without offsets: the simulator's own frame is the axle centre."""
+
+
 def pose_from_body_pose(data: list[float]) -> Pose:
     """x, y and heading of a ``sim/body_pose`` vector (x, y, z, rotation row-major)."""
-    return data[0], data[1], math.atan2(-data[4], data[3])
+    x, y, _z, theta = _GROUND_TRUTH(data)
+    return x, y, theta
 
 
 def _pose_dict(pose: Pose | None) -> dict[str, float] | None:

@@ -10,6 +10,7 @@ existing session instead, so several services can share one process and one sess
 from __future__ import annotations
 
 import argparse
+import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -22,6 +23,25 @@ import zenoh
 from schemas.keys import Keys, Service
 from services.config import Config, ConfigError, load_config, parse_override
 from services.runtime import Executor, Node
+
+
+def positive_seconds(text: str) -> float:
+    """argparse type of a duration flag: a finite number of seconds > 0."""
+    value = finite_number(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number of seconds")
+    return value
+
+
+def finite_number(text: str) -> float:
+    """argparse type of a float flag that must be finite (argparse's float takes nan and inf)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not finite")
+    return value
 
 
 class TraceFile:

@@ -34,6 +34,7 @@ from services.config import Config
 from services.recording import Recorder
 from services.report import build_report, summary, write_plots, write_report
 from services.runtime import DEFAULT_ENDPOINT, open_session, session_config
+from services.scenarios import planned_path_for
 
 EXIT_CHILD_DIED = 1
 EXIT_INTERRUPTED = 130
@@ -245,8 +246,6 @@ def _launch(args: argparse.Namespace, endpoint: str, parser: argparse.ArgumentPa
 
 
 def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentParser) -> int:
-    from services.scenarios import planned_path_for
-
     keys = Keys(config.robot.name)
     endpoint = (args.connect or args.listen or [DEFAULT_ENDPOINT])[0]
     common = _child_args(args, endpoint)

@@ -39,7 +39,7 @@ from schemas.keys import Method, MethodFamily, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, NoArguments, Time, TimedDoubleSeq
 from services.config import Config, SimConfig, SimMode
 from services.runtime import Node
-from services.service import ServiceCommand
+from services.service import ServiceCommand, positive_seconds
 from sim_bridge.latency import TorqueLatency
 from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, read_world, resolve_world
 
@@ -397,27 +397,17 @@ class SimService:
         self.sim.close()
 
 
-def _positive_seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not (math.isfinite(value) and value > 0.0):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number of seconds")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = SimConfig()
     group = parser.add_argument_group("simulation")
     group.add_argument("--mode", choices=typing.get_args(SimMode), help=f"(default {defaults.mode})")
     group.add_argument(
-        "--step", type=_positive_seconds, metavar="S", help=f"simulated seconds per step (default {defaults.step:g})"
+        "--step", type=positive_seconds, metavar="S", help=f"simulated seconds per step (default {defaults.step:g})"
     )
-    group.add_argument("--duration", type=_positive_seconds, metavar="S", help="simulate S seconds, then exit 0")
+    group.add_argument("--duration", type=positive_seconds, metavar="S", help="simulate S seconds, then exit 0")
     group.add_argument(
         "--realtime-factor",
-        type=_positive_seconds,
+        type=positive_seconds,
         metavar="F",
         help=f"realtime mode: simulated seconds per wall second (default {defaults.realtime_factor:g})",
     )
