@@ -40,7 +40,7 @@ class OdometryService:
         self.last_tm: Time | None = None
         self._trace = TraceFile.from_flag(args.trace)
         self._pose = node.publisher(node.keys.odometry_pose)
-        node.subscribe(node.keys.motor_wheel_angles, TimedDoubleSeq, self.on_wheel_angles)
+        node.subscribe(node.keys.motor_wheel_angles, TimedDoubleSeq, self.on_wheel_angles, channel=True)
         node.subscribe(node.keys.localization_pose, TimedPosition, self.on_localized_pose)
         node.watch(Service.SIM, self.on_sim_liveliness)
         node.set_status(self.status)

@@ -1,7 +1,10 @@
 """Records one run of the loop for the report, from zenoh, without slowing it down.
 
-Subscriber callbacks only append the raw payload (no decoding, no zenoh calls); decoding
-happens once, after the run, in :meth:`Recorder.recording`.
+The samples wait in zenoh FIFO channels, where no Python runs per sample (a Python callback
+per sample would compete for the GIL with the loop itself, which in ``invent up --composed``
+runs in this same process: benchmarks/README.md); ``up`` collects their raw payloads with
+:meth:`Recorder.collect` between its looks at the run, and decoding happens once, after the
+run, in :meth:`Recorder.recording`.
 """
 
 from __future__ import annotations
@@ -16,6 +19,10 @@ from schemas.keys import Keys
 from schemas.messages import TimedDoubleSeq, TimedPosition, TimedVelocity
 from services.config import RobotConfig
 from services.report import Recording, pose_from_body_pose
+
+CHANNEL_CAPACITY = 1 << 20
+"""Samples a recorded key's channel holds between two collections: seconds of any loop's output
+(a full channel would make zenoh wait, and with it the loop's publisher)."""
 
 
 class Recorder:
@@ -34,12 +41,19 @@ class Recorder:
         ]
         self._keys = keys
 
-    def _record(self, session: zenoh.Session, key: str) -> zenoh.Subscriber:
+    def _record(self, session: zenoh.Session, key: str) -> tuple[list[bytes], zenoh.Subscriber]:
         payloads = self._payloads.setdefault(key, [])
-        return session.declare_subscriber(key, lambda sample: payloads.append(sample.payload.to_bytes()))
+        return payloads, session.declare_subscriber(key, zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+
+    def collect(self) -> None:
+        """Take the samples waiting in the channels (call often enough that they never fill up)."""
+        for payloads, subscriber in self._subscribers:
+            while (sample := subscriber.try_recv()) is not None:
+                payloads.append(sample.payload.to_bytes())
 
     def close(self) -> None:
-        for subscriber in self._subscribers:
+        self.collect()
+        for _payloads, subscriber in self._subscribers:
             subscriber.undeclare()
 
     def _decoded(self, key: str, message_type: type[Any], convert: Callable[[Any], Any]) -> list[Any]:

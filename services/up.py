@@ -20,7 +20,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -185,8 +185,9 @@ class Run:
                 return json.loads(reply.ok.payload.to_bytes())
         return None
 
-    def supervise(self, drive: Any, started: float) -> dict[str, Any] | None:
-        """Wait for the drive to finish its scenario, printing progress; return the sim's last status."""
+    def supervise(self, drive: Any, started: float, collect: Callable[[], None]) -> dict[str, Any] | None:
+        """Wait for the drive to finish its scenario, printing progress and calling ``collect``
+        between looks; return the sim's last status."""
         sim_status: dict[str, Any] | None = None
         next_progress = time.monotonic()
         while True:
@@ -201,6 +202,7 @@ class Run:
                 return sim_status
             if code is not None:
                 raise ChildDied(f"drive exited unexpectedly ({_describe_exit(code)})")
+            collect()
             time.sleep(0.05)
 
 
@@ -265,7 +267,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
             run.wait_alive((Service.SIM,))
             started = time.monotonic()
             drive = launcher.start("drive", ["drive", *common, "--scenario", args.scenario])
-            sim_status = run.supervise(drive, started)
+            sim_status = run.supervise(drive, started, recorder.collect)
             wall_time_s = time.monotonic() - started
             statuses = {str(service): run.status(service) for service in Service if service != Service.DRIVE}
             recorder.close()
