@@ -1,10 +1,11 @@
 """Services composed in one process on one zenoh session, as ROS 2 component containers do.
 
 The same service code and the same keys as separate processes, still visible to outside zenoh
-tools, without the network hop: sim, motor and odometry share one :class:`Executor`, and the
-sim's thread (its lockstep wait) handles all their events in order, so a step's exchange
-(wheel angles → motor → torque → sim) involves no thread switch. The drive and localization,
-which sample their inputs at their own pace, run on threads of their own.
+tools, without the network hop: every service's node is on one :class:`Executor`, and the sim's
+thread (its lockstep wait) handles all their events and inputs, so a step's exchange (wheel
+angles → motor → torque → sim) involves no thread switch, and no other thread competes for the
+GIL at every step (when one did, the loop ran at half the speed: benchmarks/README.md). The
+other services run no loop of their own; the drive's end shows in its ``finished``.
 """
 
 from __future__ import annotations
@@ -21,9 +22,8 @@ from schemas.keys import Service
 from services.runtime import Executor, Node
 from services.service import RunningService, ServiceCommand, config_from_args, start_service
 
-SHARED_EXECUTOR = frozenset({Service.SIM, Service.MOTOR, Service.ODOMETRY})
 DRIVES_SHARED_EXECUTOR = Service.SIM
-"""The one service of SHARED_EXECUTOR whose run loop spins it (the others get no thread)."""
+"""The one service whose run loop spins the shared executor (the others get no thread)."""
 
 log = logging.getLogger("invent.composed")
 
@@ -38,8 +38,11 @@ class ComposedService:
     error: BaseException | None = field(default=None, repr=False)
 
     def finished(self) -> int | None:
-        """The exit code once the service's run loop has returned (1 if it raised), else None."""
-        if self.thread is None or self.thread.is_alive():
+        """The exit code once the service's run loop has returned (1 if it raised), or 0 once a
+        service without a loop has finished by itself; else None."""
+        if self.thread is None:
+            return 0 if self.service.finished else None
+        if self.thread.is_alive():
             return None
         return self.exit_code if self.error is None else 1
 
@@ -60,10 +63,9 @@ class Composition:
         command: ServiceCommand = args.service_command
         service_name = command.service
         config = config_from_args(command, args)
-        executor = self._shared if service_name in SHARED_EXECUTOR else Executor()
-        node, service = start_service(command, self.session, config, args, executor)
+        node, service = start_service(command, self.session, config, args, self._shared)
         composed = ComposedService(name, node, service, None)
-        if service_name not in SHARED_EXECUTOR or service_name == DRIVES_SHARED_EXECUTOR:
+        if service_name == DRIVES_SHARED_EXECUTOR:
             composed.thread = threading.Thread(target=self._run, args=(composed,), name=name, daemon=True)
             composed.thread.start()
         self.services.append(composed)

@@ -5,8 +5,9 @@ clock is the stamps on ``sim/wheel_angles``: scenario time starts at the first s
 someone (the motor) subscribes to the target velocity, and a command is stamped with the
 sim time it was computed at. Waypoint segments close the loop on ``odometry/pose`` (odometry
 is reset by every ``localization/pose`` fix, so this is the localized pose corrected by
-odometry). Both inputs are sampled (:meth:`~services.runtime.Node.latest`): the drive acts on
-the newest clock stamp and pose, never on a backlog.
+odometry). Both inputs are sampled (:meth:`~services.runtime.Node.sample`,
+:meth:`~services.runtime.Node.latest`): the drive acts on the newest clock stamp and pose,
+never on a backlog.
 
 When the scenario ends the drive publishes zero velocity on :data:`FINAL_ZERO_TICKS`
 successive ticks, so the stop is not lost, and exits 0.
@@ -26,7 +27,7 @@ from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, Timed
 from services.config import Config, ConfigError, DriveConfig
 from services.path_following import FollowerParams
 from services.planar import Pose
-from services.runtime import SAMPLING_POLL_S, Node
+from services.runtime import Node
 from services.scenarios import (
     BUILTIN_SCENARIOS,
     ConstantSegment,
@@ -115,7 +116,7 @@ class DriveService:
         self.finished = False
         self.sim_alive = False
         self.publisher = node.publisher(node.keys.drive_target_velocity)
-        self.clock_input = node.latest(node.keys.sim_wheel_angles, TimedDoubleSeq)
+        node.sample(node.keys.sim_wheel_angles, TimedDoubleSeq, self._on_clock)
         self.pose_input = node.latest(node.keys.odometry_pose, TimedPosition)
         node.watch(Service.SIM, self._on_sim_liveliness)
         node.set_status(self.status)
@@ -219,9 +220,7 @@ class DriveService:
         }
 
     def run(self, stop: threading.Event) -> int:
-        while not stop.is_set() and not self.finished:
-            self.node.spin_once(SAMPLING_POLL_S)
-            self.clock_input.take(self._on_clock)
+        self.node.spin(stop, done=lambda: self.finished)
         return 0
 
     def close(self) -> None:

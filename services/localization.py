@@ -8,7 +8,7 @@ simulation time the latest simulated pose plus optional Gaussian noise
 simulator's liveliness token appears and the next stamp is not after the last one (a restarted
 simulator's clock starts again at 0), that sample starts a new time base and takes a fix at once.
 
-The simulated pose is sampled (:meth:`~services.runtime.Node.latest`): a fix is always the
+The simulated pose is sampled (:meth:`~services.runtime.Node.sample`): a fix is always the
 newest pose, never one from a backlog, which odometry would take for the present.
 """
 
@@ -22,7 +22,7 @@ from schemas.keys import Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
 from services.config import Config, LocalizationConfig
 from services.localization_core import Fix, Localizer, resolve_seed
-from services.runtime import SAMPLING_POLL_S, Node
+from services.runtime import Node
 from services.service import ServiceCommand
 
 
@@ -67,6 +67,9 @@ def _pose_dict(fix: Fix | None) -> dict[str, Any] | None:
 
 
 class LocalizationService:
+    finished = False
+    """It serves until stopped."""
+
     def __init__(self, node: Node, config: Config, _args: argparse.Namespace) -> None:
         self.node = node
         self.config = config.localization
@@ -74,7 +77,7 @@ class LocalizationService:
         self.localizer = Localizer.from_config(self.config, self.seed)
         self.sim_alive = False
         self.publisher = node.publisher(node.keys.localization_pose)
-        self.sim_pose_input = node.latest(node.keys.motor_sim_pose_localization, TimedDoubleSeq)
+        node.sample(node.keys.motor_sim_pose_localization, TimedDoubleSeq, self._on_sim_pose)
         node.watch(Service.SIM, self._on_sim_liveliness)
         node.set_status(self.status)
         node.log.info(
@@ -122,9 +125,7 @@ class LocalizationService:
         }
 
     def run(self, stop: threading.Event) -> int:
-        while not stop.is_set():
-            self.node.spin_once(SAMPLING_POLL_S)
-            self.sim_pose_input.take(self._on_sim_pose)
+        self.node.spin(stop)
         return 0
 
     def close(self) -> None:

@@ -53,6 +53,9 @@ class TraceRecord(msgspec.Struct, frozen=True):
 
 
 class MotorService:
+    finished = False
+    """It serves until stopped."""
+
     def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
         self.node = node
         self.core = MotorCore(config.robot, config.motor)

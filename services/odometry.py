@@ -29,6 +29,9 @@ STATE_RUNNING = "running"
 
 
 class OdometryService:
+    finished = False
+    """It serves until stopped."""
+
     def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
         self.node = node
         self.odometry = Odometry(OdometryParameters.from_config(config))

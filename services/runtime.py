@@ -53,6 +53,8 @@ one start in six; hence peers connecting one way only, to the greater id, which 
 once, the whole loop stalled in puts and a declaration for minutes. A peer or router without
 these settings (zenohd's defaults) still talks to these, over the ordinary transport."""
 BAD_INPUT_LOG_INTERVAL_S = 1.0
+STOP_POLL_S = 0.1
+"""Longest a service thread waits without looking at its stop event (SIGINT/SIGTERM)."""
 MessageT = TypeVar("MessageT", bound=msgspec.Struct)
 
 log = logging.getLogger("invent")
@@ -155,7 +157,8 @@ class Publisher:
 _QueryHandler = Callable[[bytes], Any]
 
 SAMPLING_POLL_S = 0.001
-"""How long a sampling service waits for a queued event between two looks at its sampled inputs."""
+"""How often, at most, an executor looks at its sampled inputs while it has other things to do,
+and how long it waits at most between two looks when it has nothing else."""
 
 
 class LatestSample(Generic[MessageT]):
@@ -166,7 +169,8 @@ class LatestSample(Generic[MessageT]):
     every sample would cost a Python callback, while a service starved of CPU for a moment would
     then work through a backlog of stale samples. Here no Python runs per sample, and a busy
     service always acts on the present. (A bad sample overwritten before it is taken is never
-    seen, so never counted.)
+    seen, so never counted.) :meth:`Node.sample` has the executor take it; :meth:`Node.latest`
+    leaves taking it to the service.
     """
 
     def __init__(self, node: Node, key: str, message_type: type[MessageT]) -> None:
@@ -189,6 +193,9 @@ class LatestSample(Generic[MessageT]):
 
     def undeclare(self) -> None:
         self._subscriber.undeclare()
+
+
+_SampledInput = tuple[LatestSample[Any], Callable[[Any], None]]
 
 
 CHANNEL_CAPACITY = 65536
@@ -251,7 +258,9 @@ class Executor:
     single thread handles all their events in arrival order, with no thread switch between
     them (as a ROS 2 single-threaded executor does). Besides posted events, the thread takes
     the samples of its :class:`ChannelInput` s itself: first the posted events, then the
-    channel inputs in the order they were added.
+    channel inputs in the order they were added. Sampled inputs (:meth:`Node.sample`) are looked
+    at when nothing else waits, and at least every :data:`SAMPLING_POLL_S` while things do: in a
+    shared executor the loop never runs dry, and a clock or a pose needs no more than that.
 
     Not a ``queue.SimpleQueue``: on CPython 3.11 its ``get(timeout)`` can wait forever (deaf to
     signals too) when the thread is descheduled for longer than the timeout at the wrong moment,
@@ -265,6 +274,9 @@ class Executor:
         """Held while the thread has seen every event; a post releases it to wake the thread."""
         self._posted.acquire()
         self._inputs: list[ChannelInput] = []
+        self._sampled: list[_SampledInput] = []
+        self._next_sampling = 0.0
+        """When the sampled inputs are looked at even though other things wait (monotonic seconds)."""
         self._received: tuple[ChannelInput, zenoh.Sample] | None = None
         """A sample a blocking receive returned, handled after the events posted before it."""
         self._blocked_until: float | None = None
@@ -296,6 +308,12 @@ class Executor:
             self._waker.join()
             self._waker = None
 
+    def add_sampled(self, sampled: LatestSample[MessageT], handler: Callable[[MessageT], None]) -> None:
+        self._sampled.append((sampled, handler))
+
+    def remove_sampled(self, sampled: LatestSample[Any]) -> None:
+        self._sampled = [entry for entry in self._sampled if entry[0] is not sampled]
+
     @property
     def receiving(self) -> bool:
         """True while the thread waits in a channel input's receive."""
@@ -317,6 +335,8 @@ class Executor:
                 return True
 
     def _take(self) -> bool:
+        if self._sampled and time.monotonic() >= self._next_sampling and self._take_sampled():
+            return True
         events = self._events
         if events:
             handle, item = events.popleft()
@@ -331,11 +351,21 @@ class Executor:
         for channel_input in self._inputs:
             if channel_input.take():
                 return True
-        return False
+        return bool(self._sampled) and self._take_sampled()
+
+    def _take_sampled(self) -> bool:
+        """Hand every sampled input's new sample, if any, to its handler; True if one was handled."""
+        self._next_sampling = time.monotonic() + SAMPLING_POLL_S
+        taken = False
+        for sampled, handler in self._sampled:
+            taken = sampled.take(handler) or taken
+        return taken
 
     def _wait(self, remaining: float | None) -> None:
         """Wait for something to take: in the first channel input's receive, or on posted events."""
         inputs = self._inputs
+        if self._sampled:
+            remaining = SAMPLING_POLL_S if remaining is None else min(remaining, SAMPLING_POLL_S)
         if not inputs or (remaining is not None and remaining < WAKE_PERIOD_S):
             self._posted.acquire(True, -1 if remaining is None else remaining)
             return
@@ -382,6 +412,7 @@ class Node:
         self.executor = executor or Executor()
         self._declarations: list[Any] = []
         self._inputs: list[ChannelInput] = []
+        self._sampled: list[LatestSample[Any]] = []
         self._publishers: list[Publisher] = []
         self._started = time.monotonic()
         self.queryable(keys.status(service), lambda _payload: self.status())
@@ -459,10 +490,18 @@ class Node:
         self._declarations.append(self.session.declare_queryable(key, lambda query: post(answer, query)))
 
     def latest(self, key: str, message_type: type[MessageT]) -> LatestSample[MessageT]:
-        """Sample ``key`` at the service's own pace instead of handling every sample (see LatestSample)."""
+        """The newest sample of ``key``, for the service to take when it needs it (see LatestSample)."""
         sampled = LatestSample(self, key, message_type)
         self._declarations.append(sampled)
         return sampled
+
+    def sample(self, key: str, message_type: type[MessageT], handler: Callable[[MessageT], None]) -> None:
+        """Call ``handler(message)`` on the service thread with the newest sample of ``key``, at
+        most every :data:`SAMPLING_POLL_S` while the thread is busy, at once when it is idle:
+        for inputs that clock a service at its own pace rather than pacing it (see LatestSample)."""
+        sampled = LatestSample(self, key, message_type)
+        self.executor.add_sampled(sampled, handler)
+        self._sampled.append(sampled)
 
     def publisher(self, key: str) -> Publisher:
         publisher = Publisher(self.session, key)
@@ -490,10 +529,10 @@ class Node:
         """Handle one queued event, waiting up to ``timeout`` seconds; False if none came."""
         return self.executor.spin_once(timeout)
 
-    def spin(self, stop: threading.Event, poll_s: float = 0.1) -> None:
-        """Handle events until ``stop`` is set."""
-        while not stop.is_set():
-            self.spin_once(poll_s)
+    def spin(self, stop: threading.Event, done: Callable[[], bool] = lambda: False) -> None:
+        """Handle events until ``stop`` is set or ``done()`` is true."""
+        while not stop.is_set() and not done():
+            self.spin_once(STOP_POLL_S)
 
     def drain(self) -> None:
         """Handle every event already queued, without waiting."""
@@ -518,6 +557,10 @@ class Node:
             self.executor.remove_input(channel_input)
             channel_input.undeclare()
         self._inputs.clear()
+        for sampled in self._sampled:
+            self.executor.remove_sampled(sampled)
+            sampled.undeclare()
+        self._sampled.clear()
         for declaration in reversed(self._declarations):
             declaration.undeclare()
         for publisher in self._publishers:

@@ -68,6 +68,11 @@ class TraceFile:
 
 
 class RunningService(Protocol):
+    finished: bool
+    """True once the service has ended by itself (a drive at the end of its scenario, a sim at the
+    end of its ``--duration``): its run loop then returns, and a composition that runs no loop for
+    it (:mod:`services.composition`) knows it is over."""
+
     def run(self, stop: threading.Event) -> int:
         """Serve until ``stop`` is set (or the service's own end); return the exit code."""
         ...

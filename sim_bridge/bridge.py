@@ -38,7 +38,7 @@ from schemas.codec import BadInput, encode
 from schemas.keys import Method, MethodFamily, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, NoArguments, Time, TimedDoubleSeq
 from services.config import Config, SimConfig, SimMode
-from services.runtime import Node
+from services.runtime import STOP_POLL_S, Node
 from services.service import ServiceCommand, positive_seconds
 from sim_bridge.latency import TorqueLatency
 from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, read_world, resolve_world
@@ -51,8 +51,6 @@ MOTOR_QUERY_TIMEOUT_S = 1.0
 """Upper bound on the start-up liveliness query for a motor control (the router answers at once)."""
 BUMP_STOP_TIMEOUT_S = 1.0
 """How long a ``motor/bump/stop`` call stays open for its reply."""
-POLL_S = 0.1
-"""Longest a wait goes without checking for SIGINT/SIGTERM."""
 WARNING_INTERVAL_S = 1.0
 """At most one warning line per kind per interval."""
 MAX_REALTIME_LAG_S = 0.1
@@ -254,7 +252,7 @@ class SimService:
                     else:
                         self._late(tm_ns)
                     break
-                node.spin_once(min(remaining, POLL_S))
+                node.spin_once(min(remaining, STOP_POLL_S))
         else:
             node.drain()
             if not self._answered:
@@ -302,7 +300,7 @@ class SimService:
             tm_ns = self._publish_state()
             deadline = origin + (sim.step_index + 1 - origin_step) * period
             while (remaining := deadline - time.monotonic()) > 0.0:
-                node.spin_once(min(remaining, POLL_S))
+                node.spin_once(min(remaining, STOP_POLL_S))
             if -remaining > MAX_REALTIME_LAG_S:
                 self.counters["realtime_resyncs"] += 1
                 origin, origin_step = time.monotonic(), sim.step_index + 1
@@ -332,7 +330,7 @@ class SimService:
         """Give the first wheel angles a subscriber to reach, so the first step does not time out."""
         deadline = time.monotonic() + self.parameters.lockstep_timeout
         while not self._angles_publisher.matched and time.monotonic() < deadline:
-            self.node.spin_once(POLL_S / 10.0)
+            self.node.spin_once(STOP_POLL_S / 10.0)
 
     def _elapsed(self) -> float:
         return 0.0 if self._started is None else time.monotonic() - self._started

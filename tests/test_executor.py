@@ -144,3 +144,35 @@ def test_the_low_latency_transport_is_opt_in(monkeypatch):
         assert config["transport"]["unicast"]["lowlatency"] is True
         assert config["transport"]["unicast"]["qos"]["enabled"] is False
         assert config["scouting"]["gossip"]["autoconnect_strategy"]["peer"]["to_peer"] == "greater-zid"
+
+
+def test_an_idle_executor_hands_a_sampled_input_over_within_its_poll(node, remote):
+    handled = []
+    node.sample(KEYS.sim_wheel_angles, TimedDoubleSeq, handled.append)
+    publisher = remote.declare_publisher(KEYS.sim_wheel_angles)
+    wait_until(lambda: publisher.matching_status.matching, what="the node's sampled subscriber")
+    publisher.put(_sample(1))
+    publisher.put(_sample(2))
+    wait_until(lambda: node.spin_once(0.5) or handled, 5, "the sampled input to be handled")
+    assert [m.tm.nsec for m in handled] == [2], "only the newest sample, not a backlog"
+    publisher.undeclare()
+
+
+def test_a_busy_executor_still_looks_at_its_sampled_inputs(session, node):
+    """A shared executor (``invent up --composed``) never runs dry: samples keep coming."""
+    order = []
+    backlog = 20_000
+
+    def on_channel(_message: TimedDoubleSeq) -> None:
+        order.append("channel")
+        if len(order) == 10:
+            session.put(KEYS.sim_wheel_angles, _sample(0))
+
+    node.subscribe(KEYS.motor_wheel_angles, TimedDoubleSeq, on_channel, channel=True)
+    node.sample(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda _m: order.append("sampled"))
+    for index in range(backlog):
+        session.put(KEYS.motor_wheel_angles, _sample(index))
+    while node.spin_once(0):
+        pass
+    assert order.count("channel") == backlog and order.count("sampled") == 1
+    assert order.index("sampled") < backlog, "handled while the channel still had samples waiting"

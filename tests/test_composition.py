@@ -1,0 +1,37 @@
+"""``invent up --composed``'s composition: every service on the sim's thread."""
+
+import threading
+
+from schemas import Keys, Service
+from services.cli import build_parser
+from services.composition import Composition
+from tests.harness import call, wait_until
+
+KEYS = Keys("rh0")
+SERVICES = {"motor", "odometry", "localization", "sim", "drive"}
+
+
+def _status(session, service: Service) -> dict:
+    ok, reply = call(session, KEYS.status(service))
+    assert ok, reply
+    return reply
+
+
+def test_every_service_runs_on_the_sims_thread_and_the_drive_finishes_without_one(session):
+    composition = Composition(session, build_parser())
+    threads_before = set(threading.enumerate())
+    try:
+        for service in ("motor", "odometry", "localization", "sim"):
+            composition.start(service, [service])
+        drive = composition.start("drive", ["drive", "--for", "0.3", "--vx", "0.2"])
+        wait_until(lambda: drive.finished() == 0, 60, "the drive to finish its 0.3 s")
+        assert [c.name for c in composition.services if c.thread is not None] == ["sim"]
+        started = {thread.name for thread in set(threading.enumerate()) - threads_before}
+        assert started & SERVICES == {"sim"}
+        assert _status(session, Service.DRIVE)["state"] == "done"
+        assert _status(session, Service.LOCALIZATION)["fixes_published"] >= 1
+        assert _status(session, Service.ODOMETRY)["counters"]["wheel_angle_samples"] >= 300
+        assert composition.exited(exclude="drive") is None
+    finally:
+        codes = composition.stop()
+    assert codes == dict.fromkeys(SERVICES, 0)
