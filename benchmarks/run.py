@@ -4,8 +4,9 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
 
 - ``lockstep``: steps per second of the real loop (router, motor, odometry, localization, sim
   and drive, each its own process, started as ``invent up`` starts them), of ``invent up``
-  itself (its run recorder listening too), of the composed loop (``invent up --composed``) and
-  of the in-process limit, with their ratios; the step exchange latency measured by the sim.
+  itself (its run recorder listening too), of the composed loop (``invent up --composed
+  --no-report``; and with its recorder, as plain ``invent up --composed``) and of the in-process
+  limit, with their ratios; the step exchange latency measured by the sim.
 - ``realtime``: the same processes with the sim in realtime mode at 1 kHz: achieved rate,
   late fraction, torque latency.
 - ``codec``: ns per encode + decode per message type, the project's codec against stdlib json.
@@ -32,6 +33,7 @@ from services.runtime import LOW_LATENCY_VARIABLE
 
 RESULTS = Path(__file__).resolve().parent / "results" / "latest.json"
 COMPOSED_FLAG = "--composed"
+NO_REPORT_FLAG = "--no-report"
 
 TARGETS = {
     "lockstep.ratio": 0.07,
@@ -60,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def composed_available() -> bool:
-    """Whether this checkout's ``invent up`` has ``--composed``."""
+    """Whether this checkout's ``invent up`` has ``--composed`` and ``--no-report``."""
     help_text = subprocess.run(
         [sys.executable, "-m", "services.cli", "up", "--help"],
         cwd=loop.REPO,
@@ -68,7 +70,7 @@ def composed_available() -> bool:
         text=True,
         check=False,
     ).stdout
-    return COMPOSED_FLAG in help_text
+    return COMPOSED_FLAG in help_text and NO_REPORT_FLAG in help_text
 
 
 def _median(values: Sequence[float | None]) -> float | None:
@@ -111,6 +113,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
     with_up: list[loop.LoopResult] = []
     low_latency: list[loop.LoopResult] = []
     together: list[loop.LoopResult] = []
+    together_recording: list[loop.LoopResult] = []
     for repeat in range(args.repeats):
         print(f"lockstep, run {repeat + 1} of {args.repeats}", flush=True)
         inprocess.append(_timed("in-process limit", lambda: loop.inprocess_steps_per_s(args.inprocess), failures))
@@ -129,11 +132,23 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         )
         if composed:
             together.append(
-                _timed("composed", lambda: loop.measure_up([COMPOSED_FLAG], args.warmup, args.window), failures)
+                _timed(
+                    "composed",
+                    lambda: loop.measure_up([COMPOSED_FLAG, NO_REPORT_FLAG], args.warmup, args.window),
+                    failures,
+                )
+            )
+            together_recording.append(
+                _timed(
+                    "composed, its recorder too",
+                    lambda: loop.measure_up([COMPOSED_FLAG], args.warmup, args.window),
+                    failures,
+                )
             )
     inprocess = [value for value in inprocess if value is not None]
-    separate, with_up, low_latency, together = (
-        [run for run in runs if run is not None] for runs in (separate, with_up, low_latency, together)
+    separate, with_up, low_latency, together, together_recording = (
+        [run for run in runs if run is not None]
+        for runs in (separate, with_up, low_latency, together, together_recording)
     )
     limit = _median(inprocess)
     alone, shared = _loop_summary(separate), _loop_summary(together) if together else None
@@ -150,13 +165,15 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         "composed_steps_per_s": shared["steps_per_s"] if shared else None,
         "composed_ratio": _ratio(shared["steps_per_s"], limit) if shared else None,
         "composed_latency_us": shared["latency_us"] if shared else None,
-        "composed_note": None if composed else f"this checkout's `invent up` has no {COMPOSED_FLAG}",
+        "composed_recording_steps_per_s": _median([run.steps_per_s for run in together_recording]),
+        "composed_note": None if composed else f"this checkout's `invent up` has no {COMPOSED_FLAG} {NO_REPORT_FLAG}",
         "runs": {
             "inprocess_steps_per_s": inprocess,
             "separate": [run.as_dict() for run in separate],
             "up": [run.as_dict() for run in with_up],
             "lowlatency": [run.as_dict() for run in low_latency],
             "composed": [run.as_dict() for run in together],
+            "composed_recording": [run.as_dict() for run in together_recording],
         },
     }
 
@@ -227,9 +244,14 @@ def table(results: dict[str, Any]) -> str:
             f"ratio {_fmt(_ratio(lockstep['up_steps_per_s'], lockstep['inprocess_steps_per_s']), 3)}",
         ),
         (
-            "lockstep, composed (`invent up --composed`)",
+            "lockstep, composed (`invent up --composed --no-report`)",
             f"{_fmt(lockstep['composed_steps_per_s'])} steps/s",
             f"ratio {_fmt(lockstep['composed_ratio'], 3)}",
+        ),
+        (
+            "lockstep, composed, its run recorder too (`invent up --composed`)",
+            f"{_fmt(lockstep['composed_recording_steps_per_s'])} steps/s",
+            f"ratio {_fmt(_ratio(lockstep['composed_recording_steps_per_s'], lockstep['inprocess_steps_per_s']), 3)}",
         ),
         ("lockstep, in one process, no zenoh (limit)", f"{_fmt(lockstep['inprocess_steps_per_s'])} steps/s", "1"),
         (

@@ -4,9 +4,10 @@ Starts the router, then motor, odometry and localization, waits until they are a
 the sim (so lockstep waits for the motor from the first step) and finally the drive with the
 scenario. Children's output is prefixed with their name. The run ends when the drive finishes
 its scenario (exit 0): ``up`` then records the services' status, stops every child with
-SIGINT and writes the report. A child that dies early makes ``up`` say which one, stop the
-others and exit 1. Ctrl-C stops everything cleanly (exit 130). With ``--composed`` the same
-services run in this one process instead (``services/composition.py``).
+SIGINT and writes the report (``--no-report``: no recording, no report, for long runs and
+benchmarks). A child that dies early makes ``up`` say which one, stop the others and exit 1.
+Ctrl-C stops everything cleanly (exit 130). With ``--composed`` the same services run in this
+one process instead (``services/composition.py``).
 """
 
 from __future__ import annotations
@@ -251,7 +252,6 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     keys = Keys(config.robot.name)
     endpoint = (args.connect or args.listen or [DEFAULT_ENDPOINT])[0]
     common = _child_args(args, endpoint)
-    report_dir = Path(args.report) if args.report else _default_report_dir()
     mode = args.mode or config.sim.mode
     interrupted = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: interrupted.set())
@@ -259,7 +259,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     try:
         with _launch(args, endpoint, parser) as (launcher, session):
             run = Run(launcher, session, keys, interrupted)
-            recorder = Recorder(session, keys, config.robot)
+            recorder = None if args.no_report else Recorder(session, keys, config.robot)
             for service in SERVICES_BEFORE_SIM:
                 launcher.start(str(service), [str(service), *common])
             run.wait_alive(SERVICES_BEFORE_SIM)
@@ -267,10 +267,11 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
             run.wait_alive((Service.SIM,))
             started = time.monotonic()
             drive = launcher.start("drive", ["drive", *common, "--scenario", args.scenario])
-            sim_status = run.supervise(drive, started, recorder.collect)
+            sim_status = run.supervise(drive, started, recorder.collect if recorder else _record_nothing)
             wall_time_s = time.monotonic() - started
             statuses = {str(service): run.status(service) for service in Service if service != Service.DRIVE}
-            recorder.close()
+            if recorder:
+                recorder.close()
             unclean = {name: code for name, code in launcher.stop().items() if code != 0}
             if unclean:
                 say(f"services that did not exit cleanly: {unclean}")
@@ -280,6 +281,9 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     except Interrupted:
         say("interrupted; stopped everything")
         return EXIT_INTERRUPTED
+    if recorder is None:
+        say("done; no report (--no-report)")
+        return 0
     recording = recorder.recording(until=sim_status.get("sim_time_s") if sim_status else None)
     report = build_report(
         recording,
@@ -291,11 +295,16 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
         bad_inputs={name: status["bad_input"]["total"] for name, status in statuses.items() if status},
     )
     report["composed"] = args.composed
+    report_dir = Path(args.report) if args.report else _default_report_dir()
     path = write_report(report, report_dir)
     plots = write_plots(recording, report.get("planned_path"), config.robot, report_dir)
     print(summary(report), flush=True)
     say(f"report: {path}; plots: {', '.join(str(p) for p in plots)}")
     return 0
+
+
+def _record_nothing() -> None:
+    """``--no-report``: nothing to collect between looks at the run."""
 
 
 def _progress(sim_status: dict[str, Any], wall_s: float) -> None:
@@ -312,7 +321,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--mode", choices=["lockstep", "realtime"], help="sim mode (default: sim.mode of the robot description, lockstep)"
     )
-    parser.add_argument("--report", metavar="DIR", help="report directory (default runs/<timestamp>/)")
+    report = parser.add_mutually_exclusive_group()
+    report.add_argument("--report", metavar="DIR", help="report directory (default runs/<timestamp>/)")
+    report.add_argument(
+        "--no-report",
+        action="store_true",
+        help="record nothing and write no report: memory stays flat however long the run "
+        "(for long runs, --loop scenarios and benchmarks)",
+    )
     parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
     parser.add_argument(
         "--composed",

@@ -18,6 +18,7 @@ NUMBERS = (
     "lockstep.lowlatency_steps_per_s",
     "lockstep.composed_steps_per_s",
     "lockstep.composed_ratio",
+    "lockstep.composed_recording_steps_per_s",
     "lockstep.latency_us.p50",
     "lockstep.latency_us.p99",
     "realtime.rate_hz",
@@ -60,6 +61,7 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
     assert set(results["targets"]) == {
         "lockstep.ratio",
         "lockstep.composed_ratio",
+    "lockstep.composed_recording_steps_per_s",
         "realtime.late_fraction",
         "realtime.latency_us.p99",
         "codec.min_ratio",
