@@ -129,7 +129,7 @@ class UpRun:
             sys.executable, "-m", "services.cli", "up",
             "--scenario", str(scenario_file(directory)),
             "--listen", self.endpoint,
-            "--report", str(directory / "report"),
+            *([] if "--no-report" in flags else ["--report", str(directory / "report")]),
             "--log-level", "warning",
             *flags,
         ]  # fmt: skip
