@@ -61,7 +61,6 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
     assert set(results["targets"]) == {
         "lockstep.ratio",
         "lockstep.composed_ratio",
-    "lockstep.composed_recording_steps_per_s",
         "realtime.late_fraction",
         "realtime.latency_us.p99",
         "codec.min_ratio",
