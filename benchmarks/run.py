@@ -12,8 +12,8 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
 - ``codec``: ns per encode + decode per message type, the project's codec against stdlib json.
 - ``machine``: where it ran.
 
-Loop figures are medians over ``--repeats`` runs, interleaved with the in-process limit so a
-ratio compares numbers taken under the same machine load.
+Loop figures are medians over ``--repeats`` runs (lockstep runs interleaved with the in-process
+limit, so a ratio compares numbers taken under the same machine load).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ UPPER_BOUNDS = frozenset({"realtime.late_fraction", "realtime.latency_us.p99"})
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--repeats", type=int, default=3, help="lockstep runs per mode (median reported; default 3)")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per loop mode, lockstep and realtime (median reported; default 3)")
     parser.add_argument("--warmup", type=float, default=1.0, metavar="S", help="wall seconds before measuring")
     parser.add_argument("--window", type=float, default=4.0, metavar="S", help="lockstep measuring window, wall s")
     parser.add_argument(
@@ -179,26 +179,25 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
 
 
 def run_realtime(args: argparse.Namespace, failures: list[str]) -> dict[str, Any]:
-    print("realtime, 1 kHz", flush=True)
-    result = _timed(
-        "separate processes",
-        lambda: loop.measure_services(["--mode", "realtime"], args.warmup, args.realtime_window),
-        failures,
-    )
-    if result is None:
-        return {"rate_hz": None, "late_fraction": None, "latency_us": {"p50": None, "p99": None, "max": None}}
+    runs: list[loop.LoopResult] = []
+    for repeat in range(args.repeats):
+        print(f"realtime, 1 kHz, run {repeat + 1} of {args.repeats}", flush=True)
+        result = _timed(
+            "separate processes",
+            lambda: loop.measure_services(["--mode", "realtime"], args.warmup, args.realtime_window),
+            failures,
+        )
+        if result is not None:
+            runs.append(result)
     return {
-        "rate_hz": result.steps_per_s,
-        "real_time_factor": result.sim_seconds_per_s,
-        "late_fraction": result.late_fraction,
-        "missing_fraction": result.missing_fraction,
+        "rate_hz": _median([run.steps_per_s for run in runs]),
+        "real_time_factor": _median([run.sim_seconds_per_s for run in runs]),
+        "late_fraction": _median([run.late_fraction for run in runs]),
+        "missing_fraction": _median([run.missing_fraction for run in runs]),
         "latency_us": {
-            "p50": result.latency_us["p50"],
-            "p99": result.latency_us["p99"],
-            "max": result.latency_us["max"],
+            quantile: _median([run.latency_us[quantile] for run in runs]) for quantile in ("p50", "p99", "max")
         },
-        "steps": result.steps,
-        "window_s": result.window_s,
+        "runs": [run.as_dict() for run in runs],
     }
 
 
