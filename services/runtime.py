@@ -362,7 +362,11 @@ class Executor:
         return taken
 
     def _wait(self, remaining: float | None) -> None:
-        """Wait for something to take: in the first channel input's receive, or on posted events."""
+        """Wait for something to take: in the first channel input's receive, or on posted events.
+
+        With sampled inputs the wait is never longer than :data:`SAMPLING_POLL_S` and always on
+        posted events, so a channel sample from another process may then wait that long (in a
+        composition, the one executor with both, channel samples come from its own thread)."""
         inputs = self._inputs
         if self._sampled:
             remaining = SAMPLING_POLL_S if remaining is None else min(remaining, SAMPLING_POLL_S)
