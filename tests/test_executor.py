@@ -146,15 +146,22 @@ def test_the_low_latency_transport_is_opt_in(monkeypatch):
         assert config["scouting"]["gossip"]["autoconnect_strategy"]["peer"]["to_peer"] == "greater-zid"
 
 
-def test_an_idle_executor_hands_a_sampled_input_over_within_its_poll(node, remote):
+def test_a_sampled_input_hands_over_only_the_newest_sample_and_an_idle_executor_waits_for_it(
+    session, node, remote
+):
     handled = []
     node.sample(KEYS.sim_wheel_angles, TimedDoubleSeq, handled.append)
+    session.put(KEYS.sim_wheel_angles, _sample(1))  # same session: both are in the ring before the look
+    session.put(KEYS.sim_wheel_angles, _sample(2))
+    assert node.spin_once(0) is True
+    assert [m.tm.nsec for m in handled] == [2], "only the newest sample, not a backlog"
     publisher = remote.declare_publisher(KEYS.sim_wheel_angles)
     wait_until(lambda: publisher.matching_status.matching, what="the node's sampled subscriber")
-    publisher.put(_sample(1))
-    publisher.put(_sample(2))
-    wait_until(lambda: node.spin_once(0.5) or handled, 5, "the sampled input to be handled")
-    assert [m.tm.nsec for m in handled] == [2], "only the newest sample, not a backlog"
+    thread, outcome = _spin_in_thread(node, 30.0)
+    publisher.put(_sample(3))
+    thread.join(5)
+    assert outcome and outcome[0][0] is True and outcome[0][1] < 5, "an idle executor looks again within its poll"
+    assert [m.tm.nsec for m in handled] == [2, 3]
     publisher.undeclare()
 
 
