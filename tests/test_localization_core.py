@@ -236,19 +236,3 @@ def test_a_restart_before_the_schedule_starts_keeps_the_initial_pose_first() -> 
     first = loc.on_sim_pose(0, sim_pose(1))
     assert first is not None and first.initial and first.stamp_ns == 0
     assert loc.time_base_restarts == 1
-
-
-@pytest.mark.parametrize(
-    ("angle", "wrapped"),
-    [(0.0, 0.0), (math.pi, math.pi), (-math.pi, math.pi), (1.5 * math.pi, -0.5 * math.pi), (-3 * math.pi, math.pi)],
-)
-def test_wrap_angle_known_values(angle: float, wrapped: float) -> None:
-    assert wrap_angle(angle) == pytest.approx(wrapped, abs=1e-12)
-
-
-@given(st.floats(min_value=-1e6, max_value=1e6))
-def test_wrap_angle_lands_in_minus_pi_pi_and_keeps_the_direction(angle: float) -> None:
-    wrapped = wrap_angle(angle)
-    assert -math.pi < wrapped <= math.pi
-    assert math.cos(wrapped) == pytest.approx(math.cos(angle), abs=1e-9)
-    assert math.sin(wrapped) == pytest.approx(math.sin(angle), abs=1e-9)

@@ -15,7 +15,6 @@ from schemas.codec import BadInput
 from schemas.messages import PDGains
 from services.config import MotorConfig, RobotConfig
 from services.motor_core import INTEGRATED, SEED, MotorCore, MotorState, SimPoseConverter
-from services.planar import wrap_angle
 
 MS = 1_000_000
 """One millisecond in nanoseconds."""
@@ -347,9 +346,6 @@ def test_heading_wraps_into_minus_pi_pi():
     # a half turn with A12 = 0.0: atan2(-0.0, -1) = -pi, reported as +pi
     half_turn = [0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0]
     assert SimPoseConverter()(half_turn)[3] == math.pi
-    assert wrap_angle(-math.pi) == math.pi
-    assert wrap_angle(math.pi) == math.pi
-    assert wrap_angle(3 * math.pi) == math.pi
 
 
 @pytest.mark.parametrize("length", [11, 13, 0])
