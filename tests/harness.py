@@ -15,7 +15,8 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -23,7 +24,7 @@ import msgspec
 import zenoh
 
 from schemas.codec import decode
-from services.runtime import session_config
+from services.runtime import open_session, session_config
 
 REPO = Path(__file__).resolve().parent.parent
 T = TypeVar("T")
@@ -54,6 +55,19 @@ def open_router(endpoint: str) -> zenoh.Session:
 
 def open_peer(endpoint: str) -> zenoh.Session:
     return zenoh.open(session_config(connect=[endpoint]))
+
+
+@contextmanager
+def running_router() -> Iterator[str]:
+    """A zenoh router on a free loopback port, closed at the end; yields its endpoint."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with open_session(session_config(listen=[endpoint], mode="router")):
+        yield endpoint
+
+
+def peer_session(endpoint: str) -> AbstractContextManager[zenoh.Session]:
+    """A peer session connected to ``endpoint``, as a context manager that closes it."""
+    return open_session(session_config(connect=[endpoint]))
 
 
 class Collector:

@@ -26,10 +26,9 @@ from tests.harness import (
     Collector,
     InventProcess,
     call,
-    free_port,
-    open_peer,
-    open_router,
+    peer_session,
     run_invent,
+    running_router,
     wait_alive,
     wait_until,
 )
@@ -114,21 +113,14 @@ def assert_published(step: Step, pose: TimedPosition) -> None:
 @pytest.fixture(scope="module")
 def module_endpoint() -> Iterator[str]:
     """A router for this module's one service process."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    router = open_router(endpoint)
-    try:
+    with running_router() as endpoint:
         yield endpoint
-    finally:
-        router.close()
 
 
 @pytest.fixture(scope="module")
 def module_session(module_endpoint: str) -> Iterator[zenoh.Session]:
-    peer = open_peer(module_endpoint)
-    try:
+    with peer_session(module_endpoint) as peer:
         yield peer
-    finally:
-        peer.close()
 
 
 @pytest.fixture(scope="module")
