@@ -49,6 +49,8 @@ POLL_S = 0.05
 CLOCK_CHECK_STEPS = 500
 """In-process limit: steps between two looks at the clock."""
 KEYS = Keys()
+COMPOSED_FLAG = "--composed"
+NO_REPORT_FLAG = "--no-report"
 
 
 @dataclass(frozen=True)
@@ -129,7 +131,7 @@ class UpRun:
             sys.executable, "-m", "services.cli", "up",
             "--scenario", str(scenario_file(directory)),
             "--listen", self.endpoint,
-            *([] if "--no-report" in flags else ["--report", str(directory / "report")]),
+            *([] if NO_REPORT_FLAG in flags else ["--report", str(directory / "report")]),
             "--log-level", "warning",
             *flags,
         ]  # fmt: skip

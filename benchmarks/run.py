@@ -32,8 +32,6 @@ from benchmarks import codec, loop, machine
 from services.runtime import LOW_LATENCY_VARIABLE
 
 RESULTS = Path(__file__).resolve().parent / "results" / "latest.json"
-COMPOSED_FLAG = "--composed"
-NO_REPORT_FLAG = "--no-report"
 
 TARGETS = {
     "lockstep.ratio": 0.07,
@@ -70,7 +68,7 @@ def composed_available() -> bool:
         text=True,
         check=False,
     ).stdout
-    return COMPOSED_FLAG in help_text and NO_REPORT_FLAG in help_text
+    return loop.COMPOSED_FLAG in help_text and loop.NO_REPORT_FLAG in help_text
 
 
 def _median(values: Sequence[float | None]) -> float | None:
@@ -134,14 +132,14 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
             together.append(
                 _timed(
                     "composed",
-                    lambda: loop.measure_up([COMPOSED_FLAG, NO_REPORT_FLAG], args.warmup, args.window),
+                    lambda: loop.measure_up([loop.COMPOSED_FLAG, loop.NO_REPORT_FLAG], args.warmup, args.window),
                     failures,
                 )
             )
             together_recording.append(
                 _timed(
                     "composed, its recorder too",
-                    lambda: loop.measure_up([COMPOSED_FLAG], args.warmup, args.window),
+                    lambda: loop.measure_up([loop.COMPOSED_FLAG], args.warmup, args.window),
                     failures,
                 )
             )
@@ -166,7 +164,9 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         "composed_ratio": _ratio(shared["steps_per_s"], limit) if shared else None,
         "composed_latency_us": shared["latency_us"] if shared else None,
         "composed_recording_steps_per_s": _median([run.steps_per_s for run in together_recording]),
-        "composed_note": None if composed else f"this checkout's `invent up` has no {COMPOSED_FLAG} {NO_REPORT_FLAG}",
+        "composed_note": (
+            None if composed else f"this checkout's `invent up` has no {loop.COMPOSED_FLAG} {loop.NO_REPORT_FLAG}"
+        ),
         "runs": {
             "inprocess_steps_per_s": inprocess,
             "separate": [run.as_dict() for run in separate],
