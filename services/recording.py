@@ -28,33 +28,30 @@ CHANNEL_CAPACITY = 1 << 20
 class Recorder:
     def __init__(self, session: zenoh.Session, keys: Keys, robot: RobotConfig) -> None:
         self._robot = robot
-        self._payloads: dict[str, list[bytes]] = {}
-        self._subscribers = [
-            self._record(session, key)
-            for key in (
-                keys.sim_body_pose,
-                keys.odometry_pose,
-                keys.localization_pose,
-                keys.drive_target_velocity,
-                keys.motor_wheel_angles,
-            )
-        ]
+        recorded = (
+            keys.sim_body_pose,
+            keys.odometry_pose,
+            keys.localization_pose,
+            keys.drive_target_velocity,
+            keys.motor_wheel_angles,
+        )
+        self._payloads: dict[str, list[bytes]] = {key: [] for key in recorded}
+        self._channels = {
+            key: session.declare_subscriber(key, zenoh.handlers.FifoChannel(CHANNEL_CAPACITY)) for key in recorded
+        }
         self._keys = keys
-
-    def _record(self, session: zenoh.Session, key: str) -> tuple[list[bytes], zenoh.Subscriber]:
-        payloads = self._payloads.setdefault(key, [])
-        return payloads, session.declare_subscriber(key, zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
 
     def collect(self) -> None:
         """Take the samples waiting in the channels (call often enough that they never fill up)."""
-        for payloads, subscriber in self._subscribers:
-            while (sample := subscriber.try_recv()) is not None:
+        for key, channel in self._channels.items():
+            payloads = self._payloads[key]
+            while (sample := channel.try_recv()) is not None:
                 payloads.append(sample.payload.to_bytes())
 
     def close(self) -> None:
         self.collect()
-        for _payloads, subscriber in self._subscribers:
-            subscriber.undeclare()
+        for channel in self._channels.values():
+            channel.undeclare()
 
     def _decoded(self, key: str, message_type: type[Any], convert: Callable[[Any], Any]) -> list[Any]:
         items = []
