@@ -18,6 +18,7 @@ from schemas.codec import BadInput, decode
 from schemas.keys import Keys
 from schemas.messages import TimedDoubleSeq, TimedPosition, TimedVelocity
 from services.config import RobotConfig
+from services.planar import Pose
 from services.report import Recording, pose_from_body_pose
 
 CHANNEL_CAPACITY = 1 << 20
@@ -68,8 +69,8 @@ class Recorder:
         """The decoded series, sorted by time, cut at ``until`` simulated seconds when given."""
         keys, robot = self._keys, self._robot
 
-        def position(message: TimedPosition) -> tuple[float, float, float]:
-            return message.x, message.y, message.theta
+        def position(message: TimedPosition) -> Pose:
+            return Pose(message.x, message.y, message.theta)
 
         def wheels(message: TimedDoubleSeq) -> tuple[float, float]:
             return message.data[robot.left_wheel_id], message.data[robot.right_wheel_id]

@@ -14,9 +14,9 @@ from typing import Any
 
 from services.config import RobotConfig
 from services.motor_core import SimPoseConverter
+from services.planar import Pose
 from services.scenarios import distance_to_path
 
-Pose = tuple[float, float, float]
 Point = tuple[float, float]
 
 
@@ -40,18 +40,18 @@ _GROUND_TRUTH = SimPoseConverter()
 def pose_from_body_pose(data: list[float]) -> Pose:
     """x, y and heading of a ``sim/body_pose`` vector (x, y, z, rotation row-major)."""
     x, y, _z, theta = _GROUND_TRUTH(data)
-    return x, y, theta
+    return Pose(x, y, theta)
 
 
 def _pose_dict(pose: Pose | None) -> dict[str, float] | None:
-    return None if pose is None else {"x": pose[0], "y": pose[1], "theta": pose[2]}
+    return None if pose is None else pose._asdict()
 
 
 def odometry_errors(recording: Recording) -> list[float]:
     """Position error of each odometry pose against the ground truth at the same stamp."""
     truth = dict(recording.ground_truth)
     return [
-        math.hypot(pose[0] - truth[t][0], pose[1] - truth[t][1]) for t, pose in recording.odometry if t in truth
+        math.hypot(pose.x - truth[t].x, pose.y - truth[t].y) for t, pose in recording.odometry if t in truth
     ]
 
 
@@ -105,7 +105,7 @@ def build_report(
         "bad_inputs": bad_inputs,
     }
     if planned_path:
-        deviations = [distance_to_path((pose[0], pose[1]), planned_path) for _t, pose in recording.ground_truth]
+        deviations = [distance_to_path((pose.x, pose.y), planned_path) for _t, pose in recording.ground_truth]
         report["path_error"] = {
             "mean_m": sum(deviations) / len(deviations) if deviations else None,
             "max_m": max(deviations, default=None),
