@@ -76,7 +76,7 @@ class MotorService:
         node.subscribe(keys.drive_target_velocity, TimedVelocity, self._on_target_velocity)
         for family in MethodFamily:
             for method in Method:
-                node.queryable(keys.method(family, method), partial(self._call, family, method))
+                node.queryable(keys.method(family, method), partial(self._call, family, method), mutates=True)
         node.watch(Service.SIM, self._on_sim_liveliness)
         node.set_status(self.status)
         node.log.info(

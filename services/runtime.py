@@ -31,9 +31,13 @@ import zenoh
 
 from schemas.codec import ENCODING, BadInput, decode, encode
 from schemas.keys import Keys, Service
+from services.config import ConfigError
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where services connect and ``invent router`` listens by default (rmw_zenoh's convention)."""
+LOOPBACK_LISTEN = "tcp/127.0.0.1:0"
+"""Where a peer listens unless told otherwise: a free port on loopback, so peers on one host still
+talk directly while nothing off the host can connect (zenoh's own default is every interface)."""
 
 ZENOH_CONFIG_VARIABLE = "ZENOH_CONFIG"
 LOW_LATENCY_VARIABLE = "INVENT_ZENOH_LOWLATENCY"
@@ -61,18 +65,25 @@ log = logging.getLogger("invent")
 
 
 def session_config(
-    *, connect: Iterable[str] = (), listen: Iterable[str] = (), mode: str = "peer"
+    *, connect: Iterable[str] = (), listen: Iterable[str] = (), mode: str = "peer", file: str | None = None
 ) -> zenoh.Config:
     """The zenoh configuration of a service or tool.
 
     Default: ``mode`` (peer), multicast scouting off, connect to :data:`DEFAULT_ENDPOINT`;
-    with ``$INVENT_ZENOH_LOWLATENCY=1`` also the :data:`LOW_LATENCY` transport. A file named by
-    ``$ZENOH_CONFIG`` replaces the default; ``connect``/``listen`` endpoints override either.
+    with ``$INVENT_ZENOH_LOWLATENCY=1`` also the :data:`LOW_LATENCY` transport. A zenoh config
+    ``file`` (``--zenoh-config``), else one named by ``$ZENOH_CONFIG``, replaces the default;
+    ``connect`` endpoints override either's. A peer listens on :data:`LOOPBACK_LISTEN` plus any
+    ``listen`` endpoints (unless its file names its own); a router on ``listen``, else its file's
+    or :data:`DEFAULT_ENDPOINT`; a client listens on nothing unless told. A file that zenoh cannot
+    read is a :class:`ConfigError`.
     """
     connect, listen = list(connect), list(listen)
-    path = os.environ.get(ZENOH_CONFIG_VARIABLE)
+    path = file or os.environ.get(ZENOH_CONFIG_VARIABLE)
     if path:
-        config = zenoh.Config.from_file(path)
+        try:
+            config = zenoh.Config.from_file(path)
+        except zenoh.ZError as error:
+            raise ConfigError(f"zenoh config {path}: {error}") from None
     else:
         config = zenoh.Config()
         config.insert_json5("mode", json.dumps(mode))
@@ -86,11 +97,19 @@ def session_config(
         if os.environ.get(LOW_LATENCY_VARIABLE) == "1":
             for path_in_config, value in LOW_LATENCY.items():
                 config.insert_json5(path_in_config, value)
+    if json.loads(config.get_json("mode")) == "peer" and not _listens_explicitly(config):
+        listen = [LOOPBACK_LISTEN, *listen]
     if connect:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(listen))
     return config
+
+
+def _listens_explicitly(config: zenoh.Config) -> bool:
+    """False while ``listen/endpoints`` is zenoh's default, a table by mode whose peer entry is
+    every interface (``tcp/[::]:0``)."""
+    return isinstance(json.loads(config.get_json("listen/endpoints")), list)
 
 
 @dataclass
@@ -465,12 +484,18 @@ class Node:
             self.session.declare_subscriber(key, lambda sample: post(dispatch, sample.payload.to_bytes()))
         )
 
-    def queryable(self, key: str, handler: _QueryHandler) -> None:
+    def queryable(self, key: str, handler: _QueryHandler, *, mutates: bool = False) -> None:
         """Answer queries on ``key`` from the service thread.
 
         ``handler(payload)`` returns a JSON-encodable reply, or raises BadInput, which
         becomes a ``reply_err`` naming the reason. The query is finalized right after the
         reply, so the caller's ``get`` returns at once.
+
+        Looking never acts: a wildcard or prefix query (``invent/rh0/**``, what zenoh tools and
+        the REST plugin send to look around) reaches every queryable its key expression
+        intersects. A handler that ``mutates`` state therefore runs only for a query on exactly
+        ``key``; any other query is dropped in zenoh's callback, which finalizes it with no reply.
+        Read-only handlers (``status``) answer wildcards.
         """
 
         def answer(query: zenoh.Query) -> None:
@@ -491,7 +516,12 @@ class Node:
                 query.drop()
 
         post = self.executor.post
-        self._declarations.append(self.session.declare_queryable(key, lambda query: post(answer, query)))
+
+        def on_query(query: zenoh.Query) -> None:
+            if not mutates or str(query.key_expr) == key:
+                post(answer, query)
+
+        self._declarations.append(self.session.declare_queryable(key, on_query))
 
     def latest(self, key: str, message_type: type[MessageT]) -> LatestSample[MessageT]:
         """The newest sample of ``key``, for the service to take when it needs it (see LatestSample)."""
@@ -573,9 +603,20 @@ class Node:
         self._publishers.clear()
 
 
+class SessionFailed(RuntimeError):
+    """A zenoh session could not be opened: the router is unreachable or refused the credentials."""
+
+
 @contextmanager
 def open_session(config: zenoh.Config) -> Iterator[zenoh.Session]:
-    session = zenoh.open(config)
+    try:
+        session = zenoh.open(config)
+    except zenoh.ZError as error:
+        endpoints = json.loads(config.get_json("connect/endpoints"))
+        raise SessionFailed(
+            f"cannot open a zenoh session connecting to {', '.join(map(str, endpoints)) or 'nothing'}: "
+            f"{str(error).split(' at ')[0]} (is the router running, and are the credentials right?)"
+        ) from None
     try:
         yield session
     finally:

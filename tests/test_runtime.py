@@ -7,8 +7,8 @@ import threading
 import pytest
 
 from schemas import BadInput, Keys, Service, Time, TimedDoubleSeq
-from services.runtime import DEFAULT_ENDPOINT, Node, session_config
-from tests.harness import call, wait_until
+from services.runtime import DEFAULT_ENDPOINT, LOOPBACK_LISTEN, Node, session_config
+from tests.harness import call, free_port, run_invent, wait_until
 
 
 @pytest.fixture
@@ -178,3 +178,36 @@ def test_nodes_sharing_an_executor_are_handled_by_one_thread_in_order(session):
     assert order == ["first", "second"]
     first.close()
     second.close()
+
+
+def test_a_peer_listens_on_loopback_unless_told(monkeypatch, tmp_path):
+    monkeypatch.delenv("ZENOH_CONFIG", raising=False)
+    assert json.loads(str(session_config()))["listen"]["endpoints"] == [LOOPBACK_LISTEN]
+    more = json.loads(str(session_config(listen=["tcp/0.0.0.0:7000"])))
+    assert more["listen"]["endpoints"] == [LOOPBACK_LISTEN, "tcp/0.0.0.0:7000"]
+    peer_file = tmp_path / "peer.json5"
+    peer_file.write_text('{ mode: "peer" }')
+    assert json.loads(str(session_config(file=str(peer_file))))["listen"]["endpoints"] == [LOOPBACK_LISTEN]
+    own_listen = tmp_path / "own.json5"
+    own_listen.write_text('{ mode: "peer", listen: { endpoints: ["tcp/127.0.0.1:7001"] } }')
+    assert json.loads(str(session_config(file=str(own_listen))))["listen"]["endpoints"] == ["tcp/127.0.0.1:7001"]
+    client_file = tmp_path / "client.json5"
+    client_file.write_text('{ mode: "client" }')
+    assert "client" not in json.loads(str(session_config(file=str(client_file))))["listen"]["endpoints"]
+
+
+def test_an_unreadable_zenoh_config_exits_2_naming_the_file(tmp_path):
+    path = tmp_path / "broken.json5"
+    path.write_text("{ mode: ")
+    result = run_invent("status", "--zenoh-config", str(path))
+    assert result.returncode == 2 and str(path) in result.stderr, result.stderr
+
+
+def test_a_session_that_cannot_connect_exits_1_naming_the_endpoint(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    path = tmp_path / "client.json5"
+    path.write_text(json.dumps({"mode": "client", "connect": {"endpoints": [endpoint], "timeout_ms": 300}}))
+    result = run_invent("call", "invent/rh0/motor/status", "--zenoh-config", str(path))
+    assert result.returncode == 1
+    assert f"cannot open a zenoh session connecting to {endpoint}" in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr
