@@ -7,16 +7,28 @@ import importlib
 import json
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 import msgspec
+import zenoh
 
-from schemas.keys import DEFAULT_ROBOT
+from schemas.keys import DEFAULT_ROBOT, Keys
 from services import tools, up
 from services.config import ConfigError
-from services.runtime import DEFAULT_ENDPOINT, configure_logging, open_session, session_config, stop_on_signals
+from services.runtime import (
+    DEFAULT_ENDPOINT,
+    LOOPBACK_LISTEN,
+    ZENOH_CONFIG_VARIABLE,
+    SessionFailed,
+    configure_logging,
+    open_session,
+    session_config,
+    stop_on_signals,
+)
 from services.service import ServiceCommand, config_from_args, run_service
 
 EXIT_CONFIG = 2
+EXIT_NO_SESSION = 1
 
 SERVICE_MODULES = (
     "sim_bridge.bridge",
@@ -42,7 +54,20 @@ def _connection_flags() -> argparse.ArgumentParser:
         default=[],
         help=f"endpoint to connect to (repeatable; default {DEFAULT_ENDPOINT}, or $ZENOH_CONFIG)",
     )
-    group.add_argument("--listen", metavar="EP", action="append", default=[], help="endpoint to listen on (repeatable)")
+    group.add_argument(
+        "--listen",
+        metavar="EP",
+        action="append",
+        default=[],
+        help=f"endpoint to listen on as well (repeatable; a peer always listens on {LOOPBACK_LISTEN} and nothing "
+        "else unless told, e.g. --listen tcp/0.0.0.0:0 to accept other machines)",
+    )
+    group.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        help=f"zenoh configuration file replacing the default (e.g. a role's file from `invent secrets`; "
+        f"default ${ZENOH_CONFIG_VARIABLE}); --connect/--listen still apply on top",
+    )
     group.add_argument(
         "--log-level", default="info", choices=["debug", "info", "warning", "error"], help="log level (default info)"
     )
@@ -76,9 +101,59 @@ def build_parser() -> argparse.ArgumentParser:
         "router",
         parents=[connection],
         help="run a zenoh router in Python (no zenohd needed)",
-        description=f"A zenoh router; services connect to it. Default listen: {DEFAULT_ENDPOINT}.",
+        description=f"A zenoh router; services connect to it. Default listen: {DEFAULT_ENDPOINT}. "
+        "--config FILE (or $ZENOH_CONFIG) takes a zenoh router configuration, such as the router.json5 of "
+        "`invent secrets` (authentication and access control).",
     )
+    router.add_argument("--config", dest="zenoh_config", metavar="FILE", help="zenoh router configuration file")
     router.set_defaults(handler=_router)
+
+    secrets_parser = commands.add_parser(
+        "secrets",
+        help="write a secure deployment's credentials, router and per-role zenoh configurations",
+        description="Write fresh credentials for every role (sim, motor, odometry, localization, drive, "
+        "operator, observer) into DIR: router.json5 (usrpwd authentication and access control, default "
+        "deny), dictionary.txt, and ROLE.json5, a complete client configuration per role (mode client, the "
+        "router's endpoint, that role's user and password), all mode 0600. Start the router with "
+        "`invent router --config DIR/router.json5` and each service with `--zenoh-config DIR/ROLE.json5`.",
+    )
+    secrets_parser.add_argument("directory", metavar="DIR", help="where to write the files (created 0700)")
+    secrets_parser.add_argument(
+        "--robot", default=DEFAULT_ROBOT, metavar="NAME", help=f"the robot the rules name (default {DEFAULT_ROBOT})"
+    )
+    secrets_parser.add_argument(
+        "--endpoint", default=DEFAULT_ENDPOINT, metavar="EP", help=f"where clients connect (default {DEFAULT_ENDPOINT})"
+    )
+    secrets_parser.add_argument(
+        "--router-listen",
+        action="append",
+        default=[],
+        metavar="EP",
+        help="where the router listens (repeatable; default the endpoint; e.g. tcp/[::]:7447 in a container)",
+    )
+    secrets_parser.add_argument(
+        "--tls", action="store_true", help="tls/ endpoints, a local CA and a router certificate in DIR/tls"
+    )
+    secrets_parser.add_argument(
+        "--tls-name",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="another host name or address the router's certificate is valid for (repeatable; "
+        "localhost and 127.0.0.1 always are)",
+    )
+    secrets_parser.add_argument(
+        "--seen-as",
+        metavar="PATH",
+        help="the path the router and services see DIR at, when it is mounted elsewhere (a container's)",
+    )
+    secrets_parser.add_argument(
+        "--router-base",
+        metavar="FILE",
+        help="a zenoh router configuration whose plugins (REST, storages) the router's file keeps, "
+        "e.g. docker/zenohd.json5",
+    )
+    secrets_parser.set_defaults(handler=_secrets, log_level="info")
 
     echo = commands.add_parser(
         "echo",
@@ -143,27 +218,44 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _session_config(args: argparse.Namespace, mode: str = "peer") -> zenoh.Config:
+    return session_config(connect=args.connect, listen=args.listen, mode=mode, file=args.zenoh_config)
+
+
 def _router(args: argparse.Namespace) -> int:
-    config = session_config(listen=args.listen, connect=args.connect, mode="router")
+    config = _session_config(args, mode="router")
     stop = stop_on_signals()
     with open_session(config) as session:
-        return tools.run_router(session, args.listen or [DEFAULT_ENDPOINT], stop)
+        return tools.run_router(session, json.loads(config.get_json("listen/endpoints")), stop)
 
 
 def _echo(args: argparse.Namespace) -> int:
     stop = stop_on_signals()
-    with open_session(session_config(connect=args.connect, listen=args.listen)) as session:
+    with open_session(_session_config(args)) as session:
         return tools.run_echo(session, args.keyexpr, args.count, stop)
 
 
 def _call(args: argparse.Namespace) -> int:
-    with open_session(session_config(connect=args.connect, listen=args.listen)) as session:
+    with open_session(_session_config(args)) as session:
         return tools.run_call(session, args.key, args.payload, args.timeout)
 
 
 def _status(args: argparse.Namespace) -> int:
-    with open_session(session_config(connect=args.connect, listen=args.listen)) as session:
+    with open_session(_session_config(args)) as session:
         return tools.run_status(session, args.robot, args.timeout)
+
+
+def _secrets(args: argparse.Namespace) -> int:
+    return tools.run_secrets(
+        Path(args.directory),
+        Keys(args.robot),
+        endpoint=args.endpoint,
+        router_listen=args.router_listen,
+        tls=args.tls,
+        tls_names=args.tls_name,
+        seen_as=Path(args.seen_as) if args.seen_as else None,
+        router_base=args.router_base,
+    )
 
 
 def _config(args: argparse.Namespace) -> int:
@@ -179,7 +271,7 @@ def _serve(args: argparse.Namespace) -> int:
     command: ServiceCommand = args.service_command
     config = config_from_args(command, args)
     stop = stop_on_signals()
-    with open_session(session_config(connect=args.connect, listen=args.listen)) as session:
+    with open_session(_session_config(args)) as session:
         return run_service(command, session, config, args, stop)
 
 
@@ -191,6 +283,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as error:
         print(f"invent {args.command}: invalid configuration: {error}", file=sys.stderr)
         return EXIT_CONFIG
+    except SessionFailed as error:
+        print(f"invent {args.command}: {error}", file=sys.stderr)
+        return EXIT_NO_SESSION
 
 
 if __name__ == "__main__":

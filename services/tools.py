@@ -11,6 +11,8 @@ import queue
 import sys
 import threading
 import time
+from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -18,6 +20,8 @@ import zenoh
 
 from schemas.codec import ENCODING, BadMessage, decode
 from schemas.keys import Keys, all_robots_alive, parse_alive_key, schema_for_key
+from services.config import ConfigError
+from services.security import write_profile
 
 EXIT_NO_ANSWER = 1
 
@@ -55,6 +59,48 @@ def run_router(session: zenoh.Session, listen: list[str], stop: threading.Event)
     while not stop.wait(0.2):
         pass
     return 0
+
+
+def run_secrets(
+    directory: Path,
+    keys: Keys,
+    *,
+    endpoint: str,
+    router_listen: Sequence[str],
+    tls: bool,
+    tls_names: Sequence[str],
+    seen_as: Path | None,
+    router_base: str | None,
+) -> int:
+    """Write a secure deployment's profile (:func:`services.security.write_profile`) and say what is where."""
+    try:
+        profile = write_profile(
+            directory,
+            keys,
+            endpoint=endpoint,
+            router_listen=router_listen,
+            tls=tls,
+            tls_names=tls_names,
+            seen_as=seen_as,
+            router_base=_router_plugins(router_base) if router_base else None,
+        )
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
+    print(f"invent secrets: wrote {profile.directory} (clients connect to {profile.endpoint})", file=sys.stderr)
+    print(f"  router:   invent router --config {profile.router_config}", file=sys.stderr)
+    for role in profile.roles:
+        print(f"  {role + ':':<13} --zenoh-config {profile.client_config(role)}", file=sys.stderr)
+    return 0
+
+
+def _router_plugins(path: str) -> dict[str, Any]:
+    """The plugin sections of a zenoh router configuration file (JSON5, read by zenoh itself)."""
+    try:
+        config = zenoh.Config.from_file(path)
+    except zenoh.ZError as error:
+        raise ConfigError(f"--router-base {path}: {error}") from None
+    loading = json.loads(config.get_json("plugins_loading"))
+    return {"plugins_loading": {"enabled": loading["enabled"]}, "plugins": json.loads(config.get_json("plugins"))}
 
 
 def run_echo(session: zenoh.Session, key_expr: str, count: int | None, stop: threading.Event) -> int:

@@ -31,17 +31,19 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from services.composition import Composition
-from services.config import Config
+from services.config import Config, ConfigError
 from services.recording import Recorder
 from services.report import build_report, summary, write_plots, write_report
 from services.runtime import DEFAULT_ENDPOINT, open_session, session_config
 from services.scenarios import planned_path_for
+from services.security import Profile, Role, write_profile
 
 EXIT_CHILD_DIED = 1
 EXIT_INTERRUPTED = 130
 STARTUP_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 10.0
 PROGRESS_INTERVAL_S = 1.0
+SECRETS_DIRECTORY = "secrets"
 SERVICES_BEFORE_SIM = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
 
 _PR_SET_PDEATHSIG = 1
@@ -223,13 +225,17 @@ def _default_report_dir() -> Path:
 
 
 @contextmanager
-def _launch(args: argparse.Namespace, endpoint: str, parser: argparse.ArgumentParser) -> Iterator[tuple[Launcher, zenoh.Session]]:
+def _launch(
+    args: argparse.Namespace, endpoint: str, parser: argparse.ArgumentParser, access: Access
+) -> Iterator[tuple[Launcher, zenoh.Session]]:
     """The launcher and the session ``up`` watches through: separate processes around a router
     child (or the router at ``--connect``), or one composed process whose session is itself the
     router (so outside zenoh tools still see every key)."""
     if args.composed:
         mode_config = (
-            session_config(connect=[endpoint]) if args.connect else session_config(listen=[endpoint], mode="router")
+            session_config(connect=[endpoint], file=access.config_file(Role.OBSERVER))
+            if args.connect
+            else session_config(listen=[endpoint], mode="router")
         )
         with open_session(mode_config) as session:
             composition = Composition(session, parser)
@@ -241,32 +247,76 @@ def _launch(args: argparse.Namespace, endpoint: str, parser: argparse.ArgumentPa
     supervisor = Supervisor()
     try:
         if not args.connect:
-            supervisor.start("router", ["router", "--listen", endpoint, "--log-level", args.log_level])
-        with open_session(session_config(connect=[endpoint])) as session:
+            supervisor.start("router", ["router", *access.router_flags(endpoint), "--log-level", args.log_level])
+        with open_session(session_config(connect=[endpoint], file=access.config_file(Role.OBSERVER))) as session:
             yield supervisor, session
     finally:
         supervisor.stop()
 
 
+@dataclass(frozen=True)
+class Access:
+    """How the run's sessions are configured: ``--zenoh-config`` (or zenoh's defaults) for all, or
+    with ``--secure`` a fresh profile: the router's file and one client file per role."""
+
+    profile: Profile | None
+    zenoh_config: str | None
+
+    def config_file(self, role: Role) -> str | None:
+        return str(self.profile.client_config(role)) if self.profile else self.zenoh_config
+
+    def flags(self, role: Role) -> list[str]:
+        path = self.config_file(role)
+        return ["--zenoh-config", path] if path else []
+
+    def router_flags(self, endpoint: str) -> list[str]:
+        return ["--config", str(self.profile.router_config)] if self.profile else ["--listen", endpoint]
+
+
+def _access(args: argparse.Namespace, keys: Keys, report_dir: Path) -> Access:
+    """The run's :class:`Access`; with ``--secure``, the profile is written before anything starts."""
+    if args.tls and not args.secure:
+        raise ConfigError("--tls: it is an option of --secure (use both)")
+    if not args.secure:
+        return Access(None, args.zenoh_config)
+    conflicting = [flag for flag, given in (("--composed", args.composed), ("--connect", args.connect),
+                   ("--zenoh-config", args.zenoh_config)) if given]
+    if conflicting:
+        raise ConfigError(
+            f"--secure with {', '.join(conflicting)}: a secure run starts its own router and runs every "
+            "service as a client of it, each with its role's credentials"
+        )
+    listen = args.listen or [DEFAULT_ENDPOINT]
+    profile = write_profile(report_dir / SECRETS_DIRECTORY, keys, endpoint=listen[0], router_listen=listen, tls=args.tls)
+    say(
+        f"secure: usrpwd and access control on the router{', TLS' if profile.tls else ''}; every service a client; "
+        f"credentials for each role in {profile.directory}/ (e.g. --zenoh-config {profile.client_config(Role.OBSERVER)})"
+    )
+    return Access(profile, None)
+
+
 def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentParser) -> int:
     keys = Keys(config.robot.name)
-    endpoint = (args.connect or args.listen or [DEFAULT_ENDPOINT])[0]
+    report_dir = Path(args.report) if args.report else _default_report_dir()
+    access = _access(args, keys, report_dir)
+    endpoint = access.profile.endpoint if access.profile else (args.connect or args.listen or [DEFAULT_ENDPOINT])[0]
     common = _child_args(args, endpoint)
     mode = args.mode or config.sim.mode
     interrupted = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: interrupted.set())
     signal.signal(signal.SIGTERM, lambda *_: interrupted.set())
     try:
-        with _launch(args, endpoint, parser) as (launcher, session):
+        with _launch(args, endpoint, parser, access) as (launcher, session):
             run = Run(launcher, session, keys, interrupted)
             recorder = None if args.no_report else Recorder(session, keys, config.robot)
             for service in SERVICES_BEFORE_SIM:
-                launcher.start(str(service), [str(service), *common])
+                launcher.start(str(service), [str(service), *common, *access.flags(Role(service))])
             run.wait_alive(SERVICES_BEFORE_SIM)
-            launcher.start("sim", ["sim", *common, "--mode", mode, *(["--gui"] if args.gui else [])])
+            sim_flags = ["--mode", mode, *(["--gui"] if args.gui else [])]
+            launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *sim_flags])
             run.wait_alive((Service.SIM,))
             started = time.monotonic()
-            drive = launcher.start("drive", ["drive", *common, "--scenario", args.scenario])
+            drive = launcher.start("drive", ["drive", *common, *access.flags(Role.DRIVE), "--scenario", args.scenario])
             sim_status = run.supervise(drive, started, recorder.collect if recorder else _record_nothing)
             wall_time_s = time.monotonic() - started
             statuses = {str(service): run.status(service) for service in Service if service != Service.DRIVE}
@@ -295,7 +345,6 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
         bad_inputs={name: status["bad_input"]["total"] for name, status in statuses.items() if status},
     )
     report["composed"] = args.composed
-    report_dir = Path(args.report) if args.report else _default_report_dir()
     path = write_report(report, report_dir)
     plots = write_plots(recording, report.get("planned_path"), config.robot, report_dir)
     print(summary(report), flush=True)
@@ -330,6 +379,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(for long runs, --loop scenarios and benchmarks)",
     )
     parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
+    parser.add_argument(
+        "--secure",
+        action="store_true",
+        help="usrpwd authentication and access control on the router, every service a client with its role's "
+        f"fresh credentials, written first to <report dir>/{SECRETS_DIRECTORY}/<role>.json5 (see README, Security)",
+    )
+    parser.add_argument(
+        "--tls", action="store_true", help="with --secure: TLS on every link, a local CA and router certificate"
+    )
     parser.add_argument(
         "--composed",
         action="store_true",

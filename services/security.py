@@ -1,0 +1,359 @@
+"""The secure profile: zenoh's usrpwd authentication and access control, by role, TLS optional.
+
+``invent secrets DIR`` and ``invent up --secure`` write one profile: fresh credentials for every
+:class:`Role` (stdlib ``secrets``), the router's configuration (its user dictionary and
+``access_control``, default deny) and one complete zenoh client configuration per role, so any
+zenoh program opens a session as that role with ``zenoh.Config.from_file``. Every session of a
+secure deployment is a **client**: zenoh applies access control on the router's transports only,
+and peers talking directly would bypass it.
+
+What each role may do is :func:`grants`; the rules are built from :class:`~schemas.keys.Keys`,
+so they name exactly the keys the services use. Reading (subscribing, liveliness, ``status``
+queries) is open to every authenticated role; every put and every Motor method query that no
+grant names is denied, and a session without valid credentials is refused at connection.
+"""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+import json
+import os
+import secrets
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+from schemas.keys import ROOT, Keys, Method, MethodFamily, Service, Topic
+
+ROUTER_CONFIG = "router.json5"
+DICTIONARY = "dictionary.txt"
+TLS_DIRECTORY = "tls"
+CA_CERTIFICATE = "ca.pem"
+ROUTER_CERTIFICATE = "router.pem"
+ROUTER_KEY = "router-key.pem"
+PASSWORD_BYTES = 24
+CERTIFICATE_DAYS = 365
+CLIENT_CONNECT_TIMEOUT_MS = 10_000
+"""How long a client keeps trying to reach the router at start before it gives up (and its
+process exits naming the failure): long enough for a router started a moment later, short enough
+that wrong credentials are reported rather than waited on for ever."""
+TLS_NAMES = ("localhost", "127.0.0.1")
+"""Names the router's certificate is valid for by default (``--tls-name`` adds more)."""
+
+
+class Role(StrEnum):
+    """Who a session is. The five services, plus two for people and their tools."""
+
+    SIM = Service.SIM.value
+    MOTOR = Service.MOTOR.value
+    ODOMETRY = Service.ODOMETRY.value
+    LOCALIZATION = Service.LOCALIZATION.value
+    DRIVE = Service.DRIVE.value
+    OPERATOR = "operator"
+    """Teleop or GUI: puts target velocities, calls the Motor methods (``motor/gui/*``)."""
+    OBSERVER = "observer"
+    """Watches: subscribes, gets ``status`` and liveliness, nothing else."""
+
+
+class Message(StrEnum):
+    """Zenoh's access-control message types."""
+
+    PUT = "put"
+    DECLARE_SUBSCRIBER = "declare_subscriber"
+    DECLARE_QUERYABLE = "declare_queryable"
+    QUERY = "query"
+    REPLY = "reply"
+    LIVELINESS_TOKEN = "liveliness_token"
+    DECLARE_LIVELINESS_SUBSCRIBER = "declare_liveliness_subscriber"
+    LIVELINESS_QUERY = "liveliness_query"
+
+
+class Flow(StrEnum):
+    """Seen from the router: ``ingress`` is what a session sends, ``egress`` what it is sent."""
+
+    INGRESS = "ingress"
+    EGRESS = "egress"
+
+
+@dataclass(frozen=True)
+class Grant:
+    """One allow rule: these messages, in this flow, on these key expressions."""
+
+    messages: tuple[Message, ...]
+    flow: Flow
+    key_exprs: tuple[str, ...]
+
+
+def _published_by(service: Service, keys: Keys) -> tuple[str, ...]:
+    """The data keys a service publishes: those under its own name (``sim/...`` for the sim)."""
+    return tuple(keys.topic(topic) for topic in Topic if topic.startswith(f"{service}/"))
+
+
+def _methods(keys: Keys, family: MethodFamily) -> tuple[str, ...]:
+    return tuple(keys.method(family, method) for method in Method)
+
+
+def grants(role: Role, keys: Keys) -> list[Grant]:
+    """Everything ``role`` may do on robot ``keys.robot``; the router denies anything else."""
+    everything = (f"{ROOT}/**",)
+    reading = [
+        Grant(
+            (Message.DECLARE_SUBSCRIBER, Message.DECLARE_LIVELINESS_SUBSCRIBER, Message.LIVELINESS_QUERY),
+            Flow.INGRESS,
+            everything,
+        ),
+        # What a reader is sent: samples, replies, tokens, and the declarations that tell a
+        # publisher or querier that someone matches.
+        Grant(
+            (
+                Message.PUT,
+                Message.REPLY,
+                Message.LIVELINESS_TOKEN,
+                Message.DECLARE_SUBSCRIBER,
+                Message.DECLARE_QUERYABLE,
+            ),
+            Flow.EGRESS,
+            everything,
+        ),
+        Grant((Message.QUERY,), Flow.INGRESS, (f"{keys.prefix}/*/status",)),
+    ]
+    if role is Role.OBSERVER:
+        return reading
+    if role is Role.OPERATOR:
+        return [
+            *reading,
+            Grant((Message.PUT,), Flow.INGRESS, (keys.drive_target_velocity,)),
+            Grant((Message.QUERY,), Flow.INGRESS, _methods(keys, MethodFamily.GUI)),
+        ]
+    service = Service(role.value)
+    served = (keys.status(service),)
+    if service is Service.MOTOR:
+        served += _methods(keys, MethodFamily.GUI) + _methods(keys, MethodFamily.BUMP)
+    own = [
+        Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (keys.alive(service),)),
+        Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, served),
+        # Queries reach a queryable only if the querier was let in; this lets them be delivered.
+        Grant((Message.QUERY,), Flow.EGRESS, everything),
+        Grant((Message.PUT,), Flow.INGRESS, _published_by(service, keys)),
+    ]
+    if service is Service.SIM:
+        own.append(Grant((Message.QUERY,), Flow.INGRESS, _methods(keys, MethodFamily.BUMP)))
+    return [*reading, *own]
+
+
+def access_control(users: dict[Role, str], keys: Keys) -> dict[str, Any]:
+    """The router's ``access_control`` section: one subject per role (by username), its grants."""
+    rules: list[dict[str, Any]] = []
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    for role, user in users.items():
+        subject = f"role-{role}"
+        subjects.append({"id": subject, "usernames": [user]})
+        ids = []
+        for number, grant in enumerate(grants(role, keys)):
+            rule_id = f"{role}-{number}"
+            ids.append(rule_id)
+            rules.append(
+                {
+                    "id": rule_id,
+                    "permission": "allow",
+                    "flows": [grant.flow.value],
+                    "messages": [message.value for message in grant.messages],
+                    "key_exprs": list(grant.key_exprs),
+                }
+            )
+        policies.append({"id": f"policy-{role}", "rules": ids, "subjects": [subject]})
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+@dataclass(frozen=True)
+class Credentials:
+    user: str
+    password: str
+
+
+def fresh_credentials() -> dict[Role, Credentials]:
+    """One user per role, named after it, with a new random password."""
+    return {role: Credentials(str(role), secrets.token_urlsafe(PASSWORD_BYTES)) for role in Role}
+
+
+@dataclass(frozen=True)
+class Profile:
+    """The files of one secure deployment, as written by :func:`write_profile`."""
+
+    directory: Path
+    endpoint: str
+    """Where the clients connect (``tls/...`` with TLS)."""
+    router_listen: tuple[str, ...]
+    tls: bool
+    roles: tuple[Role, ...] = field(default=tuple(Role))
+
+    @property
+    def router_config(self) -> Path:
+        return self.directory / ROUTER_CONFIG
+
+    def client_config(self, role: Role) -> Path:
+        return self.directory / f"{role}.json5"
+
+
+def _with_scheme(endpoint: str, tls: bool) -> str:
+    """``endpoint`` (``tcp/HOST:PORT`` or ``tls/HOST:PORT``) with the profile's scheme; ValueError
+    for anything else."""
+    scheme, _, address = endpoint.partition("/")
+    host, _, port = address.rpartition(":")
+    if scheme not in ("tcp", "tls") or not host or not port.isdigit():
+        raise ValueError(f"endpoint {endpoint!r}: expected tcp/HOST:PORT or tls/HOST:PORT")
+    return f"{'tls' if tls else scheme}/{address}"
+
+
+def write_profile(
+    directory: Path,
+    keys: Keys,
+    *,
+    endpoint: str,
+    router_listen: Sequence[str] = (),
+    tls: bool = False,
+    tls_names: Iterable[str] = (),
+    seen_as: Path | None = None,
+    router_base: dict[str, Any] | None = None,
+) -> Profile:
+    """Write a fresh profile into ``directory`` (created 0700; every file 0600).
+
+    ``endpoint`` is where clients connect, ``router_listen`` where the router listens (default:
+    ``endpoint``). ``seen_as`` is the path the router and clients will see ``directory`` at (a
+    container's mount point; default the directory itself). ``router_base`` holds extra sections
+    of the router's configuration (zenohd's plugins). With ``tls`` every endpoint is ``tls/``
+    and a local CA signs the router's certificate for ``localhost``, ``127.0.0.1`` and
+    ``tls_names``.
+    """
+    directory.mkdir(parents=True, exist_ok=True)
+    directory.chmod(0o700)
+    seen = (seen_as or directory).absolute()
+    endpoint = _with_scheme(endpoint, tls)
+    listen = [_with_scheme(address, tls) for address in router_listen] or [endpoint]
+    credentials = fresh_credentials()
+    _write_private(directory / DICTIONARY, "".join(f"{c.user}:{c.password}\n" for c in credentials.values()))
+    router: dict[str, Any] = {
+        **(router_base or {}),
+        "mode": "router",
+        "listen": {"endpoints": listen},
+        "scouting": {"multicast": {"enabled": False}, "delay": 0},
+        "transport": {"auth": {"usrpwd": {"dictionary_file": str(seen / DICTIONARY)}}},
+        "access_control": access_control({role: c.user for role, c in credentials.items()}, keys),
+    }
+    client_tls: dict[str, Any] = {}
+    if tls:
+        names = (*TLS_NAMES, *tls_names)
+        _write_tls(directory / TLS_DIRECTORY, names)
+        tls_dir = seen / TLS_DIRECTORY
+        router["transport"]["link"] = {
+            "tls": {
+                "listen_certificate": str(tls_dir / ROUTER_CERTIFICATE),
+                "listen_private_key": str(tls_dir / ROUTER_KEY),
+            }
+        }
+        client_tls = {"link": {"tls": {"root_ca_certificate": str(tls_dir / CA_CERTIFICATE)}}}
+    _write_private(directory / ROUTER_CONFIG, _json5(router, "the router of an invent secure deployment"))
+    profile = Profile(directory, endpoint, tuple(listen), tls)
+    for role, login in credentials.items():
+        client = {
+            "mode": "client",
+            "connect": {"endpoints": [endpoint], "timeout_ms": CLIENT_CONNECT_TIMEOUT_MS},
+            "listen": {"endpoints": []},
+            "scouting": {"multicast": {"enabled": False}},
+            "transport": {"auth": {"usrpwd": {"user": login.user, "password": login.password}}, **client_tls},
+        }
+        _write_private(profile.client_config(role), _json5(client, f"role {role} of an invent secure deployment"))
+    return profile
+
+
+def _json5(config: dict[str, Any], what: str) -> str:
+    return f"// zenoh configuration: {what}. Generated; holds secrets.\n{json.dumps(config, indent=2)}\n"
+
+
+def _write_private(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` readable by its owner only, from the moment it exists."""
+    path.unlink(missing_ok=True)
+    descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(descriptor, "w") as file:
+        file.write(text)
+
+
+def _write_tls(directory: Path, names: Sequence[str]) -> None:
+    """A local CA (its key is not kept) and the router's key and certificate, signed by it."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    directory.mkdir(parents=True, exist_ok=True)
+    directory.chmod(0o700)
+    now = datetime.datetime.now(datetime.timezone.utc)
+    valid_until = now + datetime.timedelta(days=CERTIFICATE_DAYS)
+    ca_key = ec.generate_private_key(ec.SECP256R1())
+    ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "invent-zenoh local CA")])
+    ca = (
+        x509.CertificateBuilder()
+        .subject_name(ca_name)
+        .issuer_name(ca_name)
+        .public_key(ca_key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now)
+        .not_valid_after(valid_until)
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=True,
+                key_cert_sign=True,
+                crl_sign=True,
+                content_commitment=False,
+                key_encipherment=False,
+                data_encipherment=False,
+                key_agreement=False,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
+        .sign(ca_key, hashes.SHA256())
+    )
+    router_key = ec.generate_private_key(ec.SECP256R1())
+    router = (
+        x509.CertificateBuilder()
+        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, names[0])]))
+        .issuer_name(ca_name)
+        .public_key(router_key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now)
+        .not_valid_after(valid_until)
+        .add_extension(x509.SubjectAlternativeName([_general_name(name) for name in names]), critical=False)
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH]), critical=False)
+        .sign(ca_key, hashes.SHA256())
+    )
+    _write_private(directory / CA_CERTIFICATE, ca.public_bytes(serialization.Encoding.PEM).decode())
+    _write_private(directory / ROUTER_CERTIFICATE, router.public_bytes(serialization.Encoding.PEM).decode())
+    _write_private(
+        directory / ROUTER_KEY,
+        router_key.private_bytes(
+            serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+        ).decode(),
+    )
+
+
+def _general_name(name: str) -> Any:
+    from cryptography import x509
+
+    try:
+        return x509.IPAddress(ipaddress.ip_address(name))
+    except ValueError:
+        return x509.DNSName(name)

@@ -1,0 +1,288 @@
+"""The secure profile: roles and their grants, the files `invent secrets` writes, the router's
+access control with real sessions (TCP and TLS), and `invent up --secure` with the real services."""
+
+from __future__ import annotations
+
+import json
+import math
+import queue
+import stat
+import subprocess
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
+import msgspec
+import pytest
+import zenoh
+
+from schemas.codec import encode
+from schemas.keys import Keys, Method, MethodFamily, Service, Topic
+from schemas.messages import Time, TimedPosition, TimedVelocity
+from services.security import (
+    CA_CERTIFICATE,
+    DICTIONARY,
+    TLS_DIRECTORY,
+    Flow,
+    Message,
+    Profile,
+    Role,
+    grants,
+    write_profile,
+)
+from tests.harness import REPO, call, free_port, invent_command, run_invent, wait_until
+
+KEYS = Keys("secured")
+FORGED_VX = 0.4321
+"""A forward speed nothing in the tests' loop ever commands: seeing it means a forged put got through."""
+
+
+def _put_keys(role: Role) -> set[str]:
+    return {
+        key
+        for grant in grants(role, KEYS)
+        if Message.PUT in grant.messages and grant.flow is Flow.INGRESS
+        for key in grant.key_exprs
+    }
+
+
+def _queried_keys(role: Role) -> set[str]:
+    return {
+        key
+        for grant in grants(role, KEYS)
+        if Message.QUERY in grant.messages and grant.flow is Flow.INGRESS
+        for key in grant.key_exprs
+    }
+
+
+def _methods(family: MethodFamily) -> set[str]:
+    return {KEYS.method(family, method) for method in Method}
+
+
+def test_each_service_role_puts_exactly_the_keys_under_its_own_name():
+    for service in Service:
+        expected = {KEYS.topic(topic) for topic in Topic if topic.split("/")[0] == service}
+        assert _put_keys(Role(service.value)) == expected, service
+    assert _put_keys(Role.OPERATOR) == {KEYS.drive_target_velocity}
+    assert _put_keys(Role.OBSERVER) == set()
+
+
+def test_only_the_operator_and_the_sim_query_motor_methods_each_its_own_family():
+    status = {f"{KEYS.prefix}/*/status"}
+    assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI)
+    assert _queried_keys(Role.SIM) == status | _methods(MethodFamily.BUMP)
+    for role in (Role.OBSERVER, Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE):
+        assert _queried_keys(role) == status, role
+
+
+def test_only_the_motor_serves_the_methods_and_each_service_only_its_status():
+    for role in Role:
+        served = {
+            key
+            for grant in grants(role, KEYS)
+            if Message.DECLARE_QUERYABLE in grant.messages and grant.flow is Flow.INGRESS
+            for key in grant.key_exprs
+        }
+        if role is Role.MOTOR:
+            assert served == {KEYS.status(Service.MOTOR)} | _methods(MethodFamily.GUI) | _methods(MethodFamily.BUMP)
+        elif role in (Role.OPERATOR, Role.OBSERVER):
+            assert served == set(), role
+        else:
+            assert served == {KEYS.status(Service(role.value))}, role
+
+
+def test_profile_files_are_private_and_complete_zenoh_configurations(tmp_path):
+    profile = write_profile(tmp_path / "secrets", KEYS, endpoint="tcp/127.0.0.1:7447")
+    assert stat.S_IMODE(profile.directory.stat().st_mode) == 0o700
+    files = list(profile.directory.iterdir())
+    assert {path.name for path in files} == {"router.json5", DICTIONARY} | {f"{role}.json5" for role in Role}
+    assert all(stat.S_IMODE(path.stat().st_mode) == 0o600 for path in files)
+    users = dict(line.split(":") for line in (profile.directory / DICTIONARY).read_text().splitlines())
+    assert set(users) == {str(role) for role in Role}
+    for role in Role:
+        config = json.loads(str(zenoh.Config.from_file(str(profile.client_config(role)))))
+        assert config["mode"] == "client"
+        assert config["connect"]["endpoints"] == ["tcp/127.0.0.1:7447"]
+        assert config["transport"]["auth"]["usrpwd"]["user"] == str(role)
+        assert config["transport"]["auth"]["usrpwd"]["password"] == users[str(role)]
+    router = json.loads(str(zenoh.Config.from_file(str(profile.router_config))))
+    assert router["mode"] == "router" and router["access_control"]["default_permission"] == "deny"
+    again = write_profile(tmp_path / "secrets", KEYS, endpoint="tcp/127.0.0.1:7447")
+    assert (again.directory / DICTIONARY).read_text() != "\n".join(f"{u}:{p}" for u, p in users.items()) + "\n"
+
+
+def test_invent_secrets_writes_a_profile_and_rejects_a_bad_endpoint(tmp_path):
+    result = run_invent("secrets", str(tmp_path / "ok"), "--robot", KEYS.robot, "--tls")
+    assert result.returncode == 0, result.stderr
+    assert "tls/127.0.0.1:7447" in result.stderr
+    assert (tmp_path / "ok" / TLS_DIRECTORY / CA_CERTIFICATE).exists()
+    bad = run_invent("secrets", str(tmp_path / "bad"), "--endpoint", "udp-ish/nowhere")
+    assert bad.returncode == 2 and "udp-ish/nowhere" in bad.stderr
+
+
+@contextmanager
+def _secured_router(tmp_path: Path, tls: bool) -> Iterator[tuple[Profile, Callable[[Role], zenoh.Session]]]:
+    """A router from a fresh profile, and a function that opens a client session as a role."""
+    host = "localhost" if tls else "127.0.0.1"
+    profile = write_profile(tmp_path / "secrets", KEYS, endpoint=f"tcp/{host}:{free_port()}", tls=tls)
+    with ExitStack() as stack:
+        stack.enter_context(zenoh.open(zenoh.Config.from_file(str(profile.router_config))))
+
+        def open_as(role: Role) -> zenoh.Session:
+            return stack.enter_context(zenoh.open(zenoh.Config.from_file(str(profile.client_config(role)))))
+
+        yield profile, open_as
+
+
+def _client_config(endpoint: str, user: str | None = None, password: str | None = None) -> zenoh.Config:
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    config.insert_json5("connect/timeout_ms", "1500")
+    if user is not None:
+        config.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
+        config.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
+    return config
+
+
+@pytest.mark.parametrize("tls", [False, True], ids=["tcp", "tls"])
+def test_router_lets_each_role_put_only_its_own_keys_and_refuses_strangers(tmp_path, tls):
+    with _secured_router(tmp_path, tls) as (profile, open_as):
+        # The witness holds the odometry role: it may serve odometry/status, which every role may
+        # query. A session's query reaches it after everything that session put before it (one
+        # transport each way, in order), so its arrival closes that session's puts.
+        witness = open_as(Role.ODOMETRY)
+        received: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
+        witness.declare_subscriber(
+            KEYS.everything, lambda sample: received.put((str(sample.key_expr), sample.payload.to_string()))
+        )
+        barrier = KEYS.status(Service.ODOMETRY)
+        witness.declare_queryable(barrier, lambda query: query.reply(barrier, b"{}"))
+        sessions = {role: open_as(role) for role in Role}
+        publishers = [
+            (role, session.declare_publisher(KEYS.topic(topic))) for role, session in sessions.items() for topic in Topic
+        ]
+        wait_until(lambda: all(p.matching_status.matching for _, p in publishers), 10, "the witness to match")
+        for role, publisher in publishers:
+            publisher.put(f"{role}")
+        for role, session in sessions.items():
+            assert len([reply.ok for reply in session.get(barrier, timeout=5.0) if reply.ok]) == 1, role
+        delivered = set()
+        while not received.empty():
+            delivered.add(received.get())
+        expected = {(key, str(role)) for role in Role for key in _put_keys(role)}
+        assert delivered == expected
+
+        stranger_endpoint = profile.endpoint
+        for user, password in ((None, None), (str(Role.OPERATOR), "not-the-password")):
+            with pytest.raises(zenoh.ZError):
+                zenoh.open(_client_config(stranger_endpoint, user, password))
+        if tls:
+            plain = stranger_endpoint.replace("tls/", "tcp/")
+            with pytest.raises(zenoh.ZError):
+                zenoh.open(_client_config(plain, str(Role.OBSERVER), "x"))
+
+
+def test_router_routes_method_queries_only_from_the_operator_and_bump_stop_only_from_the_sim(tmp_path):
+    with _secured_router(tmp_path, tls=False) as (_profile, open_as):
+        motor = open_as(Role.MOTOR)
+        calls: list[str] = []
+
+        def serve(query: zenoh.Query) -> None:
+            calls.append(str(query.key_expr))
+            query.reply(query.key_expr, b"{}")
+
+        for family in MethodFamily:
+            for method in Method:
+                motor.declare_queryable(KEYS.method(family, method), serve)
+        motor.declare_queryable(KEYS.status(Service.MOTOR), lambda q: q.reply(KEYS.status(Service.MOTOR), b"{}"))
+        operator, sim, observer = open_as(Role.OPERATOR), open_as(Role.SIM), open_as(Role.OBSERVER)
+        wait_until(lambda: list(observer.get(KEYS.status(Service.MOTOR), timeout=1.0)), 10, "the motor's status")
+        expected = []
+        for role, session in ((Role.OPERATOR, operator), (Role.SIM, sim), (Role.OBSERVER, observer)):
+            for family in MethodFamily:
+                key = KEYS.method(family, Method.STOP)
+                replies = [reply for reply in session.get(key, timeout=1.0) if reply.ok is not None]
+                allowed = (role, family) in ((Role.OPERATOR, MethodFamily.GUI), (Role.SIM, MethodFamily.BUMP))
+                assert len(replies) == int(allowed), (role, family)
+                expected += [key] if allowed else []
+        assert calls == expected
+
+
+def test_up_secure_refuses_flags_that_would_bypass_the_router(tmp_path):
+    for flags, named in ((["--composed"], "--composed"), (["--connect", "tcp/127.0.0.1:1"], "--connect")):
+        result = run_invent("up", "--secure", "--report", str(tmp_path), *flags)
+        assert result.returncode == 2 and named in result.stderr, result.stderr
+    result = run_invent("up", "--tls", "--report", str(tmp_path))
+    assert result.returncode == 2 and "--secure" in result.stderr
+
+
+@pytest.mark.slow
+def test_up_secure_runs_the_square_and_enforces_every_role(tmp_path):
+    report_dir = tmp_path / "report"
+    secrets = report_dir / "secrets"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    keys = Keys()
+    process = subprocess.Popen(
+        invent_command("up", "--secure", "--scenario", "square", "--report", str(report_dir), "--listen", endpoint),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    output: list[str] = []
+
+    def drive_started() -> bool:
+        line = process.stdout.readline()
+        output.append(line)
+        return "started drive" in line or not line
+
+    try:
+        wait_until(drive_started, 120, "invent up --secure to start the drive")
+        assert process.poll() is None, "".join(output)
+
+        def open_as(role: Role) -> zenoh.Session:
+            return zenoh.open(zenoh.Config.from_file(str(secrets / f"{role}.json5")))
+
+        with open_as(Role.OBSERVER) as observer, open_as(Role.OBSERVER) as witness, open_as(Role.OPERATOR) as operator:
+            poses: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+            observer.declare_subscriber(keys.odometry_pose, lambda sample: poses.put(sample.payload.to_bytes()))
+            msgspec.json.decode(poses.get(timeout=20.0), type=TimedPosition)
+            wait_until(lambda: call(observer, keys.status(Service.MOTOR))[1]["state"] == "running", 20, "the motor")
+
+            targets: queue.SimpleQueue[float] = queue.SimpleQueue()
+            witness.declare_subscriber(
+                keys.drive_target_velocity,
+                lambda sample: targets.put(msgspec.json.decode(sample.payload.to_bytes(), type=TimedVelocity).vx),
+            )
+            targets.get(timeout=20.0)  # the drive's targets reach the witness
+            forged = TimedVelocity(tm=Time(0, 0), id=[], vx=FORGED_VX, vy=0.0, w=0.0, error=[])
+            for _ in range(20):
+                observer.put(keys.drive_target_velocity, encode(forged))
+            stop = keys.method(MethodFamily.GUI, Method.STOP)
+            assert [reply for reply in observer.get(stop, timeout=1.0)] == []
+            seen = [targets.get(timeout=5.0) for _ in range(20)]  # the drive's, published after the forgeries
+            assert FORGED_VX not in seen
+            ok, status = call(observer, keys.status(Service.MOTOR))
+            assert ok and status["state"] == "running" and status["target"]["vx"] != FORGED_VX
+
+            for user, password in ((None, None), (str(Role.OPERATOR), "not-the-password")):
+                with pytest.raises(zenoh.ZError):
+                    zenoh.open(_client_config(endpoint, user, password))
+
+            ok, status = call(operator, stop)
+            assert ok and status["state"] == "stopped"
+            ok, status = call(operator, keys.method(MethodFamily.GUI, Method.CLEAR))
+            assert ok and status["state"] != "stopped"
+        rest, _ = process.communicate(timeout=180)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    output.append(rest)
+    assert process.returncode == 0, "".join(output)[-4000:]
+    report = json.loads((report_dir / "report.json").read_text())
+    start, end = report["start"], report["final"]["ground_truth"]
+    assert math.hypot(end["x"] - start["x"], end["y"] - start["y"]) < 0.05
+    assert report["path_error"]["max_m"] < 0.10
+    assert report["odometry_error"]["max_m"] < 0.05
+    assert report["bad_inputs"] == {"motor": 0, "odometry": 0, "sim": 0, "localization": 0}
+    assert all(stat.S_IMODE(path.stat().st_mode) == 0o600 for path in secrets.iterdir())
