@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test bench clean
+.PHONY: run test bench secrets clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,6 +20,9 @@ test: $(STAMP)  ## the whole suite
 
 bench: $(STAMP)  ## benchmarks/ -> benchmarks/results/latest.json (never part of `make test`)
 	$(BIN)/python -m benchmarks
+
+secrets: $(STAMP)  ## fresh credentials for `docker compose up`, in docker/secure/secrets/ (never committed)
+	PATH="$(CURDIR)/$(BIN):$$PATH" docker/secure/make-secrets
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

@@ -26,7 +26,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from schemas.keys import ROOT, Keys, Method, MethodFamily, Service, Topic
+from schemas.keys import ROOT, Keys, Method, MethodFamily, Service, Topic, all_robots_status
 
 ROUTER_CONFIG = "router.json5"
 DICTIONARY = "dictionary.txt"
@@ -118,7 +118,8 @@ def grants(role: Role, keys: Keys) -> list[Grant]:
             Flow.EGRESS,
             everything,
         ),
-        Grant((Message.QUERY,), Flow.INGRESS, (f"{keys.prefix}/*/status",)),
+        # Zenoh's rules match keys they include: this one lets a `get` on invent/*/*/status through.
+        Grant((Message.QUERY,), Flow.INGRESS, (all_robots_status(),)),
     ]
     if role is Role.OBSERVER:
         return reading

@@ -279,8 +279,8 @@ def _access(args: argparse.Namespace, keys: Keys, report_dir: Path) -> Access:
         raise ConfigError("--tls: it is an option of --secure (use both)")
     if not args.secure:
         return Access(None, args.zenoh_config)
-    conflicting = [flag for flag, given in (("--composed", args.composed), ("--connect", args.connect),
-                   ("--zenoh-config", args.zenoh_config)) if given]
+    given = {"--composed": args.composed, "--connect": args.connect, "--zenoh-config": args.zenoh_config}
+    conflicting = [flag for flag, value in given.items() if value]
     if conflicting:
         raise ConfigError(
             f"--secure with {', '.join(conflicting)}: a secure run starts its own router and runs every "

@@ -1,46 +1,90 @@
-"""compose.yaml: a zenohd router plus one container per service, each a valid invent invocation."""
+"""compose.yaml: a zenohd router with access control plus one client container per service, each
+a valid invent invocation with its own role's credentials, and the script that makes them."""
 
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import yaml
+import zenoh
 
 from schemas.keys import Service
 from services.cli import build_parser
+from services.security import DICTIONARY, ROUTER_CONFIG, Role
 from services.service import config_from_args
 from tests.harness import REPO
+
+SECRETS_DIR = "./docker/secure/secrets"
+MOUNTED_SECRETS = "/secrets"
+ROLE_FILE_IN_CONTAINER = "/run/secrets/zenoh.json5"
 
 
 def _compose() -> dict:
     return yaml.safe_load((REPO / "compose.yaml").read_text())
 
 
+def _services() -> dict:
+    return {name: spec for name, spec in _compose()["services"].items() if name != "router"}
+
+
 def test_services_are_the_router_plus_every_service():
     assert set(_compose()["services"]) == {"router"} | {str(service) for service in Service}
 
 
-def test_router_is_zenohd_1_10_with_rest_and_a_memory_storage_on_invent():
+def test_router_reads_the_generated_config_and_publishes_rest_on_loopback_only():
     router = _compose()["services"]["router"]
     assert router["image"].startswith("eclipse/zenoh:1.10")
-    assert "8000:8000" in router["ports"] and "7447:7447" in router["ports"]
-    config_path = next(v.split(":")[0] for v in router["volumes"] if v.endswith(".json5:ro"))
-    text = (REPO / config_path).read_text()
-    assert "http_port: 8000" in text
-    assert 'key_expr: "invent/**"' in text and 'volume: "memory"' in text
+    assert router["command"] == ["-c", f"{MOUNTED_SECRETS}/{ROUTER_CONFIG}"]
+    assert f"{SECRETS_DIR}:{MOUNTED_SECRETS}:ro" in router["volumes"]
+    assert set(router["ports"]) == {"7447:7447", "127.0.0.1:8000:8000"}
 
 
-def test_every_command_is_a_valid_invent_invocation_connecting_to_the_router():
+def test_every_service_is_a_client_with_only_its_own_roles_credentials():
     parser = build_parser()
-    for name, spec in _compose()["services"].items():
-        if name == "router":
-            continue
+    declared = _compose()["secrets"]
+    for name, spec in _services().items():
         command = spec["command"]
         assert command[0] == name
         args = parser.parse_args(command)
         assert args.connect == ["tcp/router:7447"], name
-        config = config_from_args(args.service_command, args)
-        assert config.robot.name == "rh0"
+        assert args.zenoh_config == ROLE_FILE_IN_CONTAINER, name
+        assert spec["secrets"] == [{"source": name, "target": Path(ROLE_FILE_IN_CONTAINER).name}], name
+        assert declared[name] == {"file": f"{SECRETS_DIR}/{Role(name)}.json5"}, name
+        assert "volumes" not in spec, name
+        assert config_from_args(args.service_command, args).robot.name == "rh0"
 
 
 def test_the_drive_loops_the_square_scenario():
     command = _compose()["services"]["drive"]["command"]
     args = build_parser().parse_args(command)
     assert args.scenario.name == "square" and args.loop
+
+
+def test_make_secrets_writes_the_files_compose_mounts(tmp_path):
+    environment = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    result = subprocess.run(
+        [str(REPO / "docker" / "secure" / "make-secrets"), str(tmp_path / "secrets")],
+        cwd=REPO,
+        env=environment,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 0, result.stderr
+    written = tmp_path / "secrets"
+    for name in _compose()["secrets"]:
+        assert (written / f"{name}.json5").exists(), name
+    router = json.loads(str(zenoh.Config.from_file(str(written / ROUTER_CONFIG))))
+    assert router["mode"] == "router"
+    assert router["listen"]["endpoints"] == ["tcp/[::]:7447"]
+    assert router["transport"]["auth"]["usrpwd"]["dictionary_file"] == f"{MOUNTED_SECRETS}/{DICTIONARY}"
+    assert router["access_control"]["enabled"] is True
+    assert router["plugins"]["rest"]["http_port"] == 8000
+    assert router["plugins"]["storage_manager"]["storages"]["invent"] == {"key_expr": "invent/**", "volume": "memory"}
+
+
+def test_no_credentials_are_committed_or_copied_into_the_image():
+    assert SECRETS_DIR.removeprefix("./") + "/" in (REPO / ".gitignore").read_text().splitlines()
+    assert SECRETS_DIR.removeprefix("./") in (REPO / ".dockerignore").read_text().splitlines()

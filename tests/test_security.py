@@ -15,7 +15,7 @@ import pytest
 import zenoh
 
 from schemas.codec import encode
-from schemas.keys import Keys, Method, MethodFamily, Service, Topic
+from schemas.keys import Keys, Method, MethodFamily, Service, Topic, all_robots_status
 from schemas.messages import Time, TimedPosition, TimedVelocity
 from services.security import (
     CA_CERTIFICATE,
@@ -66,7 +66,7 @@ def test_each_service_role_puts_exactly_the_keys_under_its_own_name():
 
 
 def test_only_the_operator_and_the_sim_query_motor_methods_each_its_own_family():
-    status = {f"{KEYS.prefix}/*/status"}
+    status = {all_robots_status()}
     assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI)
     assert _queried_keys(Role.SIM) == status | _methods(MethodFamily.BUMP)
     for role in (Role.OBSERVER, Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE):
