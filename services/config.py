@@ -89,6 +89,11 @@ class MotorConfig(_Section):
     """Limit on the rate of change of w in rad/s^2."""
 
 
+StraightStep = Literal["exact", "seed"]
+"""ΔL of the straight and rho_border branches: ``exact``, the step's own mean wheel travel
+(r_L·Δq_L + r_R·Δq_R)/2; ``seed``, the seed's trapezoid (V + V_old)/2·Δt (docs/odometry.md)."""
+
+
 class OdometryConfig(_Section):
     rotation_angle_border: Positive = math.pi / 180.0
     """|dphi| below which a step takes arc length for chord (the seed's RotationAngleBorder), rad."""
@@ -100,6 +105,8 @@ class OdometryConfig(_Section):
     """Calibration multiplier on the right wheel radius (1.0 = no calibration)."""
     axle_scale: Positive = 1.0
     """Calibration multiplier on the axle length (1.0 = no calibration)."""
+    straight_step: StraightStep = "exact"
+    """How the straight and rho_border branches integrate (see StraightStep)."""
 
 
 SimMode = Literal["lockstep", "realtime"]

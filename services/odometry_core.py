@@ -7,18 +7,23 @@ the SPEC writes it, with b = axle/2::
     vL = r_L·(qL − qL_old)/Δt          vR = r_R·(qR − qR_old)/Δt
     V  = (vR + vL)/2                   Ω  = (vR − vL)/(2b)
     Δφ = Ω·Δt                          θ  = wrap(θ_old + Δφ)
-    if Δφ == 0:                      ΔL = (V + V_old)/2·Δt                 straight
+    if Δφ == 0:                      ΔL = (r_L·ΔqL + r_R·ΔqR)/2            straight
     else: ρ = b·(vR + vL)/(vR − vL)
-          if |ρ| > RhoBorder:        ΔL = (V + V_old)/2·Δt, ρ clamped      rho_border
+          if |ρ| > RhoBorder:        ΔL = (r_L·ΔqL + r_R·ΔqR)/2, ρ clamped rho_border
           elif |Δφ| < RotationAngleBorder: ΔL = ρ·Δφ                      small_angle
           else:                      ΔL = 2ρ·sin(Δφ/2)                    chord
     x = x_old + ΔL·cos(θ_old + Δφ/2)    y = y_old + ΔL·sin(θ_old + Δφ/2)
 
-The chord branch is exact for motion of constant curvature; the small-angle branch takes arc
-length for chord, a relative error of at most RotationAngleBorder²/24 (1.3e-5 at the default).
+The straight branches take the step's own mean wheel travel, exact whatever the speed and Δt
+(a correction of the seed, whose trapezoid (V + V_old)/2·Δt lost half a step from rest, carried
+the old speed across a reset and drifted when speed and Δt changed together; it remains as
+``straight_step = "seed"``). The chord branch is exact for motion of constant curvature; the
+small-angle branch takes arc length for chord, a relative error of at most
+RotationAngleBorder²/24 (1.3e-5 at the default).
 
-The first sample only initialises (the robot is taken to be at rest: V_old = 0). A localized
-pose (:meth:`Odometry.reset`) overwrites (x_old, y_old, θ_old) before the next step.
+The first sample only initialises (the robot is taken to be at rest: V_old = 0, which only the
+seed's trapezoid reads). A localized pose (:meth:`Odometry.reset`) overwrites (x_old, y_old,
+θ_old) before the next step.
 :meth:`Odometry.restart_time_base` (a restarted simulator, whose clock starts again) makes the
 next sample initialise again, keeping the pose. The hot path runs thousands of times a second:
 plain floats, no allocation beyond the returned step.
@@ -34,7 +39,7 @@ from enum import StrEnum
 from typing import NamedTuple
 
 from schemas.codec import BadInput
-from services.config import Config
+from services.config import Config, StraightStep
 from services.planar import Pose, wrap_angle
 
 __all__ = ["Branch", "Odometry", "OdometryParameters", "Pose", "Step", "wrap_angle"]
@@ -48,7 +53,7 @@ class Branch(StrEnum):
     INITIAL = "initial"
     """The first sample: nothing integrated, the pose is the starting pose."""
     STRAIGHT = "straight"
-    """Δφ == 0: trapezoid of V and V_old."""
+    """Δφ == 0: the mean wheel travel (or the seed's trapezoid of V and V_old)."""
     RHO_BORDER = "rho_border"
     """|ρ| > RhoBorder: as straight, ρ clamped to ±RhoBorder."""
     SMALL_ANGLE = "small_angle"
@@ -98,6 +103,7 @@ class OdometryParameters:
     left_radius_scale: float
     right_radius_scale: float
     axle_scale: float
+    straight_step: StraightStep = "exact"
 
     @classmethod
     def from_config(cls, config: Config) -> OdometryParameters:
@@ -113,6 +119,7 @@ class OdometryParameters:
             left_radius_scale=odometry.left_radius_scale,
             right_radius_scale=odometry.right_radius_scale,
             axle_scale=odometry.axle_scale,
+            straight_step=odometry.straight_step,
         )
 
     @property
@@ -152,6 +159,7 @@ class Odometry:
         "_b",
         "_angle_border",
         "_rho_border",
+        "_seed_straight",
         "_time_ns",
         "_q_left",
         "_q_right",
@@ -174,6 +182,7 @@ class Odometry:
         self._b = parameters.half_axle
         self._angle_border = parameters.rotation_angle_border
         self._rho_border = parameters.rho_border
+        self._seed_straight = parameters.straight_step == "seed"
         self._time_ns: int | None = None
         self._q_left = self._q_right = 0.0
         self._v = self._omega = 0.0
@@ -289,12 +298,12 @@ class Odometry:
         rho: float | None
         if dphi == 0.0:
             branch, rho = Branch.STRAIGHT, None
-            dl = (v + self._v) / 2.0 * dt
+            dl = self._straight_travel(q_left, q_right, v, dt)
         else:
             rho = b * (v_right + v_left) / (v_right - v_left)
             if abs(rho) > self._rho_border:
                 branch, rho = Branch.RHO_BORDER, math.copysign(self._rho_border, rho)
-                dl = (v + self._v) / 2.0 * dt
+                dl = self._straight_travel(q_left, q_right, v, dt)
             elif abs(dphi) < self._angle_border:
                 branch = Branch.SMALL_ANGLE
                 dl = rho * dphi
@@ -312,3 +321,9 @@ class Odometry:
         self._x, self._y, self._theta = x, y, theta
         self._history.append((time_ns, x, y, theta))
         return Step(branch, q_left, q_right, dt, v_left, v_right, v, omega, dphi, rho, dl, x, y, theta)
+
+    def _straight_travel(self, q_left: float, q_right: float, v: float, dt: float) -> float:
+        """ΔL of the straight branches: the mean wheel travel, or the seed's trapezoid."""
+        if self._seed_straight:
+            return (v + self._v) / 2.0 * dt
+        return (self._r_left * (q_left - self._q_left) + self._r_right * (q_right - self._q_right)) / 2.0

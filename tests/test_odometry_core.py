@@ -61,8 +61,8 @@ def drive(
 ) -> list[Step]:
     """Constant wheel rates for ``duration_ns`` in ``steps`` samples, from ``start``, in steady motion.
 
-    A warm-up step at the same rates first (then a reset to ``start``) makes V_old = V, as for
-    a robot already moving: the straight branch's trapezoid then integrates exactly.
+    A warm-up step at the same rates first (then a reset to ``start``) sets V_old = V, as for
+    a robot already moving (only the seed's straight trapezoid reads V_old).
     """
     warm_up_ns = NS
     odometry.step(0, [-left_rate, -right_rate])
@@ -154,12 +154,23 @@ def test_small_angle_step_by_hand() -> None:
     assert step.pose == pytest.approx((0.1005 * math.cos(0.00125), 0.1005 * math.sin(0.00125), 0.0025))
 
 
-def test_straight_step_is_the_trapezoid_of_v_and_v_old() -> None:
+def test_straight_step_is_the_mean_wheel_travel() -> None:
     odometry = Odometry(simple())
+    odometry.step(0, [0.0, 0.0])
+    first = odometry.step(NS, [2.0, 2.0])  # r = 0.1: each wheel travels 0.2 m
+    assert first.branch is Branch.STRAIGHT
+    assert first.rho is None
+    assert first.dl == pytest.approx(0.2)
+    second = odometry.step(2 * NS, [6.0, 6.0])  # 0.4 m more
+    assert second.dl == pytest.approx(0.4)
+    assert second.pose == pytest.approx((0.6, 0.0, 0.0))
+
+
+def test_seed_straight_step_is_the_trapezoid_of_v_and_v_old() -> None:
+    odometry = Odometry(parameters(robot__length_of_axle=0.4, odometry__straight_step="seed"))
     odometry.step(0, [0.0, 0.0])
     first = odometry.step(NS, [2.0, 2.0])  # V = 0.2, V_old = 0 (at rest before)
     assert first.branch is Branch.STRAIGHT
-    assert first.rho is None
     assert first.dl == pytest.approx(0.1)
     second = odometry.step(2 * NS, [6.0, 6.0])  # V = 0.4, V_old = 0.2
     assert second.dl == pytest.approx(0.3)
@@ -194,15 +205,52 @@ def test_calibration_multipliers_scale_radii_and_axle() -> None:
 # --- analytic motion -------------------------------------------------------------------------------
 
 
-def test_straight_line_from_rest_loses_half_a_first_step() -> None:
+def test_straight_line_from_rest_is_exact() -> None:
     odometry = Odometry(simple())
     odometry.step(0, [0.0, 0.0])
     dt_ns, rate = NS // 100, 2.0  # V = 0.2 m/s
     for k in range(1, 101):
         step = odometry.step(k * dt_ns, [rate * k / 100, rate * k / 100])
         assert step.branch is Branch.STRAIGHT
+    assert odometry.pose.x == pytest.approx(0.2, rel=1e-9)
+    assert (odometry.pose.y, odometry.pose.theta) == (0.0, 0.0)
+
+
+def test_seed_straight_line_from_rest_loses_half_a_first_step() -> None:
+    odometry = Odometry(parameters(robot__length_of_axle=0.4, odometry__straight_step="seed"))
+    odometry.step(0, [0.0, 0.0])
+    dt_ns, rate = NS // 100, 2.0
+    for k in range(1, 101):
+        odometry.step(k * dt_ns, [rate * k / 100, rate * k / 100])
     # The trapezoid with V_old = 0 on the first step: x = V (T - dt/2).
     assert odometry.pose == pytest.approx((0.2 * (1.0 - 0.005), 0.0, 0.0), abs=1e-12)
+
+
+def test_straight_line_is_exact_when_speed_and_dt_change_together() -> None:
+    """0.2 m/s on 1 ms steps alternating with 0.6 m/s on 3 ms steps, 3.0 m in all: the seed's
+    trapezoid drifted 0.60 m here."""
+    odometry = Odometry(simple())
+    odometry.step(0, [0.0, 0.0])
+    time_ns, angle, travelled = 0, 0.0, 0.0
+    for k in range(2000):
+        slow = k % 2 == 0
+        dt_ns, speed = (1_000_000, 0.2) if slow else (3_000_000, 0.6)
+        time_ns += dt_ns
+        angle += speed * dt_ns / NS / 0.1
+        travelled += speed * dt_ns / NS
+        step = odometry.step(time_ns, [angle, angle])
+        assert step.branch is Branch.STRAIGHT
+    assert travelled == pytest.approx(2.0)
+    assert odometry.pose.x == pytest.approx(travelled, rel=1e-9)
+
+
+def test_a_fix_with_the_wheels_still_stays_where_it_was_put() -> None:
+    odometry = Odometry(simple())
+    odometry.step(0, [0.0, 0.0])
+    odometry.step(NS // 100, [0.1, 0.1])  # moving at 1 m/s just before the fix
+    odometry.reset(2.0, 3.0, 0.5)
+    for k in range(2, 12):
+        assert odometry.step(k * NS // 100, [0.1, 0.1]).pose == Pose(2.0, 3.0, 0.5)
 
 
 def test_straight_line_in_steady_motion_is_exact() -> None:
@@ -297,7 +345,7 @@ def test_rho_just_over_the_border_is_clamped_and_integrates_straight(sign: float
     step = step_with(simple(), 1e-6, rho=sign * 10000.0 * (1 + 1e-6))
     assert step.branch is Branch.RHO_BORDER
     assert step.rho == sign * 10000.0
-    assert step.dl == pytest.approx(step.v / 2 * step.dt, rel=1e-15)  # (V + V_old)/2 dt, V_old = 0
+    assert step.dl == pytest.approx(step.v * step.dt, rel=1e-12)  # the mean wheel travel
     assert step.theta == pytest.approx(step.dphi)  # the heading still turns
 
 
@@ -337,17 +385,17 @@ def test_localized_pose_must_be_finite() -> None:
 def test_restart_time_base_initialises_again_from_the_kept_pose() -> None:
     odometry = Odometry(simple())
     odometry.step(0, [0.0, 0.0])
-    odometry.step(NS, [2.0, 2.0])  # V = 0.2: x = 0.1 (trapezoid from rest)
-    odometry.step(2 * NS, [4.0, 4.0])  # x = 0.3, V_old = 0.2
+    odometry.step(NS, [2.0, 2.0])  # x = 0.2
+    odometry.step(2 * NS, [4.0, 4.0])  # x = 0.4
     with pytest.raises(BadInput, match="<= 0"):
         odometry.step(0, [0.0, 0.0])
     assert odometry.restart_time_base() is True
     assert not odometry.initialised and odometry.velocity == (0.0, 0.0)
     first = odometry.step(0, [50.0, -7.0])
-    assert first.branch is Branch.INITIAL and first.pose == pytest.approx((0.3, 0.0, 0.0))
-    # from rest again: V = 0.2, V_old = 0, so dl = 0.1 (not 0.2 as with the old V_old)
+    assert first.branch is Branch.INITIAL and first.pose == pytest.approx((0.4, 0.0, 0.0))
+    # the new angles are the new reference: 2 rad more on each wheel is 0.2 m
     step = odometry.step(NS, [52.0, -5.0])
-    assert step.dl == pytest.approx(0.1) and step.pose == pytest.approx((0.4, 0.0, 0.0))
+    assert step.dl == pytest.approx(0.2) and step.pose == pytest.approx((0.6, 0.0, 0.0))
 
 
 def test_restart_time_base_before_any_sample_changes_nothing() -> None:
