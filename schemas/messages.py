@@ -16,6 +16,16 @@ NANOSECONDS_PER_SECOND = 1_000_000_000
 Seconds = Annotated[int, msgspec.Meta(ge=0)]
 Nanoseconds = Annotated[int, msgspec.Meta(ge=0, lt=NANOSECONDS_PER_SECOND)]
 
+MAX_SEQUENCE_LENGTH = 32
+"""The most values a TimedDoubleSeq carries: a robot's joints (wheel angles, torques), the 12 of a
+body pose. Longer is bad input, refused while decoding: a 10^6-element array must not be
+decoded, checked and republished."""
+MAX_ID_LENGTH = 16
+"""The most entries of the IIS messages' ``id`` and ``error`` arrays (unused by the services)."""
+DoubleSeq = Annotated[list[float], msgspec.Meta(max_length=MAX_SEQUENCE_LENGTH)]
+Ids = Annotated[list[int], msgspec.Meta(max_length=MAX_ID_LENGTH)]
+Errors = Annotated[list[float], msgspec.Meta(max_length=MAX_ID_LENGTH)]
+
 
 def _require_finite(*values: float) -> None:
     for value in values:
@@ -49,7 +59,7 @@ class TimedDoubleSeq(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """RTC::TimedDoubleSeq."""
 
     tm: Time
-    data: list[float]
+    data: DoubleSeq
 
     def __post_init__(self) -> None:
         _require_finite(*self.data)
@@ -59,11 +69,11 @@ class TimedVelocity(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """IIS::TimedVelocity: target body velocity (vx, vy in m/s, w in rad/s)."""
 
     tm: Time
-    id: list[int]
+    id: Ids
     vx: float
     vy: float
     w: float
-    error: list[float]
+    error: Errors
 
     def __post_init__(self) -> None:
         _require_finite(self.vx, self.vy, self.w, *self.error)
@@ -73,11 +83,11 @@ class TimedPosition(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """IIS::TimedPosition: a planar pose (x, y in m, theta in rad)."""
 
     tm: Time
-    id: list[int]
+    id: Ids
     x: float
     y: float
     theta: float
-    error: list[float]
+    error: Errors
 
     def __post_init__(self) -> None:
         _require_finite(self.x, self.y, self.theta, *self.error)

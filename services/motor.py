@@ -70,10 +70,11 @@ class MotorService:
         self._sim_pose_gui = node.publisher(keys.motor_sim_pose_gui)
         self._sim_pose_localization = node.publisher(keys.motor_sim_pose_localization)
         # Channel inputs, wheel angles first: the thread waits on them and answers with the torque
-        # before it converts the body pose (targets and calls, posted events, come before both).
+        # before it converts the body pose, then takes the newest target (calls, posted events,
+        # come before all three). A flood of targets holds one sample and delays no wheel angle.
         node.subscribe(keys.sim_wheel_angles, TimedDoubleSeq, self._on_wheel_angles, channel=True)
         node.subscribe(keys.sim_body_pose, TimedDoubleSeq, self._on_body_pose, channel=True)
-        node.subscribe(keys.drive_target_velocity, TimedVelocity, self._on_target_velocity)
+        node.subscribe(keys.drive_target_velocity, TimedVelocity, self._on_target_velocity, newest_only=True)
         for family in MethodFamily:
             for method in Method:
                 node.queryable(keys.method(family, method), partial(self._call, family, method), mutates=True)

@@ -8,7 +8,8 @@ wait in zenoh channels (:class:`ChannelInput`); the service's thread takes both 
 one thread, never inside a zenoh callback (calling zenoh from there can deadlock).
 
 Bad input (SPEC section 8) never kills a service: the node drops it, logs one line naming the
-key and the reason (at most one line per key per second), and counts it in ``status``.
+key and the reason (at most one line per key per second), and counts it in ``status``. Every
+queue is bounded (:data:`CHANNEL_CAPACITY`, :data:`EVENT_CAPACITY`).
 """
 
 from __future__ import annotations
@@ -56,7 +57,8 @@ not); with both peers of a pair connecting at once, declarations were lost at st
 one start in six; hence peers connecting one way only, to the greater id, which cured it); and
 once, the whole loop stalled in puts and a declaration for minutes. A peer or router without
 these settings (zenohd's defaults) still talks to these, over the ordinary transport."""
-BAD_INPUT_LOG_INTERVAL_S = 1.0
+LOG_INTERVAL_S = 1.0
+"""At most one line per kind (bad input per key, internal errors per key, ...) per interval."""
 STOP_POLL_S = 0.1
 """Longest a service thread waits without looking at its stop event (SIGINT/SIGTERM)."""
 MessageT = TypeVar("MessageT", bound=msgspec.Struct)
@@ -112,12 +114,32 @@ def _listens_explicitly(config: zenoh.Config) -> bool:
     return isinstance(json.loads(config.get_json("listen/endpoints")), list)
 
 
+class RateLimitedLog:
+    """One log line per key per interval at most; the lines left out are counted and said with
+    the next. For anything a sender can make happen at will: bad input, internal errors, late
+    torques (at 1 kHz, a line per occurrence would fill the log)."""
+
+    def __init__(self, logger: logging.Logger, interval_s: float = LOG_INTERVAL_S) -> None:
+        self._logger = logger
+        self._interval_s = interval_s
+        self._last: dict[str, float] = {}
+        self._suppressed: dict[str, int] = {}
+
+    def __call__(self, key: str, level: int, message: str, *args: Any, exc_info: bool = False) -> None:
+        now = time.monotonic()
+        if now - self._last.get(key, -math.inf) < self._interval_s:
+            self._suppressed[key] = self._suppressed.get(key, 0) + 1
+            return
+        suppressed = self._suppressed.pop(key, 0)
+        more = f" ({suppressed} more since the last line)" if suppressed else ""
+        self._logger.log(level, message + more, *args, exc_info=exc_info)
+        self._last[key] = now
+
+
 @dataclass
 class _KeyErrors:
     count: int = 0
     last_reason: str = ""
-    last_logged: float = float("-inf")
-    suppressed: int = 0
 
 
 @dataclass
@@ -125,20 +147,17 @@ class BadInputCounter:
     """Counts bad input per key and logs at most one line per key per interval."""
 
     service: str
-    interval_s: float = BAD_INPUT_LOG_INTERVAL_S
     by_key: dict[str, _KeyErrors] = field(default_factory=dict)
+    _log: RateLimitedLog = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._log = RateLimitedLog(log.getChild(self.service))
 
     def record(self, key: str, reason: str) -> None:
         entry = self.by_key.setdefault(key, _KeyErrors())
         entry.count += 1
         entry.last_reason = reason
-        now = time.monotonic()
-        if now - entry.last_logged < self.interval_s:
-            entry.suppressed += 1
-            return
-        more = f" ({entry.suppressed} more since the last line)" if entry.suppressed else ""
-        log.getChild(self.service).warning("bad input on %s: %s; dropped%s", key, reason, more)
-        entry.last_logged, entry.suppressed = now, 0
+        self._log(key, logging.WARNING, "bad input on %s: %s; dropped", key, reason)
 
     @property
     def total(self) -> int:
@@ -217,8 +236,13 @@ class LatestSample(Generic[MessageT]):
 _SampledInput = tuple[LatestSample[Any], Callable[[Any], None]]
 
 
-CHANNEL_CAPACITY = 65536
-"""Samples a channel input holds before zenoh's receiving thread waits for the service thread."""
+CHANNEL_CAPACITY = 256
+"""Samples a channel input holds; when full, the oldest is dropped (zenoh's ring channel), so a
+flood bounds the memory it takes and never blocks zenoh's receiving thread. Lockstep has one
+sample in flight; in realtime a sample 256 steps old is useless anyway."""
+EVENT_CAPACITY = 4096
+"""Posted events (queries, callback samples, liveliness changes) an executor holds; beyond, a
+new one is dropped and counted (a query dropped so is finalized with no reply)."""
 WAKE_PERIOD_S = 0.01
 """How often a service thread blocked in a channel receive is checked: woken once its wait is
 over or an event waits (zenoh's receive has no timeout). Waits shorter than this are timed waits."""
@@ -232,7 +256,7 @@ def _is_wake(sample: zenoh.Sample) -> bool:
 
 
 class ChannelInput:
-    """A subscription whose samples wait in a zenoh FIFO channel until the service thread takes them.
+    """A subscription whose samples wait in a zenoh ring channel until the service thread takes them.
 
     No Python runs in zenoh's thread and no thread switch happens on the way: the service thread,
     idle, waits in the channel's receive itself, where a callback would hand each sample over
@@ -241,11 +265,13 @@ class ChannelInput:
     samples of any other wait until the thread next wakes.
     """
 
-    def __init__(self, session: zenoh.Session, key: str, dispatch: Callable[[bytes], None]) -> None:
+    def __init__(
+        self, session: zenoh.Session, key: str, dispatch: Callable[[bytes], None], capacity: int = CHANNEL_CAPACITY
+    ) -> None:
         self.key = key
         self._session = session
         self._dispatch = dispatch
-        self._subscriber = session.declare_subscriber(key, zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+        self._subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
 
     def take(self) -> bool:
         """Handle the next waiting sample, if any; True if one was handled."""
@@ -289,6 +315,8 @@ class Executor:
 
     def __init__(self) -> None:
         self._events: collections.deque[tuple[Callable[[Any], None], Any]] = collections.deque()
+        self.dropped_events = 0
+        """Events not queued because :data:`EVENT_CAPACITY` were waiting."""
         self._posted = threading.Lock()
         """Held while the thread has seen every event; a post releases it to wake the thread."""
         self._posted.acquire()
@@ -304,7 +332,11 @@ class Executor:
         self._waker_stop = threading.Event()
 
     def post(self, handle: Callable[[Any], None], item: Any) -> None:
-        """Queue ``handle(item)``; thread-safe, and cheap enough for a zenoh callback."""
+        """Queue ``handle(item)``; thread-safe, and cheap enough for a zenoh callback. Dropped
+        (and counted) when :data:`EVENT_CAPACITY` events wait already."""
+        if len(self._events) >= EVENT_CAPACITY:
+            self.dropped_events += 1
+            return
         self._events.append((handle, item))
         try:
             self._posted.release()
@@ -431,6 +463,7 @@ class Node:
         self.log = log.getChild(str(service))
         self.bad_inputs = BadInputCounter(str(service))
         self.internal_errors = 0
+        self._internal_error_log = RateLimitedLog(self.log)
         self._status = status
         self.executor = executor or Executor()
         self._declarations: list[Any] = []
@@ -452,30 +485,41 @@ class Node:
             **self._status(),
             "bad_input": self.bad_inputs.as_dict(),
             "internal_errors": self.internal_errors,
+            "dropped_events": self.executor.dropped_events,
         }
 
     def subscribe(
-        self, key: str, message_type: type[MessageT], handler: Callable[[MessageT], None], *, channel: bool = False
+        self,
+        key: str,
+        message_type: type[MessageT],
+        handler: Callable[[MessageT], None],
+        *,
+        channel: bool = False,
+        newest_only: bool = False,
     ) -> None:
         """Call ``handler(message)`` on the service thread for every sample of ``key`` that decodes.
 
         ``channel=True`` for the inputs that pace the service (the simulator's torque, the motor's
-        wheel angles): see :class:`ChannelInput`.
+        wheel angles): see :class:`ChannelInput`. ``newest_only=True`` for a command whose newest
+        value is all that counts (the motor's target): a channel input of one sample, taken after
+        the channel inputs declared before it, so a flood of it holds one sample and delays none.
         """
 
         def on_payload(payload: bytes) -> None:
             handler(decode(message_type, payload))
 
-        self.subscribe_raw(key, on_payload, channel=channel)
+        self.subscribe_raw(key, on_payload, channel=channel, newest_only=newest_only)
 
-    def subscribe_raw(self, key: str, handler: Callable[[bytes], None], *, channel: bool = False) -> None:
+    def subscribe_raw(
+        self, key: str, handler: Callable[[bytes], None], *, channel: bool = False, newest_only: bool = False
+    ) -> None:
         """Call ``handler(payload)`` on the service thread; it may raise BadInput."""
 
         def dispatch(payload: bytes) -> None:
             self._guard(key, handler, payload)
 
-        if channel:
-            channel_input = ChannelInput(self.session, key, dispatch)
+        if channel or newest_only:
+            channel_input = ChannelInput(self.session, key, dispatch, 1 if newest_only else CHANNEL_CAPACITY)
             self.executor.add_input(channel_input)
             self._inputs.append(channel_input)
             return
@@ -583,7 +627,7 @@ class Node:
 
     def _internal_error(self, key: str, error: Exception) -> None:
         self.internal_errors += 1
-        self.log.exception("internal error handling %s: %s", key, error)
+        self._internal_error_log(key, logging.ERROR, "internal error handling %s: %s", key, error, exc_info=True)
 
     def close(self) -> None:
         """Withdraw the liveliness token and undeclare everything (the session stays open)."""

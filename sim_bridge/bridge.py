@@ -25,6 +25,7 @@ When the robot begins touching an obstacle it publishes ``sim/bump`` and calls
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import threading
 import time
@@ -38,7 +39,7 @@ from schemas.codec import BadInput, encode
 from schemas.keys import Method, MethodFamily, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, NoArguments, Time, TimedDoubleSeq
 from services.config import Config, SimConfig, SimMode
-from services.runtime import STOP_POLL_S, Node
+from services.runtime import STOP_POLL_S, Node, RateLimitedLog
 from services.service import ServiceCommand, positive_seconds
 from sim_bridge.latency import TorqueLatency
 from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, read_world, resolve_world
@@ -51,27 +52,9 @@ MOTOR_QUERY_TIMEOUT_S = 1.0
 """Upper bound on the start-up liveliness query for a motor control (the router answers at once)."""
 BUMP_STOP_TIMEOUT_S = 1.0
 """How long a ``motor/bump/stop`` call stays open for its reply."""
-WARNING_INTERVAL_S = 1.0
-"""At most one warning line per kind per interval."""
 MAX_REALTIME_LAG_S = 0.1
 """Realtime mode: a loop this far behind the wall clock restarts its schedule instead of bursting."""
 _BUMP_STOP_PAYLOAD = encode(NoArguments())
-
-
-class _RateLimitedWarning:
-    def __init__(self, node: Node) -> None:
-        self._log = node.log
-        self._last = float("-inf")
-        self._suppressed = 0
-
-    def __call__(self, message: str, *args: Any) -> None:
-        now = time.monotonic()
-        if now - self._last < WARNING_INTERVAL_S:
-            self._suppressed += 1
-            return
-        more = f" ({self._suppressed} more since the last line)" if self._suppressed else ""
-        self._log.warning(message + more, *args)
-        self._last, self._suppressed = now, 0
 
 
 COUNTERS = (
@@ -107,8 +90,10 @@ class SimService:
         self._answered = False
         self._newest_torque: list[float] | None = None
         self._newest_ns = -1
+        self._published_ns = -1
+        """The stamp of the latest step published: no torque can answer a later one."""
         self._max_age_ns = round(config.sim.torque_max_age * NANOSECONDS_PER_SECOND)
-        self._warn_late = _RateLimitedWarning(node)
+        self._warn = RateLimitedLog(node.log)
         # Imported here, not at the top: every `invent` command imports this module for its flags,
         # and importing PyBullet prints its build banner.
         from sim_bridge.simulator import Simulator
@@ -199,6 +184,11 @@ class SimService:
                 return
             self.sim.set_torques(torque.data)
             self._answered = True
+        elif tm_ns > self._published_ns:
+            raise BadInput(
+                f"torque stamped t = {tm_ns / NANOSECONDS_PER_SECOND:.6f} s, after the latest step "
+                f"(t = {self._published_ns / NANOSECONDS_PER_SECOND:.6f} s): from the future"
+            )
         elif tm_ns > self._newest_ns:
             self._newest_torque, self._newest_ns = torque.data, tm_ns
 
@@ -214,6 +204,7 @@ class SimService:
         # Wheel angles first: they trigger the motor's torque, which the next step waits for.
         angles = TimedDoubleSeq(tm=tm, data=sim.wheel_angles())
         self.latency.published(tm_ns, time.perf_counter_ns())
+        self._published_ns = tm_ns
         self._angles_publisher.put(angles)
         self._pose_publisher.put(TimedDoubleSeq(tm=tm, data=sim.body_pose()))
         return tm_ns
@@ -266,7 +257,9 @@ class SimService:
 
     def _late(self, tm_ns: int) -> None:
         self.counters["late_torques"] += 1
-        self._warn_late(
+        self._warn(
+            "late_torque",
+            logging.WARNING,
             "no motor/torque for t = %.3f s within %.3f s: zero torque",
             tm_ns / NANOSECONDS_PER_SECOND,
             self.parameters.lockstep_timeout,
@@ -285,7 +278,7 @@ class SimService:
         if self._newest_ns != tm_ns:
             self.counters["realtime_late_steps"] += 1
         newest = self._newest_torque
-        if newest is not None and tm_ns - self._newest_ns <= self._max_age_ns:
+        if newest is not None and 0 <= tm_ns - self._newest_ns <= self._max_age_ns:
             self.sim.set_torques(newest)
             self.counters["torques_applied"] += 1
         else:

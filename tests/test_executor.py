@@ -1,13 +1,22 @@
 """The executor's waits and channel inputs (order, wake-ups), and the opt-in low-latency transport."""
 
 import json
+import logging
 import threading
 import time
 
 import pytest
 
 from schemas import Keys, Service, Time, TimedDoubleSeq, encode
-from services.runtime import LOW_LATENCY_VARIABLE, Executor, Node, session_config
+from services.runtime import (
+    CHANNEL_CAPACITY,
+    EVENT_CAPACITY,
+    LOW_LATENCY_VARIABLE,
+    Executor,
+    Node,
+    RateLimitedLog,
+    session_config,
+)
 from tests.harness import Collector, open_peer, wait_until
 
 KEYS = Keys("rh0")
@@ -168,12 +177,17 @@ def test_a_sampled_input_hands_over_only_the_newest_sample_and_an_idle_executor_
 def test_a_busy_executor_still_looks_at_its_sampled_inputs(session, node):
     """A shared executor (``invent up --composed``) never runs dry: samples keep coming."""
     order = []
-    backlog = 20_000
+    backlog = CHANNEL_CAPACITY
+    work_s = 50e-6
+    """Per channel sample: the backlog takes ten times the sampling poll to work off."""
 
     def on_channel(_message: TimedDoubleSeq) -> None:
         order.append("channel")
         if len(order) == 10:
             session.put(KEYS.sim_wheel_angles, _sample(0))
+        busy_until = time.perf_counter() + work_s
+        while time.perf_counter() < busy_until:
+            pass
 
     node.subscribe(KEYS.motor_wheel_angles, TimedDoubleSeq, on_channel, channel=True)
     node.sample(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda _m: order.append("sampled"))
@@ -183,3 +197,51 @@ def test_a_busy_executor_still_looks_at_its_sampled_inputs(session, node):
         pass
     assert order.count("channel") == backlog and order.count("sampled") == 1
     assert order.index("sampled") < backlog, "handled while the channel still had samples waiting"
+
+
+def test_a_flooded_channel_input_keeps_only_its_newest_samples(session, node):
+    handled = []
+    node.subscribe(KEYS.motor_wheel_angles, TimedDoubleSeq, handled.append, channel=True)
+    flood = 3 * CHANNEL_CAPACITY
+    for index in range(flood):
+        session.put(KEYS.motor_wheel_angles, _sample(index))
+    while node.spin_once(0):
+        pass
+    assert [m.tm.nsec for m in handled] == list(range(flood - CHANNEL_CAPACITY, flood))
+
+
+def test_a_newest_only_input_holds_one_sample_and_comes_after_the_channel_inputs(session, node):
+    order = []
+    node.subscribe(KEYS.motor_wheel_angles, TimedDoubleSeq, lambda m: order.append(("angles", m.tm.nsec)), channel=True)
+    node.subscribe(KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: order.append(("target", m.tm.nsec)), newest_only=True)
+    for index in range(1000):
+        session.put(KEYS.drive_target_velocity, _sample(index))
+    session.put(KEYS.motor_wheel_angles, _sample(7))
+    while node.spin_once(0):
+        pass
+    assert order == [("angles", 7), ("target", 999)]
+
+
+def test_the_event_queue_is_bounded_and_counts_what_it_drops():
+    executor = Executor()
+    handled = []
+    for index in range(EVENT_CAPACITY + 10):
+        executor.post(handled.append, index)
+    while executor.spin_once(0):
+        pass
+    assert handled == list(range(EVENT_CAPACITY))
+    assert executor.dropped_events == 10
+
+
+def test_rate_limited_log_says_one_line_per_key_per_interval_and_counts_the_rest(caplog):
+    logger = logging.getLogger("invent.test-rate-limited")
+    limited = RateLimitedLog(logger, interval_s=3600.0)
+    with caplog.at_level(logging.WARNING, logger=logger.name):
+        for _ in range(1000):
+            limited("a", logging.WARNING, "key %s", "a")
+        limited("b", logging.WARNING, "key %s", "b")
+    assert [record.getMessage() for record in caplog.records] == ["key a", "key b"]
+    limited._last["a"] = float("-inf")  # the interval is over
+    with caplog.at_level(logging.WARNING, logger=logger.name):
+        limited("a", logging.WARNING, "key %s", "a")
+    assert caplog.records[-1].getMessage() == "key a (999 more since the last line)"
