@@ -79,13 +79,14 @@ class MotorConfig(_Section):
     """Seconds of wheel-angle time without a target velocity before braking to zero; 0 disables."""
     target_angle: TargetAngleMode = "seed"
     """How the target wheel angle is formed (see TargetAngleMode)."""
-    max_vx: Positive | None = None
-    """Limit on |vx| in m/s; None (default) = no limit, the seed's behaviour."""
-    max_ax: Positive | None = None
-    """Limit on the rate of change of vx in m/s^2."""
-    max_w: Positive | None = None
+    max_vx: Positive | None = 1.0
+    """Limit on |vx| in m/s (as ros2's diff_drive_controller users expect); None = no limit, the
+    seed's behaviour. The defaults fit the default robot and sit above what the drive commands."""
+    max_ax: Positive | None = 2.0
+    """Limit on the rate of change of vx in m/s^2 (a step in wheel speed slips: docs/motor.md)."""
+    max_w: Positive | None = 3.0
     """Limit on |w| in rad/s."""
-    max_aw: Positive | None = None
+    max_aw: Positive | None = 8.0
     """Limit on the rate of change of w in rad/s^2."""
 
 
@@ -189,6 +190,23 @@ class DriveConfig(_Section):
     the drive then commands zero until a fresh one arrives."""
 
 
+class InputConfig(_Section):
+    """What every service accepts as plausible input (docs/input.md). Outside these bounds a
+    well-formed sample is bad input: dropped, counted, and its stamp never moves a time base."""
+
+    stamp_horizon: Positive = 1.0
+    """Simulated seconds a stamp may run ahead of the time base it is checked against (the
+    previous sample of the same stream, or the wheel-angle time for targets and fixes)."""
+    max_wheel_speed: Positive = 50.0
+    """rad/s: a wheel-angle step, or a target velocity, implying a faster wheel is implausible
+    (the default robot's top speed, 1 m/s at the motor's default limits, is 10 rad/s)."""
+    max_gain: Positive = 1000.0
+    """Ceiling on each PD gain, from the configuration or set_pd_gain."""
+    max_coordinate: Positive = 10_000.0
+    """m: a pose (localization fix, odometry pose, simulated pose) further than this from the
+    origin on either axis is implausible."""
+
+
 class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     robot: RobotConfig = msgspec.field(default_factory=RobotConfig)
     motor: MotorConfig = msgspec.field(default_factory=MotorConfig)
@@ -196,6 +214,13 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     sim: SimConfig = msgspec.field(default_factory=SimConfig)
     localization: LocalizationConfig = msgspec.field(default_factory=LocalizationConfig)
     drive: DriveConfig = msgspec.field(default_factory=DriveConfig)
+    input: InputConfig = msgspec.field(default_factory=InputConfig)
+
+    def __post_init__(self) -> None:
+        motor, ceiling = self.motor, self.input.max_gain
+        for name in ("p_gain_l", "p_gain_r", "d_gain_l", "d_gain_r"):
+            if getattr(motor, name) > ceiling:
+                raise ValueError(f"`motor.{name}` = {getattr(motor, name)} is above `input.max_gain` = {ceiling}")
 
 
 SEED_NAMES: dict[str, str] = {

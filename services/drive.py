@@ -26,7 +26,7 @@ from schemas.keys import Service
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
 from services.config import Config, ConfigError, DriveConfig
 from services.path_following import FollowerParams
-from services.planar import Pose
+from services.planar import Pose, check_coordinates
 from services.runtime import Node
 from services.scenarios import (
     BUILTIN_SCENARIOS,
@@ -107,7 +107,8 @@ class DriveService:
         self.pose_timeout_ns = round(config.drive.pose_timeout * NANOSECONDS_PER_SECOND)
         self.mode, scenario = scenario_from_args(args)
         self.runner = ScenarioRunner(scenario, FollowerParams.from_config(config.drive), loop=args.loop)
-        self.clock = StampClock()
+        self.clock = StampClock(round(config.input.stamp_horizon * NANOSECONDS_PER_SECOND))
+        self.max_coordinate = config.input.max_coordinate
         self.schedule: PeriodicSchedule | None = None
         self.pose: Pose | None = None
         self.pose_stamp_ns: int | None = None
@@ -134,6 +135,7 @@ class DriveService:
         return "waiting_for_pose" if self.runner.waiting_for_pose else "running"
 
     def _on_pose(self, message: TimedPosition) -> None:
+        check_coordinates(message.x, message.y, self.max_coordinate)
         self.pose = Pose(message.x, message.y, message.theta)
         self.pose_stamp_ns = message.tm.to_nanoseconds()
 

@@ -74,15 +74,19 @@ class LocalizationService:
         self.node = node
         self.config = config.localization
         self.seed = resolve_seed(self.config.seed)
-        self.localizer = Localizer.from_config(self.config, self.seed)
+        # Started while a simulator runs (a restart of this service, not of the loop): the first
+        # fix is the simulated pose, not the initial pose, which would send odometry back there.
+        sim_running = node.alive_now(Service.SIM)
+        self.localizer = Localizer.from_config(config, self.seed, from_sim_pose=sim_running)
         self.sim_alive = False
         self.publisher = node.publisher(node.keys.localization_pose)
         node.sample(node.keys.motor_sim_pose_localization, TimedDoubleSeq, self._on_sim_pose)
         node.watch(Service.SIM, self._on_sim_liveliness)
         node.set_status(self.status)
         node.log.info(
-            "fixes at %g Hz of simulation time, noise σ = (%g m, %g m, %g rad), seed %d",
+            "fixes at %g Hz of simulation time, noise σ = (%g m, %g m, %g rad), seed %d; first fix: %s",
             self.config.rate, self.config.noise_x, self.config.noise_y, self.config.noise_theta, self.seed,
+            "the simulated pose (a simulator is running)" if sim_running else "the initial pose",
         )
 
     def _on_sim_liveliness(self, alive: bool) -> None:
@@ -122,6 +126,7 @@ class LocalizationService:
             "seed": self.seed,
             "seed_from_config": self.config.seed is not None,
             "initial_pose": self.localizer.initial._asdict(),
+            "first_fix_from_sim_pose": self.localizer.from_sim_pose,
         }
 
     def run(self, stop: threading.Event) -> int:

@@ -3,7 +3,10 @@
 A :class:`Localizer` turns the stream of simulated poses (``motor/sim_pose/localization``:
 x, y, z, θ stamped with simulation time) into localized fixes:
 
-- the first sample publishes the configured initial pose, stamped with that sample's time t0;
+- the first sample publishes the configured initial pose, stamped with that sample's time t0
+  (or, for a localization started while the simulator was already running, ``from_sim_pose``:
+  that sample's simulated pose, with noise: a restarted localization must not send odometry
+  back to the initial pose);
 - then one fix at every tick t0 + k/rate (k = 1, 2, ...) of simulation time, taken by the first
   sample at or after the tick: that sample's pose plus Gaussian noise, independent per axis
   (σx, σy, σθ), θ wrapped into (−π, π].
@@ -27,8 +30,9 @@ import numpy as np
 
 from schemas.codec import BadInput
 from schemas.keys import SIM_POSE_LENGTH
-from services.config import LocalizationConfig
-from services.planar import Pose, wrap_angle
+from schemas.messages import NANOSECONDS_PER_SECOND
+from services.config import Config, InputConfig
+from services.planar import Pose, check_coordinates, wrap_angle
 from services.sim_time import PeriodicSchedule, StampClock
 
 SEED_BITS = 63
@@ -65,13 +69,23 @@ def resolve_seed(seed: int | None) -> int:
 class Localizer:
     """Fix schedule and noise; feed it every simulated pose with :meth:`on_sim_pose`."""
 
-    def __init__(self, initial: Pose, rate_hz: float, noise: Noise, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        initial: Pose,
+        rate_hz: float,
+        noise: Noise,
+        rng: np.random.Generator,
+        limits: InputConfig = InputConfig(),
+        from_sim_pose: bool = False,
+    ) -> None:
         self.initial = Pose(initial.x, initial.y, wrap_angle(initial.theta))
         self.rate_hz = rate_hz
         self.noise = noise
+        self.from_sim_pose = from_sim_pose
         self._sigmas = (noise.x, noise.y, noise.theta)
         self._rng = rng
-        self._clock = StampClock()
+        self._max_coordinate = limits.max_coordinate
+        self._clock = StampClock(round(limits.stamp_horizon * NANOSECONDS_PER_SECOND))
         self._schedule: PeriodicSchedule | None = None
         self.fixes = 0
         self.last_fix: Fix | None = None
@@ -83,12 +97,15 @@ class Localizer:
         return self._schedule is not None
 
     @classmethod
-    def from_config(cls, config: LocalizationConfig, seed: int) -> Localizer:
+    def from_config(cls, config: Config, seed: int, from_sim_pose: bool = False) -> Localizer:
+        localization = config.localization
         return cls(
-            Pose(config.initial_x, config.initial_y, config.initial_theta),
-            config.rate,
-            Noise(config.noise_x, config.noise_y, config.noise_theta),
+            Pose(localization.initial_x, localization.initial_y, localization.initial_theta),
+            localization.rate,
+            Noise(localization.noise_x, localization.noise_y, localization.noise_theta),
             np.random.default_rng(seed),
+            config.input,
+            from_sim_pose,
         )
 
     @property
@@ -109,8 +126,9 @@ class Localizer:
         """
         if len(data) != SIM_POSE_LENGTH:
             raise BadInput(f"expected {SIM_POSE_LENGTH} values (x, y, z, theta), got {len(data)}")
-        restarted = self._clock.advance(stamp_ns)
         x, y, _z, theta = data
+        check_coordinates(x, y, self._max_coordinate)
+        restarted = self._clock.advance(stamp_ns)
         self.last_sim_pose = Pose(x, y, theta)
         if self._schedule is None:
             if not may_start:
@@ -120,7 +138,7 @@ class Localizer:
             self._schedule = PeriodicSchedule(self.rate_hz, stamp_ns)
         if not self._schedule.due(stamp_ns):
             return None
-        if self.fixes == 0:
+        if self.fixes == 0 and not self.from_sim_pose:
             fix = Fix(stamp_ns, self.initial, initial=True)
         else:
             fix = Fix(stamp_ns, self._noisy(self.last_sim_pose), initial=False)

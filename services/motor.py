@@ -58,7 +58,7 @@ class MotorService:
 
     def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
         self.node = node
-        self.core = MotorCore(config.robot, config.motor)
+        self.core = MotorCore(config.robot, config.motor, config.input)
         self.torques_published = 0
         self.sim_alive = False
         self._timeouts_logged = 0
@@ -142,7 +142,7 @@ class MotorService:
         self._sim_pose_localization.put(sim_pose)
 
     def _on_target_velocity(self, velocity: TimedVelocity) -> None:
-        if not self.core.set_target(velocity.vx, velocity.w):
+        if not self.core.set_target(velocity.vx, velocity.w, velocity.tm.to_nanoseconds()):
             self.node.log.debug("stopped: target velocity ignored until clear")
 
     def _call(self, family: MethodFamily, method: Method, payload: bytes) -> dict[str, Any]:

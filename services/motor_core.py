@@ -19,11 +19,14 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
+import msgspec
+
 from schemas.codec import BadInput
 from schemas.keys import BODY_POSE_LENGTH
 from schemas.messages import NANOSECONDS_PER_SECOND, PDGains
-from services.config import MotorConfig, RobotConfig, TargetAngleMode
+from services.config import InputConfig, MotorConfig, RobotConfig, TargetAngleMode
 from services.planar import wrap_angle
+from services.sim_time import check_next_stamp, check_stamp_near
 
 SEED, INTEGRATED = typing.get_args(TargetAngleMode)
 """The two ``motor.target_angle`` modes."""
@@ -106,9 +109,14 @@ class MotorCore:
     cycle (None where the cycle computed no such value) for tracing.
     """
 
-    def __init__(self, robot: RobotConfig, motor: MotorConfig) -> None:
+    def __init__(self, robot: RobotConfig, motor: MotorConfig, limits: InputConfig = InputConfig()) -> None:
         self.robot = robot
         self.motor = motor
+        self.limits = limits
+        self._horizon_ns = round(limits.stamp_horizon * NANOSECONDS_PER_SECOND)
+        # A target older than the command timeout would be timed out anyway.
+        self._target_history_ns = round((motor.command_timeout or limits.stamp_horizon) * NANOSECONDS_PER_SECOND)
+        self._max_wheel_speed = limits.max_wheel_speed
         self.gains = PDGains(motor.p_gain_l, motor.p_gain_r, motor.d_gain_l, motor.d_gain_r)
         self._pose = SimPoseConverter.from_config(motor)
         self.vx_limiter = SpeedLimiter(motor.max_vx, motor.max_ax)
@@ -144,6 +152,8 @@ class MotorCore:
         self.targets_ignored = 0
         self.command_timeouts = 0
         self.time_base_restarts = 0
+        self.nonfinite_torques = 0
+        """Cycles whose torque came out non-finite: zero torque was sent instead."""
 
         self.cycle_state = MotorState.IDLE
         self.dq: tuple[float, float] | None = None
@@ -183,13 +193,15 @@ class MotorCore:
             self._accept(stamp_ns, q_l, q_r)
             self.dq = self.dq_ref = self.q_ref = None
             return torques
-        if stamp_ns <= previous:
-            raise BadInput(f"dt = {(stamp_ns - previous) / NANOSECONDS_PER_SECOND:g} s <= 0")
+        check_next_stamp(stamp_ns, previous, self._horizon_ns)
         dt = (stamp_ns - previous) / NANOSECONDS_PER_SECOND
         old_l, old_r = self.q
         dq_l, dq_r = (q_l - old_l) / dt, (q_r - old_r) / dt
-        if not (math.isfinite(dq_l) and math.isfinite(dq_r)):
-            raise BadInput(f"wheel speed overflows (angles {q_l}, {q_r} after {old_l}, {old_r} in {dt:g} s)")
+        if not (abs(dq_l) <= self._max_wheel_speed and abs(dq_r) <= self._max_wheel_speed):
+            raise BadInput(
+                f"wheel speeds ({dq_l:g}, {dq_r:g}) rad/s (angles {q_l:g}, {q_r:g} after {old_l:g}, {old_r:g} "
+                f"in {dt:g} s) beyond input.max_wheel_speed = {self._max_wheel_speed:g} rad/s"
+            )
         state = self.state
         self.cycle_state = state
         self._accept(stamp_ns, q_l, q_r)
@@ -217,8 +229,13 @@ class MotorCore:
         self.q_ref = (q_ref_l, q_ref_r)
 
         gains = self.gains
-        torques[self._left] = gains.p_gain_l * (q_ref_l - q_l) + gains.d_gain_l * (dq_ref_l - dq_l)
-        torques[self._right] = gains.p_gain_r * (q_ref_r - q_r) + gains.d_gain_r * (dq_ref_r - dq_r)
+        torque_l = gains.p_gain_l * (q_ref_l - q_l) + gains.d_gain_l * (dq_ref_l - dq_l)
+        torque_r = gains.p_gain_r * (q_ref_r - q_r) + gains.d_gain_r * (dq_ref_r - dq_r)
+        if not (math.isfinite(torque_l) and math.isfinite(torque_r)):
+            # Unreachable with the input bounds; never publish one all the same.
+            self.nonfinite_torques += 1
+            return torques
+        torques[self._left], torques[self._right] = torque_l, torque_r
         return torques
 
     def restart_time_base(self) -> bool:
@@ -271,8 +288,24 @@ class MotorCore:
         self.command = (vx, w)
         return self.command
 
-    def set_target(self, vx: float, w: float) -> bool:
-        """Accept a target body velocity; False (ignored, counted) while stopped."""
+    def set_target(self, vx: float, w: float, stamp_ns: int | None = None) -> bool:
+        """Accept a target body velocity; False (ignored, counted) while stopped.
+
+        Raises BadInput (nothing changes) for a velocity implying a wheel speed beyond
+        ``input.max_wheel_speed`` (one within it but beyond the velocity limits is accepted: the
+        limits clamp it), or for a ``stamp_ns`` beyond the horizon or older than the command
+        timeout against the wheel-angle time, once there is one (the service always passes the
+        message's stamp; None is for callers with no clock of their own).
+        """
+        if stamp_ns is not None and self._stamp_ns is not None:
+            check_stamp_near(stamp_ns, self._stamp_ns, self._horizon_ns, self._target_history_ns, "target")
+        b = self._half_axle
+        wheel_speeds = ((vx - b * w) / self._radius_l, (vx + b * w) / self._radius_r)
+        if not all(abs(speed) <= self._max_wheel_speed for speed in wheel_speeds):
+            raise BadInput(
+                f"target (vx {vx:g} m/s, w {w:g} rad/s) implies wheel speeds {wheel_speeds[0]:g}, "
+                f"{wheel_speeds[1]:g} rad/s, beyond input.max_wheel_speed = {self._max_wheel_speed:g} rad/s"
+            )
         if self._stopped:
             self.targets_ignored += 1
             return False
@@ -290,7 +323,12 @@ class MotorCore:
         return pose
 
     def set_pd_gain(self, gains: PDGains) -> None:
-        """All four gains, used from the next :meth:`step` on."""
+        """All four gains, used from the next :meth:`step` on; BadInput (nothing changes) for a gain
+        above ``input.max_gain``."""
+        ceiling = self.limits.max_gain
+        above = {name: value for name, value in msgspec.structs.asdict(gains).items() if value > ceiling}
+        if above:
+            raise BadInput(f"gains {above} above input.max_gain = {ceiling:g}")
         self.gains = gains
 
     def start(self) -> None:
@@ -352,6 +390,7 @@ class MotorCore:
             "command": {"vx": self.command[0], "w": self.command[1]},
             "command_timed_out": self._timed_out,
             "counters": {
+                "nonfinite_torques": self.nonfinite_torques,
                 "wheel_angle_samples": self.wheel_angle_samples,
                 "body_pose_samples": self.body_pose_samples,
                 "target_velocity_samples": self.target_velocity_samples,

@@ -34,7 +34,7 @@ class OdometryService:
 
     def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
         self.node = node
-        self.odometry = Odometry(OdometryParameters.from_config(config))
+        self.odometry = Odometry(OdometryParameters.from_config(config), limits=config.input)
         self.samples = 0
         self.localization_resets = 0
         self.time_base_restarts = 0

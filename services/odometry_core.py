@@ -39,12 +39,13 @@ from enum import StrEnum
 from typing import NamedTuple
 
 from schemas.codec import BadInput
-from services.config import Config, StraightStep
-from services.planar import Pose, wrap_angle
+from schemas.messages import NANOSECONDS_PER_SECOND
+from services.config import Config, InputConfig, StraightStep
+from services.planar import Pose, check_coordinates, wrap_angle
+from services.sim_time import check_next_stamp, check_stamp_near
 
 __all__ = ["Branch", "Odometry", "OdometryParameters", "Pose", "Step", "wrap_angle"]
 
-NANOSECONDS_PER_SECOND = 1e9
 
 
 class Branch(StrEnum):
@@ -170,10 +171,18 @@ class Odometry:
         "_theta",
         "_history",
         "_pending_fix",
+        "_horizon_ns",
+        "_max_wheel_speed",
+        "_max_coordinate",
     )
 
-    def __init__(self, parameters: OdometryParameters, start: Pose = Pose(0.0, 0.0, 0.0)) -> None:
+    def __init__(
+        self, parameters: OdometryParameters, start: Pose = Pose(0.0, 0.0, 0.0), limits: InputConfig = InputConfig()
+    ) -> None:
         self.parameters = parameters
+        self._horizon_ns = round(limits.stamp_horizon * NANOSECONDS_PER_SECOND)
+        self._max_wheel_speed = limits.max_wheel_speed
+        self._max_coordinate = limits.max_coordinate
         self._left_id = parameters.left_wheel_id
         self._right_id = parameters.right_wheel_id
         self._needed = parameters.wheel_angles_needed
@@ -206,9 +215,11 @@ class Odometry:
         return self._v, self._omega
 
     def reset(self, x: float, y: float, theta: float) -> Pose:
-        """Overwrite the pose with a localized one (θ wrapped); the next step starts from it."""
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
+        """Overwrite the pose with a localized one (θ wrapped); the next step starts from it.
+        BadInput for a pose that is not finite or beyond ``input.max_coordinate``."""
+        if not math.isfinite(theta):
             raise BadInput(f"pose ({x}, {y}, {theta}) is not finite")
+        check_coordinates(x, y, self._max_coordinate)
         self._x, self._y, self._theta = x, y, wrap_angle(theta)
         return self.pose
 
@@ -220,18 +231,22 @@ class Odometry:
         or before odometry has reached it. A past fix keeps the motion integrated since its stamp
         on top of it (overwriting would throw that motion away: the pose would jump back by
         speed × delay); a future fix waits and overwrites the pose when a sample reaches its time.
-        A fix older than the history (:data:`FIX_HISTORY_STEPS` samples) is a plain overwrite.
+
+        BadInput (nothing changes) for a fix older than the history (:data:`FIX_HISTORY_STEPS`
+        samples: applying it "now" would be wrong by all the motion since), further ahead than
+        the stamp horizon, or not plausible (:meth:`reset`).
         """
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
+        if not math.isfinite(theta):
             raise BadInput(f"pose ({x}, {y}, {theta}) is not finite")
+        check_coordinates(x, y, self._max_coordinate)
         if self._time_ns is None or stamp_ns == self._time_ns:
             return self.reset(x, y, theta)
+        oldest_ns = self._history[0][0]
+        check_stamp_near(stamp_ns, self._time_ns, self._horizon_ns, self._time_ns - oldest_ns, "fix")
         if stamp_ns > self._time_ns:
             self._pending_fix = (stamp_ns, x, y, theta)
             return self.pose
-        base = next((entry for entry in reversed(self._history) if entry[0] <= stamp_ns), None)
-        if base is None:
-            return self.reset(x, y, theta)
+        base = next(entry for entry in reversed(self._history) if entry[0] <= stamp_ns)
         _t, base_x, base_y, base_theta = base
         cos_base, sin_base = math.cos(base_theta), math.sin(base_theta)
         dx, dy = self._x - base_x, self._y - base_y
@@ -282,10 +297,14 @@ class Odometry:
             return Step(
                 Branch.INITIAL, q_left, q_right, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, None, 0.0, self._x, self._y, self._theta
             )
-        elapsed_ns = time_ns - self._time_ns
-        if elapsed_ns <= 0:
-            raise BadInput(f"dt = {elapsed_ns / NANOSECONDS_PER_SECOND} s <= 0")
-        dt = elapsed_ns / NANOSECONDS_PER_SECOND
+        check_next_stamp(time_ns, self._time_ns, self._horizon_ns)
+        dt = (time_ns - self._time_ns) / NANOSECONDS_PER_SECOND
+        rate_left, rate_right = (q_left - self._q_left) / dt, (q_right - self._q_right) / dt
+        if not (abs(rate_left) <= self._max_wheel_speed and abs(rate_right) <= self._max_wheel_speed):
+            raise BadInput(
+                f"wheel speeds ({rate_left:g}, {rate_right:g}) rad/s beyond input.max_wheel_speed = "
+                f"{self._max_wheel_speed:g} rad/s"
+            )
         b = self._b
         v_left = self._r_left * (q_left - self._q_left) / dt
         v_right = self._r_right * (q_right - self._q_right) / dt

@@ -60,6 +60,8 @@ these settings (zenohd's defaults) still talks to these, over the ordinary trans
 LOG_INTERVAL_S = 1.0
 """At most one line per kind (bad input per key, internal errors per key, ...) per interval."""
 STOP_POLL_S = 0.1
+LIVELINESS_QUERY_TIMEOUT_S = 1.0
+"""Upper bound on a start-up liveliness query (the router answers at once)."""
 """Longest a service thread waits without looking at its stop event (SIGINT/SIGTERM)."""
 MessageT = TypeVar("MessageT", bound=msgspec.Struct)
 
@@ -602,6 +604,12 @@ class Node:
                 history=True,
             )
         )
+
+    def alive_now(self, service: Service, timeout: float = LIVELINESS_QUERY_TIMEOUT_S) -> bool:
+        """Whether ``service``'s liveliness token exists now: one query, answered by the router
+        or peers at once (for a decision at start-up, before any watch has reported)."""
+        replies = self.session.liveliness().get(self.keys.alive(service), timeout=timeout)
+        return any(reply.ok is not None for reply in replies)
 
     def spin_once(self, timeout: float | None) -> bool:
         """Handle one queued event, waiting up to ``timeout`` seconds; False if none came."""

@@ -8,13 +8,45 @@ lockstep run faster than real time behaves exactly like a real-time one.
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 
 from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND
 
 
+def _seconds(nanoseconds: int) -> str:
+    return f"{nanoseconds / NANOSECONDS_PER_SECOND:.6g} s"
+
+
+def check_next_stamp(stamp_ns: int, last_ns: int, horizon_ns: int) -> None:
+    """The stamp policy of a stream's own time base: each stamp after the last, by at most the
+    horizon. Raises BadInput otherwise; the caller then leaves its time base where it was, so one
+    forged stamp far ahead cannot make every genuine sample after it look like time going back."""
+    if stamp_ns <= last_ns:
+        raise BadInput(f"dt = {_seconds(stamp_ns - last_ns)} <= 0")
+    if stamp_ns - last_ns > horizon_ns:
+        raise BadInput(f"stamp jumps {_seconds(stamp_ns - last_ns)} ahead of the time base (horizon {_seconds(horizon_ns)})")
+
+
+def check_stamp_near(stamp_ns: int, reference_ns: int, horizon_ns: int, history_ns: int, what: str) -> None:
+    """The stamp policy of an input checked against another time base (a target or a fix against
+    the wheel-angle time): no further ahead than the horizon, no further back than the history
+    the consumer keeps. Raises BadInput naming ``what`` otherwise."""
+    if stamp_ns - reference_ns > horizon_ns:
+        raise BadInput(
+            f"{what} stamped {_seconds(stamp_ns - reference_ns)} ahead of the wheel-angle time "
+            f"(horizon {_seconds(horizon_ns)})"
+        )
+    if reference_ns - stamp_ns > history_ns:
+        raise BadInput(
+            f"{what} stamped {_seconds(reference_ns - stamp_ns)} before the wheel-angle time, "
+            f"older than the {_seconds(history_ns)} kept"
+        )
+
+
 class StampClock:
-    """Accepts a stream of strictly increasing stamps; anything else is bad input.
+    """Accepts a stream of increasing stamps, each at most ``horizon_ns`` after the last
+    (:func:`check_next_stamp`); anything else is bad input.
 
     A restarted simulator's clock starts again (at 0): after :meth:`allow_restart` (its
     liveliness token appeared), a next stamp that is not after the last one starts a new time
@@ -22,7 +54,8 @@ class StampClock:
     reconnected keeps its clock, and a running scenario or fix schedule is not disturbed.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, horizon_ns: int) -> None:
+        self.horizon_ns = horizon_ns
         self.first_ns: int | None = None
         """The first stamp of the current time base."""
         self.last_ns: int | None = None
@@ -41,11 +74,11 @@ class StampClock:
         """
         last_ns = self.last_ns
         restarted = False
-        if last_ns is not None and stamp_ns <= last_ns:
-            if not self._restart_allowed:
-                raise BadInput(f"stamp {stamp_ns} ns is not after the previous one ({last_ns} ns)")
+        if last_ns is not None and stamp_ns <= last_ns and self._restart_allowed:
             self.first_ns, restarted = None, True
             self.restarts += 1
+        elif last_ns is not None:
+            check_next_stamp(stamp_ns, last_ns, self.horizon_ns)
         self._restart_allowed = False
         if self.first_ns is None:
             self.first_ns = stamp_ns
@@ -58,7 +91,8 @@ class PeriodicSchedule:
 
     The grid is anchored at ``start_ns`` (no drift from rounding), and a tick is taken by the
     first stamp at or after it. After a gap longer than a period the missed ticks are skipped:
-    one stamp takes at most one tick.
+    one stamp takes at most one tick. The period is the exact rational value of 1e9/rate, and
+    :meth:`due` finds the tick in integer arithmetic: it returns at once for any stamp.
     """
 
     def __init__(self, rate_hz: float, start_ns: int) -> None:
@@ -66,11 +100,12 @@ class PeriodicSchedule:
             raise ValueError(f"rate must be finite and > 0, got {rate_hz}")
         self.rate_hz = rate_hz
         self.start_ns = start_ns
+        self._period_ns = Fraction(NANOSECONDS_PER_SECOND) / Fraction(rate_hz)
         self.index = 0
         """The index k of the next tick."""
 
     def _tick_ns(self, index: int) -> int:
-        return self.start_ns + round(index * NANOSECONDS_PER_SECOND / self.rate_hz)
+        return self.start_ns + round(index * self._period_ns)
 
     @property
     def next_ns(self) -> int:
@@ -80,10 +115,9 @@ class PeriodicSchedule:
         """True when ``now_ns`` takes a tick; the schedule then moves past ``now_ns``."""
         if now_ns < self.next_ns:
             return False
-        index = max(self.index + 1, math.floor((now_ns - self.start_ns) * self.rate_hz / NANOSECONDS_PER_SECOND))
-        while self._tick_ns(index) <= now_ns:
-            index += 1
-        while index - 1 > self.index and self._tick_ns(index - 1) > now_ns:
-            index -= 1
-        self.index = index
+        period = self._period_ns
+        last_passed = (now_ns - self.start_ns) * period.denominator // period.numerator
+        if self._tick_ns(last_passed) > now_ns:  # rounding put that tick just after now
+            last_passed -= 1
+        self.index = max(last_passed, self.index) + 1
         return True

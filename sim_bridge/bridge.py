@@ -48,8 +48,6 @@ if TYPE_CHECKING:
     from sim_bridge.simulator import Contact
 
 LOCKSTEP, REALTIME = typing.get_args(SimMode)
-MOTOR_QUERY_TIMEOUT_S = 1.0
-"""Upper bound on the start-up liveliness query for a motor control (the router answers at once)."""
 BUMP_STOP_TIMEOUT_S = 1.0
 """How long a ``motor/bump/stop`` call stays open for its reply."""
 MAX_REALTIME_LAG_S = 0.1
@@ -192,10 +190,6 @@ class SimService:
         elif tm_ns > self._newest_ns:
             self._newest_torque, self._newest_ns = torque.data, tm_ns
 
-    def _motor_present(self) -> bool:
-        """Ask the router once at start, so the first steps already know whether to wait."""
-        replies = self.node.session.liveliness().get(self._motor_key, timeout=MOTOR_QUERY_TIMEOUT_S)
-        return any(reply.ok is not None for reply in replies)
 
     def _publish_state(self) -> int:
         sim = self.sim
@@ -302,7 +296,8 @@ class SimService:
             self._step()
 
     def run(self, stop: threading.Event) -> int:
-        self._set_motor_alive(self._motor_present())
+        # Asked once at start, so the first steps already know whether to wait.
+        self._set_motor_alive(self.node.alive_now(Service.MOTOR))
         self.node.drain()
         if self.motor_alive and self.mode == LOCKSTEP:
             self._await_motor_subscription()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import statistics
+import threading
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
-from services.config import LocalizationConfig
+from services.config import Config, InputConfig, LocalizationConfig
 from services.localization_core import Localizer, Noise, resolve_seed
 from services.planar import Pose, wrap_angle
 from services.sim_time import PeriodicSchedule, StampClock
@@ -20,8 +21,17 @@ MS = 1_000_000
 S = 1_000_000_000
 
 
-def localizer(rate: float = 1.0, noise: Noise = Noise(), seed: int = 1, initial: Pose = Pose(0.0, 0.0, 0.0)):
-    return Localizer(initial, rate, noise, np.random.default_rng(seed))
+HORIZON_NS = round(InputConfig().stamp_horizon * S)
+
+
+def localizer(
+    rate: float = 1.0,
+    noise: Noise = Noise(),
+    seed: int = 1,
+    initial: Pose = Pose(0.0, 0.0, 0.0),
+    from_sim_pose: bool = False,
+):
+    return Localizer(initial, rate, noise, np.random.default_rng(seed), InputConfig(), from_sim_pose)
 
 
 def sim_pose(k: int) -> list[float]:
@@ -67,9 +77,9 @@ def test_a_fix_is_taken_by_the_first_sample_at_or_after_its_tick_when_samples_ar
 def test_a_gap_longer_than_a_period_yields_one_fix_not_a_burst() -> None:
     loc = localizer(rate=10.0)
     loc.on_sim_pose(0, sim_pose(0))
-    assert loc.on_sim_pose(5 * S, sim_pose(1)) is not None
-    assert loc.on_sim_pose(5 * S + 50 * MS, sim_pose(2)) is None
-    assert loc.on_sim_pose(5 * S + 100 * MS, sim_pose(3)) is not None
+    assert loc.on_sim_pose(550 * MS, sim_pose(1)) is not None  # five ticks missed, one fix
+    assert loc.on_sim_pose(580 * MS, sim_pose(2)) is None
+    assert loc.on_sim_pose(600 * MS, sim_pose(3)) is not None
 
 
 @given(
@@ -125,8 +135,10 @@ def test_the_same_seed_repeats_the_noise_and_another_seed_does_not() -> None:
 
 
 def test_from_config_uses_every_localization_field() -> None:
-    config = LocalizationConfig(initial_x=1.0, initial_y=2.0, initial_theta=4.0, rate=4.0, noise_x=0.5, noise_y=0.25)
-    loc = Localizer.from_config(config, seed=9)
+    localization = LocalizationConfig(
+        initial_x=1.0, initial_y=2.0, initial_theta=4.0, rate=4.0, noise_x=0.5, noise_y=0.25
+    )
+    loc = Localizer.from_config(Config(localization=localization), seed=9)
     assert loc.initial == Pose(1.0, 2.0, wrap_angle(4.0))
     assert (loc.rate_hz, loc.noise) == (4.0, Noise(0.5, 0.25, 0.0))
 
@@ -150,7 +162,7 @@ def test_a_stamp_not_after_the_previous_one_is_bad_input() -> None:
     loc = localizer(rate=1.0)
     loc.on_sim_pose(S, sim_pose(0))
     for stamp in (S, S - 1):
-        with pytest.raises(BadInput, match="not after"):
+        with pytest.raises(BadInput, match="<= 0"):
             loc.on_sim_pose(stamp, sim_pose(1))
     assert loc.last_sim_pose == Pose(*sim_pose(0)[:2], sim_pose(0)[3])
     assert loc.on_sim_pose(2 * S, sim_pose(2)) is not None
@@ -160,10 +172,10 @@ def test_nothing_starts_until_may_start() -> None:
     loc = localizer(rate=1.0, initial=Pose(5.0, 0.0, 0.0))
     assert loc.on_sim_pose(0, sim_pose(0), may_start=False) is None
     assert loc.last_sim_pose is not None and not loc.started
-    assert loc.on_sim_pose(3 * S, sim_pose(1), may_start=False) is None
-    first = loc.on_sim_pose(4 * S, sim_pose(2))
-    assert first is not None and first.initial and first.stamp_ns == 4 * S
-    assert loc.on_sim_pose(5 * S, sim_pose(3), may_start=False) is not None, "once started, the flag no longer matters"
+    assert loc.on_sim_pose(S // 2, sim_pose(1), may_start=False) is None
+    first = loc.on_sim_pose(S, sim_pose(2))
+    assert first is not None and first.initial and first.stamp_ns == S
+    assert loc.on_sim_pose(2 * S, sim_pose(3), may_start=False) is not None, "once started, the flag no longer matters"
 
 
 def test_noise_rejects_negative_or_non_finite_sigmas() -> None:
@@ -173,7 +185,7 @@ def test_noise_rejects_negative_or_non_finite_sigmas() -> None:
 
 
 def test_stamp_clock_accepts_only_increasing_stamps() -> None:
-    clock = StampClock()
+    clock = StampClock(HORIZON_NS)
     clock.advance(5)
     clock.advance(6)
     with pytest.raises(BadInput):
@@ -183,7 +195,7 @@ def test_stamp_clock_accepts_only_increasing_stamps() -> None:
 
 
 def test_stamp_clock_restarts_only_when_allowed_and_the_stamp_goes_back() -> None:
-    clock = StampClock()
+    clock = StampClock(HORIZON_NS)
     clock.allow_restart()
     assert clock.advance(5) is False, "the first stamp is no restart"
     clock.allow_restart()
@@ -236,3 +248,61 @@ def test_a_restart_before_the_schedule_starts_keeps_the_initial_pose_first() -> 
     first = loc.on_sim_pose(0, sim_pose(1))
     assert first is not None and first.initial and first.stamp_ns == 0
     assert loc.time_base_restarts == 1
+
+
+def test_stamp_clock_refuses_a_jump_beyond_the_horizon_and_keeps_its_time_base() -> None:
+    clock = StampClock(HORIZON_NS)
+    clock.advance(5 * S)
+    for forged in (5 * S + HORIZON_NS + 1, 100_000 * S, 10**29 * S):
+        with pytest.raises(BadInput, match="ahead of the time base"):
+            clock.advance(forged)
+    assert clock.last_ns == 5 * S
+    assert clock.advance(5 * S + HORIZON_NS) is False, "a jump of exactly the horizon is fine"
+
+
+def test_a_forged_far_future_sim_pose_does_not_freeze_the_fixes() -> None:
+    loc = localizer(rate=1.0)
+    loc.on_sim_pose(0, sim_pose(0))
+    with pytest.raises(BadInput, match="ahead"):
+        loc.on_sim_pose(10**29 * S, sim_pose(1))
+    assert loc.on_sim_pose(S, sim_pose(2)) is not None
+
+
+def test_an_implausible_position_is_bad_input() -> None:
+    loc = localizer()
+    with pytest.raises(BadInput, match="max_coordinate"):
+        loc.on_sim_pose(0, [1e308, 0.0, 0.0, 0.0])
+    assert loc.last_sim_pose is None
+
+
+def test_started_while_the_simulator_runs_the_first_fix_is_the_simulated_pose() -> None:
+    loc = localizer(initial=Pose(0.0, 0.0, 0.0), from_sim_pose=True)
+    first = loc.on_sim_pose(30 * S, [1.0, 1.0, 0.05, 1.5])
+    assert first is not None and not first.initial
+    assert first.pose == Pose(1.0, 1.0, 1.5)
+
+
+def _returns_within(call, seconds: float = 2.0):
+    result = []
+    thread = threading.Thread(target=lambda: result.append(call()), daemon=True)
+    thread.start()
+    thread.join(seconds)
+    assert not thread.is_alive(), f"did not return within {seconds} s"
+    return result[0]
+
+
+@given(
+    rate=st.floats(min_value=1e-3, max_value=1e4),
+    start=st.integers(min_value=0, max_value=10**40),
+    now=st.integers(min_value=0, max_value=10**45),
+)
+def test_schedule_due_returns_at_once_for_any_stamp(rate, start, now) -> None:
+    schedule = PeriodicSchedule(rate, start)
+    due = _returns_within(lambda: schedule.due(start + now))
+    assert due is True
+    assert schedule.next_ns > start + now
+    assert schedule.index == 1 or schedule._tick_ns(schedule.index - 1) <= start + now
+
+
+def test_the_measured_hang_returns() -> None:
+    assert _returns_within(lambda: PeriodicSchedule(50, 0).due(10**38)) is True

@@ -13,15 +13,25 @@ from hypothesis import strategies as st
 
 from schemas.codec import BadInput
 from schemas.messages import PDGains
-from services.config import MotorConfig, RobotConfig
+from services.config import InputConfig, MotorConfig, RobotConfig
 from services.motor_core import INTEGRATED, SEED, MotorCore, MotorState, SimPoseConverter
 
 MS = 1_000_000
 """One millisecond in nanoseconds."""
 
 
-def core(robot: RobotConfig | None = None, **motor: object) -> MotorCore:
-    return MotorCore(robot or RobotConfig(), MotorConfig(**motor))
+SEED_LAW = {"max_vx": None, "max_ax": None, "max_w": None, "max_aw": None}
+"""The seed's law has no velocity or acceleration limits (the defaults have them): the
+hand-computed values below are the seed's unless a test names limits."""
+
+
+ANY_INPUT = InputConfig(stamp_horizon=1e9, max_wheel_speed=1e300, max_gain=1e300)
+"""The control law is tested on whatever input reaches it; the input policy (stamp horizon,
+plausible wheel speeds, gain ceiling) has tests of its own, with its defaults."""
+
+
+def core(robot: RobotConfig | None = None, limits: InputConfig = ANY_INPUT, **motor: object) -> MotorCore:
+    return MotorCore(robot or RobotConfig(), MotorConfig(**{**SEED_LAW, **motor}), limits)
 
 
 def running(robot: RobotConfig | None = None, vx: float = 0.0, w: float = 0.0, **motor: object) -> MotorCore:
@@ -530,3 +540,54 @@ def test_after_a_restart_the_torques_are_those_of_a_fresh_core(before, after, ne
     for dt_ns, q in after:
         assert restarted.step(stamp, [q, 2 * q]) == fresh.step(stamp, [q, 2 * q])
         stamp += dt_ns
+
+
+# --- the input policy, with its defaults --------------------------------------------------------
+
+
+def test_a_stamp_beyond_the_horizon_is_bad_and_does_not_move_the_time_base():
+    motor_core = running(vx=0.5, limits=InputConfig())
+    with pytest.raises(BadInput, match="ahead of the time base"):
+        motor_core.step(100_000 * 1000 * MS, [0.0, 0.0])
+    torques = motor_core.step(1 * MS, [0.0005, 0.0005])  # the genuine next sample is still taken
+    assert torques != [0.0, 0.0] and motor_core.wheel_angle_samples == 2
+
+
+def test_a_wheel_angle_jump_beyond_the_plausible_wheel_speed_is_bad():
+    motor_core = running(vx=0.5, limits=InputConfig(max_wheel_speed=50.0))
+    with pytest.raises(BadInput, match="max_wheel_speed"):
+        motor_core.step(50 * MS, [1e6, 1e6])
+    assert motor_core.q == (0.0, 0.0)
+    motor_core.step(50 * MS, [2.4, 2.4])  # 48 rad/s: plausible
+
+
+def test_targets_are_checked_against_the_wheel_angle_time_and_the_wheel_speed_bound():
+    motor_core = running(vx=0.5, limits=InputConfig(), command_timeout=0.5)
+    for stamp_ns, vx, reason in (
+        (2_000 * MS, 0.1, "ahead of the wheel-angle time"),
+        (10**38, 0.1, "ahead of the wheel-angle time"),
+        (0, 1e300, "max_wheel_speed"),
+    ):
+        with pytest.raises(BadInput, match=reason):
+            motor_core.set_target(vx, 0.0, stamp_ns)
+    assert motor_core.target == (0.5, 0.0)
+    motor_core.step(600 * MS, [0.3, 0.3])
+    with pytest.raises(BadInput, match="older than"):
+        motor_core.set_target(0.1, 0.0, 0)
+    assert motor_core.set_target(2.0, 0.0, 600 * MS) is True, "beyond max_vx but plausible: the limit clamps it"
+
+
+def test_gains_above_the_ceiling_are_bad_and_change_nothing():
+    motor_core = running(limits=InputConfig(max_gain=1000.0))
+    with pytest.raises(BadInput, match="max_gain"):
+        motor_core.set_pd_gain(PDGains(p_gain_l=1e308, p_gain_r=5.0, d_gain_l=2.0, d_gain_r=2.0))
+    assert motor_core.gains == PDGains(5.0, 5.0, 2.0, 2.0)
+
+
+def test_the_default_limits_clamp_an_absurd_but_plausible_target():
+    motor_core = MotorCore(RobotConfig(), MotorConfig(command_timeout=0.0))
+    motor_core.set_target(4.0, 0.0)
+    motor_core.step(0, [0.0, 0.0])
+    for k in range(1, 2001):
+        motor_core.step(k * MS, [0.0, 0.0])
+    assert motor_core.command == (1.0, 0.0), "max_vx 1 m/s, reached at max_ax 2 m/s^2 within 0.5 s"

@@ -45,6 +45,12 @@ OVERRIDES: dict[str, Any] = {
     "robot.radius_of_right_wheel": 0.12,
     "motor.simulated_offset_y": 0.045795,
     "motor.simulated_offset_angle": 1.5708,
+    # Limits far beyond the speeds sent here: the seed's law, which a fresh mirror follows from
+    # whatever command the service had (the default limits ramp from the previous command).
+    "motor.max_vx": 100.0,
+    "motor.max_ax": 1e9,
+    "motor.max_w": 100.0,
+    "motor.max_aw": 1e9,
 }
 """Non-default wheel ids (joint 0 is no wheel), unequal radii and the seed's RH0 offsets."""
 CONFIG = load_config(overrides={"robot.name": ROBOT, **OVERRIDES})
@@ -52,6 +58,7 @@ DEFAULT_GAINS = PDGains(
     CONFIG.motor.p_gain_l, CONFIG.motor.p_gain_r, CONFIG.motor.d_gain_l, CONFIG.motor.d_gain_r
 )
 STEP_NS = 1_000_000
+RESET_GAP_NS = 200 * STEP_NS
 TRACE_FIELDS = {"tm", "state", "angles", "q", "dq", "target", "command", "dq_ref", "q_ref", "gains", "torque"}
 """The fields of a --trace line, as docs/motor.md lists them."""
 FIRST_TM = Time(10, 0)
@@ -131,7 +138,8 @@ class MotorLink:
         """Publish a target velocity and wait until the service accepted or ignored it."""
         counters = self.status()["counters"]
         seen = counters["target_velocity_samples"] + counters["targets_ignored"]
-        self.put(self.keys.drive_target_velocity, encode(TimedVelocity(FIRST_TM, [], vx, 0.0, w, [])))
+        stamp = Time.from_nanoseconds(max(self.time_ns, 0))
+        self.put(self.keys.drive_target_velocity, encode(TimedVelocity(stamp, [], vx, 0.0, w, [])))
         wait_until(
             lambda: sum(self.status()["counters"][k] for k in ("target_velocity_samples", "targets_ignored")) > seen,
             what="the target velocity to be handled",
@@ -160,7 +168,9 @@ class MotorLink:
         self.torques.drain()
         self.passed_on.drain()
         self.mirror = MotorCore(self.config.robot, self.config.motor)
-        self.cycle(wheels(0.0, 0.0))  # the mirror's first sample: the service's previous one
+        # The mirror's first sample, the service's next one: after a gap long enough that
+        # returning the wheels to 0 is a plausible speed (input.max_wheel_speed).
+        self.cycle(wheels(0.0, 0.0), RESET_GAP_NS)
         self.target(vx, w)
 
     def close(self) -> None:
@@ -393,7 +403,7 @@ def test_status_reports_locked_parameters_and_counters(link):
         "length_of_axle": CONFIG.robot.length_of_axle,
     }
     assert status["offsets"]["simulated_offset_y"] == 0.045795
-    assert status["limits"] == {"max_vx": None, "max_ax": None, "max_w": None, "max_aw": None}
+    assert status["limits"] == {name: OVERRIDES[f"motor.{name}"] for name in ("max_vx", "max_ax", "max_w", "max_aw")}
     assert status["target"] == {"vx": 0.2, "w": -0.1}
     assert status["torques_published"] == published + 1
 
@@ -430,7 +440,10 @@ def test_trace_lines_and_command_timeout_warning_in_an_integrated_motor(tmp_path
     assert len(records) == len(published)
     assert [record["torque"] for record in records] == published
     assert [record["state"] for record in records[:3]] == ["idle", "idle", "running"]
-    assert records[2]["target"] == [0.5, 0.0] and records[2]["dq_ref"] == [5.0, 5.0]
+    # The default acceleration limit ramps the command: max_ax · 1 ms on the first cycle.
+    ramped_vx = config.motor.max_ax * STEP_NS / 1e9
+    assert records[2]["target"] == [0.5, 0.0] and records[2]["command"] == pytest.approx([ramped_vx, 0.0])
+    assert records[2]["dq_ref"] == pytest.approx([ramped_vx / config.robot.radius_of_left_wheel] * 2)
     assert records[-1]["command"] == [0.0, 0.0]
     assert set(records[0]) == TRACE_FIELDS
     assert err.count("braking to zero") == 1

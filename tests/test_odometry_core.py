@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
-from services.config import load_config
+from services.config import InputConfig, load_config
 from services.odometry_core import Branch, Odometry, OdometryParameters, Pose, Step, wrap_angle
 
 NS = 1_000_000_000
@@ -24,6 +24,14 @@ def parameters(**overrides: float) -> OdometryParameters:
     return OdometryParameters.from_config(
         load_config(overrides={key.replace("__", "."): value for key, value in overrides.items()})
     )
+
+
+ANY_INPUT = InputConfig(stamp_horizon=1e9, max_wheel_speed=1e300)
+"""The integration is tested on whatever input reaches it; the input policy has tests of its own."""
+
+
+def law_odometry(parameters: OdometryParameters, start: Pose = Pose(0.0, 0.0, 0.0)) -> Odometry:
+    return Odometry(parameters, start, ANY_INPUT)
 
 
 def simple() -> OdometryParameters:
@@ -112,7 +120,7 @@ def test_default_parameters_are_the_seeds() -> None:
 
 
 def test_first_sample_initialises_and_reports_the_starting_pose() -> None:
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     assert not odometry.initialised
     first = odometry.step(5 * NS, [3.0, 7.0])
     assert first.branch is Branch.INITIAL
@@ -124,14 +132,14 @@ def test_first_sample_initialises_and_reports_the_starting_pose() -> None:
 
 
 def test_localized_pose_before_the_first_sample_is_the_starting_pose() -> None:
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     odometry.reset(1.0, -2.0, 0.5)
     assert odometry.step(0, [0.0, 0.0]).pose == Pose(1.0, -2.0, 0.5)
 
 
 def test_chord_step_by_hand() -> None:
     # r = 0.1, b = 0.2, dt = 0.1: vL = 1, vR = 3, V = 2, Omega = 5, dphi = 0.5, rho = 0.4.
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     odometry.step(0, [0.0, 0.0])
     step = odometry.step(NS // 10, [1.0, 3.0])
     assert step.branch is Branch.CHORD
@@ -145,7 +153,7 @@ def test_chord_step_by_hand() -> None:
 
 def test_small_angle_step_by_hand() -> None:
     # dt = 1: vL = 0.1, vR = 0.101, Omega = 0.0025 rad/s, dphi = 0.0025 < pi/180, rho = 40.2.
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     odometry.step(0, [0.0, 0.0])
     step = odometry.step(NS, [1.0, 1.01])
     assert step.branch is Branch.SMALL_ANGLE
@@ -155,7 +163,7 @@ def test_small_angle_step_by_hand() -> None:
 
 
 def test_straight_step_is_the_mean_wheel_travel() -> None:
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     odometry.step(0, [0.0, 0.0])
     first = odometry.step(NS, [2.0, 2.0])  # r = 0.1: each wheel travels 0.2 m
     assert first.branch is Branch.STRAIGHT
@@ -167,7 +175,7 @@ def test_straight_step_is_the_mean_wheel_travel() -> None:
 
 
 def test_seed_straight_step_is_the_trapezoid_of_v_and_v_old() -> None:
-    odometry = Odometry(parameters(robot__length_of_axle=0.4, odometry__straight_step="seed"))
+    odometry = law_odometry(parameters(robot__length_of_axle=0.4, odometry__straight_step="seed"))
     odometry.step(0, [0.0, 0.0])
     first = odometry.step(NS, [2.0, 2.0])  # V = 0.2, V_old = 0 (at rest before)
     assert first.branch is Branch.STRAIGHT
@@ -178,7 +186,7 @@ def test_seed_straight_step_is_the_trapezoid_of_v_and_v_old() -> None:
 
 
 def test_wheels_are_picked_by_their_ids() -> None:
-    odometry = Odometry(parameters(robot__left_wheel_id=2, robot__right_wheel_id=0, robot__length_of_axle=0.4))
+    odometry = law_odometry(parameters(robot__left_wheel_id=2, robot__right_wheel_id=0, robot__length_of_axle=0.4))
     odometry.step(0, [0.0, 99.0, 0.0])
     step = odometry.step(NS // 10, [3.0, -50.0, 1.0])  # left = data[2] = 1, right = data[0] = 3
     assert (step.q_left, step.q_right) == (1.0, 3.0)
@@ -186,7 +194,7 @@ def test_wheels_are_picked_by_their_ids() -> None:
 
 
 def test_calibration_multipliers_scale_radii_and_axle() -> None:
-    odometry = Odometry(
+    odometry = law_odometry(
         parameters(
             robot__length_of_axle=0.4,
             odometry__left_radius_scale=2.0,
@@ -206,7 +214,7 @@ def test_calibration_multipliers_scale_radii_and_axle() -> None:
 
 
 def test_straight_line_from_rest_is_exact() -> None:
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     odometry.step(0, [0.0, 0.0])
     dt_ns, rate = NS // 100, 2.0  # V = 0.2 m/s
     for k in range(1, 101):
@@ -217,7 +225,7 @@ def test_straight_line_from_rest_is_exact() -> None:
 
 
 def test_seed_straight_line_from_rest_loses_half_a_first_step() -> None:
-    odometry = Odometry(parameters(robot__length_of_axle=0.4, odometry__straight_step="seed"))
+    odometry = law_odometry(parameters(robot__length_of_axle=0.4, odometry__straight_step="seed"))
     odometry.step(0, [0.0, 0.0])
     dt_ns, rate = NS // 100, 2.0
     for k in range(1, 101):
@@ -229,7 +237,7 @@ def test_seed_straight_line_from_rest_loses_half_a_first_step() -> None:
 def test_straight_line_is_exact_when_speed_and_dt_change_together() -> None:
     """0.2 m/s on 1 ms steps alternating with 0.6 m/s on 3 ms steps, 3.0 m in all: the seed's
     trapezoid drifted 0.60 m here."""
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     odometry.step(0, [0.0, 0.0])
     time_ns, angle, travelled = 0, 0.0, 0.0
     for k in range(2000):
@@ -245,7 +253,7 @@ def test_straight_line_is_exact_when_speed_and_dt_change_together() -> None:
 
 
 def test_a_fix_with_the_wheels_still_stays_where_it_was_put() -> None:
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     odometry.step(0, [0.0, 0.0])
     odometry.step(NS // 100, [0.1, 0.1])  # moving at 1 m/s just before the fix
     odometry.reset(2.0, 3.0, 0.5)
@@ -255,7 +263,7 @@ def test_a_fix_with_the_wheels_still_stays_where_it_was_put() -> None:
 
 def test_straight_line_in_steady_motion_is_exact() -> None:
     start = Pose(1.0, 2.0, 0.7)
-    steps = drive(Odometry(simple()), start, 3.0, 3.0, 2 * NS, 200)
+    steps = drive(law_odometry(simple()), start, 3.0, 3.0, 2 * NS, 200)
     assert {s.branch for s in steps} == {Branch.STRAIGHT}
     assert_pose_close(steps[-1].pose, analytic_pose(start, 0.3, 0.0, 2.0), 1e-12)
 
@@ -265,7 +273,7 @@ def test_arc_in_small_angle_steps_is_within_the_arc_length_bound() -> None:
     left, right = 4.0, 5.0  # V = 0.45 m/s, Omega = 0.25 rad/s, rho = 1.8 m
     v, omega = body_velocity(p, left, right)
     duration = 10.0
-    steps = drive(Odometry(p), Pose(0.0, 0.0, 0.0), left, right, int(duration * NS), 500)
+    steps = drive(law_odometry(p), Pose(0.0, 0.0, 0.0), left, right, int(duration * NS), 500)
     assert {s.branch for s in steps} == {Branch.SMALL_ANGLE}
     assert_pose_close(steps[-1].pose, analytic_pose(Pose(0, 0, 0), v, omega, duration),
                       SMALL_ANGLE_TOLERANCE_PER_METRE * v * duration)
@@ -276,14 +284,14 @@ def test_arc_in_chord_steps_is_exact() -> None:
     left, right = 2.0, 8.0  # V = 0.5 m/s, Omega = 1.5 rad/s: 0.03 rad (> pi/180) per 20 ms step
     v, omega = body_velocity(p, left, right)
     start = Pose(-1.0, 0.5, 3.0)
-    steps = drive(Odometry(p), start, left, right, 5 * NS, 250)
+    steps = drive(law_odometry(p), start, left, right, 5 * NS, 250)
     assert {s.branch for s in steps} == {Branch.CHORD}
     assert_pose_close(steps[-1].pose, analytic_pose(start, v, omega, 5.0), CHORD_TOLERANCE)
 
 
 def test_spin_in_place_turns_without_moving_and_wraps() -> None:
     p = simple()
-    odometry = Odometry(p)
+    odometry = law_odometry(p)
     steps = drive(odometry, Pose(0.5, 0.5, 0.0), -4.0, 4.0, 3 * NS, 300)  # Omega = 2 rad/s for 3 s
     assert {s.rho for s in steps} == {0.0}
     assert odometry.pose.x == 0.5 and odometry.pose.y == 0.5
@@ -292,13 +300,13 @@ def test_spin_in_place_turns_without_moving_and_wraps() -> None:
 
 def test_reverse_straight_and_reverse_arc() -> None:
     p = simple()
-    straight = drive(Odometry(p), Pose(0.0, 0.0, 0.0), -2.0, -2.0, NS, 100)
+    straight = drive(law_odometry(p), Pose(0.0, 0.0, 0.0), -2.0, -2.0, NS, 100)
     assert_pose_close(straight[-1].pose, Pose(-0.2, 0.0, 0.0), 1e-12)
     left, right = -2.0, -8.0
     v, omega = body_velocity(p, left, right)
     assert v < 0
     start = Pose(0.0, 0.0, 0.3)
-    arc = drive(Odometry(p), start, left, right, 4 * NS, 200)
+    arc = drive(law_odometry(p), start, left, right, 4 * NS, 200)
     assert {s.branch for s in arc} == {Branch.CHORD}
     assert_pose_close(arc[-1].pose, analytic_pose(start, v, omega, 4.0), CHORD_TOLERANCE)
 
@@ -312,7 +320,7 @@ def step_with(p: OdometryParameters, dphi: float, rho: float, dt: float = 0.01) 
     difference = 2.0 * b * dphi / dt  # vR - vL
     total = rho * difference / b  # vR + vL
     v_left, v_right = (total - difference) / 2.0, (total + difference) / 2.0
-    odometry = Odometry(p)
+    odometry = law_odometry(p)
     odometry.step(0, [0.0, 0.0])
     return odometry.step(round(dt * NS), [v_left * dt / p.left_radius, v_right * dt / p.right_radius])
 
@@ -361,7 +369,7 @@ def test_borders_come_from_the_parameters() -> None:
 
 def test_localized_pose_overwrites_the_pose_before_the_next_step() -> None:
     p = simple()
-    odometry = Odometry(p)
+    odometry = law_odometry(p)
     odometry.step(0, [0.0, 0.0])
     odometry.step(NS // 10, [1.0, 3.0])
     assert odometry.reset(5.0, -1.0, 3.0 * math.pi) == Pose(5.0, -1.0, math.pi)
@@ -372,7 +380,7 @@ def test_localized_pose_overwrites_the_pose_before_the_next_step() -> None:
 
 
 def test_localized_pose_must_be_finite() -> None:
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     for bad in [(math.nan, 0.0, 0.0), (0.0, math.inf, 0.0), (0.0, 0.0, -math.inf)]:
         with pytest.raises(BadInput, match="not finite"):
             odometry.reset(*bad)
@@ -383,7 +391,7 @@ def test_localized_pose_must_be_finite() -> None:
 
 
 def test_restart_time_base_initialises_again_from_the_kept_pose() -> None:
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     odometry.step(0, [0.0, 0.0])
     odometry.step(NS, [2.0, 2.0])  # x = 0.2
     odometry.step(2 * NS, [4.0, 4.0])  # x = 0.4
@@ -399,7 +407,7 @@ def test_restart_time_base_initialises_again_from_the_kept_pose() -> None:
 
 
 def test_restart_time_base_before_any_sample_changes_nothing() -> None:
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     odometry.reset(1.0, 2.0, 0.5)
     assert odometry.restart_time_base() is False
     assert odometry.step(7 * NS, [1.0, 1.0]).pose == Pose(1.0, 2.0, 0.5)
@@ -411,18 +419,18 @@ def test_restart_time_base_before_any_sample_changes_nothing() -> None:
 @pytest.mark.parametrize(
     ("time_ns", "angles", "reason"),
     [
-        (NS, [5.0, 5.0], "dt = 0.0 s <= 0"),
+        (NS, [5.0, 5.0], "dt = 0 s <= 0"),
         (NS // 2, [5.0, 5.0], "dt = -0.5 s <= 0"),
         (2 * NS, [5.0], "need at least 2"),
         (2 * NS, [], "need at least 2"),
         (2 * NS, [math.nan, 1.0], "not finite"),
         (2 * NS, [1.0, math.inf], "not finite"),
-        (NS + 1, [1e308, -1e308], "non-finite speed"),
+        (NS + 1, [1e308, -1e308], "wheel speeds"),
     ],
 )
 def test_bad_sample_is_rejected_and_changes_nothing(time_ns: int, angles: list[float], reason: str) -> None:
     p = simple()
-    odometry, reference = Odometry(p), Odometry(p)
+    odometry, reference = law_odometry(p), law_odometry(p)
     for o in (odometry, reference):
         o.step(0, [0.0, 0.0])
         o.step(NS, [1.0, 3.0])
@@ -432,7 +440,7 @@ def test_bad_sample_is_rejected_and_changes_nothing(time_ns: int, angles: list[f
 
 
 def test_short_sample_for_high_wheel_ids_is_rejected() -> None:
-    odometry = Odometry(parameters(robot__left_wheel_id=4, robot__right_wheel_id=1))
+    odometry = law_odometry(parameters(robot__left_wheel_id=4, robot__right_wheel_id=1))
     with pytest.raises(BadInput, match="4 wheel angles, wheel ids 4 and 1 need at least 5"):
         odometry.step(0, [0.0] * 4)
     assert not odometry.initialised
@@ -469,8 +477,8 @@ def test_constant_curvature_in_n_steps_or_one_lands_on_the_same_pose(
     travelled = abs(v) * duration_ms / 1000
     tolerance = SMALL_ANGLE_TOLERANCE_PER_METRE * travelled + CHORD_TOLERANCE
     expected = analytic_pose(start, v, omega, duration_ns / NS)
-    many = drive(Odometry(p), start, left, right, duration_ns, steps)[-1].pose
-    one = drive(Odometry(p), start, left, right, duration_ns, 1)[-1].pose
+    many = drive(law_odometry(p), start, left, right, duration_ns, steps)[-1].pose
+    one = drive(law_odometry(p), start, left, right, duration_ns, 1)[-1].pose
     assert_pose_close(many, expected, tolerance)
     assert_pose_close(one, expected, tolerance)
     assert_pose_close(many, one, tolerance)
@@ -487,7 +495,7 @@ def test_constant_curvature_in_n_steps_or_one_lands_on_the_same_pose(
     )
 )
 def test_heading_is_always_in_the_half_open_interval(events: list[tuple]) -> None:
-    odometry = Odometry(simple())
+    odometry = law_odometry(simple())
     time_ns, q_left, q_right = 0, 0.0, 0.0
     odometry.step(time_ns, [q_left, q_right])
     for kind, a, b, c in events:
@@ -505,7 +513,7 @@ MS = 1_000_000
 
 def _driven(vr_per_step: float, vl_per_step: float, steps: int) -> Odometry:
     """Odometry after ``steps`` samples 1 ms apart, the wheels turning by the given angles per step."""
-    odometry = Odometry(OdometryParameters.from_config(load_config()))
+    odometry = law_odometry(OdometryParameters.from_config(load_config()))
     for k in range(steps + 1):
         odometry.step(k * MS, [vl_per_step * k, vr_per_step * k])
     return odometry
@@ -544,7 +552,7 @@ def test_a_fix_from_the_future_waits_for_its_time():
     st.floats(-0.02, 0.02), st.floats(-0.02, 0.02), st.integers(1, 200), st.integers(0, 200)
 )
 def test_a_late_fix_equal_to_the_odometry_of_its_time_changes_nothing(left, right, steps, back):
-    odometry = Odometry(OdometryParameters.from_config(load_config()))
+    odometry = law_odometry(OdometryParameters.from_config(load_config()))
     poses = []
     for k in range(steps + 1):
         odometry.step(k * MS, [left * k, right * k])
@@ -555,3 +563,49 @@ def test_a_late_fix_equal_to_the_odometry_of_its_time_changes_nothing(left, righ
     assert after.x == pytest.approx(now.x, abs=1e-9)
     assert after.y == pytest.approx(now.y, abs=1e-9)
     assert math.remainder(after.theta - now.theta, math.tau) == pytest.approx(0.0, abs=1e-9)
+
+
+# --- the input policy, with its defaults --------------------------------------------------------
+
+
+def moving_odometry() -> Odometry:
+    """Default input policy; ten seconds at 0.2 m/s straight on 1 ms steps, so a full history."""
+    odometry = Odometry(simple())
+    for k in range(10_001):
+        odometry.step(k * NS // 1000, [0.002 * k, 0.002 * k])
+    return odometry
+
+
+def test_a_far_future_stamp_is_bad_and_the_next_genuine_sample_is_taken():
+    odometry = moving_odometry()
+    before = odometry.pose
+    for forged_ns in (10 * NS + 2 * NS, 100_000 * NS, 10**29 * NS):
+        with pytest.raises(BadInput, match="ahead of the time base"):
+            odometry.step(forged_ns, [20.002, 20.002])
+    assert odometry.pose == before
+    assert odometry.step(10 * NS + NS // 1000, [20.004, 20.004]).pose.x == pytest.approx(2.0004, rel=1e-9)
+
+
+def test_an_implausible_wheel_angle_jump_is_bad_input():
+    odometry = moving_odometry()
+    before = odometry.pose
+    with pytest.raises(BadInput, match="max_wheel_speed"):
+        odometry.step(10 * NS + 50 * NS // 1000, [1e6, 1e6])
+    assert odometry.pose == before
+
+
+@pytest.mark.parametrize(
+    ("stamp_ns", "x", "reason"),
+    [
+        (0, 5.0, "older than"),  # 10 s back, beyond the ~4 s history
+        (10 * NS + 2 * NS, 5.0, "ahead of the wheel-angle time"),
+        (10 * NS, 1e308, "max_coordinate"),
+    ],
+)
+def test_a_fix_outside_the_history_or_implausible_is_refused(stamp_ns: int, x: float, reason: str):
+    odometry = moving_odometry()
+    before = odometry.pose
+    with pytest.raises(BadInput, match=reason):
+        odometry.reset_at(stamp_ns, x, 0.0, 0.0)
+    assert odometry.pose == before
+    assert odometry.reset_at(9 * NS, 1.8, 0.5, 0.0) == pytest.approx((2.0, 0.5, 0.0)), "a fix within the history applies"

@@ -43,9 +43,11 @@ OVERRIDES = {
     "odometry.left_radius_scale": 0.95,
     "odometry.right_radius_scale": 0.95,
     "odometry.axle_scale": 1.1,
+    "input.max_wheel_speed": 2000.0,
 }
 """Non-default wheel ids, radii and calibration, to show the service reads them. Equal wheels and
-dyadic angle increments (exact in binary) let equal increments take the exact straight branch."""
+dyadic angle increments (exact in binary) let equal increments take the exact straight branch.
+The sequences turn the wheels up to 1 rad per ms: a wheel-speed bound that lets them through."""
 DYADIC = 2.0**-24
 WHEEL_COUNT = 3
 STEP_NS = 10_000_000
@@ -67,7 +69,8 @@ class OdometryLink:
         json_encoding = zenoh.Encoding.APPLICATION_JSON
         self.wheels = session.declare_publisher(keys.motor_wheel_angles, encoding=json_encoding)
         self.localization = session.declare_publisher(keys.localization_pose, encoding=json_encoding)
-        self.mirror = Odometry(OdometryParameters.from_config(load_config(overrides=OVERRIDES)))
+        config = load_config(overrides=OVERRIDES)
+        self.mirror = Odometry(OdometryParameters.from_config(config), limits=config.input)
         self.time_ns = FIRST_TM.to_nanoseconds()
         self.q_left = self.q_right = 0.0
 
@@ -178,7 +181,8 @@ def test_poses_equal_the_cores_for_a_sample_sequence(link: OdometryLink) -> None
 
 def test_localization_pose_resets_the_pose(link: OdometryLink) -> None:
     before = link.status()["counters"]["localization_resets"]
-    link.localization.put(encode(TimedPosition(tm=Time(0, 0), id=[], x=3.0, y=-4.0, theta=4.0, error=[])))
+    stamp = Time.from_nanoseconds(link.time_ns)  # the last sample's time: a plain overwrite
+    link.localization.put(encode(TimedPosition(tm=stamp, id=[], x=3.0, y=-4.0, theta=4.0, error=[])))
     expected_pose = link.mirror.reset(3.0, -4.0, 4.0)
     assert expected_pose.theta == pytest.approx(4.0 - 2 * math.pi)
     wait_until(lambda: link.status()["counters"]["localization_resets"] == before + 1, what="the reset counted")
@@ -269,7 +273,7 @@ def test_a_restarted_simulator_starts_a_new_time_base_from_the_kept_pose(
                 what="the odometry to see the simulator appear",
             )
             kept = link.mirror.pose
-            link.mirror = Odometry(link.mirror.parameters, start=kept)
+            link.mirror = Odometry(link.mirror.parameters, start=kept, limits=load_config(overrides=OVERRIDES).input)
             step, pose = link.send_wheels(0, 4.0, -3.0)
             assert step.branch is Branch.INITIAL and (pose.x, pose.y, pose.theta) == kept
             for k in range(1, 6):
