@@ -19,7 +19,7 @@ import threading
 from typing import Any
 
 from schemas.keys import Service
-from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition
 from services.config import Config, LocalizationConfig
 from services.localization_core import Fix, Localizer, resolve_seed
 from services.runtime import Node
@@ -74,19 +74,15 @@ class LocalizationService:
         self.node = node
         self.config = config.localization
         self.seed = resolve_seed(self.config.seed)
-        # Started while a simulator runs (a restart of this service, not of the loop): the first
-        # fix is the simulated pose, not the initial pose, which would send odometry back there.
-        sim_running = node.alive_now(Service.SIM)
-        self.localizer = Localizer.from_config(config, self.seed, from_sim_pose=sim_running)
+        self.localizer = Localizer.from_config(config, self.seed)
         self.sim_alive = False
         self.publisher = node.publisher(node.keys.localization_pose)
         node.sample(node.keys.motor_sim_pose_localization, TimedDoubleSeq, self._on_sim_pose)
         node.watch(Service.SIM, self._on_sim_liveliness)
         node.set_status(self.status)
         node.log.info(
-            "fixes at %g Hz of simulation time, noise σ = (%g m, %g m, %g rad), seed %d; first fix: %s",
+            "fixes at %g Hz of simulation time, noise σ = (%g m, %g m, %g rad), seed %d",
             self.config.rate, self.config.noise_x, self.config.noise_y, self.config.noise_theta, self.seed,
-            "the simulated pose (a simulator is running)" if sim_running else "the initial pose",
         )
 
     def _on_sim_liveliness(self, alive: bool) -> None:
@@ -106,6 +102,11 @@ class LocalizationService:
         if localizer.time_base_restarts != restarts:
             self.node.log.info("simulation time went back (a new simulator): a new time base, a fix at once")
         if fix is not None:
+            if localizer.fixes == 1 and localizer.first_fix_from_sim_pose:
+                self.node.log.info(
+                    "simulation time is already %.3f s: the first fix is the simulated pose, not the initial pose",
+                    fix.stamp_ns / NANOSECONDS_PER_SECOND,
+                )
             x, y, theta = fix.pose
             stamp = Time.from_nanoseconds(fix.stamp_ns)
             self.publisher.put(TimedPosition(tm=stamp, id=[], x=x, y=y, theta=theta, error=[]))
@@ -126,7 +127,7 @@ class LocalizationService:
             "seed": self.seed,
             "seed_from_config": self.config.seed is not None,
             "initial_pose": self.localizer.initial._asdict(),
-            "first_fix_from_sim_pose": self.localizer.from_sim_pose,
+            "first_fix_from_sim_pose": self.localizer.first_fix_from_sim_pose,
         }
 
     def run(self, stop: threading.Event) -> int:

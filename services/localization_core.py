@@ -3,10 +3,11 @@
 A :class:`Localizer` turns the stream of simulated poses (``motor/sim_pose/localization``:
 x, y, z, θ stamped with simulation time) into localized fixes:
 
-- the first sample publishes the configured initial pose, stamped with that sample's time t0
-  (or, for a localization started while the simulator was already running, ``from_sim_pose``:
-  that sample's simulated pose, with noise: a restarted localization must not send odometry
-  back to the initial pose);
+- the first sample publishes the configured initial pose, stamped with that sample's time t0,
+  if t0 is within one fix period of simulation time 0 (the initial pose is the pose at the
+  start); a later t0 means the simulator was already running (this service was restarted, or
+  started late), and the first fix is then that sample's simulated pose, with noise: sending
+  odometry back to the initial pose mid-run would be wrong by everything driven since;
 - then one fix at every tick t0 + k/rate (k = 1, 2, ...) of simulation time, taken by the first
   sample at or after the tick: that sample's pose plus Gaussian noise, independent per axis
   (σx, σy, σθ), θ wrapped into (−π, π].
@@ -76,12 +77,13 @@ class Localizer:
         noise: Noise,
         rng: np.random.Generator,
         limits: InputConfig = InputConfig(),
-        from_sim_pose: bool = False,
     ) -> None:
         self.initial = Pose(initial.x, initial.y, wrap_angle(initial.theta))
         self.rate_hz = rate_hz
         self.noise = noise
-        self.from_sim_pose = from_sim_pose
+        self._initial_pose_until_ns = round(NANOSECONDS_PER_SECOND / rate_hz)
+        self.first_fix_from_sim_pose: bool | None = None
+        """Whether the first fix was the simulated pose (None before it)."""
         self._sigmas = (noise.x, noise.y, noise.theta)
         self._rng = rng
         self._max_coordinate = limits.max_coordinate
@@ -97,7 +99,7 @@ class Localizer:
         return self._schedule is not None
 
     @classmethod
-    def from_config(cls, config: Config, seed: int, from_sim_pose: bool = False) -> Localizer:
+    def from_config(cls, config: Config, seed: int) -> Localizer:
         localization = config.localization
         return cls(
             Pose(localization.initial_x, localization.initial_y, localization.initial_theta),
@@ -105,7 +107,6 @@ class Localizer:
             Noise(localization.noise_x, localization.noise_y, localization.noise_theta),
             np.random.default_rng(seed),
             config.input,
-            from_sim_pose,
         )
 
     @property
@@ -138,7 +139,9 @@ class Localizer:
             self._schedule = PeriodicSchedule(self.rate_hz, stamp_ns)
         if not self._schedule.due(stamp_ns):
             return None
-        if self.fixes == 0 and not self.from_sim_pose:
+        if self.fixes == 0:
+            self.first_fix_from_sim_pose = stamp_ns > self._initial_pose_until_ns
+        if self.fixes == 0 and not self.first_fix_from_sim_pose:
             fix = Fix(stamp_ns, self.initial, initial=True)
         else:
             fix = Fix(stamp_ns, self._noisy(self.last_sim_pose), initial=False)

@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import threading
 import typing
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -28,6 +30,11 @@ from services.config import Config, TargetAngleMode
 from services.motor_core import MotorCore
 from services.runtime import Node
 from services.service import ServiceCommand, TraceFile
+
+
+STATE_HOME_VARIABLE = "XDG_STATE_HOME"
+STATE_DIRECTORY = "invent-zenoh"
+STATE_FILE = "motor.json"
 
 
 class TraceRecord(msgspec.Struct, frozen=True):
@@ -52,6 +59,46 @@ class TraceRecord(msgspec.Struct, frozen=True):
     torque: list[float]
 
 
+class SavedState(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """What a motor keeps across restarts (``--state FILE``): a stopped robot stays stopped until
+    someone clears it, and gains set at run time stay set."""
+
+    stopped: bool
+    finished: bool
+    gains: PDGains
+
+
+def default_state_path(robot: str) -> Path:
+    """``$XDG_STATE_HOME/invent-zenoh/<robot>/motor.json`` (default ``~/.local/state/...``)."""
+    base = os.environ.get(STATE_HOME_VARIABLE) or Path.home() / ".local" / "state"
+    return Path(base) / STATE_DIRECTORY / robot / STATE_FILE
+
+
+class StateFile:
+    """The motor's state file: read once at start, rewritten (atomically) after every method call."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def load(self) -> SavedState | None:
+        """The saved state; None when there is no file. Raises ValueError when it cannot be read."""
+        try:
+            return msgspec.json.decode(self.path.read_bytes(), type=SavedState)
+        except FileNotFoundError:
+            return None
+        except (OSError, msgspec.DecodeError) as error:
+            raise ValueError(str(error)) from None
+
+    def save(self, core: MotorCore) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        partial_path = self.path.with_name(self.path.name + ".partial")
+        with partial_path.open("wb") as file:
+            file.write(msgspec.json.encode(SavedState(core.stopped, core.finished, core.gains)))
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(partial_path, self.path)
+
+
 class MotorService:
     finished = False
     """It serves until stopped."""
@@ -63,6 +110,8 @@ class MotorService:
         self.sim_alive = False
         self._timeouts_logged = 0
         self._trace = TraceFile.from_flag(args.trace)
+        self._state_file = StateFile(Path(args.state) if args.state else default_state_path(config.robot.name))
+        self.restored = self._restore()
 
         keys = node.keys
         self._torque = node.publisher(keys.motor_torque)
@@ -87,6 +136,29 @@ class MotorService:
             config.robot.left_wheel_id,
             config.robot.right_wheel_id,
         )
+
+    def _restore(self) -> dict[str, Any] | None:
+        """Take back what the state file holds; an unreadable one means starting stopped, since
+        whether the robot was stopped cannot be known. Returns what was restored, for status."""
+        path, log = self._state_file.path, self.node.log
+        try:
+            saved = self._state_file.load()
+            if saved is not None:
+                self.core.restore(saved.stopped, saved.finished, saved.gains)
+        except (ValueError, BadInput) as error:
+            self.core.stop()
+            log.error("state file %s unreadable (%s): starting stopped; clear to run", path, error)
+            return {"from": str(path), "error": str(error), "stopped": True}
+        if saved is None:
+            return None
+        log.log(
+            logging.WARNING if saved.stopped else logging.INFO,
+            "restored from %s: %s, gains %s",
+            path,
+            "STOPPED (emergency stop latched: clear to run)" if saved.stopped else f"state {self.core.state}",
+            msgspec.to_builtins(saved.gains),
+        )
+        return {"from": str(path), **msgspec.to_builtins(saved)}
 
     def _on_wheel_angles(self, angles: TimedDoubleSeq) -> None:
         tm = angles.tm
@@ -159,6 +231,7 @@ class MotorService:
         elif method is Method.CLEAR:
             core.clear()
             self.node.bad_inputs.reset()
+        self._state_file.save(core)
         level = logging.WARNING if method is Method.STOP else logging.INFO
         self.node.log.log(level, "%s/%s: state %s", family, method, core.state)
         return self.node.status()
@@ -169,6 +242,8 @@ class MotorService:
             "sim_alive": self.sim_alive,
             "torques_published": self.torques_published,
             "trace": None if self._trace is None else self._trace.path,
+            "state_file": str(self._state_file.path),
+            "restored": self.restored,
         }
 
     def run(self, stop: threading.Event) -> int:
@@ -192,6 +267,13 @@ def _decode_arguments(method: Method, payload: bytes) -> msgspec.Struct:
 
 
 def _add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--state",
+        metavar="FILE",
+        help="where the emergency-stop and finish latches and the gains set at run time are kept across "
+        f"restarts (default ${STATE_HOME_VARIABLE}/{STATE_DIRECTORY}/<robot>/{STATE_FILE}, "
+        f"${STATE_HOME_VARIABLE} defaulting to ~/.local/state)",
+    )
     parser.add_argument(
         "--trace", metavar="FILE", help="write one JSON line per control cycle (inputs, targets, torques, state)"
     )

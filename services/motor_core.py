@@ -331,6 +331,24 @@ class MotorCore:
             raise BadInput(f"gains {above} above input.max_gain = {ceiling:g}")
         self.gains = gains
 
+    @property
+    def stopped(self) -> bool:
+        """The emergency-stop latch (set by :meth:`stop`, released by :meth:`clear`)."""
+        return self._stopped
+
+    @property
+    def finished(self) -> bool:
+        """The finish latch (set by :meth:`finish`, released by :meth:`start`)."""
+        return self._finished
+
+    def restore(self, stopped: bool, finished: bool, gains: PDGains) -> None:
+        """Take back the latches and gains a previous run of the motor left (its state file).
+        BadInput (nothing changes) for gains above the ceiling."""
+        self.set_pd_gain(gains)
+        self._finished = finished
+        if stopped:
+            self.stop()
+
     def start(self) -> None:
         """Leave ``finished``: torque control resumes (unless stopped, or still idle)."""
         self._finished = False

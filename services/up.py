@@ -44,6 +44,8 @@ STARTUP_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 10.0
 PROGRESS_INTERVAL_S = 1.0
 SECRETS_DIRECTORY = "secrets"
+MOTOR_STATE_FILE = "motor-state.json"
+"""The run's own motor state file (latches, gains), in the report directory: a run starts afresh."""
 SERVICES_BEFORE_SIM = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
 
 _PR_SET_PDEATHSIG = 1
@@ -309,8 +311,10 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
         with _launch(args, endpoint, parser, access) as (launcher, session):
             run = Run(launcher, session, keys, interrupted)
             recorder = None if args.no_report else Recorder(session, keys, config.robot)
+            own_flags = {Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE)]}
             for service in SERVICES_BEFORE_SIM:
-                launcher.start(str(service), [str(service), *common, *access.flags(Role(service))])
+                flags = [*common, *access.flags(Role(service)), *own_flags.get(service, [])]
+                launcher.start(str(service), [str(service), *flags])
             run.wait_alive(SERVICES_BEFORE_SIM)
             sim_flags = ["--mode", mode, *(["--gui"] if args.gui else [])]
             launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *sim_flags])

@@ -29,9 +29,8 @@ def localizer(
     noise: Noise = Noise(),
     seed: int = 1,
     initial: Pose = Pose(0.0, 0.0, 0.0),
-    from_sim_pose: bool = False,
 ):
-    return Localizer(initial, rate, noise, np.random.default_rng(seed), InputConfig(), from_sim_pose)
+    return Localizer(initial, rate, noise, np.random.default_rng(seed), InputConfig())
 
 
 def sim_pose(k: int) -> list[float]:
@@ -276,10 +275,17 @@ def test_an_implausible_position_is_bad_input() -> None:
 
 
 def test_started_while_the_simulator_runs_the_first_fix_is_the_simulated_pose() -> None:
-    loc = localizer(initial=Pose(0.0, 0.0, 0.0), from_sim_pose=True)
-    first = loc.on_sim_pose(30 * S, [1.0, 1.0, 0.05, 1.5])
-    assert first is not None and not first.initial
+    loc = localizer(rate=2.0, initial=Pose(0.0, 0.0, 0.0))
+    first = loc.on_sim_pose(500 * MS + 1, [1.0, 1.0, 0.05, 1.5])  # just past one fix period
+    assert first is not None and not first.initial and loc.first_fix_from_sim_pose
     assert first.pose == Pose(1.0, 1.0, 1.5)
+
+
+def test_at_the_start_of_a_run_the_first_fix_is_the_initial_pose() -> None:
+    loc = localizer(rate=2.0, initial=Pose(2.0, 3.0, 0.5))
+    first = loc.on_sim_pose(500 * MS, [1.0, 1.0, 0.05, 1.5])  # within one fix period of time 0
+    assert first is not None and first.initial and loc.first_fix_from_sim_pose is False
+    assert first.pose == Pose(2.0, 3.0, 0.5)
 
 
 def _returns_within(call, seconds: float = 2.0):
