@@ -17,8 +17,8 @@ import zenoh
 from schemas.codec import BadInput, decode
 from schemas.keys import Keys
 from schemas.messages import TimedDoubleSeq, TimedPosition, TimedVelocity
-from services.config import RobotConfig
-from services.planar import Pose
+from services.config import InputConfig, RobotConfig
+from services.planar import Pose, check_coordinates
 from services.report import Recording, pose_from_body_pose
 
 CHANNEL_CAPACITY = 1 << 20
@@ -27,8 +27,9 @@ CHANNEL_CAPACITY = 1 << 20
 
 
 class Recorder:
-    def __init__(self, session: zenoh.Session, keys: Keys, robot: RobotConfig) -> None:
+    def __init__(self, session: zenoh.Session, keys: Keys, robot: RobotConfig, limits: InputConfig) -> None:
         self._robot = robot
+        self._max_coordinate = limits.max_coordinate
         recorded = (
             keys.sim_body_pose,
             keys.odometry_pose,
@@ -70,6 +71,8 @@ class Recorder:
         keys, robot = self._keys, self._robot
 
         def position(message: TimedPosition) -> Pose:
+            # The services refuse an implausible pose; so does the report (it would fill the plot).
+            check_coordinates(message.x, message.y, self._max_coordinate)
             return Pose(message.x, message.y, message.theta)
 
         def wheels(message: TimedDoubleSeq) -> tuple[float, float]:

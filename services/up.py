@@ -310,7 +310,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     try:
         with _launch(args, endpoint, parser, access) as (launcher, session):
             run = Run(launcher, session, keys, interrupted)
-            recorder = None if args.no_report else Recorder(session, keys, config.robot)
+            recorder = None if args.no_report else Recorder(session, keys, config.robot, config.input)
             own_flags = {Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE)]}
             for service in SERVICES_BEFORE_SIM:
                 flags = [*common, *access.flags(Role(service)), *own_flags.get(service, [])]

@@ -52,7 +52,7 @@ def test_every_service_is_a_client_with_only_its_own_roles_credentials():
         assert args.zenoh_config == ROLE_FILE_IN_CONTAINER, name
         assert spec["secrets"] == [{"source": name, "target": Path(ROLE_FILE_IN_CONTAINER).name}], name
         assert declared[name] == {"file": f"{SECRETS_DIR}/{Role(name)}.json5"}, name
-        assert "volumes" not in spec, name
+        assert spec.get("volumes", []) == (["motor-state:/state"] if name == "motor" else []), name
         assert config_from_args(args.service_command, args).robot.name == "rh0"
 
 
@@ -88,3 +88,11 @@ def test_make_secrets_writes_the_files_compose_mounts(tmp_path):
 def test_no_credentials_are_committed_or_copied_into_the_image():
     assert SECRETS_DIR.removeprefix("./") + "/" in (REPO / ".gitignore").read_text().splitlines()
     assert SECRETS_DIR.removeprefix("./") in (REPO / ".dockerignore").read_text().splitlines()
+
+
+def test_the_motors_state_file_is_on_a_volume_so_an_emergency_stop_survives_a_restart():
+    compose = _compose()
+    args = build_parser().parse_args(compose["services"]["motor"]["command"])
+    volume, mount = compose["services"]["motor"]["volumes"][0].split(":")
+    assert volume in compose["volumes"]
+    assert Path(args.state).parent == Path(mount)

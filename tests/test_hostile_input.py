@@ -1,0 +1,197 @@
+"""Well-formed but wrong input, as a buggy or hostile publisher sends it, into the running loop.
+
+One realtime ``invent up --scenario square`` (realtime: the mode where forged stamps and torques
+did the damage) while this test injects, from its own session, every input measured breaking
+the loop before: far-future and absurd stamps on each time base, a forged torque from the future,
+absurd gains and velocities, fixes stamped 0 or placed at 1e308 m, a wheel-angle jump of 10^6 rad,
+10^6-element arrays, and floods. Afterwards the square must still come home within the e2e
+bounds, every service must have counted what it refused, and none may have hung.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from schemas.codec import encode
+from schemas.keys import Keys, Method, MethodFamily, Service
+from schemas.messages import Time, TimedDoubleSeq, TimedPosition, TimedVelocity
+from tests.harness import REPO, call, free_port, invent_command, peer_session, wait_until
+
+pytestmark = pytest.mark.slow
+
+KEYS = Keys()
+ROUNDS = 20
+INJECT_AFTER_NS = 6_000_000_000
+FAR_FUTURE_S = 100_000
+ABSURD_SEC = 10**29
+FLOOD_PAYLOAD_BYTES = 400_000
+FLOOD_COUNT = 200
+RSS_CEILING_MB = 300
+
+
+class SimClock:
+    """The newest ``sim/wheel_angles`` the loop published: the time base to forge against."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.latest: tuple[int, list[float]] | None = None
+        self._subscriber = session.declare_subscriber(KEYS.sim_wheel_angles, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        payload = sample.payload.to_bytes()
+        if len(payload) > 1000:  # our own floods
+            return
+        message = json.loads(payload)
+        if len(message["data"]) == 2 and message["tm"]["sec"] < FAR_FUTURE_S:  # not our own forgeries
+            self.latest = (message["tm"]["sec"] * 1_000_000_000 + message["tm"]["nsec"], message["data"])
+
+    def now(self) -> tuple[int, list[float]]:
+        return wait_until(lambda: self.latest, 10, "the simulator's clock")
+
+
+def _seq(stamp_ns: int, data: list[float]) -> bytes:
+    return encode(TimedDoubleSeq(Time.from_nanoseconds(stamp_ns), data))
+
+
+def _raw_seq(sec: int, values: str) -> bytes:
+    return f'{{"tm": {{"sec": {sec}, "nsec": 0}}, "data": [{values}]}}'.encode()
+
+
+def _velocity(stamp_ns: int, vx: float, w: float = 0.0) -> bytes:
+    return encode(TimedVelocity(Time.from_nanoseconds(stamp_ns), [], vx, 0.0, w, []))
+
+
+def _position(stamp_ns: int, x: float) -> bytes:
+    return encode(TimedPosition(Time.from_nanoseconds(stamp_ns), [], x, 0.0, 0.0, []))
+
+
+def _rss_mb(pid: int) -> float:
+    line = next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines() if line.startswith("VmRSS"))
+    return int(line.split()[1]) / 1024
+
+
+def _inject(session: zenoh.Session, clock: SimClock, pids: dict[str, int]) -> dict[str, object]:
+    """Every forgery of the measured list, each a few times (a newest-only or sampled input takes
+    the newest sample, so one forged sample can be overwritten before it is looked at)."""
+    put = session.put
+    seen: dict[str, object] = {}
+    for round_index in range(ROUNDS):
+        now_ns, angles = clock.now()
+        far_ns = FAR_FUTURE_S * 1_000_000_000
+        # One far-future stamp froze the loop; with a (valid) target between it and a second one,
+        # the sim applied [20, 20] N·m for good.
+        put(KEYS.sim_wheel_angles, _seq(far_ns, angles))
+        if round_index == 0:
+            put(KEYS.drive_target_velocity, _velocity(now_ns, 1.0))
+        put(KEYS.sim_wheel_angles, _seq(far_ns + 1_000_000, angles))
+        put(KEYS.motor_wheel_angles, _seq(far_ns, angles))
+        put(KEYS.motor_sim_pose_localization, _seq(far_ns, [0.0, 0.0, 0.0, 0.0]))
+        # A forged torque from the future hijacked the realtime sim.
+        put(KEYS.motor_torque, _seq(now_ns + 10 * 1_000_000_000, [20.0, -20.0]))
+        # tm.sec = 10^29 hung the drive's and the localization's schedules.
+        put(KEYS.sim_wheel_angles, _raw_seq(ABSURD_SEC, "0.0, 0.0"))
+        put(KEYS.motor_sim_pose_localization, _raw_seq(ABSURD_SEC, "0.0, 0.0, 0.0, 0.0"))
+        # Absurd but finite values.
+        put(KEYS.drive_target_velocity, _velocity(now_ns, 1e300))
+        put(KEYS.localization_pose, _position(0, 5.0))
+        put(KEYS.localization_pose, _position(now_ns, 1e308))
+        put(KEYS.sim_wheel_angles, _seq(now_ns + 50_000_000, [angle + 1e6 for angle in angles]))
+        put(KEYS.motor_wheel_angles, _seq(now_ns + 50_000_000, [angle + 1e6 for angle in angles]))
+        time.sleep(0.005)  # pacing the forgeries, not waiting for a condition
+    ok, reply = call(session, KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN), json.dumps(
+        {"p_gain_l": 1e308, "p_gain_r": 1e308, "d_gain_l": 1e308, "d_gain_r": 1e308}
+    ))
+    seen["absurd_gains_refused"] = not ok and "max_gain" in json.dumps(reply)
+    # Unbounded work: huge arrays, then floods.
+    million = ", ".join(["0.5"] * 1_000_000)
+    now_ns, _angles = clock.now()
+    tm = Time.from_nanoseconds(now_ns)
+    put(KEYS.sim_wheel_angles, _raw_seq(tm.sec, million))
+    put(
+        KEYS.drive_target_velocity,
+        f'{{"tm": {{"sec": {tm.sec}, "nsec": {tm.nsec}}}, "id": [{", ".join(["1"] * 1_000_000)}], '
+        f'"vx": 0.1, "vy": 0.0, "w": 0.0, "error": []}}'.encode(),
+    )
+    rss_before = _rss_mb(pids["motor"])
+    big = _raw_seq(tm.sec, ", ".join(["0.25"] * (FLOOD_PAYLOAD_BYTES // 6)))
+    for _ in range(FLOOD_COUNT):
+        put(KEYS.sim_wheel_angles, big)
+    for _ in range(10_000):
+        put(KEYS.drive_target_velocity, _velocity(now_ns, 0.0))
+    seen["motor_rss_mb"] = (rss_before, _rss_mb(pids["motor"]))
+    return seen
+
+
+def _status(session: zenoh.Session, service: Service) -> dict:
+    ok, status = call(session, KEYS.status(service), timeout=5.0)
+    assert ok, status
+    return status
+
+
+def test_forged_and_absurd_input_is_counted_and_the_square_still_comes_home(tmp_path):
+    report_dir = tmp_path / "report"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    process = subprocess.Popen(
+        invent_command(
+            "up", "--scenario", "square", "--mode", "realtime", "--report", str(report_dir), "--listen", endpoint
+        ),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    output: list[str] = []
+    reader = threading.Thread(target=lambda: output.extend(process.stdout), daemon=True)
+    reader.start()
+    try:
+        wait_until(lambda: "started drive" in "".join(output) or process.poll() is not None, 120, "the drive")
+        pids = {name: int(pid) for name, pid in re.findall(r"started (\w+) \(pid (\d+)\)", "".join(output))}
+        with peer_session(endpoint) as session:
+            clock = SimClock(session)
+            # Well into the run, as measured: a fix stamped 0 is then older than odometry's history
+            # (early on it is a genuine fix of where the robot was at time 0).
+            wait_until(lambda: clock.now()[0] > INJECT_AFTER_NS, 60, "the run to be under way")
+            seen = _inject(session, clock, pids)
+            statuses = {service: _status(session, service) for service in Service}
+        process.wait(timeout=180)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    reader.join(5)
+    log = "".join(output)
+    assert process.returncode == 0, log[-4000:]
+
+    report = json.loads((report_dir / "report.json").read_text())
+    start, end = report["start"], report["final"]["ground_truth"]
+    assert math.hypot(end["x"] - start["x"], end["y"] - start["y"]) < 0.05, log[-3000:]
+    assert report["path_error"]["max_m"] < 0.10, log[-6000:]
+    assert report["odometry_error"]["max_m"] < 0.05
+    final_fix = report["final"]["localization"]
+    assert math.hypot(final_fix["x"], final_fix["y"]) < 0.05, "the report leaves out the fixes every service refused"
+
+    def refused(service: Service) -> dict[str, int]:
+        return {key.removeprefix(KEYS.prefix + "/"): entry["count"]
+                for key, entry in statuses[service]["bad_input"]["by_key"].items()}
+
+    motor, odometry, localization = refused(Service.MOTOR), refused(Service.ODOMETRY), refused(Service.LOCALIZATION)
+    assert motor["sim/wheel_angles"] >= ROUNDS * 4, motor  # two far-future, one absurd, one jump a round
+    assert motor["drive/target_velocity"] >= 1, motor
+    assert seen["absurd_gains_refused"] and motor["motor/gui/set_pd_gain"] == 1
+    assert odometry["motor/wheel_angles"] == ROUNDS * 2, odometry
+    assert odometry["localization/pose"] == ROUNDS * 2, odometry
+    assert localization["motor/sim_pose/localization"] >= 1, localization
+    assert refused(Service.SIM)["motor/torque"] == ROUNDS, "the forged torque from the future, each time"
+    assert refused(Service.DRIVE)["sim/wheel_angles"] >= 1
+    for service, status in statuses.items():
+        assert status["internal_errors"] == 0, (service, status)
+    assert statuses[Service.MOTOR]["gains"]["p_gain_l"] == 5.0
+    rss_before, rss_after = seen["motor_rss_mb"]
+    assert rss_after < RSS_CEILING_MB, f"the motor's memory grew from {rss_before:.0f} to {rss_after:.0f} MB"
