@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test bench secrets clean
+.PHONY: run test fuzz bench secrets clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -17,6 +17,10 @@ run: $(STAMP)  ## the whole loop: router, sim, motor, odometry, localization, dr
 
 test: $(STAMP)  ## the whole suite
 	$(BIN)/python -m pytest
+
+fuzz: $(STAMP)  ## 10^4 generated bad payloads per consumed key and queryable into the running services -> runs/fuzz.json
+	mkdir -p runs
+	INVENT_FUZZ_PAYLOADS=10000 INVENT_FUZZ_BATCH=100 INVENT_FUZZ_FIGURES=runs/fuzz.json $(BIN)/python -m pytest tests/test_fuzz.py -q -s -p no:cacheprovider
 
 bench: $(STAMP)  ## benchmarks/ -> benchmarks/results/latest.json (never part of `make test`)
 	$(BIN)/python -m benchmarks

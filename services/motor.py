@@ -209,7 +209,7 @@ class MotorService:
         )
 
     def _on_body_pose(self, pose: TimedDoubleSeq) -> None:
-        sim_pose = TimedDoubleSeq(pose.tm, self.core.sim_pose(pose.data))
+        sim_pose = TimedDoubleSeq(pose.tm, self.core.sim_pose(pose.data, pose.tm.to_nanoseconds()))
         self._sim_pose_gui.put(sim_pose)
         self._sim_pose_localization.put(sim_pose)
 

@@ -25,7 +25,7 @@ from schemas.codec import BadInput
 from schemas.keys import BODY_POSE_LENGTH
 from schemas.messages import NANOSECONDS_PER_SECOND, PDGains
 from services.config import InputConfig, MotorConfig, RobotConfig, TargetAngleMode
-from services.planar import wrap_angle
+from services.planar import check_coordinates, wrap_angle
 from services.sim_time import check_next_stamp, check_stamp_near
 
 SEED, INTEGRATED = typing.get_args(TargetAngleMode)
@@ -316,9 +316,16 @@ class MotorCore:
         self.target_velocity_samples += 1
         return True
 
-    def sim_pose(self, data: Sequence[float]) -> list[float]:
-        """[X, Y, Z, theta] of the axle centre for a ``sim/body_pose`` vector (offsets applied)."""
+    def sim_pose(self, data: Sequence[float], stamp_ns: int | None = None) -> list[float]:
+        """[X, Y, Z, theta] of the axle centre for a ``sim/body_pose`` vector (offsets applied).
+
+        BadInput for a position beyond ``input.max_coordinate``, or a ``stamp_ns`` further than
+        the horizon either way from the wheel-angle time, once there is one (the simulator stamps
+        both with its one clock)."""
+        if stamp_ns is not None and self._stamp_ns is not None:
+            check_stamp_near(stamp_ns, self._stamp_ns, self._horizon_ns, self._horizon_ns, "body pose")
         pose = self._pose(data)
+        check_coordinates(pose[0], pose[1], self.limits.max_coordinate)
         self.body_pose_samples += 1
         return pose
 

@@ -315,7 +315,7 @@ def test_bad_payload_on_every_input_key_is_dropped_and_counted(link):
     torques, expected = link.cycle(moving(1))
     assert torques == expected
     identity_pose = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-    link.put(keys.sim_body_pose, encode(TimedDoubleSeq(FIRST_TM, identity_pose)))
+    link.put(keys.sim_body_pose, encode(TimedDoubleSeq(Time.from_nanoseconds(link.time_ns), identity_pose)))
     for collector in (link.pose_gui, link.pose_localization):
         assert collector.get().data == link.mirror.sim_pose(identity_pose), "still converting body poses"
 
