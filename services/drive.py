@@ -19,6 +19,7 @@ scenario over from its first stamp: a new simulator is a new run, the robot back
 from __future__ import annotations
 
 import argparse
+import math
 import threading
 from typing import Any
 
@@ -39,7 +40,7 @@ from services.scenarios import (
     parse_waypoints,
 )
 from services.service import ServiceCommand, finite_number, positive_seconds
-from services.sim_time import PeriodicSchedule, StampClock
+from services.sim_time import PeriodicSchedule, StampClock, check_stamp_near
 
 FINAL_ZERO_TICKS = 3
 """Ticks on which the final zero velocity is published before the drive exits."""
@@ -136,6 +137,10 @@ class DriveService:
 
     def _on_pose(self, message: TimedPosition) -> None:
         check_coordinates(message.x, message.y, self.max_coordinate)
+        if self.clock.last_ns is not None:
+            # An old pose is only stale (odometry stopped: _fresh_pose ignores it); one from
+            # beyond the horizon is bad input.
+            check_stamp_near(message.tm.to_nanoseconds(), self.clock.last_ns, self.clock.horizon_ns, math.inf, "pose")
         self.pose = Pose(message.x, message.y, message.theta)
         self.pose_stamp_ns = message.tm.to_nanoseconds()
 

@@ -28,7 +28,7 @@ from schemas.keys import METHOD_ARGUMENTS, Method, MethodFamily, Service
 from schemas.messages import NoArguments, PDGains, Time, TimedDoubleSeq, TimedVelocity
 from services.config import Config, TargetAngleMode
 from services.motor_core import MotorCore
-from services.runtime import Node
+from services.runtime import Node, RateLimitedLog
 from services.service import ServiceCommand, TraceFile
 
 
@@ -109,6 +109,8 @@ class MotorService:
         self.torques_published = 0
         self.sim_alive = False
         self._timeouts_logged = 0
+        self._nonfinite_logged = 0
+        self._warn = RateLimitedLog(node.log)
         self._trace = TraceFile.from_flag(args.trace)
         self._state_file = StateFile(Path(args.state) if args.state else default_state_path(config.robot.name))
         self.restored = self._restore()
@@ -170,6 +172,16 @@ class MotorService:
         trace = self._trace
         if trace is not None:
             trace.write(self._trace_record(angles, torques))
+        if core.nonfinite_torques != self._nonfinite_logged:
+            self._nonfinite_logged = core.nonfinite_torques
+            self._warn(
+                "nonfinite_torque",
+                logging.ERROR,
+                "the torque for t = %.6f s came out non-finite (gains %s, angles %s): sent zero instead",
+                tm.to_seconds(),
+                msgspec.to_builtins(core.gains),
+                angles.data,
+            )
         if core.command_timeouts != self._timeouts_logged:
             self._timeouts_logged = core.command_timeouts
             self.node.log.warning(

@@ -28,7 +28,7 @@ def check_next_stamp(stamp_ns: int, last_ns: int, horizon_ns: int) -> None:
         raise BadInput(f"stamp jumps {_seconds(stamp_ns - last_ns)} ahead of the time base (horizon {_seconds(horizon_ns)})")
 
 
-def check_stamp_near(stamp_ns: int, reference_ns: int, horizon_ns: int, history_ns: int, what: str) -> None:
+def check_stamp_near(stamp_ns: int, reference_ns: int, horizon_ns: int, history_ns: float, what: str) -> None:
     """The stamp policy of an input checked against another time base (a target or a fix against
     the wheel-angle time): no further ahead than the horizon, no further back than the history
     the consumer keeps. Raises BadInput naming ``what`` otherwise."""

@@ -591,3 +591,11 @@ def test_the_default_limits_clamp_an_absurd_but_plausible_target():
     for k in range(1, 2001):
         motor_core.step(k * MS, [0.0, 0.0])
     assert motor_core.command == (1.0, 0.0), "max_vx 1 m/s, reached at max_ax 2 m/s^2 within 0.5 s"
+
+
+def test_a_non_finite_torque_is_never_returned():
+    """Unreachable within the default input bounds; guarded all the same."""
+    motor_core = running(vx=0.5)
+    motor_core.set_pd_gain(PDGains(p_gain_l=1e300, p_gain_r=1e300, d_gain_l=1e300, d_gain_r=1e300))
+    torques = motor_core.step(1 * MS, [1e10, 1e10])
+    assert torques == [0.0, 0.0] and motor_core.nonfinite_torques == 1
