@@ -243,7 +243,16 @@ class MotorService:
         elif method is Method.CLEAR:
             core.clear()
             self.node.bad_inputs.reset()
-        self._state_file.save(core)
+        try:
+            self._state_file.save(core)
+        except OSError as error:  # the call has acted: say what will not survive a restart
+            self._warn(
+                "state_file",
+                logging.ERROR,
+                "could not write the state file %s (%s): this state will not survive a restart",
+                self._state_file.path,
+                error,
+            )
         level = logging.WARNING if method is Method.STOP else logging.INFO
         self.node.log.log(level, "%s/%s: state %s", family, method, core.state)
         return self.node.status()

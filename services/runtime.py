@@ -60,9 +60,9 @@ these settings (zenohd's defaults) still talks to these, over the ordinary trans
 LOG_INTERVAL_S = 1.0
 """At most one line per kind (bad input per key, internal errors per key, ...) per interval."""
 STOP_POLL_S = 0.1
+"""Longest a service thread waits without looking at its stop event (SIGINT/SIGTERM)."""
 LIVELINESS_QUERY_TIMEOUT_S = 1.0
 """Upper bound on a start-up liveliness query (the router answers at once)."""
-"""Longest a service thread waits without looking at its stop event (SIGINT/SIGTERM)."""
 MessageT = TypeVar("MessageT", bound=msgspec.Struct)
 
 log = logging.getLogger("invent")

@@ -97,3 +97,13 @@ def test_a_localization_restarted_while_the_sim_runs_fixes_the_current_pose_firs
             assert ok and status["first_fix_from_sim_pose"] is True
             localization.stop()
     fixes.close()
+
+
+def test_a_state_file_that_cannot_be_written_does_not_stop_the_stop(endpoint, session, tmp_path):
+    blocked = tmp_path / "not-a-directory"
+    blocked.write_text("")
+    with _motor(endpoint, blocked / "motor.json") as motor:
+        wait_alive(session, KEYS.alive(Service.MOTOR))
+        assert _method(session, Method.STOP)["state"] == "stopped"
+        code, _out, err = motor.stop()
+    assert code == 0 and "will not survive a restart" in err
