@@ -160,6 +160,13 @@ class InventProcess:
             self.process.communicate()
 
 
+def start_up(*args: str) -> subprocess.Popen[str]:
+    """``invent up ARGS`` in its own process, its output (stdout and stderr) on one text pipe."""
+    return subprocess.Popen(
+        invent_command("up", *args), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+
+
 def run_invent(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run(invent_command(*args), cwd=REPO, capture_output=True, text=True, timeout=timeout)
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import subprocess
 import threading
 import time
 from pathlib import Path
@@ -24,7 +23,7 @@ import zenoh
 from schemas.codec import encode
 from schemas.keys import Keys, Method, MethodFamily, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition, TimedVelocity
-from tests.harness import REPO, call, free_port, invent_command, peer_session, wait_until
+from tests.harness import call, free_port, peer_session, start_up, wait_until
 
 pytestmark = pytest.mark.slow
 
@@ -139,15 +138,7 @@ def _status(session: zenoh.Session, service: Service) -> dict:
 def test_forged_and_absurd_input_is_counted_and_the_square_still_comes_home(tmp_path):
     report_dir = tmp_path / "report"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    process = subprocess.Popen(
-        invent_command(
-            "up", "--scenario", "square", "--mode", "realtime", "--report", str(report_dir), "--listen", endpoint
-        ),
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    process = start_up("--scenario", "square", "--mode", "realtime", "--report", str(report_dir), "--listen", endpoint)
     output: list[str] = []
     reader = threading.Thread(target=lambda: output.extend(process.stdout), daemon=True)
     reader.start()

@@ -7,9 +7,9 @@ import json
 import math
 import queue
 import stat
-import subprocess
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
+from pathlib import Path
 import msgspec
 import pytest
 import zenoh
@@ -28,29 +28,29 @@ from services.security import (
     grants,
     write_profile,
 )
-from tests.harness import REPO, call, free_port, invent_command, run_invent, wait_until
+from tests.harness import call, free_port, run_invent, start_up, wait_until
 
 KEYS = Keys("secured")
 FORGED_VX = 0.4321
 """A forward speed nothing in the tests' loop ever commands: seeing it means a forged put got through."""
 
 
-def _put_keys(role: Role) -> set[str]:
+def _granted(role: Role, message: Message) -> set[str]:
+    """The key expressions on which ``role`` may send ``message`` (its ingress at the router)."""
     return {
         key
         for grant in grants(role, KEYS)
-        if Message.PUT in grant.messages and grant.flow is Flow.INGRESS
+        if message in grant.messages and grant.flow is Flow.INGRESS
         for key in grant.key_exprs
     }
+
+
+def _put_keys(role: Role) -> set[str]:
+    return _granted(role, Message.PUT)
 
 
 def _queried_keys(role: Role) -> set[str]:
-    return {
-        key
-        for grant in grants(role, KEYS)
-        if Message.QUERY in grant.messages and grant.flow is Flow.INGRESS
-        for key in grant.key_exprs
-    }
+    return _granted(role, Message.QUERY)
 
 
 def _methods(family: MethodFamily) -> set[str]:
@@ -75,12 +75,7 @@ def test_only_the_operator_and_the_sim_query_motor_methods_each_its_own_family()
 
 def test_only_the_motor_serves_the_methods_and_each_service_only_its_status():
     for role in Role:
-        served = {
-            key
-            for grant in grants(role, KEYS)
-            if Message.DECLARE_QUERYABLE in grant.messages and grant.flow is Flow.INGRESS
-            for key in grant.key_exprs
-        }
+        served = _granted(role, Message.DECLARE_QUERYABLE)
         if role is Role.MOTOR:
             assert served == {KEYS.status(Service.MOTOR)} | _methods(MethodFamily.GUI) | _methods(MethodFamily.BUMP)
         elif role in (Role.OPERATOR, Role.OBSERVER):
@@ -221,13 +216,7 @@ def test_up_secure_runs_the_square_and_enforces_every_role(tmp_path):
     secrets = report_dir / "secrets"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     keys = Keys()
-    process = subprocess.Popen(
-        invent_command("up", "--secure", "--scenario", "square", "--report", str(report_dir), "--listen", endpoint),
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    process = start_up("--secure", "--scenario", "square", "--report", str(report_dir), "--listen", endpoint)
     output: list[str] = []
 
     def drive_started() -> bool:

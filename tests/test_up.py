@@ -9,7 +9,7 @@ import subprocess
 
 import pytest
 
-from tests.harness import REPO, free_port, invent_command, wait_until
+from tests.harness import REPO, free_port, invent_command, start_up, wait_until
 
 pytestmark = pytest.mark.slow
 
@@ -60,13 +60,7 @@ def test_up_square_returns_to_the_start_and_writes_the_report(tmp_path):
 
 def test_killing_the_motor_mid_run_stops_everything_and_exits_non_zero(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    process = subprocess.Popen(
-        invent_command("up", "--scenario", "square", "--report", str(tmp_path), "--listen", endpoint),
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    process = start_up("--scenario", "square", "--report", str(tmp_path), "--listen", endpoint)
     output: list[str] = []
     try:
         def drive_started() -> bool:
@@ -94,13 +88,7 @@ def test_composed_runs_in_one_process_and_outside_tools_still_see_every_service(
     from tests.harness import open_peer, run_invent, wait_alive
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    process = subprocess.Popen(
-        invent_command("up", "--composed", "--scenario", "square", "--report", str(tmp_path), "--listen", endpoint),
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    process = start_up("--composed", "--scenario", "square", "--report", str(tmp_path), "--listen", endpoint)
     try:
         outside = open_peer(endpoint)
         try:
