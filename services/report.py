@@ -80,7 +80,7 @@ def build_report(
     planned_path: list[Point] | None,
     wall_time_s: float,
     steps: int,
-    bad_inputs: dict[str, int],
+    health: dict[str, Any],
 ) -> dict[str, Any]:
     sim_time_s = recording.ground_truth[-1][0] if recording.ground_truth else 0.0
     errors = odometry_errors(recording)
@@ -102,7 +102,9 @@ def build_report(
         "start": _pose_dict(recording.ground_truth[0][1] if recording.ground_truth else None),
         "odometry_error": {"max_m": max(errors, default=None), "final_m": errors[-1] if errors else None},
         "path_error": None,
-        "bad_inputs": bad_inputs,
+        "bad_inputs": {name: counts["bad_inputs"] for name, counts in health["services"].items()},
+        "health": health,
+        "degraded": degradations(health),
     }
     if planned_path:
         deviations = [distance_to_path((pose.x, pose.y), planned_path) for _t, pose in recording.ground_truth]
@@ -112,6 +114,79 @@ def build_report(
         }
         report["planned_path"] = [list(point) for point in planned_path]
     return report
+
+
+DEGRADED_FRACTION = 0.01
+"""A run whose late or missing torques exceed this fraction of its steps degraded."""
+
+
+def loop_health(sim_status: dict[str, Any] | None, statuses: dict[str, dict[str, Any] | None]) -> dict[str, Any]:
+    """What the loop actually did, from the services' last status replies: the sim's torque
+    figures and each service's bad-input, internal-error and dropped-event counts."""
+    counters = (sim_status or {}).get("counters", {})
+    steps = (sim_status or {}).get("steps", 0)
+    lockstep = (sim_status or {}).get("mode") == "lockstep"
+    late = counters.get("late_torques" if lockstep else "realtime_late_steps", 0)
+    missing = counters.get("missing_torques", 0)
+
+    def fraction(count: int) -> float:
+        return count / steps if steps else 0.0
+
+    return {
+        "torques": {
+            "applied": counters.get("torques_applied", 0),
+            "late": late,
+            "missing": missing,
+            "stale": counters.get("stale_torques", 0),
+            "late_fraction": fraction(late),
+            "missing_fraction": fraction(missing),
+        },
+        "lockstep": {"timeouts": counters.get("late_torques", 0) if lockstep else 0},
+        "realtime": {"resyncs": counters.get("realtime_resyncs", 0)},
+        "services": {
+            name: {
+                "bad_inputs": status["bad_input"]["total"],
+                "internal_errors": status["internal_errors"],
+                "dropped_events": status.get("dropped_events", 0),
+            }
+            for name, status in statuses.items()
+            if status
+        },
+    }
+
+
+def degradations(health: dict[str, Any]) -> list[str]:
+    """Why a run degraded, one reason each (empty for a clean run)."""
+    torques, reasons = health["torques"], []
+    for kind in ("late", "missing"):
+        if torques[f"{kind}_fraction"] > DEGRADED_FRACTION:
+            reasons.append(
+                f"{kind} torques on {torques[f'{kind}_fraction']:.1%} of the steps ({torques[kind]}; "
+                f"more than {DEGRADED_FRACTION:.0%})"
+            )
+    if health["lockstep"]["timeouts"]:
+        reasons.append(f"{health['lockstep']['timeouts']} lockstep timeouts (steps that went on with zero torque)")
+    for name, counts in health["services"].items():
+        for counter in ("internal_errors", "dropped_events"):
+            if counts[counter]:
+                reasons.append(f"{name}: {counts[counter]} {counter.replace('_', ' ')}")
+    return reasons
+
+
+def degradation_line(reason: str) -> str:
+    return f"WARNING: the run degraded: {reason}"
+
+
+def health_lines(health: dict[str, Any]) -> list[str]:
+    torques = health["torques"]
+    services = health["services"]
+    return [
+        f"torques: late {torques['late']} ({torques['late_fraction']:.2%}), missing {torques['missing']} "
+        f"({torques['missing_fraction']:.2%}), stale {torques['stale']}; lockstep timeouts "
+        f"{health['lockstep']['timeouts']}, realtime resyncs {health['realtime']['resyncs']}",
+        "bad inputs: " + ", ".join(f"{name} {counts['bad_inputs']}" for name, counts in services.items()),
+        "internal errors: " + ", ".join(f"{name} {counts['internal_errors']}" for name, counts in services.items()),
+    ]
 
 
 def summary(report: dict[str, Any]) -> str:
@@ -135,7 +210,8 @@ def summary(report: dict[str, Any]) -> str:
     )
     if report["path_error"]:
         lines.append(f"path error mean {metres(report['path_error']['mean_m'])}, max {metres(report['path_error']['max_m'])}")
-    lines.append("bad inputs: " + ", ".join(f"{name} {count}" for name, count in report["bad_inputs"].items()))
+    lines += health_lines(report["health"])
+    lines += map(degradation_line, report["degraded"])
     return "\n".join(lines)
 
 

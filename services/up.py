@@ -33,12 +33,22 @@ from schemas.keys import Keys, Service
 from services.composition import Composition
 from services.config import Config, ConfigError
 from services.recording import Recorder
-from services.report import build_report, summary, write_plots, write_report
+from services.report import (
+    build_report,
+    degradation_line,
+    degradations,
+    health_lines,
+    loop_health,
+    summary,
+    write_plots,
+    write_report,
+)
 from services.runtime import DEFAULT_ENDPOINT, open_session, session_config
 from services.scenarios import planned_path_for
 from services.security import Profile, Role, write_profile
 
 EXIT_CHILD_DIED = 1
+EXIT_DEGRADED = 1
 EXIT_INTERRUPTED = 130
 STARTUP_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 10.0
@@ -190,12 +200,17 @@ class Run:
                 return json.loads(reply.ok.payload.to_bytes())
         return None
 
-    def supervise(self, drive: Any, started: float, collect: Callable[[], None]) -> dict[str, Any] | None:
-        """Wait for the drive to finish its scenario, printing progress and calling ``collect``
-        between looks; return the sim's last status."""
+    def supervise(
+        self, drive: Any, started: float, collect: Callable[[], None], until_interrupted: bool = False
+    ) -> dict[str, Any] | None:
+        """Wait for the drive to finish its scenario (or, ``until_interrupted``, for Ctrl-C: the end
+        of a ``--loop`` run), printing progress and calling ``collect`` between looks; return the
+        sim's last status."""
         sim_status: dict[str, Any] | None = None
         next_progress = time.monotonic()
         while True:
+            if until_interrupted and self.interrupted.is_set():
+                return self.status(Service.SIM) or sim_status
             self.check(expected_to_finish=drive.name)
             code = drive.finished()
             if time.monotonic() >= next_progress or code is not None:
@@ -310,7 +325,8 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     try:
         with _launch(args, endpoint, parser, access) as (launcher, session):
             run = Run(launcher, session, keys, interrupted)
-            recorder = None if args.no_report else Recorder(session, keys, config.robot, config.input)
+            recording = not (args.no_report or args.loop)
+            recorder = Recorder(session, keys, config.robot, config.input) if recording else None
             own_flags = {Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE)]}
             for service in SERVICES_BEFORE_SIM:
                 flags = [*common, *access.flags(Role(service)), *own_flags.get(service, [])]
@@ -320,8 +336,11 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
             launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *sim_flags])
             run.wait_alive((Service.SIM,))
             started = time.monotonic()
-            drive = launcher.start("drive", ["drive", *common, *access.flags(Role.DRIVE), "--scenario", args.scenario])
-            sim_status = run.supervise(drive, started, recorder.collect if recorder else _record_nothing)
+            drive_flags = ["--scenario", args.scenario, *(["--loop"] if args.loop else [])]
+            drive = launcher.start("drive", ["drive", *common, *access.flags(Role.DRIVE), *drive_flags])
+            sim_status = run.supervise(
+                drive, started, recorder.collect if recorder else _record_nothing, until_interrupted=args.loop
+            )
             wall_time_s = time.monotonic() - started
             statuses = {str(service): run.status(service) for service in Service if service != Service.DRIVE}
             if recorder:
@@ -335,9 +354,11 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     except Interrupted:
         say("interrupted; stopped everything")
         return EXIT_INTERRUPTED
+    health = loop_health(sim_status, statuses)
     if recorder is None:
-        say("done; no report (--no-report)")
-        return 0
+        degraded = degradations(health)
+        print("\n".join([*health_lines(health), *map(degradation_line, degraded)]), flush=True)
+        return _verdict(args, degraded, "done; no report (" + ("--loop" if args.loop else "--no-report") + ")")
     recording = recorder.recording(until=sim_status.get("sim_time_s") if sim_status else None)
     report = build_report(
         recording,
@@ -346,13 +367,21 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
         planned_path=planned_path_for(args.scenario, recording.ground_truth[0][1] if recording.ground_truth else None),
         wall_time_s=wall_time_s,
         steps=int(sim_status["steps"]) if sim_status else 0,
-        bad_inputs={name: status["bad_input"]["total"] for name, status in statuses.items() if status},
+        health=health,
     )
     report["composed"] = args.composed
     path = write_report(report, report_dir)
     plots = write_plots(recording, report.get("planned_path"), config.robot, report_dir)
     print(summary(report), flush=True)
-    say(f"report: {path}; plots: {', '.join(str(p) for p in plots)}")
+    return _verdict(args, report["degraded"], f"report: {path}; plots: {', '.join(str(p) for p in plots)}")
+
+
+def _verdict(args: argparse.Namespace, degraded: list[str], done: str) -> int:
+    """Say what was written; under ``--strict`` a degraded run exits 1."""
+    say(done)
+    if degraded and args.strict:
+        say(f"--strict: the run degraded ({len(degraded)} reason{'s' * (len(degraded) > 1)}): exit {EXIT_DEGRADED}")
+        return EXIT_DEGRADED
     return 0
 
 
@@ -383,6 +412,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(for long runs, --loop scenarios and benchmarks)",
     )
     parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
+    parser.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit 1 when the run degraded (late or missing torques above 1 %% of the steps, a lockstep timeout, "
+        "an internal error, dropped events): for CI",
+    )
+    parser.add_argument(
+        "--loop",
+        action="store_true",
+        help="repeat the scenario until Ctrl-C (a long-running stack to watch and probe); records nothing, so "
+        "memory stays flat, and prints the run's health at the end",
+    )
     parser.add_argument(
         "--secure",
         action="store_true",

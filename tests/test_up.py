@@ -6,6 +6,7 @@ import os
 import re
 import signal
 import subprocess
+import time
 
 import pytest
 
@@ -142,3 +143,79 @@ def test_no_report_runs_the_loop_and_writes_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == [], "no runs/ directory, no report, no plots"
     final_sim_time = float(re.findall(r"sim +([\d.]+) s \|", result.stdout)[-1])
     assert final_sim_time > 20.0, "the square scenario ran to its end"
+
+
+def _started_pids(process: subprocess.Popen[str], output: list[str]) -> dict[str, int]:
+    """Read ``up``'s output until it has started the drive; the children's pids."""
+
+    def drive_started() -> bool:
+        line = process.stdout.readline()
+        output.append(line)
+        return "started drive" in line or not line
+
+    wait_until(drive_started, 60, "invent up to start the drive")
+    return _child_pids("".join(output))
+
+
+def test_a_realtime_run_with_a_stalled_motor_reports_its_degradation_and_strict_exits_1(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    process = start_up(
+        "--scenario", "straight", "--mode", "realtime", "--strict", "--report", str(tmp_path), "--listen", endpoint
+    )
+    output: list[str] = []
+    try:
+        motor = _started_pids(process, output)["motor"]
+        time.sleep(2.0)  # let the straight get under way, in real time
+        os.kill(motor, signal.SIGSTOP)
+        time.sleep(0.2)  # the stall itself: 200 ms with no torque
+        os.kill(motor, signal.SIGCONT)
+        rest, _ = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    output.append(rest)
+    text = "".join(output)
+    assert process.returncode == 1, text[-3000:]
+    report = json.loads((tmp_path / "report.json").read_text())
+    torques = report["health"]["torques"]
+    assert torques["missing_fraction"] > 0.01, torques
+    assert torques["late_fraction"] > 0.0, torques
+    assert any(reason.startswith("missing torques") for reason in report["degraded"]), report["degraded"]
+    assert "WARNING: the run degraded: missing torques" in text
+    assert "--strict: the run degraded" in text
+
+
+def test_loop_repeats_the_scenario_until_ctrl_c_with_flat_memory(tmp_path):
+    from schemas.keys import Keys, Service
+    from tests.harness import call, peer_session
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    process = start_up("--loop", "--composed", "--scenario", "straight", "--listen", endpoint)
+    output: list[str] = []
+    try:
+        _started_pids(process, output)
+        with peer_session(endpoint) as session:
+            def iteration() -> int:
+                ok, status = call(session, Keys().status(Service.DRIVE))
+                return status["iteration"] if ok else 0
+
+            wait_until(lambda: iteration() >= 2, 120, "two passes of the scenario")
+            rss_early = _rss_mb(process.pid)
+            wait_until(lambda: iteration() >= 8, 240, "eight passes of the scenario")
+            rss_late = _rss_mb(process.pid)
+        process.send_signal(signal.SIGINT)
+        rest, _ = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    text = "".join(output) + rest
+    assert process.returncode == 0, text[-3000:]
+    assert "done; no report (--loop)" in text and "torques: late" in text
+    assert rss_late - rss_early < 20, f"memory grew from {rss_early:.0f} to {rss_late:.0f} MB over six passes"
+
+
+def _rss_mb(pid: int) -> float:
+    line = next(line for line in open(f"/proc/{pid}/status") if line.startswith("VmRSS"))
+    return int(line.split()[1]) / 1024

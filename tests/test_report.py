@@ -1,0 +1,53 @@
+"""The run's health in the report: the sim's torque figures and each service's counters, and
+when a run counts as degraded."""
+
+from services.report import DEGRADED_FRACTION, degradations, loop_health
+
+
+def _service(bad: int = 0, internal: int = 0, dropped: int = 0) -> dict:
+    return {"bad_input": {"total": bad}, "internal_errors": internal, "dropped_events": dropped}
+
+
+def _sim(mode: str, steps: int, **counters: int) -> dict:
+    return {"mode": mode, "steps": steps, "counters": counters}
+
+
+def test_realtime_late_and_missing_fractions_come_from_the_sims_counters():
+    health = loop_health(
+        _sim("realtime", 15_490, realtime_late_steps=12_930, missing_torques=6_114, realtime_resyncs=3),
+        {"motor": _service(bad=2), "odometry": _service(), "sim": None},
+    )
+    assert health["torques"]["late_fraction"] == 12_930 / 15_490
+    assert health["torques"]["missing_fraction"] == 6_114 / 15_490
+    assert health["realtime"]["resyncs"] == 3 and health["lockstep"]["timeouts"] == 0
+    assert health["services"] == {
+        "motor": {"bad_inputs": 2, "internal_errors": 0, "dropped_events": 0},
+        "odometry": {"bad_inputs": 0, "internal_errors": 0, "dropped_events": 0},
+    }
+    reasons = degradations(health)
+    assert len(reasons) == 2 and "late torques on 83.5%" in reasons[0] and "missing torques on 39.5%" in reasons[1]
+
+
+def test_a_clean_run_is_not_degraded_and_the_threshold_is_exclusive():
+    steps = 10_000
+    at_threshold = round(steps * DEGRADED_FRACTION)
+    health = loop_health(_sim("realtime", steps, realtime_late_steps=at_threshold), {"motor": _service(bad=5)})
+    assert degradations(health) == [], "bad input refused is no degradation of the loop"
+    health = loop_health(_sim("realtime", steps, realtime_late_steps=at_threshold + 1), {})
+    assert len(degradations(health)) == 1
+
+
+def test_any_lockstep_timeout_internal_error_or_dropped_event_degrades_a_run():
+    health = loop_health(
+        _sim("lockstep", 20_000, late_torques=1),
+        {"motor": _service(internal=1), "odometry": _service(dropped=7)},
+    )
+    assert health["lockstep"]["timeouts"] == 1
+    reasons = degradations(health)
+    assert any("1 lockstep timeouts" in reason for reason in reasons)
+    assert "motor: 1 internal errors" in reasons and "odometry: 7 dropped events" in reasons
+
+
+def test_no_sim_status_gives_zeros_not_an_error():
+    health = loop_health(None, {})
+    assert health["torques"]["late_fraction"] == 0.0 and degradations(health) == []
