@@ -20,7 +20,7 @@ test: $(STAMP)  ## the whole suite
 
 fuzz: $(STAMP)  ## 10^4 generated bad payloads per consumed key and queryable into the running services -> runs/fuzz.json
 	mkdir -p runs
-	INVENT_FUZZ_PAYLOADS=10000 INVENT_FUZZ_BATCH=100 INVENT_FUZZ_FIGURES=runs/fuzz.json $(BIN)/python -m pytest tests/test_fuzz.py -q -s -p no:cacheprovider
+	INVENT_FUZZ_PAYLOADS=10000 INVENT_FUZZ_FIGURES=runs/fuzz.json $(BIN)/python -m pytest tests/test_fuzz.py -q -s -p no:cacheprovider
 
 bench: $(STAMP)  ## benchmarks/ -> benchmarks/results/latest.json (never part of `make test`)
 	$(BIN)/python -m benchmarks
