@@ -126,9 +126,14 @@ def invent_command(*args: str) -> list[str]:
 
 
 class InventProcess:
-    """An ``invent`` subcommand in its own process, stopped with SIGINT at the end."""
+    """An ``invent`` subcommand in its own process, stopped with SIGINT at the end.
 
-    def __init__(self, *args: str, env: dict[str, str] | None = None) -> None:
+    Its output waits in pipes the test reads when it wants to. A process that runs long and logs
+    much needs ``drain=True``: threads then read both pipes as the lines come (a full pipe blocks
+    the service in its next log line) and :meth:`stop` returns what they read.
+    """
+
+    def __init__(self, *args: str, env: dict[str, str] | None = None, drain: bool = False) -> None:
         self.args = args
         self.process = subprocess.Popen(
             invent_command(*args),
@@ -138,16 +143,32 @@ class InventProcess:
             text=True,
             env={**os.environ, **(env or {})},
         )
+        self._drained: tuple[list[str], list[str]] | None = None
+        self._pumps: list[threading.Thread] = []
+        if drain:
+            self._drained = ([], [])
+            for stream, lines in zip((self.process.stdout, self.process.stderr), self._drained, strict=True):
+                pump = threading.Thread(target=lambda s=stream, sink=lines: sink.extend(s), daemon=True)
+                pump.start()
+                self._pumps.append(pump)
+
+    def _communicate(self, timeout: float | None = None) -> tuple[str, str]:
+        if self._drained is None:
+            return self.process.communicate(timeout=timeout)
+        self.process.wait(timeout)
+        for pump in self._pumps:
+            pump.join(5)
+        return "".join(self._drained[0]), "".join(self._drained[1])
 
     def stop(self, timeout: float = 15.0) -> tuple[int, str, str]:
         """SIGINT, wait, and return (exit code, stdout, stderr)."""
         if self.process.poll() is None:
             self.process.send_signal(signal.SIGINT)
         try:
-            out, err = self.process.communicate(timeout=timeout)
+            out, err = self._communicate(timeout)
         except subprocess.TimeoutExpired:
             self.process.kill()
-            out, err = self.process.communicate()
+            out, err = self._communicate()
             raise AssertionError(f"invent {' '.join(self.args)} did not stop on SIGINT; stderr:\n{err}") from None
         return self.process.returncode, out, err
 
@@ -157,7 +178,7 @@ class InventProcess:
     def __exit__(self, *_exc: object) -> None:
         if self.process.poll() is None:
             self.process.kill()
-            self.process.communicate()
+            self._communicate()
 
 
 def start_up(*args: str) -> subprocess.Popen[str]:

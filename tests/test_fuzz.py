@@ -343,8 +343,10 @@ class Loop:
         before = self.counted(target)
         self.sent[target.name] = self.sent.get(target.name, 0) + len(payloads)
         if target.query:
-            for payload in payloads:
-                replies = list(self.session.get(target.key, payload=payload, timeout=5.0))
+            # A batch in flight at once: an idle service takes posted queries at its waker's pace.
+            pending = [(payload, self.session.get(target.key, payload=payload, timeout=5.0)) for payload in payloads]
+            for payload, handler in pending:
+                replies = list(handler)
                 assert len(replies) == 1 and replies[0].err is not None, (target.name, payload[:200])
             assert self.counted(target) == before + len(payloads), target.name
             return
@@ -361,12 +363,15 @@ def loop() -> Iterator[Loop]:
     with running_router() as endpoint, peer_session(endpoint) as session:
         connect = ("--connect", endpoint)
         robot = ("--robot", KEYS.robot)
+        # Drained: each logs a line per second per fuzzed key, for as long as the fuzz runs.
         processes = {
-            Service.MOTOR: InventProcess("motor", *connect, *robot),
-            Service.ODOMETRY: InventProcess("odometry", *connect, *robot),
-            Service.LOCALIZATION: InventProcess("localization", *connect, *robot),
-            Service.DRIVE: InventProcess("drive", *connect, *robot, "--for", "3600", "--vx", str(BASELINE_TARGET[0])),
-            Service.SIM: InventProcess("sim", *connect, "--robot", SIM_KEYS.robot, "--mode", "realtime"),
+            Service.MOTOR: InventProcess("motor", *connect, *robot, drain=True),
+            Service.ODOMETRY: InventProcess("odometry", *connect, *robot, drain=True),
+            Service.LOCALIZATION: InventProcess("localization", *connect, *robot, drain=True),
+            Service.DRIVE: InventProcess(
+                "drive", *connect, *robot, "--for", "3600", "--vx", str(BASELINE_TARGET[0]), drain=True
+            ),
+            Service.SIM: InventProcess("sim", *connect, "--robot", SIM_KEYS.robot, "--mode", "realtime", drain=True),
         }
         try:
             for keys, service in STATUS_TARGETS:
