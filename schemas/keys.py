@@ -6,6 +6,7 @@ No key string is spelled anywhere else: services, tools and tests build every ke
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from enum import StrEnum
@@ -86,6 +87,7 @@ METHOD_ARGUMENTS: dict[Method, type[msgspec.Struct]] = {
 
 _STATUS = "status"
 _ALIVE = "alive"
+_TICKS = "ticks"
 
 
 def validate_robot_name(name: str) -> str:
@@ -125,6 +127,20 @@ class Keys:
         """The liveliness token a running service holds."""
         return f"{self.prefix}/{service}/{_ALIVE}"
 
+    def ticks(self, service: Service, rate_hz: float) -> str:
+        """The liveliness token of a lockstep participant: ``service`` outputs on a grid of
+        ``rate_hz`` ticks per second of simulation time (docs/protocol.md, Lockstep)."""
+        return f"{self.prefix}/{service}/{_TICKS}/{rate_hz!r}"
+
+    def ticks_at_any_rate(self, service: Service) -> str:
+        """Key expression matching ``service``'s lockstep participant token, whatever its rate."""
+        return f"{self.prefix}/{service}/{_TICKS}/*"
+
+    @property
+    def every_ticks(self) -> str:
+        """Key expression matching every lockstep participant's token of this robot."""
+        return f"{self.prefix}/*/{_TICKS}/*"
+
     sim_wheel_angles = property(lambda self: self.topic(Topic.SIM_WHEEL_ANGLES))
     sim_body_pose = property(lambda self: self.topic(Topic.SIM_BODY_POSE))
     sim_bump = property(lambda self: self.topic(Topic.SIM_BUMP))
@@ -152,6 +168,20 @@ def parse_alive_key(key: str) -> tuple[str, Service] | None:
     if len(parts) != 4 or parts[0] != ROOT or parts[3] != _ALIVE or parts[2] not in Service._value2member_map_:
         return None
     return parts[1], Service(parts[2])
+
+
+def parse_ticks_key(key: str) -> tuple[Service, float] | None:
+    """``invent/rh0/drive/ticks/50.0`` -> ``(Service.DRIVE, 50.0)``; None for any other key."""
+    parts = key.split("/")
+    if len(parts) != 5 or parts[0] != ROOT or parts[3] != _TICKS or parts[2] not in Service._value2member_map_:
+        return None
+    try:
+        rate_hz = float(parts[4])
+    except ValueError:
+        return None
+    if not (math.isfinite(rate_hz) and rate_hz > 0.0):
+        return None
+    return Service(parts[2]), rate_hz
 
 
 def schema_for_key(key: str) -> type[msgspec.Struct] | None:

@@ -72,6 +72,13 @@ class Composition:
         log.info("started %s in this process: invent %s", name, " ".join(argv))
         return composed
 
+    def idle(self) -> None:
+        """Until the sim's thread runs the shared executor, handle its events here: the services
+        started before the sim (the drive's lockstep token waits on its matching event) need them."""
+        if not any(composed.thread is not None for composed in self.services):
+            while self._shared.spin_once(0):
+                pass
+
     def _run(self, composed: ComposedService) -> None:
         try:
             composed.exit_code = composed.service.run(self._stop)

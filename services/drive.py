@@ -1,16 +1,22 @@
 """``invent drive``: the velocity source (the seed's DriveControlRTC), SPEC section 7.
 
 Publishes ``drive/target_velocity`` at ``drive.rate`` per second of simulation time. The
-clock is the stamps on ``sim/wheel_angles``: scenario time starts at the first stamp seen once
-someone (the motor) subscribes to the target velocity, and a command is stamped with the
-sim time it was computed at. Waypoint segments close the loop on ``odometry/pose`` (odometry
-is reset by every ``localization/pose`` fix, so this is the localized pose corrected by
-odometry). Both inputs are sampled (:meth:`~services.runtime.Node.sample`,
-:meth:`~services.runtime.Node.latest`): the drive acts on the newest clock stamp and pose,
-never on a backlog.
+clock is the stamps on ``sim/wheel_angles``: the ticks are the grid ``round(k·1e9/rate)`` ns,
+each taken by the first stamp at or after it; scenario time starts at the first stamp seen once
+someone (the motor) subscribes to the target velocity, and a command is stamped with the stamp
+that took its tick. Waypoint segments close the loop on ``odometry/pose`` (odometry is reset by
+every ``localization/pose`` fix, so this is the localized pose corrected by odometry). Both
+inputs are sampled (:meth:`~services.runtime.Node.sample`): the drive acts on the newest clock
+stamp and pose, never on a backlog.
+
+The drive is a lockstep participant (services/lockstep.py): once the motor subscribes it holds
+the token ``drive/ticks/<rate>``, and in lockstep (the clock's samples carry the simulator's
+attachment) a tick's command is computed from the odometry pose stamped with that tick, waited
+for while odometry is alive (at most ``sim.lockstep_timeout`` of wall time).
 
 When the scenario ends the drive publishes zero velocity on :data:`FINAL_ZERO_TICKS`
-successive ticks, so the stop is not lost, and exits 0.
+successive ticks, so the stop is not lost, the last with the attachment
+:data:`~services.lockstep.FINAL`, and exits 0.
 
 A restarted simulator (its liveliness token appears, then its clock goes back) starts the
 scenario over from its first stamp: a new simulator is a new run, the robot back at its start.
@@ -21,14 +27,16 @@ from __future__ import annotations
 import argparse
 import math
 import threading
+import time
 from typing import Any
 
 from schemas.keys import Service
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
 from services.config import Config, ConfigError, DriveConfig
+from services.lockstep import FINAL, decode_owed
 from services.path_following import FollowerParams
 from services.planar import Pose, check_coordinates
-from services.runtime import Node
+from services.runtime import STOP_POLL_S, Node
 from services.scenarios import (
     BUILTIN_SCENARIOS,
     ConstantSegment,
@@ -117,10 +125,18 @@ class DriveService:
         self.final_zeros = 0
         self.finished = False
         self.sim_alive = False
+        self.odometry_alive = False
+        self.pose_wait_s = config.sim.lockstep_timeout
+        self.pose_wait_timeouts = 0
+        """Lockstep ticks whose pose did not come within ``pose_wait_s``: computed from an older one."""
+        self._pending_tick: tuple[int, float] | None = None
+        """Lockstep: (tick stamp, wall deadline) of a tick waiting for the odometry pose of its stamp."""
         self.publisher = node.publisher(node.keys.drive_target_velocity)
-        node.sample(node.keys.sim_wheel_angles, TimedDoubleSeq, self._on_clock)
-        self.pose_input = node.latest(node.keys.odometry_pose, TimedPosition)
+        node.sample(node.keys.sim_wheel_angles, TimedDoubleSeq, self._on_clock, with_attachment=True)
+        node.sample(node.keys.odometry_pose, TimedPosition, self._on_pose)
         node.watch(Service.SIM, self._on_sim_liveliness)
+        node.watch(Service.ODOMETRY, self._on_odometry_liveliness)
+        node.participate(self.publisher, self.rate_hz)
         node.set_status(self.status)
         node.log.info(
             "%s %r%s at %g Hz of simulation time:\n%s",
@@ -135,6 +151,11 @@ class DriveService:
             return "waiting_for_clock" if self.clock.last_ns is None else "waiting_for_subscriber"
         return "waiting_for_pose" if self.runner.waiting_for_pose else "running"
 
+    def _on_odometry_liveliness(self, alive: bool) -> None:
+        self.odometry_alive = alive
+        if not alive:
+            self._complete_tick()
+
     def _on_pose(self, message: TimedPosition) -> None:
         check_coordinates(message.x, message.y, self.max_coordinate)
         if self.clock.last_ns is not None:
@@ -143,6 +164,7 @@ class DriveService:
             check_stamp_near(message.tm.to_nanoseconds(), self.clock.last_ns, self.clock.horizon_ns, math.inf, "pose")
         self.pose = Pose(message.x, message.y, message.theta)
         self.pose_stamp_ns = message.tm.to_nanoseconds()
+        self._complete_tick()
 
     @property
     def pose_age_s(self) -> float | None:
@@ -172,6 +194,7 @@ class DriveService:
         self.runner = ScenarioRunner(runner.scenario, runner.params, loop=runner.loop)
         self.schedule = None
         self.pose, self.pose_stamp_ns = None, None
+        self._pending_tick = None
         self.final_zeros = 0
         self.node.log.info(
             "simulation time went back to %.3f s (a new simulator): %r starts over",
@@ -179,29 +202,58 @@ class DriveService:
             runner.scenario.name,
         )
 
-    def _on_clock(self, message: TimedDoubleSeq) -> None:
+    def _on_clock(self, message: TimedDoubleSeq, attachment: bytes | None) -> None:
         now_ns = message.tm.to_nanoseconds()
+        lockstep = decode_owed(attachment, now_ns) is not None
         if self.clock.advance(now_ns):
             self._restart(now_ns)
+        # The simulator stepped on: it gave up waiting for a pending tick's command.
+        self._complete_tick(stepped_on=True)
         if self.schedule is None:
             # Commands sent before the motor listens would be lost: the scenario starts once it does.
             if not self.publisher.matched:
                 return
-            self.schedule = PeriodicSchedule(self.rate_hz, now_ns)
+            self.schedule = PeriodicSchedule(self.rate_hz, 0)
         if self.finished or not self.schedule.due(now_ns):
             return
-        self.pose_input.take(self._on_pose)
-        command = self.runner.step(now_ns, self._fresh_pose(now_ns))
+        if lockstep and self.odometry_alive:
+            self._pending_tick = (now_ns, time.monotonic() + self.pose_wait_s)
+            self._complete_tick()
+        else:
+            self._command(now_ns)
+
+    def _complete_tick(self, stepped_on: bool = False) -> None:
+        """Command the pending lockstep tick once the pose of its stamp has come, odometry is gone,
+        the wait is over, or the simulator has ``stepped_on`` without this tick's command."""
+        if self._pending_tick is None:
+            return
+        tick_ns, deadline = self._pending_tick
+        if self.pose_stamp_ns is None or self.pose_stamp_ns < tick_ns:
+            if self.odometry_alive and not stepped_on and time.monotonic() < deadline:
+                return
+            if self.odometry_alive and not stepped_on:
+                self.pose_wait_timeouts += 1
+                self.node.log.warning(
+                    "no odometry/pose for t = %.3f s within %g s: commanding from the latest pose",
+                    tick_ns / NANOSECONDS_PER_SECOND,
+                    self.pose_wait_s,
+                )
+        self._pending_tick = None
+        self._command(tick_ns)
+
+    def _command(self, tick_ns: int) -> None:
+        command = self.runner.step(tick_ns, self._fresh_pose(tick_ns))
+        last = self.runner.done and self.final_zeros + 1 >= FINAL_ZERO_TICKS
         self.publisher.put(
-            TimedVelocity(tm=Time.from_nanoseconds(now_ns), id=[], vx=command.vx, vy=0.0, w=command.w, error=[])
+            TimedVelocity(tm=Time.from_nanoseconds(tick_ns), id=[], vx=command.vx, vy=0.0, w=command.w, error=[]),
+            FINAL if last else None,
         )
         self.commands_published += 1
         if self.runner.done:
             self.final_zeros += 1
             if self.final_zeros == 1:
                 self.node.log.info("scenario ended after %.3f s of simulation time", self.runner.elapsed_s)
-            if self.final_zeros >= FINAL_ZERO_TICKS:
-                self.finished = True
+            self.finished = last
 
     def status(self) -> dict[str, Any]:
         runner = self.runner
@@ -222,12 +274,20 @@ class DriveService:
             "commands_published": self.commands_published,
             "sim_alive": self.sim_alive,
             "time_base_restarts": self.clock.restarts,
+            "odometry_alive": self.odometry_alive,
+            "lockstep_participant": self.node.participating,
+            "pose_wait_timeouts": self.pose_wait_timeouts,
             "pose": None if self.pose is None else self.pose._asdict(),
             "pose_age_s": self.pose_age_s,
         }
 
     def run(self, stop: threading.Event) -> int:
-        self.node.spin(stop, done=lambda: self.finished)
+        while not stop.is_set() and not self.finished:
+            wait_s = STOP_POLL_S
+            if self._pending_tick is not None:
+                wait_s = max(0.0, min(wait_s, self._pending_tick[1] - time.monotonic()))
+            self.node.spin_once(wait_s)
+            self._complete_tick()
         return 0
 
     def close(self) -> None:

@@ -77,6 +77,7 @@ class LocalizationService:
         self.localizer = Localizer.from_config(config, self.seed)
         self.sim_alive = False
         self.publisher = node.publisher(node.keys.localization_pose)
+        node.participate(self.publisher, self.config.rate)
         node.sample(node.keys.motor_sim_pose_localization, TimedDoubleSeq, self._on_sim_pose)
         node.watch(Service.SIM, self._on_sim_liveliness)
         node.set_status(self.status)
@@ -128,6 +129,7 @@ class LocalizationService:
             "seed_from_config": self.config.seed is not None,
             "initial_pose": self.localizer.initial._asdict(),
             "first_fix_from_sim_pose": self.localizer.first_fix_from_sim_pose,
+            "lockstep_participant": self.node.participating,
         }
 
     def run(self, stop: threading.Event) -> int:

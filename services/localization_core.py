@@ -8,14 +8,15 @@ x, y, z, θ stamped with simulation time) into localized fixes:
   start); a later t0 means the simulator was already running (this service was restarted, or
   started late), and the first fix is then that sample's simulated pose, with noise: sending
   odometry back to the initial pose mid-run would be wrong by everything driven since;
-- then one fix at every tick t0 + k/rate (k = 1, 2, ...) of simulation time, taken by the first
-  sample at or after the tick: that sample's pose plus Gaussian noise, independent per axis
-  (σx, σy, σθ), θ wrapped into (−π, π].
+- then one fix at every tick k/rate (k = 1, 2, ...) of simulation time after t0, taken by the
+  first sample at or after the tick: that sample's pose plus Gaussian noise, independent per
+  axis (σx, σy, σθ), θ wrapped into (−π, π]. The grid is anchored at time 0, not at t0, so a
+  lockstep simulator knows the ticks from the rate alone (services/lockstep.py).
 
 When the simulator restarts (:meth:`Localizer.simulator_appeared`, then a stamp not after the
 last one: its clock started again), that sample starts a new time base and, once the schedule
-runs, takes a fix at once (the simulated pose, with noise: not the initial pose again) and
-re-anchors the tick grid there.
+runs, takes a fix at once (the simulated pose, with noise: not the initial pose again), then
+one at every tick of the grid after it.
 
 The noise comes from a seeded :class:`numpy.random.Generator`, so a run is repeatable.
 """
@@ -134,9 +135,9 @@ class Localizer:
         if self._schedule is None:
             if not may_start:
                 return None
-            self._schedule = PeriodicSchedule(self.rate_hz, stamp_ns)
+            self._schedule = PeriodicSchedule(self.rate_hz, 0)
         elif restarted:
-            self._schedule = PeriodicSchedule(self.rate_hz, stamp_ns)
+            self._schedule = PeriodicSchedule(self.rate_hz, 0)
         if not self._schedule.due(stamp_ns):
             return None
         if self.fixes == 0:

@@ -24,13 +24,13 @@ from typing import Any
 import msgspec
 
 from schemas.codec import BadInput, decode
-from schemas.keys import METHOD_ARGUMENTS, Method, MethodFamily, Service
+from schemas.keys import METHOD_ARGUMENTS, Method, MethodFamily, Service, Topic
 from schemas.messages import NoArguments, PDGains, Time, TimedDoubleSeq, TimedVelocity
 from services.config import Config, TargetAngleMode
+from services.lockstep import Hold, decode_owed
 from services.motor_core import MotorCore
 from services.runtime import Node, RateLimitedLog
 from services.service import ServiceCommand, TraceFile
-
 
 STATE_HOME_VARIABLE = "XDG_STATE_HOME"
 STATE_DIRECTORY = "invent-zenoh"
@@ -107,6 +107,12 @@ class MotorService:
         self.node = node
         self.core = MotorCore(config.robot, config.motor, config.input)
         self.torques_published = 0
+        # Lockstep: a wheel-angle sample waits for the drive's target it is owed (the sim took it).
+        self.target_hold: Hold[tuple[TimedDoubleSeq, bytes | None]] = Hold(
+            Topic.DRIVE_TARGET_VELOCITY,
+            lambda held: node.guard(node.keys.sim_wheel_angles, lambda: self._control(*held)),
+            capacity=1,
+        )
         self.sim_alive = False
         self._timeouts_logged = 0
         self._nonfinite_logged = 0
@@ -123,7 +129,7 @@ class MotorService:
         # Channel inputs, wheel angles first: the thread waits on them and answers with the torque
         # before it converts the body pose, then takes the newest target (calls, posted events,
         # come before all three). A flood of targets holds one sample and delays no wheel angle.
-        node.subscribe(keys.sim_wheel_angles, TimedDoubleSeq, self._on_wheel_angles, channel=True)
+        node.subscribe(keys.sim_wheel_angles, TimedDoubleSeq, self._on_wheel_angles, channel=True, with_attachment=True)
         node.subscribe(keys.sim_body_pose, TimedDoubleSeq, self._on_body_pose, channel=True)
         node.subscribe(keys.drive_target_velocity, TimedVelocity, self._on_target_velocity, newest_only=True)
         for family in MethodFamily:
@@ -162,12 +168,15 @@ class MotorService:
         )
         return {"from": str(path), **msgspec.to_builtins(saved)}
 
-    def _on_wheel_angles(self, angles: TimedDoubleSeq) -> None:
+    def _on_wheel_angles(self, angles: TimedDoubleSeq, attachment: bytes | None) -> None:
+        self.target_hold.offer((angles, attachment), decode_owed(attachment, angles.tm.to_nanoseconds()))
+
+    def _control(self, angles: TimedDoubleSeq, attachment: bytes | None) -> None:
         tm = angles.tm
         core = self.core
         torques = core.step(tm.to_nanoseconds(), angles.data)
         self._torque.put(TimedDoubleSeq(tm, torques))
-        self._wheel_angles.put(angles)
+        self._wheel_angles.put(angles, attachment)
         self.torques_published += 1
         trace = self._trace
         if trace is not None:
@@ -198,6 +207,7 @@ class MotorService:
         if not alive:
             self.node.log.debug("simulator gone: waiting for wheel angles from the next one")
             return
+        self.target_hold.forget()
         if self.core.restart_time_base():
             self.node.log.info(
                 "simulator (re)appeared: wheel-angle time starts again with its next sample "
@@ -226,8 +236,10 @@ class MotorService:
         self._sim_pose_localization.put(sim_pose)
 
     def _on_target_velocity(self, velocity: TimedVelocity) -> None:
-        if not self.core.set_target(velocity.vx, velocity.w, velocity.tm.to_nanoseconds()):
+        stamp_ns = velocity.tm.to_nanoseconds()
+        if not self.core.set_target(velocity.vx, velocity.w, stamp_ns):
             self.node.log.debug("stopped: target velocity ignored until clear")
+        self.target_hold.took(stamp_ns)
 
     def _call(self, family: MethodFamily, method: Method, payload: bytes) -> dict[str, Any]:
         arguments = _decode_arguments(method, payload)
@@ -262,6 +274,7 @@ class MotorService:
             **self.core.status(),
             "sim_alive": self.sim_alive,
             "torques_published": self.torques_published,
+            "lockstep_holds": {"held": self.target_hold.holds, "released_unanswered": self.target_hold.overflows},
             "trace": None if self._trace is None else self._trace.path,
             "state_file": str(self._state_file.path),
             "restored": self.restored,

@@ -136,6 +136,9 @@ class MotorCore:
         self.target: tuple[float, float] = (0.0, 0.0)
         """The last accepted target (vx, w)."""
         self._target_stamp_ns: int | None = None
+        self._deferred_target: tuple[int, float, float] | None = None
+        """A target stamped after the last wheel sample: (stamp, vx, w), applied from the first
+        sample after its stamp, so it applies at the same sample whenever it arrives."""
         self._timed_out = False
         self.command: tuple[float, float] = (0.0, 0.0)
         """The (vx, w) the last cycle controlled towards, after stop, timeout and limits."""
@@ -202,6 +205,10 @@ class MotorCore:
                 f"wheel speeds ({dq_l:g}, {dq_r:g}) rad/s (angles {q_l:g}, {q_r:g} after {old_l:g}, {old_r:g} "
                 f"in {dt:g} s) beyond input.max_wheel_speed = {self._max_wheel_speed:g} rad/s"
             )
+        deferred = self._deferred_target
+        if deferred is not None and stamp_ns > deferred[0]:
+            self._deferred_target = None
+            self._apply_target(*deferred)
         state = self.state
         self.cycle_state = state
         self._accept(stamp_ns, q_l, q_r)
@@ -250,6 +257,7 @@ class MotorCore:
         in_use = self._stamp_ns is not None
         self._stamp_ns = None
         self._target_stamp_ns = None
+        self._deferred_target = None
         self._release()
         self.dq = self.dq_ref = self.q_ref = None
         if in_use:
@@ -291,6 +299,11 @@ class MotorCore:
     def set_target(self, vx: float, w: float, stamp_ns: int | None = None) -> bool:
         """Accept a target body velocity; False (ignored, counted) while stopped.
 
+        A target stamped ``stamp_ns`` applies from the first wheel sample after that stamp: one
+        stamped after the last sample waits for the next (lockstep gives the same cycles whether
+        the target or the sample arrives first). Its age, for the command timeout, counts from its
+        stamp.
+
         Raises BadInput (nothing changes) for a velocity implying a wheel speed beyond
         ``input.max_wheel_speed`` (one within it but beyond the velocity limits is accepted: the
         limits clamp it), or for a ``stamp_ns`` beyond the horizon or older than the command
@@ -309,12 +322,22 @@ class MotorCore:
         if self._stopped:
             self.targets_ignored += 1
             return False
+        self.target_velocity_samples += 1
+        if stamp_ns is not None and self._stamp_ns is not None and stamp_ns > self._stamp_ns:
+            self._deferred_target = (stamp_ns, vx, w)
+            return True
+        self._deferred_target = None
+        self._apply_target(self._stamp_ns if stamp_ns is None else stamp_ns, vx, w)
+        return True
+
+    def _apply_target(self, stamp_ns: int | None, vx: float, w: float) -> None:
+        if self._stopped:
+            self.targets_ignored += 1
+            return
         self.target = (vx, w)
         self._have_target = True
-        self._target_stamp_ns = self._stamp_ns
+        self._target_stamp_ns = stamp_ns
         self._timed_out = False
-        self.target_velocity_samples += 1
-        return True
 
     def sim_pose(self, data: Sequence[float], stamp_ns: int | None = None) -> list[float]:
         """[X, Y, Z, theta] of the axle centre for a ``sim/body_pose`` vector (offsets applied).
@@ -373,6 +396,7 @@ class MotorCore:
         """
         self._stopped = True
         self.target = (0.0, 0.0)
+        self._deferred_target = None
         self._anchored = False
 
     def clear(self) -> None:

@@ -15,11 +15,11 @@ import dataclasses
 import threading
 from typing import Any
 
-
-from schemas.keys import Service
+from schemas.keys import Service, Topic
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
 from services.config import Config
-from services.odometry_core import Branch, Odometry, OdometryParameters
+from services.lockstep import Hold, decode_owed
+from services.odometry_core import FIX_HISTORY_STEPS, Branch, Odometry, OdometryParameters
 from services.runtime import Node
 from services.service import ServiceCommand, TraceFile, no_overrides
 
@@ -41,9 +41,17 @@ class OdometryService:
         self.sim_alive = False
         self.branches = dict.fromkeys(Branch, 0)
         self.last_tm: Time | None = None
+        # Lockstep: a wheel-angle sample waits for the localization's fix it is owed (the sim took it).
+        self.fix_hold: Hold[TimedDoubleSeq] = Hold(
+            Topic.LOCALIZATION_POSE,
+            lambda held: node.guard(node.keys.motor_wheel_angles, lambda: self._integrate(held)),
+            capacity=FIX_HISTORY_STEPS,
+        )
         self._trace = TraceFile.from_flag(args.trace)
         self._pose = node.publisher(node.keys.odometry_pose)
-        node.subscribe(node.keys.motor_wheel_angles, TimedDoubleSeq, self.on_wheel_angles, channel=True)
+        node.subscribe(
+            node.keys.motor_wheel_angles, TimedDoubleSeq, self.on_wheel_angles, channel=True, with_attachment=True
+        )
         node.subscribe(node.keys.localization_pose, TimedPosition, self.on_localized_pose)
         node.watch(Service.SIM, self.on_sim_liveliness)
         node.set_status(self.status)
@@ -52,11 +60,16 @@ class OdometryService:
         # Every PUT, not DELETE-then-PUT: zenoh shows a new token on the same key only once the
         # old one is gone, and a DELETE says nothing about the stamps still to come.
         self.sim_alive = alive
+        if alive:
+            self.fix_hold.forget()
         if alive and self.odometry.restart_time_base():
             self.time_base_restarts += 1
             self.node.log.info("simulator (re)appeared: wheel-angle time starts again with its next sample (pose kept)")
 
-    def on_wheel_angles(self, sample: TimedDoubleSeq) -> None:
+    def on_wheel_angles(self, sample: TimedDoubleSeq, attachment: bytes | None = None) -> None:
+        self.fix_hold.offer(sample, decode_owed(attachment, sample.tm.to_nanoseconds()))
+
+    def _integrate(self, sample: TimedDoubleSeq) -> None:
         step = self.odometry.step(sample.tm.to_nanoseconds(), sample.data)
         self.samples += 1
         self.branches[step.branch] += 1
@@ -66,8 +79,10 @@ class OdometryService:
         self._pose.put(TimedPosition(tm=sample.tm, id=[], x=step.x, y=step.y, theta=step.theta, error=[]))
 
     def on_localized_pose(self, pose: TimedPosition) -> None:
-        self.odometry.reset_at(pose.tm.to_nanoseconds(), pose.x, pose.y, pose.theta)
+        stamp_ns = pose.tm.to_nanoseconds()
+        self.odometry.reset_at(stamp_ns, pose.x, pose.y, pose.theta)
         self.localization_resets += 1
+        self.fix_hold.took(stamp_ns)
 
     def status(self) -> dict[str, Any]:
         pose = self.odometry.pose
@@ -83,6 +98,7 @@ class OdometryService:
                 "wheel_angle_samples": self.samples,
                 "localization_resets": self.localization_resets,
                 "time_base_restarts": self.time_base_restarts,
+                "lockstep_holds": {"held": self.fix_hold.holds, "released_unanswered": self.fix_hold.overflows},
                 "branches": {str(branch): count for branch, count in self.branches.items()},
             },
             "parameters": {

@@ -230,7 +230,9 @@ class Odometry:
         asynchronously, so a fix may instead arrive after odometry has integrated past its stamp,
         or before odometry has reached it. A past fix keeps the motion integrated since its stamp
         on top of it (overwriting would throw that motion away: the pose would jump back by
-        speed × delay); a future fix waits and overwrites the pose when a sample reaches its time.
+        speed × delay); a future fix (or one before any sample) waits, and replaces the pose
+        integrated up to its stamp just before the first sample after it is integrated: the same
+        pose as a fix that arrives right after that sample, so lockstep runs come out the same.
 
         BadInput (nothing changes) for a fix older than the history (:data:`FIX_HISTORY_STEPS`
         samples: applying it "now" would be wrong by all the motion since), further ahead than
@@ -239,7 +241,10 @@ class Odometry:
         if not math.isfinite(theta):
             raise BadInput(f"pose ({x}, {y}, {theta}) is not finite")
         check_coordinates(x, y, self._max_coordinate)
-        if self._time_ns is None or stamp_ns == self._time_ns:
+        if self._time_ns is None:
+            self._pending_fix = (stamp_ns, x, y, theta)
+            return self.pose
+        if stamp_ns == self._time_ns:
             return self.reset(x, y, theta)
         oldest_ns = self._history[0][0]
         check_stamp_near(stamp_ns, self._time_ns, self._horizon_ns, self._time_ns - oldest_ns, "fix")
@@ -288,7 +293,7 @@ class Odometry:
         if not (math.isfinite(q_left) and math.isfinite(q_right)):
             raise BadInput(f"wheel angles ({q_left}, {q_right}) are not finite")
         pending = self._pending_fix
-        if pending is not None and time_ns >= pending[0]:
+        if pending is not None and time_ns > pending[0]:
             self._pending_fix = None
             self.reset(*pending[1:])
         if self._time_ns is None:

@@ -9,18 +9,28 @@ run, in :meth:`Recorder.recording`.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Any
 
+import msgspec
 import zenoh
 
 from schemas.codec import BadInput, decode
 from schemas.keys import Keys
-from schemas.messages import TimedDoubleSeq, TimedPosition, TimedVelocity
+from schemas.messages import Time, TimedDoubleSeq, TimedPosition, TimedVelocity
 from services.config import InputConfig, RobotConfig
 from services.planar import Pose, check_coordinates
 from services.report import Recording, pose_from_body_pose
 
+
+class Stamped(msgspec.Struct, frozen=True):
+    """Any recorded message, for its stamp alone."""
+
+    tm: Time
+
+
+_STAMPED = msgspec.json.Decoder(Stamped)
 CHANNEL_CAPACITY = 1 << 20
 """Samples a recorded key's channel holds between two collections: seconds of any loop's output
 (a full channel would make zenoh wait, and with it the loop's publisher)."""
@@ -49,6 +59,25 @@ class Recorder:
             payloads = self._payloads[key]
             while (sample := channel.try_recv()) is not None:
                 payloads.append(sample.payload.to_bytes())
+
+    def collect_until(self, until_s: float, timeout_s: float) -> bool:
+        """Collect until the ground truth and odometry recorded reach ``until_s`` simulated seconds
+        (what the loop published up to then may still be on its way); False after ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            self.collect()
+            if all(self._reached(key, until_s) for key in (self._keys.sim_body_pose, self._keys.odometry_pose)):
+                return True
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.01)
+
+    def _reached(self, key: str, until_s: float) -> bool:
+        payloads = self._payloads[key]
+        try:
+            return bool(payloads) and _STAMPED.decode(payloads[-1]).tm.to_seconds() >= until_s
+        except msgspec.DecodeError:
+            return False
 
     def close(self) -> None:
         self.collect()

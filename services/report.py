@@ -141,7 +141,10 @@ def loop_health(sim_status: dict[str, Any] | None, statuses: dict[str, dict[str,
             "late_fraction": fraction(late),
             "missing_fraction": fraction(missing),
         },
-        "lockstep": {"timeouts": counters.get("late_torques", 0) if lockstep else 0},
+        "lockstep": {
+            "timeouts": counters.get("late_torques", 0) if lockstep else 0,
+            "tick_timeouts": counters.get("tick_timeouts", 0) if lockstep else 0,
+        },
         "realtime": {"resyncs": counters.get("realtime_resyncs", 0)},
         "services": {
             name: {
@@ -166,6 +169,11 @@ def degradations(health: dict[str, Any]) -> list[str]:
             )
     if health["lockstep"]["timeouts"]:
         reasons.append(f"{health['lockstep']['timeouts']} lockstep timeouts (steps that went on with zero torque)")
+    if health["lockstep"]["tick_timeouts"]:
+        reasons.append(
+            f"{health['lockstep']['tick_timeouts']} lockstep tick timeouts (steps that went on without a drive "
+            "command or a localization fix they waited for)"
+        )
     for name, counts in health["services"].items():
         for counter in ("internal_errors", "dropped_events"):
             if counts[counter]:
@@ -183,7 +191,8 @@ def health_lines(health: dict[str, Any]) -> list[str]:
     return [
         f"torques: late {torques['late']} ({torques['late_fraction']:.2%}), missing {torques['missing']} "
         f"({torques['missing_fraction']:.2%}), stale {torques['stale']}; lockstep timeouts "
-        f"{health['lockstep']['timeouts']}, realtime resyncs {health['realtime']['resyncs']}",
+        f"{health['lockstep']['timeouts']} (ticks {health['lockstep']['tick_timeouts']}), "
+        f"realtime resyncs {health['realtime']['resyncs']}",
         "bad inputs: " + ", ".join(f"{name} {counts['bad_inputs']}" for name, counts in services.items()),
         "internal errors: " + ", ".join(f"{name} {counts['internal_errors']}" for name, counts in services.items()),
     ]

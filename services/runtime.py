@@ -182,13 +182,16 @@ class Publisher:
         self.key = key
         self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(ENCODING))
 
-    def put(self, message: msgspec.Struct) -> None:
-        self._publisher.put(encode(message))
+    def put(self, message: msgspec.Struct, attachment: bytes | None = None) -> None:
+        self._publisher.put(encode(message), attachment=attachment)
 
     @property
     def matched(self) -> bool:
         """True once at least one subscriber matches this key."""
         return self._publisher.matching_status.matching
+
+    def declare_matching_listener(self, callback: Callable[[zenoh.MatchingStatus], None]) -> Any:
+        return self._publisher.declare_matching_listener(callback)
 
     def undeclare(self) -> None:
         self._publisher.undeclare()
@@ -219,8 +222,9 @@ class LatestSample(Generic[MessageT]):
         self._type = message_type
         self._subscriber = node.session.declare_subscriber(key, zenoh.handlers.RingChannel(1))
 
-    def take(self, handler: Callable[[MessageT], None]) -> bool:
-        """Call ``handler`` with the sample that arrived since the last take, if any; True if one did.
+    def take(self, handler: Callable[..., None], with_attachment: bool = False) -> bool:
+        """Call ``handler`` with the sample that arrived since the last take (and its attachment,
+        ``with_attachment``), if any; True if one did.
 
         An undecodable sample, or one the handler refuses with BadInput, is dropped and counted
         in the node's bad-input counters like any other bad input.
@@ -228,14 +232,29 @@ class LatestSample(Generic[MessageT]):
         sample = self._subscriber.try_recv()
         if sample is None or _is_wake(sample):
             return False
-        self._node._guard(self.key, lambda payload: handler(decode(self._type, payload)), sample.payload.to_bytes())
+        decoding, (payload, attachment) = _decoding(self._type, handler, with_attachment), _contents(sample)
+        self._node.guard(self.key, lambda: decoding(payload, attachment))
         return True
 
     def undeclare(self) -> None:
         self._subscriber.undeclare()
 
 
-_SampledInput = tuple[LatestSample[Any], Callable[[Any], None]]
+_SampledInput = tuple[LatestSample[Any], Callable[..., None], bool]
+_Dispatch = Callable[[bytes, "bytes | None"], None]
+"""Handles one sample's payload and attachment."""
+
+
+def _contents(sample: zenoh.Sample) -> tuple[bytes, bytes | None]:
+    attachment = sample.attachment
+    return sample.payload.to_bytes(), None if attachment is None else attachment.to_bytes()
+
+
+def _decoding(message_type: type[MessageT], handler: Callable[..., None], with_attachment: bool) -> _Dispatch:
+    """A dispatch decoding the payload for ``handler(message)``, or ``handler(message, attachment)``."""
+    if with_attachment:
+        return lambda payload, attachment: handler(decode(message_type, payload), attachment)
+    return lambda payload, _attachment: handler(decode(message_type, payload))
 
 
 CHANNEL_CAPACITY = 256
@@ -267,9 +286,7 @@ class ChannelInput:
     samples of any other wait until the thread next wakes.
     """
 
-    def __init__(
-        self, session: zenoh.Session, key: str, dispatch: Callable[[bytes], None], capacity: int = CHANNEL_CAPACITY
-    ) -> None:
+    def __init__(self, session: zenoh.Session, key: str, dispatch: _Dispatch, capacity: int = CHANNEL_CAPACITY) -> None:
         self.key = key
         self._session = session
         self._dispatch = dispatch
@@ -279,7 +296,7 @@ class ChannelInput:
         """Handle the next waiting sample, if any; True if one was handled."""
         while (sample := self._subscriber.try_recv()) is not None:
             if not _is_wake(sample):
-                self._dispatch(sample.payload.to_bytes())
+                self._dispatch(*_contents(sample))
                 return True
         return False
 
@@ -288,7 +305,7 @@ class ChannelInput:
         return self._subscriber.recv()
 
     def handle(self, sample: zenoh.Sample) -> None:
-        self._dispatch(sample.payload.to_bytes())
+        self._dispatch(*_contents(sample))
 
     def wake(self) -> None:
         """End a :meth:`receive` in progress: an empty sample delivered to this session only."""
@@ -361,8 +378,10 @@ class Executor:
             self._waker.join()
             self._waker = None
 
-    def add_sampled(self, sampled: LatestSample[MessageT], handler: Callable[[MessageT], None]) -> None:
-        self._sampled.append((sampled, handler))
+    def add_sampled(
+        self, sampled: LatestSample[MessageT], handler: Callable[..., None], with_attachment: bool = False
+    ) -> None:
+        self._sampled.append((sampled, handler, with_attachment))
 
     def remove_sampled(self, sampled: LatestSample[Any]) -> None:
         self._sampled = [entry for entry in self._sampled if entry[0] is not sampled]
@@ -410,8 +429,8 @@ class Executor:
         """Hand every sampled input's new sample, if any, to its handler; True if one was handled."""
         self._next_sampling = time.monotonic() + SAMPLING_POLL_S
         taken = False
-        for sampled, handler in self._sampled:
-            taken = sampled.take(handler) or taken
+        for sampled, handler, with_attachment in self._sampled:
+            taken = sampled.take(handler, with_attachment) or taken
         return taken
 
     def _wait(self, remaining: float | None) -> None:
@@ -465,6 +484,8 @@ class Node:
         self.log = log.getChild(str(service))
         self.bad_inputs = BadInputCounter(str(service))
         self.internal_errors = 0
+        self.participating = False
+        """Whether it holds a lockstep participant's token (:meth:`participate`)."""
         self._internal_error_log = RateLimitedLog(self.log)
         self._status = status
         self.executor = executor or Executor()
@@ -494,31 +515,25 @@ class Node:
         self,
         key: str,
         message_type: type[MessageT],
-        handler: Callable[[MessageT], None],
+        handler: Callable[..., None],
         *,
         channel: bool = False,
         newest_only: bool = False,
+        with_attachment: bool = False,
     ) -> None:
-        """Call ``handler(message)`` on the service thread for every sample of ``key`` that decodes.
+        """Call ``handler(message)`` on the service thread for every sample of ``key`` that decodes
+        (``handler(message, attachment)`` ``with_attachment``: the sample's attachment bytes or None).
+        The handler may raise BadInput.
 
         ``channel=True`` for the inputs that pace the service (the simulator's torque, the motor's
         wheel angles): see :class:`ChannelInput`. ``newest_only=True`` for a command whose newest
         value is all that counts (the motor's target): a channel input of one sample, taken after
         the channel inputs declared before it, so a flood of it holds one sample and delays none.
         """
+        decoding = _decoding(message_type, handler, with_attachment)
 
-        def on_payload(payload: bytes) -> None:
-            handler(decode(message_type, payload))
-
-        self.subscribe_raw(key, on_payload, channel=channel, newest_only=newest_only)
-
-    def subscribe_raw(
-        self, key: str, handler: Callable[[bytes], None], *, channel: bool = False, newest_only: bool = False
-    ) -> None:
-        """Call ``handler(payload)`` on the service thread; it may raise BadInput."""
-
-        def dispatch(payload: bytes) -> None:
-            self._guard(key, handler, payload)
+        def dispatch(payload: bytes, attachment: bytes | None) -> None:
+            self.guard(key, lambda: decoding(payload, attachment))
 
         if channel or newest_only:
             channel_input = ChannelInput(self.session, key, dispatch, 1 if newest_only else CHANNEL_CAPACITY)
@@ -527,7 +542,7 @@ class Node:
             return
         post = self.executor.post
         self._declarations.append(
-            self.session.declare_subscriber(key, lambda sample: post(dispatch, sample.payload.to_bytes()))
+            self.session.declare_subscriber(key, lambda sample: post(lambda contents: dispatch(*contents), _contents(sample)))
         )
 
     def queryable(self, key: str, handler: _QueryHandler, *, mutates: bool = False) -> None:
@@ -575,12 +590,15 @@ class Node:
         self._declarations.append(sampled)
         return sampled
 
-    def sample(self, key: str, message_type: type[MessageT], handler: Callable[[MessageT], None]) -> None:
-        """Call ``handler(message)`` on the service thread with the newest sample of ``key``, at
-        most every :data:`SAMPLING_POLL_S` while the thread is busy, at once when it is idle:
-        for inputs that clock a service at its own pace rather than pacing it (see LatestSample)."""
+    def sample(
+        self, key: str, message_type: type[MessageT], handler: Callable[..., None], *, with_attachment: bool = False
+    ) -> None:
+        """Call ``handler(message)`` (``handler(message, attachment)`` ``with_attachment``) on the
+        service thread with the newest sample of ``key``, at most every :data:`SAMPLING_POLL_S` while
+        the thread is busy, at once when it is idle: for inputs that clock a service at its own pace
+        rather than pacing it (see LatestSample)."""
         sampled = LatestSample(self, key, message_type)
-        self.executor.add_sampled(sampled, handler)
+        self.executor.add_sampled(sampled, handler, with_attachment)
         self._sampled.append(sampled)
 
     def publisher(self, key: str) -> Publisher:
@@ -605,6 +623,23 @@ class Node:
             )
         )
 
+    def participate(self, publisher: Publisher, rate_hz: float) -> None:
+        """Take part in lockstep (services/lockstep.py), outputting on ``publisher`` at ``rate_hz``
+        ticks per second of simulation time: hold the token ``Keys.ticks`` once ``publisher`` has a
+        subscriber (before, the outputs would reach no one, and waiting for them would only time out)."""
+        post = self.executor.post
+
+        def on_matching(matched: bool) -> None:
+            if matched and not self.participating:
+                self._declarations.append(
+                    self.session.liveliness().declare_token(self.keys.ticks(self.service, rate_hz))
+                )
+                self.participating = True
+
+        self._declarations.append(
+            publisher.declare_matching_listener(lambda status: post(on_matching, status.matching))
+        )
+
     def alive_now(self, service: Service, timeout: float = LIVELINESS_QUERY_TIMEOUT_S) -> bool:
         """Whether ``service``'s liveliness token exists now: one query, answered by the router
         or peers at once (for a decision at start-up, before any watch has reported)."""
@@ -625,9 +660,11 @@ class Node:
         while self.spin_once(0):
             pass
 
-    def _guard(self, key: str, handler: Callable[[bytes], None], payload: bytes) -> None:
+    def guard(self, key: str, action: Callable[[], None]) -> None:
+        """Run ``action`` (handling an input of ``key``) so that bad input is counted and a bug
+        logged and counted, never raised: the service lives on."""
         try:
-            handler(payload)
+            action()
         except BadInput as error:
             self.bad_inputs.record(key, str(error))
         except Exception as error:  # a bug must not kill the service; it is logged and counted

@@ -134,7 +134,7 @@ def grants(role: Role, keys: Keys) -> list[Grant]:
     if service is Service.MOTOR:
         served += _methods(keys, MethodFamily.GUI) + _methods(keys, MethodFamily.BUMP)
     own = [
-        Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (keys.alive(service),)),
+        Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (keys.alive(service), keys.ticks_at_any_rate(service))),
         Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, served),
         # Queries reach a queryable only if the querier was let in; this lets them be delivered.
         Grant((Message.QUERY,), Flow.EGRESS, everything),

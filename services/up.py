@@ -1,10 +1,12 @@
 """``invent up``: the whole closed loop, each service in its own process, and a run report.
 
-Starts the router, then motor, odometry and localization, waits until they are alive, starts
-the sim (so lockstep waits for the motor from the first step) and finally the drive with the
-scenario. Children's output is prefixed with their name. The run ends when the drive finishes
-its scenario (exit 0): ``up`` then records the services' status, stops every child with
-SIGINT and writes the report (``--no-report``: no recording, no report, for long runs and
+Starts the router, then motor, odometry, localization and the drive with the scenario, waits
+until they are alive and the drive and the localization hold their lockstep tokens, and
+starts the sim last, so a lockstep run steps the whole loop from its first step and starts the
+same way every time (services/lockstep.py). Children's output is prefixed with their name. The
+run ends when the drive finishes its scenario (exit 0) and the sim holds at the step of its
+last command (``--until-drive-ends``): ``up`` then records the services' status, stops every
+child with SIGINT and writes the report (``--no-report``: no recording, no report, for long runs and
 benchmarks). A child that dies early makes ``up`` say which one, stop the others and exit 1.
 Ctrl-C stops everything cleanly (exit 130). With ``--composed`` the same services run in this
 one process instead (``services/composition.py``).
@@ -56,7 +58,7 @@ PROGRESS_INTERVAL_S = 1.0
 SECRETS_DIRECTORY = "secrets"
 MOTOR_STATE_FILE = "motor-state.json"
 """The run's own motor state file (latches, gains), in the report directory: a run starts afresh."""
-SERVICES_BEFORE_SIM = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
+SERVICES_BEFORE_DRIVE = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
 
 _PR_SET_PDEATHSIG = 1
 NAME_WIDTH = max(len(str(service)) for service in Service)
@@ -140,6 +142,9 @@ class Supervisor:
             child.pump.join(timeout=2.0)
         return {child.name: child.process.returncode for child in self.children}
 
+    def idle(self) -> None:
+        """Each child has its own thread."""
+
 
 def _describe_exit(code: int) -> str:
     if code < 0:
@@ -155,6 +160,9 @@ class Launcher(Protocol):
     def exited(self, exclude: str | None = None) -> tuple[str, str] | None: ...
 
     def stop(self) -> dict[str, int]: ...
+
+    def idle(self) -> None:
+        """Called while ``up`` waits for the services to start: let them handle their events."""
 
 
 @dataclass
@@ -175,20 +183,23 @@ class Run:
             raise ChildDied(f"{exited[0]} exited unexpectedly ({exited[1]})")
 
     def wait_alive(self, services: Sequence[Service]) -> None:
+        self.wait_tokens([self.keys.alive(service) for service in services])
+
+    def wait_tokens(self, keys: Sequence[str]) -> None:
+        """Wait until every liveliness token of ``keys`` is there."""
         alive: set[str] = set()
         subscribers = [
-            self.session.liveliness().declare_subscriber(
-                self.keys.alive(service), lambda s: alive.add(str(s.key_expr)), history=True
-            )
-            for service in services
+            self.session.liveliness().declare_subscriber(key, lambda s: alive.add(str(s.key_expr)), history=True)
+            for key in keys
         ]
         try:
             deadline = time.monotonic() + STARTUP_TIMEOUT_S
-            while len(alive) < len(services):
+            while len(alive) < len(keys):
                 self.check()
+                self.launcher.idle()
                 if time.monotonic() > deadline:
-                    missing = sorted(set(map(self.keys.alive, services)) - alive)
-                    raise ChildDied(f"not alive after {STARTUP_TIMEOUT_S} s: {', '.join(missing)}")
+                    missing = sorted(set(keys) - alive)
+                    raise ChildDied(f"not there after {STARTUP_TIMEOUT_S} s: {', '.join(missing)}")
                 time.sleep(0.02)
         finally:
             for subscriber in subscribers:
@@ -199,6 +210,18 @@ class Run:
             if reply.ok is not None:
                 return json.loads(reply.ok.payload.to_bytes())
         return None
+
+    def sim_at_end(self, sim_status: dict[str, Any] | None) -> dict[str, Any] | None:
+        """The sim's status once it holds at the drive's last command (``--until-drive-ends``)."""
+        deadline = time.monotonic() + STOP_TIMEOUT_S
+        while time.monotonic() < deadline:
+            self.check(expected_to_finish=str(Service.DRIVE))
+            sim_status = self.status(Service.SIM) or sim_status
+            if sim_status and sim_status.get("state") == "finished":
+                return sim_status
+            time.sleep(0.02)
+        say(f"the sim did not stop at the drive's last command within {STOP_TIMEOUT_S} s")
+        return sim_status
 
     def supervise(
         self, drive: Any, started: float, collect: Callable[[], None], until_interrupted: bool = False
@@ -219,7 +242,7 @@ class Run:
                 if sim_status:
                     _progress(sim_status, time.monotonic() - started)
             if code == 0:
-                return sim_status
+                return self.sim_at_end(sim_status)
             if code is not None:
                 raise ChildDied(f"drive exited unexpectedly ({_describe_exit(code)})")
             collect()
@@ -328,22 +351,28 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
             recording = not (args.no_report or args.loop)
             recorder = Recorder(session, keys, config.robot, config.input) if recording else None
             own_flags = {Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE)]}
-            for service in SERVICES_BEFORE_SIM:
+            for service in SERVICES_BEFORE_DRIVE:
                 flags = [*common, *access.flags(Role(service)), *own_flags.get(service, [])]
                 launcher.start(str(service), [str(service), *flags])
-            run.wait_alive(SERVICES_BEFORE_SIM)
-            sim_flags = ["--mode", mode, *(["--gui"] if args.gui else [])]
-            launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *sim_flags])
-            run.wait_alive((Service.SIM,))
-            started = time.monotonic()
+            run.wait_alive(SERVICES_BEFORE_DRIVE)
             drive_flags = ["--scenario", args.scenario, *(["--loop"] if args.loop else [])]
             drive = launcher.start("drive", ["drive", *common, *access.flags(Role.DRIVE), *drive_flags])
+            run.wait_alive((Service.DRIVE,))
+            run.wait_tokens(
+                [keys.ticks(Service.DRIVE, config.drive.rate), keys.ticks(Service.LOCALIZATION, config.localization.rate)]
+            )
+            participants = [str(service) for service in (Service.MOTOR, Service.DRIVE, Service.LOCALIZATION)]
+            sim_flags = ["--mode", mode, "--until-drive-ends", "--wait-for", *participants, *(["--gui"] if args.gui else [])]
+            launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *sim_flags])
+            started = time.monotonic()
             sim_status = run.supervise(
                 drive, started, recorder.collect if recorder else _record_nothing, until_interrupted=args.loop
             )
             wall_time_s = time.monotonic() - started
             statuses = {str(service): run.status(service) for service in Service if service != Service.DRIVE}
             if recorder:
+                if sim_status and not recorder.collect_until(sim_status["sim_time_s"], STOP_TIMEOUT_S):
+                    say(f"the recording did not reach t = {sim_status['sim_time_s']:.3f} s within {STOP_TIMEOUT_S} s")
                 recorder.close()
             unclean = {name: code for name, code in launcher.stop().items() if code != 0}
             if unclean:

@@ -33,12 +33,22 @@ import typing
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
+import msgspec
 import zenoh
 
 from schemas.codec import BadInput, encode
-from schemas.keys import Method, MethodFamily, Service
-from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, NoArguments, Time, TimedDoubleSeq
+from schemas.keys import Method, MethodFamily, Service, parse_ticks_key
+from schemas.messages import (
+    NANOSECONDS_PER_SECOND,
+    BumpEvent,
+    NoArguments,
+    Time,
+    TimedDoubleSeq,
+    TimedPosition,
+    TimedVelocity,
+)
 from services.config import Config, SimConfig, SimMode
+from services.lockstep import FINAL, OUTPUTS, TickBarrier, encode_owed
 from services.runtime import STOP_POLL_S, Node, RateLimitedLog
 from services.service import ServiceCommand, positive_seconds
 from sim_bridge.latency import TorqueLatency
@@ -52,6 +62,8 @@ BUMP_STOP_TIMEOUT_S = 1.0
 """How long a ``motor/bump/stop`` call stays open for its reply."""
 MAX_REALTIME_LAG_S = 0.1
 """Realtime mode: a loop this far behind the wall clock restarts its schedule instead of bursting."""
+START_HANDSHAKE_TIMEOUT_S = 5.0
+"""Lockstep: how long the first step waits for the participants to see this simulator."""
 _BUMP_STOP_PAYLOAD = encode(NoArguments())
 
 
@@ -66,6 +78,7 @@ COUNTERS = (
     "bump_stop_errors",
     "realtime_resyncs",
     "realtime_late_steps",
+    "tick_timeouts",
 )
 """The counters of ``sim/status`` (docs/sim.md explains each)."""
 
@@ -76,6 +89,13 @@ class SimService:
         self.parameters = config.sim
         self.mode = config.sim.mode
         self.duration: float | None = args.duration
+        self.until_drive_ends: bool = args.until_drive_ends
+        self.wait_for: list[Service] = args.wait_for or []
+        self.drive_ended = False
+        """The drive's last target (its scenario ended) has arrived, or the drive has gone: its token
+        and its last target travel separately, and the token may come first."""
+        self.barrier = TickBarrier()
+        self._owed_attachment: bytes | None = None
         self.counters = dict.fromkeys(COUNTERS, 0)
         self.motor_alive = False
         self.motor_silent = False
@@ -84,6 +104,7 @@ class SimService:
         self._silent_wait_s = config.sim.step / config.sim.realtime_factor
         self.finished = False
         self._started: float | None = None
+        self._stopped_at: float | None = None
         self._awaited_ns = -1
         self._answered = False
         self._newest_torque: list[float] | None = None
@@ -116,6 +137,13 @@ class SimService:
         # Lockstep waits in the torque channel's receive itself; realtime waits for its step's
         # deadline, which a posted torque must interrupt.
         node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, channel=self.mode == LOCKSTEP)
+        for service, message_type in ((Service.DRIVE, TimedVelocity), (Service.LOCALIZATION, TimedPosition)):
+            node.subscribe(
+                keys.topic(OUTPUTS[service]), message_type, partial(self._on_output, service), with_attachment=True
+            )
+        self._ticks_watch = node.session.liveliness().declare_subscriber(
+            keys.every_ticks, self._on_ticks_token, history=True
+        )
         self._motor_key = keys.alive(Service.MOTOR)
         self._bump_stop = node.session.declare_querier(
             keys.method(MethodFamily.BUMP, Method.STOP), timeout=BUMP_STOP_TIMEOUT_S
@@ -129,6 +157,9 @@ class SimService:
 
     def _on_motor_liveliness(self, sample: zenoh.Sample) -> None:
         self.node.post(partial(self._set_motor_alive, sample.kind == zenoh.SampleKind.PUT))
+
+    def _on_ticks_token(self, sample: zenoh.Sample) -> None:
+        self.node.post(partial(self._participant_changed, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
 
     def _on_bump_stop_reply(self, reply: zenoh.Reply) -> None:
         ok = reply.ok is not None
@@ -161,6 +192,28 @@ class SimService:
             )
         elif self.motor_alive:
             self.node.log.info("motor control answers again: steps wait for its torques")
+
+    def _participant_changed(self, key: str, alive: bool) -> None:
+        parsed = parse_ticks_key(key)
+        if parsed is None or parsed[0] not in OUTPUTS:
+            return
+        service, rate_hz = parsed
+        if alive:
+            self.barrier.announce(service, rate_hz, from_start=self._started is None)
+            if self.mode == LOCKSTEP:
+                self.node.log.info("%s ticks at %g Hz: steps at its ticks wait for its output", service, rate_hz)
+        elif self.barrier.withdraw(service):
+            if self.mode == LOCKSTEP:
+                self.node.log.info("%s gone: its ticks are not waited for", service)
+            if service is Service.DRIVE:
+                self.drive_ended = True
+
+    def _on_output(self, service: Service, message: TimedVelocity | TimedPosition, attachment: bytes | None) -> None:
+        final = attachment == FINAL
+        self.barrier.took(service, message.tm.to_nanoseconds(), self._published_ns, final=final)
+        if final and service is Service.DRIVE and not self.drive_ended:
+            self.drive_ended = True
+            self.node.log.info("the drive's scenario ended at t = %.3f s", message.tm.to_seconds())
 
     def _record_bump_stop_reply(self, ok: bool, reason: str) -> None:
         if ok:
@@ -199,7 +252,7 @@ class SimService:
         angles = TimedDoubleSeq(tm=tm, data=sim.wheel_angles())
         self.latency.published(tm_ns, time.perf_counter_ns())
         self._published_ns = tm_ns
-        self._angles_publisher.put(angles)
+        self._angles_publisher.put(angles, self._owed_attachment)
         self._pose_publisher.put(TimedDoubleSeq(tm=tm, data=sim.body_pose()))
         return tm_ns
 
@@ -262,10 +315,41 @@ class SimService:
         if self._late_in_a_row >= self.parameters.lockstep_max_late:
             self._set_motor_silent(True)
 
+    def _lockstep_ticks(self, tm_ns: int, stop: threading.Event) -> None:
+        """Wait for the outputs of the participants with a tick at ``tm_ns`` (or give up on them)."""
+        barrier, node = self.barrier, self.node
+        if barrier.ticks(tm_ns):
+            deadline = time.monotonic() + self.parameters.lockstep_timeout
+            while (missing := barrier.missing()) and not stop.is_set():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    for service in missing:
+                        barrier.gave_up(service)
+                        self.counters["tick_timeouts"] += 1
+                        self._warn(
+                            f"tick_timeout_{service}",
+                            logging.WARNING,
+                            "no %s for t = %.3f s within %.3f s: stepping on; waiting for it again once it outputs",
+                            OUTPUTS[service],
+                            tm_ns / NANOSECONDS_PER_SECOND,
+                            self.parameters.lockstep_timeout,
+                        )
+                    break
+                node.spin_once(min(remaining, STOP_POLL_S))
+        self._owed_attachment = encode_owed(barrier.owed())
+
+    def _ended(self) -> bool:
+        return self.until_drive_ends and self.drive_ended
+
     def _run_lockstep(self, stop: threading.Event) -> None:
         sim = self.sim
+        self._owed_attachment = encode_owed({})
         while sim.step_index < self._end_step and not stop.is_set():
-            self._lockstep_torque(self._publish_state(), stop)
+            tm_ns = self._publish_state()
+            self._lockstep_torque(tm_ns, stop)
+            self._lockstep_ticks(tm_ns, stop)
+            if self._ended():
+                return
             self._step()
 
     def _realtime_torque(self, tm_ns: int) -> None:
@@ -293,14 +377,19 @@ class SimService:
                 origin, origin_step = time.monotonic(), sim.step_index + 1
             node.drain()
             self._realtime_torque(tm_ns)
+            if self._ended():
+                return
             self._step()
 
     def run(self, stop: threading.Event) -> int:
         # Asked once at start, so the first steps already know whether to wait.
         self._set_motor_alive(self.node.alive_now(Service.MOTOR))
         self.node.drain()
+        self._await_services(stop)
         if self.motor_alive and self.mode == LOCKSTEP:
             self._await_motor_subscription()
+        if self.mode == LOCKSTEP:
+            self._await_participants()
         self.node.log.info(
             "simulating %s in %s mode, step %g s%s",
             self.world_file,
@@ -310,8 +399,12 @@ class SimService:
         )
         self._started = time.monotonic()
         {LOCKSTEP: self._run_lockstep, REALTIME: self._run_realtime}[self.mode](stop)
-        self.finished = self.sim.step_index >= self._end_step
+        self.finished = self.sim.step_index >= self._end_step or self._ended()
+        self._stopped_at = time.monotonic()
         self.node.log.info("%s: %s", "finished" if self.finished else "stopped", self._summary())
+        if self._ended():
+            self.node.log.info("the drive's scenario ended: holding at this step until stopped")
+            self.node.spin(stop)
         return 0
 
     def _await_motor_subscription(self) -> None:
@@ -320,8 +413,56 @@ class SimService:
         while not self._angles_publisher.matched and time.monotonic() < deadline:
             self.node.spin_once(STOP_POLL_S / 10.0)
 
+    def _await_services(self, stop: threading.Event) -> None:
+        """``--wait-for``: before the first step, until each named service is alive (a lockstep
+        participant: holds its ticks token), so that the run starts the same way every time."""
+        if not self.wait_for:
+            return
+
+        def missing() -> list[str]:
+            return [
+                str(service)
+                for service in self.wait_for
+                if not (self.motor_alive if service is Service.MOTOR else self.barrier.announced(service))
+            ]
+
+        deadline = time.monotonic() + START_HANDSHAKE_TIMEOUT_S
+        while missing() and time.monotonic() < deadline and not stop.is_set():
+            self.node.spin_once(STOP_POLL_S)
+        if missing():
+            self.node.log.warning("starting without %s: not there within %g s", ", ".join(missing()), START_HANDSHAKE_TIMEOUT_S)
+
+    def _await_participants(self) -> None:
+        """Before the first step, until each participant there from the start says it sees this
+        simulator: a session this new has routes to a peer only once their declarations have
+        crossed, and a participant that missed the first step's sample would miss its first tick.
+        The thread keeps handling events meanwhile (composed, it serves those participants too)."""
+        node = self.node
+        deadline = time.monotonic() + START_HANDSHAKE_TIMEOUT_S
+        waiting = set(self.barrier.waited_for()) | ({Service.MOTOR} if self.motor_alive else set())
+        asked: dict[Service, Any] = {}
+        while waiting and time.monotonic() < deadline:
+            for service in waiting - set(asked):
+                asked[service] = node.session.get(node.keys.status(service), timeout=STOP_POLL_S)
+            node.spin_once(STOP_POLL_S / 10.0)
+            for service, replies in list(asked.items()):
+                try:
+                    reply = replies.try_recv()
+                except zenoh.ZError:  # unanswered within its timeout: asked again
+                    del asked[service]
+                    continue
+                if reply is None:
+                    continue
+                del asked[service]  # answered: asked again unless it sees this simulator
+                if reply.ok is not None and msgspec.json.decode(reply.ok.payload.to_bytes()).get("sim_alive"):
+                    waiting.discard(service)
+        if waiting:
+            node.log.warning("%s did not see this simulator before its first step", ", ".join(sorted(waiting)))
+
     def _elapsed(self) -> float:
-        return 0.0 if self._started is None else time.monotonic() - self._started
+        if self._started is None:
+            return 0.0
+        return (self._stopped_at if self._stopped_at is not None else time.monotonic()) - self._started
 
     def _steps_per_second(self) -> float:
         elapsed = self._elapsed()
@@ -361,6 +502,8 @@ class SimService:
             "counters": dict(self.counters),
             "torque_latency": self.latency.summary(),
             "late_fraction": self._late_fraction(),
+            "lockstep_participants": self.barrier.status(),
+            "drive_ended": self.drive_ended,
             "parameters": {
                 "step": self.parameters.step,
                 "duration": self.duration,
@@ -378,6 +521,7 @@ class SimService:
         return late / self.sim.step_index if self.sim.step_index else 0.0
 
     def close(self) -> None:
+        self._ticks_watch.undeclare()
         self._motor_watch.undeclare()
         self._bump_stop.undeclare()
         self.sim.close()
@@ -391,6 +535,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--step", type=positive_seconds, metavar="S", help=f"simulated seconds per step (default {defaults.step:g})"
     )
     group.add_argument("--duration", type=positive_seconds, metavar="S", help="simulate S seconds, then exit 0")
+    group.add_argument(
+        "--wait-for",
+        nargs="+",
+        type=Service,
+        choices=[service for service in Service if service is not Service.SIM],
+        metavar="SERVICE",
+        help=f"before the first step, wait (at most {START_HANDSHAKE_TIMEOUT_S:g} s) until these services are there "
+        "(motor: alive; drive, localization: holding their lockstep token), so a lockstep run starts the same way "
+        "every time (invent up uses it)",
+    )
+    group.add_argument(
+        "--until-drive-ends",
+        action="store_true",
+        help="stop stepping at the drive's last target (the end of its scenario) and hold there, answering "
+        "status, until stopped: a lockstep run then ends at the same step every time (invent up uses it)",
+    )
     group.add_argument(
         "--realtime-factor",
         type=positive_seconds,

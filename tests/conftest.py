@@ -6,7 +6,6 @@ import pytest
 import zenoh
 
 from services.motor import STATE_HOME_VARIABLE
-
 from tests.harness import peer_session, running_router
 
 

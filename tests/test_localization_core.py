@@ -47,7 +47,8 @@ def test_fixes_come_at_exactly_the_configured_simulated_rate() -> None:
     stamps = [start + k * MS for k in range(10_001)]  # 10 simulated seconds at 1 kHz
     fixes = feed(localizer(rate=2.0), stamps)
     assert len(fixes) == 1 + 10 * 2
-    assert [fix.stamp_ns for _k, fix in fixes] == [start + i * 500 * MS for i in range(21)]
+    grid = [round(7.5 * S) + i * 500 * MS for i in range(20)]
+    assert [fix.stamp_ns for _k, fix in fixes] == [start, *grid], "the first, then the grid anchored at t = 0"
 
 
 def test_the_initial_pose_comes_first_stamped_with_the_first_sample() -> None:

@@ -599,3 +599,32 @@ def test_a_non_finite_torque_is_never_returned():
     motor_core.set_pd_gain(PDGains(p_gain_l=1e300, p_gain_r=1e300, d_gain_l=1e300, d_gain_r=1e300))
     torques = motor_core.step(1 * MS, [1e10, 1e10])
     assert torques == [0.0, 0.0] and motor_core.nonfinite_torques == 1
+
+
+@given(st.floats(-0.5, 0.5), st.floats(-1.0, 1.0), st.integers(1, 20))
+def test_a_target_applies_from_the_first_sample_after_its_stamp_whenever_it_arrives(vx, w, target_step):
+    """Lockstep: the drive's target stamped t may reach the motor before or after the wheel angles
+    of t; the torques are the same, bit for bit."""
+
+    def torques(target_before_its_sample: bool) -> list[list[float]]:
+        motor_core = core(**SEED_LAW)
+        motor_core.set_target(0.1, 0.0, 0)
+        out = []
+        for k in range(target_step + 10):
+            if k == target_step and target_before_its_sample:
+                motor_core.set_target(vx, w, target_step * MS)
+            out.append(motor_core.step(k * MS, [0.001 * k, 0.002 * k]))
+            if k == target_step and not target_before_its_sample:
+                motor_core.set_target(vx, w, target_step * MS)
+        return out
+
+    assert torques(True) == torques(False)
+
+
+def test_a_target_waiting_for_its_sample_is_dropped_by_an_emergency_stop():
+    motor_core = running(vx=0.5)
+    motor_core.set_target(0.3, 0.0, 5 * MS)
+    motor_core.stop()
+    motor_core.clear()
+    motor_core.step(6 * MS, [0.0, 0.0])
+    assert motor_core.target == (0.0, 0.0)

@@ -538,13 +538,38 @@ def test_a_late_fix_turns_the_motion_since_its_stamp_with_its_heading():
 
 
 def test_a_fix_from_the_future_waits_for_its_time():
+    """It replaces the pose integrated up to its stamp, before the next sample's step."""
     odometry = _driven(0.01, 0.01, 10)
     before = odometry.pose
     assert odometry.reset_at(12 * MS, 5.0, 5.0, 0.0) == before
     odometry.step(11 * MS, [0.11, 0.11])
-    assert odometry.pose.x == pytest.approx(before.x + 0.001)
     odometry.step(12 * MS, [0.12, 0.12])
+    assert odometry.pose.x == pytest.approx(before.x + 0.002)
+    odometry.step(13 * MS, [0.13, 0.13])
     assert odometry.pose.x == pytest.approx(5.0 + 0.001) and odometry.pose.y == 5.0
+
+
+@settings(max_examples=50)
+@given(st.floats(-0.02, 0.02), st.floats(-0.02, 0.02), st.integers(1, 50), st.integers(0, 2))
+def test_a_fix_gives_the_same_poses_whichever_comes_first_the_fix_or_the_sample_of_its_time(
+    left, right, fix_step, arrival
+):
+    """Lockstep: a fix stamped t arrives before sample t, right after it, or before any sample;
+    the poses are the same, bit for bit."""
+
+    def run(fix_before: int) -> list:
+        odometry = law_odometry(OdometryParameters.from_config(load_config()))
+        poses = []
+        for k in range(fix_step + 10):
+            if k == fix_before:
+                odometry.reset_at(fix_step * MS, 1.0, 2.0, 0.5)
+            odometry.step(k * MS, [left * k, right * k])
+            poses.append(odometry.pose)
+        return poses
+
+    arrivals = {"before any sample": 0, "before its sample": fix_step, "right after its sample": fix_step + 1}
+    results = {name: run(k) for name, k in arrivals.items()}
+    assert results["before any sample"] == results["before its sample"] == results["right after its sample"]
 
 
 @settings(max_examples=50)

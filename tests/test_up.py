@@ -27,38 +27,6 @@ def _child_pids(output: str) -> dict[str, int]:
     return {name: int(pid) for name, pid in re.findall(r"started (\w+) \(pid (\d+)\)", output)}
 
 
-def test_up_square_returns_to_the_start_and_writes_the_report(tmp_path):
-    report_dir = tmp_path / "report"
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    result = subprocess.run(
-        invent_command("up", "--scenario", "square", "--report", str(report_dir), "--listen", endpoint),
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=180,
-    )
-    assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-2000:]
-    report = json.loads((report_dir / "report.json").read_text())
-    for field in ("scenario", "mode", "sim_time_s", "wall_time_s", "real_time_factor", "steps", "bad_inputs"):
-        assert field in report, field
-    assert (report["scenario"], report["mode"]) == ("square", "lockstep")
-    for estimate in ("ground_truth", "odometry", "localization"):
-        assert set(report["final"][estimate]) == {"x", "y", "theta"}, estimate
-    start, end = report["start"], report["final"]["ground_truth"]
-    assert math.hypot(end["x"] - start["x"], end["y"] - start["y"]) < 0.05
-    assert report["path_error"]["max_m"] < 0.10
-    assert report["odometry_error"]["max_m"] < 0.05
-    assert report["real_time_factor"] > 1.0
-    assert report["steps"] == pytest.approx(report["sim_time_s"] / 0.001, rel=0.01)
-    assert report["bad_inputs"] == {"motor": 0, "odometry": 0, "sim": 0, "localization": 0}
-    assert (report_dir / "trajectory.png").stat().st_size > 10_000
-    assert (report_dir / "wheel_speeds.png").stat().st_size > 10_000
-    assert "scenario square (lockstep)" in result.stdout
-    pids = _child_pids(result.stdout)
-    assert set(pids) == {"router", "motor", "odometry", "localization", "sim", "drive"}
-    assert not [name for name, pid in pids.items() if _pid_alive(pid)]
-
-
 def test_killing_the_motor_mid_run_stops_everything_and_exits_non_zero(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     process = start_up("--scenario", "square", "--report", str(tmp_path), "--listen", endpoint)
@@ -82,34 +50,6 @@ def test_killing_the_motor_mid_run_stops_everything_and_exits_non_zero(tmp_path)
     assert "motor exited unexpectedly (killed by SIGKILL)" in text
     wait_until(lambda: not [pid for pid in pids.values() if _pid_alive(pid)], 15, "every child to be gone")
     assert not (tmp_path / "report.json").exists()
-
-
-def test_composed_runs_in_one_process_and_outside_tools_still_see_every_service(tmp_path):
-    from schemas.keys import Keys, Service
-    from tests.harness import open_peer, run_invent, wait_alive
-
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    process = start_up("--composed", "--scenario", "square", "--report", str(tmp_path), "--listen", endpoint)
-    try:
-        outside = open_peer(endpoint)
-        try:
-            wait_alive(outside, Keys("rh0").alive(Service.DRIVE), timeout=60)
-        finally:
-            outside.close()
-        status = run_invent("status", "--connect", endpoint)
-        output, _ = process.communicate(timeout=120)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.communicate()
-    assert process.returncode == 0, output[-4000:]
-    seen = {line["service"] for line in map(json.loads, status.stdout.splitlines())}
-    assert {"sim", "motor", "odometry", "localization"} <= seen, status.stderr
-    assert "(pid" not in output, "composed mode must not start child processes"
-    report = json.loads((tmp_path / "report.json").read_text())
-    assert report["composed"] is True and report["scenario"] == "square", report
-    assert report["path_error"]["max_m"] < 0.10
-    assert report["odometry_error"]["max_m"] < 0.05
 
 
 def test_up_straight_follows_the_waypoints_with_the_real_services(tmp_path):

@@ -1,0 +1,252 @@
+"""The whole loop in lockstep, pure (no zenoh): who waits for what, so that a lockstep run gives
+the same samples, bit for bit, whatever the machine's load and the order zenoh delivers in.
+
+The simulator steps the motor (it waits for each step's torque). The services that output on a
+tick grid of their own are stepped too; they are the *participants*:
+
+- A participant holds the liveliness token ``Keys.ticks(service, rate)``. Its ticks are the
+  grid ``round(k·1e9/rate)`` ns of simulation time; each is taken by the first stamp at or after
+  it (:class:`~services.sim_time.PeriodicSchedule` anchored at 0), and the output is stamped
+  with that stamp. The last output of a participant that ends (the drive at the end of its
+  scenario) carries the attachment :data:`FINAL`.
+- The simulator, at a step that is a tick of a participant, waits for that participant's
+  output stamped with the step's time before it steps (:class:`TickBarrier`). A participant
+  whose token was there when the simulator started is waited for from its first tick; one that
+  comes later, from its first output; one that misses a tick (the wait times out) or withdraws
+  its token is not waited for again until it outputs again.
+- Each lockstep step's wheel angles carry an :class:`Owed` attachment: for each participant's
+  output key, the stamp of the newest output the simulator took. A consumer takes the sample
+  only once it has taken that output too (:class:`Hold`): the motor the drive's target; odometry
+  (the motor passes the attachment on with ``motor/wheel_angles``) the localization's fix. Zenoh
+  delivers each link in order but not across links, so without it a target could reach the
+  motor before or after the next wheel angles, depending on the machine's load.
+- Consumers apply an output by its stamp: a target stamped t from the first wheel sample after
+  t; a fix stamped t replaces the pose integrated up to t.
+
+A realtime simulator sends no :class:`Owed` attachment: nobody holds anything, nothing waits.
+"""
+
+from __future__ import annotations
+
+import collections
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+import msgspec
+
+from schemas.codec import BadInput
+from schemas.keys import Service, Topic
+from schemas.messages import NANOSECONDS_PER_SECOND
+from services.sim_time import PeriodicSchedule
+
+SampleT = TypeVar("SampleT")
+
+FINAL = b"invent-final"
+"""The attachment of a participant's last output: no tick follows."""
+
+OUTPUTS: dict[Service, Topic] = {
+    Service.DRIVE: Topic.DRIVE_TARGET_VELOCITY,
+    Service.LOCALIZATION: Topic.LOCALIZATION_POSE,
+}
+"""What each participant outputs at its ticks."""
+PARTICIPANTS: dict[Topic, Service] = {topic: service for service, topic in OUTPUTS.items()}
+
+
+class Owed(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """The attachment of a lockstep step's wheel angles: per output key (relative to the robot),
+    the stamp in ns of the newest output the simulator took before it published the sample."""
+
+    owed: dict[str, int]
+
+
+_OWED_DECODER = msgspec.json.Decoder(Owed)
+_MAX_OWED = len(OUTPUTS)
+
+
+def encode_owed(owed: dict[Topic, int]) -> bytes:
+    return msgspec.json.encode(Owed({str(topic): stamp for topic, stamp in owed.items()}))
+
+
+def decode_owed(attachment: bytes | None, stamp_ns: int) -> dict[str, int] | None:
+    """The outputs a sample stamped ``stamp_ns`` is owed; None without an attachment (realtime).
+
+    Raises BadInput for an attachment that is not an :class:`Owed`, or that owes an output
+    stamped at or after the sample (an output is always for an earlier step).
+    """
+    if attachment is None:
+        return None
+    try:
+        owed = _OWED_DECODER.decode(attachment).owed
+    except msgspec.DecodeError as error:
+        raise BadInput(f"lockstep attachment: {error}") from None
+    if len(owed) > _MAX_OWED:
+        raise BadInput(f"lockstep attachment owes {len(owed)} outputs, at most {_MAX_OWED} exist")
+    for key, owed_ns in owed.items():
+        if owed_ns >= stamp_ns:
+            raise BadInput(f"lockstep attachment owes {key} stamped {owed_ns} ns, not before the sample ({stamp_ns} ns)")
+    return owed
+
+
+class Hold(Generic[SampleT]):
+    """A consumer's side of the protocol for one output (the motor: the drive's target).
+
+    Every sample goes through :meth:`offer`, every output taken through :meth:`took`; ``take``
+    handles the samples, in order, each once it owes nothing. At most ``capacity`` samples wait:
+    beyond, the oldest is taken all the same. The motor holds one (a second sample means the
+    simulator gave up waiting for the first's torque and stepped on); odometry holds many, since
+    the motor answers the simulator, and so more samples come, whether odometry is waiting or not.
+    """
+
+    def __init__(self, output: Topic, take: Callable[[SampleT], None], capacity: int) -> None:
+        self.output = output
+        self._take = take
+        self._capacity = capacity
+        self.taken_ns: int | None = None
+        """The stamp of the newest output taken."""
+        self.holds = 0
+        """Samples held for an output."""
+        self.overflows = 0
+        """Samples taken without their output because ``capacity`` samples waited."""
+        self._held: collections.deque[tuple[SampleT, dict[str, int] | None]] = collections.deque()
+
+    def offer(self, sample: SampleT, owed: dict[str, int] | None) -> None:
+        """Take ``sample`` now, or hold it while it (or a sample before it) is owed an output."""
+        self._held.append((sample, owed))
+        if self._owes(owed):
+            self.holds += 1
+        self._release()
+
+    def took(self, stamp_ns: int) -> None:
+        if self.taken_ns is None or stamp_ns > self.taken_ns:
+            self.taken_ns = stamp_ns
+        self._release()
+
+    def forget(self) -> None:
+        """A new time base (a restarted simulator): stamps start again; held samples are dropped."""
+        self.taken_ns = None
+        self._held.clear()
+
+    def _release(self) -> None:
+        held = self._held
+        while held:
+            overflow = len(held) > self._capacity
+            if not overflow and self._owes(held[0][1]):
+                return
+            self.overflows += overflow
+            self._take(held.popleft()[0])
+
+    def _owes(self, owed: dict[str, int] | None) -> bool:
+        needed = None if owed is None else owed.get(self.output)
+        return needed is not None and (self.taken_ns is None or self.taken_ns < needed)
+
+
+@dataclass
+class _Participant:
+    rate_hz: float
+    schedule: PeriodicSchedule | None
+    """Its ticks after the present; None while it is not waited for (it joins when it outputs)."""
+    taken_ns: int | None = None
+    final: bool = False
+
+
+class TickBarrier:
+    """The simulator's side: which participants' outputs a step must wait for.
+
+    Per step, in order: :meth:`ticks` (the participants with a tick at this step), then
+    :meth:`missing` until it is empty (each :meth:`took` output may complete it), or
+    :meth:`gave_up` on one that times out; :meth:`owed` is the next step's attachment.
+    """
+
+    def __init__(self) -> None:
+        self._participants: dict[Service, _Participant] = {}
+        self._awaited: dict[Service, int] = {}
+
+    def announce(self, service: Service, rate_hz: float, *, from_start: bool) -> None:
+        """A participant's token appeared: ``from_start`` (before the first step) it is waited for
+        from its first tick; otherwise from its first output."""
+        known = self._participants.get(service)
+        if known is not None and known.rate_hz == rate_hz:
+            return
+        schedule = PeriodicSchedule(rate_hz, 0) if from_start else None
+        self._participants[service] = _Participant(rate_hz, schedule)
+
+    def withdraw(self, service: Service) -> bool:
+        """Its token went (it ended or died): never waited for again. True if it was known."""
+        self._awaited.pop(service, None)
+        return self._participants.pop(service, None) is not None
+
+    def took(self, service: Service, stamp_ns: int, now_ns: int, *, final: bool = False) -> None:
+        """An output of ``service`` stamped ``stamp_ns`` arrived while the present is ``now_ns``.
+
+        Raises BadInput for one stamped after the present: no tick of it has come yet."""
+        if stamp_ns > now_ns:
+            raise BadInput(f"{OUTPUTS[service]} stamped {stamp_ns} ns, after the present ({now_ns} ns)")
+        participant = self._participants.get(service)
+        if participant is None:
+            return
+        if participant.taken_ns is None or stamp_ns > participant.taken_ns:
+            participant.taken_ns = stamp_ns
+        if participant.schedule is None:
+            participant.schedule = PeriodicSchedule(participant.rate_hz, 0)
+            participant.schedule.due(stamp_ns)
+        participant.final = participant.final or final
+
+    def ticks(self, now_ns: int) -> list[Service]:
+        """The participants with a tick at ``now_ns`` (call once per step, steps in order)."""
+        due = []
+        for service, participant in self._participants.items():
+            schedule = participant.schedule
+            if schedule is not None and not participant.final and schedule.due(now_ns):
+                self._awaited[service] = now_ns
+                due.append(service)
+        return due
+
+    def missing(self) -> list[Service]:
+        """The participants whose output for their tick at this step has not arrived yet."""
+        done = [
+            service
+            for service, tick_ns in self._awaited.items()
+            if (taken := self._participants[service].taken_ns) is not None and taken >= tick_ns
+        ]
+        for service in done:
+            del self._awaited[service]
+        return list(self._awaited)
+
+    def gave_up(self, service: Service) -> None:
+        """Its output did not come in time: it is waited for again once it outputs again."""
+        self._awaited.pop(service, None)
+        participant = self._participants.get(service)
+        if participant is not None:
+            participant.schedule = None
+
+    def announced(self, service: Service) -> bool:
+        return service in self._participants
+
+    def waited_for(self) -> list[Service]:
+        """The participants whose ticks are waited for."""
+        return [service for service, participant in self._participants.items() if participant.schedule is not None]
+
+    def final(self, service: Service) -> bool:
+        """True once ``service``'s last output (:data:`FINAL`) has been taken."""
+        participant = self._participants.get(service)
+        return participant is not None and participant.final
+
+    def owed(self) -> dict[Topic, int]:
+        """For the next step's attachment: the newest output taken of each participant."""
+        return {
+            OUTPUTS[service]: participant.taken_ns
+            for service, participant in self._participants.items()
+            if participant.taken_ns is not None
+        }
+
+    def status(self) -> dict[str, dict[str, object]]:
+        return {
+            str(service): {
+                "rate_hz": participant.rate_hz,
+                "waited_for": participant.schedule is not None and not participant.final,
+                "last_output_s": None if participant.taken_ns is None else participant.taken_ns / NANOSECONDS_PER_SECOND,
+                "final": participant.final,
+            }
+            for service, participant in self._participants.items()
+        }

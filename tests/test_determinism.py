@@ -1,0 +1,190 @@
+"""Lockstep means deterministic: ``invent up --scenario square`` gives the same samples, bit for
+bit, on a quiet machine, beside two CPU-burning processes, and composed in one process.
+
+Each run is recorded from outside, by this test's own zenoh router, which the run connects to: every
+payload of the ground truth, odometry and localization keys (and the drive's targets), in the
+order it arrived. The three runs of the module are shared by the tests below, including the
+ones that check the square itself and composed mode's outside visibility.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from schemas.keys import Keys, Service
+from services.runtime import open_session, session_config
+from tests.harness import REPO, free_port, invent_command, run_invent, wait_alive, wait_until
+
+pytestmark = pytest.mark.slow
+
+KEYS = Keys("rh0")
+RECORDED = (KEYS.sim_body_pose, KEYS.odometry_pose, KEYS.localization_pose, KEYS.drive_target_velocity)
+WALL_CLOCK_FIELDS = ("wall_time_s", "real_time_factor")
+BURNERS = 2
+
+
+@dataclass
+class SquareRun:
+    returncode: int
+    output: str
+    report: dict
+    samples: dict[str, list[bytes]]
+    """Every payload of each recorded key, in arrival order."""
+    report_dir: Path
+    outside_status: str = ""
+    """``invent status`` run against the loop while it ran (composed run only)."""
+
+
+@contextmanager
+def _burning_cpus(count: int) -> Iterator[None]:
+    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+    try:
+        yield
+    finally:
+        for burner in burners:
+            burner.kill()
+            burner.wait()
+
+
+def _run_square(report_dir: Path, *flags: str, ask_status: bool = False) -> SquareRun:
+    """One ``invent up`` run connected to this test's router, whose subscriptions exist before any
+    of the run's sessions opens, so that they get every sample from the first step."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    samples: dict[str, list[bytes]] = {key: [] for key in RECORDED}
+    status = ""
+    with open_session(session_config(listen=[endpoint], mode="router")) as router:
+        channels = {key: router.declare_subscriber(key, zenoh.handlers.FifoChannel(1 << 20)) for key in RECORDED}
+        process = subprocess.Popen(
+            invent_command("up", "--scenario", "square", "--report", str(report_dir), "--connect", endpoint, *flags),
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        try:
+            if ask_status:
+                wait_alive(router, KEYS.alive(Service.SIM), timeout=60)
+                status = run_invent("status", "--connect", endpoint).stdout
+
+            def collect() -> bool:
+                for key, channel in channels.items():
+                    while (sample := channel.try_recv()) is not None:
+                        samples[key].append(sample.payload.to_bytes())
+                return process.poll() is not None
+
+            wait_until(collect, 300, "the run to end")
+            collect()
+            output = process.stdout.read()
+        finally:
+            if process.poll() is None:
+                process.kill()
+            process.wait()
+    report_file = report_dir / "report.json"
+    report = json.loads(report_file.read_text()) if report_file.exists() else {}
+    return SquareRun(process.returncode, output, report, samples, report_dir, status)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> dict[str, SquareRun]:
+    base = tmp_path_factory.mktemp("square")
+    quiet = _run_square(base / "quiet")
+    with _burning_cpus(BURNERS):
+        loaded = _run_square(base / "loaded")
+    composed = _run_square(base / "composed", "--composed", ask_status=True)
+    return {"quiet": quiet, "loaded": loaded, "composed": composed}
+
+
+def _comparable(report: dict) -> dict:
+    return {name: value for name, value in report.items() if name not in (*WALL_CLOCK_FIELDS, "composed")}
+
+
+def _assert_same_samples(first: SquareRun, second: SquareRun) -> None:
+    differences = []
+    for key in RECORDED:
+        a, b = first.samples[key], second.samples[key]
+        assert a, f"nothing recorded on {key}"
+        if len(a) != len(b):
+            differences.append(f"{key}: {len(a)} samples against {len(b)}")
+            continue
+        differing = next((index for index, (x, y) in enumerate(zip(a, b, strict=True)) if x != y), None)
+        if differing is not None:
+            differences.append(f"{key}: sample {differing} differs: {a[differing]!r} against {b[differing]!r}")
+    assert not differences, "\n".join(differences)
+
+
+def _repeated(samples: list[bytes]) -> list[bytes]:
+    seen: set[bytes] = set()
+    return [sample[:40] for sample in samples if sample in seen or seen.add(sample)]
+
+
+def test_square_returns_to_the_start_and_writes_the_report(runs):
+    run = runs["quiet"]
+    assert run.returncode == 0, run.output[-4000:]
+    report = run.report
+    assert (report["scenario"], report["mode"]) == ("square", "lockstep")
+    for estimate in ("ground_truth", "odometry", "localization"):
+        assert set(report["final"][estimate]) == {"x", "y", "theta"}, estimate
+    start, end = report["start"], report["final"]["ground_truth"]
+    assert math.hypot(end["x"] - start["x"], end["y"] - start["y"]) < 0.05
+    assert report["path_error"]["max_m"] < 0.10
+    assert report["odometry_error"]["max_m"] < 0.05
+    assert report["steps"] == round(report["sim_time_s"] / 0.001)
+    assert report["bad_inputs"] == {"motor": 0, "odometry": 0, "sim": 0, "localization": 0}
+    assert report["degraded"] == []
+    assert (run.report_dir / "trajectory.png").stat().st_size > 10_000
+    assert (run.report_dir / "wheel_speeds.png").stat().st_size > 10_000
+    assert "scenario square (lockstep)" in run.output
+    pids = {name: int(pid) for name, pid in re.findall(r"started (\w+) \(pid (\d+)\)", run.output)}
+    assert set(pids) == {"motor", "odometry", "localization", "sim", "drive"}, "and no router: it connects to ours"
+    assert not [name for name, pid in pids.items() if _pid_alive(pid)]
+
+
+def test_every_step_of_the_run_is_recorded(runs):
+    """The comparisons below see the whole run: one ground-truth sample per step, from t = 0."""
+    run = runs["quiet"]
+    assert len(run.samples[KEYS.sim_body_pose]) == run.report["steps"] + 1
+    assert len(run.samples[KEYS.odometry_pose]) == run.report["steps"] + 1
+    fixes = len(run.samples[KEYS.localization_pose])
+    assert fixes == math.floor(run.report["sim_time_s"]) + 1, "one fix per second of simulation time, from t = 0"
+
+
+def test_a_loaded_machine_gives_the_same_samples_and_report(runs):
+    quiet, loaded = runs["quiet"], runs["loaded"]
+    assert loaded.returncode == 0, loaded.output[-4000:]
+    assert loaded.report["real_time_factor"] < quiet.report["real_time_factor"], "the burners did load the machine"
+    _assert_same_samples(quiet, loaded)
+    assert _comparable(loaded.report) == _comparable(quiet.report)
+
+
+def test_composed_gives_the_same_samples_and_report_as_separate_processes(runs):
+    quiet, composed = runs["quiet"], runs["composed"]
+    assert composed.returncode == 0, composed.output[-4000:]
+    assert "(pid" not in composed.output, "composed mode must not start child processes"
+    assert composed.report["composed"] is True
+    _assert_same_samples(quiet, composed)
+    assert _comparable(composed.report) == _comparable(quiet.report)
+
+
+def test_composed_services_are_seen_by_outside_tools(runs):
+    seen = {line["service"] for line in map(json.loads, runs["composed"].outside_status.splitlines())}
+    assert {"sim", "motor", "odometry", "localization", "drive"} <= seen
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
