@@ -193,12 +193,13 @@ far_coordinate = st.floats(min_value=LIMITS.max_coordinate * 1.001, max_value=1e
 
 @st.composite
 def fixes(draw: st.DrawFn) -> bytes:
-    """Bad for an odometry whose whole history is the one sample at T0."""
+    """Bad for an odometry whose history is the baseline's samples, from T0 - BASELINE_LEAD_NS to T0
+    (or fewer of them: some may have gone by before it subscribed)."""
     kind = draw(st.sampled_from(["malformed", "back", "ahead", "absurd", "far"]))
     if kind == "malformed":
         return draw(malformed(_position(_tm(T0))))
     if kind == "back":
-        return _position(_tm(draw(stamp_back.filter(lambda t: t < T0))))
+        return _position(_tm(draw(st.integers(min_value=0, max_value=T0 - BASELINE_LEAD_NS - 1))))
     if kind == "ahead":
         return _position(_tm(draw(stamp_far_ahead)))
     if kind == "absurd":
