@@ -7,6 +7,8 @@ Every ``sim/body_pose`` becomes ``motor/sim_pose/gui`` and ``motor/sim_pose/loca
 The Motor interface answers on ``motor/gui/<method>`` and ``motor/bump/<method>``.
 Whenever the simulator's liveliness token appears, the wheel-angle time base starts again
 with the next sample (a restarted simulator's clock starts again at 0).
+In lockstep a wheel-angle sample is held until the drive's target its attachment says it is
+owed has arrived (services/lockstep.py); a target applies from the first sample after its stamp.
 See docs/motor.md.
 """
 

@@ -11,6 +11,11 @@ applies the wheel torques and steps:
   answers in a row the motor control counts as silent: each step then waits only one
   real-time period for its torque (the sim runs at real-time pace, zero torque, slow enough
   for a motor control to work off its backlog) until a torque from it arrives again.
+  The whole loop is in lockstep too (services/lockstep.py): at each tick of a participant (the
+  drive, the localization: liveliness tokens ``<service>/ticks/<rate>``) the step also waits for
+  its output, and each step's wheel angles carry the ``Owed`` attachment the motor and odometry
+  hold their samples by. ``--wait-for`` and ``--until-drive-ends`` make a run start and end at
+  the same step every time.
 - **realtime**: steps paced to the wall clock times ``sim.realtime_factor``; each applies the
   newest torque, or zero when the newest is older than ``sim.torque_max_age``. A step whose own
   torque (the answer to its wheel angles) has not arrived when it is stepped counts as late.
