@@ -31,6 +31,14 @@ T = TypeVar("T")
 MessageT = TypeVar("MessageT", bound=msgspec.Struct)
 
 
+def pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
 def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import subprocess
 import sys
@@ -25,7 +24,7 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from services.runtime import open_session, session_config
-from tests.harness import REPO, free_port, invent_command, run_invent, wait_alive, wait_until
+from tests.harness import REPO, free_port, invent_command, pid_alive, run_invent, wait_alive, wait_until
 
 pytestmark = pytest.mark.slow
 
@@ -148,7 +147,7 @@ def test_square_returns_to_the_start_and_writes_the_report(runs):
     assert "scenario square (lockstep)" in run.output
     pids = {name: int(pid) for name, pid in re.findall(r"started (\w+) \(pid (\d+)\)", run.output)}
     assert set(pids) == {"motor", "odometry", "localization", "sim", "drive"}, "and no router: it connects to ours"
-    assert not [name for name, pid in pids.items() if _pid_alive(pid)]
+    assert not [name for name, pid in pids.items() if pid_alive(pid)]
 
 
 def test_every_step_of_the_run_is_recorded(runs):
@@ -180,11 +179,3 @@ def test_composed_gives_the_same_samples_and_report_as_separate_processes(runs):
 def test_composed_services_are_seen_by_outside_tools(runs):
     seen = {line["service"] for line in map(json.loads, runs["composed"].outside_status.splitlines())}
     assert {"sim", "motor", "odometry", "localization", "drive"} <= seen
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return True

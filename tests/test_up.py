@@ -10,17 +10,9 @@ import time
 
 import pytest
 
-from tests.harness import REPO, free_port, invent_command, start_up, wait_until
+from tests.harness import REPO, free_port, invent_command, pid_alive, start_up, wait_until
 
 pytestmark = pytest.mark.slow
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return True
 
 
 def _child_pids(output: str) -> dict[str, int]:
@@ -48,7 +40,7 @@ def test_killing_the_motor_mid_run_stops_everything_and_exits_non_zero(tmp_path)
     text = "".join(output) + rest
     assert process.returncode != 0
     assert "motor exited unexpectedly (killed by SIGKILL)" in text
-    wait_until(lambda: not [pid for pid in pids.values() if _pid_alive(pid)], 15, "every child to be gone")
+    wait_until(lambda: not [pid for pid in pids.values() if pid_alive(pid)], 15, "every child to be gone")
     assert not (tmp_path / "report.json").exists()
 
 
