@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Generic, TypeVar
+from typing import Any, TypeVar
 
 import msgspec
 import zenoh
@@ -204,43 +204,6 @@ SAMPLING_POLL_S = 0.001
 and how long it waits at most between two looks when it has nothing else."""
 
 
-class LatestSample(Generic[MessageT]):
-    """The newest sample of one key, kept by zenoh's ring channel of one and decoded when taken.
-
-    For inputs a service needs only at its own pace (a clock, a pose): the simulator publishes
-    them at its step rate, several kHz of wall time in lockstep, and through the node's queue
-    every sample would cost a Python callback, while a service starved of CPU for a moment would
-    then work through a backlog of stale samples. Here no Python runs per sample, and a busy
-    service always acts on the present. (A bad sample overwritten before it is taken is never
-    seen, so never counted.) :meth:`Node.sample` has the executor take it; :meth:`Node.latest`
-    leaves taking it to the service.
-    """
-
-    def __init__(self, node: Node, key: str, message_type: type[MessageT]) -> None:
-        self.key = key
-        self._node = node
-        self._type = message_type
-        self._subscriber = node.session.declare_subscriber(key, zenoh.handlers.RingChannel(1))
-
-    def take(self, handler: Callable[..., None], with_attachment: bool = False) -> bool:
-        """Call ``handler`` with the sample that arrived since the last take (and its attachment,
-        ``with_attachment``), if any; True if one did.
-
-        An undecodable sample, or one the handler refuses with BadInput, is dropped and counted
-        in the node's bad-input counters like any other bad input.
-        """
-        sample = self._subscriber.try_recv()
-        if sample is None or _is_wake(sample):
-            return False
-        decoding, (payload, attachment) = _decoding(self._type, handler, with_attachment), _contents(sample)
-        self._node.guard(self.key, lambda: decoding(payload, attachment))
-        return True
-
-    def undeclare(self) -> None:
-        self._subscriber.undeclare()
-
-
-_SampledInput = tuple[LatestSample[Any], Callable[..., None], bool]
 _Dispatch = Callable[[bytes, "bytes | None"], None]
 """Handles one sample's payload and attachment."""
 
@@ -261,12 +224,15 @@ CHANNEL_CAPACITY = 256
 """Samples a channel input holds; when full, the oldest is dropped (zenoh's ring channel), so a
 flood bounds the memory it takes and never blocks zenoh's receiving thread. Lockstep has one
 sample in flight; in realtime a sample 256 steps old is useless anyway."""
+NEWEST_CAPACITY = 2
+"""Samples an input that needs only its newest one holds: two, not one, so the wake sample
+(:meth:`NodeInput.wake`) pushes out the older of two, never the newest."""
 EVENT_CAPACITY = 4096
 """Posted events (queries, callback samples, liveliness changes) an executor holds; beyond, a
 new one is dropped and counted (a query dropped so is finalized with no reply)."""
 WAKE_PERIOD_S = 0.01
 """How often a service thread blocked in a channel receive is checked: woken once its wait is
-over or an event waits (zenoh's receive has no timeout). Waits shorter than this are timed waits."""
+over (at once when an event is posted). Waits shorter than this are timed waits."""
 _WAKE = b"invent-wake"
 """The attachment of the session-local sample that wakes a blocked channel receive."""
 
@@ -276,29 +242,20 @@ def _is_wake(sample: zenoh.Sample) -> bool:
     return attachment is not None and attachment.to_bytes() == _WAKE
 
 
-class ChannelInput:
+class NodeInput:
     """A subscription whose samples wait in a zenoh ring channel until the service thread takes them.
 
     No Python runs in zenoh's thread and no thread switch happens on the way: the service thread,
     idle, waits in the channel's receive itself, where a callback would hand each sample over
     through zenoh-python's own thread (at thousands of samples per second those hand-offs cost
-    more than the work; benchmarks/README.md). An executor waits on its first channel input; the
-    samples of any other wait until the thread next wakes.
+    more than the work; benchmarks/README.md).
     """
 
-    def __init__(self, session: zenoh.Session, key: str, dispatch: _Dispatch, capacity: int = CHANNEL_CAPACITY) -> None:
+    def __init__(self, session: zenoh.Session, key: str, dispatch: _Dispatch, capacity: int) -> None:
         self.key = key
         self._session = session
         self._dispatch = dispatch
         self._subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
-
-    def take(self) -> bool:
-        """Handle the next waiting sample, if any; True if one was handled."""
-        while (sample := self._subscriber.try_recv()) is not None:
-            if not _is_wake(sample):
-                self._dispatch(*_contents(sample))
-                return True
-        return False
 
     def receive(self) -> zenoh.Sample:
         """The next sample, waiting as long as it takes (a wake sample included)."""
@@ -315,6 +272,50 @@ class ChannelInput:
         self._subscriber.undeclare()
 
 
+class ChannelInput(NodeInput):
+    """An input whose every sample is handled, in order (up to its capacity): for the inputs that
+    pace a service (the simulator's torque, the motor's wheel angles). An executor waits in its
+    first channel input's receive unless told which input to wait in (``waiting_for``); the
+    samples of any other wait until the thread next wakes."""
+
+    def __init__(self, session: zenoh.Session, key: str, dispatch: _Dispatch, capacity: int = CHANNEL_CAPACITY) -> None:
+        super().__init__(session, key, dispatch, capacity)
+
+    def take(self) -> bool:
+        """Handle the next waiting sample, if any; True if one was handled."""
+        while (sample := self._subscriber.try_recv()) is not None:
+            if not _is_wake(sample):
+                self.handle(sample)
+                return True
+        return False
+
+
+class LatestSample(NodeInput):
+    """An input of which only the newest sample counts, decoded when taken (:meth:`Node.sample`).
+
+    For inputs a service needs only at its own pace (a clock, a pose): the simulator publishes
+    them at its step rate, several kHz of wall time in lockstep, and handing every sample to
+    Python would cost more than the work, while a service starved of CPU for a moment would then
+    work through a backlog of stale samples. Here no Python runs per sample, and a busy service
+    always acts on the present. (A bad sample overwritten before it is taken is never seen, so
+    never counted.)
+    """
+
+    def __init__(self, session: zenoh.Session, key: str, dispatch: _Dispatch) -> None:
+        super().__init__(session, key, dispatch, NEWEST_CAPACITY)
+
+    def take(self) -> bool:
+        """Handle the newest sample that arrived since the last take, if any; True if one did."""
+        newest = None
+        while (sample := self._subscriber.try_recv()) is not None:
+            if not _is_wake(sample):
+                newest = sample
+        if newest is None:
+            return False
+        self.handle(newest)
+        return True
+
+
 class Executor:
     """The event queue of one service thread: zenoh callbacks post, the thread handles.
 
@@ -322,7 +323,7 @@ class Executor:
     single thread handles all their events in arrival order, with no thread switch between
     them (as a ROS 2 single-threaded executor does). Besides posted events, the thread takes
     the samples of its :class:`ChannelInput` s itself: first the posted events, then the
-    channel inputs in the order they were added. Sampled inputs (:meth:`Node.sample`) are looked
+    channel inputs in the order they were added. Sampled inputs (:class:`LatestSample`) are looked
     at when nothing else waits, and at least every :data:`SAMPLING_POLL_S` while things do: in a
     shared executor the loop never runs dry, and a clock or a pose needs no more than that.
 
@@ -339,16 +340,20 @@ class Executor:
         self._posted = threading.Lock()
         """Held while the thread has seen every event; a post releases it to wake the thread."""
         self._posted.acquire()
-        self._inputs: list[ChannelInput] = []
-        self._sampled: list[_SampledInput] = []
+        self._inputs: list[NodeInput] = []
+        self._sampled: list[LatestSample] = []
         self._next_sampling = 0.0
         """When the sampled inputs are looked at even though other things wait (monotonic seconds)."""
-        self._received: tuple[ChannelInput, zenoh.Sample] | None = None
+        self._received: tuple[NodeInput, zenoh.Sample] | None = None
         """A sample a blocking receive returned, handled after the events posted before it."""
         self._blocked_until: float | None = None
         """While the thread waits in a channel receive: when that wait is over (monotonic seconds)."""
+        self._blocked_in: NodeInput | None = None
+        """While the thread waits in a channel receive: that input's."""
         self._waker: threading.Thread | None = None
         self._waker_stop = threading.Event()
+        self._waker_call = threading.Event()
+        """Set by a post while the thread is blocked in a receive: the waker wakes it at once."""
 
     def post(self, handle: Callable[[Any], None], item: Any) -> None:
         """Queue ``handle(item)``; thread-safe, and cheap enough for a zenoh callback. Dropped
@@ -361,38 +366,50 @@ class Executor:
             self._posted.release()
         except RuntimeError:  # already released by an earlier post the thread has not woken for yet
             pass
+        # The thread marks itself blocked before it looks at the events a last time, so an event
+        # it did not see finds the mark here.
+        if self._blocked_until is not None:
+            self._waker_call.set()
 
-    def add_input(self, channel_input: ChannelInput) -> None:
+    def add_input(self, channel_input: NodeInput) -> None:
+        """Take ``channel_input``'s samples after those of the inputs added before it."""
         self._inputs.append(channel_input)
+        self._start_waker()
+
+    def add_sampled(self, sampled: LatestSample) -> None:
+        self._sampled.append(sampled)
+        self._start_waker()
+
+    def remove_input(self, removed: NodeInput) -> None:
+        for inputs in (self._inputs, self._sampled):
+            if removed in inputs:
+                inputs.remove(removed)
+        if self._received is not None and self._received[0] is removed:
+            self._received = None
+        if not self._inputs and not self._sampled and self._waker is not None:
+            self._waker_stop.set()
+            self._waker_call.set()
+            self._waker.join()
+            self._waker = None
+
+    def _start_waker(self) -> None:
         if self._waker is None:
             self._waker_stop.clear()
             self._waker = threading.Thread(target=self._wake_blocked, name="invent-waker", daemon=True)
             self._waker.start()
-
-    def remove_input(self, channel_input: ChannelInput) -> None:
-        self._inputs.remove(channel_input)
-        if self._received is not None and self._received[0] is channel_input:
-            self._received = None
-        if not self._inputs and self._waker is not None:
-            self._waker_stop.set()
-            self._waker.join()
-            self._waker = None
-
-    def add_sampled(
-        self, sampled: LatestSample[MessageT], handler: Callable[..., None], with_attachment: bool = False
-    ) -> None:
-        self._sampled.append((sampled, handler, with_attachment))
-
-    def remove_sampled(self, sampled: LatestSample[Any]) -> None:
-        self._sampled = [entry for entry in self._sampled if entry[0] is not sampled]
 
     @property
     def receiving(self) -> bool:
         """True while the thread waits in a channel input's receive."""
         return self._blocked_until is not None
 
-    def spin_once(self, timeout: float | None) -> bool:
-        """Handle one event or sample, waiting up to ``timeout`` seconds; False if none came."""
+    def spin_once(self, timeout: float | None, waiting_for: NodeInput | None = None) -> bool:
+        """Handle one event or sample, waiting up to ``timeout`` seconds; False if none came.
+
+        A thread with nothing to take waits in its first channel input's receive, so a sample of
+        another input waits until the thread wakes: ``waiting_for`` names the input to wait in
+        instead, when the service knows which sample it needs next. A sampled input named so is
+        the only one that counts meanwhile: the others are not polled while the thread waits."""
         if self._take():
             return True
         if timeout == 0:
@@ -402,7 +419,7 @@ class Executor:
             remaining = None if deadline is None else deadline - time.monotonic()
             if remaining is not None and remaining <= 0:
                 return False
-            self._wait(remaining)
+            self._wait(remaining, waiting_for)
             if self._take():
                 return True
 
@@ -417,8 +434,8 @@ class Executor:
         received = self._received
         if received is not None:
             self._received = None
-            channel_input, sample = received
-            channel_input.handle(sample)
+            receiving_input, sample = received
+            receiving_input.handle(sample)
             return True
         for channel_input in self._inputs:
             if channel_input.take():
@@ -429,38 +446,45 @@ class Executor:
         """Hand every sampled input's new sample, if any, to its handler; True if one was handled."""
         self._next_sampling = time.monotonic() + SAMPLING_POLL_S
         taken = False
-        for sampled, handler, with_attachment in self._sampled:
-            taken = sampled.take(handler, with_attachment) or taken
+        for sampled in self._sampled:
+            taken = sampled.take() or taken
         return taken
 
-    def _wait(self, remaining: float | None) -> None:
-        """Wait for something to take: in the first channel input's receive, or on posted events.
+    def _wait(self, remaining: float | None, waiting_for: NodeInput | None) -> None:
+        """Wait for something to take: in an input's receive (``waiting_for``, else the first
+        channel input), or on posted events.
 
-        With sampled inputs the wait is never longer than :data:`SAMPLING_POLL_S` and always on
-        posted events, so a channel sample from another process may then wait that long (in a
-        composition, the one executor with both, channel samples come from its own thread)."""
-        inputs = self._inputs
-        if self._sampled:
+        With sampled inputs (unless ``waiting_for`` is one) the wait is never longer than
+        :data:`SAMPLING_POLL_S` and always on posted events, so a channel sample from another
+        process may then wait that long (in a composition, the one executor with both, channel
+        samples come from its own thread)."""
+        if self._sampled and waiting_for not in self._sampled:
             remaining = SAMPLING_POLL_S if remaining is None else min(remaining, SAMPLING_POLL_S)
-        if not inputs or (remaining is not None and remaining < WAKE_PERIOD_S):
+        blocking_in = waiting_for if waiting_for is not None else (self._inputs[0] if self._inputs else None)
+        if blocking_in is None or (remaining is not None and remaining < WAKE_PERIOD_S):
             self._posted.acquire(True, -1 if remaining is None else remaining)
             return
-        channel_input = inputs[0]
+        self._blocked_in = blocking_in
         self._blocked_until = math.inf if remaining is None else time.monotonic() + remaining
         if self._events:  # posted after the last look: the waker may have checked before the mark
             self._blocked_until = None
             return
-        sample = channel_input.receive()
+        sample = blocking_in.receive()
         self._blocked_until = None
         if not _is_wake(sample):
-            self._received = (channel_input, sample)
+            self._received = (blocking_in, sample)
 
     def _wake_blocked(self) -> None:
-        """The waker thread: ends a blocking receive whose wait is over or that events wait behind."""
-        while not self._waker_stop.wait(WAKE_PERIOD_S):
-            until, inputs = self._blocked_until, self._inputs
-            if until is not None and inputs and (self._events or time.monotonic() >= until):
-                inputs[0].wake()
+        """The waker thread: ends a blocking receive whose wait is over, and at once one that
+        events wait behind (a post calls it; it may not call zenoh itself, being in a callback)."""
+        while True:
+            self._waker_call.wait(WAKE_PERIOD_S)
+            self._waker_call.clear()
+            if self._waker_stop.is_set():
+                return
+            until, blocked_in = self._blocked_until, self._blocked_in
+            if until is not None and blocked_in is not None and (self._events or time.monotonic() >= until):
+                blocked_in.wake()
 
 
 class Node:
@@ -490,8 +514,7 @@ class Node:
         self._status = status
         self.executor = executor or Executor()
         self._declarations: list[Any] = []
-        self._inputs: list[ChannelInput] = []
-        self._sampled: list[LatestSample[Any]] = []
+        self._inputs: list[NodeInput] = []
         self._publishers: list[Publisher] = []
         self._started = time.monotonic()
         self.queryable(keys.status(service), lambda _payload: self.status())
@@ -520,30 +543,29 @@ class Node:
         channel: bool = False,
         newest_only: bool = False,
         with_attachment: bool = False,
-    ) -> None:
+    ) -> NodeInput | None:
         """Call ``handler(message)`` on the service thread for every sample of ``key`` that decodes
         (``handler(message, attachment)`` ``with_attachment``: the sample's attachment bytes or None).
-        The handler may raise BadInput.
+        The handler may raise BadInput. Returns the input if it waits in a channel (for ``waiting_for``).
 
         ``channel=True`` for the inputs that pace the service (the simulator's torque, the motor's
         wheel angles): see :class:`ChannelInput`. ``newest_only=True`` for a command whose newest
-        value is all that counts (the motor's target): a channel input of one sample, taken after
-        the channel inputs declared before it, so a flood of it holds one sample and delays none.
+        value is all that counts (the motor's target): a :class:`LatestSample` taken after the
+        channel inputs declared before it (not polled), so a flood of it is one sample and delays none.
         """
-        decoding = _decoding(message_type, handler, with_attachment)
-
-        def dispatch(payload: bytes, attachment: bytes | None) -> None:
-            self.guard(key, lambda: decoding(payload, attachment))
-
+        dispatch = self._guarded_dispatch(key, message_type, handler, with_attachment)
         if channel or newest_only:
-            channel_input = ChannelInput(self.session, key, dispatch, 1 if newest_only else CHANNEL_CAPACITY)
+            channel_input = (
+                LatestSample(self.session, key, dispatch) if newest_only else ChannelInput(self.session, key, dispatch)
+            )
             self.executor.add_input(channel_input)
             self._inputs.append(channel_input)
-            return
+            return channel_input
         post = self.executor.post
         self._declarations.append(
             self.session.declare_subscriber(key, lambda sample: post(lambda contents: dispatch(*contents), _contents(sample)))
         )
+        return None
 
     def queryable(self, key: str, handler: _QueryHandler, *, mutates: bool = False) -> None:
         """Answer queries on ``key`` from the service thread.
@@ -584,22 +606,24 @@ class Node:
 
         self._declarations.append(self.session.declare_queryable(key, on_query))
 
-    def latest(self, key: str, message_type: type[MessageT]) -> LatestSample[MessageT]:
-        """The newest sample of ``key``, for the service to take when it needs it (see LatestSample)."""
-        sampled = LatestSample(self, key, message_type)
-        self._declarations.append(sampled)
-        return sampled
-
     def sample(
         self, key: str, message_type: type[MessageT], handler: Callable[..., None], *, with_attachment: bool = False
-    ) -> None:
+    ) -> LatestSample:
         """Call ``handler(message)`` (``handler(message, attachment)`` ``with_attachment``) on the
         service thread with the newest sample of ``key``, at most every :data:`SAMPLING_POLL_S` while
         the thread is busy, at once when it is idle: for inputs that clock a service at its own pace
-        rather than pacing it (see LatestSample)."""
-        sampled = LatestSample(self, key, message_type)
-        self.executor.add_sampled(sampled, handler, with_attachment)
-        self._sampled.append(sampled)
+        rather than pacing it (see LatestSample). Returns the input (for ``waiting_for``)."""
+        sampled = LatestSample(self.session, key, self._guarded_dispatch(key, message_type, handler, with_attachment))
+        self.executor.add_sampled(sampled)
+        self._inputs.append(sampled)
+        return sampled
+
+    def _guarded_dispatch(
+        self, key: str, message_type: type[MessageT], handler: Callable[..., None], with_attachment: bool
+    ) -> _Dispatch:
+        """Decode and handle a sample of ``key``, counting bad input (see :meth:`guard`)."""
+        decoding = _decoding(message_type, handler, with_attachment)
+        return lambda payload, attachment: self.guard(key, lambda: decoding(payload, attachment))
 
     def publisher(self, key: str) -> Publisher:
         publisher = Publisher(self.session, key)
@@ -646,14 +670,20 @@ class Node:
         replies = self.session.liveliness().get(self.keys.alive(service), timeout=timeout)
         return any(reply.ok is not None for reply in replies)
 
-    def spin_once(self, timeout: float | None) -> bool:
-        """Handle one queued event, waiting up to ``timeout`` seconds; False if none came."""
-        return self.executor.spin_once(timeout)
+    def spin_once(self, timeout: float | None, waiting_for: NodeInput | None = None) -> bool:
+        """Handle one queued event, waiting up to ``timeout`` seconds; False if none came (see
+        :meth:`Executor.spin_once` for ``waiting_for``)."""
+        return self.executor.spin_once(timeout, waiting_for)
 
-    def spin(self, stop: threading.Event, done: Callable[[], bool] = lambda: False) -> None:
-        """Handle events until ``stop`` is set or ``done()`` is true."""
+    def spin(
+        self,
+        stop: threading.Event,
+        done: Callable[[], bool] = lambda: False,
+        waiting_for: Callable[[], NodeInput | None] = lambda: None,
+    ) -> None:
+        """Handle events until ``stop`` is set or ``done()`` is true, waiting in ``waiting_for()``'s receive."""
         while not stop.is_set() and not done():
-            self.spin_once(STOP_POLL_S)
+            self.spin_once(STOP_POLL_S, waiting_for())
 
     def drain(self) -> None:
         """Handle every event already queued, without waiting."""
@@ -676,14 +706,10 @@ class Node:
 
     def close(self) -> None:
         """Withdraw the liveliness token and undeclare everything (the session stays open)."""
-        for channel_input in self._inputs:
-            self.executor.remove_input(channel_input)
-            channel_input.undeclare()
+        for node_input in self._inputs:
+            self.executor.remove_input(node_input)
+            node_input.undeclare()
         self._inputs.clear()
-        for sampled in self._sampled:
-            self.executor.remove_sampled(sampled)
-            sampled.undeclare()
-        self._sampled.clear()
         for declaration in reversed(self._declarations):
             declaration.undeclare()
         for publisher in self._publishers:

@@ -8,11 +8,13 @@ import time
 import pytest
 
 from schemas import Keys, Service, Time, TimedDoubleSeq, encode
+from services import runtime
 from services.runtime import (
     CHANNEL_CAPACITY,
     EVENT_CAPACITY,
     LOW_LATENCY_VARIABLE,
     Executor,
+    LatestSample,
     Node,
     RateLimitedLog,
     session_config,
@@ -21,6 +23,8 @@ from tests.harness import Collector, open_peer, wait_until
 
 KEYS = Keys("rh0")
 WAKER_THREAD = "invent-waker"
+LONG_WAKE_PERIOD_S = 60.0
+"""Long enough that a wait ended within the test's 5 s was not ended by the waker's periodic look."""
 
 
 def _sample(nsec: int) -> bytes:
@@ -42,12 +46,12 @@ def remote(endpoint):
     peer.close()
 
 
-def _spin_in_thread(node: Node, timeout: float | None) -> tuple[threading.Thread, list]:
+def _spin_in_thread(node: Node, timeout: float | None, waiting_for=None) -> tuple[threading.Thread, list]:
     outcome: list = []
 
     def spin() -> None:
         started = time.monotonic()
-        outcome.append((node.spin_once(timeout), time.monotonic() - started))
+        outcome.append((node.spin_once(timeout, waiting_for), time.monotonic() - started))
 
     thread = threading.Thread(target=spin, daemon=True)
     thread.start()
@@ -86,31 +90,78 @@ def test_a_sample_from_another_process_ends_a_blocked_receive_at_once(node, remo
     publisher.undeclare()
 
 
-def test_a_posted_event_wakes_a_thread_blocked_in_a_channel_receive(node):
+def test_a_posted_event_wakes_a_thread_blocked_in_a_channel_receive_at_once(node, monkeypatch):
+    """At once, not at the waker's next periodic look: a lockstep tick waits on such events."""
+    monkeypatch.setattr(runtime, "WAKE_PERIOD_S", LONG_WAKE_PERIOD_S)
     node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda _m: None, channel=True)
     events = []
     thread, outcome = _spin_in_thread(node, None)
     _wait_blocked(node)
     node.post(lambda: events.append(threading.current_thread()))
     thread.join(5)
-    assert outcome and outcome[0][0] is True
+    assert outcome and outcome[0][0] is True and outcome[0][1] < 5
     assert events == [thread]
+
+
+def test_a_thread_waits_in_the_input_it_is_told_to_wait_for(node, remote, monkeypatch):
+    monkeypatch.setattr(runtime, "WAKE_PERIOD_S", LONG_WAKE_PERIOD_S)
+    handled = []
+    node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda m: handled.append(("angles", m.tm.nsec)), channel=True)
+    targets = node.subscribe(
+        KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: handled.append(("target", m.tm.nsec)), newest_only=True
+    )
+    publisher = remote.declare_publisher(KEYS.drive_target_velocity)
+    wait_until(lambda: publisher.matching_status.matching, what="the node's target subscriber")
+    thread, outcome = _spin_in_thread(node, None, waiting_for=targets)
+    _wait_blocked(node)
+    publisher.put(_sample(5))
+    thread.join(5)
+    assert outcome and outcome[0][0] is True and outcome[0][1] < 5
+    assert handled == [("target", 5)]
+    publisher.undeclare()
+
+
+def test_a_thread_told_to_wait_for_a_sampled_input_blocks_in_it_instead_of_polling(node, remote):
+    """The drive between a lockstep tick's clock and its pose: nothing else counts meanwhile."""
+    handled = []
+    node.sample(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda m: handled.append(("clock", m.tm.nsec)))
+    pose = node.sample(KEYS.odometry_pose, TimedDoubleSeq, lambda m: handled.append(("pose", m.tm.nsec)))
+    publisher = remote.declare_publisher(KEYS.odometry_pose)
+    wait_until(lambda: publisher.matching_status.matching, what="the node's pose subscriber")
+    thread, outcome = _spin_in_thread(node, 30.0, waiting_for=pose)
+    _wait_blocked(node)
+    publisher.put(_sample(9))
+    thread.join(5)
+    assert outcome and outcome[0][0] is True and outcome[0][1] < 5
+    assert handled == [("pose", 9)]
+    publisher.undeclare()
+
+
+def test_a_wake_never_pushes_the_newest_sample_out_of_a_newest_only_input(session, node):
+    handled = []
+    targets = node.subscribe(KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: handled.append(m.tm.nsec), newest_only=True)
+    session.put(KEYS.drive_target_velocity, _sample(3))
+    targets.wake()  # what the waker sends when it ends a wait just as the sample arrives
+    while node.spin_once(0):
+        pass
+    assert handled == [3]
 
 
 def test_a_blocked_receive_ends_when_its_timeout_is_over_and_the_wake_is_seen_by_no_one(session, node, remote):
     handled = []
     key = KEYS.sim_wheel_angles
     node.subscribe(key, TimedDoubleSeq, handled.append, channel=True)
-    sampled = node.latest(key, TimedDoubleSeq)
+    sampled = LatestSample(session, key, lambda payload, _attachment: handled.append(payload))
     elsewhere = Collector(remote, key)
     thread, outcome = _spin_in_thread(node, 0.3)
     thread.join(5)
     assert outcome and outcome[0][0] is False and 0.3 <= outcome[0][1] < 2.0
     assert not node.spin_once(0), "the wake sample is not an input"
-    assert sampled.take(handled.append) is False, "nor a sample for a sampled input of the same session"
+    assert sampled.take() is False, "nor a sample for a sampled input of the same session"
     assert handled == [] and node.status()["bad_input"]["total"] == 0
     assert elsewhere.drain() == [], "it never leaves the session"
     elsewhere.close()
+    sampled.undeclare()
 
 
 def test_closing_the_node_stops_the_waker(session):
