@@ -132,8 +132,8 @@ class DriveService:
         self._pending_tick: tuple[int, float] | None = None
         """Lockstep: (tick stamp, wall deadline) of a tick waiting for the odometry pose of its stamp."""
         self.publisher = node.publisher(node.keys.drive_target_velocity)
-        node.sample(node.keys.sim_wheel_angles, TimedDoubleSeq, self._on_clock, with_attachment=True)
-        node.sample(node.keys.odometry_pose, TimedPosition, self._on_pose)
+        self._clock_input = node.sample(node.keys.sim_wheel_angles, TimedDoubleSeq, self._on_clock, with_attachment=True)
+        self._pose_input = node.sample(node.keys.odometry_pose, TimedPosition, self._on_pose)
         node.watch(Service.SIM, self._on_sim_liveliness)
         node.watch(Service.ODOMETRY, self._on_odometry_liveliness)
         node.participate(self.publisher, self.rate_hz)
@@ -282,11 +282,14 @@ class DriveService:
         }
 
     def run(self, stop: threading.Event) -> int:
+        # Waiting in the input needed next, the drive sees a lockstep tick's clock and then its pose
+        # as they arrive: a poll would add its period to every tick the whole loop waits for.
         while not stop.is_set() and not self.finished:
-            wait_s = STOP_POLL_S
+            wait_s, waiting_for = STOP_POLL_S, self._clock_input
             if self._pending_tick is not None:
                 wait_s = max(0.0, min(wait_s, self._pending_tick[1] - time.monotonic()))
-            self.node.spin_once(wait_s)
+                waiting_for = self._pose_input
+            self.node.spin_once(wait_s, waiting_for)
             self._complete_tick()
         return 0
 

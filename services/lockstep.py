@@ -29,6 +29,7 @@ A realtime simulator sends no :class:`Owed` attachment: nobody holds anything, n
 from __future__ import annotations
 
 import collections
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
@@ -76,16 +77,24 @@ def decode_owed(attachment: bytes | None, stamp_ns: int) -> dict[str, int] | Non
     """
     if attachment is None:
         return None
+    owed, newest_ns = _parse_owed(attachment)
+    if newest_ns >= stamp_ns:
+        key = max(owed, key=owed.__getitem__)
+        raise BadInput(f"lockstep attachment owes {key} stamped {newest_ns} ns, not before the sample ({stamp_ns} ns)")
+    return owed
+
+
+@functools.lru_cache(maxsize=4)
+def _parse_owed(attachment: bytes) -> tuple[dict[str, int], int]:
+    """(owed, its newest stamp), kept for the last few attachments: a lockstep attachment changes
+    only at a participant's tick, and every step's sample carries one. Callers must not mutate it."""
     try:
         owed = _OWED_DECODER.decode(attachment).owed
     except msgspec.DecodeError as error:
         raise BadInput(f"lockstep attachment: {error}") from None
     if len(owed) > _MAX_OWED:
         raise BadInput(f"lockstep attachment owes {len(owed)} outputs, at most {_MAX_OWED} exist")
-    for key, owed_ns in owed.items():
-        if owed_ns >= stamp_ns:
-            raise BadInput(f"lockstep attachment owes {key} stamped {owed_ns} ns, not before the sample ({stamp_ns} ns)")
-    return owed
+    return owed, max(owed.values(), default=-1)
 
 
 class Hold(Generic[SampleT]):
@@ -112,10 +121,18 @@ class Hold(Generic[SampleT]):
 
     def offer(self, sample: SampleT, owed: dict[str, int] | None) -> None:
         """Take ``sample`` now, or hold it while it (or a sample before it) is owed an output."""
+        if not self._held and not self._owes(owed):
+            self._take(sample)
+            return
         self._held.append((sample, owed))
         if self._owes(owed):
             self.holds += 1
         self._release()
+
+    @property
+    def holding(self) -> bool:
+        """True while a sample waits for its output."""
+        return bool(self._held)
 
     def took(self, stamp_ns: int) -> None:
         if self.taken_ns is None or stamp_ns > self.taken_ns:

@@ -31,7 +31,7 @@ from schemas.messages import NoArguments, PDGains, Time, TimedDoubleSeq, TimedVe
 from services.config import Config, TargetAngleMode
 from services.lockstep import Hold, decode_owed
 from services.motor_core import MotorCore
-from services.runtime import Node, RateLimitedLog
+from services.runtime import Node, NodeInput, RateLimitedLog
 from services.service import ServiceCommand, TraceFile
 
 STATE_HOME_VARIABLE = "XDG_STATE_HOME"
@@ -133,7 +133,7 @@ class MotorService:
         # come before all three). A flood of targets holds one sample and delays no wheel angle.
         node.subscribe(keys.sim_wheel_angles, TimedDoubleSeq, self._on_wheel_angles, channel=True, with_attachment=True)
         node.subscribe(keys.sim_body_pose, TimedDoubleSeq, self._on_body_pose, channel=True)
-        node.subscribe(keys.drive_target_velocity, TimedVelocity, self._on_target_velocity, newest_only=True)
+        self._targets = node.subscribe(keys.drive_target_velocity, TimedVelocity, self._on_target_velocity, newest_only=True)
         for family in MethodFamily:
             for method in Method:
                 node.queryable(keys.method(family, method), partial(self._call, family, method), mutates=True)
@@ -283,8 +283,12 @@ class MotorService:
         }
 
     def run(self, stop: threading.Event) -> int:
-        self.node.spin(stop)
+        self.node.spin(stop, waiting_for=self._awaited_input)
         return 0
+
+    def _awaited_input(self) -> NodeInput | None:
+        """While a wheel-angle sample is held, the drive's target is what comes next, not a wheel sample."""
+        return self._targets if self.target_hold.holding else None
 
     def close(self) -> None:
         if self._trace is not None:

@@ -103,13 +103,11 @@ class PeriodicSchedule:
         self._period_ns = Fraction(NANOSECONDS_PER_SECOND) / Fraction(rate_hz)
         self.index = 0
         """The index k of the next tick."""
+        self.next_ns = start_ns
+        """The stamp of the next tick (kept, not computed: :meth:`due` runs at every step)."""
 
     def _tick_ns(self, index: int) -> int:
         return self.start_ns + round(index * self._period_ns)
-
-    @property
-    def next_ns(self) -> int:
-        return self._tick_ns(self.index)
 
     def due(self, now_ns: int) -> bool:
         """True when ``now_ns`` takes a tick; the schedule then moves past ``now_ns``."""
@@ -120,4 +118,5 @@ class PeriodicSchedule:
         if self._tick_ns(last_passed) > now_ns:  # rounding put that tick just after now
             last_passed -= 1
         self.index = max(last_passed, self.index) + 1
+        self.next_ns = self._tick_ns(self.index)
         return True

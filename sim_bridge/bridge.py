@@ -54,7 +54,7 @@ from schemas.messages import (
 )
 from services.config import Config, SimConfig, SimMode
 from services.lockstep import FINAL, OUTPUTS, TickBarrier, encode_owed
-from services.runtime import STOP_POLL_S, Node, RateLimitedLog
+from services.runtime import STOP_POLL_S, Node, NodeInput, RateLimitedLog
 from services.service import ServiceCommand, positive_seconds
 from sim_bridge.latency import TorqueLatency
 from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, read_world, resolve_world
@@ -100,7 +100,12 @@ class SimService:
         """The drive's last target (its scenario ended) has arrived, or the drive has gone: its token
         and its last target travel separately, and the token may come first."""
         self.barrier = TickBarrier()
+        self._outputs: dict[Service, NodeInput | None] = {}
+        """Lockstep: the participants' output channels, to wait in at their ticks."""
         self._owed_attachment: bytes | None = None
+        """The attachment of every lockstep wheel-angle sample: what the barrier owes (None in
+        realtime). Encoded when it changes, not at every step."""
+        self._owed_changed()
         self.counters = dict.fromkeys(COUNTERS, 0)
         self.motor_alive = False
         self.motor_silent = False
@@ -139,12 +144,18 @@ class SimService:
         self._pose_publisher = node.publisher(keys.sim_body_pose)
         self._angles_publisher = node.publisher(keys.sim_wheel_angles)
         self._bump_publisher = node.publisher(keys.sim_bump)
-        # Lockstep waits in the torque channel's receive itself; realtime waits for its step's
-        # deadline, which a posted torque must interrupt.
-        node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, channel=self.mode == LOCKSTEP)
+        # Lockstep waits in the torque channel's receive itself, and in a participant's output
+        # channel at its ticks; realtime waits for its step's deadline, which a posted torque must
+        # interrupt.
+        lockstep = self.mode == LOCKSTEP
+        node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, channel=lockstep)
         for service, message_type in ((Service.DRIVE, TimedVelocity), (Service.LOCALIZATION, TimedPosition)):
-            node.subscribe(
-                keys.topic(OUTPUTS[service]), message_type, partial(self._on_output, service), with_attachment=True
+            self._outputs[service] = node.subscribe(
+                keys.topic(OUTPUTS[service]),
+                message_type,
+                partial(self._on_output, service),
+                channel=lockstep,
+                with_attachment=True,
             )
         self._ticks_watch = node.session.liveliness().declare_subscriber(
             keys.every_ticks, self._on_ticks_token, history=True
@@ -208,6 +219,7 @@ class SimService:
             if self.mode == LOCKSTEP:
                 self.node.log.info("%s ticks at %g Hz: steps at its ticks wait for its output", service, rate_hz)
         elif self.barrier.withdraw(service):
+            self._owed_changed()
             if self.mode == LOCKSTEP:
                 self.node.log.info("%s gone: its ticks are not waited for", service)
             if service is Service.DRIVE:
@@ -216,6 +228,7 @@ class SimService:
     def _on_output(self, service: Service, message: TimedVelocity | TimedPosition, attachment: bytes | None) -> None:
         final = attachment == FINAL
         self.barrier.took(service, message.tm.to_nanoseconds(), self._published_ns, final=final)
+        self._owed_changed()
         if final and service is Service.DRIVE and not self.drive_ended:
             self.drive_ended = True
             self.node.log.info("the drive's scenario ended at t = %.3f s", message.tm.to_seconds())
@@ -340,15 +353,17 @@ class SimService:
                             self.parameters.lockstep_timeout,
                         )
                     break
-                node.spin_once(min(remaining, STOP_POLL_S))
-        self._owed_attachment = encode_owed(barrier.owed())
+                node.spin_once(min(remaining, STOP_POLL_S), self._outputs[missing[0]])
+
+    def _owed_changed(self) -> None:
+        if self.mode == LOCKSTEP:
+            self._owed_attachment = encode_owed(self.barrier.owed())
 
     def _ended(self) -> bool:
         return self.until_drive_ends and self.drive_ended
 
     def _run_lockstep(self, stop: threading.Event) -> None:
         sim = self.sim
-        self._owed_attachment = encode_owed({})
         while sim.step_index < self._end_step and not stop.is_set():
             tm_ns = self._publish_state()
             self._lockstep_torque(tm_ns, stop)
