@@ -158,8 +158,8 @@ class UpRun:
 
 class ServicesRun:
     """The loop's services as separate processes started here, as ``invent up`` starts them
-    (router, motor, odometry, localization, then the sim, then the drive), without ``up``'s
-    run recorder: the loop itself, nothing listening beside it."""
+    (router, motor, odometry, localization, then the drive, then the sim waiting for them),
+    without ``up``'s run recorder: the loop itself, nothing listening beside it."""
 
     def __init__(self, flags: Sequence[str], directory: Path, env: Mapping[str, str] | None = None) -> None:
         self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
@@ -186,9 +186,10 @@ class ServicesRun:
             self._start(str(service), [str(service), *connect])
         for service in (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION):
             _wait(lambda service=service: _alive(session, service), f"the {service}", self)
-        self._start("sim", ["sim", *connect, *self._sim_flags])
-        _wait(lambda: _alive(session, Service.SIM), "the sim", self)
         self._start("drive", ["drive", *connect, "--scenario", str(scenario_file(self._directory))])
+        _wait(lambda: _alive(session, Service.DRIVE), "the drive", self)
+        participants = [str(service) for service in (Service.MOTOR, Service.DRIVE, Service.LOCALIZATION)]
+        self._start("sim", ["sim", *connect, *self._sim_flags, "--wait-for", *participants])
 
     def output(self, lines: int = 30) -> str:
         return "\n".join(self.log_path.read_text().splitlines()[-lines:])
