@@ -284,8 +284,9 @@ class ChannelInput(NodeInput):
     def take(self) -> bool:
         """Handle the next waiting sample, if any; True if one was handled."""
         while (sample := self._subscriber.try_recv()) is not None:
-            if not _is_wake(sample):
-                self.handle(sample)
+            payload, attachment = _contents(sample)
+            if attachment != _WAKE:
+                self._dispatch(payload, attachment)
                 return True
         return False
 
