@@ -304,10 +304,16 @@ class LatestSample(NodeInput):
 
     def __init__(self, session: zenoh.Session, key: str, dispatch: _Dispatch) -> None:
         super().__init__(session, key, dispatch, NEWEST_CAPACITY)
+        self._received: zenoh.Sample | None = None
+
+    def put_back(self, sample: zenoh.Sample) -> None:
+        """Keep ``sample``, which a blocking receive took out of the ring, for the next take: it
+        competes there with what came after it, so a newer sample is never followed by an older one."""
+        self._received = sample
 
     def take(self) -> bool:
         """Handle the newest sample that arrived since the last take, if any; True if one did."""
-        newest = None
+        newest, self._received = self._received, None
         while (sample := self._subscriber.try_recv()) is not None:
             if not _is_wake(sample):
                 newest = sample
@@ -345,7 +351,7 @@ class Executor:
         self._sampled: list[LatestSample] = []
         self._next_sampling = 0.0
         """When the sampled inputs are looked at even though other things wait (monotonic seconds)."""
-        self._received: tuple[NodeInput, zenoh.Sample] | None = None
+        self._received: tuple[ChannelInput, zenoh.Sample] | None = None
         """A sample a blocking receive returned, handled after the events posted before it."""
         self._blocked_until: float | None = None
         """While the thread waits in a channel receive: when that wait is over (monotonic seconds)."""
@@ -472,7 +478,11 @@ class Executor:
             return
         sample = blocking_in.receive()
         self._blocked_until = None
-        if not _is_wake(sample):
+        if _is_wake(sample):
+            return
+        if isinstance(blocking_in, LatestSample):
+            blocking_in.put_back(sample)
+        else:
             self._received = (blocking_in, sample)
 
     def _wake_blocked(self) -> None:

@@ -137,6 +137,23 @@ def test_a_thread_told_to_wait_for_a_sampled_input_blocks_in_it_instead_of_polli
     publisher.undeclare()
 
 
+def test_a_sampled_input_never_hands_over_a_sample_older_than_one_it_handed_over(session):
+    """A blocking receive takes the sample out of the ring; a newer one may follow before the take."""
+    handled = []
+    key = KEYS.sim_wheel_angles
+    sampled = LatestSample(session, key, lambda payload, _attachment: handled.append(payload))
+    session.put(key, _sample(1))
+    received = sampled.receive()
+    session.put(key, _sample(2))
+    sampled.put_back(received)
+    assert sampled.take() is True and handled == [_sample(2)], "the newer sample, and only it"
+    session.put(key, _sample(3))
+    sampled.put_back(sampled.receive())
+    assert sampled.take() is True and handled == [_sample(2), _sample(3)], "nothing newer: the one received"
+    assert sampled.take() is False
+    sampled.undeclare()
+
+
 def test_a_wake_never_pushes_the_newest_sample_out_of_a_newest_only_input(session, node):
     handled = []
     targets = node.subscribe(KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: handled.append(m.tm.nsec), newest_only=True)
