@@ -62,6 +62,19 @@ def _wait_blocked(node: Node) -> None:
     wait_until(lambda: node.executor.receiving, 5, "the thread to block in the channel receive")
 
 
+def _put_while_blocked(node: Node, remote, key: str, nsec: int, timeout: float | None, waiting_for=None) -> None:
+    """Publish one sample of ``key`` from the other peer once the node's thread waits in a receive
+    (``spin_once(timeout, waiting_for)``), and check that it ended the wait at once."""
+    publisher = remote.declare_publisher(key)
+    wait_until(lambda: publisher.matching_status.matching, what=f"the node's subscriber of {key}")
+    thread, outcome = _spin_in_thread(node, timeout, waiting_for)
+    _wait_blocked(node)
+    publisher.put(_sample(nsec))
+    thread.join(5)
+    publisher.undeclare()
+    assert outcome and outcome[0][0] is True and outcome[0][1] < 5
+
+
 def test_posted_events_come_first_then_channel_inputs_in_the_order_they_were_added(session, node):
     handled = []
     first, second = KEYS.sim_wheel_angles, KEYS.sim_body_pose
@@ -79,15 +92,8 @@ def test_posted_events_come_first_then_channel_inputs_in_the_order_they_were_add
 def test_a_sample_from_another_process_ends_a_blocked_receive_at_once(node, remote):
     handled = []
     node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, handled.append, channel=True)
-    publisher = remote.declare_publisher(KEYS.sim_wheel_angles)
-    wait_until(lambda: publisher.matching_status.matching, what="the node's channel subscriber")
-    thread, outcome = _spin_in_thread(node, 30.0)
-    _wait_blocked(node)
-    publisher.put(_sample(7))
-    thread.join(5)
-    assert outcome and outcome[0][0] is True and outcome[0][1] < 5
+    _put_while_blocked(node, remote, KEYS.sim_wheel_angles, 7, 30.0)
     assert [m.tm.nsec for m in handled] == [7]
-    publisher.undeclare()
 
 
 def test_a_posted_event_wakes_a_thread_blocked_in_a_channel_receive_at_once(node, monkeypatch):
@@ -110,15 +116,8 @@ def test_a_thread_waits_in_the_input_it_is_told_to_wait_for(node, remote, monkey
     targets = node.subscribe(
         KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: handled.append(("target", m.tm.nsec)), newest_only=True
     )
-    publisher = remote.declare_publisher(KEYS.drive_target_velocity)
-    wait_until(lambda: publisher.matching_status.matching, what="the node's target subscriber")
-    thread, outcome = _spin_in_thread(node, None, waiting_for=targets)
-    _wait_blocked(node)
-    publisher.put(_sample(5))
-    thread.join(5)
-    assert outcome and outcome[0][0] is True and outcome[0][1] < 5
+    _put_while_blocked(node, remote, KEYS.drive_target_velocity, 5, None, waiting_for=targets)
     assert handled == [("target", 5)]
-    publisher.undeclare()
 
 
 def test_a_thread_told_to_wait_for_a_sampled_input_blocks_in_it_instead_of_polling(node, remote):
@@ -126,15 +125,8 @@ def test_a_thread_told_to_wait_for_a_sampled_input_blocks_in_it_instead_of_polli
     handled = []
     node.sample(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda m: handled.append(("clock", m.tm.nsec)))
     pose = node.sample(KEYS.odometry_pose, TimedDoubleSeq, lambda m: handled.append(("pose", m.tm.nsec)))
-    publisher = remote.declare_publisher(KEYS.odometry_pose)
-    wait_until(lambda: publisher.matching_status.matching, what="the node's pose subscriber")
-    thread, outcome = _spin_in_thread(node, 30.0, waiting_for=pose)
-    _wait_blocked(node)
-    publisher.put(_sample(9))
-    thread.join(5)
-    assert outcome and outcome[0][0] is True and outcome[0][1] < 5
+    _put_while_blocked(node, remote, KEYS.odometry_pose, 9, 30.0, waiting_for=pose)
     assert handled == [("pose", 9)]
-    publisher.undeclare()
 
 
 def test_a_sampled_input_never_hands_over_a_sample_older_than_one_it_handed_over(session):
