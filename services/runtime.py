@@ -356,7 +356,7 @@ class Executor:
         self._blocked_until: float | None = None
         """While the thread waits in a channel receive: when that wait is over (monotonic seconds)."""
         self._blocked_in: NodeInput | None = None
-        """While the thread waits in a channel receive: that input's."""
+        """The input in whose receive the thread waits (meaningful while ``_blocked_until`` is set)."""
         self._waker: threading.Thread | None = None
         self._waker_stop = threading.Event()
         self._waker_call = threading.Event()
