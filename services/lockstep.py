@@ -78,7 +78,7 @@ def decode_owed(attachment: bytes | None, stamp_ns: int) -> dict[str, int] | Non
     if attachment is None:
         return None
     owed, newest_ns = _parse_owed(attachment)
-    if newest_ns >= stamp_ns:
+    if owed and newest_ns >= stamp_ns:
         key = max(owed, key=owed.__getitem__)
         raise BadInput(f"lockstep attachment owes {key} stamped {newest_ns} ns, not before the sample ({stamp_ns} ns)")
     return owed
