@@ -33,6 +33,7 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from services.config import Config
+from services.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.motor_core import MotorCore
 from services.runtime import open_session, session_config
 from sim_bridge.latency import percentiles
@@ -188,8 +189,8 @@ class ServicesRun:
             _wait(lambda service=service: _alive(session, service), f"the {service}", self)
         self._start("drive", ["drive", *connect, "--scenario", str(scenario_file(self._directory))])
         _wait(lambda: _alive(session, Service.DRIVE), "the drive", self)
-        participants = [str(service) for service in (Service.MOTOR, Service.DRIVE, Service.LOCALIZATION)]
-        self._start("sim", ["sim", *connect, *self._sim_flags, "--wait-for", *participants])
+        wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
+        self._start("sim", ["sim", *connect, *self._sim_flags, "--wait-for", *wait_for])
 
     def output(self, lines: int = 30) -> str:
         return "\n".join(self.log_path.read_text().splitlines()[-lines:])

@@ -52,6 +52,9 @@ OUTPUTS: dict[Service, Topic] = {
 }
 """What each participant outputs at its ticks."""
 PARTICIPANTS: dict[Topic, Service] = {topic: service for service, topic in OUTPUTS.items()}
+LOOP_BEFORE_FIRST_STEP: tuple[Service, ...] = (Service.MOTOR, *OUTPUTS)
+"""What a lockstep simulator waits for before its first step (``invent sim --wait-for``), so a run
+of the whole loop starts at the same step every time: the motor and every participant."""
 
 
 class Owed(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -34,6 +34,7 @@ import zenoh
 from schemas.keys import Keys, Service
 from services.composition import Composition
 from services.config import Config, ConfigError
+from services.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.recording import Recorder
 from services.report import (
     build_report,
@@ -361,8 +362,8 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
             run.wait_tokens(
                 [keys.ticks(Service.DRIVE, config.drive.rate), keys.ticks(Service.LOCALIZATION, config.localization.rate)]
             )
-            participants = [str(service) for service in (Service.MOTOR, Service.DRIVE, Service.LOCALIZATION)]
-            sim_flags = ["--mode", mode, "--until-drive-ends", "--wait-for", *participants, *(["--gui"] if args.gui else [])]
+            wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
+            sim_flags = ["--mode", mode, "--until-drive-ends", "--wait-for", *wait_for, *(["--gui"] if args.gui else [])]
             launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *sim_flags])
             started = time.monotonic()
             sim_status = run.supervise(
