@@ -51,7 +51,6 @@ OUTPUTS: dict[Service, Topic] = {
     Service.LOCALIZATION: Topic.LOCALIZATION_POSE,
 }
 """What each participant outputs at its ticks."""
-PARTICIPANTS: dict[Topic, Service] = {topic: service for service, topic in OUTPUTS.items()}
 LOOP_BEFORE_FIRST_STEP: tuple[Service, ...] = (Service.MOTOR, *OUTPUTS)
 """What a lockstep simulator waits for before its first step (``invent sim --wait-for``), so a run
 of the whole loop starts at the same step every time: the motor and every participant."""

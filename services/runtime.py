@@ -351,7 +351,7 @@ class Executor:
         self._sampled: list[LatestSample] = []
         self._next_sampling = 0.0
         """When the sampled inputs are looked at even though other things wait (monotonic seconds)."""
-        self._received: tuple[ChannelInput, zenoh.Sample] | None = None
+        self._received: tuple[NodeInput, zenoh.Sample] | None = None
         """A sample a blocking receive returned, handled after the events posted before it."""
         self._blocked_until: float | None = None
         """While the thread waits in a channel receive: when that wait is over (monotonic seconds)."""
