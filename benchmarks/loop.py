@@ -51,7 +51,7 @@ CLOCK_CHECK_STEPS = 500
 """In-process limit: steps between two looks at the clock."""
 KEYS = Keys()
 COMPOSED_FLAG = "--composed"
-NO_REPORT_FLAG = "--no-report"
+NO_RECORD_FLAG = "--no-record"
 
 
 @dataclass(frozen=True)
@@ -132,7 +132,7 @@ class UpRun:
             sys.executable, "-m", "services.cli", "up",
             "--scenario", str(scenario_file(directory)),
             "--listen", self.endpoint,
-            *([] if NO_REPORT_FLAG in flags else ["--report", str(directory / "report")]),
+            *([] if NO_RECORD_FLAG in flags else ["--report", str(directory / "report")]),
             "--log-level", "warning",
             *flags,
         ]  # fmt: skip

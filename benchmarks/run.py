@@ -5,7 +5,7 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
 - ``lockstep``: steps per second of the real loop (router, motor, odometry, localization, sim
   and drive, each its own process, started as ``invent up`` starts them), of ``invent up``
   itself (its run recorder listening too), of the composed loop (``invent up --composed
-  --no-report``; and with its recorder, as plain ``invent up --composed``) and of the in-process
+  --no-record``; and with its recorder, as plain ``invent up --composed``) and of the in-process
   limit, with their ratios; the step exchange latency measured by the sim.
 - ``realtime``: the same processes with the sim in realtime mode at 1 kHz: achieved rate,
   late fraction, torque latency.
@@ -60,7 +60,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def composed_available() -> bool:
-    """Whether this checkout's ``invent up`` has ``--composed`` and ``--no-report``."""
+    """Whether this checkout's ``invent up`` has ``--composed`` and ``--no-record``."""
     help_text = subprocess.run(
         [sys.executable, "-m", "services.cli", "up", "--help"],
         cwd=loop.REPO,
@@ -68,7 +68,7 @@ def composed_available() -> bool:
         text=True,
         check=False,
     ).stdout
-    return loop.COMPOSED_FLAG in help_text and loop.NO_REPORT_FLAG in help_text
+    return loop.COMPOSED_FLAG in help_text and loop.NO_RECORD_FLAG in help_text
 
 
 def _median(values: Sequence[float | None]) -> float | None:
@@ -132,7 +132,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
             together.append(
                 _timed(
                     "composed",
-                    lambda: loop.measure_up([loop.COMPOSED_FLAG, loop.NO_REPORT_FLAG], args.warmup, args.window),
+                    lambda: loop.measure_up([loop.COMPOSED_FLAG, loop.NO_RECORD_FLAG], args.warmup, args.window),
                     failures,
                 )
             )
@@ -165,7 +165,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         "composed_latency_us": shared["latency_us"] if shared else None,
         "composed_recording_steps_per_s": _median([run.steps_per_s for run in together_recording]),
         "composed_note": (
-            None if composed else f"this checkout's `invent up` has no {loop.COMPOSED_FLAG} {loop.NO_REPORT_FLAG}"
+            None if composed else f"this checkout's `invent up` has no {loop.COMPOSED_FLAG} {loop.NO_RECORD_FLAG}"
         ),
         "runs": {
             "inprocess_steps_per_s": inprocess,
@@ -243,7 +243,7 @@ def table(results: dict[str, Any]) -> str:
             f"ratio {_fmt(_ratio(lockstep['up_steps_per_s'], lockstep['inprocess_steps_per_s']), 3)}",
         ),
         (
-            "lockstep, composed (`invent up --composed --no-report`)",
+            "lockstep, composed (`invent up --composed --no-record`)",
             f"{_fmt(lockstep['composed_steps_per_s'])} steps/s",
             f"ratio {_fmt(lockstep['composed_ratio'], 3)}",
         ),

@@ -13,7 +13,17 @@ from enum import StrEnum
 
 import msgspec
 
-from schemas.messages import BumpEvent, NoArguments, PDGains, TimedDoubleSeq, TimedPosition, TimedVelocity
+from schemas.messages import (
+    BumpEvent,
+    NoArguments,
+    PDGains,
+    PlannedPath,
+    RunSummary,
+    SimWorld,
+    TimedDoubleSeq,
+    TimedPosition,
+    TimedVelocity,
+)
 
 ROOT = "invent"
 DEFAULT_ROBOT = "rh0"
@@ -41,6 +51,9 @@ class Topic(StrEnum):
     DRIVE_TARGET_VELOCITY = "drive/target_velocity"
     ODOMETRY_POSE = "odometry/pose"
     LOCALIZATION_POSE = "localization/pose"
+    SIM_WORLD = "sim/world"
+    DRIVE_PATH = "drive/path"
+    RUN_SUMMARY = "up/run"
 
 
 TOPIC_TYPES: dict[Topic, type[msgspec.Struct]] = {
@@ -54,7 +67,13 @@ TOPIC_TYPES: dict[Topic, type[msgspec.Struct]] = {
     Topic.DRIVE_TARGET_VELOCITY: TimedVelocity,
     Topic.ODOMETRY_POSE: TimedPosition,
     Topic.LOCALIZATION_POSE: TimedPosition,
+    Topic.SIM_WORLD: SimWorld,
+    Topic.DRIVE_PATH: PlannedPath,
+    Topic.RUN_SUMMARY: RunSummary,
 }
+
+LATCHED_TOPICS = (Topic.SIM_WORLD, Topic.DRIVE_PATH)
+"""Keys whose publisher also answers queries with its last message (a late viewer gets it at once)."""
 
 BODY_POSE_LENGTH = 12
 """``sim/body_pose``: x, y, z, then the 3x3 rotation matrix row-major."""
@@ -123,6 +142,11 @@ class Keys:
     def status(self, service: Service) -> str:
         return f"{self.prefix}/{service}/{_STATUS}"
 
+    @property
+    def every_status(self) -> str:
+        """Key expression matching the ``status`` queryable of every service of this robot."""
+        return f"{self.prefix}/*/{_STATUS}"
+
     def alive(self, service: Service) -> str:
         """The liveliness token a running service holds."""
         return f"{self.prefix}/{service}/{_ALIVE}"
@@ -151,6 +175,9 @@ class Keys:
     drive_target_velocity = property(lambda self: self.topic(Topic.DRIVE_TARGET_VELOCITY))
     odometry_pose = property(lambda self: self.topic(Topic.ODOMETRY_POSE))
     localization_pose = property(lambda self: self.topic(Topic.LOCALIZATION_POSE))
+    sim_world = property(lambda self: self.topic(Topic.SIM_WORLD))
+    drive_path = property(lambda self: self.topic(Topic.DRIVE_PATH))
+    run_summary = property(lambda self: self.topic(Topic.RUN_SUMMARY))
 
 
 def all_robots_alive() -> str:

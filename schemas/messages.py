@@ -1,4 +1,6 @@
-"""The four message types of SPEC section 1, mirroring the seeds' IDL field for field.
+"""The four message types of SPEC section 1, mirroring the seeds' IDL field for field, and the
+project's own: the bump event, the Motor methods' payloads, and what a viewer or a report needs
+besides the loop's data (the sim's world, the drive's planned path, the summary of a run).
 
 Every float must be finite: a Struct checks it in ``__post_init__``, which msgspec also
 runs while decoding, so a NaN or inf can neither be built nor received.
@@ -7,7 +9,7 @@ runs while decoding, so a NaN or inf can neither be built nor received.
 from __future__ import annotations
 
 import math
-from typing import Annotated
+from typing import Annotated, Any, Literal
 
 import msgspec
 
@@ -109,6 +111,62 @@ class BumpEvent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         _require_finite(self.x, self.y, self.z)
 
 
+MAX_OBSTACLES = 256
+"""The most obstacles a ``sim/world`` message lists."""
+MAX_PATH_POINTS = 10_000
+"""The most points a ``drive/path`` message carries."""
+
+
+class Obstacle(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """An obstacle of the sim's world: a ``box`` of full lengths ``size`` turned by ``yaw`` about z,
+    or an upright ``cylinder`` of diameter ``size[0]`` and height ``size[2]``; centred on (x, y),
+    standing on the floor (m, rad)."""
+
+    name: str
+    shape: Literal["box", "cylinder"]
+    x: float
+    y: float
+    yaw: float
+    size: tuple[float, float, float]
+
+    def __post_init__(self) -> None:
+        _require_finite(self.x, self.y, self.yaw, *self.size)
+
+
+class SimWorld(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``sim/world``: the obstacles of the world the sim runs (project extension, for viewers)."""
+
+    tm: Time
+    obstacles: Annotated[list[Obstacle], msgspec.Meta(max_length=MAX_OBSTACLES)]
+
+
+class PlannedPath(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``drive/path``: the polyline the drive's scenario plans, (x, y) in m in the world frame
+    (project extension, for viewers and the report)."""
+
+    tm: Time
+    scenario: str
+    points: Annotated[list[tuple[float, float]], msgspec.Meta(max_length=MAX_PATH_POINTS)]
+
+    def __post_init__(self) -> None:
+        _require_finite(*(value for point in self.points for value in point))
+
+
+class RunSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``up/run``: what ``invent up`` knows of a run besides its data, published once at its end
+    so that the recording holds everything its report is built from."""
+
+    tm: Time
+    """The sim's time at the end of the run."""
+    scenario: str
+    mode: str
+    composed: bool
+    wall_time_s: float
+    steps: int
+    health: dict[str, Any]
+    """The loop's health from the services' status replies (``report.json``'s ``health``)."""
+
+
 NonNegativeGain = Annotated[float, msgspec.Meta(ge=0.0)]
 
 
@@ -136,4 +194,8 @@ MESSAGE_TYPES: tuple[type[msgspec.Struct], ...] = (
     BumpEvent,
     PDGains,
     NoArguments,
+    Obstacle,
+    SimWorld,
+    PlannedPath,
+    RunSummary,
 )

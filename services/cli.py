@@ -13,8 +13,10 @@ import msgspec
 import zenoh
 
 from schemas.keys import DEFAULT_ROBOT, Keys
-from services import tools, up
+from services import record, tools, up
 from services.config import ConfigError
+from services.recording import write_run_report
+from services.report import summary
 from services.runtime import (
     DEFAULT_ENDPOINT,
     LOOPBACK_LISTEN,
@@ -25,7 +27,7 @@ from services.runtime import (
     session_config,
     stop_on_signals,
 )
-from services.service import ServiceCommand, config_from_args, run_service
+from services.service import ServiceCommand, config_from_args, positive_seconds, run_service
 
 EXIT_CONFIG = 2
 EXIT_NO_SESSION = 1
@@ -77,7 +79,9 @@ def _connection_flags() -> argparse.ArgumentParser:
 def _service_flags() -> argparse.ArgumentParser:
     flags = argparse.ArgumentParser(add_help=False)
     group = flags.add_argument_group("robot description")
-    group.add_argument("--robot", metavar="NAME", help=f"robot name, the key prefix invent/NAME/ (default {DEFAULT_ROBOT})")
+    group.add_argument(
+        "--robot", metavar="NAME", help=f"robot name, the key prefix invent/NAME/ (default {DEFAULT_ROBOT})"
+    )
     group.add_argument("--config", metavar="FILE", help="robot description TOML file (see docs/configuration.md)")
     group.add_argument(
         "--set",
@@ -174,7 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
         "Exits 1 on an error reply or when nothing answers.",
     )
     call.add_argument("key", metavar="KEY", help="e.g. invent/rh0/motor/gui/stop")
-    call.add_argument("payload", metavar="JSON", nargs="?", help='e.g. \'{"p_gain_l": 5, ...}\'')
+    call.add_argument("payload", metavar="JSON", nargs="?", help="e.g. '{\"p_gain_l\": 5, ...}'")
     call.add_argument("--timeout", type=float, default=2.0, metavar="S", help="seconds to wait (default 2)")
     call.set_defaults(handler=_call)
 
@@ -196,6 +200,42 @@ def build_parser() -> argparse.ArgumentParser:
         "and print it as JSON. Exits 2 naming the field when it is invalid.",
     )
     config.set_defaults(handler=_config, log_level="info")
+
+    record = commands.add_parser(
+        "record",
+        parents=[connection, service],
+        help="record keys into an MCAP file (open it in Foxglove, read it with the mcap CLI)",
+        description="Record every sample of KEYEXPR (default invent/<robot>/**) into an MCAP file: one channel "
+        "per key, JSON messages with their JSON schema, log_time the receive time, publish_time the message's "
+        "tm; beside them the robot's Foxglove scene (transforms, poses, robot, obstacles, path, trails, wheel "
+        "speeds) and the services' status every 0.5 s. Ctrl-C, SIGTERM or --duration end it with a valid, "
+        "indexed file; a recorder killed with SIGKILL loses at most its last chunk (about 0.2 s of the loop).",
+    )
+    record.add_argument(
+        "keyexprs", metavar="KEYEXPR", nargs="*", help="zenoh key expressions (default invent/<robot>/**)"
+    )
+    record.add_argument(
+        "--output", "-o", metavar="FILE.mcap", default="invent.mcap", help="file to write (default invent.mcap)"
+    )
+    record.add_argument("--duration", type=positive_seconds, metavar="S", help="stop after S seconds of wall time")
+    record.add_argument(
+        "--until-run-ends",
+        action="store_true",
+        help="stop once `invent up` publishes its run's summary (up/run) and the data has reached its time",
+    )
+    record.set_defaults(handler=_record)
+
+    report = commands.add_parser(
+        "report",
+        parents=[service],
+        help="rebuild report.json and the plots from the recording of a run (run.mcap)",
+        description="Read a recording of `invent up` (its run.mcap) and write report.json, trajectory.png and "
+        "wheel_speeds.png, as `invent up` does at the end of a run, into --output-dir (default: the "
+        "recording's directory). --robot and --config must match the run's.",
+    )
+    report.add_argument("recording", metavar="FILE.mcap", help="the recording, e.g. runs/<timestamp>/run.mcap")
+    report.add_argument("--output-dir", metavar="DIR", help="where to write (default: beside the recording)")
+    report.set_defaults(handler=_report, log_level="info")
 
     up_parser = commands.add_parser(
         "up",
@@ -256,6 +296,34 @@ def _secrets(args: argparse.Namespace) -> int:
         seen_as=Path(args.seen_as) if args.seen_as else None,
         router_base=args.router_base,
     )
+
+
+def _record(args: argparse.Namespace) -> int:
+    config = config_from_args(None, args)
+    stop = stop_on_signals()
+    with open_session(_session_config(args)) as session:
+        return record.run_record(
+            session,
+            Keys(config.robot.name),
+            args.keyexprs,
+            Path(args.output),
+            config,
+            stop,
+            duration_s=args.duration,
+            until_run_ends=args.until_run_ends,
+        )
+
+
+def _report(args: argparse.Namespace) -> int:
+    path = Path(args.recording)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such file")
+    report, report_path, plots = write_run_report(
+        path, Path(args.output_dir) if args.output_dir else path.parent, config_from_args(None, args)
+    )
+    print(summary(report))
+    print(f"report: {report_path}; plots: {', '.join(str(p) for p in plots)}")
+    return 0
 
 
 def _config(args: argparse.Namespace) -> int:

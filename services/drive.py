@@ -4,7 +4,8 @@ Publishes ``drive/target_velocity`` at ``drive.rate`` per second of simulation t
 clock is the stamps on ``sim/wheel_angles``: the ticks are the grid ``round(k·1e9/rate)`` ns,
 each taken by the first stamp at or after it; scenario time starts at the first stamp seen once
 someone (the motor) subscribes to the target velocity, and a command is stamped with the stamp
-that took its tick. Waypoint segments close the loop on ``odometry/pose`` (odometry is reset by
+that took its tick. When the scenario starts, it publishes the path it plans on ``drive/path``
+(latched: a query gets it too). Waypoint segments close the loop on ``odometry/pose`` (odometry is reset by
 every ``localization/pose`` fix, so this is the localized pose corrected by odometry). Both
 inputs are sampled (:meth:`~services.runtime.Node.sample`): the drive acts on the newest clock
 stamp and pose, never on a backlog.
@@ -31,7 +32,7 @@ import time
 from typing import Any
 
 from schemas.keys import Service
-from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
+from schemas.messages import NANOSECONDS_PER_SECOND, PlannedPath, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
 from services.config import Config, ConfigError, DriveConfig
 from services.lockstep import FINAL, decode_owed
 from services.path_following import FollowerParams
@@ -46,6 +47,7 @@ from services.scenarios import (
     describe,
     load_scenario,
     parse_waypoints,
+    planned_path,
 )
 from services.service import ServiceCommand, finite_number, positive_seconds
 from services.sim_time import PeriodicSchedule, StampClock, check_stamp_near
@@ -132,6 +134,7 @@ class DriveService:
         self._pending_tick: tuple[int, float] | None = None
         """Lockstep: (tick stamp, wall deadline) of a tick waiting for the odometry pose of its stamp."""
         self.publisher = node.publisher(node.keys.drive_target_velocity)
+        self._path = node.latched_publisher(node.keys.drive_path)
         self._clock_input = node.sample(node.keys.sim_wheel_angles, TimedDoubleSeq, self._on_clock, with_attachment=True)
         self._pose_input = node.sample(node.keys.odometry_pose, TimedPosition, self._on_pose)
         node.watch(Service.SIM, self._on_sim_liveliness)
@@ -214,6 +217,9 @@ class DriveService:
             if not self.publisher.matched:
                 return
             self.schedule = PeriodicSchedule(self.rate_hz, 0)
+            start = self._fresh_pose(now_ns) or Pose(0.0, 0.0, 0.0)
+            scenario = self.runner.scenario
+            self._path.put(PlannedPath(message.tm, scenario.name, planned_path(scenario, start)))
         if self.finished or not self.schedule.due(now_ns):
             return
         if lockstep and self.odometry_alive:

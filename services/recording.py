@@ -1,123 +1,276 @@
-"""Records one run of the loop for the report, from zenoh, without slowing it down.
+"""Runs as MCAP files: writing what zenoh delivers, reading it back, and a run's report from it
+(no zenoh here).
 
-The samples wait in zenoh FIFO channels, where no Python runs per sample (a Python callback
-per sample would compete for the GIL with the loop itself, which in ``invent up --composed``
-runs in this same process: benchmarks/README.md); ``up`` collects their raw payloads with
-:meth:`Recorder.collect` between its looks at the run, and decoding happens once, after the
-run, in :meth:`Recorder.recording`.
+A recording has one channel per zenoh key, named by the key, message encoding ``json``: the
+payloads as they were published. A key of the project's key space (``schemas/keys.py``) has a
+``jsonschema`` schema named after its message type and generated from it
+(``msgspec.json.schema``); any other key has no schema. ``log_time`` is when the recorder took
+the sample, ``publish_time`` the message's ``tm`` where it has one (simulation time), else the
+``log_time``. Beside those, the Foxglove channels of :mod:`services.scene` (protobuf, with
+Foxglove's well-known schemas), so Foxglove shows a recording as it shows the live view.
+
+Messages are written in chunks of :data:`CHUNK_SIZE` bytes, each straight to the file: a
+recorder killed with SIGKILL loses at most the chunk it was filling, and :func:`read_messages`
+then reads every whole chunk and says the file was cut short (a file closed properly ends with
+an index and a summary, which the ``mcap`` CLI and Foxglove use to seek).
 """
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
-from typing import Any
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
 
 import msgspec
-import zenoh
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.writer import CompressionType, Writer
 
 from schemas.codec import BadInput, decode
-from schemas.keys import Keys
-from schemas.messages import Time, TimedDoubleSeq, TimedPosition, TimedVelocity
-from services.config import InputConfig, RobotConfig
+from schemas.keys import Keys, Topic, schema_for_key
+from schemas.messages import PlannedPath, RunSummary, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
+from services.config import Config, ConfigError, InputConfig, RobotConfig
 from services.planar import Pose, check_coordinates
-from services.report import Recording, pose_from_body_pose
+from services.report import Point, Recording, build_report, pose_from_body_pose, write_plots, write_report
+from services.scenarios import planned_path_for
+
+CHUNK_SIZE = 256 * 1024
+"""Bytes of messages per chunk: about a fifth of a second of the loop in lockstep."""
+JSON = "json"
+JSON_SCHEMA = "jsonschema"
+PROFILE = ""
+"""No MCAP profile: the channels are zenoh keys, not ROS topics."""
 
 
-class Stamped(msgspec.Struct, frozen=True):
-    """Any recorded message, for its stamp alone."""
+class _Stamped(msgspec.Struct):
+    """Any message with a ``tm``, for its stamp alone."""
 
     tm: Time
 
 
-_STAMPED = msgspec.json.Decoder(Stamped)
-CHANNEL_CAPACITY = 1 << 20
-"""Samples a recorded key's channel holds between two collections: seconds of any loop's output
-(a full channel would make zenoh wait, and with it the loop's publisher)."""
+_STAMPED = msgspec.json.Decoder(_Stamped)
 
 
-class Recorder:
-    def __init__(self, session: zenoh.Session, keys: Keys, robot: RobotConfig, limits: InputConfig) -> None:
-        self._robot = robot
-        self._max_coordinate = limits.max_coordinate
-        recorded = (
-            keys.sim_body_pose,
-            keys.odometry_pose,
-            keys.localization_pose,
-            keys.drive_target_velocity,
-            keys.motor_wheel_angles,
-        )
-        self._payloads: dict[str, list[bytes]] = {key: [] for key in recorded}
-        self._channels = {
-            key: session.declare_subscriber(key, zenoh.handlers.FifoChannel(CHANNEL_CAPACITY)) for key in recorded
-        }
-        self._keys = keys
+def publish_time(payload: bytes, log_time_ns: int) -> int:
+    """The message's ``tm`` in ns, or ``log_time_ns`` when it has none."""
+    try:
+        return _STAMPED.decode(payload).tm.to_nanoseconds()
+    except (msgspec.DecodeError, msgspec.ValidationError):
+        return log_time_ns
 
-    def collect(self) -> None:
-        """Take the samples waiting in the channels (call often enough that they never fill up)."""
-        for key, channel in self._channels.items():
-            payloads = self._payloads[key]
-            while (sample := channel.try_recv()) is not None:
-                payloads.append(sample.payload.to_bytes())
 
-    def collect_until(self, until_s: float, timeout_s: float) -> bool:
-        """Collect until the ground truth and odometry recorded reach ``until_s`` simulated seconds
-        (what the loop published up to then may still be on its way); False after ``timeout_s``."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            self.collect()
-            if all(self._reached(key, until_s) for key in (self._keys.sim_body_pose, self._keys.odometry_pose)):
-                return True
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.01)
+class McapWriter:
+    """One recording being written; :meth:`close` ends it with its index and summary."""
 
-    def _reached(self, key: str, until_s: float) -> bool:
-        payloads = self._payloads[key]
-        try:
-            return bool(payloads) and _STAMPED.decode(payloads[-1]).tm.to_seconds() >= until_s
-        except msgspec.DecodeError:
-            return False
+    def __init__(self, path: Path) -> None:
+        self._file: IO[bytes] = open(path, "wb")  # noqa: SIM115 (closed by close())
+        self._writer = Writer(_Flushing(self._file), chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self._writer.start(profile=PROFILE, library="invent-zenoh")
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        self.messages = 0
+
+    def write_sample(self, key: str, payload: bytes, log_time_ns: int) -> None:
+        """A zenoh sample, on the channel of its key."""
+        channel = self._channels.get(key)
+        if channel is None:
+            channel = self._channels[key] = self._writer.register_channel(key, JSON, self._key_schema(key))
+        self._write(channel, payload, log_time_ns, publish_time(payload, log_time_ns))
+
+    def write_json(self, topic: str, value: Any, schema: dict[str, Any], stamp_ns: int, log_time_ns: int) -> None:
+        """A JSON message of ``schema`` (a JSON schema with a ``title``) on ``topic``."""
+        channel = self._channels.get(topic)
+        if channel is None:
+            schema_id = self._schema(schema["title"], JSON_SCHEMA, json.dumps(schema).encode())
+            channel = self._channels[topic] = self._writer.register_channel(topic, JSON, schema_id)
+        self._write(channel, json.dumps(value).encode(), log_time_ns, stamp_ns)
+
+    def write_foxglove(self, topic: str, message: Any, stamp_ns: int, log_time_ns: int) -> None:
+        """A Foxglove well-known message (``foxglove.messages``), protobuf-encoded."""
+        channel = self._channels.get(topic)
+        if channel is None:
+            schema = message.get_schema()
+            schema_id = self._schema(schema.name, schema.encoding, bytes(schema.data))
+            channel = self._channels[topic] = self._writer.register_channel(topic, schema.encoding, schema_id)
+        self._write(channel, message.encode(), log_time_ns, stamp_ns)
+
+    def _write(self, channel: int, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
+        self._writer.add_message(channel, log_time_ns, data, publish_time_ns, sequence=self.messages)
+        self.messages += 1
+
+    def _key_schema(self, key: str) -> int:
+        message_type = schema_for_key(key)
+        if message_type is None:
+            return 0
+        schema = msgspec.json.schema(message_type)
+        return self._schema(message_type.__name__, JSON_SCHEMA, json.dumps(schema).encode())
+
+    def _schema(self, name: str, encoding: str, data: bytes) -> int:
+        schema = self._schemas.get(name)
+        if schema is None:
+            schema = self._schemas[name] = self._writer.register_schema(name, encoding, data)
+        return schema
 
     def close(self) -> None:
-        self.collect()
-        for channel in self._channels.values():
-            channel.undeclare()
+        self._writer.finish()
+        self._file.close()
 
-    def _decoded(self, key: str, message_type: type[Any], convert: Callable[[Any], Any]) -> list[Any]:
+
+class _Flushing:
+    """A file whose every write (the writer writes a whole chunk at once) reaches the disk's cache
+    at once: a killed recorder loses only the chunk it was filling."""
+
+    def __init__(self, file: IO[bytes]) -> None:
+        self._file = file
+
+    def write(self, data: bytes) -> int:
+        written = self._file.write(data)
+        self._file.flush()
+        return written
+
+    def tell(self) -> int:
+        return self._file.tell()
+
+
+@dataclass(frozen=True)
+class RecordedMessage:
+    topic: str
+    schema_name: str | None
+    data: bytes
+    log_time_ns: int
+    publish_time_ns: int
+
+
+@dataclass
+class ReadResult:
+    messages: list[RecordedMessage]
+    complete: bool
+    """False when the file ends before its summary (the recorder was killed): every whole chunk was read."""
+
+
+def read_messages(path: Path) -> ReadResult:
+    """Every message of a recording, in log-time order; a file cut short is read up to its last whole chunk."""
+    with open(path, "rb") as file:
+        try:
+            reader = make_reader(file)
+            messages = [_recorded(schema, channel, message) for schema, channel, message in reader.iter_messages()]
+            return ReadResult(messages, complete=True)
+        except (McapError, EOFError, ValueError, KeyError):
+            file.seek(0)
+            return ReadResult(sorted(_stream_messages(file), key=lambda m: m.log_time_ns), complete=False)
+
+
+def _recorded(schema: Schema | None, channel: Channel, message: Message) -> RecordedMessage:
+    return RecordedMessage(
+        channel.topic, schema.name if schema else None, message.data, message.log_time, message.publish_time
+    )
+
+
+def _stream_messages(file: IO[bytes]) -> Iterator[RecordedMessage]:
+    """The messages of the whole records of a file read front to back, up to where it is cut."""
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    try:
+        for record in StreamReader(file, skip_magic=False).records:
+            for inner in breakup_chunk(record) if isinstance(record, Chunk) else [record]:
+                if isinstance(inner, Schema):
+                    schemas[inner.id] = inner
+                elif isinstance(inner, Channel):
+                    channels[inner.id] = inner
+                elif isinstance(inner, Message):
+                    channel = channels[inner.channel_id]
+                    yield _recorded(schemas.get(channel.schema_id), channel, inner)
+    except (McapError, EOFError, ValueError, KeyError):
+        return
+
+
+def run_summary(messages: list[RecordedMessage], keys: Keys) -> RunSummary | None:
+    """The last ``up/run`` summary of ``keys.robot`` in a recording, if it has one."""
+    summaries = [m for m in messages if m.topic == keys.run_summary]
+    return decode(RunSummary, summaries[-1].data) if summaries else None
+
+
+def recording_from(
+    messages: list[RecordedMessage], keys: Keys, robot: RobotConfig, limits: InputConfig, until_s: float | None
+) -> Recording:
+    """The series a report is built from, sorted by time, cut at ``until_s`` simulated seconds when given.
+    A message that does not decode, or an implausible pose (someone's bad input on a recorded key,
+    which the services refuse too), is not part of the run."""
+
+    def series(topic: Topic, message_type: type[Any], convert: Any) -> list[Any]:
+        key = keys.topic(topic)
         items = []
-        for payload in self._payloads[key]:
+        for recorded in messages:
+            if recorded.topic != key:
+                continue
             try:
-                message = decode(message_type, payload)
-                items.append((message.tm.to_seconds(), convert(message)))
+                message = decode(message_type, recorded.data)
+                item = (message.tm.to_seconds(), convert(message))
             except (BadInput, IndexError):
-                continue  # someone else's bad input on a recorded key: not part of the run
+                continue
+            if until_s is None or item[0] <= until_s:
+                items.append(item)
         items.sort(key=lambda item: item[0])
         return items
 
-    def recording(self, until: float | None = None) -> Recording:
-        """The decoded series, sorted by time, cut at ``until`` simulated seconds when given."""
-        keys, robot = self._keys, self._robot
+    def position(message: TimedPosition) -> Pose:
+        check_coordinates(message.x, message.y, limits.max_coordinate)
+        return Pose(message.x, message.y, message.theta)
 
-        def position(message: TimedPosition) -> Pose:
-            # The services refuse an implausible pose; so does the report (it would fill the plot).
-            check_coordinates(message.x, message.y, self._max_coordinate)
-            return Pose(message.x, message.y, message.theta)
+    def wheels(message: TimedDoubleSeq) -> tuple[float, float]:
+        return message.data[robot.left_wheel_id], message.data[robot.right_wheel_id]
 
-        def wheels(message: TimedDoubleSeq) -> tuple[float, float]:
-            return message.data[robot.left_wheel_id], message.data[robot.right_wheel_id]
+    def command(message: TimedVelocity) -> tuple[float, float]:
+        return message.vx, message.w
 
-        def command(message: TimedVelocity) -> tuple[float, float]:
-            return message.vx, message.w
+    return Recording(
+        ground_truth=series(Topic.SIM_BODY_POSE, TimedDoubleSeq, lambda m: pose_from_body_pose(m.data)),
+        odometry=series(Topic.ODOMETRY_POSE, TimedPosition, position),
+        localization=series(Topic.LOCALIZATION_POSE, TimedPosition, position),
+        commands=[(t, *c) for t, c in series(Topic.DRIVE_TARGET_VELOCITY, TimedVelocity, command)],
+        wheel_angles=[(t, *w) for t, w in series(Topic.MOTOR_WHEEL_ANGLES, TimedDoubleSeq, wheels)],
+    )
 
-        recording = Recording(
-            ground_truth=self._decoded(keys.sim_body_pose, TimedDoubleSeq, lambda m: pose_from_body_pose(m.data)),
-            odometry=self._decoded(keys.odometry_pose, TimedPosition, position),
-            localization=self._decoded(keys.localization_pose, TimedPosition, position),
-            commands=[(t, *c) for t, c in self._decoded(keys.drive_target_velocity, TimedVelocity, command)],
-            wheel_angles=[(t, *w) for t, w in self._decoded(keys.motor_wheel_angles, TimedDoubleSeq, wheels)],
+
+def _planned_path(
+    summary: RunSummary, messages: list[RecordedMessage], keys: Keys, recording: Recording
+) -> list[Point] | None:
+    """The scenario's path from the ground truth's start (as the drive planned it from its own
+    pose), or, for a scenario file no longer there, the path the drive published."""
+    try:
+        return planned_path_for(summary.scenario, recording.ground_truth[0][1] if recording.ground_truth else None)
+    except ConfigError:
+        paths = [m for m in messages if m.topic == keys.drive_path]
+        return [tuple(point) for point in decode(PlannedPath, paths[-1].data).points] if paths else None
+
+
+def write_run_report(path: Path, report_dir: Path, config: Config) -> tuple[dict[str, Any], Path, list[Path]]:
+    """``report.json`` and the plots of the run recorded in ``path`` (``invent up`` writes that
+    file; ``invent report`` reads any): (report, its path, the plots' paths). ConfigError when the
+    file holds no run (no ``up/run`` summary of ``config.robot.name``)."""
+    keys = Keys(config.robot.name)
+    read = read_messages(path)
+    summary = run_summary(read.messages, keys)
+    if summary is None:
+        raise ConfigError(
+            f"{path}: no run summary on {keys.run_summary}: not a recording of `invent up` for robot "
+            f"{keys.robot!r} (or it was cut short; --robot names another robot)"
         )
-        if until is not None:
-            for name in ("ground_truth", "odometry", "localization", "commands", "wheel_angles"):
-                setattr(recording, name, [item for item in getattr(recording, name) if item[0] <= until])
-        return recording
+    recording = recording_from(read.messages, keys, config.robot, config.input, summary.tm.to_seconds())
+    report = build_report(
+        recording,
+        scenario=summary.scenario,
+        mode=summary.mode,
+        planned_path=_planned_path(summary, read.messages, keys, recording),
+        wall_time_s=summary.wall_time_s,
+        steps=summary.steps,
+        health=summary.health,
+    )
+    report["composed"] = summary.composed
+    report_path = write_report(report, report_dir)
+    plots = write_plots(recording, report.get("planned_path"), config.robot, report_dir)
+    return report, report_path, plots

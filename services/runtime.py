@@ -197,6 +197,18 @@ class Publisher:
         self._publisher.undeclare()
 
 
+class LatchedPublisher:
+    """See :meth:`Node.latched_publisher`."""
+
+    def __init__(self, publisher: Publisher) -> None:
+        self._publisher = publisher
+        self.last: msgspec.Struct | None = None
+
+    def put(self, message: msgspec.Struct) -> None:
+        self.last = message
+        self._publisher.put(message)
+
+
 _QueryHandler = Callable[[bytes], Any]
 
 SAMPLING_POLL_S = 0.001
@@ -581,8 +593,8 @@ class Node:
     def queryable(self, key: str, handler: _QueryHandler, *, mutates: bool = False) -> None:
         """Answer queries on ``key`` from the service thread.
 
-        ``handler(payload)`` returns a JSON-encodable reply, or raises BadInput, which
-        becomes a ``reply_err`` naming the reason. The query is finalized right after the
+        ``handler(payload)`` returns a JSON-encodable reply (None: no reply), or raises BadInput,
+        which becomes a ``reply_err`` naming the reason. The query is finalized right after the
         reply, so the caller's ``get`` returns at once.
 
         Looking never acts: a wildcard or prefix query (``invent/rh0/**``, what zenoh tools and
@@ -605,7 +617,8 @@ class Node:
                     self._internal_error(key, error)
                     query.reply_err(json.dumps({"error": f"internal error: {error}"}), encoding=zenoh.Encoding(ENCODING))
                     return
-                query.reply(key, msgspec.json.encode(reply), encoding=zenoh.Encoding(ENCODING))
+                if reply is not None:
+                    query.reply(key, msgspec.json.encode(reply), encoding=zenoh.Encoding(ENCODING))
             finally:
                 query.drop()
 
@@ -640,6 +653,14 @@ class Node:
         publisher = Publisher(self.session, key)
         self._publishers.append(publisher)
         return publisher
+
+    def latched_publisher(self, key: str) -> LatchedPublisher:
+        """A publisher whose last message also answers queries on its key, for what changes
+        rarely and a late subscriber needs at once (the sim's world, the drive's path): a viewer
+        started mid-run gets it with a ``get``, as from a zenoh storage."""
+        latched = LatchedPublisher(self.publisher(key))
+        self.queryable(key, lambda _payload: latched.last)
+        return latched
 
     def post(self, callback: Callable[[], None]) -> None:
         """Run ``callback()`` on the service thread (thread-safe; usable from zenoh callbacks)."""

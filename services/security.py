@@ -26,7 +26,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from schemas.keys import ROOT, Keys, Method, MethodFamily, Service, Topic, all_robots_status
+from schemas.keys import LATCHED_TOPICS, ROOT, Keys, Method, MethodFamily, Service, Topic, all_robots_status
 
 ROUTER_CONFIG = "router.json5"
 DICTIONARY = "dictionary.txt"
@@ -53,7 +53,8 @@ class Role(StrEnum):
     LOCALIZATION = Service.LOCALIZATION.value
     DRIVE = Service.DRIVE.value
     OPERATOR = "operator"
-    """Teleop or GUI: puts target velocities, calls the Motor methods (``motor/gui/*``)."""
+    """Teleop or GUI: puts target velocities, calls the Motor methods (``motor/gui/*``); and
+    ``invent up`` itself, which puts the run's summary (``up/run``) at the end of a run."""
     OBSERVER = "observer"
     """Watches: subscribes, gets ``status`` and liveliness, nothing else."""
 
@@ -126,11 +127,13 @@ def grants(role: Role, keys: Keys) -> list[Grant]:
     if role is Role.OPERATOR:
         return [
             *reading,
-            Grant((Message.PUT,), Flow.INGRESS, (keys.drive_target_velocity,)),
+            Grant((Message.PUT,), Flow.INGRESS, (keys.drive_target_velocity, keys.run_summary)),
             Grant((Message.QUERY,), Flow.INGRESS, _methods(keys, MethodFamily.GUI)),
         ]
     service = Service(role.value)
-    served = (keys.status(service),)
+    served = (keys.status(service),) + tuple(
+        keys.topic(topic) for topic in LATCHED_TOPICS if topic.startswith(f"{service}/")
+    )
     if service is Service.MOTOR:
         served += _methods(keys, MethodFamily.GUI) + _methods(keys, MethodFamily.BUMP)
     own = [

@@ -5,8 +5,10 @@ until they are alive and the drive and the localization hold their lockstep toke
 starts the sim last, so a lockstep run steps the whole loop from its first step and starts the
 same way every time (services/lockstep.py). Children's output is prefixed with their name. The
 run ends when the drive finishes its scenario (exit 0) and the sim holds at the step of its
-last command (``--until-drive-ends``): ``up`` then records the services' status, stops every
-child with SIGINT and writes the report (``--no-report``: no recording, no report, for long runs and
+last command (``--until-drive-ends``): ``up`` then reads the services' status, publishes the
+run's summary (``up/run``), waits for ``invent record`` (its child from the start, in both modes)
+to close ``run.mcap``, stops every child with SIGINT and builds the report from the recording, as
+``invent report run.mcap`` does (``--no-record``: no recording, no report, for long runs and
 benchmarks). A child that dies early makes ``up`` say which one, stop the others and exit 1.
 Ctrl-C stops everything cleanly (exit 130). With ``--composed`` the same services run in this
 one process instead (``services/composition.py``).
@@ -24,7 +26,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -32,22 +34,14 @@ from typing import Any, Protocol
 import zenoh
 
 from schemas.keys import Keys, Service
+from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, Time
 from services.composition import Composition
 from services.config import Config, ConfigError
 from services.lockstep import LOOP_BEFORE_FIRST_STEP
-from services.recording import Recorder
-from services.report import (
-    build_report,
-    degradation_line,
-    degradations,
-    health_lines,
-    loop_health,
-    summary,
-    write_plots,
-    write_report,
-)
-from services.runtime import DEFAULT_ENDPOINT, open_session, session_config
-from services.scenarios import planned_path_for
+from services.record import RUN_END_TIMEOUT_S, Observer, mcap_sink
+from services.recording import McapWriter, write_run_report
+from services.report import degradation_line, degradations, health_lines, loop_health, summary
+from services.runtime import DEFAULT_ENDPOINT, Publisher, open_session, session_config
 from services.security import Profile, Role, write_profile
 
 EXIT_CHILD_DIED = 1
@@ -57,6 +51,7 @@ STARTUP_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 10.0
 PROGRESS_INTERVAL_S = 1.0
 SECRETS_DIRECTORY = "secrets"
+RECORDING_FILE = "run.mcap"
 MOTOR_STATE_FILE = "motor-state.json"
 """The run's own motor state file (latches, gains), in the report directory: a run starts afresh."""
 SERVICES_BEFORE_DRIVE = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
@@ -225,11 +220,10 @@ class Run:
         return sim_status
 
     def supervise(
-        self, drive: Any, started: float, collect: Callable[[], None], until_interrupted: bool = False
+        self, drive: Any, started: float, between_looks: Callable[[], None] | None, until_interrupted: bool = False
     ) -> dict[str, Any] | None:
         """Wait for the drive to finish its scenario (or, ``until_interrupted``, for Ctrl-C: the end
-        of a ``--loop`` run), printing progress and calling ``collect`` between looks; return the
-        sim's last status."""
+        of a ``--loop`` run), printing progress and calling ``between_looks``; return the sim's last status."""
         sim_status: dict[str, Any] | None = None
         next_progress = time.monotonic()
         while True:
@@ -246,8 +240,79 @@ class Run:
                 return self.sim_at_end(sim_status)
             if code is not None:
                 raise ChildDied(f"drive exited unexpectedly ({_describe_exit(code)})")
-            collect()
+            if between_looks:
+                between_looks()
             time.sleep(0.05)
+
+
+class RecorderProcess:
+    """``invent record`` as a child: it records the run into ``path`` and closes the file itself
+    once it has the run's summary and the data up to its time."""
+
+    def __init__(self, flags: list[str], path: Path) -> None:
+        self._children = Supervisor()
+        self._child = self._children.start("record", ["record", *flags, "--output", str(path), "--until-run-ends"])
+
+    def wait_subscribed(self, run: Run, summary_publisher: Publisher) -> None:
+        """Until the recorder subscribes (to the robot's keys, the run's summary among them)."""
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while not summary_publisher.matched:
+            run.check()
+            if self._child.finished() is not None:
+                raise ChildDied(f"record exited unexpectedly ({_describe_exit(self._child.finished())})")
+            if time.monotonic() > deadline:
+                raise ChildDied(f"the recorder did not subscribe within {STARTUP_TIMEOUT_S} s")
+            time.sleep(0.02)
+
+    def during(self) -> None:
+        """It has its own process."""
+
+    def finish(self, run: Run) -> None:
+        limit_s = RUN_END_TIMEOUT_S + STOP_TIMEOUT_S
+        deadline = time.monotonic() + limit_s
+        while self._child.finished() is None:
+            if run.interrupted.is_set():
+                raise Interrupted
+            if time.monotonic() > deadline:
+                raise ChildDied(f"the recorder did not close the recording within {limit_s} s")
+            time.sleep(0.02)
+        if self._child.finished() != 0:
+            raise ChildDied(f"record exited unexpectedly ({_describe_exit(self._child.finished())})")
+
+    def close(self) -> None:
+        """Stop it if it still runs (Ctrl-C, a service died): SIGINT, so it closes the file properly."""
+        self._children.stop()
+
+
+class InProcessRecorder:
+    """``up --composed``: the recorder's observer in this process, on the composed session, only
+    buffering samples while the loop runs (see services/record.py); the file is written at the end."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, path: Path, config: Config) -> None:
+        self._writer = McapWriter(path)
+        self._observer = Observer(session, keys, [keys.everything], config, mcap_sink(self._writer))
+        self._closed = False
+
+    def during(self) -> None:
+        self._observer.buffer()
+
+    def finish(self, run: Run) -> None:
+        """Until the run's summary and the data up to its time have come (or the timeout)."""
+        deadline = time.monotonic() + RUN_END_TIMEOUT_S
+        observer = self._observer
+        while time.monotonic() < deadline:
+            observer.spin_once()
+            summary = observer.run_summary
+            if summary is not None and observer.reached(summary.tm.to_nanoseconds()):
+                return
+            time.sleep(0.02)
+        say(f"the recording did not reach the run's end within {RUN_END_TIMEOUT_S} s")
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._observer.close()
+            self._writer.close()
 
 
 def _child_args(args: argparse.Namespace, endpoint: str) -> list[str]:
@@ -274,7 +339,7 @@ def _launch(
     router (so outside zenoh tools still see every key)."""
     if args.composed:
         mode_config = (
-            session_config(connect=[endpoint], file=access.config_file(Role.OBSERVER))
+            session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR))
             if args.connect
             else session_config(listen=[endpoint], mode="router")
         )
@@ -289,7 +354,7 @@ def _launch(
     try:
         if not args.connect:
             supervisor.start("router", ["router", *access.router_flags(endpoint), "--log-level", args.log_level])
-        with open_session(session_config(connect=[endpoint], file=access.config_file(Role.OBSERVER))) as session:
+        with open_session(session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR))) as session:
             yield supervisor, session
     finally:
         supervisor.stop()
@@ -328,7 +393,9 @@ def _access(args: argparse.Namespace, keys: Keys, report_dir: Path) -> Access:
             "service as a client of it, each with its role's credentials"
         )
     listen = args.listen or [DEFAULT_ENDPOINT]
-    profile = write_profile(report_dir / SECRETS_DIRECTORY, keys, endpoint=listen[0], router_listen=listen, tls=args.tls)
+    profile = write_profile(
+        report_dir / SECRETS_DIRECTORY, keys, endpoint=listen[0], router_listen=listen, tls=args.tls
+    )
     say(
         f"secure: usrpwd and access control on the router{', TLS' if profile.tls else ''}; every service a client; "
         f"credentials for each role in {profile.directory}/ (e.g. --zenoh-config {profile.client_config(Role.OBSERVER)})"
@@ -346,11 +413,22 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     interrupted = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: interrupted.set())
     signal.signal(signal.SIGTERM, lambda *_: interrupted.set())
+    recording = not (args.no_record or args.loop)
+    recorder: RecorderProcess | InProcessRecorder | None = None
     try:
-        with _launch(args, endpoint, parser, access) as (launcher, session):
+        with _launch(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
             run = Run(launcher, session, keys, interrupted)
-            recording = not (args.no_report or args.loop)
-            recorder = Recorder(session, keys, config.robot, config.input) if recording else None
+            summary_publisher = Publisher(session, keys.run_summary)
+            if recording:
+                report_dir.mkdir(parents=True, exist_ok=True)
+                path = report_dir / RECORDING_FILE
+                if args.composed:
+                    recorder = InProcessRecorder(session, keys, path, config)
+                else:
+                    recorder = RecorderProcess([*common, *access.flags(Role.OBSERVER)], path)
+                closing.callback(recorder.close)
+                if isinstance(recorder, RecorderProcess):
+                    recorder.wait_subscribed(run, summary_publisher)
             own_flags = {Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE)]}
             for service in SERVICES_BEFORE_DRIVE:
                 flags = [*common, *access.flags(Role(service)), *own_flags.get(service, [])]
@@ -360,20 +438,41 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
             drive = launcher.start("drive", ["drive", *common, *access.flags(Role.DRIVE), *drive_flags])
             run.wait_alive((Service.DRIVE,))
             run.wait_tokens(
-                [keys.ticks(Service.DRIVE, config.drive.rate), keys.ticks(Service.LOCALIZATION, config.localization.rate)]
+                [
+                    keys.ticks(Service.DRIVE, config.drive.rate),
+                    keys.ticks(Service.LOCALIZATION, config.localization.rate),
+                ]
             )
             wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
-            sim_flags = ["--mode", mode, "--until-drive-ends", "--wait-for", *wait_for, *(["--gui"] if args.gui else [])]
+            sim_flags = [
+                "--mode",
+                mode,
+                "--until-drive-ends",
+                "--wait-for",
+                *wait_for,
+                *(["--gui"] if args.gui else []),
+            ]
             launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *sim_flags])
             started = time.monotonic()
-            sim_status = run.supervise(
-                drive, started, recorder.collect if recorder else _record_nothing, until_interrupted=args.loop
-            )
+            sim_status = run.supervise(drive, started, recorder.during if recorder else None, until_interrupted=args.loop)
             wall_time_s = time.monotonic() - started
             statuses = {str(service): run.status(service) for service in Service if service != Service.DRIVE}
+            health = loop_health(sim_status, statuses)
             if recorder:
-                if sim_status and not recorder.collect_until(sim_status["sim_time_s"], STOP_TIMEOUT_S):
-                    say(f"the recording did not reach t = {sim_status['sim_time_s']:.3f} s within {STOP_TIMEOUT_S} s")
+                summary_publisher.put(
+                    RunSummary(
+                        tm=Time.from_nanoseconds(
+                            round((sim_status or {}).get("sim_time_s", 0.0) * NANOSECONDS_PER_SECOND)
+                        ),
+                        scenario=args.scenario,
+                        mode=mode,
+                        composed=args.composed,
+                        wall_time_s=wall_time_s,
+                        steps=int(sim_status["steps"]) if sim_status else 0,
+                        health=health,
+                    )
+                )
+                recorder.finish(run)
                 recorder.close()
             unclean = {name: code for name, code in launcher.stop().items() if code != 0}
             if unclean:
@@ -384,26 +483,19 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     except Interrupted:
         say("interrupted; stopped everything")
         return EXIT_INTERRUPTED
-    health = loop_health(sim_status, statuses)
-    if recorder is None:
+    if not recording:
         degraded = degradations(health)
         print("\n".join([*health_lines(health), *map(degradation_line, degraded)]), flush=True)
-        return _verdict(args, degraded, "done; no report (" + ("--loop" if args.loop else "--no-report") + ")")
-    recording = recorder.recording(until=sim_status.get("sim_time_s") if sim_status else None)
-    report = build_report(
-        recording,
-        scenario=args.scenario,
-        mode=mode,
-        planned_path=planned_path_for(args.scenario, recording.ground_truth[0][1] if recording.ground_truth else None),
-        wall_time_s=wall_time_s,
-        steps=int(sim_status["steps"]) if sim_status else 0,
-        health=health,
-    )
-    report["composed"] = args.composed
-    path = write_report(report, report_dir)
-    plots = write_plots(recording, report.get("planned_path"), config.robot, report_dir)
+        return _verdict(
+            args, degraded, "done; no recording, no report (" + ("--loop" if args.loop else "--no-record") + ")"
+        )
+    report, path, plots = write_run_report(report_dir / RECORDING_FILE, report_dir, config)
     print(summary(report), flush=True)
-    return _verdict(args, report["degraded"], f"report: {path}; plots: {', '.join(str(p) for p in plots)}")
+    return _verdict(
+        args,
+        report["degraded"],
+        f"recording: {report_dir / RECORDING_FILE}; report: {path}; plots: {', '.join(str(p) for p in plots)}",
+    )
 
 
 def _verdict(args: argparse.Namespace, degraded: list[str], done: str) -> int:
@@ -413,10 +505,6 @@ def _verdict(args: argparse.Namespace, degraded: list[str], done: str) -> int:
         say(f"--strict: the run degraded ({len(degraded)} reason{'s' * (len(degraded) > 1)}): exit {EXIT_DEGRADED}")
         return EXIT_DEGRADED
     return 0
-
-
-def _record_nothing() -> None:
-    """``--no-report``: nothing to collect between looks at the run."""
 
 
 def _progress(sim_status: dict[str, Any], wall_s: float) -> None:
@@ -431,15 +519,20 @@ def _progress(sim_status: dict[str, Any], wall_s: float) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", default="square", help="built-in scenario or TOML file (default square)")
     parser.add_argument(
-        "--mode", choices=["lockstep", "realtime"], help="sim mode (default: sim.mode of the robot description, lockstep)"
+        "--mode",
+        choices=["lockstep", "realtime"],
+        help="sim mode (default: sim.mode of the robot description, lockstep)",
     )
     report = parser.add_mutually_exclusive_group()
-    report.add_argument("--report", metavar="DIR", help="report directory (default runs/<timestamp>/)")
     report.add_argument(
-        "--no-report",
+        "--report",
+        metavar="DIR",
+        help=f"where the recording ({RECORDING_FILE}), report.json and the plots go (default runs/<timestamp>/)",
+    )
+    report.add_argument(
+        "--no-record",
         action="store_true",
-        help="record nothing and write no report: memory stays flat however long the run "
-        "(for long runs, --loop scenarios and benchmarks)",
+        help=f"record nothing, so write no report (it is built from {RECORDING_FILE}): for long runs and benchmarks",
     )
     parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
     parser.add_argument(
@@ -469,4 +562,3 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="run the services in this one process on one zenoh session (no network hop between them; "
         "the session is the router, so outside zenoh tools still see every key)",
     )
-

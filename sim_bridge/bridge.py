@@ -47,6 +47,7 @@ from schemas.messages import (
     NANOSECONDS_PER_SECOND,
     BumpEvent,
     NoArguments,
+    SimWorld,
     Time,
     TimedDoubleSeq,
     TimedPosition,
@@ -57,7 +58,7 @@ from services.lockstep import FINAL, OUTPUTS, TickBarrier, encode_owed
 from services.runtime import STOP_POLL_S, Node, NodeInput, RateLimitedLog
 from services.service import ServiceCommand, positive_seconds
 from sim_bridge.latency import TorqueLatency
-from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, read_world, resolve_world
+from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, obstacles, read_world, resolve_world
 
 if TYPE_CHECKING:
     from sim_bridge.simulator import Contact
@@ -128,7 +129,8 @@ class SimService:
         from sim_bridge.simulator import Simulator
 
         self.world_file = resolve_world(config.sim.world)
-        self.sim = Simulator(config.robot, config.sim, read_world(self.world_file), gui=args.gui)
+        self.world = read_world(self.world_file)
+        self.sim = Simulator(config.robot, config.sim, self.world, gui=args.gui)
         self.latency = TorqueLatency(self.sim.step_ns)
         self._end_step = (
             math.inf if args.duration is None else round(args.duration * NANOSECONDS_PER_SECOND / self.sim.step_ns)
@@ -144,6 +146,7 @@ class SimService:
         self._pose_publisher = node.publisher(keys.sim_body_pose)
         self._angles_publisher = node.publisher(keys.sim_wheel_angles)
         self._bump_publisher = node.publisher(keys.sim_bump)
+        self._world_publisher = node.latched_publisher(keys.sim_world)
         # Lockstep waits in the torque channel's receive itself, and in a participant's output
         # channel at its ticks; realtime waits for its step's deadline, which a posted torque must
         # interrupt.
@@ -417,6 +420,7 @@ class SimService:
             self.parameters.step,
             "" if self.duration is None else f", for {self.duration:g} s",
         )
+        self._world_publisher.put(SimWorld(Time.from_nanoseconds(self.sim.time_ns), obstacles(self.world)))
         self._started = time.monotonic()
         {LOCKSTEP: self._run_lockstep, REALTIME: self._run_realtime}[self.mode](stop)
         self.finished = self.sim.step_index >= self._end_step or self._ended()

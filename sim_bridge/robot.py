@@ -27,12 +27,9 @@ from dataclasses import dataclass
 import pybullet as p
 
 from services.config import RobotConfig, SimConfig
+from sim_bridge.geometry import CASTER_RADIUS_FRACTION, CASTER_REACH_FRACTION
 from sim_bridge.world import InitialPose
 
-CASTER_RADIUS_FRACTION = 0.5
-"""Caster sphere radius as a fraction of the smaller wheel radius."""
-CASTER_REACH_FRACTION = 0.7
-"""Distance of each caster from the axle centre along x, as a fraction of the body radius."""
 CASTER_CLEARANCE = 0.002
 """m between a caster and the floor when the robot stands level.
 

@@ -15,6 +15,7 @@ from typing import Annotated
 
 import msgspec
 
+from schemas.messages import Obstacle
 from services.config import ConfigError
 
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
@@ -93,6 +94,15 @@ class World(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
     @property
     def obstacle_names(self) -> tuple[str, ...]:
         return tuple(o.name for o in self.boxes) + tuple(o.name for o in self.cylinders)
+
+
+def obstacles(world: World) -> list[Obstacle]:
+    """The world's obstacles as ``sim/world`` describes them."""
+    boxes = [Obstacle(box.name, "box", box.x, box.y, box.yaw, box.size) for box in world.boxes]
+    cylinders = [
+        Obstacle(c.name, "cylinder", c.x, c.y, 0.0, (2.0 * c.radius, 2.0 * c.radius, c.height)) for c in world.cylinders
+    ]
+    return boxes + cylinders
 
 
 def builtin_worlds() -> dict[str, Path]:

@@ -21,11 +21,15 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+import jsonschema
 import pytest
 import zenoh
+from mcap.reader import make_reader
 
-from schemas.keys import Keys, Service
+from schemas.codec import decode
+from schemas.keys import Keys, Service, Topic, schema_for_key
 from services.runtime import open_session, session_config
+from services.scene import LOCALIZATION_TOPIC, ODOMETRY_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
 from tests.harness import REPO, free_port, invent_command, pid_alive, run_invent, wait_alive, wait_until
 
 pytestmark = pytest.mark.slow
@@ -207,3 +211,56 @@ def test_no_service_refuses_anything_of_its_own_loop(runs):
 def test_composed_services_are_seen_by_outside_tools(runs):
     seen = {line["service"] for line in map(json.loads, runs["composed"].outside_status.splitlines())}
     assert {"sim", "motor", "odometry", "localization", "drive"} <= seen
+
+
+PER_STEP_TOPICS = (
+    Topic.SIM_WHEEL_ANGLES,
+    Topic.SIM_BODY_POSE,
+    Topic.MOTOR_TORQUE,
+    Topic.MOTOR_WHEEL_ANGLES,
+    Topic.MOTOR_SIM_POSE_GUI,
+    Topic.MOTOR_SIM_POSE_LOCALIZATION,
+    Topic.ODOMETRY_POSE,
+)
+SCENE_SCHEMAS = {
+    TRANSFORMS_TOPIC: "foxglove.FrameTransforms",
+    SCENE_TOPIC: "foxglove.SceneUpdate",
+    ODOMETRY_TOPIC: "foxglove.PoseInFrame",
+    LOCALIZATION_TOPIC: "foxglove.PoseInFrame",
+}
+
+
+@pytest.mark.parametrize("name", ["quiet", "composed"])
+def test_the_recording_has_every_key_valid_against_its_schema_and_the_foxglove_scene(runs, name):
+    run = runs[name]
+    assert run.returncode == 0, run.output[-4000:]
+    with open(run.report_dir / "run.mcap", "rb") as file:
+        reader = make_reader(file)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None, "a complete, indexed file"
+        counts: dict[str, int] = {}
+        schemas: dict[str, tuple[str, str]] = {}
+        for schema, channel, message in reader.iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            schemas[channel.topic] = (schema.name, schema.encoding) if schema else ("", "")
+            message_type = schema_for_key(channel.topic)
+            if message_type is not None:
+                assert channel.message_encoding == "json" and schema.encoding == "jsonschema"
+                jsonschema.validate(json.loads(message.data), json.loads(schema.data))
+                decoded = decode(message_type, message.data)
+                assert message.publish_time == decoded.tm.to_nanoseconds()
+    published = [topic for topic in Topic if topic is not Topic.SIM_BUMP]
+    assert {KEYS.topic(topic) for topic in published} <= set(counts), sorted(counts)
+    for topic in PER_STEP_TOPICS:
+        assert counts[KEYS.topic(topic)] == run.report["steps"] + 1, topic
+    for topic, schema_name in SCENE_SCHEMAS.items():
+        assert schemas[topic] == (schema_name, "protobuf") and counts[topic] > 0, topic
+    assert counts[KEYS.status(Service.MOTOR)] > 0, "the services' status, for the motor state and the sim counters"
+
+
+def test_invent_report_rebuilds_the_report_up_wrote_from_the_recording(runs, tmp_path):
+    run = runs["quiet"]
+    result = run_invent("report", str(run.report_dir / "run.mcap"), "--output-dir", str(tmp_path))
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert json.loads((tmp_path / "report.json").read_text()) == run.report
+    assert (tmp_path / "trajectory.png").stat().st_size > 0 and (tmp_path / "wheel_speeds.png").stat().st_size > 0

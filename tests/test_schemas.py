@@ -173,6 +173,9 @@ def test_every_spec_data_key_has_its_schema():
         "odometry/pose": TimedPosition,
         "localization/pose": TimedPosition,
         "sim/bump": BumpEvent,
+        "sim/world": SimWorld,
+        "drive/path": PlannedPath,
+        "up/run": RunSummary,
     }
     assert {str(topic): schema for topic, schema in TOPIC_TYPES.items()} == spec
     for suffix, schema in spec.items():

@@ -61,17 +61,17 @@ def test_up_straight_follows_the_waypoints_with_the_real_services(tmp_path):
     assert report["path_error"]["max_m"] < 0.05
 
 
-def test_no_report_runs_the_loop_and_writes_nothing(tmp_path):
+def test_no_record_runs_the_loop_and_writes_nothing(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     result = subprocess.run(
-        invent_command("up", "--composed", "--no-report", "--scenario", "square", "--listen", endpoint),
+        invent_command("up", "--composed", "--no-record", "--scenario", "square", "--listen", endpoint),
         cwd=tmp_path,
         capture_output=True,
         text=True,
         timeout=180,
     )
     assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-2000:]
-    assert "no report (--no-report)" in result.stdout
+    assert "no recording, no report (--no-record)" in result.stdout
     assert list(tmp_path.iterdir()) == [], "no runs/ directory, no report, no plots"
     final_sim_time = float(re.findall(r"sim +([\d.]+) s \|", result.stdout)[-1])
     assert final_sim_time > 20.0, "the square scenario ran to its end"

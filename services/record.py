@@ -1,0 +1,204 @@
+"""``invent record``: every sample of some keys into an MCAP file (services/recording.py says what
+the file holds), with the Foxglove scene of the robot beside them; and the loop shared with
+``invent view``, which shows the same channels live.
+
+The samples wait in zenoh FIFO channels (no Python runs in zenoh's threads); the loop takes
+them, stamps each with the time it took it (``log_time``), and hands it on. In ``invent up
+--composed`` the observer is in the loop's own process and only buffers samples while the loop
+runs (a recorder process would make that session encode and send every sample: the loop ran
+at half its speed); the samples then carry the router-session's publication timestamps. Every
+:data:`STATUS_PERIOD_S` it asks the robot's services for their ``status`` (a read-only query)
+and records each reply on its key: the motor's state and the sim's late/missing torque
+counters then plot beside the data.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from schemas.codec import BadInput, decode
+from schemas.keys import Keys, Topic, schema_for_key
+from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary
+from services.config import Config
+from services.recording import McapWriter
+from services.scene import WHEEL_SPEEDS_SCHEMA, WHEEL_SPEEDS_TOPIC, Scene
+
+log = logging.getLogger("invent.record")
+
+SAMPLE_CAPACITY = 1 << 20
+"""Samples a subscription holds until the loop takes them: seconds of the loop (a full channel
+would make zenoh wait, and with it the loop's publishers)."""
+IDLE_POLL_S = 0.001
+STATUS_PERIOD_S = 0.5
+RUN_END_TIMEOUT_S = 10.0
+"""``--until-run-ends``: how long to wait, after the summary, for the data up to its time."""
+
+
+@dataclass(frozen=True)
+class Sink:
+    """Where the loop hands what it takes: each zenoh sample, and each Foxglove message of the scene."""
+
+    sample: Callable[[str, bytes, int], None]
+    """(key, payload, log time ns)"""
+    shown: Callable[[str, Any, int, int], None]
+    """(topic, Foxglove message or JSON value, stamp ns, log time ns)"""
+
+
+class Observer:
+    """Takes every sample of ``key_exprs`` and every status reply of ``keys.robot``'s services, and
+    builds the Foxglove scene from the robot's own keys."""
+
+    def __init__(
+        self, session: zenoh.Session, keys: Keys, key_exprs: Sequence[str], config: Config, sink: Sink
+    ) -> None:
+        self._session = session
+        self._keys = keys
+        self._sink = sink
+        self._scene = Scene(config.robot, config.sim)
+        self._topics = {keys.topic(topic): topic for topic in Topic}
+        self._subscribers = [
+            session.declare_subscriber(expr, zenoh.handlers.FifoChannel(SAMPLE_CAPACITY)) for expr in key_exprs
+        ]
+        self._status_key = keys.every_status
+        self._status_replies: Any = None
+        self._next_status = 0.0
+        self.latest_ns: dict[str, int] = {}
+        """The newest stamp taken on each of the robot's data keys."""
+        self.run_summary: RunSummary | None = None
+        self._buffered: list[zenoh.Sample] = []
+        self._ask_latched()
+
+    def _ask_latched(self) -> None:
+        """What a latched key's publisher last published (the world, the path): a recorder or a view
+        started mid-run has them at once."""
+        for topic in (Topic.SIM_WORLD, Topic.DRIVE_PATH):
+            for reply in self._session.get(self._keys.topic(topic), timeout=1.0):
+                if reply.ok is not None:
+                    self._take(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.time_ns())
+
+    def spin_once(self) -> bool:
+        """Take what waits (and what :meth:`buffer` kept); False if nothing did."""
+        self.buffer()
+        taken = bool(self._buffered)
+        for sample in self._buffered:
+            self._take(str(sample.key_expr), sample.payload.to_bytes(), _log_time(sample))
+        self._buffered.clear()
+        self._poll_status()
+        return taken
+
+    def buffer(self) -> None:
+        """Keep the samples that wait, untouched, for the next :meth:`spin_once`: for a loop in this
+        very process (``invent up --composed``), with which this then shares the interpreter as
+        little as it can while the loop runs."""
+        for subscriber in self._subscribers:
+            while (sample := subscriber.try_recv()) is not None:
+                self._buffered.append(sample)
+
+    def _poll_status(self) -> None:
+        if self._status_replies is not None:
+            try:
+                while (reply := self._status_replies.try_recv()) is not None:
+                    if reply.ok is not None:
+                        self._sink.sample(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.time_ns())
+            except zenoh.ZError:  # every reply taken, and the query is over
+                self._status_replies = None
+        now = time.monotonic()
+        if now >= self._next_status:
+            self._next_status = now + STATUS_PERIOD_S
+            self._status_replies = self._session.get(self._status_key, timeout=STATUS_PERIOD_S)
+
+    def _take(self, key: str, payload: bytes, log_time_ns: int) -> None:
+        self._sink.sample(key, payload, log_time_ns)
+        topic = self._topics.get(key)
+        if topic is None:
+            return
+        message_type = schema_for_key(key)
+        try:
+            message = decode(message_type, payload)  # type: ignore[arg-type]
+        except BadInput:
+            return
+        stamp_ns = message.tm.to_nanoseconds()
+        self.latest_ns[key] = max(stamp_ns, self.latest_ns.get(key, 0))
+        if topic is Topic.RUN_SUMMARY:
+            self.run_summary = message
+        for shown_topic, shown in self._scene.add(topic, message):
+            self._sink.shown(shown_topic, shown, stamp_ns, log_time_ns)
+
+    def reached(self, until_ns: int) -> bool:
+        """Whether the ground truth and the odometry taken reach ``until_ns`` of simulation time
+        (what the loop published up to then: the two series a report compares)."""
+        return all(
+            self.latest_ns.get(key, -1) >= until_ns for key in (self._keys.sim_body_pose, self._keys.odometry_pose)
+        )
+
+    def close(self) -> None:
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+
+
+def _log_time(sample: zenoh.Sample) -> int:
+    """When the sample was taken, in Unix ns: its timestamp if a router (the session of ``up
+    --composed``) stamped it at publication in this process, else now."""
+    stamp = sample.timestamp
+    if stamp is None:
+        return time.time_ns()
+    return stamp.get_time_as_ntp64().as_nanos()
+
+
+def mcap_sink(writer: McapWriter) -> Sink:
+    def shown(topic: str, message: Any, stamp_ns: int, log_time_ns: int) -> None:
+        if topic == WHEEL_SPEEDS_TOPIC:
+            writer.write_json(topic, message, WHEEL_SPEEDS_SCHEMA, stamp_ns, log_time_ns)
+        else:
+            writer.write_foxglove(topic, message, stamp_ns, log_time_ns)
+
+    return Sink(writer.write_sample, shown)
+
+
+def run_record(
+    session: zenoh.Session,
+    keys: Keys,
+    key_exprs: Sequence[str],
+    output: Path,
+    config: Config,
+    stop: threading.Event,
+    duration_s: float | None = None,
+    until_run_ends: bool = False,
+) -> int:
+    """Record until ``stop``, ``duration_s`` of wall time, or (``until_run_ends``) the run's summary
+    and the data up to its time; the file is closed properly in every case."""
+    writer = McapWriter(output)
+    observer = Observer(session, keys, key_exprs or [keys.everything], config, mcap_sink(writer))
+    log.info("recording %s into %s", ", ".join(key_exprs or [keys.everything]), output)
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    run_end_deadline: float | None = None
+    try:
+        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            if not observer.spin_once():
+                time.sleep(IDLE_POLL_S)
+            summary = observer.run_summary
+            if until_run_ends and summary is not None:
+                run_end_deadline = run_end_deadline or time.monotonic() + RUN_END_TIMEOUT_S
+                if observer.reached(summary.tm.to_nanoseconds()):
+                    break
+                if time.monotonic() > run_end_deadline:
+                    log.warning(
+                        "the data did not reach t = %.3f s within %g s of the run's end; closing the file",
+                        summary.tm.to_nanoseconds() / NANOSECONDS_PER_SECOND,
+                        RUN_END_TIMEOUT_S,
+                    )
+                    break
+        observer.spin_once()
+    finally:
+        observer.close()
+        writer.close()
+    log.info("recorded %d messages into %s", writer.messages, output)
+    return 0

@@ -1,0 +1,320 @@
+"""What Foxglove shows of the loop: well-known Foxglove messages built from the loop's samples.
+
+Pure (no zenoh): :class:`Scene` takes each decoded sample and returns the messages to show,
+for the live view (``invent view``) and the recording (``run.mcap``) alike, so a recording
+opened in Foxglove shows the scene the live view showed:
+
+- ``/tf`` (``foxglove.FrameTransforms``): ``world`` → ``base_link``, the ground truth;
+- ``/odometry/pose``, ``/localization/pose`` (``foxglove.PoseInFrame`` in ``world``);
+- ``/scene`` (``foxglove.SceneUpdate``): the robot (body, wheels, casters) on ``base_link``, the
+  world's obstacles, the planned path, and the trails of ground truth and odometry;
+- ``/plot/wheel_speeds`` (JSON): commanded and measured wheel speeds, rad/s.
+
+Poses and transforms are shown at most every :data:`POSE_PERIOD_NS` of simulation time, the
+scene every :data:`SCENE_PERIOD_NS` (the loop publishes at its step rate, kHz, which no viewer
+needs); a trail keeps a point every :data:`TRAIL_SPACING_M`, at most :data:`TRAIL_POINTS`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+from foxglove.messages import (
+    Color,
+    CubePrimitive,
+    CylinderPrimitive,
+    FrameTransform,
+    FrameTransforms,
+    LinePrimitive,
+    Point3,
+    Pose,
+    PoseInFrame,
+    Quaternion,
+    SceneEntity,
+    SceneUpdate,
+    SpherePrimitive,
+    Timestamp,
+    Vector3,
+)
+
+from schemas.keys import Topic
+from schemas.messages import (
+    NANOSECONDS_PER_SECOND,
+    PlannedPath,
+    SimWorld,
+    Time,
+    TimedDoubleSeq,
+    TimedPosition,
+    TimedVelocity,
+)
+from services.config import RobotConfig, SimConfig
+from services.report import pose_from_body_pose
+from sim_bridge.geometry import CASTER_RADIUS_FRACTION, CASTER_REACH_FRACTION
+
+WORLD_FRAME = "world"
+ROBOT_FRAME = "base_link"
+TRANSFORMS_TOPIC = "/tf"
+ODOMETRY_TOPIC = "/odometry/pose"
+LOCALIZATION_TOPIC = "/localization/pose"
+SCENE_TOPIC = "/scene"
+WHEEL_SPEEDS_TOPIC = "/plot/wheel_speeds"
+
+POSE_PERIOD_NS = 20_000_000
+SCENE_PERIOD_NS = 100_000_000
+TRAIL_SPACING_M = 0.01
+TRAIL_POINTS = 20_000
+
+WHEEL_SPEEDS_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "title": "invent.WheelSpeeds",
+    "description": "Commanded (from drive/target_velocity) and measured (from motor/wheel_angles) wheel speeds, rad/s",
+    "properties": {
+        name: {"type": "object", "properties": {"left": {"type": "number"}, "right": {"type": "number"}}}
+        for name in ("commanded", "measured")
+    },
+}
+
+_BODY = Color(r=0.85, g=0.85, b=0.9, a=0.8)
+_WHEEL = Color(r=0.15, g=0.15, b=0.15, a=1.0)
+_OBSTACLE = Color(r=0.8, g=0.4, b=0.2, a=0.9)
+_PATH = Color(r=0.2, g=0.5, b=1.0, a=1.0)
+_TRUTH = Color(r=0.1, g=0.7, b=0.2, a=1.0)
+_ODOMETRY = Color(r=0.9, g=0.2, b=0.2, a=1.0)
+_UPRIGHT = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+_WHEEL_AXIS_ALONG_Y = Quaternion(x=math.sqrt(0.5), y=0.0, z=0.0, w=math.sqrt(0.5))
+
+
+def timestamp(tm: Time) -> Timestamp:
+    return Timestamp(tm.sec, tm.nsec)
+
+
+def yaw_quaternion(yaw: float) -> Quaternion:
+    return Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2.0), w=math.cos(yaw / 2.0))
+
+
+def rotation_quaternion(m: list[float]) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a row-major 3x3 rotation matrix (Shepperd's method: stable for any rotation)."""
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
+    trace = m00 + m11 + m22
+    if trace > 0.0:
+        s = 2.0 * math.sqrt(trace + 1.0)
+        return (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, 0.25 * s
+    if m00 > m11 and m00 > m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        return 0.25 * s, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s
+    if m11 > m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        return (m01 + m10) / s, 0.25 * s, (m12 + m21) / s, (m02 - m20) / s
+    s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+    return (m02 + m20) / s, (m12 + m21) / s, 0.25 * s, (m10 - m01) / s
+
+
+def _pose(x: float, y: float, z: float, orientation: Quaternion = _UPRIGHT) -> Pose:
+    return Pose(position=Vector3(x=x, y=y, z=z), orientation=orientation)
+
+
+class _Trail:
+    """A polyline that keeps a point every :data:`TRAIL_SPACING_M`, the newest :data:`TRAIL_POINTS`."""
+
+    def __init__(self) -> None:
+        self.points: deque[tuple[float, float]] = deque(maxlen=TRAIL_POINTS)
+
+    def add(self, x: float, y: float) -> None:
+        if not self.points or math.dist(self.points[-1], (x, y)) >= TRAIL_SPACING_M:
+            self.points.append((x, y))
+
+    def line(self, color: Color) -> LinePrimitive:
+        return LinePrimitive(
+            pose=_pose(0.0, 0.0, 0.0),
+            thickness=0.02,
+            points=[Point3(x=x, y=y, z=0.01) for x, y in self.points],
+            color=color,
+        )
+
+
+class Scene:
+    """The Foxglove messages of one robot's loop; see the module docstring."""
+
+    def __init__(self, robot: RobotConfig, sim: SimConfig) -> None:
+        self._robot = robot
+        self._robot_entity = _robot_entity(robot, sim)
+        self._obstacles: list[CubePrimitive | CylinderPrimitive] = []
+        self._cylinders: list[CylinderPrimitive] = []
+        self._cubes: list[CubePrimitive] = []
+        self._path: list[tuple[float, float]] = []
+        self._truth = _Trail()
+        self._odometry = _Trail()
+        self._next_transform_ns = 0
+        self._next_odometry_ns = 0
+        self._next_localization_ns = 0
+        self._next_scene_ns = 0
+        self._scene_changed = True
+        self._commanded = (0.0, 0.0)
+        self._last_angles: tuple[int, float, float] | None = None
+
+    def add(self, topic: Topic, message: Any) -> list[tuple[str, Any]]:
+        """The (topic, message) pairs to show for one decoded sample of ``topic`` (often none)."""
+        if topic is Topic.SIM_BODY_POSE:
+            return self._body_pose(message)
+        if topic is Topic.ODOMETRY_POSE:
+            return self._odometry_pose(message)
+        if topic is Topic.LOCALIZATION_POSE:
+            return self._localization_pose(message)
+        if topic is Topic.MOTOR_WHEEL_ANGLES:
+            return self._wheel_angles(message)
+        if topic is Topic.DRIVE_TARGET_VELOCITY:
+            self._target(message)
+        elif topic is Topic.SIM_WORLD:
+            self._world(message)
+        elif topic is Topic.DRIVE_PATH:
+            self._path = list(message.points)
+            self._scene_changed = True
+        return []
+
+    def _body_pose(self, message: TimedDoubleSeq) -> list[tuple[str, Any]]:
+        stamp_ns = message.tm.to_nanoseconds()
+        pose = pose_from_body_pose(message.data)
+        self._truth.add(pose.x, pose.y)
+        shown: list[tuple[str, Any]] = []
+        if stamp_ns >= self._next_transform_ns or stamp_ns < self._next_transform_ns - POSE_PERIOD_NS:
+            self._next_transform_ns = stamp_ns + POSE_PERIOD_NS
+            x, y, z = message.data[:3]
+            qx, qy, qz, qw = rotation_quaternion(message.data[3:12])
+            transform = FrameTransform(
+                timestamp=timestamp(message.tm),
+                parent_frame_id=WORLD_FRAME,
+                child_frame_id=ROBOT_FRAME,
+                translation=Vector3(x=x, y=y, z=z),
+                rotation=Quaternion(x=qx, y=qy, z=qz, w=qw),
+            )
+            shown.append((TRANSFORMS_TOPIC, FrameTransforms(transforms=[transform])))
+        if stamp_ns >= self._next_scene_ns or stamp_ns < self._next_scene_ns - SCENE_PERIOD_NS or self._scene_changed:
+            self._next_scene_ns = stamp_ns + SCENE_PERIOD_NS
+            self._scene_changed = False
+            shown.append((SCENE_TOPIC, self._scene_update(message.tm)))
+        return shown
+
+    def _odometry_pose(self, message: TimedPosition) -> list[tuple[str, Any]]:
+        self._odometry.add(message.x, message.y)
+        stamp_ns = message.tm.to_nanoseconds()
+        if self._next_odometry_ns - POSE_PERIOD_NS <= stamp_ns < self._next_odometry_ns:
+            return []
+        self._next_odometry_ns = stamp_ns + POSE_PERIOD_NS
+        return [(ODOMETRY_TOPIC, _pose_in_world(message))]
+
+    def _localization_pose(self, message: TimedPosition) -> list[tuple[str, Any]]:
+        return [(LOCALIZATION_TOPIC, _pose_in_world(message))]
+
+    def _target(self, message: TimedVelocity) -> None:
+        robot, b = self._robot, self._robot.half_axle
+        self._commanded = (
+            (message.vx - b * message.w) / robot.radius_of_left_wheel,
+            (message.vx + b * message.w) / robot.radius_of_right_wheel,
+        )
+
+    def _wheel_angles(self, message: TimedDoubleSeq) -> list[tuple[str, Any]]:
+        robot = self._robot
+        stamp_ns = message.tm.to_nanoseconds()
+        left, right = message.data[robot.left_wheel_id], message.data[robot.right_wheel_id]
+        previous, self._last_angles = self._last_angles, (stamp_ns, left, right)
+        if previous is None or stamp_ns <= previous[0]:
+            return []
+        dt = (stamp_ns - previous[0]) / NANOSECONDS_PER_SECOND
+        speeds = {
+            "commanded": {"left": self._commanded[0], "right": self._commanded[1]},
+            "measured": {"left": (left - previous[1]) / dt, "right": (right - previous[2]) / dt},
+        }
+        return [(WHEEL_SPEEDS_TOPIC, speeds)]
+
+    def _world(self, message: SimWorld) -> None:
+        self._cubes = [
+            CubePrimitive(
+                pose=_pose(o.x, o.y, o.size[2] / 2.0, yaw_quaternion(o.yaw)),
+                size=Vector3(x=o.size[0], y=o.size[1], z=o.size[2]),
+                color=_OBSTACLE,
+            )
+            for o in message.obstacles
+            if o.shape == "box"
+        ]
+        self._cylinders = [
+            CylinderPrimitive(
+                pose=_pose(o.x, o.y, o.size[2] / 2.0),
+                size=Vector3(x=o.size[0], y=o.size[1], z=o.size[2]),
+                bottom_scale=1.0,
+                top_scale=1.0,
+                color=_OBSTACLE,
+            )
+            for o in message.obstacles
+            if o.shape == "cylinder"
+        ]
+        self._scene_changed = True
+
+    def _scene_update(self, tm: Time) -> SceneUpdate:
+        stamp = timestamp(tm)
+        path = [Point3(x=x, y=y, z=0.005) for x, y in self._path]
+        entities = [
+            SceneEntity(timestamp=stamp, frame_id=ROBOT_FRAME, id="robot", frame_locked=True, **self._robot_entity),
+            SceneEntity(
+                timestamp=stamp, frame_id=WORLD_FRAME, id="obstacles", cubes=self._cubes, cylinders=self._cylinders
+            ),
+            SceneEntity(
+                timestamp=stamp,
+                frame_id=WORLD_FRAME,
+                id="planned_path",
+                lines=[LinePrimitive(pose=_pose(0.0, 0.0, 0.0), thickness=0.01, points=path, color=_PATH)]
+                if path
+                else [],
+            ),
+            SceneEntity(
+                timestamp=stamp,
+                frame_id=WORLD_FRAME,
+                id="trails",
+                lines=[self._truth.line(_TRUTH), self._odometry.line(_ODOMETRY)],
+            ),
+        ]
+        return SceneUpdate(entities=entities)
+
+
+def _pose_in_world(message: TimedPosition) -> PoseInFrame:
+    return PoseInFrame(
+        timestamp=timestamp(message.tm),
+        frame_id=WORLD_FRAME,
+        pose=_pose(message.x, message.y, 0.0, yaw_quaternion(message.theta)),
+    )
+
+
+def _robot_entity(robot: RobotConfig, sim: SimConfig) -> dict[str, Any]:
+    """The robot's primitives in ``base_link`` (the axle centre, at axle height), as the sim builds it."""
+    axle_height = (robot.radius_of_left_wheel + robot.radius_of_right_wheel) / 2.0
+    body_diameter = 2.0 * robot.radius_of_body_area
+    caster_radius = CASTER_RADIUS_FRACTION * min(robot.radius_of_left_wheel, robot.radius_of_right_wheel)
+    caster_x = CASTER_REACH_FRACTION * robot.radius_of_body_area
+    caster_z = caster_radius - axle_height
+    wheels = [
+        CylinderPrimitive(
+            pose=_pose(0.0, side * robot.half_axle, 0.0, _WHEEL_AXIS_ALONG_Y),
+            size=Vector3(x=2.0 * radius, y=2.0 * radius, z=sim.wheel_width),
+            bottom_scale=1.0,
+            top_scale=1.0,
+            color=_WHEEL,
+        )
+        for side, radius in ((1.0, robot.radius_of_left_wheel), (-1.0, robot.radius_of_right_wheel))
+    ]
+    body = CylinderPrimitive(
+        pose=_pose(0.0, 0.0, sim.body_height / 2.0),
+        size=Vector3(x=body_diameter, y=body_diameter, z=sim.body_height),
+        bottom_scale=1.0,
+        top_scale=1.0,
+        color=_BODY,
+    )
+    casters = [
+        SpherePrimitive(
+            pose=_pose(x, 0.0, caster_z),
+            size=Vector3(x=2 * caster_radius, y=2 * caster_radius, z=2 * caster_radius),
+            color=_WHEEL,
+        )
+        for x in (caster_x, -caster_x)
+    ]
+    return {"cylinders": [body, *wheels], "spheres": casters}
