@@ -133,6 +133,9 @@ def invent_command(*args: str) -> list[str]:
     return [sys.executable, "-m", "services.cli", *args]
 
 
+ABORT_TIMEOUT_S = 5.0
+
+
 class InventProcess:
     """An ``invent`` subcommand in its own process, stopped with SIGINT at the end.
 
@@ -149,7 +152,7 @@ class InventProcess:
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
-            env={**os.environ, **(env or {})},
+            env={**os.environ, "PYTHONFAULTHANDLER": "1", **(env or {})},
         )
         self._drained: tuple[list[str], list[str]] | None = None
         self._pumps: list[threading.Thread] = []
@@ -175,10 +178,19 @@ class InventProcess:
         try:
             out, err = self._communicate(timeout)
         except subprocess.TimeoutExpired:
-            self.process.kill()
-            out, err = self._communicate()
+            out, err = self._abort()
             raise AssertionError(f"invent {' '.join(self.args)} did not stop on SIGINT; stderr:\n{err}") from None
         return self.process.returncode, out, err
+
+    def _abort(self) -> tuple[str, str]:
+        """SIGABRT: with PYTHONFAULTHANDLER set, the process prints every thread's Python stack on
+        stderr before it dies, so a hang says where it hangs."""
+        self.process.send_signal(signal.SIGABRT)
+        try:
+            return self._communicate(ABORT_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            return self._communicate()
 
     def __enter__(self) -> InventProcess:
         return self
