@@ -105,6 +105,7 @@ METHOD_ARGUMENTS: dict[Method, type[msgspec.Struct]] = {
 }
 
 _STATUS = "status"
+VIEW = "view"
 _ALIVE = "alive"
 _TICKS = "ticks"
 
@@ -141,6 +142,11 @@ class Keys:
 
     def status(self, service: Service) -> str:
         return f"{self.prefix}/{service}/{_STATUS}"
+
+    @property
+    def view_status(self) -> str:
+        """The status of ``invent view`` (a tool, not a service of the loop)."""
+        return f"{self.prefix}/{VIEW}/{_STATUS}"
 
     @property
     def every_status(self) -> str:
@@ -211,12 +217,15 @@ def parse_ticks_key(key: str) -> tuple[Service, float] | None:
     return Service(parts[2]), rate_hz
 
 
+def parse_data_key(key: str) -> tuple[str, Topic] | None:
+    """(robot, topic) of a concrete data key, or None when ``key`` is not one."""
+    parts = key.split("/", 2)
+    if len(parts) != 3 or parts[0] != ROOT or parts[2] not in Topic._value2member_map_:
+        return None
+    return parts[1], Topic(parts[2])
+
+
 def schema_for_key(key: str) -> type[msgspec.Struct] | None:
     """The message type a concrete data key carries, or None when the key is not a data key."""
-    parts = key.split("/", 2)
-    if len(parts) != 3 or parts[0] != ROOT:
-        return None
-    try:
-        return TOPIC_TYPES[Topic(parts[2])]
-    except ValueError:
-        return None
+    parsed = parse_data_key(key)
+    return None if parsed is None else TOPIC_TYPES[parsed[1]]

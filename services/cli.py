@@ -13,9 +13,9 @@ import msgspec
 import zenoh
 
 from schemas.keys import DEFAULT_ROBOT, Keys
-from services import record, tools, up
+from services import record, replay, tools, up, view
 from services.config import ConfigError
-from services.recording import write_run_report
+from services.recording import read_messages, replay_schedule, write_run_report
 from services.report import summary
 from services.runtime import (
     DEFAULT_ENDPOINT,
@@ -27,7 +27,15 @@ from services.runtime import (
     session_config,
     stop_on_signals,
 )
-from services.service import ServiceCommand, config_from_args, positive_seconds, run_service
+from services.service import (
+    ServiceCommand,
+    config_from_args,
+    non_negative_float,
+    port_number,
+    positive_seconds,
+    robot_name,
+    run_service,
+)
 
 EXIT_CONFIG = 2
 EXIT_NO_SESSION = 1
@@ -225,6 +233,35 @@ def build_parser() -> argparse.ArgumentParser:
     )
     record.set_defaults(handler=_record)
 
+    view_parser = commands.add_parser(
+        "view",
+        parents=[connection, service],
+        help="show the running robot live in Foxglove (a Foxglove WebSocket server)",
+        description="Serve the robot's loop live to Foxglove over a Foxglove WebSocket server: every key of "
+        "invent/<robot>/** as its own JSON channel (with its message type's JSON schema), the services' status "
+        "every 0.5 s (the motor's state, the sim's torque counters), and the robot's Foxglove scene: /tf "
+        "(world -> base_link, the ground truth), /odometry/pose and /localization/pose, /scene (the robot, the "
+        "world's obstacles, the planned path, the trails) and /plot/wheel_speeds, the channels a recording holds. "
+        "Open it in Foxglove: Open connection -> Foxglove WebSocket -> ws://HOST:PORT (the URL it prints), then "
+        "Layouts -> Import from file -> docs/foxglove/layout.json for a 3D view, wheel speeds, torques and the "
+        "motor's state. Runs until Ctrl-C or SIGTERM.",
+    )
+    view_parser.add_argument(
+        "--port",
+        type=port_number,
+        default=view.DEFAULT_PORT,
+        metavar="PORT",
+        help=f"TCP port to serve on (default {view.DEFAULT_PORT}; 0: any free port, which it prints)",
+    )
+    view_parser.add_argument(
+        "--host",
+        default=view.DEFAULT_HOST,
+        metavar="ADDR",
+        help=f"address to serve on (default {view.DEFAULT_HOST}, this machine only; 0.0.0.0 for every "
+        "interface, e.g. in a container)",
+    )
+    view_parser.set_defaults(handler=_view)
+
     report = commands.add_parser(
         "report",
         parents=[service],
@@ -236,6 +273,33 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("recording", metavar="FILE.mcap", help="the recording, e.g. runs/<timestamp>/run.mcap")
     report.add_argument("--output-dir", metavar="DIR", help="where to write (default: beside the recording)")
     report.set_defaults(handler=_report, log_level="info")
+
+    replay_parser = commands.add_parser(
+        "replay",
+        parents=[connection],
+        help="publish a recording's samples again, e.g. into a changed odometry",
+        description="Publish the samples of a recording (`invent record`, or the run.mcap of `invent up`) again, "
+        "in simulation-time order, so a changed odometry, localization or drive runs on recorded inputs. "
+        "--rate X paces them at X times the recorded simulation time; --rate 0 sends them as fast as the "
+        "services that take every sample of those keys take them (read from their status), losing none. "
+        "Exits 0 once those services have taken every sample, 1 if one stops taking them.",
+    )
+    replay_parser.add_argument("recording", metavar="FILE.mcap", help="the recording")
+    replay_parser.add_argument(
+        "--keys",
+        metavar="SUFFIX",
+        nargs="+",
+        default=[],
+        help="keys relative to the robot, e.g. motor/wheel_angles localization/pose (default: every data key "
+        "recorded but up/run)",
+    )
+    replay_parser.add_argument(
+        "--rate", type=non_negative_float, default=1.0, metavar="X", help="time scale (default 1; 0: consumers' pace)"
+    )
+    replay_parser.add_argument(
+        "--robot", type=robot_name, metavar="NAME", help="publish under invent/NAME/ (default: the robot the recording is of)"
+    )
+    replay_parser.set_defaults(handler=_replay)
 
     up_parser = commands.add_parser(
         "up",
@@ -314,6 +378,13 @@ def _record(args: argparse.Namespace) -> int:
         )
 
 
+def _view(args: argparse.Namespace) -> int:
+    config = config_from_args(None, args)
+    stop = stop_on_signals()
+    with open_session(_session_config(args)) as session:
+        return view.run_view(session, Keys(config.robot.name), config, stop, host=args.host, port=args.port)
+
+
 def _report(args: argparse.Namespace) -> int:
     path = Path(args.recording)
     if not path.is_file():
@@ -324,6 +395,20 @@ def _report(args: argparse.Namespace) -> int:
     print(summary(report))
     print(f"report: {report_path}; plots: {', '.join(str(p) for p in plots)}")
     return 0
+
+
+def _replay(args: argparse.Namespace) -> int:
+    path = Path(args.recording)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such file")
+    read = read_messages(path)
+    if not read.complete:
+        print(f"{path} was cut short: replaying its whole chunks", file=sys.stderr)
+    recorded_robot, schedule = replay_schedule(read.messages, replay.parse_topics(args.keys))
+    keys = Keys(args.robot or recorded_robot)
+    stop = stop_on_signals()
+    with open_session(_session_config(args)) as session:
+        return replay.run_replay(session, schedule, keys, args.rate, stop)
 
 
 def _config(args: argparse.Namespace) -> int:

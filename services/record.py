@@ -20,15 +20,16 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import zenoh
 
 from schemas.codec import BadInput, decode
-from schemas.keys import Keys, Topic, schema_for_key
+from schemas.keys import TOPIC_TYPES, Keys, Topic
 from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary
 from services.config import Config
-from services.recording import McapWriter
+from services.recording import LATEST_STAMP_NS, McapWriter
+from services.runtime import RateLimitedLog
 from services.scene import WHEEL_SPEEDS_SCHEMA, WHEEL_SPEEDS_TOPIC, Scene
 
 log = logging.getLogger("invent.record")
@@ -46,8 +47,8 @@ RUN_END_TIMEOUT_S = 10.0
 class Sink:
     """Where the loop hands what it takes: each zenoh sample, and each Foxglove message of the scene."""
 
-    sample: Callable[[str, bytes, int], None]
-    """(key, payload, log time ns)"""
+    sample: Callable[[str, bytes, int, int | None], None]
+    """(key, payload, log time ns, the message's stamp in ns if the observer decoded it)"""
     shown: Callable[[str, Any, int, int], None]
     """(topic, Foxglove message or JSON value, stamp ns, log time ns)"""
 
@@ -63,6 +64,8 @@ class Observer:
         self._keys = keys
         self._sink = sink
         self._scene = Scene(config.robot, config.sim)
+        self._horizon_ns = round(config.input.stamp_horizon * NANOSECONDS_PER_SECOND)
+        self._not_shown = RateLimitedLog(log)
         self._topics = {keys.topic(topic): topic for topic in Topic}
         self._subscribers = [
             session.declare_subscriber(expr, zenoh.handlers.FifoChannel(SAMPLE_CAPACITY)) for expr in key_exprs
@@ -71,9 +74,12 @@ class Observer:
         self._status_replies: Any = None
         self._next_status = 0.0
         self.latest_ns: dict[str, int] = {}
-        """The newest stamp taken on each of the robot's data keys."""
+        """The newest stamp taken on each of the robot's data keys, each at most the stamp horizon
+        (``input.stamp_horizon``) past the one before, as the services take them: a forged
+        far-future stamp does not end a recording ``--until-run-ends``."""
         self.run_summary: RunSummary | None = None
-        self._buffered: list[zenoh.Sample] = []
+        self._buffered: list[tuple[zenoh.Sample, int]] = []
+        """Samples taken from the subscriptions, each with the time it was taken (Unix ns)."""
         self._ask_latched()
 
     def _ask_latched(self) -> None:
@@ -88,26 +94,27 @@ class Observer:
         """Take what waits (and what :meth:`buffer` kept); False if nothing did."""
         self.buffer()
         taken = bool(self._buffered)
-        for sample in self._buffered:
-            self._take(str(sample.key_expr), sample.payload.to_bytes(), _log_time(sample))
+        for sample, taken_ns in self._buffered:
+            self._take(str(sample.key_expr), sample.payload.to_bytes(), _log_time(sample, taken_ns))
         self._buffered.clear()
-        self._poll_status()
         return taken
 
     def buffer(self) -> None:
         """Keep the samples that wait, untouched, for the next :meth:`spin_once`: for a loop in this
         very process (``invent up --composed``), with which this then shares the interpreter as
-        little as it can while the loop runs."""
+        little as it can while the loop runs (the status replies, a few every 0.5 s, go through)."""
+        now_ns = time.time_ns()
         for subscriber in self._subscribers:
             while (sample := subscriber.try_recv()) is not None:
-                self._buffered.append(sample)
+                self._buffered.append((sample, now_ns))
+        self._poll_status()
 
     def _poll_status(self) -> None:
         if self._status_replies is not None:
             try:
                 while (reply := self._status_replies.try_recv()) is not None:
                     if reply.ok is not None:
-                        self._sink.sample(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.time_ns())
+                        self._sink.sample(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.time_ns(), None)
             except zenoh.ZError:  # every reply taken, and the query is over
                 self._status_replies = None
         now = time.monotonic()
@@ -116,20 +123,27 @@ class Observer:
             self._status_replies = self._session.get(self._status_key, timeout=STATUS_PERIOD_S)
 
     def _take(self, key: str, payload: bytes, log_time_ns: int) -> None:
-        self._sink.sample(key, payload, log_time_ns)
         topic = self._topics.get(key)
-        if topic is None:
-            return
-        message_type = schema_for_key(key)
         try:
-            message = decode(message_type, payload)  # type: ignore[arg-type]
+            message = None if topic is None else decode(TOPIC_TYPES[topic], payload)
         except BadInput:
+            message = None
+        stamp_ns = None if message is None else message.tm.to_nanoseconds()
+        if message is None or stamp_ns > LATEST_STAMP_NS:
+            self._sink.sample(key, payload, log_time_ns, None)
             return
-        stamp_ns = message.tm.to_nanoseconds()
-        self.latest_ns[key] = max(stamp_ns, self.latest_ns.get(key, 0))
+        self._sink.sample(key, payload, log_time_ns, stamp_ns)
+        latest_ns = self.latest_ns.get(key)
+        if latest_ns is None or latest_ns < stamp_ns <= latest_ns + self._horizon_ns:
+            self.latest_ns[key] = stamp_ns
         if topic is Topic.RUN_SUMMARY:
             self.run_summary = message
-        for shown_topic, shown in self._scene.add(topic, message):
+        try:
+            shown_messages = self._scene.add(topic, message)
+        except ValueError as error:  # well-formed but wrong (BadInput): recorded as it is, not shown
+            self._not_shown(key, logging.WARNING, "not shown in the scene: %s: %s", key, error)
+            return
+        for shown_topic, shown in shown_messages:
             self._sink.shown(shown_topic, shown, stamp_ns, log_time_ns)
 
     def reached(self, until_ns: int) -> bool:
@@ -144,16 +158,31 @@ class Observer:
             subscriber.undeclare()
 
 
-def _log_time(sample: zenoh.Sample) -> int:
-    """When the sample was taken, in Unix ns: its timestamp if a router (the session of ``up
-    --composed``) stamped it at publication in this process, else now."""
+def _log_time(sample: zenoh.Sample, taken_ns: int) -> int:
+    """When the sample was published, in Unix ns, if a router stamped it (the session of ``up
+    --composed`` is the router: its own samples are stamped as they are published), else when the
+    observer took it from its subscription (``taken_ns``)."""
     stamp = sample.timestamp
     if stamp is None:
-        return time.time_ns()
+        return taken_ns
     return stamp.get_time_as_ntp64().as_nanos()
 
 
-def mcap_sink(writer: McapWriter) -> Sink:
+class SceneWriter(Protocol):
+    """What a :class:`Sink` writes into, one channel per key or topic: the MCAP file
+    (:class:`McapWriter`) or the live view's channels (``services.view.FoxgloveChannels``)."""
+
+    def write_sample(self, key: str, payload: bytes, log_time_ns: int, publish_time_ns: int | None) -> None: ...
+
+    def write_json(self, topic: str, value: Any, schema: dict[str, Any], stamp_ns: int, log_time_ns: int) -> None: ...
+
+    def write_foxglove(self, topic: str, message: Any, stamp_ns: int, log_time_ns: int) -> None: ...
+
+
+def writer_sink(writer: SceneWriter) -> Sink:
+    """Each sample on its key's channel; the scene's wheel speeds as JSON of
+    :data:`WHEEL_SPEEDS_SCHEMA`, its other messages as Foxglove's well-known messages."""
+
     def shown(topic: str, message: Any, stamp_ns: int, log_time_ns: int) -> None:
         if topic == WHEEL_SPEEDS_TOPIC:
             writer.write_json(topic, message, WHEEL_SPEEDS_SCHEMA, stamp_ns, log_time_ns)
@@ -176,7 +205,7 @@ def run_record(
     """Record until ``stop``, ``duration_s`` of wall time, or (``until_run_ends``) the run's summary
     and the data up to its time; the file is closed properly in every case."""
     writer = McapWriter(output)
-    observer = Observer(session, keys, key_exprs or [keys.everything], config, mcap_sink(writer))
+    observer = Observer(session, keys, key_exprs or [keys.everything], config, writer_sink(writer))
     log.info("recording %s into %s", ", ".join(key_exprs or [keys.everything]), output)
     deadline = None if duration_s is None else time.monotonic() + duration_s
     run_end_deadline: float | None = None

@@ -4,8 +4,8 @@
 A recording has one channel per zenoh key, named by the key, message encoding ``json``: the
 payloads as they were published. A key of the project's key space (``schemas/keys.py``) has a
 ``jsonschema`` schema named after its message type and generated from it
-(``msgspec.json.schema``); any other key has no schema. ``log_time`` is when the recorder took
-the sample, ``publish_time`` the message's ``tm`` where it has one (simulation time), else the
+(``msgspec.json.schema``); any other key has no schema. ``log_time`` is when the sample was
+received (services/record.py), ``publish_time`` the message's ``tm`` where it has one (simulation time), else the
 ``log_time``. Beside those, the Foxglove channels of :mod:`services.scene` (protobuf, with
 Foxglove's well-known schemas), so Foxglove shows a recording as it shows the live view.
 
@@ -18,7 +18,7 @@ an index and a summary, which the ``mcap`` CLI and Foxglove use to seek).
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -31,8 +31,16 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from schemas.codec import BadInput, decode
-from schemas.keys import Keys, Topic, schema_for_key
-from schemas.messages import PlannedPath, RunSummary, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
+from schemas.keys import Keys, Topic, parse_data_key, schema_for_key
+from schemas.messages import (
+    NANOSECONDS_PER_SECOND,
+    PlannedPath,
+    RunSummary,
+    Time,
+    TimedDoubleSeq,
+    TimedPosition,
+    TimedVelocity,
+)
 from services.config import Config, ConfigError, InputConfig, RobotConfig
 from services.planar import Pose, check_coordinates
 from services.report import Point, Recording, build_report, pose_from_body_pose, write_plots, write_report
@@ -55,12 +63,19 @@ class _Stamped(msgspec.Struct):
 _STAMPED = msgspec.json.Decoder(_Stamped)
 
 
+LATEST_STAMP_NS = (2**32 - 1) * NANOSECONDS_PER_SECOND
+"""The latest stamp a recording or a view shows: Foxglove's timestamps count seconds in 32 bits.
+A message stamped later (a buggy or hostile publisher) keeps its receive time as publish time
+and is left out of the scene."""
+
+
 def publish_time(payload: bytes, log_time_ns: int) -> int:
-    """The message's ``tm`` in ns, or ``log_time_ns`` when it has none."""
+    """The message's ``tm`` in ns, or ``log_time_ns`` when it has none or one past :data:`LATEST_STAMP_NS`."""
     try:
-        return _STAMPED.decode(payload).tm.to_nanoseconds()
+        stamp_ns = _STAMPED.decode(payload).tm.to_nanoseconds()
     except (msgspec.DecodeError, msgspec.ValidationError):
         return log_time_ns
+    return stamp_ns if stamp_ns <= LATEST_STAMP_NS else log_time_ns
 
 
 class McapWriter:
@@ -74,12 +89,14 @@ class McapWriter:
         self._schemas: dict[str, int] = {}
         self.messages = 0
 
-    def write_sample(self, key: str, payload: bytes, log_time_ns: int) -> None:
-        """A zenoh sample, on the channel of its key."""
+    def write_sample(self, key: str, payload: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+        """A zenoh sample, on the channel of its key; ``publish_time_ns`` its ``tm`` (found here when None)."""
         channel = self._channels.get(key)
         if channel is None:
             channel = self._channels[key] = self._writer.register_channel(key, JSON, self._key_schema(key))
-        self._write(channel, payload, log_time_ns, publish_time(payload, log_time_ns))
+        if publish_time_ns is None:
+            publish_time_ns = publish_time(payload, log_time_ns)
+        self._write(channel, payload, log_time_ns, publish_time_ns)
 
     def write_json(self, topic: str, value: Any, schema: dict[str, Any], stamp_ns: int, log_time_ns: int) -> None:
         """A JSON message of ``schema`` (a JSON schema with a ``title``) on ``topic``."""
@@ -186,6 +203,40 @@ def _stream_messages(file: IO[bytes]) -> Iterator[RecordedMessage]:
                     yield _recorded(schemas.get(channel.schema_id), channel, inner)
     except (McapError, EOFError, ValueError, KeyError):
         return
+
+
+@dataclass(frozen=True)
+class Replayed:
+    """One recorded sample to publish again."""
+
+    topic: Topic
+    data: bytes
+    stamp_ns: int
+
+
+NOT_REPLAYED = frozenset({Topic.RUN_SUMMARY})
+"""Recorded, but not data a service consumes: a replay of every key leaves them out."""
+
+
+def replay_schedule(messages: list[RecordedMessage], topics: Collection[Topic] = ()) -> tuple[str, list[Replayed]]:
+    """The robot a recording is of, and its samples of ``topics`` (default: every data key it
+    holds, but :data:`NOT_REPLAYED`) in simulation-time order (recorded order between equal stamps:
+    a consumer gets them as the loop's consumers did). ConfigError when the file holds no data
+    key, keys of several robots, or none of a requested topic."""
+    data = [(parsed, message) for message in messages if (parsed := parse_data_key(message.topic)) is not None]
+    robots = sorted({robot for (robot, _topic), _message in data})
+    if len(robots) != 1:
+        found = ", ".join(robots) if robots else "none"
+        raise ConfigError(f"a replay needs the recording of one robot; robots recorded: {found}")
+    wanted = set(topics) or {topic for (_robot, topic), _message in data} - NOT_REPLAYED
+    missing = sorted(wanted - {topic for (_robot, topic), _message in data})
+    if missing:
+        raise ConfigError(f"--keys: the recording holds no samples of {', '.join(missing)}")
+    schedule = [
+        Replayed(topic, message.data, message.publish_time_ns) for (_robot, topic), message in data if topic in wanted
+    ]
+    schedule.sort(key=lambda replayed: replayed.stamp_ns)
+    return robots[0], schedule
 
 
 def run_summary(messages: list[RecordedMessage], keys: Keys) -> RunSummary | None:

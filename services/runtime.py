@@ -510,6 +510,17 @@ class Executor:
                 blocked_in.wake()
 
 
+class InputTaken(msgspec.Struct):
+    """What a service took of one input, in its ``status`` (``inputs``, by key): a tool feeding it
+    (``invent replay --rate 0``) waits on ``samples`` so that it never sends faster than the
+    service takes."""
+
+    every_sample: bool
+    """False for an input of which only the newest sample counts (skipped samples are not taken)."""
+    samples: int = 0
+    """Samples handed to the service, bad ones included."""
+
+
 class Node:
     """One service's presence on zenoh. See the module docstring.
 
@@ -539,6 +550,7 @@ class Node:
         self._declarations: list[Any] = []
         self._inputs: list[NodeInput] = []
         self._publishers: list[Publisher] = []
+        self._taken: dict[str, InputTaken] = {}
         self._started = time.monotonic()
         self.queryable(keys.status(service), lambda _payload: self.status())
         self._declarations.append(session.liveliness().declare_token(keys.alive(service)))
@@ -552,6 +564,7 @@ class Node:
             "robot": self.keys.robot,
             "uptime_s": round(time.monotonic() - self._started, 3),
             **self._status(),
+            "inputs": dict(self._taken),
             "bad_input": self.bad_inputs.as_dict(),
             "internal_errors": self.internal_errors,
             "dropped_events": self.executor.dropped_events,
@@ -576,7 +589,7 @@ class Node:
         value is all that counts (the motor's target): a :class:`LatestSample` taken after the
         channel inputs declared before it (not polled), so a flood of it is one sample and delays none.
         """
-        dispatch = self._guarded_dispatch(key, message_type, handler, with_attachment)
+        dispatch = self._guarded_dispatch(key, message_type, handler, with_attachment, every_sample=not newest_only)
         if channel or newest_only:
             channel_input = (
                 LatestSample(self.session, key, dispatch) if newest_only else ChannelInput(self.session, key, dispatch)
@@ -637,17 +650,32 @@ class Node:
         service thread with the newest sample of ``key``, at most every :data:`SAMPLING_POLL_S` while
         the thread is busy, at once when it is idle: for inputs that clock a service at its own pace
         rather than pacing it (see LatestSample). Returns the input (for ``waiting_for``)."""
-        sampled = LatestSample(self.session, key, self._guarded_dispatch(key, message_type, handler, with_attachment))
+        sampled = LatestSample(
+            self.session, key, self._guarded_dispatch(key, message_type, handler, with_attachment, every_sample=False)
+        )
         self.executor.add_sampled(sampled)
         self._inputs.append(sampled)
         return sampled
 
     def _guarded_dispatch(
-        self, key: str, message_type: type[MessageT], handler: Callable[..., None], with_attachment: bool
+        self,
+        key: str,
+        message_type: type[MessageT],
+        handler: Callable[..., None],
+        with_attachment: bool,
+        *,
+        every_sample: bool,
     ) -> _Dispatch:
-        """Decode and handle a sample of ``key``, counting bad input (see :meth:`guard`)."""
+        """Decode and handle a sample of ``key``, counting it (``inputs`` in the status) and its
+        bad input (see :meth:`guard`)."""
         decoding = _decoding(message_type, handler, with_attachment)
-        return lambda payload, attachment: self.guard(key, lambda: decoding(payload, attachment))
+        taken = self._taken[key] = InputTaken(every_sample)
+
+        def dispatch(payload: bytes, attachment: bytes | None) -> None:
+            taken.samples += 1
+            self.guard(key, lambda: decoding(payload, attachment))
+
+        return dispatch
 
     def publisher(self, key: str) -> Publisher:
         publisher = Publisher(self.session, key)

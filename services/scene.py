@@ -39,10 +39,10 @@ from foxglove.messages import (
     Vector3,
 )
 
+from schemas.codec import BadInput
 from schemas.keys import Topic
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
-    PlannedPath,
     SimWorld,
     Time,
     TimedDoubleSeq,
@@ -140,7 +140,6 @@ class Scene:
     def __init__(self, robot: RobotConfig, sim: SimConfig) -> None:
         self._robot = robot
         self._robot_entity = _robot_entity(robot, sim)
-        self._obstacles: list[CubePrimitive | CylinderPrimitive] = []
         self._cylinders: list[CylinderPrimitive] = []
         self._cubes: list[CubePrimitive] = []
         self._path: list[tuple[float, float]] = []
@@ -148,7 +147,6 @@ class Scene:
         self._odometry = _Trail()
         self._next_transform_ns = 0
         self._next_odometry_ns = 0
-        self._next_localization_ns = 0
         self._next_scene_ns = 0
         self._scene_changed = True
         self._commanded = (0.0, 0.0)
@@ -217,14 +215,21 @@ class Scene:
     def _wheel_angles(self, message: TimedDoubleSeq) -> list[tuple[str, Any]]:
         robot = self._robot
         stamp_ns = message.tm.to_nanoseconds()
+        if len(message.data) <= max(robot.left_wheel_id, robot.right_wheel_id):
+            raise BadInput(
+                f"{len(message.data)} wheel angles, wheel ids {robot.left_wheel_id} and {robot.right_wheel_id}"
+            )
         left, right = message.data[robot.left_wheel_id], message.data[robot.right_wheel_id]
         previous, self._last_angles = self._last_angles, (stamp_ns, left, right)
         if previous is None or stamp_ns <= previous[0]:
             return []
         dt = (stamp_ns - previous[0]) / NANOSECONDS_PER_SECOND
+        measured = ((left - previous[1]) / dt, (right - previous[2]) / dt)
+        if not all(map(math.isfinite, (*measured, *self._commanded))):
+            raise BadInput(f"wheel speeds {measured}, commanded {self._commanded} are not finite")
         speeds = {
             "commanded": {"left": self._commanded[0], "right": self._commanded[1]},
-            "measured": {"left": (left - previous[1]) / dt, "right": (right - previous[2]) / dt},
+            "measured": {"left": measured[0], "right": measured[1]},
         }
         return [(WHEEL_SPEEDS_TOPIC, speeds)]
 

@@ -8,9 +8,10 @@ secure deployment is a **client**: zenoh applies access control on the router's 
 and peers talking directly would bypass it.
 
 What each role may do is :func:`grants`; the rules are built from :class:`~schemas.keys.Keys`,
-so they name exactly the keys the services use. Reading (subscribing, liveliness, ``status``
-queries) is open to every authenticated role; every put and every Motor method query that no
-grant names is denied, and a session without valid credentials is refused at connection.
+so they name exactly the keys the services use. Reading (subscribing, liveliness, queries on
+``status`` and the latched keys) is open to every authenticated role; every put and every Motor
+method query that no grant names is denied, and a session without valid credentials is refused
+at connection.
 """
 
 from __future__ import annotations
@@ -119,11 +120,18 @@ def grants(role: Role, keys: Keys) -> list[Grant]:
             Flow.EGRESS,
             everything,
         ),
-        # Zenoh's rules match keys they include: this one lets a `get` on invent/*/*/status through.
-        Grant((Message.QUERY,), Flow.INGRESS, (all_robots_status(),)),
+        # Zenoh's rules match keys they include: this one lets a `get` on invent/*/*/status through;
+        # the latched keys answer what was last published on them (a viewer started mid-run).
+        Grant((Message.QUERY,), Flow.INGRESS, (all_robots_status(), *(keys.topic(t) for t in LATCHED_TOPICS))),
     ]
     if role is Role.OBSERVER:
-        return reading
+        # `invent view` answers its own status; the queries on it are delivered, also as
+        # invent/*/*/status (a rule lets through the key expressions it includes).
+        return [
+            *reading,
+            Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (keys.view_status,)),
+            Grant((Message.QUERY,), Flow.EGRESS, (all_robots_status(),)),
+        ]
     if role is Role.OPERATOR:
         return [
             *reading,

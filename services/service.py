@@ -20,7 +20,7 @@ from typing import Any, Protocol
 import msgspec
 import zenoh
 
-from schemas.keys import Keys, Service
+from schemas.keys import Keys, Service, validate_robot_name
 from services.config import Config, ConfigError, load_config, parse_override
 from services.runtime import Executor, Node
 
@@ -31,6 +31,33 @@ def positive_seconds(text: str) -> float:
     if value <= 0.0:
         raise argparse.ArgumentTypeError(f"{text!r} must be a positive number of seconds")
     return value
+
+
+def non_negative_float(text: str) -> float:
+    """argparse type of a flag that is a finite number >= 0."""
+    value = finite_number(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a number >= 0")
+    return value
+
+
+def port_number(text: str) -> int:
+    """argparse type of a TCP port to serve on: 0..65535 (0: any free port)."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a port number, 0..65535")
+    return port
+
+
+def robot_name(text: str) -> str:
+    """argparse type of a robot name (one key chunk)."""
+    try:
+        return validate_robot_name(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def finite_number(text: str) -> float:

@@ -21,6 +21,7 @@ import ctypes
 import datetime
 import json
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -35,14 +36,16 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, Time
+from services import view
 from services.composition import Composition
 from services.config import Config, ConfigError
 from services.lockstep import LOOP_BEFORE_FIRST_STEP
-from services.record import RUN_END_TIMEOUT_S, Observer, mcap_sink
+from services.record import RUN_END_TIMEOUT_S, Observer, writer_sink
 from services.recording import McapWriter, write_run_report
 from services.report import degradation_line, degradations, health_lines, loop_health, summary
 from services.runtime import DEFAULT_ENDPOINT, Publisher, open_session, session_config
 from services.security import Profile, Role, write_profile
+from services.service import port_number
 
 EXIT_CHILD_DIED = 1
 EXIT_DEGRADED = 1
@@ -284,13 +287,46 @@ class RecorderProcess:
         self._children.stop()
 
 
+class ViewProcess:
+    """``invent view`` as a child (``up --view``): the run live in Foxglove. Another process in
+    both modes: a view is for watching, so it may cost a composed loop the encoding of every
+    sample, and it must not stop with the run's recorder."""
+
+    def __init__(self, flags: list[str], port: int) -> None:
+        self._children = Supervisor()
+        self._port = port
+        self._child = self._children.start("view", ["view", *flags, "--port", str(port)])
+
+    def wait_serving(self, run: Run) -> None:
+        """Until its WebSocket server accepts connections, so the address printed works at once."""
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while True:
+            run.check()
+            if self._child.finished() is not None:
+                raise ChildDied(f"view exited unexpectedly ({_describe_exit(self._child.finished())})")
+            try:
+                socket.create_connection((view.DEFAULT_HOST, self._port), timeout=0.5).close()
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise ChildDied(f"the view did not serve on port {self._port} within {STARTUP_TIMEOUT_S} s") from None
+                time.sleep(0.05)
+            else:
+                say(f"Foxglove live view: ws://{view.DEFAULT_HOST}:{self._port} (Foxglove → Open connection)")
+                return
+
+    def close(self) -> None:
+        code = self._children.stop()["view"]
+        if code != 0:
+            say(f"view did not exit cleanly ({_describe_exit(code)})")
+
+
 class InProcessRecorder:
     """``up --composed``: the recorder's observer in this process, on the composed session, only
     buffering samples while the loop runs (see services/record.py); the file is written at the end."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, path: Path, config: Config) -> None:
         self._writer = McapWriter(path)
-        self._observer = Observer(session, keys, [keys.everything], config, mcap_sink(self._writer))
+        self._observer = Observer(session, keys, [keys.everything], config, writer_sink(self._writer))
         self._closed = False
 
     def during(self) -> None:
@@ -404,6 +440,8 @@ def _access(args: argparse.Namespace, keys: Keys, report_dir: Path) -> Access:
 
 
 def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentParser) -> int:
+    if args.view == 0:
+        raise ConfigError("--view: the view's port must be fixed (1..65535), for the address to open in Foxglove")
     keys = Keys(config.robot.name)
     report_dir = Path(args.report) if args.report else _default_report_dir()
     access = _access(args, keys, report_dir)
@@ -429,6 +467,10 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
                 closing.callback(recorder.close)
                 if isinstance(recorder, RecorderProcess):
                     recorder.wait_subscribed(run, summary_publisher)
+            if args.view is not None:
+                live_view = ViewProcess([*common, *access.flags(Role.OBSERVER)], args.view)
+                closing.callback(live_view.close)
+                live_view.wait_serving(run)
             own_flags = {Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE)]}
             for service in SERVICES_BEFORE_DRIVE:
                 flags = [*common, *access.flags(Role(service)), *own_flags.get(service, [])]
@@ -535,6 +577,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"record nothing, so write no report (it is built from {RECORDING_FILE}): for long runs and benchmarks",
     )
     parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
+    parser.add_argument(
+        "--view",
+        nargs="?",
+        const=view.DEFAULT_PORT,
+        type=port_number,
+        metavar="PORT",
+        help=f"serve the run live to Foxglove with `invent view` on ws://{view.DEFAULT_HOST}:PORT (default port "
+        f"{view.DEFAULT_PORT}); a lockstep run is over in seconds: add --mode realtime or --loop to watch it",
+    )
     parser.add_argument(
         "--strict",
         action="store_true",

@@ -19,6 +19,8 @@ from tests.harness import REPO
 SECRETS_DIR = "./docker/secure/secrets"
 MOUNTED_SECRETS = "/secrets"
 ROLE_FILE_IN_CONTAINER = "/run/secrets/zenoh.json5"
+ROLES = {**{str(service): Role(service.value) for service in Service}, "view": Role.OBSERVER}
+"""Each client container's role: its service's own, the live view's the observer's (it only watches)."""
 
 
 def _compose() -> dict:
@@ -30,7 +32,7 @@ def _services() -> dict:
 
 
 def test_services_are_the_router_plus_every_service():
-    assert set(_compose()["services"]) == {"router"} | {str(service) for service in Service}
+    assert set(_compose()["services"]) == {"router", "view"} | {str(service) for service in Service}
 
 
 def test_router_reads_the_generated_config_and_publishes_rest_on_loopback_only():
@@ -50,10 +52,18 @@ def test_every_service_is_a_client_with_only_its_own_roles_credentials():
         args = parser.parse_args(command)
         assert args.connect == ["tcp/router:7447"], name
         assert args.zenoh_config == ROLE_FILE_IN_CONTAINER, name
-        assert spec["secrets"] == [{"source": name, "target": Path(ROLE_FILE_IN_CONTAINER).name}], name
-        assert declared[name] == {"file": f"{SECRETS_DIR}/{Role(name)}.json5"}, name
+        role = ROLES[name]
+        assert spec["secrets"] == [{"source": str(role), "target": Path(ROLE_FILE_IN_CONTAINER).name}], name
+        assert declared[str(role)] == {"file": f"{SECRETS_DIR}/{role}.json5"}, name
         assert spec.get("volumes", []) == (["motor-state:/state"] if name == "motor" else []), name
-        assert config_from_args(args.service_command, args).robot.name == "rh0"
+        assert config_from_args(getattr(args, "service_command", None), args).robot.name == "rh0"
+
+
+def test_the_live_view_listens_in_its_container_and_is_published_to_this_host_only():
+    view = _compose()["services"]["view"]
+    args = build_parser().parse_args(view["command"])
+    assert (args.host, args.port) == ("0.0.0.0", 8765)
+    assert view["ports"] == [f"127.0.0.1:{args.port}:{args.port}"]
 
 
 def test_the_drive_loops_the_square_scenario():

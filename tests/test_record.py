@@ -62,3 +62,23 @@ def test_a_killed_recorder_loses_at_most_its_last_chunk_and_the_reader_says_so(t
     data = [message.data for message in read.messages if message.topic == KEYS.sim_wheel_angles]
     assert data == [_sample(index) for index in range(len(data))], "a prefix, in order"
     assert data, "the whole chunks written before the kill"
+
+
+def test_a_far_future_stamp_is_recorded_with_its_receive_time_and_kills_nothing(tmp_path):
+    """A buggy or hostile publisher's stamp past what MCAP and Foxglove can hold (10^29 s)."""
+    output = tmp_path / "forged.mcap"
+    forged = encode(TimedDoubleSeq(Time(10**29, 0), [1.0, 2.0]))
+    with running_router() as endpoint, peer_session(endpoint) as session:
+        with InventProcess("record", "--connect", endpoint, "--robot", KEYS.robot, "--output", str(output)) as recorder:
+            publisher = session.declare_publisher(KEYS.sim_body_pose)
+            wait_until(lambda: publisher.matching_status.matching, 30, "the recorder to subscribe")
+            publisher.put(_sample(1))
+            publisher.put(forged)
+            publisher.put(_sample(2))
+            wait_until(lambda: recorder.process.poll() is not None or output.stat().st_size > 0, 5, "the file")
+            code, _out, err = recorder.stop()
+    assert code == 0, err
+    recorded = [message for message in read_messages(output).messages if message.topic == KEYS.sim_body_pose]
+    assert [message.data for message in recorded] == [_sample(1), forged, _sample(2)]
+    assert recorded[1].publish_time_ns == recorded[1].log_time_ns
+    assert [recorded[0].publish_time_ns, recorded[2].publish_time_ns] == [1_000_000, 2_000_000]

@@ -25,6 +25,7 @@ from schemas import (
     schema_for_key,
 )
 from schemas.keys import TOPIC_TYPES, parse_alive_key
+from schemas.messages import PlannedPath, RunSummary, SimWorld
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 times = st.builds(Time, st.integers(0, 2**40), st.integers(0, 999_999_999))

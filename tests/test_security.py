@@ -16,7 +16,7 @@ import pytest
 import zenoh
 
 from schemas.codec import encode
-from schemas.keys import Keys, Method, MethodFamily, Service, Topic, all_robots_status
+from schemas.keys import LATCHED_TOPICS, Keys, Method, MethodFamily, Service, Topic, all_robots_status
 from schemas.messages import Time, TimedPosition, TimedVelocity
 from services.security import (
     CA_CERTIFICATE,
@@ -54,6 +54,10 @@ def _queried_keys(role: Role) -> set[str]:
     return _granted(role, Message.QUERY)
 
 
+LATCHED = {KEYS.topic(topic) for topic in LATCHED_TOPICS}
+"""What a latched publisher last published answers queries on its key: every role may ask."""
+
+
 def _methods(family: MethodFamily) -> set[str]:
     return {KEYS.method(family, method) for method in Method}
 
@@ -62,27 +66,30 @@ def test_each_service_role_puts_exactly_the_keys_under_its_own_name():
     for service in Service:
         expected = {KEYS.topic(topic) for topic in Topic if topic.split("/")[0] == service}
         assert _put_keys(Role(service.value)) == expected, service
-    assert _put_keys(Role.OPERATOR) == {KEYS.drive_target_velocity}
+    assert _put_keys(Role.OPERATOR) == {KEYS.drive_target_velocity, KEYS.run_summary}, "the run's summary: invent up"
     assert _put_keys(Role.OBSERVER) == set()
 
 
 def test_only_the_operator_and_the_sim_query_motor_methods_each_its_own_family():
-    status = {all_robots_status()}
+    status = {all_robots_status()} | LATCHED
     assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI)
     assert _queried_keys(Role.SIM) == status | _methods(MethodFamily.BUMP)
     for role in (Role.OBSERVER, Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE):
         assert _queried_keys(role) == status, role
 
 
-def test_only_the_motor_serves_the_methods_and_each_service_only_its_status():
+def test_only_the_motor_serves_the_methods_and_each_service_only_its_status_and_latched_keys():
     for role in Role:
         served = _granted(role, Message.DECLARE_QUERYABLE)
         if role is Role.MOTOR:
             assert served == {KEYS.status(Service.MOTOR)} | _methods(MethodFamily.GUI) | _methods(MethodFamily.BUMP)
-        elif role in (Role.OPERATOR, Role.OBSERVER):
+        elif role is Role.OPERATOR:
             assert served == set(), role
+        elif role is Role.OBSERVER:
+            assert served == {KEYS.view_status}, "invent view's status"
         else:
-            assert served == {KEYS.status(Service(role.value))}, role
+            service = Service(role.value)
+            assert served == {KEYS.status(service)} | {key for key in LATCHED if f"/{service}/" in key}, role
 
 
 def test_profile_files_are_private_and_complete_zenoh_configurations(tmp_path):

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from tests.harness import REPO, free_port, invent_command, pid_alive, start_up, wait_until
+from tests.harness import REPO, free_port, invent_command, pid_alive, run_invent, start_up, wait_until
 
 pytestmark = pytest.mark.slow
 
@@ -61,10 +61,13 @@ def test_up_straight_follows_the_waypoints_with_the_real_services(tmp_path):
     assert report["path_error"]["max_m"] < 0.05
 
 
-def test_no_record_runs_the_loop_and_writes_nothing(tmp_path):
+def test_no_record_runs_the_loop_and_writes_nothing_with_a_live_view_beside_it(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
+    view_port = free_port()
     result = subprocess.run(
-        invent_command("up", "--composed", "--no-record", "--scenario", "square", "--listen", endpoint),
+        invent_command(
+            "up", "--composed", "--no-record", "--scenario", "square", "--listen", endpoint, "--view", str(view_port)
+        ),
         cwd=tmp_path,
         capture_output=True,
         text=True,
@@ -72,6 +75,8 @@ def test_no_record_runs_the_loop_and_writes_nothing(tmp_path):
     )
     assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-2000:]
     assert "no recording, no report (--no-record)" in result.stdout
+    assert f"Foxglove live view: ws://127.0.0.1:{view_port}" in result.stdout, "serving before the loop starts"
+    assert "view did not exit cleanly" not in result.stdout, "the view stopped with the run"
     assert list(tmp_path.iterdir()) == [], "no runs/ directory, no report, no plots"
     final_sim_time = float(re.findall(r"sim +([\d.]+) s \|", result.stdout)[-1])
     assert final_sim_time > 20.0, "the square scenario ran to its end"
@@ -118,6 +123,11 @@ def test_a_realtime_run_with_a_stalled_motor_reports_its_degradation_and_strict_
     assert "--strict: the run degraded" in text
 
 
+def test_a_view_on_any_free_port_is_refused_naming_the_flag():
+    result = run_invent("up", "--view", "0")
+    assert result.returncode == 2 and "--view" in result.stderr
+
+
 def test_loop_repeats_the_scenario_until_ctrl_c_with_flat_memory(tmp_path):
     from schemas.keys import Keys, Service
     from tests.harness import call, peer_session
@@ -144,7 +154,7 @@ def test_loop_repeats_the_scenario_until_ctrl_c_with_flat_memory(tmp_path):
             process.communicate()
     text = "".join(output) + rest
     assert process.returncode == 0, text[-3000:]
-    assert "done; no report (--loop)" in text and "torques: late" in text
+    assert "done; no recording, no report (--loop)" in text and "torques: late" in text
     assert rss_late - rss_early < 20, f"memory grew from {rss_early:.0f} to {rss_late:.0f} MB over six passes"
 
 
