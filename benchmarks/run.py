@@ -4,9 +4,10 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
 
 - ``lockstep``: steps per second of the real loop (router, motor, odometry, localization, sim
   and drive, each its own process, started as ``invent up`` starts them), of ``invent up``
-  itself (its run recorder listening too), of the composed loop (``invent up --composed
-  --no-record``; and with its recorder, as plain ``invent up --composed``) and of the in-process
-  limit, with their ratios; the step exchange latency measured by the sim.
+  itself recording its run.mcap and with ``--no-record``, of the composed loop (``invent up
+  --composed --no-record``, and recording, as plain ``invent up --composed``) and of the
+  in-process limit, with their ratios and what recording costs in each mode; the step exchange
+  latency measured by the sim.
 - ``realtime``: the same processes with the sim in realtime mode at 1 kHz: achieved rate,
   late fraction, torque latency.
 - ``codec``: ns per encode + decode per message type, the project's codec against stdlib json.
@@ -80,6 +81,12 @@ def _ratio(numerator: float | None, denominator: float | None) -> float | None:
     return numerator / denominator if numerator is not None and denominator else None
 
 
+def _cost(recording: float | None, not_recording: float | None) -> float | None:
+    """How much slower the loop ran with its recorder, in % of the speed without (measured in the same run)."""
+    ratio = _ratio(recording, not_recording)
+    return None if ratio is None else 100.0 * (1.0 - ratio)
+
+
 def _timed(what: str, action: Callable[[], Any], failures: list[str]) -> Any:
     """``action()``, timed on the console; None (and the reason in ``failures``) if a run failed."""
     started = time.monotonic()
@@ -109,6 +116,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
     inprocess: list[float] = []
     separate: list[loop.LoopResult] = []
     with_up: list[loop.LoopResult] = []
+    up_not_recording: list[loop.LoopResult] = []
     low_latency: list[loop.LoopResult] = []
     together: list[loop.LoopResult] = []
     together_recording: list[loop.LoopResult] = []
@@ -128,6 +136,13 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         with_up.append(
             _timed("invent up (its recorder too)", lambda: loop.measure_up([], args.warmup, args.window), failures)
         )
+        up_not_recording.append(
+            _timed(
+                "invent up --no-record",
+                lambda: loop.measure_up([loop.NO_RECORD_FLAG], args.warmup, args.window),
+                failures,
+            )
+        )
         if composed:
             together.append(
                 _timed(
@@ -144,9 +159,9 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
                 )
             )
     inprocess = [value for value in inprocess if value is not None]
-    separate, with_up, low_latency, together, together_recording = (
+    separate, with_up, up_not_recording, low_latency, together, together_recording = (
         [run for run in runs if run is not None]
-        for runs in (separate, with_up, low_latency, together, together_recording)
+        for runs in (separate, with_up, up_not_recording, low_latency, together, together_recording)
     )
     limit = _median(inprocess)
     alone, shared = _loop_summary(separate), _loop_summary(together) if together else None
@@ -157,6 +172,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         "latency_us": alone["latency_us"],
         "late_fraction": alone["late_fraction"],
         "up_steps_per_s": _median([run.steps_per_s for run in with_up]),
+        "up_not_recording_steps_per_s": _median([run.steps_per_s for run in up_not_recording]),
         "lowlatency_steps_per_s": _median([run.steps_per_s for run in low_latency]),
         "lowlatency_ratio": _ratio(_median([run.steps_per_s for run in low_latency]), limit),
         "lowlatency_latency_us": _loop_summary(low_latency)["latency_us"],
@@ -171,6 +187,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
             "inprocess_steps_per_s": inprocess,
             "separate": [run.as_dict() for run in separate],
             "up": [run.as_dict() for run in with_up],
+            "up_not_recording": [run.as_dict() for run in up_not_recording],
             "lowlatency": [run.as_dict() for run in low_latency],
             "composed": [run.as_dict() for run in together],
             "composed_recording": [run.as_dict() for run in together_recording],
@@ -238,9 +255,14 @@ def table(results: dict[str, Any]) -> str:
             f"ratio {_fmt(lockstep['lowlatency_ratio'], 3)}",
         ),
         (
-            "lockstep, `invent up` (its run recorder listening too)",
+            "lockstep, `invent up --no-record`",
+            f"{_fmt(lockstep['up_not_recording_steps_per_s'])} steps/s",
+            f"ratio {_fmt(_ratio(lockstep['up_not_recording_steps_per_s'], lockstep['inprocess_steps_per_s']), 3)}",
+        ),
+        (
+            "lockstep, `invent up` (recording run.mcap)",
             f"{_fmt(lockstep['up_steps_per_s'])} steps/s",
-            f"ratio {_fmt(_ratio(lockstep['up_steps_per_s'], lockstep['inprocess_steps_per_s']), 3)}",
+            f"recording costs {_fmt(_cost(lockstep['up_steps_per_s'], lockstep['up_not_recording_steps_per_s']), 1)} %",
         ),
         (
             "lockstep, composed (`invent up --composed --no-record`)",
@@ -248,9 +270,9 @@ def table(results: dict[str, Any]) -> str:
             f"ratio {_fmt(lockstep['composed_ratio'], 3)}",
         ),
         (
-            "lockstep, composed, its run recorder too (`invent up --composed`)",
+            "lockstep, composed, recording run.mcap (`invent up --composed`)",
             f"{_fmt(lockstep['composed_recording_steps_per_s'])} steps/s",
-            f"ratio {_fmt(_ratio(lockstep['composed_recording_steps_per_s'], lockstep['inprocess_steps_per_s']), 3)}",
+            f"recording costs {_fmt(_cost(lockstep['composed_recording_steps_per_s'], lockstep['composed_steps_per_s']), 1)} %",
         ),
         ("lockstep, in one process, no zenoh (limit)", f"{_fmt(lockstep['inprocess_steps_per_s'])} steps/s", "1"),
         (
