@@ -48,6 +48,11 @@ KEYS = Keys("rh0")
 RECORDED = (KEYS.sim_body_pose, KEYS.odometry_pose, KEYS.localization_pose, KEYS.drive_target_velocity)
 WALL_CLOCK_FIELDS = ("wall_time_s", "real_time_factor")
 BURNERS = 2
+PATIENT = ("--set", "sim.lockstep_timeout=5")
+"""Every run's lockstep waits give up after 5 s, not the default 0.5 s: beside two burners (and
+the run's recorder) on two cores, a wait for the drive's tick command, which waits for the
+odometry's pose, went past 0.5 s twice in about ten runs. The run then says so (a degraded run),
+but this test is about what a slow machine computes, not about how fast it answers."""
 BURNER_MIN_SHARE = 0.25
 """Each burner must have had at least this share of a core while it ran: enough to prove the loop
 shared the machine, whatever the loop's own speed (which a busy CI machine makes noisy)."""
@@ -98,7 +103,9 @@ def _run_square(report_dir: Path, *flags: str, ask_status: bool = False) -> Squa
     with open_session(session_config(listen=[endpoint], mode="router")) as router:
         channels = {key: router.declare_subscriber(key, zenoh.handlers.FifoChannel(1 << 20)) for key in RECORDED}
         process = subprocess.Popen(
-            invent_command("up", "--scenario", "square", "--report", str(report_dir), "--connect", endpoint, *flags),
+            invent_command(
+                "up", "--scenario", "square", "--report", str(report_dir), "--connect", endpoint, *PATIENT, *flags
+            ),
             cwd=REPO,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
@@ -198,8 +205,10 @@ def test_a_loaded_machine_gives_the_same_samples_and_report(runs):
     quiet, loaded = runs["quiet"], runs["loaded"]
     assert loaded.returncode == 0, loaded.output[-4000:]
     assert loaded.burner_shares is not None and len(loaded.burner_shares) == BURNERS
-    assert min(loaded.burner_shares) >= BURNER_MIN_SHARE, f"the burners did not load the machine: {loaded.burner_shares}"
-    assert loaded.report["degraded"] == [], "a lockstep wait timed out: the machine was loaded past lockstep_timeout"
+    assert min(loaded.burner_shares) >= BURNER_MIN_SHARE, (
+        f"the burners did not load the machine: {loaded.burner_shares}"
+    )
+    assert loaded.report["degraded"] == [], "a lockstep wait timed out: the machine was loaded past PATIENT"
     _assert_same_samples(quiet, loaded)
     assert _comparable(loaded.report) == _comparable(quiet.report)
 
