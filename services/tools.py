@@ -55,7 +55,9 @@ def describe_sample(key: str, payload: bytes) -> dict[str, Any]:
 
 def run_router(session: zenoh.Session, listen: list[str], stop: threading.Event) -> int:
     """Serve as the zenoh router until SIGINT/SIGTERM."""
-    print(f"invent router {session.zid()} listening on {', '.join(listen)}; Ctrl-C stops it", file=sys.stderr, flush=True)
+    print(
+        f"invent router {session.zid()} listening on {', '.join(listen)}; Ctrl-C stops it", file=sys.stderr, flush=True
+    )
     while not stop.wait(0.2):
         pass
     return 0
@@ -129,13 +131,25 @@ def _wait_for_match(querier: zenoh.Querier, timeout: float) -> bool:
     return True
 
 
+def _no_answer(session: zenoh.Session, key: str, matched: bool, timeout: float) -> str:
+    """Why nothing answered: no connection at all, nothing serving ``key``, or no reply in time."""
+    if not list(session.info.routers_zid()) and not list(session.info.peers_zid()):
+        return (
+            "this session reached no router and no peer: is a router listening where --connect points "
+            "(and are the credentials right)?"
+        )
+    if not matched:
+        return f"nothing answers on {key} (is the service running?)"
+    return f"no reply from {key} within {timeout} s"
+
+
 def run_call(session: zenoh.Session, key: str, payload: str | None, timeout: float) -> int:
     """Query ``key`` and print each reply; non-zero exit on ``reply_err`` or when nothing answers."""
     querier = session.declare_querier(key, timeout=timeout)
     try:
-        if not _wait_for_match(querier, timeout):
-            print(f"invent call: nothing answers on {key} (is the service running?)", file=sys.stderr)
-            return EXIT_NO_ANSWER
+        # Matching says the declarations reached this session. It is never seen for a wildcard key
+        # whose queryables are not complete (every `status`), so the query goes out anyway.
+        matched = _wait_for_match(querier, timeout)
         replies = 0
         failed = False
         for reply in querier.get(payload=payload, encoding=zenoh.Encoding(ENCODING) if payload else None):
@@ -147,7 +161,7 @@ def run_call(session: zenoh.Session, key: str, payload: str | None, timeout: flo
                 print(f"invent call: {key} replied with an error: {json.dumps(error)}", file=sys.stderr)
                 failed = True
         if not replies and not failed:
-            print(f"invent call: no reply from {key} within {timeout} s", file=sys.stderr)
+            print(f"invent call: {_no_answer(session, key, matched, timeout)}", file=sys.stderr)
             return EXIT_NO_ANSWER
         return EXIT_NO_ANSWER if failed else 0
     finally:

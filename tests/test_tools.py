@@ -92,6 +92,21 @@ def test_call_against_nothing_exits_non_zero_with_a_clear_message(endpoint):
     assert f"nothing answers on {key}" in result.stderr
 
 
+def test_call_to_an_unreachable_router_names_the_connection_not_the_service():
+    result = run_invent(
+        "call", "invent/rh0/motor/status", "--timeout", "0.5", "--connect", f"tcp/127.0.0.1:{free_port()}"
+    )
+    assert result.returncode == 1
+    assert "reached no router and no peer" in result.stderr and "is the service running" not in result.stderr
+
+
+def test_call_on_a_wildcard_gets_every_status(endpoint, node):
+    result = run_invent("call", "invent/*/*/status", "--connect", endpoint)
+    assert result.returncode == 0, result.stderr
+    [line] = json_lines(result.stdout)
+    assert line["key"] == Keys("rh0").status(Service.MOTOR)
+
+
 def test_status_lists_live_services_with_their_status(endpoint, node):
     result = run_invent("status", "--connect", endpoint)
     assert result.returncode == 0, result.stderr
