@@ -22,7 +22,7 @@ fuzz: $(STAMP)  ## 10^4 generated bad payloads per consumed key and queryable in
 	mkdir -p runs
 	INVENT_FUZZ_PAYLOADS=10000 INVENT_FUZZ_FIGURES=runs/fuzz.json $(BIN)/python -m pytest tests/test_fuzz.py -q -s -p no:cacheprovider
 
-bench: $(STAMP)  ## benchmarks/ -> benchmarks/results/latest.json (never part of `make test`)
+bench: $(STAMP)  ## benchmarks/ -> benchmarks/results/latest.json, not committed (never part of `make test`)
 	$(BIN)/python -m benchmarks
 
 secrets: $(STAMP)  ## fresh credentials for `docker compose up`, in docker/secure/secrets/ (never committed)

@@ -25,6 +25,7 @@ import msgspec
 from schemas.codec import decode, encode
 from schemas.messages import (
     MESSAGE_TYPES,
+    NANOSECONDS_PER_SECOND,
     BumpEvent,
     NoArguments,
     PDGains,
@@ -90,10 +91,10 @@ def ns_per_call(function: Callable[[msgspec.Struct], Any], message: msgspec.Stru
         for _ in range(count):
             function(message)
         elapsed = time.perf_counter_ns() - started
-        if elapsed >= TARGET_SECONDS * 1e9 / 4 or count >= 1 << 22:
+        if elapsed >= TARGET_SECONDS * NANOSECONDS_PER_SECOND / 4 or count >= 1 << 22:
             break
         count *= 4
-    batch = max(1, int(count * TARGET_SECONDS * 1e9 / max(elapsed, 1)))
+    batch = max(1, int(count * TARGET_SECONDS * NANOSECONDS_PER_SECOND / max(elapsed, 1)))
     timings = []
     for _ in range(repeats):
         started = time.perf_counter_ns()

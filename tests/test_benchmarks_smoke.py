@@ -6,6 +6,7 @@ import sys
 
 import pytest
 
+from benchmarks.run import RESULTS
 from tests.harness import REPO
 
 pytestmark = pytest.mark.slow
@@ -15,6 +16,7 @@ NUMBERS = (
     "lockstep.inprocess_steps_per_s",
     "lockstep.ratio",
     "lockstep.up_steps_per_s",
+    "lockstep.up_not_recording_steps_per_s",
     "lockstep.lowlatency_steps_per_s",
     "lockstep.composed_steps_per_s",
     "lockstep.composed_ratio",
@@ -66,3 +68,12 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
         "codec.min_ratio",
     }
     assert "| lockstep, separate processes |" in result.stdout and f"wrote {out}" in result.stdout
+
+
+def test_the_default_results_file_is_not_tracked_so_a_bench_leaves_a_clone_clean():
+    relative = RESULTS.relative_to(REPO)
+    assert subprocess.run(["git", "check-ignore", "-q", str(relative)], cwd=REPO, check=False).returncode == 0
+    tracked = subprocess.run(
+        ["git", "ls-files", "--error-unmatch", str(relative)], cwd=REPO, capture_output=True, check=False
+    )
+    assert tracked.returncode != 0, f"{relative} is tracked"
