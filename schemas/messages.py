@@ -42,11 +42,6 @@ class Time(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     nsec: Nanoseconds
 
     @classmethod
-    def from_seconds(cls, seconds: float) -> Time:
-        total_ns = round(seconds * NANOSECONDS_PER_SECOND)
-        return cls(*divmod(total_ns, NANOSECONDS_PER_SECOND))
-
-    @classmethod
     def from_nanoseconds(cls, total_ns: int) -> Time:
         return cls(*divmod(total_ns, NANOSECONDS_PER_SECOND))
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -55,9 +56,12 @@ class RobotConfig(_Section):
         return self.length_of_axle / 2.0
 
 
-TargetAngleMode = Literal["seed", "integrated"]
-"""``seed``: q_ref restarts from the measured angle each cycle (SPEC 4 step 3); ``integrated``:
-q_ref accumulates from the previous target angle, so the P term corrects drift (docs/motor.md)."""
+class TargetAngleMode(StrEnum):
+    """``seed``: q_ref restarts from the measured angle each cycle (SPEC 4 step 3); ``integrated``:
+    q_ref accumulates from the previous target angle, so the P term corrects drift (docs/motor.md)."""
+
+    SEED = "seed"
+    INTEGRATED = "integrated"
 
 
 class MotorConfig(_Section):
@@ -77,7 +81,7 @@ class MotorConfig(_Section):
     """rad, heading of the model's zero direction from +x (SimulatedOffsetAngle; RH0: 1.5708)."""
     command_timeout: NonNegative = 0.5
     """Seconds of wheel-angle time without a target velocity before braking to zero; 0 disables."""
-    target_angle: TargetAngleMode = "seed"
+    target_angle: TargetAngleMode = TargetAngleMode.SEED
     """How the target wheel angle is formed (see TargetAngleMode)."""
     max_vx: Positive | None = 1.0
     """Limit on |vx| in m/s (as ros2's diff_drive_controller users expect); None = no limit, the
@@ -110,12 +114,15 @@ class OdometryConfig(_Section):
     """How the straight and rho_border branches integrate (see StraightStep)."""
 
 
-SimMode = Literal["lockstep", "realtime"]
-"""``lockstep``: every step waits for its torque; ``realtime``: steps paced to the wall clock (SPEC 6)."""
+class SimMode(StrEnum):
+    """``lockstep``: every step waits for its torque; ``realtime``: steps paced to the wall clock (SPEC 6)."""
+
+    LOCKSTEP = "lockstep"
+    REALTIME = "realtime"
 
 
 class SimConfig(_Section):
-    mode: SimMode = "lockstep"
+    mode: SimMode = SimMode.LOCKSTEP
     step: Positive = 0.001
     """Simulated seconds per physics step."""
     lockstep_timeout: Positive = 0.5

@@ -63,7 +63,7 @@ def overrides(args: argparse.Namespace) -> dict[str, Any]:
 def _pose_dict(fix: Fix | None) -> dict[str, Any] | None:
     if fix is None:
         return None
-    return {"t": fix.stamp_ns / 1e9, **fix.pose._asdict(), "initial": fix.initial}
+    return {"t": fix.stamp_ns / NANOSECONDS_PER_SECOND, **fix.pose._asdict(), "initial": fix.initial}
 
 
 class LocalizationService:

@@ -319,7 +319,7 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--target-angle",
-        choices=typing.get_args(TargetAngleMode),
+        choices=list(TargetAngleMode),
         help="how the target wheel angle is formed (sets motor.target_angle; see docs/motor.md)",
     )
     parser.add_argument(

@@ -13,7 +13,6 @@ thousands of samples per second, so there is no numpy and no allocation beyond t
 from __future__ import annotations
 
 import math
-import typing
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
@@ -28,7 +27,6 @@ from services.config import InputConfig, MotorConfig, RobotConfig, TargetAngleMo
 from services.planar import check_coordinates, wrap_angle
 from services.sim_time import check_next_stamp, check_stamp_near
 
-SEED, INTEGRATED = typing.get_args(TargetAngleMode)
 """The two ``motor.target_angle`` modes."""
 
 
@@ -122,7 +120,7 @@ class MotorCore:
         self.vx_limiter = SpeedLimiter(motor.max_vx, motor.max_ax)
         self.w_limiter = SpeedLimiter(motor.max_w, motor.max_aw)
         self._limited = self.vx_limiter.enabled or self.w_limiter.enabled
-        self._integrated = motor.target_angle == INTEGRATED
+        self._integrated = motor.target_angle == TargetAngleMode.INTEGRATED
         self._timeout_ns = round(motor.command_timeout * NANOSECONDS_PER_SECOND)
         self._left, self._right = robot.left_wheel_id, robot.right_wheel_id
         self._min_length = max(self._left, self._right) + 1

@@ -132,25 +132,6 @@ def parse_scenario(text: str, source: str = "scenario", default_name: str = "") 
     return scenario if scenario.name else msgspec.structs.replace(scenario, name=default_name)
 
 
-def _toml_string(text: str) -> str:
-    escaped = text.replace("\\", "\\\\").replace('"', '\\"')
-    return '"' + "".join(f"\\u{ord(c):04x}" if ord(c) < 0x20 or ord(c) == 0x7F else c for c in escaped) + '"'
-
-
-def dump_scenario(scenario: Scenario) -> str:
-    """The scenario as TOML that :func:`parse_scenario` reads back equal."""
-    lines = [f"name = {_toml_string(scenario.name)}"]
-    for segment in scenario.segments:
-        lines += ["", "[[segments]]"]
-        if isinstance(segment, ConstantSegment):
-            lines += ['type = "constant"', f"vx = {segment.vx!r}", f"w = {segment.w!r}"]
-            lines += [f"duration = {segment.duration!r}"]
-        else:
-            points = ", ".join(f"[{x!r}, {y!r}]" for x, y in segment.waypoints)
-            lines += ['type = "waypoints"', f"waypoints = [{points}]"]
-    return "\n".join(lines) + "\n"
-
-
 def parse_waypoints(text: str) -> list[Point]:
     """``"1,0 1,1 0,1 0,0"`` -> [(1.0, 0.0), (1.0, 1.0), ...]; ConfigError naming the bad point."""
     points: list[Point] = []

@@ -124,10 +124,6 @@ class ServiceCommand:
     factory: ServiceFactory
 
 
-def no_flags(_parser: argparse.ArgumentParser) -> None:
-    """For a service without flags of its own."""
-
-
 def no_overrides(_args: argparse.Namespace) -> dict[str, Any]:
     return {}
 

@@ -38,7 +38,7 @@ from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, Time
 from services import view
 from services.composition import Composition
-from services.config import Config, ConfigError
+from services.config import Config, ConfigError, SimMode
 from services.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.record import RUN_END_TIMEOUT_S, Observer, writer_sink
 from services.recording import McapWriter, write_run_report
@@ -46,6 +46,7 @@ from services.report import degradation_line, degradations, health_lines, loop_h
 from services.runtime import DEFAULT_ENDPOINT, Publisher, open_session, session_config
 from services.security import Profile, Role, write_profile
 from services.service import port_number
+from sim_bridge.display import require_display
 
 EXIT_CHILD_DIED = 1
 EXIT_DEGRADED = 1
@@ -440,6 +441,8 @@ def _access(args: argparse.Namespace, keys: Keys, report_dir: Path) -> Access:
 
 
 def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentParser) -> int:
+    if args.gui:
+        require_display()  # before any child starts: a sim that exits 2 would take the others down noisily
     if args.view == 0:
         raise ConfigError("--view: the view's port must be fixed (1..65535), for the address to open in Foxglove")
     keys = Keys(config.robot.name)
@@ -562,7 +565,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", default="square", help="built-in scenario or TOML file (default square)")
     parser.add_argument(
         "--mode",
-        choices=["lockstep", "realtime"],
+        choices=list(SimMode),
         help="sim mode (default: sim.mode of the robot description, lockstep)",
     )
     report = parser.add_mutually_exclusive_group()

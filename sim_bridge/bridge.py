@@ -34,7 +34,6 @@ import logging
 import math
 import threading
 import time
-import typing
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
@@ -63,7 +62,6 @@ from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, obstacles, read_worl
 if TYPE_CHECKING:
     from sim_bridge.simulator import Contact
 
-LOCKSTEP, REALTIME = typing.get_args(SimMode)
 BUMP_STOP_TIMEOUT_S = 1.0
 """How long a ``motor/bump/stop`` call stays open for its reply."""
 MAX_REALTIME_LAG_S = 0.1
@@ -150,7 +148,7 @@ class SimService:
         # Lockstep waits in the torque channel's receive itself, and in a participant's output
         # channel at its ticks; realtime waits for its step's deadline, which a posted torque must
         # interrupt.
-        lockstep = self.mode == LOCKSTEP
+        lockstep = self.mode == SimMode.LOCKSTEP
         node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, channel=lockstep)
         for service, message_type in ((Service.DRIVE, TimedVelocity), (Service.LOCALIZATION, TimedPosition)):
             self._outputs[service] = node.subscribe(
@@ -192,7 +190,7 @@ class SimService:
             return
         self.motor_alive = alive
         self._set_motor_silent(False)
-        lockstep = self.mode == LOCKSTEP
+        lockstep = self.mode == SimMode.LOCKSTEP
         if alive:
             effect = "steps wait for its torques" if lockstep else "applying its torques"
         else:
@@ -219,11 +217,11 @@ class SimService:
         service, rate_hz = parsed
         if alive:
             self.barrier.announce(service, rate_hz, from_start=self._started is None)
-            if self.mode == LOCKSTEP:
+            if self.mode == SimMode.LOCKSTEP:
                 self.node.log.info("%s ticks at %g Hz: steps at its ticks wait for its output", service, rate_hz)
         elif self.barrier.withdraw(service):
             self._owed_changed()
-            if self.mode == LOCKSTEP:
+            if self.mode == SimMode.LOCKSTEP:
                 self.node.log.info("%s gone: its ticks are not waited for", service)
             if service is Service.DRIVE:
                 self.drive_ended = True
@@ -248,7 +246,7 @@ class SimService:
             raise BadInput(f"{len(torque.data)} torques, expected {self.sim.wheel_count} (one per wheel id)")
         tm_ns = torque.tm.to_nanoseconds()
         self.latency.answered(tm_ns, time.perf_counter_ns())
-        if self.mode == LOCKSTEP:
+        if self.mode == SimMode.LOCKSTEP:
             if self.motor_silent:
                 self._set_motor_silent(False)
             if tm_ns != self._awaited_ns or self._answered:
@@ -359,7 +357,7 @@ class SimService:
                 node.spin_once(min(remaining, STOP_POLL_S), self._outputs[missing[0]])
 
     def _owed_changed(self) -> None:
-        if self.mode == LOCKSTEP:
+        if self.mode == SimMode.LOCKSTEP:
             self._owed_attachment = encode_owed(self.barrier.owed())
 
     def _ended(self) -> bool:
@@ -409,9 +407,9 @@ class SimService:
         self._set_motor_alive(self.node.alive_now(Service.MOTOR))
         self.node.drain()
         self._await_services(stop)
-        if self.motor_alive and self.mode == LOCKSTEP:
+        if self.motor_alive and self.mode == SimMode.LOCKSTEP:
             self._await_motor_subscription()
-        if self.mode == LOCKSTEP:
+        if self.mode == SimMode.LOCKSTEP:
             self._await_participants()
         self.node.log.info(
             "simulating %s in %s mode, step %g s%s",
@@ -422,7 +420,7 @@ class SimService:
         )
         self._world_publisher.put(SimWorld(Time.from_nanoseconds(self.sim.time_ns), obstacles(self.world)))
         self._started = time.monotonic()
-        {LOCKSTEP: self._run_lockstep, REALTIME: self._run_realtime}[self.mode](stop)
+        {SimMode.LOCKSTEP: self._run_lockstep, SimMode.REALTIME: self._run_realtime}[self.mode](stop)
         self.finished = self.sim.step_index >= self._end_step or self._ended()
         self._stopped_at = time.monotonic()
         self.node.log.info("%s: %s", "finished" if self.finished else "stopped", self._summary())
@@ -541,7 +539,7 @@ class SimService:
 
     def _late_fraction(self) -> float:
         """Steps whose torque came late: past the timeout (lockstep), after the step (realtime)."""
-        late = self.counters["late_torques" if self.mode == LOCKSTEP else "realtime_late_steps"]
+        late = self.counters["late_torques" if self.mode == SimMode.LOCKSTEP else "realtime_late_steps"]
         return late / self.sim.step_index if self.sim.step_index else 0.0
 
     def close(self) -> None:
@@ -554,7 +552,7 @@ class SimService:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = SimConfig()
     group = parser.add_argument_group("simulation")
-    group.add_argument("--mode", choices=typing.get_args(SimMode), help=f"(default {defaults.mode})")
+    group.add_argument("--mode", choices=list(SimMode), help=f"(default {defaults.mode})")
     group.add_argument(
         "--step", type=positive_seconds, metavar="S", help=f"simulated seconds per step (default {defaults.step:g})"
     )

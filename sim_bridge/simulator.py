@@ -11,7 +11,6 @@ the lockstep loop runs it thousands of times per second.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -20,12 +19,12 @@ import pybullet as p
 from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import ConfigError, RobotConfig, SimConfig
+from sim_bridge.display import require_display
 from sim_bridge.robot import RobotModel, build_robot
 from sim_bridge.world import World
 
 GRAVITY = 9.81
 """m/s^2, along -z."""
-DISPLAY_VARIABLE = "DISPLAY"
 _NO_CONTACTS: tuple[Contact, ...] = ()
 _CONTACT_POSITION_ON_OBSTACLE = 6
 _CONTACT_DISTANCE = 8
@@ -43,8 +42,8 @@ class Contact:
 
 def connect(gui: bool) -> int:
     """A physics client of its own: headless (DIRECT), or a GUI window when a display exists."""
-    if gui and not os.environ.get(DISPLAY_VARIABLE):
-        raise ConfigError(f"--gui needs a display, but ${DISPLAY_VARIABLE} is not set (run without --gui)")
+    if gui:
+        require_display()
     client = p.connect(p.GUI if gui else p.DIRECT)
     if client < 0:
         raise ConfigError("--gui: PyBullet could not open a window" if gui else "PyBullet could not start")
@@ -171,10 +170,6 @@ class Simulator:
                 began.append(Contact(name, *touching[0][_CONTACT_POSITION_ON_OBSTACLE]))
             self._last_contact_step[index] = self.step_index
         return tuple(began)
-
-    def reset(self) -> None:
-        """Back to the world's initial state at time 0 (the world is rebuilt, so runs repeat bit for bit)."""
-        self._build()
 
     def close(self) -> None:
         p.disconnect(physicsClientId=self.client)

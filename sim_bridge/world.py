@@ -91,9 +91,6 @@ class World(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
                     raise ValueError(f"`{table}[{index}].name`: obstacle name {obstacle.name!r} is used twice")
                 seen.add(obstacle.name)
 
-    @property
-    def obstacle_names(self) -> tuple[str, ...]:
-        return tuple(o.name for o in self.boxes) + tuple(o.name for o in self.cylinders)
 
 
 def obstacles(world: World) -> list[Obstacle]:

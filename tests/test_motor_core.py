@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 from schemas.codec import BadInput
 from schemas.messages import PDGains
-from services.config import InputConfig, MotorConfig, RobotConfig
-from services.motor_core import INTEGRATED, SEED, MotorCore, MotorState, SimPoseConverter
+from services.config import InputConfig, MotorConfig, RobotConfig, TargetAngleMode
+from services.motor_core import MotorCore, MotorState, SimPoseConverter
 
 MS = 1_000_000
 """One millisecond in nanoseconds."""
@@ -116,10 +116,10 @@ def test_set_pd_gain_applies_from_the_next_step():
     ("mode", "expected"),
     [
         # seed: q_ref restarts from the measured q: q_ref - q = (5 + 2) * 0.0005 = 0.0035 each lagging cycle
-        (SEED, [2.0225, 5 * 0.0035 + 2 * 3, 5 * 0.0035 + 2 * 3]),
+        (TargetAngleMode.SEED, [2.0225, 5 * 0.0035 + 2 * 3, 5 * 0.0035 + 2 * 3]),
         # integrated: q_ref = 0.0085, then + 5 * 0.001 per cycle, so the lag accumulates in the P term:
         # cycle 2: 0.0135 - 0.006 = 0.0075; cycle 3: 0.0185 - 0.008 = 0.0105
-        (INTEGRATED, [2.0225, 5 * 0.0075 + 2 * 3, 5 * 0.0105 + 2 * 3]),
+        (TargetAngleMode.INTEGRATED, [2.0225, 5 * 0.0075 + 2 * 3, 5 * 0.0105 + 2 * 3]),
     ],
 )
 def test_target_angle_modes_hand_computed(mode, expected):
@@ -129,7 +129,7 @@ def test_target_angle_modes_hand_computed(mode, expected):
 
 
 def test_integrated_mode_reanchors_on_stop():
-    motor_core = running(vx=0.5, target_angle=INTEGRATED)
+    motor_core = running(vx=0.5, target_angle=TargetAngleMode.INTEGRATED)
     for k, q in ((1, 0.004), (2, 0.006), (3, 0.008)):
         motor_core.step(k * MS, [q, q])
     motor_core.stop()
@@ -275,7 +275,7 @@ def test_restart_time_base_restarts_the_target_age_but_not_a_timeout():
 
 
 def test_restart_time_base_resumes_control_from_rest():
-    motor_core = running(vx=0.5, max_ax=1.0, target_angle=INTEGRATED, command_timeout=0.0)
+    motor_core = running(vx=0.5, max_ax=1.0, target_angle=TargetAngleMode.INTEGRATED, command_timeout=0.0)
     for k in range(1, 50):
         motor_core.step(k * MS, [0.0, 0.0])
     assert motor_core.command[0] == pytest.approx(0.049)
@@ -371,7 +371,7 @@ def test_status_reports_state_gains_geometry_and_counters():
     motor_core.step(1 * MS, [0.0, 0.0])
     status = motor_core.status()
     assert status["state"] == "running"
-    assert status["target_angle"] == SEED
+    assert status["target_angle"] == TargetAngleMode.SEED
     assert status["gains"] == {"p_gain_l": 5.0, "p_gain_r": 5.0, "d_gain_l": 2.0, "d_gain_r": 2.0}
     assert status["geometry"]["length_of_axle"] == 0.441
     assert status["limits"]["max_vx"] == 1.0 and status["limits"]["max_ax"] is None
@@ -393,7 +393,7 @@ def test_seed_mode_at_target_speed_leaves_only_the_p_lead(vx, w, kp, kd, dt_ns, 
     """Wheels already at the target speed: the D term vanishes, and the seed's q_ref - q is
     (dq_ref + dq) * dt / 2 = dq_ref * dt, so the torque is Kp * dq_ref * dt (zero when Kp = 0
     or the target is zero): the seed's P term is only a one-step lead, not a position loop."""
-    motor_core = core(p_gain_l=kp, p_gain_r=kp, d_gain_l=kd, d_gain_r=kd, target_angle=SEED)
+    motor_core = core(p_gain_l=kp, p_gain_r=kp, d_gain_l=kd, d_gain_r=kd, target_angle=TargetAngleMode.SEED)
     motor_core.set_target(vx, w)
     motor_core.step(0, [q0, q0])
     dt = dt_ns / 1e9
@@ -491,7 +491,7 @@ def test_limited_command_respects_velocity_and_acceleration(targets, dt_ns, max_
 )
 def test_integrated_target_angle_is_anchor_plus_integral_of_target_speed(vx, wheel_angles, dt_ns):
     """Whatever the wheels do, q_ref integrates the target speed from its anchor (the first cycle)."""
-    motor_core = running(vx=vx, target_angle=INTEGRATED, command_timeout=0.0)
+    motor_core = running(vx=vx, target_angle=TargetAngleMode.INTEGRATED, command_timeout=0.0)
     dt = dt_ns / 1e9
     dq_ref = vx / 0.1
     motor_core.step(dt_ns, [wheel_angles[0]] * 2)

@@ -22,8 +22,8 @@ import zenoh
 from schemas.codec import ENCODING, decode, encode
 from schemas.keys import Keys, Method, MethodFamily, Service
 from schemas.messages import PDGains, Time, TimedDoubleSeq, TimedVelocity
-from services.config import load_config
-from services.motor_core import INTEGRATED, MotorCore
+from services.config import TargetAngleMode, load_config
+from services.motor_core import MotorCore
 from tests.harness import (
     Collector,
     InventProcess,
@@ -413,12 +413,12 @@ def test_trace_lines_and_command_timeout_warning_in_an_integrated_motor(tmp_path
     a command timeout logs one warning per silence."""
     trace = tmp_path / "motor.jsonl"
     robot = "mot2"
-    config = load_config(overrides={"robot.name": robot, "motor.target_angle": INTEGRATED})
+    config = load_config(overrides={"robot.name": robot, "motor.target_angle": TargetAngleMode.INTEGRATED})
     keys = Keys(robot)
     motor_link = MotorLink(session, keys, config)
     try:
         with InventProcess(
-            "motor", "--connect", endpoint, "--robot", robot, "--target-angle", INTEGRATED, "--trace", str(trace)
+            "motor", "--connect", endpoint, "--robot", robot, "--target-angle", TargetAngleMode.INTEGRATED, "--trace", str(trace)
         ) as motor:
             wait_alive(session, keys.alive(Service.MOTOR))
             motor_link.wait_matched()

@@ -146,9 +146,7 @@ def test_time_nanoseconds_round_trip(total_ns):
     assert Time.from_nanoseconds(total_ns).to_nanoseconds() == total_ns
 
 
-def test_time_from_seconds_carries_into_seconds():
-    assert Time.from_seconds(2.9999999999) == Time(3, 0)
-    assert Time.from_seconds(1.5).to_seconds() == 1.5
+
 
 
 def test_keys_are_a_function_of_the_robot_name():

@@ -16,7 +16,7 @@ import zenoh
 from schemas.codec import ENCODING, decode, encode
 from schemas.keys import Keys, Method, MethodFamily, Service
 from schemas.messages import BumpEvent, NoArguments, TimedDoubleSeq
-from sim_bridge.simulator import DISPLAY_VARIABLE
+from sim_bridge.display import DISPLAY_VARIABLE
 from tests.harness import Collector, InventProcess, call, wait_alive, wait_until
 
 KEYS = Keys()

@@ -5,7 +5,16 @@ from pathlib import Path
 import pytest
 
 from services.config import ConfigError
-from sim_bridge.world import DEFAULT_WORLD, Box, Cylinder, builtin_worlds, load_world, parse_world, resolve_world
+from sim_bridge.world import (
+    DEFAULT_WORLD,
+    Box,
+    Cylinder,
+    builtin_worlds,
+    load_world,
+    obstacles,
+    parse_world,
+    resolve_world,
+)
 
 
 def test_the_default_world_is_an_empty_floor_with_the_robot_at_the_origin():
@@ -21,7 +30,7 @@ def test_the_bump_world_has_a_box_ahead_of_the_robot():
     (box,) = world.boxes
     assert box.name == "box"
     assert box.x > world.initial_pose.x and abs(box.y - world.initial_pose.y) < box.size[1] / 2
-    assert world.obstacle_names == ("box",)
+    assert [o.name for o in obstacles(world)] == ["box"]
 
 
 def test_a_world_file_is_found_by_path(tmp_path: Path):
@@ -60,7 +69,7 @@ def test_a_full_world_parses_every_table():
     )
     assert world.ground.friction == 0.8
     assert world.boxes == (Box(name="wall", x=2.0, y=0.0, size=(0.2, 2.0, 0.5), yaw=0.3, mass=4.0),)
-    assert world.obstacle_names == ("wall", "pillar")
+    assert [o.name for o in obstacles(world)] == ["wall", "pillar"]
 
 
 @pytest.mark.parametrize(

@@ -24,6 +24,7 @@ def test_killing_the_motor_mid_run_stops_everything_and_exits_non_zero(tmp_path)
     process = start_up("--scenario", "square", "--report", str(tmp_path), "--listen", endpoint)
     output: list[str] = []
     try:
+
         def drive_started() -> bool:
             line = process.stdout.readline()
             output.append(line)
@@ -123,6 +124,21 @@ def test_a_realtime_run_with_a_stalled_motor_reports_its_degradation_and_strict_
     assert "--strict: the run degraded" in text
 
 
+def test_gui_without_a_display_exits_2_before_anything_starts():
+    environment = {name: value for name, value in os.environ.items() if name != "DISPLAY"}
+    result = subprocess.run(
+        invent_command("up", "--gui"),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=environment,
+        check=False,
+    )
+    assert result.returncode == 2 and "--gui needs a display" in result.stderr
+    assert "started" not in result.stdout and "Traceback" not in result.stderr + result.stdout
+
+
 def test_a_view_on_any_free_port_is_refused_naming_the_flag():
     result = run_invent("up", "--view", "0")
     assert result.returncode == 2 and "--view" in result.stderr
@@ -138,6 +154,7 @@ def test_loop_repeats_the_scenario_until_ctrl_c_with_flat_memory(tmp_path):
     try:
         _started_pids(process, output)
         with peer_session(endpoint) as session:
+
             def iteration() -> int:
                 ok, status = call(session, Keys().status(Service.DRIVE))
                 return status["iteration"] if ok else 0
