@@ -153,6 +153,11 @@ class Keys:
         """Key expression matching the ``status`` queryable of every service of this robot."""
         return f"{self.prefix}/*/{_STATUS}"
 
+    @property
+    def every_alive(self) -> str:
+        """Key expression matching the liveliness token of every service of this robot."""
+        return f"{self.prefix}/*/{_ALIVE}"
+
     def alive(self, service: Service) -> str:
         """The liveliness token a running service holds."""
         return f"{self.prefix}/{service}/{_ALIVE}"

@@ -25,7 +25,7 @@ from typing import Any, Protocol
 import zenoh
 
 from schemas.codec import BadInput, decode
-from schemas.keys import TOPIC_TYPES, Keys, Topic
+from schemas.keys import LATCHED_TOPICS, TOPIC_TYPES, Keys, Topic
 from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary
 from services.config import Config
 from services.recording import LATEST_STAMP_NS, McapWriter
@@ -80,15 +80,26 @@ class Observer:
         self.run_summary: RunSummary | None = None
         self._buffered: list[tuple[zenoh.Sample, int]] = []
         """Samples taken from the subscriptions, each with the time it was taken (Unix ns)."""
-        self._ask_latched()
+        self._latched_queriers = [
+            session.declare_querier(keys.topic(topic), timeout=STATUS_PERIOD_S) for topic in LATCHED_TOPICS
+        ]
+        self._unasked = list(self._latched_queriers)
+        self._latched_replies: list[Any] = []
 
     def _ask_latched(self) -> None:
-        """What a latched key's publisher last published (the world, the path): a recorder or a view
-        started mid-run has them at once."""
-        for topic in (Topic.SIM_WORLD, Topic.DRIVE_PATH):
-            for reply in self._session.get(self._keys.topic(topic), timeout=1.0):
-                if reply.ok is not None:
-                    self._take(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.time_ns())
+        """What a latched key's publisher last published (the world, the path), so that a recorder or
+        a view started mid-run has them: asked once the publisher's queryable has reached this
+        session (a query sent before would reach nothing), and taken unless its key was already."""
+        for querier in [querier for querier in self._unasked if querier.matching_status.matching]:
+            self._unasked.remove(querier)
+            self._latched_replies.append(querier.get())
+        for replies in list(self._latched_replies):
+            try:
+                while (reply := replies.try_recv()) is not None:
+                    if reply.ok is not None and str(reply.ok.key_expr) not in self.latest_ns:
+                        self._buffered.append((reply.ok, time.time_ns()))
+            except zenoh.ZError:  # every reply taken, and the query is over
+                self._latched_replies.remove(replies)
 
     def spin_once(self) -> bool:
         """Take what waits (and what :meth:`buffer` kept); False if nothing did."""
@@ -107,6 +118,7 @@ class Observer:
         for subscriber in self._subscribers:
             while (sample := subscriber.try_recv()) is not None:
                 self._buffered.append((sample, now_ns))
+        self._ask_latched()
         self._poll_status()
 
     def _poll_status(self) -> None:
@@ -154,8 +166,8 @@ class Observer:
         )
 
     def close(self) -> None:
-        for subscriber in self._subscribers:
-            subscriber.undeclare()
+        for declaration in [*self._subscribers, *self._latched_queriers]:
+            declaration.undeclare()
 
 
 def _log_time(sample: zenoh.Sample, taken_ns: int) -> int:

@@ -78,6 +78,15 @@ def publish_time(payload: bytes, log_time_ns: int) -> int:
     return stamp_ns if stamp_ns <= LATEST_STAMP_NS else log_time_ns
 
 
+def key_json_schema(key: str) -> tuple[str, str, bytes] | None:
+    """(name, encoding, data) of the JSON schema of ``key``'s message type, named after the type, as
+    a recording and the live view hold it; None for a key outside the project's key space."""
+    message_type = schema_for_key(key)
+    if message_type is None:
+        return None
+    return message_type.__name__, JSON_SCHEMA, json.dumps(msgspec.json.schema(message_type)).encode()
+
+
 class McapWriter:
     """One recording being written; :meth:`close` ends it with its index and summary."""
 
@@ -120,11 +129,8 @@ class McapWriter:
         self.messages += 1
 
     def _key_schema(self, key: str) -> int:
-        message_type = schema_for_key(key)
-        if message_type is None:
-            return 0
-        schema = msgspec.json.schema(message_type)
-        return self._schema(message_type.__name__, JSON_SCHEMA, json.dumps(schema).encode())
+        schema = key_json_schema(key)
+        return 0 if schema is None else self._schema(*schema)
 
     def _schema(self, name: str, encoding: str, data: bytes) -> int:
         schema = self._schemas.get(name)

@@ -27,6 +27,7 @@ from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import ConfigError
 from services.recording import Replayed
 from services.runtime import CHANNEL_CAPACITY
+from services.tools import service_statuses
 
 log = logging.getLogger("invent.replay")
 
@@ -67,14 +68,12 @@ class _Consumers:
         self.sent = dict.fromkeys(replayed_keys, 0)
         self._last_key: dict[str, str] = {}
         """The key each consumer was last sent a sample of, by service."""
-        for reply in _every_status(session, keys):
-            if reply.ok is None:
-                continue
-            status = json.loads(reply.ok.payload.to_bytes())
-            for key, taken in status.get("inputs", {}).items():
+        for _robot, service, status in service_statuses(session, keys.every_alive, DISCOVERY_TIMEOUT_S):
+            inputs = status.get("inputs", {}) if isinstance(status, dict) else {}
+            for key, taken in inputs.items():
                 if key in self._by_key and taken["every_sample"]:
-                    querier = session.declare_querier(str(reply.ok.key_expr), timeout=DISCOVERY_TIMEOUT_S)
-                    self._by_key[key].append(_Consumer(status["service"], key, querier, taken["samples"]))
+                    querier = session.declare_querier(keys.status(service), timeout=DISCOVERY_TIMEOUT_S)
+                    self._by_key[key].append(_Consumer(str(service), key, querier, taken["samples"]))
 
     @property
     def consumed_keys(self) -> set[str]:
@@ -175,19 +174,6 @@ def run_replay(session: zenoh.Session, schedule: list[Replayed], keys: Keys, rat
             publisher.undeclare()
     log.info("replayed %d samples in %.2f s", sum(consumers.sent.values()), time.monotonic() - started)
     return 0
-
-
-def _every_status(session: zenoh.Session, keys: Keys) -> list[zenoh.Reply]:
-    """The status replies of the robot's services, once this session knows where they are (a query
-    sent before the services' declarations reach a new session reaches none)."""
-    querier = session.declare_querier(keys.every_status, timeout=DISCOVERY_TIMEOUT_S)
-    try:
-        deadline = time.monotonic() + DISCOVERY_TIMEOUT_S
-        while not querier.matching_status.matching and time.monotonic() < deadline:
-            time.sleep(STATUS_POLL_S)
-        return list(querier.get())
-    finally:
-        querier.undeclare()
 
 
 def _wait_matching(publisher: zenoh.Publisher, key: str, stop: threading.Event) -> None:

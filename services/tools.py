@@ -19,7 +19,7 @@ import msgspec
 import zenoh
 
 from schemas.codec import ENCODING, BadMessage, decode
-from schemas.keys import Keys, all_robots_alive, parse_alive_key, schema_for_key
+from schemas.keys import Keys, Service, all_robots_alive, parse_alive_key, schema_for_key
 from services.config import ConfigError
 from services.security import write_profile
 
@@ -185,14 +185,13 @@ def alive_services(session: zenoh.Session, key_expr: str, timeout: float, settle
     return sorted(set(found))
 
 
-def run_status(session: zenoh.Session, robot: str | None, timeout: float) -> int:
-    """Print the services alive and each one's status reply; non-zero exit when none is alive."""
-    key_expr = Keys(robot).prefix + "/*/alive" if robot else all_robots_alive()
-    tokens = alive_services(session, key_expr, timeout)
-    if not tokens:
-        print(f"invent status: no service alive on {key_expr}", file=sys.stderr)
-        return EXIT_NO_ANSWER
-    for token in tokens:
+def service_statuses(session: zenoh.Session, key_expr: str, timeout: float) -> list[tuple[str, Service, Any]]:
+    """(robot, service, status reply) of each service whose liveliness token matches ``key_expr``:
+    the tokens first (they reach a new session through the router at once), then each one's exact
+    ``status`` key (a query on a wildcard, sent before the queryables reached this session, would
+    reach none). The status is None when it did not answer."""
+    statuses: list[tuple[str, Service, Any]] = []
+    for token in alive_services(session, key_expr, timeout):
         parsed = parse_alive_key(token)
         if parsed is None:
             continue
@@ -201,5 +200,17 @@ def run_status(session: zenoh.Session, robot: str | None, timeout: float) -> int
         for reply in session.get(Keys(robot_name).status(service), timeout=timeout):
             sample = reply.ok if reply.ok is not None else reply.err
             status = _payload_value(sample.payload.to_bytes())
+        statuses.append((robot_name, service, status))
+    return statuses
+
+
+def run_status(session: zenoh.Session, robot: str | None, timeout: float) -> int:
+    """Print the services alive and each one's status reply; non-zero exit when none is alive."""
+    key_expr = Keys(robot).every_alive if robot else all_robots_alive()
+    statuses = service_statuses(session, key_expr, timeout)
+    if not statuses:
+        print(f"invent status: no service alive on {key_expr}", file=sys.stderr)
+        return EXIT_NO_ANSWER
+    for robot_name, service, status in statuses:
         _print_json({"robot": robot_name, "service": str(service), "alive": True, "status": status})
     return 0

@@ -11,8 +11,9 @@ status replies every 0.5 s, and hands them, with the robot's Foxglove scene
 - ``/tf``, ``/odometry/pose``, ``/localization/pose``, ``/scene`` in Foxglove's well-known
   (protobuf) schemas, and ``/plot/wheel_speeds`` as JSON of ``WHEEL_SPEEDS_SCHEMA``.
 
-A channel is advertised when its first message comes. ``log_time`` is when the view took the
-sample (what Foxglove's live timeline shows); a message's own stamp is simulation time.
+A channel is advertised when its first message comes. ``log_time`` is when the sample was
+received, as in a recording (what Foxglove's live timeline shows); a message's own stamp is
+simulation time.
 
 The server is foxglove-sdk's: it speaks the Foxglove WebSocket protocol under its current
 subprotocol name, ``foxglove.sdk.v1``, which Foxglove offers; a client that offers only the old
@@ -30,15 +31,13 @@ import time
 from typing import Any
 
 import foxglove
-import msgspec
 import zenoh
 
 from schemas.codec import ENCODING
-from schemas.keys import VIEW, Keys, Service, Topic, schema_for_key
+from schemas.keys import VIEW, Keys
 from services.config import Config
 from services.record import IDLE_POLL_S, Observer, writer_sink
-from services.recording import JSON, JSON_SCHEMA
-from services.scene import LOCALIZATION_TOPIC, ODOMETRY_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC, WHEEL_SPEEDS_TOPIC
+from services.recording import JSON, JSON_SCHEMA, key_json_schema
 
 log = logging.getLogger("invent.view")
 
@@ -54,26 +53,9 @@ DEFAULT_PORT = 8765
 DEFAULT_HOST = "127.0.0.1"
 """Services listen on loopback unless told otherwise."""
 
-SCENE_TOPICS = (TRANSFORMS_TOPIC, ODOMETRY_TOPIC, LOCALIZATION_TOPIC, SCENE_TOPIC, WHEEL_SPEEDS_TOPIC)
-"""The topics of the robot's Foxglove scene, beside the zenoh keys."""
 
-
-def served_topics(keys: Keys) -> frozenset[str]:
-    """Every topic a view of ``keys.robot`` serves once its loop runs: the robot's data keys, its
-    services' status keys, and :data:`SCENE_TOPICS`."""
-    return frozenset(
-        [*(keys.topic(topic) for topic in Topic), *(keys.status(service) for service in Service), *SCENE_TOPICS]
-    )
-
-
-def key_schema(key: str) -> foxglove.Schema | None:
-    """The JSON schema of ``key``'s message type, as a recording holds it (named after the type);
-    None for a key outside the project's key space."""
-    message_type = schema_for_key(key)
-    if message_type is None:
-        return None
-    data = json.dumps(msgspec.json.schema(message_type)).encode()
-    return foxglove.Schema(name=message_type.__name__, encoding=JSON_SCHEMA, data=data)
+def _foxglove_schema(name: str, encoding: str, data: bytes) -> foxglove.Schema:
+    return foxglove.Schema(name=name, encoding=encoding, data=data)
 
 
 class FoxgloveChannels:
@@ -89,7 +71,8 @@ class FoxgloveChannels:
         """A zenoh sample, as published, on the channel of its key."""
         channel = self._channels.get(key)
         if channel is None:
-            channel = self._channel(key, key_schema(key), JSON)
+            schema = key_json_schema(key)
+            channel = self._channel(key, None if schema is None else _foxglove_schema(*schema), JSON)
         self._log(channel, payload, log_time_ns)
 
     def write_json(self, topic: str, value: Any, schema: dict[str, Any], stamp_ns: int, log_time_ns: int) -> None:
@@ -97,9 +80,7 @@ class FoxgloveChannels:
         channel = self._channels.get(topic)
         if channel is None:
             channel = self._channel(
-                topic,
-                foxglove.Schema(name=schema["title"], encoding=JSON_SCHEMA, data=json.dumps(schema).encode()),
-                JSON,
+                topic, _foxglove_schema(schema["title"], JSON_SCHEMA, json.dumps(schema).encode()), JSON
             )
         self._log(channel, json.dumps(value).encode(), log_time_ns)
 

@@ -28,7 +28,9 @@ import foxglove
 import msgspec
 import pytest
 import websockets
+import zenoh
 from foxglove.messages import FrameTransforms
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from schemas.codec import decode
 from schemas.keys import Keys, Service, Topic, schema_for_key
@@ -44,7 +46,7 @@ from services.scene import (
     WHEEL_SPEEDS_TOPIC,
     WORLD_FRAME,
 )
-from services.view import EXIT_NO_SERVER, SCENE_TOPICS, FoxgloveChannels, run_view, served_topics
+from services.view import EXIT_NO_SERVER, FoxgloveChannels, run_view
 from tests.harness import REPO, call, free_port, invent_command, peer_session, running_router, wait_until
 
 pytestmark = pytest.mark.slow
@@ -70,6 +72,17 @@ SUBSCRIBED = {
     KEYS.status(Service.MOTOR): None,
 }
 """The channels the client subscribes to, and the schema each must have (None: schemaless)."""
+
+
+SCENE_TOPICS = (TRANSFORMS_TOPIC, ODOMETRY_TOPIC, LOCALIZATION_TOPIC, SCENE_TOPIC, WHEEL_SPEEDS_TOPIC)
+
+
+def served_topics(keys: Keys) -> frozenset[str]:
+    """Every topic a view of ``keys.robot`` serves once its loop runs: the robot's data keys, its
+    services' status keys, and the scene's topics."""
+    return frozenset(
+        [*(keys.topic(topic) for topic in Topic), *(keys.status(service) for service in Service), *SCENE_TOPICS]
+    )
 
 
 class _Process:
@@ -162,12 +175,17 @@ def _watch_for(url: str, topics: list[str], timeout: float) -> Watched:
 
 
 def test_a_foxglove_client_sees_the_running_loop_live(tmp_path: Path) -> None:
-    with running_router() as endpoint:
-        view = _Process("view", "--connect", endpoint, "--port", "0", "--log-level", "info")
+    """The view starts once the loop runs: the planned path, published once when the drive's
+    scenario started, can only reach its scene through the latched key's answer to a query."""
+    with running_router() as endpoint, peer_session(endpoint) as watcher:
+        commands = watcher.declare_subscriber(KEYS.drive_target_velocity, zenoh.handlers.RingChannel(1))
         loop = _Process(
             "up", "--loop", "--composed", "--scenario", "square", "--report", str(tmp_path), "--connect", endpoint
         )
+        view: _Process | None = None
         try:
+            wait_until(lambda: commands.try_recv() is not None, STARTUP_TIMEOUT_S, "the drive's first command")
+            view = _Process("view", "--connect", endpoint, "--port", "0", "--log-level", "info")
 
             def announced() -> re.Match[str] | bool:
                 return URL_LINE.search(view.output) or view.process.poll() is not None
@@ -178,12 +196,12 @@ def test_a_foxglove_client_sees_the_running_loop_live(tmp_path: Path) -> None:
             assert port > 0, "port 0: the line names the port it got"
             started_ns = time.time_ns()
             watched = _watch_for(url, list(SUBSCRIBED), WATCH_TIMEOUT_S)
-            with peer_session(endpoint) as session:
-                ok, view_status = call(session, KEYS.view_status)
+            ok, view_status = call(watcher, KEYS.view_status)
             assert view.stop() == 0, view.output[-3000:]
             assert loop.stop(60) == 0, loop.output[-3000:]
         finally:
-            view.kill()
+            if view is not None:
+                view.kill()
             loop.kill()
 
     assert ok and view_status["service"] == "view" and view_status["url"] == url, view_status
@@ -203,6 +221,9 @@ def test_a_foxglove_client_sees_the_running_loop_live(tmp_path: Path) -> None:
         log_times = [log_time_ns for log_time_ns, _payload in frames]
         assert log_times == sorted(log_times), f"{topic}: log times in order"
         assert started_ns - 60e9 < log_times[0] <= time.time_ns(), f"{topic}: log time is when the view took it"
+    scene = SceneUpdate.FromString(watched.frames[SCENE_TOPIC][-1][1])
+    [planned_path] = [entity for entity in scene.entities if entity.id == "planned_path"]
+    assert len(planned_path.lines) == 1 and len(planned_path.lines[0].points) > 2, "the path published before the view"
     _log_time, transforms = watched.frames[TRANSFORMS_TOPIC][-1]
     assert WORLD_FRAME.encode() in transforms and ROBOT_FRAME.encode() in transforms, "world -> base_link"
     body_pose = decode(TimedDoubleSeq, watched.frames[KEYS.sim_body_pose][-1][1])
