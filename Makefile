@@ -4,12 +4,12 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test fuzz bench secrets clean
+.PHONY: run test test-fast lint fuzz bench secrets clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test,lint]'
 	touch $(STAMP)
 
 run: $(STAMP)  ## the whole loop: router, sim, motor, odometry, localization, drive, then a report
@@ -17,6 +17,14 @@ run: $(STAMP)  ## the whole loop: router, sim, motor, odometry, localization, dr
 
 test: $(STAMP)  ## the whole suite
 	$(BIN)/python -m pytest
+
+test-fast: $(STAMP)  ## the suite without the end-to-end runs of the whole loop (the edit-test loop)
+	$(BIN)/python -m pytest -m "not slow"
+
+lint: $(STAMP)  ## ruff (lint and format) on everything, mypy on schemas/ services/ sim_bridge/
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
 
 fuzz: $(STAMP)  ## 10^4 generated bad payloads per consumed key and queryable into the running services -> runs/fuzz.json
 	mkdir -p runs

@@ -47,7 +47,9 @@ UPPER_BOUNDS = frozenset({"realtime.late_fraction", "realtime.latency_us.p99"})
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--repeats", type=int, default=3, help="runs per loop mode, lockstep and realtime (median reported; default 3)")
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="runs per loop mode, lockstep and realtime (median reported; default 3)"
+    )
     parser.add_argument("--warmup", type=float, default=1.0, metavar="S", help="wall seconds before measuring")
     parser.add_argument("--window", type=float, default=4.0, metavar="S", help="lockstep measuring window, wall s")
     parser.add_argument(

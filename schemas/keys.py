@@ -56,7 +56,10 @@ class Topic(StrEnum):
     RUN_SUMMARY = "up/run"
 
 
-TOPIC_TYPES: dict[Topic, type[msgspec.Struct]] = {
+TopicMessage = TimedDoubleSeq | TimedVelocity | TimedPosition | BumpEvent | SimWorld | PlannedPath | RunSummary
+"""What a data key carries: every one has its ``tm`` stamp."""
+
+TOPIC_TYPES: dict[Topic, type[TopicMessage]] = {
     Topic.SIM_WHEEL_ANGLES: TimedDoubleSeq,
     Topic.SIM_BODY_POSE: TimedDoubleSeq,
     Topic.SIM_BUMP: BumpEvent,
@@ -230,7 +233,7 @@ def parse_data_key(key: str) -> tuple[str, Topic] | None:
     return parts[1], Topic(parts[2])
 
 
-def schema_for_key(key: str) -> type[msgspec.Struct] | None:
+def schema_for_key(key: str) -> type[TopicMessage] | None:
     """The message type a concrete data key carries, or None when the key is not a data key."""
     parsed = parse_data_key(key)
     return None if parsed is None else TOPIC_TYPES[parsed[1]]

@@ -297,7 +297,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--rate", type=non_negative_float, default=1.0, metavar="X", help="time scale (default 1; 0: consumers' pace)"
     )
     replay_parser.add_argument(
-        "--robot", type=robot_name, metavar="NAME", help="publish under invent/NAME/ (default: the robot the recording is of)"
+        "--robot",
+        type=robot_name,
+        metavar="NAME",
+        help="publish under invent/NAME/ (default: the robot the recording is of)",
     )
     replay_parser.set_defaults(handler=_replay)
 
@@ -307,8 +310,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="run the whole loop (router, sim, motor, odometry, localization, drive) and write a report",
         description="Start every service as its own process in this terminal, drive a scenario, then stop "
         "everything and write a run report (report.json, trajectory.png, wheel_speeds.png). "
-        "--listen sets where its router listens (default %s); --connect joins an existing router instead. "
-        "Ctrl-C stops everything." % DEFAULT_ENDPOINT,
+        f"--listen sets where its router listens (default {DEFAULT_ENDPOINT}); --connect joins an existing router "
+        "instead. Ctrl-C stops everything.",
     )
     up.add_arguments(up_parser)
     up_parser.set_defaults(handler=_up)

@@ -34,7 +34,7 @@ class _Section(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
                 raise ValueError(f"`{name}` must be finite, got {value}")
 
 
-class RobotConfig(_Section):
+class RobotConfig(_Section, frozen=True):
     """Geometry shared by every service (the seeds duplicated it in each ``.conf``)."""
 
     name: str = DEFAULT_ROBOT
@@ -64,7 +64,7 @@ class TargetAngleMode(StrEnum):
     INTEGRATED = "integrated"
 
 
-class MotorConfig(_Section):
+class MotorConfig(_Section, frozen=True):
     p_gain_l: NonNegative = 5.0
     """P gain of the left wheel (the seed's PGainL); changeable at run time with set_pd_gain."""
     p_gain_r: NonNegative = 5.0
@@ -99,7 +99,7 @@ StraightStep = Literal["exact", "seed"]
 (r_L·Δq_L + r_R·Δq_R)/2; ``seed``, the seed's trapezoid (V + V_old)/2·Δt (docs/odometry.md)."""
 
 
-class OdometryConfig(_Section):
+class OdometryConfig(_Section, frozen=True):
     rotation_angle_border: Positive = math.pi / 180.0
     """|dphi| below which a step takes arc length for chord (the seed's RotationAngleBorder), rad."""
     rho_border: Positive = 10000.0
@@ -121,7 +121,7 @@ class SimMode(StrEnum):
     REALTIME = "realtime"
 
 
-class SimConfig(_Section):
+class SimConfig(_Section, frozen=True):
     mode: SimMode = SimMode.LOCKSTEP
     step: Positive = 0.001
     """Simulated seconds per physics step."""
@@ -153,7 +153,7 @@ class SimConfig(_Section):
     """Simulated seconds without contact before touching the same obstacle again is a new bump."""
 
 
-class LocalizationConfig(_Section):
+class LocalizationConfig(_Section, frozen=True):
     initial_x: float = 0.0
     """Initial pose published before the first fix: x in m."""
     initial_y: float = 0.0
@@ -172,7 +172,7 @@ class LocalizationConfig(_Section):
     """Random seed for the noise (>= 0); None draws one from the OS (shown in status)."""
 
 
-class DriveConfig(_Section):
+class DriveConfig(_Section, frozen=True):
     rate: Positive = 50.0
     """Target velocities per second of simulation time."""
     cruise_speed: Positive = 0.3
@@ -197,7 +197,7 @@ class DriveConfig(_Section):
     the drive then commands zero until a fresh one arrives."""
 
 
-class InputConfig(_Section):
+class InputConfig(_Section, frozen=True):
     """What every service accepts as plausible input (docs/input.md). Outside these bounds a
     well-formed sample is bad input: dropped, counted, and its stamp never moves a time base."""
 

@@ -73,15 +73,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     what = parser.add_argument_group("what to drive (exactly one of --for, --scenario, --waypoints)")
     mode = what.add_mutually_exclusive_group(required=True)
     mode.add_argument(
-        "--for", dest="duration", type=positive_seconds, metavar="S",
+        "--for",
+        dest="duration",
+        type=positive_seconds,
+        metavar="S",
         help="constant velocity (--vx, --w) for S seconds of simulation time",
     )
     mode.add_argument(
-        "--scenario", type=_argument(load_scenario), metavar="NAME|FILE",
+        "--scenario",
+        type=_argument(load_scenario),
+        metavar="NAME|FILE",
         help=f"a built-in scenario ({', '.join(BUILTIN_SCENARIOS)}) or a scenario TOML file (docs/drive.md)",
     )
     mode.add_argument(
-        "--waypoints", type=_argument(parse_waypoints), metavar='"X,Y X,Y ..."',
+        "--waypoints",
+        type=_argument(parse_waypoints),
+        metavar='"X,Y X,Y ..."',
         help='follow a path through these points (world frame, m), e.g. "1,0 1,1 0,1 0,0"',
     )
     what.add_argument("--vx", type=finite_number, metavar="M/S", help="with --for: forward speed (default 0)")
@@ -135,7 +142,9 @@ class DriveService:
         """Lockstep: (tick stamp, wall deadline) of a tick waiting for the odometry pose of its stamp."""
         self.publisher = node.publisher(node.keys.drive_target_velocity)
         self._path = node.latched_publisher(node.keys.drive_path)
-        self._clock_input = node.sample(node.keys.sim_wheel_angles, TimedDoubleSeq, self._on_clock, with_attachment=True)
+        self._clock_input = node.sample(
+            node.keys.sim_wheel_angles, TimedDoubleSeq, self._on_clock, with_attachment=True
+        )
         self._pose_input = node.sample(node.keys.odometry_pose, TimedPosition, self._on_pose)
         node.watch(Service.SIM, self._on_sim_liveliness)
         node.watch(Service.ODOMETRY, self._on_odometry_liveliness)
@@ -143,7 +152,11 @@ class DriveService:
         node.set_status(self.status)
         node.log.info(
             "%s %r%s at %g Hz of simulation time:\n%s",
-            self.mode, scenario.name, " (looping)" if args.loop else "", self.rate_hz, describe(scenario),
+            self.mode,
+            scenario.name,
+            " (looping)" if args.loop else "",
+            self.rate_hz,
+            describe(scenario),
         )
 
     @property

@@ -33,13 +33,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--rate", type=float, metavar="HZ", help=f"fixes per second of simulation time (default {defaults.rate:g})"
     )
     group.add_argument(
-        "--noise", type=float, nargs=3, metavar=("SX", "SY", "STHETA"),
+        "--noise",
+        type=float,
+        nargs=3,
+        metavar=("SX", "SY", "STHETA"),
         help="standard deviations of the Gaussian noise on x, y (m) and theta (rad) "
         f"(default {defaults.noise_x:g} {defaults.noise_y:g} {defaults.noise_theta:g})",
     )
     group.add_argument("--seed", type=int, metavar="N", help="random seed of the noise (default: from the OS)")
     group.add_argument(
-        "--initial", type=float, nargs=3, metavar=("X", "Y", "THETA"),
+        "--initial",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "THETA"),
         help="initial pose published before the first fix "
         f"(default {defaults.initial_x:g} {defaults.initial_y:g} {defaults.initial_theta:g})",
     )
@@ -83,7 +89,11 @@ class LocalizationService:
         node.set_status(self.status)
         node.log.info(
             "fixes at %g Hz of simulation time, noise σ = (%g m, %g m, %g rad), seed %d",
-            self.config.rate, self.config.noise_x, self.config.noise_y, self.config.noise_theta, self.seed,
+            self.config.rate,
+            self.config.noise_x,
+            self.config.noise_y,
+            self.config.noise_theta,
+            self.seed,
         )
 
     def _on_sim_liveliness(self, alive: bool) -> None:

@@ -264,7 +264,9 @@ class TickBarrier:
             str(service): {
                 "rate_hz": participant.rate_hz,
                 "waited_for": participant.schedule is not None and not participant.final,
-                "last_output_s": None if participant.taken_ns is None else participant.taken_ns / NANOSECONDS_PER_SECOND,
+                "last_output_s": None
+                if participant.taken_ns is None
+                else participant.taken_ns / NANOSECONDS_PER_SECOND,
                 "final": participant.final,
             }
             for service, participant in self._participants.items()

@@ -133,7 +133,9 @@ class MotorService:
         # come before all three). A flood of targets holds one sample and delays no wheel angle.
         node.subscribe(keys.sim_wheel_angles, TimedDoubleSeq, self._on_wheel_angles, channel=True, with_attachment=True)
         node.subscribe(keys.sim_body_pose, TimedDoubleSeq, self._on_body_pose, channel=True)
-        self._targets = node.subscribe(keys.drive_target_velocity, TimedVelocity, self._on_target_velocity, newest_only=True)
+        self._targets = node.subscribe(
+            keys.drive_target_velocity, TimedVelocity, self._on_target_velocity, newest_only=True
+        )
         for family in MethodFamily:
             for method in Method:
                 node.queryable(keys.method(family, method), partial(self._call, family, method), mutates=True)

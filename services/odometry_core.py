@@ -47,7 +47,6 @@ from services.sim_time import check_next_stamp, check_stamp_near
 __all__ = ["Branch", "Odometry", "OdometryParameters", "Pose", "Step", "wrap_angle"]
 
 
-
 class Branch(StrEnum):
     """Which formula a step took for ΔL (names used in the trace and in ``status``)."""
 
@@ -151,29 +150,29 @@ class Odometry:
     """The integrator's state and its two inputs: wheel-angle samples and localized poses."""
 
     __slots__ = (
-        "parameters",
-        "_left_id",
-        "_right_id",
-        "_needed",
-        "_r_left",
-        "_r_right",
-        "_b",
         "_angle_border",
-        "_rho_border",
-        "_seed_straight",
-        "_time_ns",
+        "_b",
+        "_history",
+        "_horizon_ns",
+        "_left_id",
+        "_max_coordinate",
+        "_max_wheel_speed",
+        "_needed",
+        "_omega",
+        "_pending_fix",
         "_q_left",
         "_q_right",
+        "_r_left",
+        "_r_right",
+        "_rho_border",
+        "_right_id",
+        "_seed_straight",
+        "_theta",
+        "_time_ns",
         "_v",
-        "_omega",
         "_x",
         "_y",
-        "_theta",
-        "_history",
-        "_pending_fix",
-        "_horizon_ns",
-        "_max_wheel_speed",
-        "_max_coordinate",
+        "parameters",
     )
 
     def __init__(

@@ -25,6 +25,7 @@ Every command goes through an acceleration limiter (``max_acceleration``,
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -109,7 +110,7 @@ def _segments(origin: Point, waypoints: Sequence[Point], params: FollowerParams)
         if math.dist(points[-1][0], point) > params.goal_tolerance:
             points.append((point, index))
     segments: list[_Segment] = []
-    for (start, _), (end, index) in zip(points, points[1:]):
+    for (start, _), (end, index) in itertools.pairwise(points):
         length = math.dist(start, end)
         segments.append(
             _Segment(start, end, (end[0] - start[0]) / length, (end[1] - start[1]) / length, length, index, True)

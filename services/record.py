@@ -25,11 +25,11 @@ from typing import Any, Protocol
 import zenoh
 
 from schemas.codec import BadInput, decode
-from schemas.keys import LATCHED_TOPICS, TOPIC_TYPES, Keys, Topic
+from schemas.keys import LATCHED_TOPICS, TOPIC_TYPES, Keys, Topic, TopicMessage
 from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary
 from services.config import Config
 from services.recording import LATEST_STAMP_NS, McapWriter
-from services.runtime import RateLimitedLog
+from services.runtime import RateLimitedLog, has_match
 from services.scene import WHEEL_SPEEDS_SCHEMA, WHEEL_SPEEDS_TOPIC, Scene
 
 log = logging.getLogger("invent.record")
@@ -90,7 +90,7 @@ class Observer:
         """What a latched key's publisher last published (the world, the path), so that a recorder or
         a view started mid-run has them: asked once the publisher's queryable has reached this
         session (a query sent before would reach nothing), and taken unless its key was already."""
-        for querier in [querier for querier in self._unasked if querier.matching_status.matching]:
+        for querier in [querier for querier in self._unasked if has_match(querier)]:
             self._unasked.remove(querier)
             self._latched_replies.append(querier.get())
         for replies in list(self._latched_replies):
@@ -136,19 +136,16 @@ class Observer:
 
     def _take(self, key: str, payload: bytes, log_time_ns: int) -> None:
         topic = self._topics.get(key)
-        try:
-            message = None if topic is None else decode(TOPIC_TYPES[topic], payload)
-        except BadInput:
-            message = None
-        stamp_ns = None if message is None else message.tm.to_nanoseconds()
-        if message is None or stamp_ns > LATEST_STAMP_NS:
+        message = None if topic is None else _decoded(TOPIC_TYPES[topic], payload)
+        if topic is None or message is None or message.tm.to_nanoseconds() > LATEST_STAMP_NS:
             self._sink.sample(key, payload, log_time_ns, None)
             return
+        stamp_ns = message.tm.to_nanoseconds()
         self._sink.sample(key, payload, log_time_ns, stamp_ns)
         latest_ns = self.latest_ns.get(key)
         if latest_ns is None or latest_ns < stamp_ns <= latest_ns + self._horizon_ns:
             self.latest_ns[key] = stamp_ns
-        if topic is Topic.RUN_SUMMARY:
+        if isinstance(message, RunSummary):
             self.run_summary = message
         try:
             shown_messages = self._scene.add(topic, message)
@@ -166,8 +163,17 @@ class Observer:
         )
 
     def close(self) -> None:
-        for declaration in [*self._subscribers, *self._latched_queriers]:
-            declaration.undeclare()
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+        for querier in self._latched_queriers:
+            querier.undeclare()
+
+
+def _decoded(message_type: type[TopicMessage], payload: bytes) -> TopicMessage | None:
+    try:
+        return decode(message_type, payload)
+    except BadInput:
+        return None
 
 
 def _log_time(sample: zenoh.Sample, taken_ns: int) -> int:

@@ -17,11 +17,12 @@ an index and a summary, which the ``mcap`` CLI and Foxglove use to seek).
 
 from __future__ import annotations
 
+import io
 import json
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import msgspec
 from mcap.exceptions import McapError
@@ -29,6 +30,9 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
+
+if TYPE_CHECKING:
+    from _typeshed import ReadableBuffer
 
 from schemas.codec import BadInput, decode
 from schemas.keys import Keys, Topic, parse_data_key, schema_for_key
@@ -91,8 +95,8 @@ class McapWriter:
     """One recording being written; :meth:`close` ends it with its index and summary."""
 
     def __init__(self, path: Path) -> None:
-        self._file: IO[bytes] = open(path, "wb")  # noqa: SIM115 (closed by close())
-        self._writer = Writer(_Flushing(self._file), chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self._file = _Flushing(io.FileIO(path, "wb"))
+        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
         self._writer.start(profile=PROFILE, library="invent-zenoh")
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
@@ -143,20 +147,14 @@ class McapWriter:
         self._file.close()
 
 
-class _Flushing:
+class _Flushing(io.BufferedWriter):
     """A file whose every write (the writer writes a whole chunk at once) reaches the disk's cache
     at once: a killed recorder loses only the chunk it was filling."""
 
-    def __init__(self, file: IO[bytes]) -> None:
-        self._file = file
-
-    def write(self, data: bytes) -> int:
-        written = self._file.write(data)
-        self._file.flush()
+    def write(self, data: ReadableBuffer) -> int:
+        written = super().write(data)
+        self.flush()
         return written
-
-    def tell(self) -> int:
-        return self._file.tell()
 
 
 @dataclass(frozen=True)
@@ -302,7 +300,7 @@ def _planned_path(
         return planned_path_for(summary.scenario, recording.ground_truth[0][1] if recording.ground_truth else None)
     except ConfigError:
         paths = [m for m in messages if m.topic == keys.drive_path]
-        return [tuple(point) for point in decode(PlannedPath, paths[-1].data).points] if paths else None
+        return decode(PlannedPath, paths[-1].data).points if paths else None
 
 
 def write_run_report(path: Path, report_dir: Path, config: Config) -> tuple[dict[str, Any], Path, list[Path]]:

@@ -26,7 +26,7 @@ from schemas.keys import Keys, Topic
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import ConfigError
 from services.recording import Replayed
-from services.runtime import CHANNEL_CAPACITY
+from services.runtime import CHANNEL_CAPACITY, has_match
 from services.tools import service_statuses
 
 log = logging.getLogger("invent.replay")
@@ -179,7 +179,7 @@ def run_replay(session: zenoh.Session, schedule: list[Replayed], keys: Keys, rat
 def _wait_matching(publisher: zenoh.Publisher, key: str, stop: threading.Event) -> None:
     """Until the consumers' subscriptions reached this session (declarations travel on their own)."""
     deadline = time.monotonic() + DISCOVERY_TIMEOUT_S
-    while not publisher.matching_status.matching:
+    while not has_match(publisher):
         if stop.is_set():
             return
         if time.monotonic() > deadline:

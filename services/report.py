@@ -50,9 +50,7 @@ def _pose_dict(pose: Pose | None) -> dict[str, float] | None:
 def odometry_errors(recording: Recording) -> list[float]:
     """Position error of each odometry pose against the ground truth at the same stamp."""
     truth = dict(recording.ground_truth)
-    return [
-        math.hypot(pose.x - truth[t].x, pose.y - truth[t].y) for t, pose in recording.odometry if t in truth
-    ]
+    return [math.hypot(pose.x - truth[t].x, pose.y - truth[t].y) for t, pose in recording.odometry if t in truth]
 
 
 def wheel_speeds(
@@ -189,10 +187,12 @@ def health_lines(health: dict[str, Any]) -> list[str]:
     torques = health["torques"]
     services = health["services"]
     return [
-        f"torques: late {torques['late']} ({torques['late_fraction']:.2%}), missing {torques['missing']} "
-        f"({torques['missing_fraction']:.2%}), stale {torques['stale']}; lockstep timeouts "
-        f"{health['lockstep']['timeouts']} (ticks {health['lockstep']['tick_timeouts']}), "
-        f"realtime resyncs {health['realtime']['resyncs']}",
+        (
+            f"torques: late {torques['late']} ({torques['late_fraction']:.2%}), missing {torques['missing']} "
+            f"({torques['missing_fraction']:.2%}), stale {torques['stale']}; lockstep timeouts "
+            f"{health['lockstep']['timeouts']} (ticks {health['lockstep']['tick_timeouts']}), "
+            f"realtime resyncs {health['realtime']['resyncs']}"
+        ),
         "bad inputs: " + ", ".join(f"{name} {counts['bad_inputs']}" for name, counts in services.items()),
         "internal errors: " + ", ".join(f"{name} {counts['internal_errors']}" for name, counts in services.items()),
     ]
@@ -206,8 +206,10 @@ def summary(report: dict[str, Any]) -> str:
 
     final, start = report["final"]["ground_truth"], report["start"]
     lines = [
-        f"scenario {report['scenario']} ({report['mode']}): {report['sim_time_s']:.2f} s simulated in "
-        f"{report['wall_time_s']:.2f} s wall, {report['real_time_factor'] or 0:.2f}x real time, {report['steps']} steps",
+        (
+            f"scenario {report['scenario']} ({report['mode']}): {report['sim_time_s']:.2f} s simulated in "
+            f"{report['wall_time_s']:.2f} s wall, {report['real_time_factor'] or 0:.2f}x real time, {report['steps']} steps"
+        ),
     ]
     if final and start:
         lines.append(
@@ -218,7 +220,9 @@ def summary(report: dict[str, Any]) -> str:
         f"odometry error max {metres(report['odometry_error']['max_m'])}, final {metres(report['odometry_error']['final_m'])}"
     )
     if report["path_error"]:
-        lines.append(f"path error mean {metres(report['path_error']['mean_m'])}, max {metres(report['path_error']['max_m'])}")
+        lines.append(
+            f"path error mean {metres(report['path_error']['mean_m'])}, max {metres(report['path_error']['max_m'])}"
+        )
     lines += health_lines(report["health"])
     lines += map(degradation_line, report["degraded"])
     return "\n".join(lines)
@@ -236,7 +240,9 @@ def _downsample(series: list[Any], limit: int = 4000) -> list[Any]:
     return series[::step]
 
 
-def write_plots(recording: Recording, planned_path: list[Point] | None, robot: RobotConfig, directory: Path) -> list[Path]:
+def write_plots(
+    recording: Recording, planned_path: list[Point] | None, robot: RobotConfig, directory: Path
+) -> list[Path]:
     """``trajectory.png`` (ground truth, odometry, localization, planned path) and ``wheel_speeds.png``."""
     import matplotlib
 
@@ -254,7 +260,10 @@ def write_plots(recording: Recording, planned_path: list[Point] | None, robot: R
             axes.plot([p[0] for _t, p in points], [p[1] for _t, p in points], linewidth=width, alpha=0.8, label=name)
     if recording.localization:
         axes.plot(
-            [p[0] for _t, p in recording.localization], [p[1] for _t, p in recording.localization], "o", label="localization fixes"
+            [p[0] for _t, p in recording.localization],
+            [p[1] for _t, p in recording.localization],
+            "o",
+            label="localization fixes",
         )
     axes.set_xlabel("x [m]")
     axes.set_ylabel("y [m]")
@@ -271,7 +280,9 @@ def write_plots(recording: Recording, planned_path: list[Point] | None, robot: R
     for index, side in ((1, "left"), (2, "right")):
         panel = axes[index - 1]
         measured_points = _downsample(measured)
-        panel.plot([m[0] for m in measured_points], [m[index] for m in measured_points], label="measured", linewidth=0.8)
+        panel.plot(
+            [m[0] for m in measured_points], [m[index] for m in measured_points], label="measured", linewidth=0.8
+        )
         panel.step([c[0] for c in commanded], [c[index] for c in commanded], where="post", label="commanded")
         panel.set_ylabel(f"{side} wheel [rad/s]")
         panel.grid(True, alpha=0.3)
@@ -282,4 +293,3 @@ def write_plots(recording: Recording, planned_path: list[Point] | None, robot: R
     figure.savefig(speeds, dpi=110, bbox_inches="tight")
     plt.close(figure)
     return [trajectory, speeds]
-

@@ -175,6 +175,13 @@ class BadInputCounter:
         }
 
 
+def has_match(entity: zenoh.Publisher | zenoh.Querier) -> bool:
+    """Whether ``entity`` has a subscriber (publisher) or queryable (querier) now."""
+    # zenoh-python 1.10's stub types matching_status as bool; it returns a MatchingStatus.
+    status: Any = entity.matching_status
+    return bool(status.matching)
+
+
 class Publisher:
     """A zenoh publisher of one message type, encoding with the project's codec."""
 
@@ -188,7 +195,7 @@ class Publisher:
     @property
     def matched(self) -> bool:
         """True once at least one subscriber matches this key."""
-        return self._publisher.matching_status.matching
+        return has_match(self._publisher)
 
     def declare_matching_listener(self, callback: Callable[[zenoh.MatchingStatus], None]) -> Any:
         return self._publisher.declare_matching_listener(callback)
@@ -275,6 +282,10 @@ class NodeInput:
 
     def handle(self, sample: zenoh.Sample) -> None:
         self._dispatch(*_contents(sample))
+
+    def take(self) -> bool:
+        """Handle what waits, as this kind of input does; True if a sample was handled."""
+        raise NotImplementedError
 
     def wake(self) -> None:
         """End a :meth:`receive` in progress: an empty sample delivered to this session only."""
@@ -400,9 +411,10 @@ class Executor:
         self._start_waker()
 
     def remove_input(self, removed: NodeInput) -> None:
-        for inputs in (self._inputs, self._sampled):
-            if removed in inputs:
-                inputs.remove(removed)
+        if removed in self._inputs:
+            self._inputs.remove(removed)
+        if isinstance(removed, LatestSample) and removed in self._sampled:
+            self._sampled.remove(removed)
         if self._received is not None and self._received[0] is removed:
             self._received = None
         if not self._inputs and not self._sampled and self._waker is not None:
@@ -599,7 +611,9 @@ class Node:
             return channel_input
         post = self.executor.post
         self._declarations.append(
-            self.session.declare_subscriber(key, lambda sample: post(lambda contents: dispatch(*contents), _contents(sample)))
+            self.session.declare_subscriber(
+                key, lambda sample: post(lambda contents: dispatch(*contents), _contents(sample))
+            )
         )
         return None
 
@@ -626,9 +640,11 @@ class Node:
                     self.bad_inputs.record(key, str(error))
                     query.reply_err(json.dumps({"error": str(error)}), encoding=zenoh.Encoding(ENCODING))
                     return
-                except Exception as error:  # a bug must not kill the service; it is logged and counted
+                except Exception as error:  # noqa: BLE001 (a bug must not kill the service; it is logged and counted)
                     self._internal_error(key, error)
-                    query.reply_err(json.dumps({"error": f"internal error: {error}"}), encoding=zenoh.Encoding(ENCODING))
+                    query.reply_err(
+                        json.dumps({"error": f"internal error: {error}"}), encoding=zenoh.Encoding(ENCODING)
+                    )
                     return
                 if reply is not None:
                     query.reply(key, msgspec.json.encode(reply), encoding=zenoh.Encoding(ENCODING))
@@ -757,7 +773,7 @@ class Node:
             action()
         except BadInput as error:
             self.bad_inputs.record(key, str(error))
-        except Exception as error:  # a bug must not kill the service; it is logged and counted
+        except Exception as error:  # noqa: BLE001 (a bug must not kill the service; it is logged and counted)
             self._internal_error(key, error)
 
     def _internal_error(self, key: str, error: Exception) -> None:

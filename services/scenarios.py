@@ -28,6 +28,7 @@ is a :class:`~services.config.ConfigError` naming the field)::
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import tomllib
@@ -295,7 +296,7 @@ def distance_to_path(point: Point, path: Sequence[Point]) -> float:
         raise ValueError("empty path")
     if len(path) == 1:
         return math.dist(point, path[0])
-    return min(_distance_to_segment(point, a, b) for a, b in zip(path, path[1:]))
+    return min(_distance_to_segment(point, a, b) for a, b in itertools.pairwise(path))
 
 
 def _distance_to_segment(point: Point, a: Point, b: Point) -> float:

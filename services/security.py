@@ -309,7 +309,7 @@ def _write_tls(directory: Path, names: Sequence[str]) -> None:
 
     directory.mkdir(parents=True, exist_ok=True)
     directory.chmod(0o700)
-    now = datetime.datetime.now(datetime.timezone.utc)
+    now = datetime.datetime.now(datetime.UTC)
     valid_until = now + datetime.timedelta(days=CERTIFICATE_DAYS)
     ca_key = ec.generate_private_key(ec.SECP256R1())
     ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "invent-zenoh local CA")])

@@ -78,7 +78,7 @@ class TraceFile:
     def __init__(self, path: str) -> None:
         self.path = path
         try:
-            self._file = Path(path).open("wb", buffering=0)
+            self._file = Path(path).open("wb", buffering=0)  # noqa: SIM115 (open for the service's life; close() closes it)
         except OSError as error:
             raise ConfigError(f"--trace {path}: {error.strerror}") from None
         self._encoder = msgspec.json.Encoder()

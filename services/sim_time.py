@@ -14,7 +14,7 @@ from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND
 
 
-def _seconds(nanoseconds: int) -> str:
+def _seconds(nanoseconds: float) -> str:
     return f"{nanoseconds / NANOSECONDS_PER_SECOND:.6g} s"
 
 
@@ -25,7 +25,9 @@ def check_next_stamp(stamp_ns: int, last_ns: int, horizon_ns: int) -> None:
     if stamp_ns <= last_ns:
         raise BadInput(f"dt = {_seconds(stamp_ns - last_ns)} <= 0")
     if stamp_ns - last_ns > horizon_ns:
-        raise BadInput(f"stamp jumps {_seconds(stamp_ns - last_ns)} ahead of the time base (horizon {_seconds(horizon_ns)})")
+        raise BadInput(
+            f"stamp jumps {_seconds(stamp_ns - last_ns)} ahead of the time base (horizon {_seconds(horizon_ns)})"
+        )
 
 
 def check_stamp_near(stamp_ns: int, reference_ns: int, horizon_ns: int, history_ns: float, what: str) -> None:

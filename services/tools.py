@@ -21,6 +21,7 @@ import zenoh
 from schemas.codec import ENCODING, BadMessage, decode
 from schemas.keys import Keys, Service, all_robots_alive, parse_alive_key, schema_for_key
 from services.config import ConfigError
+from services.runtime import has_match
 from services.security import write_profile
 
 EXIT_NO_ANSWER = 1
@@ -124,7 +125,7 @@ def run_echo(session: zenoh.Session, key_expr: str, count: int | None, stop: thr
 
 def _wait_for_match(querier: zenoh.Querier, timeout: float) -> bool:
     deadline = time.monotonic() + timeout
-    while not querier.matching_status.matching:
+    while not has_match(querier):
         if time.monotonic() > deadline:
             return False
         time.sleep(0.005)
@@ -153,11 +154,12 @@ def run_call(session: zenoh.Session, key: str, payload: str | None, timeout: flo
         replies = 0
         failed = False
         for reply in querier.get(payload=payload, encoding=zenoh.Encoding(ENCODING) if payload else None):
-            if reply.ok is not None:
-                _print_json({"key": str(reply.ok.key_expr), "value": _payload_value(reply.ok.payload.to_bytes())})
+            result = reply.result
+            if isinstance(result, zenoh.Sample):
+                _print_json({"key": str(result.key_expr), "value": _payload_value(result.payload.to_bytes())})
                 replies += 1
             else:
-                error = _payload_value(reply.err.payload.to_bytes())
+                error = _payload_value(result.payload.to_bytes())
                 print(f"invent call: {key} replied with an error: {json.dumps(error)}", file=sys.stderr)
                 failed = True
         if not replies and not failed:
@@ -198,8 +200,7 @@ def service_statuses(session: zenoh.Session, key_expr: str, timeout: float) -> l
         robot_name, service = parsed
         status: Any = None
         for reply in session.get(Keys(robot_name).status(service), timeout=timeout):
-            sample = reply.ok if reply.ok is not None else reply.err
-            status = _payload_value(sample.payload.to_bytes())
+            status = _payload_value(reply.result.payload.to_bytes())
         statuses.append((robot_name, service, status))
     return statuses
 

@@ -91,6 +91,12 @@ class Child:
     def finished(self) -> int | None:
         return self.process.poll()
 
+    def check_running(self, unless_exit_code: int | None = None) -> None:
+        """Raise ChildDied if it has ended (with any exit code other than ``unless_exit_code``)."""
+        code = self.finished()
+        if code is not None and code != unless_exit_code:
+            raise ChildDied(f"{self.name} exited unexpectedly ({_describe_exit(code)})")
+
 
 class Supervisor:
     """The children of one ``invent up`` run, their prefixed output, and their orderly stop."""
@@ -105,7 +111,8 @@ class Supervisor:
             stderr=subprocess.STDOUT,
             text=True,
             start_new_session=True,
-            preexec_fn=_die_with_parent if sys.platform == "linux" else None,
+            # prctl only, no Python objects: the hazard of preexec_fn with threads does not arise.
+            preexec_fn=_die_with_parent if sys.platform == "linux" else None,  # noqa: PLW1509
         )
         pump = threading.Thread(target=self._pump, args=(name, process), daemon=True)
         pump.start()
@@ -262,8 +269,7 @@ class RecorderProcess:
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
         while not summary_publisher.matched:
             run.check()
-            if self._child.finished() is not None:
-                raise ChildDied(f"record exited unexpectedly ({_describe_exit(self._child.finished())})")
+            self._child.check_running()
             if time.monotonic() > deadline:
                 raise ChildDied(f"the recorder did not subscribe within {STARTUP_TIMEOUT_S} s")
             time.sleep(0.02)
@@ -280,8 +286,7 @@ class RecorderProcess:
             if time.monotonic() > deadline:
                 raise ChildDied(f"the recorder did not close the recording within {limit_s} s")
             time.sleep(0.02)
-        if self._child.finished() != 0:
-            raise ChildDied(f"record exited unexpectedly ({_describe_exit(self._child.finished())})")
+        self._child.check_running(unless_exit_code=0)
 
     def close(self) -> None:
         """Stop it if it still runs (Ctrl-C, a service died): SIGINT, so it closes the file properly."""
@@ -303,13 +308,14 @@ class ViewProcess:
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
         while True:
             run.check()
-            if self._child.finished() is not None:
-                raise ChildDied(f"view exited unexpectedly ({_describe_exit(self._child.finished())})")
+            self._child.check_running()
             try:
                 socket.create_connection((view.DEFAULT_HOST, self._port), timeout=0.5).close()
             except OSError:
                 if time.monotonic() > deadline:
-                    raise ChildDied(f"the view did not serve on port {self._port} within {STARTUP_TIMEOUT_S} s") from None
+                    raise ChildDied(
+                        f"the view did not serve on port {self._port} within {STARTUP_TIMEOUT_S} s"
+                    ) from None
                 time.sleep(0.05)
             else:
                 say(f"Foxglove live view: ws://{view.DEFAULT_HOST}:{self._port} (Foxglove → Open connection)")
@@ -499,7 +505,9 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
             ]
             launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *sim_flags])
             started = time.monotonic()
-            sim_status = run.supervise(drive, started, recorder.during if recorder else None, until_interrupted=args.loop)
+            sim_status = run.supervise(
+                drive, started, recorder.during if recorder else None, until_interrupted=args.loop
+            )
             wall_time_s = time.monotonic() - started
             statuses = {str(service): run.status(service) for service in Service if service != Service.DRIVE}
             health = loop_health(sim_status, statuses)

@@ -179,8 +179,9 @@ class SimService:
         self.node.post(partial(self._participant_changed, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
 
     def _on_bump_stop_reply(self, reply: zenoh.Reply) -> None:
-        ok = reply.ok is not None
-        reason = "" if ok else reply.err.payload.to_string()
+        result = reply.result
+        ok = isinstance(result, zenoh.Sample)
+        reason = "" if ok else result.payload.to_string()
         self.node.post(partial(self._record_bump_stop_reply, ok, reason))
 
     # --- service thread ---
@@ -261,7 +262,6 @@ class SimService:
             )
         elif tm_ns > self._newest_ns:
             self._newest_torque, self._newest_ns = torque.data, tm_ns
-
 
     def _publish_state(self) -> int:
         sim = self.sim
@@ -452,7 +452,9 @@ class SimService:
         while missing() and time.monotonic() < deadline and not stop.is_set():
             self.node.spin_once(STOP_POLL_S)
         if missing():
-            self.node.log.warning("starting without %s: not there within %g s", ", ".join(missing()), START_HANDSHAKE_TIMEOUT_S)
+            self.node.log.warning(
+                "starting without %s: not there within %g s", ", ".join(missing()), START_HANDSHAKE_TIMEOUT_S
+            )
 
     def _await_participants(self) -> None:
         """Before the first step, until each participant there from the start says it sees this

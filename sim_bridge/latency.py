@@ -31,7 +31,7 @@ def percentiles(counts: Mapping[int, int], fractions: Iterable[float]) -> list[f
     if total <= 0:
         return [None for _ in fractions]
     ordered = sorted((index, count) for index, count in counts.items() if count > 0)
-    results = []
+    results: list[float | None] = []
     for fraction in fractions:
         rank, seen = max(1, math.ceil(total * fraction)), 0
         for index, count in ordered:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Self
 
 import pybullet as p
 
@@ -174,7 +175,7 @@ class Simulator:
     def close(self) -> None:
         p.disconnect(physicsClientId=self.client)
 
-    def __enter__(self) -> Simulator:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *_exc: object) -> None:

@@ -37,14 +37,14 @@ class _Table(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
                 raise ValueError(f"`{name}` must be finite, got {value}")
 
 
-class Ground(_Table):
+class Ground(_Table, frozen=True):
     """The floor: an infinite plane at z = 0."""
 
     friction: NonNegative = 1.0
     """Lateral friction coefficient (PyBullet multiplies it with the wheel's)."""
 
 
-class InitialPose(_Table):
+class InitialPose(_Table, frozen=True):
     """Where the robot's axle centre starts on the floor, and its heading."""
 
     x: float = 0.0
@@ -52,7 +52,7 @@ class InitialPose(_Table):
     theta: float = 0.0
 
 
-class Box(_Table):
+class Box(_Table, frozen=True):
     """A box standing on the floor, centred on (x, y), turned by ``yaw`` about z."""
 
     name: Name
@@ -65,7 +65,7 @@ class Box(_Table):
     """kg; 0 = fixed in place."""
 
 
-class Cylinder(_Table):
+class Cylinder(_Table, frozen=True):
     """An upright cylinder standing on the floor, centred on (x, y)."""
 
     name: Name
@@ -85,12 +85,15 @@ class World(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
 
     def __post_init__(self) -> None:
         seen: set[str] = set()
-        for table, obstacles in (("boxes", self.boxes), ("cylinders", self.cylinders)):
+        tables: tuple[tuple[str, tuple[Box | Cylinder, ...]], ...] = (
+            ("boxes", self.boxes),
+            ("cylinders", self.cylinders),
+        )
+        for table, obstacles in tables:
             for index, obstacle in enumerate(obstacles):
                 if obstacle.name in seen:
                     raise ValueError(f"`{table}[{index}].name`: obstacle name {obstacle.name!r} is used twice")
                 seen.add(obstacle.name)
-
 
 
 def obstacles(world: World) -> list[Obstacle]:

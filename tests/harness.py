@@ -18,7 +18,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Self, TypeVar
 
 import msgspec
 import zenoh
@@ -107,7 +107,9 @@ class Collector:
         self._subscriber.undeclare()
 
 
-def call(session: zenoh.Session, key: str, payload: bytes | str | None = None, timeout: float = 5.0) -> tuple[bool, Any]:
+def call(
+    session: zenoh.Session, key: str, payload: bytes | str | None = None, timeout: float = 5.0
+) -> tuple[bool, Any]:
     """Query ``key`` once something answers it; return (ok, JSON value) of the single reply."""
     querier = session.declare_querier(key, timeout=timeout)
     try:
@@ -192,7 +194,7 @@ class InventProcess:
             self.process.kill()
             return self._communicate()
 
-    def __enter__(self) -> InventProcess:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *_exc: object) -> None:
@@ -209,7 +211,7 @@ def start_up(*args: str) -> subprocess.Popen[str]:
 
 
 def run_invent(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(invent_command(*args), cwd=REPO, capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(invent_command(*args), cwd=REPO, capture_output=True, text=True, timeout=timeout, check=False)
 
 
 def json_lines(text: str) -> list[Any]:

@@ -8,6 +8,8 @@ the next one appears, as a simulator process that exits and is started again doe
 
 from __future__ import annotations
 
+from typing import Self
+
 import zenoh
 
 from schemas.keys import Keys, Service
@@ -31,7 +33,7 @@ class SimPresence:
         self._session.close()
         wait_until(lambda: not token_present(observer, self.key), what=f"{self.key} withdrawn")
 
-    def __enter__(self) -> SimPresence:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *_exc: object) -> None:

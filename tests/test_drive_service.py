@@ -8,6 +8,7 @@ the loop runs in lockstep.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -127,7 +128,7 @@ def test_waypoints_reach_a_1m_straight_goal_in_the_loop(endpoint: str, session: 
     assert math.dist((loop.pose.x, loop.pose.y), (1.0, 0.0)) <= DRIVE.goal_tolerance
     assert max(abs(pose.y) for pose in loop.trajectory) < 0.01
     assert max(c.vx for c in received) == pytest.approx(DRIVE.cruise_speed)
-    accelerations = [(b.vx - a.vx) * DRIVE.rate for a, b in zip(received, received[1:])]
+    accelerations = [(b.vx - a.vx) * DRIVE.rate for a, b in itertools.pairwise(received)]
     assert max(abs(a) for a in accelerations) <= DRIVE.max_acceleration + 1e-9, "ramped, so the wheels do not slip"
 
 

@@ -148,7 +148,9 @@ def test_a_sampled_input_never_hands_over_a_sample_older_than_one_it_handed_over
 
 def test_a_wake_never_pushes_the_newest_sample_out_of_a_newest_only_input(session, node):
     handled = []
-    targets = node.subscribe(KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: handled.append(m.tm.nsec), newest_only=True)
+    targets = node.subscribe(
+        KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: handled.append(m.tm.nsec), newest_only=True
+    )
     session.put(KEYS.drive_target_velocity, _sample(3))
     targets.wake()  # what the waker sends when it ends a wait just as the sample arrives
     while node.spin_once(0):
@@ -215,9 +217,7 @@ def test_the_low_latency_transport_is_opt_in(monkeypatch):
         assert config["scouting"]["gossip"]["autoconnect_strategy"]["peer"]["to_peer"] == "greater-zid"
 
 
-def test_a_sampled_input_hands_over_only_the_newest_sample_and_an_idle_executor_waits_for_it(
-    session, node, remote
-):
+def test_a_sampled_input_hands_over_only_the_newest_sample_and_an_idle_executor_waits_for_it(session, node, remote):
     handled = []
     node.sample(KEYS.sim_wheel_angles, TimedDoubleSeq, handled.append)
     session.put(KEYS.sim_wheel_angles, _sample(1))  # same session: both are in the ring before the look
@@ -273,7 +273,9 @@ def test_a_flooded_channel_input_keeps_only_its_newest_samples(session, node):
 def test_a_newest_only_input_holds_one_sample_and_comes_after_the_channel_inputs(session, node):
     order = []
     node.subscribe(KEYS.motor_wheel_angles, TimedDoubleSeq, lambda m: order.append(("angles", m.tm.nsec)), channel=True)
-    node.subscribe(KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: order.append(("target", m.tm.nsec)), newest_only=True)
+    node.subscribe(
+        KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: order.append(("target", m.tm.nsec)), newest_only=True
+    )
     for index in range(1000):
         session.put(KEYS.drive_target_velocity, _sample(index))
     session.put(KEYS.motor_wheel_angles, _sample(7))

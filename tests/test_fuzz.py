@@ -410,8 +410,10 @@ def loop() -> Iterator[Loop]:
                 encode(TimedVelocity(Time.from_nanoseconds(T0), [], BASELINE_TARGET[0], 0.0, BASELINE_TARGET[1], [])),
             )
             wait_until(
-                lambda: fuzzed.status(KEYS, Service.MOTOR)["target"] == dict(zip(("vx", "w"), BASELINE_TARGET))
-                and fuzzed.status(KEYS, Service.ODOMETRY)["counters"]["localization_resets"] >= 1,
+                lambda: (
+                    fuzzed.status(KEYS, Service.MOTOR)["target"] == dict(zip(("vx", "w"), BASELINE_TARGET))
+                    and fuzzed.status(KEYS, Service.ODOMETRY)["counters"]["localization_resets"] >= 1
+                ),
                 30,
                 "the baseline",
             )

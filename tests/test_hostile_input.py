@@ -105,9 +105,11 @@ def _inject(session: zenoh.Session, clock: SimClock) -> bool:
         put(KEYS.sim_wheel_angles, _seq(now_ns + 50_000_000, [angle + 1e6 for angle in angles]))
         put(KEYS.motor_wheel_angles, _seq(now_ns + 50_000_000, [angle + 1e6 for angle in angles]))
         time.sleep(0.005)  # pacing the forgeries, not waiting for a condition
-    ok, reply = call(session, KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN), json.dumps(
-        {"p_gain_l": 1e308, "p_gain_r": 1e308, "d_gain_l": 1e308, "d_gain_r": 1e308}
-    ))
+    ok, reply = call(
+        session,
+        KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN),
+        json.dumps({"p_gain_l": 1e308, "p_gain_r": 1e308, "d_gain_l": 1e308, "d_gain_r": 1e308}),
+    )
     return not ok and "max_gain" in json.dumps(reply)
 
 
@@ -178,8 +180,10 @@ def test_forged_and_absurd_input_is_counted_and_the_square_still_comes_home(tmp_
     )
 
     def refused(service: Service) -> dict[str, int]:
-        return {key.removeprefix(KEYS.prefix + "/"): entry["count"]
-                for key, entry in statuses[service]["bad_input"]["by_key"].items()}
+        return {
+            key.removeprefix(KEYS.prefix + "/"): entry["count"]
+            for key, entry in statuses[service]["bad_input"]["by_key"].items()
+        }
 
     motor, odometry, localization = refused(Service.MOTOR), refused(Service.ODOMETRY), refused(Service.LOCALIZATION)
     assert motor["sim/wheel_angles"] >= ROUNDS * 4, motor  # two far-future, one absurd, one jump a round

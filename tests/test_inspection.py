@@ -48,11 +48,14 @@ def running_loop() -> Iterator[str]:
     """Router, motor, a realtime sim and a constant-velocity drive, each its own process."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     connect = ("--connect", endpoint)
-    with InventProcess("router", "--listen", endpoint) as router, InventProcess(
-        "motor", *connect, *ROBOT_FLAGS
-    ) as motor, InventProcess("sim", *connect, *ROBOT_FLAGS, "--mode", "realtime") as sim, InventProcess(
-        "drive", *connect, *ROBOT_FLAGS, "--for", "3600", "--vx", str(TARGET["vx"]), "--w", str(TARGET["w"])
-    ) as drive:
+    with (
+        InventProcess("router", "--listen", endpoint) as router,
+        InventProcess("motor", *connect, *ROBOT_FLAGS) as motor,
+        InventProcess("sim", *connect, *ROBOT_FLAGS, "--mode", "realtime") as sim,
+        InventProcess(
+            "drive", *connect, *ROBOT_FLAGS, "--for", "3600", "--vx", str(TARGET["vx"]), "--w", str(TARGET["w"])
+        ) as drive,
+    ):
         yield endpoint
         for process in (drive, sim, motor, router):
             process.stop()
@@ -93,9 +96,11 @@ def test_exact_method_calls_still_act(loop_session):
     assert ok and status["state"] == "stopped"
     ok, status = call(loop_session, KEYS.method(MethodFamily.BUMP, Method.CLEAR))
     assert ok and status["state"] == "running"
-    ok, status = call(loop_session, KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN), json.dumps(
-        {"p_gain_l": 5.0, "p_gain_r": 5.0, "d_gain_l": 2.0, "d_gain_r": 2.0}
-    ))
+    ok, status = call(
+        loop_session,
+        KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN),
+        json.dumps({"p_gain_l": 5.0, "p_gain_r": 5.0, "d_gain_l": 2.0, "d_gain_r": 2.0}),
+    )
     assert ok and status["state"] == "running"
 
 

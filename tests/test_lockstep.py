@@ -110,7 +110,12 @@ def test_the_ticks_token_names_the_participant_and_its_rate():
     keys = Keys("rh0")
     assert keys.ticks(Service.DRIVE, 50.0) == "invent/rh0/drive/ticks/50.0"
     assert parse_ticks_key(keys.ticks(Service.LOCALIZATION, 1 / 3)) == (Service.LOCALIZATION, 1 / 3)
-    for key in ("invent/rh0/drive/ticks/-1.0", "invent/rh0/drive/ticks/nan", "invent/rh0/drive/alive", "x/rh0/drive/ticks/1.0"):
+    for key in (
+        "invent/rh0/drive/ticks/-1.0",
+        "invent/rh0/drive/ticks/nan",
+        "invent/rh0/drive/alive",
+        "x/rh0/drive/ticks/1.0",
+    ):
         assert parse_ticks_key(key) is None
 
 

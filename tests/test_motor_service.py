@@ -54,9 +54,7 @@ OVERRIDES: dict[str, Any] = {
 }
 """Non-default wheel ids (joint 0 is no wheel), unequal radii and the seed's RH0 offsets."""
 CONFIG = load_config(overrides={"robot.name": ROBOT, **OVERRIDES})
-DEFAULT_GAINS = PDGains(
-    CONFIG.motor.p_gain_l, CONFIG.motor.p_gain_r, CONFIG.motor.d_gain_l, CONFIG.motor.d_gain_r
-)
+DEFAULT_GAINS = PDGains(CONFIG.motor.p_gain_l, CONFIG.motor.p_gain_r, CONFIG.motor.d_gain_l, CONFIG.motor.d_gain_r)
 STEP_NS = 1_000_000
 RESET_GAP_NS = 200 * STEP_NS
 TRACE_FIELDS = {"tm", "state", "angles", "q", "dq", "target", "command", "dq_ref", "q_ref", "gains", "torque"}
@@ -418,7 +416,15 @@ def test_trace_lines_and_command_timeout_warning_in_an_integrated_motor(tmp_path
     motor_link = MotorLink(session, keys, config)
     try:
         with InventProcess(
-            "motor", "--connect", endpoint, "--robot", robot, "--target-angle", TargetAngleMode.INTEGRATED, "--trace", str(trace)
+            "motor",
+            "--connect",
+            endpoint,
+            "--robot",
+            robot,
+            "--target-angle",
+            TargetAngleMode.INTEGRATED,
+            "--trace",
+            str(trace),
         ) as motor:
             wait_alive(session, keys.alive(Service.MOTOR))
             motor_link.wait_matched()
@@ -465,8 +471,10 @@ def test_a_restarted_simulator_is_answered_again_from_its_new_clock(endpoint, se
             for run in range(2):
                 with SimPresence(endpoint, keys) as sim:
                     wait_until(
-                        lambda run=run: (status := motor_link.status())["sim_alive"]
-                        and status["counters"]["time_base_restarts"] == run,
+                        lambda run=run: (
+                            (status := motor_link.status())["sim_alive"]
+                            and status["counters"]["time_base_restarts"] == run
+                        ),
                         what="the motor to see the simulator appear",
                     )
                     motor_link.mirror = MotorCore(config.robot, config.motor)

@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 
 from schemas.codec import BadInput
 from services.config import InputConfig, load_config
-from services.odometry_core import Branch, Odometry, OdometryParameters, Pose, Step, wrap_angle
+from services.odometry_core import Branch, Odometry, OdometryParameters, Step, wrap_angle
+from services.planar import Pose
 
 NS = 1_000_000_000
 SMALL_ANGLE_TOLERANCE_PER_METRE = 2e-5
@@ -275,8 +276,9 @@ def test_arc_in_small_angle_steps_is_within_the_arc_length_bound() -> None:
     duration = 10.0
     steps = drive(law_odometry(p), Pose(0.0, 0.0, 0.0), left, right, int(duration * NS), 500)
     assert {s.branch for s in steps} == {Branch.SMALL_ANGLE}
-    assert_pose_close(steps[-1].pose, analytic_pose(Pose(0, 0, 0), v, omega, duration),
-                      SMALL_ANGLE_TOLERANCE_PER_METRE * v * duration)
+    assert_pose_close(
+        steps[-1].pose, analytic_pose(Pose(0, 0, 0), v, omega, duration), SMALL_ANGLE_TOLERANCE_PER_METRE * v * duration
+    )
 
 
 def test_arc_in_chord_steps_is_exact() -> None:
@@ -461,7 +463,8 @@ headings = st.floats(min_value=-math.pi, max_value=math.pi)
     steps=st.integers(min_value=2, max_value=300),
     start=st.builds(Pose, coordinates, coordinates, headings),
     geometry=st.tuples(
-        st.floats(min_value=0.03, max_value=0.5), st.floats(min_value=0.03, max_value=0.5),
+        st.floats(min_value=0.03, max_value=0.5),
+        st.floats(min_value=0.03, max_value=0.5),
         st.floats(min_value=0.1, max_value=1.0),
     ),
 )
@@ -469,7 +472,8 @@ def test_constant_curvature_in_n_steps_or_one_lands_on_the_same_pose(
     left: float, right: float, duration_ms: int, steps: int, start: Pose, geometry: tuple[float, float, float]
 ) -> None:
     p = parameters(
-        robot__radius_of_left_wheel=geometry[0], robot__radius_of_right_wheel=geometry[1],
+        robot__radius_of_left_wheel=geometry[0],
+        robot__radius_of_right_wheel=geometry[1],
         robot__length_of_axle=geometry[2],
     )
     v, omega = body_velocity(p, left, right)
@@ -573,9 +577,7 @@ def test_a_fix_gives_the_same_poses_whichever_comes_first_the_fix_or_the_sample_
 
 
 @settings(max_examples=50)
-@given(
-    st.floats(-0.02, 0.02), st.floats(-0.02, 0.02), st.integers(1, 200), st.integers(0, 200)
-)
+@given(st.floats(-0.02, 0.02), st.floats(-0.02, 0.02), st.integers(1, 200), st.integers(0, 200))
 def test_a_late_fix_equal_to_the_odometry_of_its_time_changes_nothing(left, right, steps, back):
     odometry = law_odometry(OdometryParameters.from_config(load_config()))
     poses = []
@@ -633,4 +635,6 @@ def test_a_fix_outside_the_history_or_implausible_is_refused(stamp_ns: int, x: f
     with pytest.raises(BadInput, match=reason):
         odometry.reset_at(stamp_ns, x, 0.0, 0.0)
     assert odometry.pose == before
-    assert odometry.reset_at(9 * NS, 1.8, 0.5, 0.0) == pytest.approx((2.0, 0.5, 0.0)), "a fix within the history applies"
+    assert odometry.reset_at(9 * NS, 1.8, 0.5, 0.0) == pytest.approx((2.0, 0.5, 0.0)), (
+        "a fix within the history applies"
+    )

@@ -268,8 +268,9 @@ def test_a_restarted_simulator_starts_a_new_time_base_from_the_kept_pose(
     for run in (1, 2):
         with SimPresence(module_endpoint, link.keys) as sim:
             wait_until(
-                lambda run=run: link.status()["counters"]["time_base_restarts"]
-                == before["counters"]["time_base_restarts"] + run,
+                lambda run=run: (
+                    link.status()["counters"]["time_base_restarts"] == before["counters"]["time_base_restarts"] + run
+                ),
                 what="the odometry to see the simulator appear",
             )
             kept = link.mirror.pose
@@ -295,7 +296,11 @@ def test_trace_writes_one_line_per_accepted_step(link: OdometryLink, trace_path:
     for line, step in zip(lines[lines_before:], steps, strict=True):
         assert line["branch"] == step.branch
         assert (line["q_left"], line["q_right"], line["dt"], line["dphi"], line["dl"]) == (
-            step.q_left, step.q_right, step.dt, step.dphi, step.dl,
+            step.q_left,
+            step.q_right,
+            step.dt,
+            step.dphi,
+            step.dl,
         )
         assert (line["x"], line["y"], line["theta"]) == (step.x, step.y, step.theta)
         assert line["localization_resets"] == link.status()["counters"]["localization_resets"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -139,7 +140,7 @@ def test_the_loop_is_closed_a_biased_robot_still_traces_the_square() -> None:
 def test_commands_respect_speed_turn_rate_and_acceleration_limits() -> None:
     run = follow(SQUARE)
     commands = [STOPPED] + [command for _p, command, _ph in run.ticks]
-    for before, after in zip(commands, commands[1:]):
+    for before, after in itertools.pairwise(commands):
         assert abs(after.vx - before.vx) <= PARAMS.max_acceleration * CONTROL_DT + 1e-12
         assert abs(after.w - before.w) <= PARAMS.max_angular_acceleration * CONTROL_DT + 1e-12
         assert 0.0 <= after.vx <= PARAMS.cruise_speed + 1e-12

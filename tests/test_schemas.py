@@ -106,7 +106,7 @@ def test_timed_double_seq_rejects(payload, reason):
         '{"tm":{"sec":1,"nsec":0},"id":[1.5],"vx":0,"vy":0,"w":0,"error":[]}',
         '{"tm":{"sec":1,"nsec":0},"id":[],"vx":0,"vy":0,"error":[]}',
         '{"tm":{"sec":1,"nsec":0},"id":[],"vx":0,"vy":0,"w":0,"error":[],"z":0}',
-        '[1, 2, 3]',
+        "[1, 2, 3]",
     ],
 )
 def test_timed_velocity_rejects(payload):
@@ -144,9 +144,6 @@ def test_pd_gains_reject_negative():
 @given(st.integers(0, 10**15))
 def test_time_nanoseconds_round_trip(total_ns):
     assert Time.from_nanoseconds(total_ns).to_nanoseconds() == total_ns
-
-
-
 
 
 def test_keys_are_a_function_of_the_robot_name():

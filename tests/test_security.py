@@ -161,7 +161,9 @@ def test_router_lets_each_role_put_only_its_own_keys_and_refuses_strangers(tmp_p
         witness.declare_queryable(barrier, lambda query: query.reply(barrier, b"{}"))
         sessions = {role: open_as(role) for role in Role}
         publishers = [
-            (role, session.declare_publisher(KEYS.topic(topic))) for role, session in sessions.items() for topic in Topic
+            (role, session.declare_publisher(KEYS.topic(topic)))
+            for role, session in sessions.items()
+            for topic in Topic
         ]
         wait_until(lambda: all(p.matching_status.matching for _, p in publishers), 10, "the witness to match")
         for role, publisher in publishers:

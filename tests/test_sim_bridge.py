@@ -88,7 +88,7 @@ def sim_process(endpoint: str, *flags: str) -> InventProcess:
 def finish(sim: InventProcess) -> str:
     """Wait for a ``--duration`` run to end by itself; assert exit code 0 and return its stderr."""
     try:
-        out, err = sim.process.communicate(timeout=60)
+        _out, err = sim.process.communicate(timeout=60)
     except subprocess.TimeoutExpired:
         sim.process.kill()
         raise AssertionError("invent sim --duration did not finish") from None
@@ -131,7 +131,9 @@ def test_wheel_angles_and_body_pose_have_the_spec_shapes_and_simulation_time(ses
 
 
 def test_the_step_flag_sets_the_simulation_time_increment(session, endpoint):
-    answered, poses, err = run_with_source(session, endpoint, constant(1.0, 1.0), "--step", "0.002", "--duration", "0.02")
+    answered, poses, err = run_with_source(
+        session, endpoint, constant(1.0, 1.0), "--step", "0.002", "--duration", "0.02"
+    )
     assert [a.tm.to_nanoseconds() for a in answered] == [k * 2 * STEP_NS for k in range(10)]
     assert [p.tm.to_nanoseconds() for p in poses] == [k * 2 * STEP_NS for k in range(10)]
     assert "finished: 10 steps, 0.020 s simulated" in err

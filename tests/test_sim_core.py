@@ -151,15 +151,8 @@ def test_two_runs_with_the_same_torques_end_bit_identical():
         assert first.wheel_angles() == second.wheel_angles()
 
 
-
-
-
 @settings(max_examples=15, deadline=None)
-@given(
-    st.lists(
-        st.tuples(st.floats(-30.0, 30.0), st.floats(-30.0, 30.0), st.integers(1, 150)), min_size=1, max_size=4
-    )
-)
+@given(st.lists(st.tuples(st.floats(-30.0, 30.0), st.floats(-30.0, 30.0), st.integers(1, 150)), min_size=1, max_size=4))
 def test_the_body_rotation_is_always_proper(segments: list[tuple[float, float, int]]):
     with Simulator(RobotConfig(), SimConfig(), load_world(None)) as sim:
         for left, right, steps in segments:

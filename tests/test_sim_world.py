@@ -78,7 +78,7 @@ def test_a_full_world_parses_every_table():
         ('[[boxes]]\nname = "b"\nx = "far"\ny = 0\nsize = [1, 1, 1]\n', "boxes[0].x"),
         ('[[boxes]]\nname = "b"\nx = 1\ny = 0\nsize = [1, -1, 1]\n', "boxes[0].size[1]"),
         ('[[boxes]]\nname = "b"\nx = 1\ny = 0\nsize = [1, 1]\n', "boxes[0].size"),
-        ('[[boxes]]\nx = 1\ny = 0\nsize = [1, 1, 1]\n', "`name` - at `boxes[0]`"),
+        ("[[boxes]]\nx = 1\ny = 0\nsize = [1, 1, 1]\n", "`name` - at `boxes[0]`"),
         ('[[boxes]]\nname = ""\nx = 1\ny = 0\nsize = [1, 1, 1]\n', "boxes[0].name"),
         ('[[cylinders]]\nname = "c"\nx = 1\ny = 0\nradius = 0\nheight = 1\n', "cylinders[0].radius"),
         (
