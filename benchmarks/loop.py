@@ -35,7 +35,7 @@ from schemas.keys import Keys, Service
 from services.config import Config
 from services.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.motor_core import MotorCore
-from services.runtime import open_session, session_config
+from services.runtime.session import open_session, session_config
 from sim_bridge.latency import percentiles
 
 REPO = Path(__file__).resolve().parent.parent

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks import codec, loop, machine
-from services.runtime import LOW_LATENCY_VARIABLE
+from services.runtime.session import LOW_LATENCY_VARIABLE
 
 RESULTS = Path(__file__).resolve().parent / "results" / "latest.json"
 

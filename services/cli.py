@@ -17,12 +17,12 @@ from services import record, replay, tools, up, view
 from services.config import ConfigError
 from services.recording import read_messages, replay_schedule, write_run_report
 from services.report import summary
-from services.runtime import (
+from services.runtime.logs import configure_logging
+from services.runtime.session import (
     DEFAULT_ENDPOINT,
     LOOPBACK_LISTEN,
     ZENOH_CONFIG_VARIABLE,
     SessionFailed,
-    configure_logging,
     open_session,
     session_config,
     stop_on_signals,

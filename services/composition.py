@@ -18,12 +18,9 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from schemas.keys import Service
-from services.runtime import Executor, Node
-from services.service import RunningService, ServiceCommand, config_from_args, start_service
-
-DRIVES_SHARED_EXECUTOR = Service.SIM
-"""The one service whose run loop spins the shared executor (the others get no thread)."""
+from services.runtime.executor import Executor
+from services.runtime.node import Node
+from services.service import ClockedService, RunningService, ServiceCommand, config_from_args, start_service
 
 log = logging.getLogger("invent.composed")
 
@@ -61,12 +58,11 @@ class Composition:
         """Build the service ``invent <argv>`` would run, here, and start its loop if it has one."""
         args = self._parser.parse_args(list(argv))
         command: ServiceCommand = args.service_command
-        service_name = command.service
         config = config_from_args(command, args)
         node, service = start_service(command, self.session, config, args, self._shared)
         composed = ComposedService(name, node, service, None)
-        if service_name == DRIVES_SHARED_EXECUTOR:
-            composed.thread = threading.Thread(target=self._run, args=(composed,), name=name, daemon=True)
+        if isinstance(service, ClockedService):
+            composed.thread = threading.Thread(target=self._run, args=(composed, service), name=name, daemon=True)
             composed.thread.start()
         self.services.append(composed)
         log.info("started %s in this process: invent %s", name, " ".join(argv))
@@ -79,9 +75,9 @@ class Composition:
             while self._shared.spin_once(0):
                 pass
 
-    def _run(self, composed: ComposedService) -> None:
+    def _run(self, composed: ComposedService, service: ClockedService) -> None:
         try:
-            composed.exit_code = composed.service.run(self._stop)
+            composed.exit_code = service.run(self._stop)
         except BaseException as error:  # reported by check(), like a child process that died
             composed.error = error
             log.exception("%s crashed", composed.name)

@@ -7,7 +7,7 @@ someone (the motor) subscribes to the target velocity, and a command is stamped 
 that took its tick. When the scenario starts, it publishes the path it plans on ``drive/path``
 (latched: a query gets it too). Waypoint segments close the loop on ``odometry/pose`` (odometry is reset by
 every ``localization/pose`` fix, so this is the localized pose corrected by odometry). Both
-inputs are sampled (:meth:`~services.runtime.Node.sample`): the drive acts on the newest clock
+inputs are sampled (:attr:`~services.runtime.inputs.Delivery.SAMPLED`): the drive acts on the newest clock
 stamp and pose, never on a backlog.
 
 The drive is a lockstep participant (services/lockstep.py): once the motor subscribes it holds
@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import threading
 import time
 from typing import Any
 
@@ -35,9 +34,9 @@ from schemas.keys import Service
 from schemas.messages import NANOSECONDS_PER_SECOND, PlannedPath, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
 from services.config import Config, ConfigError, DriveConfig
 from services.lockstep import FINAL, decode_owed
-from services.path_following import FollowerParams
 from services.planar import Pose, check_coordinates
-from services.runtime import STOP_POLL_S, Node
+from services.runtime.inputs import Delivery
+from services.runtime.node import Node, Wait
 from services.scenarios import (
     BUILTIN_SCENARIOS,
     ConstantSegment,
@@ -124,7 +123,7 @@ class DriveService:
         self.rate_hz = config.drive.rate
         self.pose_timeout_ns = round(config.drive.pose_timeout * NANOSECONDS_PER_SECOND)
         self.mode, scenario = scenario_from_args(args)
-        self.runner = ScenarioRunner(scenario, FollowerParams.from_config(config.drive), loop=args.loop)
+        self.runner = ScenarioRunner(scenario, config.drive, loop=args.loop)
         self.clock = StampClock(round(config.input.stamp_horizon * NANOSECONDS_PER_SECOND))
         self.max_coordinate = config.input.max_coordinate
         self.schedule: PeriodicSchedule | None = None
@@ -142,13 +141,14 @@ class DriveService:
         """Lockstep: (tick stamp, wall deadline) of a tick waiting for the odometry pose of its stamp."""
         self.publisher = node.publisher(node.keys.drive_target_velocity)
         self._path = node.latched_publisher(node.keys.drive_path)
-        self._clock_input = node.sample(
-            node.keys.sim_wheel_angles, TimedDoubleSeq, self._on_clock, with_attachment=True
+        self._clock_input = node.subscribe(
+            node.keys.sim_wheel_angles, TimedDoubleSeq, self._on_clock, Delivery.SAMPLED, with_attachment=True
         )
-        self._pose_input = node.sample(node.keys.odometry_pose, TimedPosition, self._on_pose)
+        self._pose_input = node.subscribe(node.keys.odometry_pose, TimedPosition, self._on_pose, Delivery.SAMPLED)
         node.watch(Service.SIM, self._on_sim_liveliness)
         node.watch(Service.ODOMETRY, self._on_odometry_liveliness)
         node.participate(self.publisher, self.rate_hz)
+        node.wait_with(self._next_wait)
         node.set_status(self.status)
         node.log.info(
             "%s %r%s at %g Hz of simulation time:\n%s",
@@ -300,17 +300,13 @@ class DriveService:
             "pose_age_s": self.pose_age_s,
         }
 
-    def run(self, stop: threading.Event) -> int:
+    def _next_wait(self) -> Wait:
         # Waiting in the input needed next, the drive sees a lockstep tick's clock and then its pose
         # as they arrive: a poll would add its period to every tick the whole loop waits for.
-        while not stop.is_set() and not self.finished:
-            wait_s, waiting_for = STOP_POLL_S, self._clock_input
-            if self._pending_tick is not None:
-                wait_s = max(0.0, min(wait_s, self._pending_tick[1] - time.monotonic()))
-                waiting_for = self._pose_input
-            self.node.spin_once(wait_s, waiting_for)
-            self._complete_tick()
-        return 0
+        self._complete_tick()
+        if self._pending_tick is not None:
+            return Wait(self._pose_input, until=self._pending_tick[1])
+        return Wait(self._clock_input)
 
     def close(self) -> None:
         """Nothing beyond the node to release."""

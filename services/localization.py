@@ -8,21 +8,21 @@ simulation time the latest simulated pose plus optional Gaussian noise
 simulator's liveliness token appears and the next stamp is not after the last one (a restarted
 simulator's clock starts again at 0), that sample starts a new time base and takes a fix at once.
 
-The simulated pose is sampled (:meth:`~services.runtime.Node.sample`): a fix is always the
+The simulated pose is sampled (:attr:`~services.runtime.inputs.Delivery.SAMPLED`): a fix is always the
 newest pose, never one from a backlog, which odometry would take for the present.
 """
 
 from __future__ import annotations
 
 import argparse
-import threading
 from typing import Any
 
 from schemas.keys import Service
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition
 from services.config import Config, LocalizationConfig
 from services.localization_core import Fix, Localizer, resolve_seed
-from services.runtime import Node
+from services.runtime.inputs import Delivery
+from services.runtime.node import Node
 from services.service import ServiceCommand
 
 
@@ -84,7 +84,7 @@ class LocalizationService:
         self.sim_alive = False
         self.publisher = node.publisher(node.keys.localization_pose)
         node.participate(self.publisher, self.config.rate)
-        node.sample(node.keys.motor_sim_pose_localization, TimedDoubleSeq, self._on_sim_pose)
+        node.subscribe(node.keys.motor_sim_pose_localization, TimedDoubleSeq, self._on_sim_pose, Delivery.SAMPLED)
         node.watch(Service.SIM, self._on_sim_liveliness)
         node.set_status(self.status)
         node.log.info(
@@ -141,10 +141,6 @@ class LocalizationService:
             "first_fix_from_sim_pose": self.localizer.first_fix_from_sim_pose,
             "lockstep_participant": self.node.participating,
         }
-
-    def run(self, stop: threading.Event) -> int:
-        self.node.spin(stop)
-        return 0
 
     def close(self) -> None:
         """Nothing beyond the node to release."""

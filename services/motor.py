@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import threading
 import typing
 from functools import partial
 from pathlib import Path
@@ -31,7 +30,9 @@ from schemas.messages import NoArguments, PDGains, Time, TimedDoubleSeq, TimedVe
 from services.config import Config, TargetAngleMode
 from services.lockstep import Hold, decode_owed
 from services.motor_core import MotorCore
-from services.runtime import Node, NodeInput, RateLimitedLog
+from services.runtime.inputs import Delivery
+from services.runtime.logs import RateLimitedLog
+from services.runtime.node import Node, Wait
 from services.service import ServiceCommand, TraceFile
 
 STATE_HOME_VARIABLE = "XDG_STATE_HOME"
@@ -112,7 +113,7 @@ class MotorService:
         # Lockstep: a wheel-angle sample waits for the drive's target it is owed (the sim took it).
         self.target_hold: Hold[tuple[TimedDoubleSeq, bytes | None]] = Hold(
             Topic.DRIVE_TARGET_VELOCITY,
-            lambda held: node.guard(node.keys.sim_wheel_angles, lambda: self._control(*held)),
+            lambda held: node.guard(node.keys.sim_wheel_angles, self._control, *held),
             capacity=1,
         )
         self.sim_alive = False
@@ -128,18 +129,26 @@ class MotorService:
         self._wheel_angles = node.publisher(keys.motor_wheel_angles)
         self._sim_pose_gui = node.publisher(keys.motor_sim_pose_gui)
         self._sim_pose_localization = node.publisher(keys.motor_sim_pose_localization)
-        # Channel inputs, wheel angles first: the thread waits on them and answers with the torque
-        # before it converts the body pose, then takes the newest target (calls, posted events,
-        # come before all three). A flood of targets holds one sample and delays no wheel angle.
-        node.subscribe(keys.sim_wheel_angles, TimedDoubleSeq, self._on_wheel_angles, channel=True, with_attachment=True)
-        node.subscribe(keys.sim_body_pose, TimedDoubleSeq, self._on_body_pose, channel=True)
+        # Wheel angles first: the thread waits in their channel and answers with the torque before
+        # it converts the body pose, then takes the newest target (calls, posted events, come
+        # before all three). A flood of targets holds one sample and delays no wheel angle.
+        node.subscribe(
+            keys.sim_wheel_angles,
+            TimedDoubleSeq,
+            self._on_wheel_angles,
+            Delivery.EVERY,
+            wakes=True,
+            with_attachment=True,
+        )
+        node.subscribe(keys.sim_body_pose, TimedDoubleSeq, self._on_body_pose, Delivery.EVERY)
         self._targets = node.subscribe(
-            keys.drive_target_velocity, TimedVelocity, self._on_target_velocity, newest_only=True
+            keys.drive_target_velocity, TimedVelocity, self._on_target_velocity, Delivery.NEWEST
         )
         for family in MethodFamily:
             for method in Method:
                 node.queryable(keys.method(family, method), partial(self._call, family, method), mutates=True)
         node.watch(Service.SIM, self._on_sim_liveliness)
+        node.wait_with(self._next_wait)
         node.set_status(self.status)
         node.log.info(
             "motor control: target_angle %s, command_timeout %g s, wheel ids %d/%d",
@@ -284,13 +293,9 @@ class MotorService:
             "restored": self.restored,
         }
 
-    def run(self, stop: threading.Event) -> int:
-        self.node.spin(stop, waiting_for=self._awaited_input)
-        return 0
-
-    def _awaited_input(self) -> NodeInput | None:
+    def _next_wait(self) -> Wait:
         """While a wheel-angle sample is held, the drive's target is what comes next, not a wheel sample."""
-        return self._targets if self.target_hold.holding else None
+        return Wait(self._targets if self.target_hold.holding else None)
 
     def close(self) -> None:
         if self._trace is not None:

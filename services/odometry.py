@@ -11,16 +11,17 @@ stamps are the simulator's, and a restarted simulator's clock starts again at 0)
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import threading
 from typing import Any
+
+import msgspec
 
 from schemas.keys import Service, Topic
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
 from services.config import Config
 from services.lockstep import Hold, decode_owed
-from services.odometry_core import FIX_HISTORY_STEPS, Branch, Odometry, OdometryParameters
-from services.runtime import Node
+from services.odometry_core import FIX_HISTORY_STEPS, Branch, Odometry
+from services.runtime.inputs import Delivery
+from services.runtime.node import Node
 from services.service import ServiceCommand, TraceFile, no_overrides
 
 STATE_IDLE = "idle"
@@ -34,7 +35,7 @@ class OdometryService:
 
     def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
         self.node = node
-        self.odometry = Odometry(OdometryParameters.from_config(config), limits=config.input)
+        self.odometry = Odometry(config.robot, config.odometry, limits=config.input)
         self.samples = 0
         self.localization_resets = 0
         self.time_base_restarts = 0
@@ -44,15 +45,20 @@ class OdometryService:
         # Lockstep: a wheel-angle sample waits for the localization's fix it is owed (the sim took it).
         self.fix_hold: Hold[TimedDoubleSeq] = Hold(
             Topic.LOCALIZATION_POSE,
-            lambda held: node.guard(node.keys.motor_wheel_angles, lambda: self._integrate(held)),
+            lambda held: node.guard(node.keys.motor_wheel_angles, self._integrate, held),
             capacity=FIX_HISTORY_STEPS,
         )
         self._trace = TraceFile.from_flag(args.trace)
         self._pose = node.publisher(node.keys.odometry_pose)
         node.subscribe(
-            node.keys.motor_wheel_angles, TimedDoubleSeq, self.on_wheel_angles, channel=True, with_attachment=True
+            node.keys.motor_wheel_angles,
+            TimedDoubleSeq,
+            self.on_wheel_angles,
+            Delivery.EVERY,
+            wakes=True,
+            with_attachment=True,
         )
-        node.subscribe(node.keys.localization_pose, TimedPosition, self.on_localized_pose)
+        node.subscribe(node.keys.localization_pose, TimedPosition, self.on_localized_pose, Delivery.QUEUED)
         node.watch(Service.SIM, self.on_sim_liveliness)
         node.set_status(self.status)
 
@@ -87,7 +93,7 @@ class OdometryService:
     def status(self) -> dict[str, Any]:
         pose = self.odometry.pose
         v, omega = self.odometry.velocity
-        parameters = self.odometry.parameters
+        odometry = self.odometry
         return {
             "state": STATE_RUNNING if self.odometry.initialised else STATE_IDLE,
             "sim_alive": self.sim_alive,
@@ -102,16 +108,15 @@ class OdometryService:
                 "branches": {str(branch): count for branch, count in self.branches.items()},
             },
             "parameters": {
-                **dataclasses.asdict(parameters),
-                "left_radius": parameters.left_radius,
-                "right_radius": parameters.right_radius,
-                "half_axle": parameters.half_axle,
+                "left_wheel_id": odometry.robot.left_wheel_id,
+                "right_wheel_id": odometry.robot.right_wheel_id,
+                "radius_of_left_wheel": odometry.robot.radius_of_left_wheel,
+                "radius_of_right_wheel": odometry.robot.radius_of_right_wheel,
+                "length_of_axle": odometry.robot.length_of_axle,
+                **msgspec.structs.asdict(odometry.config),
+                **odometry.geometry._asdict(),
             },
         }
-
-    def run(self, stop: threading.Event) -> int:
-        self.node.spin(stop)
-        return 0
 
     def close(self) -> None:
         if self._trace is not None:

@@ -34,17 +34,16 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass
 from enum import StrEnum
 from typing import NamedTuple
 
 from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND
-from services.config import Config, InputConfig, StraightStep
+from services.config import InputConfig, OdometryConfig, RobotConfig
 from services.planar import Pose, check_coordinates, wrap_angle
 from services.sim_time import check_next_stamp, check_stamp_near
 
-__all__ = ["Branch", "Odometry", "OdometryParameters", "Pose", "Step", "wrap_angle"]
+__all__ = ["Branch", "CalibratedGeometry", "Odometry", "Pose", "Step", "wrap_angle"]
 
 
 class Branch(StrEnum):
@@ -89,57 +88,22 @@ class Step(NamedTuple):
         return Pose(self.x, self.y, self.theta)
 
 
-@dataclass(frozen=True)
-class OdometryParameters:
-    """Everything the integration reads, locked at activation (SPEC section 3)."""
+class CalibratedGeometry(NamedTuple):
+    """The lengths the integration uses: the robot's, times the odometry's calibration."""
 
-    left_wheel_id: int
-    right_wheel_id: int
-    radius_of_left_wheel: float
-    radius_of_right_wheel: float
-    length_of_axle: float
-    rotation_angle_border: float
-    rho_border: float
-    left_radius_scale: float
-    right_radius_scale: float
-    axle_scale: float
-    straight_step: StraightStep = "exact"
+    left_radius: float
+    """r_L: the configured radius times its calibration multiplier."""
+    right_radius: float
+    half_axle: float
+    """b = calibrated axle length / 2."""
 
     @classmethod
-    def from_config(cls, config: Config) -> OdometryParameters:
-        robot, odometry = config.robot, config.odometry
+    def of(cls, robot: RobotConfig, odometry: OdometryConfig) -> CalibratedGeometry:
         return cls(
-            left_wheel_id=robot.left_wheel_id,
-            right_wheel_id=robot.right_wheel_id,
-            radius_of_left_wheel=robot.radius_of_left_wheel,
-            radius_of_right_wheel=robot.radius_of_right_wheel,
-            length_of_axle=robot.length_of_axle,
-            rotation_angle_border=odometry.rotation_angle_border,
-            rho_border=odometry.rho_border,
-            left_radius_scale=odometry.left_radius_scale,
-            right_radius_scale=odometry.right_radius_scale,
-            axle_scale=odometry.axle_scale,
-            straight_step=odometry.straight_step,
+            robot.radius_of_left_wheel * odometry.left_radius_scale,
+            robot.radius_of_right_wheel * odometry.right_radius_scale,
+            robot.length_of_axle * odometry.axle_scale / 2.0,
         )
-
-    @property
-    def left_radius(self) -> float:
-        """r_L used by the integration: the configured radius times its calibration multiplier."""
-        return self.radius_of_left_wheel * self.left_radius_scale
-
-    @property
-    def right_radius(self) -> float:
-        return self.radius_of_right_wheel * self.right_radius_scale
-
-    @property
-    def half_axle(self) -> float:
-        """b = calibrated axle length / 2."""
-        return self.length_of_axle * self.axle_scale / 2.0
-
-    @property
-    def wheel_angles_needed(self) -> int:
-        """The shortest wheel-angle sequence that holds both wheel ids."""
-        return max(self.left_wheel_id, self.right_wheel_id) + 1
 
 
 FIX_HISTORY_STEPS = 4096
@@ -172,25 +136,32 @@ class Odometry:
         "_v",
         "_x",
         "_y",
-        "parameters",
+        "config",
+        "geometry",
+        "robot",
     )
 
     def __init__(
-        self, parameters: OdometryParameters, start: Pose = Pose(0.0, 0.0, 0.0), limits: InputConfig = InputConfig()
+        self,
+        robot: RobotConfig,
+        odometry: OdometryConfig,
+        start: Pose = Pose(0.0, 0.0, 0.0),
+        limits: InputConfig = InputConfig(),
     ) -> None:
-        self.parameters = parameters
+        """Locked at activation (docs/protocol.md section 3): the robot's geometry, the odometry's
+        parameters and the input limits."""
+        self.robot, self.config = robot, odometry
+        self.geometry = geometry = CalibratedGeometry.of(robot, odometry)
         self._horizon_ns = round(limits.stamp_horizon * NANOSECONDS_PER_SECOND)
         self._max_wheel_speed = limits.max_wheel_speed
         self._max_coordinate = limits.max_coordinate
-        self._left_id = parameters.left_wheel_id
-        self._right_id = parameters.right_wheel_id
-        self._needed = parameters.wheel_angles_needed
-        self._r_left = parameters.left_radius
-        self._r_right = parameters.right_radius
-        self._b = parameters.half_axle
-        self._angle_border = parameters.rotation_angle_border
-        self._rho_border = parameters.rho_border
-        self._seed_straight = parameters.straight_step == "seed"
+        self._left_id = robot.left_wheel_id
+        self._right_id = robot.right_wheel_id
+        self._needed = max(robot.left_wheel_id, robot.right_wheel_id) + 1
+        self._r_left, self._r_right, self._b = geometry
+        self._angle_border = odometry.rotation_angle_border
+        self._rho_border = odometry.rho_border
+        self._seed_straight = odometry.straight_step == "seed"
         self._time_ns: int | None = None
         self._q_left = self._q_right = 0.0
         self._v = self._omega = 0.0

@@ -48,31 +48,6 @@ class Command(NamedTuple):
 STOPPED = Command(0.0, 0.0)
 
 
-@dataclass(frozen=True)
-class FollowerParams:
-    cruise_speed: float
-    max_turn_rate: float
-    lookahead: float
-    goal_tolerance: float
-    turn_in_place_angle: float
-    heading_tolerance: float
-    max_acceleration: float
-    max_angular_acceleration: float
-
-    @classmethod
-    def from_config(cls, drive: DriveConfig) -> FollowerParams:
-        return cls(
-            cruise_speed=drive.cruise_speed,
-            max_turn_rate=drive.max_turn_rate,
-            lookahead=drive.lookahead,
-            goal_tolerance=drive.goal_tolerance,
-            turn_in_place_angle=drive.turn_in_place_angle,
-            heading_tolerance=drive.heading_tolerance,
-            max_acceleration=drive.max_acceleration,
-            max_angular_acceleration=drive.max_angular_acceleration,
-        )
-
-
 class Phase(StrEnum):
     FOLLOW = "follow"
     TURN = "turn"
@@ -103,7 +78,7 @@ class _Segment:
     stop_at_end: bool
 
 
-def _segments(origin: Point, waypoints: Sequence[Point], params: FollowerParams) -> list[_Segment]:
+def _segments(origin: Point, waypoints: Sequence[Point], params: DriveConfig) -> list[_Segment]:
     """The path's segments, skipping waypoints within ``goal_tolerance`` of the point before them."""
     points: list[tuple[Point, int]] = [(origin, -1)]
     for index, point in enumerate(waypoints):
@@ -128,7 +103,7 @@ class PathFollower:
     ``command`` is the robot's current command, where the acceleration limiter starts from.
     """
 
-    def __init__(self, waypoints: Sequence[Point], params: FollowerParams, command: Command = STOPPED) -> None:
+    def __init__(self, waypoints: Sequence[Point], params: DriveConfig, command: Command = STOPPED) -> None:
         if not waypoints:
             raise ValueError("a path needs at least one waypoint")
         self.waypoints = [(float(x), float(y)) for x, y in waypoints]

@@ -29,7 +29,8 @@ from schemas.keys import LATCHED_TOPICS, TOPIC_TYPES, Keys, Topic, TopicMessage
 from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary
 from services.config import Config
 from services.recording import LATEST_STAMP_NS, McapWriter
-from services.runtime import RateLimitedLog, has_match
+from services.runtime.logs import RateLimitedLog
+from services.runtime.session import has_match
 from services.scene import WHEEL_SPEEDS_SCHEMA, WHEEL_SPEEDS_TOPIC, Scene
 
 log = logging.getLogger("invent.record")

@@ -26,7 +26,8 @@ from schemas.keys import Keys, Topic
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import ConfigError
 from services.recording import Replayed
-from services.runtime import CHANNEL_CAPACITY, has_match
+from services.runtime.inputs import CHANNEL_CAPACITY
+from services.runtime.session import has_match
 from services.tools import service_statuses
 
 log = logging.getLogger("invent.replay")

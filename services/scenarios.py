@@ -39,8 +39,8 @@ from typing import Annotated
 import msgspec
 
 from schemas.messages import NANOSECONDS_PER_SECOND
-from services.config import ConfigError
-from services.path_following import STOPPED, Command, FollowerParams, PathFollower, Phase, Point
+from services.config import ConfigError, DriveConfig
+from services.path_following import STOPPED, Command, PathFollower, Phase, Point
 from services.planar import Pose, wrap_angle
 
 PositiveSeconds = Annotated[float, msgspec.Meta(gt=0.0)]
@@ -159,7 +159,7 @@ class ScenarioRunner:
     then ``done`` and commands zero.
     """
 
-    def __init__(self, scenario: Scenario, params: FollowerParams, loop: bool = False) -> None:
+    def __init__(self, scenario: Scenario, params: DriveConfig, loop: bool = False) -> None:
         self.scenario = scenario
         self.params = params
         self.loop = loop

@@ -15,14 +15,15 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import msgspec
 import zenoh
 
 from schemas.keys import Keys, Service, validate_robot_name
 from services.config import Config, ConfigError, load_config, parse_override
-from services.runtime import Executor, Node
+from services.runtime.executor import Executor
+from services.runtime.node import Node
 
 
 def positive_seconds(text: str) -> float:
@@ -95,17 +96,25 @@ class TraceFile:
 
 
 class RunningService(Protocol):
+    """A reactive service (motor, odometry, localization, drive): it declares its inputs on its
+    node and has no loop; the runtime runs it (:meth:`~services.runtime.node.Node.serve`)."""
+
     finished: bool
     """True once the service has ended by itself (a drive at the end of its scenario, a sim at the
-    end of its ``--duration``): its run loop then returns, and a composition that runs no loop for
-    it (:mod:`services.composition`) knows it is over."""
-
-    def run(self, stop: threading.Event) -> int:
-        """Serve until ``stop`` is set (or the service's own end); return the exit code."""
-        ...
+    end of its ``--duration``): whatever runs it then stops."""
 
     def close(self) -> None:
         """Release what the service holds beyond its node (files, simulators)."""
+        ...
+
+
+@runtime_checkable
+class ClockedService(RunningService, Protocol):
+    """A service that owns a clock (the simulator): it has a loop of its own, and in a composition
+    that loop's thread handles every composed service's events too."""
+
+    def run(self, stop: threading.Event) -> int:
+        """Serve until ``stop`` is set (or the service's own end); return the exit code."""
         ...
 
 
@@ -162,7 +171,10 @@ def run_service(
 ) -> int:
     node, service = start_service(command, session, config, args)
     try:
-        return service.run(stop)
+        if isinstance(service, ClockedService):
+            return service.run(stop)
+        node.serve(stop, lambda: service.finished)
+        return 0
     finally:
         service.close()
         node.close()

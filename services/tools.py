@@ -21,7 +21,7 @@ import zenoh
 from schemas.codec import ENCODING, BadMessage, decode
 from schemas.keys import Keys, Service, all_robots_alive, parse_alive_key, schema_for_key
 from services.config import ConfigError
-from services.runtime import has_match
+from services.runtime.session import has_match
 from services.security import write_profile
 
 EXIT_NO_ANSWER = 1

@@ -43,7 +43,8 @@ from services.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.record import RUN_END_TIMEOUT_S, Observer, writer_sink
 from services.recording import McapWriter, write_run_report
 from services.report import degradation_line, degradations, health_lines, loop_health, summary
-from services.runtime import DEFAULT_ENDPOINT, Publisher, open_session, session_config
+from services.runtime.inputs import Publisher
+from services.runtime.session import DEFAULT_ENDPOINT, open_session, session_config
 from services.security import Profile, Role, write_profile
 from services.service import port_number
 from sim_bridge.display import require_display

@@ -54,7 +54,10 @@ from schemas.messages import (
 )
 from services.config import Config, SimConfig, SimMode
 from services.lockstep import FINAL, OUTPUTS, TickBarrier, encode_owed
-from services.runtime import STOP_POLL_S, Node, NodeInput, RateLimitedLog
+from services.runtime.executor import STOP_POLL_S
+from services.runtime.inputs import Delivery, NodeInput
+from services.runtime.logs import RateLimitedLog
+from services.runtime.node import Node
 from services.service import ServiceCommand, positive_seconds
 from sim_bridge.latency import TorqueLatency
 from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, obstacles, read_world, resolve_world
@@ -149,31 +152,26 @@ class SimService:
         # channel at its ticks; realtime waits for its step's deadline, which a posted torque must
         # interrupt.
         lockstep = self.mode == SimMode.LOCKSTEP
-        node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, channel=lockstep)
+        delivery = Delivery.EVERY if lockstep else Delivery.QUEUED
+        node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, delivery, wakes=lockstep)
         for service, message_type in ((Service.DRIVE, TimedVelocity), (Service.LOCALIZATION, TimedPosition)):
             self._outputs[service] = node.subscribe(
                 keys.topic(OUTPUTS[service]),
                 message_type,
                 partial(self._on_output, service),
-                channel=lockstep,
+                delivery,
                 with_attachment=True,
             )
         self._ticks_watch = node.session.liveliness().declare_subscriber(
             keys.every_ticks, self._on_ticks_token, history=True
         )
-        self._motor_key = keys.alive(Service.MOTOR)
         self._bump_stop = node.session.declare_querier(
             keys.method(MethodFamily.BUMP, Method.STOP), timeout=BUMP_STOP_TIMEOUT_S
         )
-        self._motor_watch = node.session.liveliness().declare_subscriber(
-            self._motor_key, self._on_motor_liveliness, history=True
-        )
+        node.watch(Service.MOTOR, self._set_motor_alive)
         node.set_status(self.status)
 
     # --- zenoh callbacks: they only hand over to the service thread ---
-
-    def _on_motor_liveliness(self, sample: zenoh.Sample) -> None:
-        self.node.post(partial(self._set_motor_alive, sample.kind == zenoh.SampleKind.PUT))
 
     def _on_ticks_token(self, sample: zenoh.Sample) -> None:
         self.node.post(partial(self._participant_changed, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
@@ -426,7 +424,7 @@ class SimService:
         self.node.log.info("%s: %s", "finished" if self.finished else "stopped", self._summary())
         if self._ended():
             self.node.log.info("the drive's scenario ended: holding at this step until stopped")
-            self.node.spin(stop)
+            self.node.serve(stop, finished=lambda: False)
         return 0
 
     def _await_motor_subscription(self) -> None:
@@ -546,7 +544,6 @@ class SimService:
 
     def close(self) -> None:
         self._ticks_watch.undeclare()
-        self._motor_watch.undeclare()
         self._bump_stop.undeclare()
         self.sim.close()
 

@@ -24,7 +24,7 @@ import msgspec
 import zenoh
 
 from schemas.codec import decode
-from services.runtime import open_session, session_config
+from services.runtime.session import open_session, session_config
 
 REPO = Path(__file__).resolve().parent.parent
 T = TypeVar("T")

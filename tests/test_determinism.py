@@ -29,7 +29,7 @@ from mcap.reader import make_reader
 from schemas.codec import decode
 from schemas.keys import Keys, Service, Topic, schema_for_key
 from services.recording import read_messages
-from services.runtime import open_session, session_config
+from services.runtime.session import open_session, session_config
 from services.scene import LOCALIZATION_TOPIC, ODOMETRY_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
 from tests.harness import (
     REPO,

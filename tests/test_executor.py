@@ -8,17 +8,12 @@ import time
 import pytest
 
 from schemas import Keys, Service, Time, TimedDoubleSeq, encode
-from services import runtime
-from services.runtime import (
-    CHANNEL_CAPACITY,
-    EVENT_CAPACITY,
-    LOW_LATENCY_VARIABLE,
-    Executor,
-    LatestSample,
-    Node,
-    RateLimitedLog,
-    session_config,
-)
+from services.runtime import executor as executor_module
+from services.runtime.executor import EVENT_CAPACITY, Executor
+from services.runtime.inputs import CHANNEL_CAPACITY, Delivery, LatestSample
+from services.runtime.logs import RateLimitedLog
+from services.runtime.node import Node
+from services.runtime.session import LOW_LATENCY_VARIABLE, session_config
 from tests.harness import Collector, open_peer, wait_until
 
 KEYS = Keys("rh0")
@@ -78,8 +73,8 @@ def _put_while_blocked(node: Node, remote, key: str, nsec: int, timeout: float |
 def test_posted_events_come_first_then_channel_inputs_in_the_order_they_were_added(session, node):
     handled = []
     first, second = KEYS.sim_wheel_angles, KEYS.sim_body_pose
-    node.subscribe(first, TimedDoubleSeq, lambda m: handled.append(("first", m.tm.nsec)), channel=True)
-    node.subscribe(second, TimedDoubleSeq, lambda m: handled.append(("second", m.tm.nsec)), channel=True)
+    node.subscribe(first, TimedDoubleSeq, lambda m: handled.append(("first", m.tm.nsec)), Delivery.EVERY, wakes=True)
+    node.subscribe(second, TimedDoubleSeq, lambda m: handled.append(("second", m.tm.nsec)), Delivery.EVERY, wakes=True)
     session.put(second, _sample(1))  # same session: delivered into the channel inside put
     session.put(first, _sample(2))
     session.put(first, _sample(3))
@@ -91,15 +86,15 @@ def test_posted_events_come_first_then_channel_inputs_in_the_order_they_were_add
 
 def test_a_sample_from_another_process_ends_a_blocked_receive_at_once(node, remote):
     handled = []
-    node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, handled.append, channel=True)
+    node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, handled.append, Delivery.EVERY, wakes=True)
     _put_while_blocked(node, remote, KEYS.sim_wheel_angles, 7, 30.0)
     assert [m.tm.nsec for m in handled] == [7]
 
 
 def test_a_posted_event_wakes_a_thread_blocked_in_a_channel_receive_at_once(node, monkeypatch):
     """At once, not at the waker's next periodic look: a lockstep tick waits on such events."""
-    monkeypatch.setattr(runtime, "WAKE_PERIOD_S", LONG_WAKE_PERIOD_S)
-    node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda _m: None, channel=True)
+    monkeypatch.setattr(executor_module, "WAKE_PERIOD_S", LONG_WAKE_PERIOD_S)
+    node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda _m: None, Delivery.EVERY, wakes=True)
     events = []
     thread, outcome = _spin_in_thread(node, None)
     _wait_blocked(node)
@@ -110,11 +105,17 @@ def test_a_posted_event_wakes_a_thread_blocked_in_a_channel_receive_at_once(node
 
 
 def test_a_thread_waits_in_the_input_it_is_told_to_wait_for(node, remote, monkeypatch):
-    monkeypatch.setattr(runtime, "WAKE_PERIOD_S", LONG_WAKE_PERIOD_S)
+    monkeypatch.setattr(executor_module, "WAKE_PERIOD_S", LONG_WAKE_PERIOD_S)
     handled = []
-    node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda m: handled.append(("angles", m.tm.nsec)), channel=True)
+    node.subscribe(
+        KEYS.sim_wheel_angles,
+        TimedDoubleSeq,
+        lambda m: handled.append(("angles", m.tm.nsec)),
+        Delivery.EVERY,
+        wakes=True,
+    )
     targets = node.subscribe(
-        KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: handled.append(("target", m.tm.nsec)), newest_only=True
+        KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: handled.append(("target", m.tm.nsec)), Delivery.NEWEST
     )
     _put_while_blocked(node, remote, KEYS.drive_target_velocity, 5, None, waiting_for=targets)
     assert handled == [("target", 5)]
@@ -123,8 +124,12 @@ def test_a_thread_waits_in_the_input_it_is_told_to_wait_for(node, remote, monkey
 def test_a_thread_told_to_wait_for_a_sampled_input_blocks_in_it_instead_of_polling(node, remote):
     """The drive between a lockstep tick's clock and its pose: nothing else counts meanwhile."""
     handled = []
-    node.sample(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda m: handled.append(("clock", m.tm.nsec)))
-    pose = node.sample(KEYS.odometry_pose, TimedDoubleSeq, lambda m: handled.append(("pose", m.tm.nsec)))
+    node.subscribe(
+        KEYS.sim_wheel_angles, TimedDoubleSeq, lambda m: handled.append(("clock", m.tm.nsec)), Delivery.SAMPLED
+    )
+    pose = node.subscribe(
+        KEYS.odometry_pose, TimedDoubleSeq, lambda m: handled.append(("pose", m.tm.nsec)), Delivery.SAMPLED
+    )
     _put_while_blocked(node, remote, KEYS.odometry_pose, 9, 30.0, waiting_for=pose)
     assert handled == [("pose", 9)]
 
@@ -149,7 +154,7 @@ def test_a_sampled_input_never_hands_over_a_sample_older_than_one_it_handed_over
 def test_a_wake_never_pushes_the_newest_sample_out_of_a_newest_only_input(session, node):
     handled = []
     targets = node.subscribe(
-        KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: handled.append(m.tm.nsec), newest_only=True
+        KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: handled.append(m.tm.nsec), Delivery.NEWEST
     )
     session.put(KEYS.drive_target_velocity, _sample(3))
     targets.wake()  # what the waker sends when it ends a wait just as the sample arrives
@@ -161,7 +166,7 @@ def test_a_wake_never_pushes_the_newest_sample_out_of_a_newest_only_input(sessio
 def test_a_blocked_receive_ends_when_its_timeout_is_over_and_the_wake_is_seen_by_no_one(session, node, remote):
     handled = []
     key = KEYS.sim_wheel_angles
-    node.subscribe(key, TimedDoubleSeq, handled.append, channel=True)
+    node.subscribe(key, TimedDoubleSeq, handled.append, Delivery.EVERY, wakes=True)
     sampled = LatestSample(session, key, lambda payload, _attachment: handled.append(payload))
     elsewhere = Collector(remote, key)
     thread, outcome = _spin_in_thread(node, 0.3)
@@ -181,7 +186,7 @@ def test_closing_the_node_stops_the_waker(session):
 
     before = wakers()
     node = Node(session, KEYS, Service.SIM)
-    node.subscribe(KEYS.motor_torque, TimedDoubleSeq, lambda _m: None, channel=True)
+    node.subscribe(KEYS.motor_torque, TimedDoubleSeq, lambda _m: None, Delivery.EVERY, wakes=True)
     assert wakers() == before + 1
     node.close()
     assert wakers() == before
@@ -219,7 +224,7 @@ def test_the_low_latency_transport_is_opt_in(monkeypatch):
 
 def test_a_sampled_input_hands_over_only_the_newest_sample_and_an_idle_executor_waits_for_it(session, node, remote):
     handled = []
-    node.sample(KEYS.sim_wheel_angles, TimedDoubleSeq, handled.append)
+    node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, handled.append, Delivery.SAMPLED)
     session.put(KEYS.sim_wheel_angles, _sample(1))  # same session: both are in the ring before the look
     session.put(KEYS.sim_wheel_angles, _sample(2))
     assert node.spin_once(0) is True
@@ -249,8 +254,8 @@ def test_a_busy_executor_still_looks_at_its_sampled_inputs(session, node):
         while time.perf_counter() < busy_until:
             pass
 
-    node.subscribe(KEYS.motor_wheel_angles, TimedDoubleSeq, on_channel, channel=True)
-    node.sample(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda _m: order.append("sampled"))
+    node.subscribe(KEYS.motor_wheel_angles, TimedDoubleSeq, on_channel, Delivery.EVERY, wakes=True)
+    node.subscribe(KEYS.sim_wheel_angles, TimedDoubleSeq, lambda _m: order.append("sampled"), Delivery.SAMPLED)
     for index in range(backlog):
         session.put(KEYS.motor_wheel_angles, _sample(index))
     while node.spin_once(0):
@@ -261,7 +266,7 @@ def test_a_busy_executor_still_looks_at_its_sampled_inputs(session, node):
 
 def test_a_flooded_channel_input_keeps_only_its_newest_samples(session, node):
     handled = []
-    node.subscribe(KEYS.motor_wheel_angles, TimedDoubleSeq, handled.append, channel=True)
+    node.subscribe(KEYS.motor_wheel_angles, TimedDoubleSeq, handled.append, Delivery.EVERY, wakes=True)
     flood = 3 * CHANNEL_CAPACITY
     for index in range(flood):
         session.put(KEYS.motor_wheel_angles, _sample(index))
@@ -272,9 +277,15 @@ def test_a_flooded_channel_input_keeps_only_its_newest_samples(session, node):
 
 def test_a_newest_only_input_holds_one_sample_and_comes_after_the_channel_inputs(session, node):
     order = []
-    node.subscribe(KEYS.motor_wheel_angles, TimedDoubleSeq, lambda m: order.append(("angles", m.tm.nsec)), channel=True)
     node.subscribe(
-        KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: order.append(("target", m.tm.nsec)), newest_only=True
+        KEYS.motor_wheel_angles,
+        TimedDoubleSeq,
+        lambda m: order.append(("angles", m.tm.nsec)),
+        Delivery.EVERY,
+        wakes=True,
+    )
+    node.subscribe(
+        KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: order.append(("target", m.tm.nsec)), Delivery.NEWEST
     )
     for index in range(1000):
         session.put(KEYS.drive_target_velocity, _sample(index))

@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
-from services.config import InputConfig, load_config
-from services.odometry_core import Branch, Odometry, OdometryParameters, Step, wrap_angle
+from services.config import Config, InputConfig, load_config
+from services.odometry_core import Branch, CalibratedGeometry, Odometry, Step, wrap_angle
 from services.planar import Pose
 
 NS = 1_000_000_000
@@ -20,22 +20,24 @@ CHORD_TOLERANCE = 1e-9
 DEFAULT_BORDER = math.pi / 180.0
 
 
-def parameters(**overrides: float) -> OdometryParameters:
-    """Parameters from the robot description; ``overrides`` use dotted config keys with '__' for '.'."""
-    return OdometryParameters.from_config(
-        load_config(overrides={key.replace("__", "."): value for key, value in overrides.items()})
-    )
+def parameters(**overrides: float | str) -> Config:
+    """The robot description; ``overrides`` use dotted config keys with '__' for '.'."""
+    return load_config(overrides={key.replace("__", "."): value for key, value in overrides.items()})
+
+
+def calibrated(p: Config) -> CalibratedGeometry:
+    return CalibratedGeometry.of(p.robot, p.odometry)
 
 
 ANY_INPUT = InputConfig(stamp_horizon=1e9, max_wheel_speed=1e300)
 """The integration is tested on whatever input reaches it; the input policy has tests of its own."""
 
 
-def law_odometry(parameters: OdometryParameters, start: Pose = Pose(0.0, 0.0, 0.0)) -> Odometry:
-    return Odometry(parameters, start, ANY_INPUT)
+def law_odometry(parameters: Config, start: Pose = Pose(0.0, 0.0, 0.0)) -> Odometry:
+    return Odometry(parameters.robot, parameters.odometry, start, ANY_INPUT)
 
 
-def simple() -> OdometryParameters:
+def simple() -> Config:
     """r = 0.1 m both wheels, b = 0.2 m: easy numbers to compute by hand."""
     return parameters(robot__length_of_axle=0.4)
 
@@ -59,10 +61,11 @@ def analytic_pose(start: Pose, v: float, omega: float, duration: float) -> Pose:
     )
 
 
-def body_velocity(p: OdometryParameters, left_rate: float, right_rate: float) -> tuple[float, float]:
+def body_velocity(p: Config, left_rate: float, right_rate: float) -> tuple[float, float]:
     """(V, Omega) of wheels turning at ``left_rate``, ``right_rate`` rad/s."""
-    v_left, v_right = p.left_radius * left_rate, p.right_radius * right_rate
-    return (v_right + v_left) / 2.0, (v_right - v_left) / (2.0 * p.half_axle)
+    g = calibrated(p)
+    v_left, v_right = g.left_radius * left_rate, g.right_radius * right_rate
+    return (v_right + v_left) / 2.0, (v_right - v_left) / (2.0 * g.half_axle)
 
 
 def drive(
@@ -106,15 +109,15 @@ def test_parameters_come_from_the_robot_description_with_calibration() -> None:
         odometry__right_radius_scale=0.5,
         odometry__axle_scale=2.0,
     )
-    assert (p.left_radius, p.right_radius, p.half_axle) == pytest.approx((0.3, 0.15, 0.5))
+    assert calibrated(p) == pytest.approx((0.3, 0.15, 0.5))
 
 
 def test_default_parameters_are_the_seeds() -> None:
     p = parameters()
-    assert (p.left_wheel_id, p.right_wheel_id) == (0, 1)
-    assert (p.left_radius, p.right_radius, p.half_axle) == (0.1, 0.1, 0.2205)
-    assert p.rotation_angle_border == DEFAULT_BORDER
-    assert p.rho_border == 10000.0
+    assert (p.robot.left_wheel_id, p.robot.right_wheel_id) == (0, 1)
+    assert calibrated(p) == (0.1, 0.1, 0.2205)
+    assert p.odometry.rotation_angle_border == DEFAULT_BORDER
+    assert p.odometry.rho_border == 10000.0
 
 
 # --- first sample, hand-computed steps ---------------------------------------------------------
@@ -316,15 +319,16 @@ def test_reverse_straight_and_reverse_arc() -> None:
 # --- branch boundaries -----------------------------------------------------------------------------
 
 
-def step_with(p: OdometryParameters, dphi: float, rho: float, dt: float = 0.01) -> Step:
+def step_with(p: Config, dphi: float, rho: float, dt: float = 0.01) -> Step:
     """One step (after a first sample) whose wheel increments give ``dphi`` and ``rho``."""
-    b = p.half_axle
+    g = calibrated(p)
+    b = g.half_axle
     difference = 2.0 * b * dphi / dt  # vR - vL
     total = rho * difference / b  # vR + vL
     v_left, v_right = (total - difference) / 2.0, (total + difference) / 2.0
     odometry = law_odometry(p)
     odometry.step(0, [0.0, 0.0])
-    return odometry.step(round(dt * NS), [v_left * dt / p.left_radius, v_right * dt / p.right_radius])
+    return odometry.step(round(dt * NS), [v_left * dt / g.left_radius, v_right * dt / g.right_radius])
 
 
 @pytest.mark.parametrize("sign", [1.0, -1.0])
@@ -517,7 +521,7 @@ MS = 1_000_000
 
 def _driven(vr_per_step: float, vl_per_step: float, steps: int) -> Odometry:
     """Odometry after ``steps`` samples 1 ms apart, the wheels turning by the given angles per step."""
-    odometry = law_odometry(OdometryParameters.from_config(load_config()))
+    odometry = law_odometry(load_config())
     for k in range(steps + 1):
         odometry.step(k * MS, [vl_per_step * k, vr_per_step * k])
     return odometry
@@ -562,7 +566,7 @@ def test_a_fix_gives_the_same_poses_whichever_comes_first_the_fix_or_the_sample_
     the poses are the same, bit for bit."""
 
     def run(fix_before: int) -> list:
-        odometry = law_odometry(OdometryParameters.from_config(load_config()))
+        odometry = law_odometry(load_config())
         poses = []
         for k in range(fix_step + 10):
             if k == fix_before:
@@ -579,7 +583,7 @@ def test_a_fix_gives_the_same_poses_whichever_comes_first_the_fix_or_the_sample_
 @settings(max_examples=50)
 @given(st.floats(-0.02, 0.02), st.floats(-0.02, 0.02), st.integers(1, 200), st.integers(0, 200))
 def test_a_late_fix_equal_to_the_odometry_of_its_time_changes_nothing(left, right, steps, back):
-    odometry = law_odometry(OdometryParameters.from_config(load_config()))
+    odometry = law_odometry(load_config())
     poses = []
     for k in range(steps + 1):
         odometry.step(k * MS, [left * k, right * k])
@@ -597,7 +601,7 @@ def test_a_late_fix_equal_to_the_odometry_of_its_time_changes_nothing(left, righ
 
 def moving_odometry() -> Odometry:
     """Default input policy; ten seconds at 0.2 m/s straight on 1 ms steps, so a full history."""
-    odometry = Odometry(simple())
+    odometry = Odometry(simple().robot, simple().odometry)
     for k in range(10_001):
         odometry.step(k * NS // 1000, [0.002 * k, 0.002 * k])
     return odometry

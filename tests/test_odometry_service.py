@@ -21,7 +21,7 @@ from schemas.codec import encode
 from schemas.keys import Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
 from services.config import load_config
-from services.odometry_core import Branch, Odometry, OdometryParameters, Step
+from services.odometry_core import Branch, Odometry, Step
 from tests.harness import (
     Collector,
     InventProcess,
@@ -70,7 +70,7 @@ class OdometryLink:
         self.wheels = session.declare_publisher(keys.motor_wheel_angles, encoding=json_encoding)
         self.localization = session.declare_publisher(keys.localization_pose, encoding=json_encoding)
         config = load_config(overrides=OVERRIDES)
-        self.mirror = Odometry(OdometryParameters.from_config(config), limits=config.input)
+        self.mirror = Odometry(config.robot, config.odometry, limits=config.input)
         self.time_ns = FIRST_TM.to_nanoseconds()
         self.q_left = self.q_right = 0.0
 
@@ -274,7 +274,9 @@ def test_a_restarted_simulator_starts_a_new_time_base_from_the_kept_pose(
                 what="the odometry to see the simulator appear",
             )
             kept = link.mirror.pose
-            link.mirror = Odometry(link.mirror.parameters, start=kept, limits=load_config(overrides=OVERRIDES).input)
+            link.mirror = Odometry(
+                link.mirror.robot, link.mirror.config, start=kept, limits=load_config(overrides=OVERRIDES).input
+            )
             step, pose = link.send_wheels(0, 4.0, -3.0)
             assert step.branch is Branch.INITIAL and (pose.x, pose.y, pose.theta) == kept
             for k in range(1, 6):

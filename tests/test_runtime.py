@@ -7,7 +7,9 @@ import threading
 import pytest
 
 from schemas import BadInput, Keys, Service, Time, TimedDoubleSeq
-from services.runtime import DEFAULT_ENDPOINT, LOOPBACK_LISTEN, Node, session_config
+from services.runtime.inputs import Delivery
+from services.runtime.node import Node
+from services.runtime.session import DEFAULT_ENDPOINT, LOOPBACK_LISTEN, has_match, session_config
 from tests.harness import call, free_port, run_invent, wait_until
 
 
@@ -18,8 +20,12 @@ def node(session):
     node.close()
 
 
-def _publisher(session, key):
-    return session.declare_publisher(key)
+def _feeding(session, node, handler):
+    """A publisher whose samples reach ``handler`` through ``node`` (queued), once they match."""
+    node.subscribe(node.keys.motor_wheel_angles, TimedDoubleSeq, handler, Delivery.QUEUED)
+    publisher = session.declare_publisher(node.keys.motor_wheel_angles)
+    wait_until(lambda: has_match(publisher))
+    return publisher
 
 
 def _spin_until(node, predicate, timeout=10.0):
@@ -34,9 +40,7 @@ def _spin_until(node, predicate, timeout=10.0):
 
 def test_handlers_run_on_the_service_thread_not_in_zenoh_callbacks(session, node):
     threads = []
-    node.subscribe(node.keys.motor_wheel_angles, TimedDoubleSeq, lambda _m: threads.append(threading.current_thread()))
-    publisher = _publisher(session, node.keys.motor_wheel_angles)
-    wait_until(lambda: publisher.matching_status.matching)
+    publisher = _feeding(session, node, lambda _m: threads.append(threading.current_thread()))
     publisher.put(b'{"tm":{"sec":0,"nsec":1},"data":[0.0,0.0]}')
     _spin_until(node, lambda: threads)
     assert threads == [threading.main_thread()]
@@ -45,9 +49,7 @@ def test_handlers_run_on_the_service_thread_not_in_zenoh_callbacks(session, node
 def test_bad_input_is_dropped_counted_and_logged_once_per_interval(session, node, caplog):
     received = []
     key = node.keys.motor_wheel_angles
-    node.subscribe(key, TimedDoubleSeq, received.append)
-    publisher = _publisher(session, key)
-    wait_until(lambda: publisher.matching_status.matching)
+    publisher = _feeding(session, node, received.append)
     with caplog.at_level(logging.WARNING, logger="invent"):
         publisher.put(b"garbage")
         publisher.put(b'{"tm":{"sec":0,"nsec":1},"data":[1e999]}')
@@ -72,9 +74,7 @@ def test_a_handler_raising_bad_input_is_counted_and_the_node_goes_on(session, no
         seen.append(message)
 
     key = node.keys.motor_wheel_angles
-    node.subscribe(key, TimedDoubleSeq, handler)
-    publisher = _publisher(session, key)
-    wait_until(lambda: publisher.matching_status.matching)
+    publisher = _feeding(session, node, handler)
     publisher.put(b'{"tm":{"sec":0,"nsec":1},"data":[]}')
     publisher.put(b'{"tm":{"sec":0,"nsec":2},"data":[]}')
     _spin_until(node, lambda: seen)
@@ -87,10 +87,7 @@ def test_a_bug_in_a_handler_is_logged_counted_and_not_fatal(session, node):
     def handler(message: TimedDoubleSeq) -> None:
         seen.append(1 / message.data[0])
 
-    key = node.keys.motor_wheel_angles
-    node.subscribe(key, TimedDoubleSeq, handler)
-    publisher = _publisher(session, key)
-    wait_until(lambda: publisher.matching_status.matching)
+    publisher = _feeding(session, node, handler)
     publisher.put(b'{"tm":{"sec":0,"nsec":1},"data":[0.0]}')
     publisher.put(b'{"tm":{"sec":0,"nsec":2},"data":[4.0]}')
     _spin_until(node, lambda: seen)
@@ -101,7 +98,7 @@ def test_a_bug_in_a_handler_is_logged_counted_and_not_fatal(session, node):
 def test_status_and_queryables_answer_from_the_service_thread(session, node):
     node.set_status(lambda: {"state": "running"})
     stop = threading.Event()
-    spinner = threading.Thread(target=node.spin, args=(stop,))
+    spinner = threading.Thread(target=node.serve, args=(stop, lambda: False))
     spinner.start()
     try:
         ok, status = call(session, node.keys.status(Service.ODOMETRY))
@@ -165,7 +162,7 @@ def test_watch_reports_a_neighbour_that_comes_and_goes_and_comes_back(session, n
 
 
 def test_nodes_sharing_an_executor_are_handled_by_one_thread_in_order(session):
-    from services.runtime import Executor
+    from services.runtime.executor import Executor
 
     executor = Executor()
     keys = Keys("rh0")

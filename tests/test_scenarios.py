@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from services.config import ConfigError, DriveConfig
-from services.path_following import STOPPED, Command, FollowerParams
+from services.path_following import STOPPED, Command
 from services.planar import Pose
 from services.scenarios import (
     BUILTIN_SCENARIOS,
@@ -25,7 +25,7 @@ from services.scenarios import (
 )
 from tests.harness import REPO, run_invent
 
-PARAMS = FollowerParams.from_config(DriveConfig())
+PARAMS = DriveConfig()
 ORIGIN = Pose(0.0, 0.0, 0.0)
 MS = 1_000_000
 DEAD_ENDPOINT = ("--connect", "tcp/127.0.0.1:1")

@@ -6,7 +6,7 @@ import threading
 import pytest
 
 from schemas import BadInput, Keys, Method, MethodFamily, Service, Time, TimedDoubleSeq
-from services.runtime import Node
+from services.runtime.node import Node
 from tests.harness import Collector, InventProcess, free_port, json_lines, open_peer, run_invent, wait_until
 
 
@@ -15,7 +15,7 @@ def node(session):
     """A service node spinning on its own thread, as a service would."""
     node = Node(session, Keys("rh0"), Service.MOTOR, status=lambda: {"state": "idle"})
     stop = threading.Event()
-    spinner = threading.Thread(target=node.spin, args=(stop,))
+    spinner = threading.Thread(target=node.serve, args=(stop, lambda: False))
     spinner.start()
     yield node
     stop.set()

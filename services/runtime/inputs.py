@@ -1,0 +1,198 @@
+"""Publishers, and the inputs a service declares with their :class:`Delivery`.
+
+Zenoh callbacks never run service code: a sample either waits in a zenoh channel until the
+service thread takes it (:class:`ChannelInput`, :class:`LatestSample`), or a callback posts it to
+the executor's queue (:attr:`Delivery.QUEUED`). Either way decoding, the control core, publishing
+and replying happen on the service's one thread, never in zenoh's (calling zenoh from there can
+deadlock). Every queue is bounded.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from enum import StrEnum
+from typing import Any
+
+import msgspec
+import zenoh
+
+from schemas.codec import ENCODING, encode
+from services.runtime.session import has_match
+
+
+class Delivery(StrEnum):
+    """How a service takes an input's samples: named at every ``Node.subscribe``."""
+
+    QUEUED = "queued"
+    """Every sample, posted by zenoh's callback to the executor's queue and handled in arrival
+    order with the queries and liveliness changes: for rare inputs (a localized pose)."""
+    EVERY = "every"
+    """Every sample, in order (up to :data:`CHANNEL_CAPACITY`), from a ring channel the service
+    thread takes itself, no Python in zenoh's thread: for the inputs that pace a service (the
+    simulator's torque, the motor's wheel angles). See :class:`ChannelInput`."""
+    NEWEST = "newest"
+    """Only the newest sample, taken in turn with the ``EVERY`` inputs declared before it: a
+    command whose newest value is all that counts (the motor's target); a flood of it is one
+    sample and delays nothing. See :class:`LatestSample`."""
+    SAMPLED = "sampled"
+    """Only the newest sample, looked at when the thread is idle and at least every
+    ``SAMPLING_POLL_S`` while it is busy: what clocks a service at its own pace rather than
+    pacing it (the drive's clock and pose, the localization's simulated pose)."""
+
+    @property
+    def every_sample(self) -> bool:
+        return self in (Delivery.QUEUED, Delivery.EVERY)
+
+
+class Publisher:
+    """A zenoh publisher of one message type, encoding with the project's codec."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self.key = key
+        self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(ENCODING))
+
+    def put(self, message: msgspec.Struct, attachment: bytes | None = None) -> None:
+        self._publisher.put(encode(message), attachment=attachment)
+
+    @property
+    def matched(self) -> bool:
+        """True once at least one subscriber matches this key."""
+        return has_match(self._publisher)
+
+    def declare_matching_listener(self, callback: Callable[[zenoh.MatchingStatus], None]) -> Any:
+        return self._publisher.declare_matching_listener(callback)
+
+    def undeclare(self) -> None:
+        self._publisher.undeclare()
+
+
+class LatchedPublisher:
+    """See :meth:`Node.latched_publisher`."""
+
+    def __init__(self, publisher: Publisher) -> None:
+        self._publisher = publisher
+        self.last: msgspec.Struct | None = None
+
+    def put(self, message: msgspec.Struct) -> None:
+        self.last = message
+        self._publisher.put(message)
+
+
+Dispatch = Callable[[bytes, "bytes | None"], None]
+"""Decodes and handles one sample's payload and attachment (built by the node)."""
+
+CHANNEL_CAPACITY = 256
+"""Samples a channel input holds; when full, the oldest is dropped (zenoh's ring channel), so a
+flood bounds the memory it takes and never blocks zenoh's receiving thread. Lockstep has one
+sample in flight; in realtime a sample 256 steps old is useless anyway."""
+NEWEST_CAPACITY = 2
+"""Samples an input that needs only its newest one holds: two, not one, so the wake sample
+(:meth:`NodeInput.wake`) pushes out the older of two, never the newest."""
+_WAKE = b"invent-wake"
+"""The attachment of the session-local sample that wakes a blocked channel receive."""
+
+
+def contents(sample: zenoh.Sample) -> tuple[bytes, bytes | None]:
+    """A sample's payload and attachment as bytes."""
+    attachment = sample.attachment
+    return sample.payload.to_bytes(), None if attachment is None else attachment.to_bytes()
+
+
+def is_wake(sample: zenoh.Sample) -> bool:
+    """Whether ``sample`` is the one :meth:`NodeInput.wake` put (not an input)."""
+    attachment = sample.attachment
+    return attachment is not None and attachment.to_bytes() == _WAKE
+
+
+class NodeInput:
+    """A subscription whose samples wait in a zenoh ring channel until the service thread takes them.
+
+    No Python runs in zenoh's thread and no thread switch happens on the way: the service thread,
+    idle, waits in the channel's receive itself, where a callback would hand each sample over
+    through zenoh-python's own thread (at thousands of samples per second those hand-offs cost
+    more than the work; benchmarks/README.md).
+    """
+
+    def __init__(self, session: zenoh.Session, key: str, dispatch: Dispatch, capacity: int) -> None:
+        self.key = key
+        self._session = session
+        self._dispatch = dispatch
+        self._subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+
+    def receive(self) -> zenoh.Sample:
+        """The next sample, waiting as long as it takes (a wake sample included)."""
+        return self._subscriber.recv()
+
+    def handle(self, sample: zenoh.Sample) -> None:
+        self._dispatch(*contents(sample))
+
+    def take(self) -> bool:
+        """Handle what waits, as this kind of input does; True if a sample was handled."""
+        raise NotImplementedError
+
+    def wake(self) -> None:
+        """End a :meth:`receive` in progress: an empty sample delivered to this session only."""
+        self._session.put(self.key, b"", attachment=_WAKE, allowed_destination=zenoh.Locality.SESSION_LOCAL)
+
+    def undeclare(self) -> None:
+        self._subscriber.undeclare()
+
+
+class ChannelInput(NodeInput):
+    """An input whose every sample is handled, in order (up to its capacity): :attr:`Delivery.EVERY`."""
+
+    def __init__(self, session: zenoh.Session, key: str, dispatch: Dispatch, capacity: int = CHANNEL_CAPACITY) -> None:
+        super().__init__(session, key, dispatch, capacity)
+
+    def take(self) -> bool:
+        """Handle the next waiting sample, if any; True if one was handled."""
+        while (sample := self._subscriber.try_recv()) is not None:
+            payload, attachment = contents(sample)
+            if attachment != _WAKE:
+                self._dispatch(payload, attachment)
+                return True
+        return False
+
+
+class LatestSample(NodeInput):
+    """An input of which only the newest sample counts, decoded when taken: :attr:`Delivery.NEWEST`
+    and :attr:`Delivery.SAMPLED`.
+
+    For inputs a service needs only at its own pace (a clock, a pose): the simulator publishes
+    them at its step rate, several kHz of wall time in lockstep, and handing every sample to
+    Python would cost more than the work, while a service starved of CPU for a moment would then
+    work through a backlog of stale samples. Here no Python runs per sample, and a busy service
+    always acts on the present. (A bad sample overwritten before it is taken is never seen, so
+    never counted.)
+    """
+
+    def __init__(self, session: zenoh.Session, key: str, dispatch: Dispatch) -> None:
+        super().__init__(session, key, dispatch, NEWEST_CAPACITY)
+        self._received: zenoh.Sample | None = None
+
+    def put_back(self, sample: zenoh.Sample) -> None:
+        """Keep ``sample``, which a blocking receive took out of the ring, for the next take: it
+        competes there with what came after it, so a newer sample is never followed by an older one."""
+        self._received = sample
+
+    def take(self) -> bool:
+        """Handle the newest sample that arrived since the last take, if any; True if one did."""
+        newest, self._received = self._received, None
+        while (sample := self._subscriber.try_recv()) is not None:
+            if not is_wake(sample):
+                newest = sample
+        if newest is None:
+            return False
+        self.handle(newest)
+        return True
+
+
+class InputTaken(msgspec.Struct):
+    """What a service took of one input, in its ``status`` (``inputs``, by key): a tool feeding it
+    (``invent replay --rate 0``) waits on ``samples`` so that it never sends faster than the
+    service takes."""
+
+    every_sample: bool
+    """False for an input of which only the newest sample counts (skipped samples are not taken)."""
+    samples: int = 0
+    """Samples handed to the service, bad ones included."""

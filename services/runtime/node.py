@@ -1,0 +1,321 @@
+"""A service's presence on zenoh (:class:`Node`), and the life of a reactive service (:meth:`Node.serve`).
+
+A node declares a service's liveliness token, its ``status`` queryable, its inputs (each with its
+:class:`~services.runtime.inputs.Delivery`), queryables and publishers, all handled on its
+executor's thread. A reactive service (motor, odometry, localization, drive) only declares: the
+runtime runs it (:meth:`Node.serve`, or the thread of a composition). Only a service that owns a
+clock (the simulator) has a loop of its own.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+import msgspec
+import zenoh
+
+from schemas.codec import ENCODING, BadInput, decode
+from schemas.keys import Keys, Service
+from services.runtime.executor import STOP_POLL_S, Executor
+from services.runtime.inputs import (
+    ChannelInput,
+    Delivery,
+    Dispatch,
+    InputTaken,
+    LatchedPublisher,
+    LatestSample,
+    NodeInput,
+    Publisher,
+    contents,
+)
+from services.runtime.logs import BadInputCounter, RateLimitedLog, log
+
+LIVELINESS_QUERY_TIMEOUT_S = 1.0
+"""Upper bound on a start-up liveliness query (the router answers at once)."""
+MessageT = TypeVar("MessageT", bound=msgspec.Struct)
+
+_QueryHandler = Callable[[bytes], Any]
+
+
+@dataclass(frozen=True)
+class Wait:
+    """What a reactive service's thread waits for next (see :meth:`Node.serve`)."""
+
+    input: NodeInput | None = None
+    """The input whose sample the service needs next (None: its waking input)."""
+    until: float | None = None
+    """A time (``time.monotonic()``) at which the service has something to settle, if any."""
+
+
+def _no_wait() -> Wait:
+    return Wait()
+
+
+class Node:
+    """One service's presence on zenoh. See the module docstring.
+
+    ``status`` is called on the service thread to build the ``status`` reply; the node adds
+    the service and robot names and the bad-input counters.
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        keys: Keys,
+        service: Service,
+        status: Callable[[], dict[str, Any]] = dict,
+        executor: Executor | None = None,
+    ) -> None:
+        self.session = session
+        self.keys = keys
+        self.service = service
+        self.log = log.getChild(str(service))
+        self.bad_inputs = BadInputCounter(str(service))
+        self.internal_errors = 0
+        self.participating = False
+        """Whether it holds a lockstep participant's token (:meth:`participate`)."""
+        self._internal_error_log = RateLimitedLog(self.log)
+        self._status = status
+        self.executor = executor or Executor()
+        self._declarations: list[Any] = []
+        self._inputs: list[NodeInput] = []
+        self._publishers: list[Publisher] = []
+        self._taken: dict[str, InputTaken] = {}
+        self._started = time.monotonic()
+        self._next_wait: Callable[[], Wait] = _no_wait
+        self.queryable(keys.status(service), lambda _payload: self.status())
+        self._declarations.append(session.liveliness().declare_token(keys.alive(service)))
+
+    def set_status(self, status: Callable[[], dict[str, Any]]) -> None:
+        self._status = status
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "service": str(self.service),
+            "robot": self.keys.robot,
+            "uptime_s": round(time.monotonic() - self._started, 3),
+            **self._status(),
+            "inputs": dict(self._taken),
+            "bad_input": self.bad_inputs.as_dict(),
+            "internal_errors": self.internal_errors,
+            "dropped_events": self.executor.dropped_events,
+        }
+
+    def subscribe(
+        self,
+        key: str,
+        message_type: type[MessageT],
+        handler: Callable[..., None],
+        delivery: Delivery,
+        *,
+        wakes: bool = False,
+        with_attachment: bool = False,
+    ) -> NodeInput | None:
+        """Call ``handler(message)`` on the service thread for the samples of ``key`` that
+        ``delivery`` hands over and that decode (``handler(message, attachment)``
+        ``with_attachment``: the sample's attachment bytes or None). The handler may raise
+        BadInput. ``wakes``: the thread, idle, waits in this input's receive (an ``EVERY`` input
+        that paces the service). Returns the input, for ``waiting_for`` (None for ``QUEUED``)."""
+        dispatch = self._dispatch(key, message_type, handler, with_attachment, delivery.every_sample)
+        if delivery is Delivery.QUEUED:
+            post = self.executor.post
+
+            def dispatch_contents(sample: zenoh.Sample) -> None:
+                dispatch(*contents(sample))
+
+            self._declarations.append(self.session.declare_subscriber(key, lambda s: post(dispatch_contents, s)))
+            return None
+        node_input: NodeInput
+        if delivery is Delivery.EVERY:
+            node_input = ChannelInput(self.session, key, dispatch)
+            self.executor.add_input(node_input, wakes)
+        else:
+            node_input = LatestSample(self.session, key, dispatch)
+            if delivery is Delivery.SAMPLED:
+                self.executor.add_sampled(node_input)
+            else:
+                self.executor.add_input(node_input, wakes)
+        self._inputs.append(node_input)
+        return node_input
+
+    def queryable(self, key: str, handler: _QueryHandler, *, mutates: bool = False) -> None:
+        """Answer queries on ``key`` from the service thread.
+
+        ``handler(payload)`` returns a JSON-encodable reply (None: no reply), or raises BadInput,
+        which becomes a ``reply_err`` naming the reason. The query is finalized right after the
+        reply, so the caller's ``get`` returns at once.
+
+        Looking never acts: a wildcard or prefix query (``invent/rh0/**``, what zenoh tools and
+        the REST plugin send to look around) reaches every queryable its key expression
+        intersects. A handler that ``mutates`` state therefore runs only for a query on exactly
+        ``key``; any other query is dropped in zenoh's callback, which finalizes it with no reply.
+        Read-only handlers (``status``) answer wildcards.
+        """
+
+        def answer(query: zenoh.Query) -> None:
+            try:
+                payload = query.payload.to_bytes() if query.payload is not None else b""
+                try:
+                    reply = handler(payload)
+                except BadInput as error:
+                    self.bad_inputs.record(key, str(error))
+                    query.reply_err(json.dumps({"error": str(error)}), encoding=zenoh.Encoding(ENCODING))
+                    return
+                except Exception as error:  # noqa: BLE001 (a bug must not kill the service; it is logged and counted)
+                    self._internal_error(key, error)
+                    query.reply_err(
+                        json.dumps({"error": f"internal error: {error}"}), encoding=zenoh.Encoding(ENCODING)
+                    )
+                    return
+                if reply is not None:
+                    query.reply(key, msgspec.json.encode(reply), encoding=zenoh.Encoding(ENCODING))
+            finally:
+                query.drop()
+
+        post = self.executor.post
+
+        def on_query(query: zenoh.Query) -> None:
+            if not mutates or str(query.key_expr) == key:
+                post(answer, query)
+
+        self._declarations.append(self.session.declare_queryable(key, on_query))
+
+    def _dispatch(
+        self,
+        key: str,
+        message_type: type[MessageT],
+        handler: Callable[..., None],
+        with_attachment: bool,
+        every_sample: bool,
+    ) -> Dispatch:
+        """Count, decode and handle a sample of ``key`` (``inputs`` in the status); bad input and
+        bugs are counted, never raised (:meth:`guard`)."""
+        taken = self._taken[key] = InputTaken(every_sample)
+        failed = self._failed
+
+        def dispatch(payload: bytes, attachment: bytes | None) -> None:
+            taken.samples += 1
+            try:
+                if with_attachment:
+                    handler(decode(message_type, payload), attachment)
+                else:
+                    handler(decode(message_type, payload))
+            except Exception as error:  # noqa: BLE001 (bad input and bugs alike must not kill the service)
+                failed(key, error)
+
+        return dispatch
+
+    def publisher(self, key: str) -> Publisher:
+        publisher = Publisher(self.session, key)
+        self._publishers.append(publisher)
+        return publisher
+
+    def latched_publisher(self, key: str) -> LatchedPublisher:
+        """A publisher whose last message also answers queries on its key, for what changes
+        rarely and a late subscriber needs at once (the sim's world, the drive's path): a viewer
+        started mid-run gets it with a ``get``, as from a zenoh storage."""
+        latched = LatchedPublisher(self.publisher(key))
+        self.queryable(key, lambda _payload: latched.last)
+        return latched
+
+    def post(self, callback: Callable[[], None]) -> None:
+        """Run ``callback()`` on the service thread (thread-safe; usable from zenoh callbacks)."""
+        self.executor.post(lambda _: callback(), None)
+
+    def watch(self, service: Service, on_change: Callable[[bool], None]) -> None:
+        """Call ``on_change(alive)`` on the service thread whenever ``service``'s liveliness token
+        appears (True; also for one already there) or goes (False): a neighbour that dies and
+        comes back is then picked up again (docs/protocol.md section 8)."""
+        post = self.executor.post
+        self._declarations.append(
+            self.session.liveliness().declare_subscriber(
+                self.keys.alive(service),
+                lambda sample: post(on_change, sample.kind == zenoh.SampleKind.PUT),
+                history=True,
+            )
+        )
+
+    def participate(self, publisher: Publisher, rate_hz: float) -> None:
+        """Take part in lockstep (services/lockstep.py), outputting on ``publisher`` at ``rate_hz``
+        ticks per second of simulation time: hold the token ``Keys.ticks`` once ``publisher`` has a
+        subscriber (before, the outputs would reach no one, and waiting for them would only time out)."""
+        post = self.executor.post
+
+        def on_matching(matched: bool) -> None:
+            if matched and not self.participating:
+                self._declarations.append(
+                    self.session.liveliness().declare_token(self.keys.ticks(self.service, rate_hz))
+                )
+                self.participating = True
+
+        self._declarations.append(
+            publisher.declare_matching_listener(lambda status: post(on_matching, status.matching))
+        )
+
+    def alive_now(self, service: Service, timeout: float = LIVELINESS_QUERY_TIMEOUT_S) -> bool:
+        """Whether ``service``'s liveliness token exists now: one query, answered by the router
+        or peers at once (for a decision at start-up, before any watch has reported)."""
+        replies = self.session.liveliness().get(self.keys.alive(service), timeout=timeout)
+        return any(reply.ok is not None for reply in replies)
+
+    def spin_once(self, timeout: float | None, waiting_for: NodeInput | None = None) -> bool:
+        """Handle one queued event, waiting up to ``timeout`` seconds; False if none came (see
+        :meth:`Executor.spin_once` for ``waiting_for``)."""
+        return self.executor.spin_once(timeout, waiting_for)
+
+    def wait_with(self, next_wait: Callable[[], Wait]) -> None:
+        """Say what the thread waits for next when it runs this reactive service (:meth:`serve`):
+        ``next_wait()`` runs on the service thread between events, and may first settle what has
+        come due (the drive's lockstep tick whose pose wait is over). Default: the waking input."""
+        self._next_wait = next_wait
+
+    def serve(self, stop: threading.Event, finished: Callable[[], bool]) -> None:
+        """Run a reactive service: handle its events and inputs until ``stop`` is set or ``finished()``."""
+        while not stop.is_set():
+            wait = self._next_wait()
+            if finished():
+                return
+            timeout = STOP_POLL_S if wait.until is None else max(0.0, min(STOP_POLL_S, wait.until - time.monotonic()))
+            self.spin_once(timeout, wait.input)
+
+    def drain(self) -> None:
+        """Handle every event already queued, without waiting."""
+        while self.spin_once(0):
+            pass
+
+    def guard(self, key: str, action: Callable[..., None], *args: Any) -> None:
+        """Run ``action(*args)`` (handling an input of ``key``) so that bad input is counted and a
+        bug logged and counted, never raised: the service lives on."""
+        try:
+            action(*args)
+        except Exception as error:  # noqa: BLE001 (bad input and bugs alike must not kill the service)
+            self._failed(key, error)
+
+    def _failed(self, key: str, error: Exception) -> None:
+        if isinstance(error, BadInput):
+            self.bad_inputs.record(key, str(error))
+        else:
+            self._internal_error(key, error)
+
+    def _internal_error(self, key: str, error: Exception) -> None:
+        self.internal_errors += 1
+        self._internal_error_log(key, logging.ERROR, "internal error handling %s: %s", key, error, exc_info=True)
+
+    def close(self) -> None:
+        """Withdraw the liveliness token and undeclare everything (the session stays open)."""
+        for node_input in self._inputs:
+            self.executor.remove_input(node_input)
+            node_input.undeclare()
+        self._inputs.clear()
+        for declaration in reversed(self._declarations):
+            declaration.undeclare()
+        for publisher in self._publishers:
+            publisher.undeclare()
+        self._declarations.clear()
+        self._publishers.clear()

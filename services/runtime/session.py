@@ -1,0 +1,126 @@
+"""The zenoh session of a service or tool: its configuration, opening it, and the signals that end it."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import zenoh
+
+from services.config import ConfigError
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+"""Where services connect and ``invent router`` listens by default (rmw_zenoh's convention)."""
+LOOPBACK_LISTEN = "tcp/127.0.0.1:0"
+"""Where a peer listens unless told otherwise: a free port on loopback, so peers on one host still
+talk directly while nothing off the host can connect (zenoh's own default is every interface)."""
+
+ZENOH_CONFIG_VARIABLE = "ZENOH_CONFIG"
+LOW_LATENCY_VARIABLE = "INVENT_ZENOH_LOWLATENCY"
+"""Set to 1 to use :data:`LOW_LATENCY` (opt-in: see its caveats)."""
+LOW_LATENCY = {
+    "transport/unicast/lowlatency": "true",
+    "transport/unicast/qos/enabled": "false",
+    "scouting/gossip/autoconnect_strategy": json.dumps({"peer": {"to_router": "always", "to_peer": "greater-zid"}}),
+}
+"""Zenoh's low-latency unicast transport: a put writes to the socket itself, no batching thread
+(it needs QoS off). The separate-process lockstep loop gains about 15-20 % from it
+(benchmarks/README.md), but it is not the default, for what else was measured here with
+zenoh 1.10.2: no batching, so a loaded subscriber of a 1 kHz key falls further behind; no
+fragmentation, so a publication that does not fit in one batch is dropped (48 kB pass, 56 kB do
+not); with both peers of a pair connecting at once, declarations were lost at start-up (about
+one start in six; hence peers connecting one way only, to the greater id, which cured it); and
+once, the whole loop stalled in puts and a declaration for minutes. A peer or router without
+these settings (zenohd's defaults) still talks to these, over the ordinary transport."""
+
+
+def session_config(
+    *, connect: Iterable[str] = (), listen: Iterable[str] = (), mode: str = "peer", file: str | None = None
+) -> zenoh.Config:
+    """The zenoh configuration of a service or tool.
+
+    Default: ``mode`` (peer), multicast scouting off, connect to :data:`DEFAULT_ENDPOINT`;
+    with ``$INVENT_ZENOH_LOWLATENCY=1`` also the :data:`LOW_LATENCY` transport. A zenoh config
+    ``file`` (``--zenoh-config``), else one named by ``$ZENOH_CONFIG``, replaces the default;
+    ``connect`` endpoints override either's. A peer listens on :data:`LOOPBACK_LISTEN` plus any
+    ``listen`` endpoints (unless its file names its own); a router on ``listen``, else its file's
+    or :data:`DEFAULT_ENDPOINT`; a client listens on nothing unless told. A file that zenoh cannot
+    read is a :class:`ConfigError`.
+    """
+    connect, listen = list(connect), list(listen)
+    path = file or os.environ.get(ZENOH_CONFIG_VARIABLE)
+    if path:
+        try:
+            config = zenoh.Config.from_file(path)
+        except zenoh.ZError as error:
+            raise ConfigError(f"zenoh config {path}: {error}") from None
+    else:
+        config = zenoh.Config()
+        config.insert_json5("mode", json.dumps(mode))
+        config.insert_json5("scouting/multicast/enabled", "false")
+        if mode == "router":
+            listen = listen or [DEFAULT_ENDPOINT]
+            # With multicast scouting off a router has nothing to scout: don't wait 0.5 s for it.
+            config.insert_json5("scouting/delay", "0")
+        else:
+            connect = connect or [DEFAULT_ENDPOINT]
+        if os.environ.get(LOW_LATENCY_VARIABLE) == "1":
+            for path_in_config, value in LOW_LATENCY.items():
+                config.insert_json5(path_in_config, value)
+    if json.loads(config.get_json("mode")) == "peer" and not _listens_explicitly(config):
+        listen = [LOOPBACK_LISTEN, *listen]
+    if connect:
+        config.insert_json5("connect/endpoints", json.dumps(connect))
+    if listen:
+        config.insert_json5("listen/endpoints", json.dumps(listen))
+    return config
+
+
+def _listens_explicitly(config: zenoh.Config) -> bool:
+    """False while ``listen/endpoints`` is zenoh's default, a table by mode whose peer entry is
+    every interface (``tcp/[::]:0``)."""
+    return isinstance(json.loads(config.get_json("listen/endpoints")), list)
+
+
+def has_match(entity: zenoh.Publisher | zenoh.Querier) -> bool:
+    """Whether ``entity`` has a subscriber (publisher) or queryable (querier) now."""
+    # zenoh-python 1.10's stub types matching_status as bool; it returns a MatchingStatus.
+    status: Any = entity.matching_status
+    return bool(status.matching)
+
+
+class SessionFailed(RuntimeError):
+    """A zenoh session could not be opened: the router is unreachable or refused the credentials."""
+
+
+@contextmanager
+def open_session(config: zenoh.Config) -> Iterator[zenoh.Session]:
+    try:
+        session = zenoh.open(config)
+    except zenoh.ZError as error:
+        endpoints = json.loads(config.get_json("connect/endpoints"))
+        raise SessionFailed(
+            f"cannot open a zenoh session connecting to {', '.join(map(str, endpoints)) or 'nothing'}: "
+            f"{str(error).split(' at ')[0]} (is the router running, and are the credentials right?)"
+        ) from None
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+def stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM (the service then shuts down cleanly, exit 0)."""
+    stop = threading.Event()
+
+    def handle(_signum: int, _frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, handle)
+    signal.signal(signal.SIGTERM, handle)
+    return stop
