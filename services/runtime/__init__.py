@@ -1,4 +1,4 @@
-"""The service runtime every service stands on, in layers (docs/architecture.md):
+"""The service runtime every service stands on, in layers:
 
 - :mod:`~services.runtime.session`: the zenoh session (configuration, opening, signals);
 - :mod:`~services.runtime.logs`: logging, and the one rate-limited log and bad-input count;

@@ -231,7 +231,7 @@ class Node:
     def watch(self, service: Service, on_change: Callable[[bool], None]) -> None:
         """Call ``on_change(alive)`` on the service thread whenever ``service``'s liveliness token
         appears (True; also for one already there) or goes (False): a neighbour that dies and
-        comes back is then picked up again (docs/protocol.md section 8)."""
+        comes back is then picked up again."""
         post = self.executor.post
         self._declarations.append(
             self.session.liveliness().declare_subscriber(
