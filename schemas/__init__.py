@@ -1,4 +1,4 @@
-"""The wire contract of invent-zenoh: message types, codec and key space (SPEC sections 1-2)."""
+"""The wire contract of invent-zenoh: message types, codec and key space (docs/protocol.md sections 1-2)."""
 
 from schemas.codec import ENCODING, BadInput, BadMessage, decode, encode
 from schemas.keys import Keys, Method, MethodFamily, Service, Topic, schema_for_key

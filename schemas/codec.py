@@ -18,7 +18,7 @@ MessageT = TypeVar("MessageT", bound=msgspec.Struct)
 
 
 class BadInput(ValueError):
-    """Input a service drops and counts (SPEC section 8); the message is the reason."""
+    """Input a service drops and counts (docs/protocol.md section 8); the message is the reason."""
 
 
 class BadMessage(BadInput):

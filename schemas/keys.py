@@ -1,4 +1,4 @@
-"""The key space of SPEC section 2, as one function of the robot name.
+"""The key space of docs/protocol.md section 2, as one function of the robot name.
 
 No key string is spelled anywhere else: services, tools and tests build every key from
 :class:`Keys`, and :func:`schema_for_key` maps a concrete key back to its message type.

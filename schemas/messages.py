@@ -1,4 +1,4 @@
-"""The four message types of SPEC section 1, mirroring the seeds' IDL field for field, and the
+"""The four message types of docs/protocol.md section 1, mirroring the seeds' IDL field for field, and the
 project's own: the bump event, the Motor methods' payloads, and what a viewer or a report needs
 besides the loop's data (the sim's world, the drive's planned path, the summary of a run).
 

@@ -1,6 +1,6 @@
 """The robot description: one TOML file, a shared ``[robot]`` table and one table per service.
 
-Defaults are the seeds' (SPEC section 3); every default lives here and nowhere else.
+Defaults are the seeds' (docs/protocol.md section 3); every default lives here and nowhere else.
 Loading is typed and strict (msgspec): an unknown key, a wrong type or a value out of range
 raises :class:`ConfigError` naming the field, and the CLI exits with code 2.
 """
@@ -57,7 +57,7 @@ class RobotConfig(_Section, frozen=True):
 
 
 class TargetAngleMode(StrEnum):
-    """``seed``: q_ref restarts from the measured angle each cycle (SPEC 4 step 3); ``integrated``:
+    """``seed``: q_ref restarts from the measured angle each cycle (docs/protocol.md section 4 step 3); ``integrated``:
     q_ref accumulates from the previous target angle, so the P term corrects drift (docs/motor.md)."""
 
     SEED = "seed"
@@ -105,7 +105,7 @@ class OdometryConfig(_Section, frozen=True):
     rho_border: Positive = 10000.0
     """|rho| above which a step integrates as straight, rho clamped (the seed's RhoBorder), m."""
     left_radius_scale: Positive = 1.0
-    """Calibration multiplier on the left wheel radius (SPEC 9.6: 1.0 = no calibration)."""
+    """Calibration multiplier on the left wheel radius (docs/protocol.md section 9.6: 1.0 = no calibration)."""
     right_radius_scale: Positive = 1.0
     """Calibration multiplier on the right wheel radius (1.0 = no calibration)."""
     axle_scale: Positive = 1.0
@@ -115,7 +115,8 @@ class OdometryConfig(_Section, frozen=True):
 
 
 class SimMode(StrEnum):
-    """``lockstep``: every step waits for its torque; ``realtime``: steps paced to the wall clock (SPEC 6)."""
+    """``lockstep``: every step waits for its torque; ``realtime``: steps paced to the wall clock
+    (docs/protocol.md section 6)."""
 
     LOCKSTEP = "lockstep"
     REALTIME = "realtime"

@@ -1,4 +1,4 @@
-"""``invent drive``: the velocity source (the seed's DriveControlRTC), SPEC section 7.
+"""``invent drive``: the velocity source (the seed's DriveControlRTC), docs/protocol.md section 7.
 
 Publishes ``drive/target_velocity`` at ``drive.rate`` per second of simulation time. The
 clock is the stamps on ``sim/wheel_angles``: the ticks are the grid ``round(k·1e9/rate)`` ns,

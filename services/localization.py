@@ -1,4 +1,4 @@
-"""``invent localization``: the localization stub (the seed's LocalizationRTC), SPEC section 7.
+"""``invent localization``: the localization stub (the seed's LocalizationRTC), docs/protocol.md section 7.
 
 Subscribes ``motor/sim_pose/localization`` ([x, y, z, θ] stamped with simulation time) and
 publishes ``localization/pose``: first the configured initial pose, stamped with the first

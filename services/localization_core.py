@@ -1,4 +1,4 @@
-"""The localization stub of SPEC section 7, pure (no zenoh).
+"""The localization stub of docs/protocol.md section 7, pure (no zenoh).
 
 A :class:`Localizer` turns the stream of simulated poses (``motor/sim_pose/localization``:
 x, y, z, θ stamped with simulation time) into localized fixes:

@@ -1,4 +1,4 @@
-"""``invent motor``: MotorControl over zenoh (SPEC section 4), a thin shell around MotorCore.
+"""``invent motor``: MotorControl over zenoh (docs/protocol.md section 4), a thin shell around MotorCore.
 
 Every ``sim/wheel_angles`` sample gets exactly one ``motor/torque`` with the sample's own
 ``tm``, then ``motor/wheel_angles`` (the input, same ``tm``). A wheel-angle sample that is bad

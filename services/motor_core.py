@@ -1,4 +1,4 @@
-"""MotorControl's pure core (SPEC section 4): no zenoh, plain floats, one control cycle per call.
+"""MotorControl's pure core (docs/protocol.md section 4): no zenoh, plain floats, one control cycle per call.
 
 :class:`MotorCore` turns each wheel-angle sample into one torque vector: wheel speeds from
 the angle difference, target wheel speeds from the commanded body velocity, a target angle
@@ -44,7 +44,7 @@ class MotorState(StrEnum):
 class SimPoseConverter:
     """``sim/body_pose`` (x, y, z, 3x3 rotation row-major) -> [X, Y, Z, theta] of the axle centre.
 
-    SPEC section 4 with atan2 (correction 2): theta_o = atan2(-A12, A11); the offset
+    docs/protocol.md section 4 with atan2 (correction 2): theta_o = atan2(-A12, A11); the offset
     (offset_x, offset_y) is the axle centre in the model frame, turned by theta_o.
     """
 

@@ -1,4 +1,4 @@
-"""``invent odometry``: the OdometryRTC port (SPEC section 5), a thin shell around odometry_core.
+"""``invent odometry``: the OdometryRTC port (docs/protocol.md section 5), a thin shell around odometry_core.
 
 Subscribes ``motor/wheel_angles`` and ``localization/pose``; publishes ``odometry/pose`` (with
 the ``tm`` of the wheel-angle sample) for every accepted sample, the first one included. A

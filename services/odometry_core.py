@@ -1,8 +1,8 @@
-"""Dead reckoning from wheel angles: the OdometryRTC integration of SPEC section 5, pure.
+"""Dead reckoning from wheel angles: the OdometryRTC integration of docs/protocol.md section 5, pure.
 
 No zenoh here. :class:`Odometry` holds the state between samples (last wheel angles and time,
 last body speed, pose) and :meth:`Odometry.step` integrates one wheel-angle sample exactly as
-the SPEC writes it, with b = axle/2::
+docs/protocol.md writes it, with b = axle/2::
 
     vL = r_L·(qL − qL_old)/Δt          vR = r_R·(qR − qR_old)/Δt
     V  = (vR + vL)/2                   Ω  = (vR − vL)/(2b)
@@ -64,7 +64,7 @@ class Branch(StrEnum):
 class Step(NamedTuple):
     """One integrated sample: its inputs, the intermediate values and the new pose.
 
-    ``rho`` is None where the SPEC computes no ρ (initial, straight); clamped to ±RhoBorder in
+    ``rho`` is None where the formula computes no ρ (initial, straight); clamped to ±RhoBorder in
     the rho_border branch. For the initial sample every rate and increment is 0.
     """
 
@@ -196,7 +196,7 @@ class Odometry:
     def reset_at(self, stamp_ns: int, x: float, y: float, theta: float) -> Pose:
         """Apply a localized pose taken at simulation time ``stamp_ns``.
 
-        A fix stamped at the last sample's time is :meth:`reset` (SPEC section 5). Services run
+        A fix stamped at the last sample's time is :meth:`reset` (docs/protocol.md section 5). Services run
         asynchronously, so a fix may instead arrive after odometry has integrated past its stamp,
         or before odometry has reached it. A past fix keeps the motion integrated since its stamp
         on top of it (overwriting would throw that motion away: the pose would jump back by

@@ -138,10 +138,10 @@ class Observer:
     def _take(self, key: str, payload: bytes, log_time_ns: int) -> None:
         topic = self._topics.get(key)
         message = None if topic is None else _decoded(TOPIC_TYPES[topic], payload)
-        if topic is None or message is None or message.tm.to_nanoseconds() > LATEST_STAMP_NS:
+        stamp_ns = None if message is None else message.tm.to_nanoseconds()
+        if topic is None or message is None or stamp_ns is None or stamp_ns > LATEST_STAMP_NS:
             self._sink.sample(key, payload, log_time_ns, None)
             return
-        stamp_ns = message.tm.to_nanoseconds()
         self._sink.sample(key, payload, log_time_ns, stamp_ns)
         latest_ns = self.latest_ns.get(key)
         if latest_ns is None or latest_ns < stamp_ns <= latest_ns + self._horizon_ns:

@@ -5,7 +5,7 @@ Paced by the recorded simulation time scaled by ``--rate``; at ``--rate 0`` as f
 consumers take them: every service that takes every sample of a replayed key says in its
 ``status`` how many it took (``inputs``), and the replay never has more than
 :data:`FLOW_WINDOW` samples of a key on their way to it (a service's input holds
-:data:`~services.runtime.CHANNEL_CAPACITY`; beyond, it would drop the oldest). At any rate, a
+:data:`~services.runtime.inputs.CHANNEL_CAPACITY`; beyond, it would drop the oldest). At any rate, a
 service that takes several replayed keys gets them in the recorded order: before it is sent a
 sample of another key than the last, the replay waits until it took what it was sent. It ends,
 exit 0, once those consumers have taken every sample.

@@ -2,7 +2,7 @@
 
 A service module defines one :class:`ServiceCommand`. ``invent <service>`` loads the robot
 description (``--config`` file, then ``--set`` overrides, then the service's own flags),
-opens a zenoh session, builds the service around a :class:`~services.runtime.Node` and runs it
+opens a zenoh session, builds the service around a :class:`~services.runtime.node.Node` and runs it
 until SIGINT/SIGTERM or until it finishes by itself. :func:`start_service` builds one on an
 existing session instead, so several services can share one process and one session.
 """

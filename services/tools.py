@@ -108,7 +108,8 @@ def _router_plugins(path: str) -> dict[str, Any]:
 
 def run_echo(session: zenoh.Session, key_expr: str, count: int | None, stop: threading.Event) -> int:
     """Print one JSON line per sample on ``key_expr``; stop after ``count`` samples if given."""
-    samples: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+    # queue.Queue, not SimpleQueue: see the Executor's docstring (services/runtime/executor.py).
+    samples: queue.Queue[tuple[str, bytes]] = queue.Queue()
     with session.declare_subscriber(
         key_expr, lambda sample: samples.put((str(sample.key_expr), sample.payload.to_bytes()))
     ):
@@ -172,7 +173,7 @@ def run_call(session: zenoh.Session, key: str, payload: str | None, timeout: flo
 
 def alive_services(session: zenoh.Session, key_expr: str, timeout: float, settle: float = 0.1) -> list[str]:
     """Liveliness tokens under ``key_expr``: waits up to ``timeout`` for the first, then ``settle`` for the rest."""
-    tokens: queue.SimpleQueue[str] = queue.SimpleQueue()
+    tokens: queue.Queue[str] = queue.Queue()
     found: list[str] = []
     with session.liveliness().declare_subscriber(
         key_expr, lambda sample: tokens.put(str(sample.key_expr)), history=True

@@ -1,4 +1,4 @@
-"""The PyBullet simulator bridge (SPEC section 6): ``invent sim``.
+"""The PyBullet simulator bridge (docs/protocol.md section 6): ``invent sim``.
 
 - :mod:`sim_bridge.world`: world files (ground, obstacles, the robot's initial pose).
 - :mod:`sim_bridge.robot`: the diff-drive robot model built from the robot description.

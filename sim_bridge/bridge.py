@@ -1,4 +1,4 @@
-"""``invent sim``: the PyBullet simulator bridge (SPEC section 6), a thin shell around the simulator core.
+"""``invent sim``: the PyBullet simulator bridge (docs/protocol.md section 6), a thin shell around the simulator core.
 
 Every step publishes ``sim/wheel_angles`` then ``sim/body_pose`` stamped with simulation time,
 applies the wheel torques and steps:

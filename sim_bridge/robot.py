@@ -1,6 +1,6 @@
 """The diff-drive robot as a PyBullet multibody, built from the robot description.
 
-Frames (SPEC section 6; docs/sim.md has a drawing):
+Frames (docs/protocol.md section 6; docs/sim.md has a drawing):
 
 - The base frame sits on the axle centre, x forward, y to the left, z up. The base's centre
   of mass is placed there too, so PyBullet's base pose *is* the axle-centre pose reported on

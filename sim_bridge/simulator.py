@@ -1,6 +1,6 @@
 """The stepping core of the sim bridge: one PyBullet world, no zenoh.
 
-Vectors follow the wire contract (SPEC sections 2 and 6): wheel angles and torques are
+Vectors follow the wire contract (docs/protocol.md sections 2 and 6): wheel angles and torques are
 indexed by wheel id (``robot.left_wheel_id``, ``robot.right_wheel_id``), their length is the
 largest id + 1 and the other entries are 0; the body pose is x, y, z of the axle-centre frame
 then its 3x3 rotation matrix row-major. Simulation time is ``step_index * step_ns``.

@@ -1,6 +1,6 @@
 """The simulator's presence on zenoh, played by a test: a session holding its liveliness token.
 
-Services watch that token to pick up a restarted simulator (SPEC section 8). Zenoh reports one
+Services watch that token to pick up a restarted simulator (docs/protocol.md section 8). Zenoh reports one
 token per key (a second token on ``sim/alive`` shows nothing while the first exists), so a test
 playing a restart withdraws the old token and waits until the router no longer has it before
 the next one appears, as a simulator process that exits and is started again does.

@@ -151,7 +151,7 @@ def test_a_sampled_input_never_hands_over_a_sample_older_than_one_it_handed_over
     sampled.undeclare()
 
 
-def test_a_wake_never_pushes_the_newest_sample_out_of_a_newest_only_input(session, node):
+def test_a_wake_never_pushes_the_newest_sample_out_of_a_newest_input(session, node):
     handled = []
     targets = node.subscribe(
         KEYS.drive_target_velocity, TimedDoubleSeq, lambda m: handled.append(m.tm.nsec), Delivery.NEWEST
@@ -275,7 +275,7 @@ def test_a_flooded_channel_input_keeps_only_its_newest_samples(session, node):
     assert [m.tm.nsec for m in handled] == list(range(flood - CHANNEL_CAPACITY, flood))
 
 
-def test_a_newest_only_input_holds_one_sample_and_comes_after_the_channel_inputs(session, node):
+def test_a_newest_input_holds_one_sample_and_comes_after_the_channel_inputs(session, node):
     order = []
     node.subscribe(
         KEYS.motor_wheel_angles,

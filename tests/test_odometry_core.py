@@ -1,4 +1,4 @@
-"""The odometry core (SPEC section 5) against hand-computed values and analytic motion."""
+"""The odometry core (docs/protocol.md section 5) against hand-computed values and analytic motion."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from services.planar import Pose
 
 NS = 1_000_000_000
 SMALL_ANGLE_TOLERANCE_PER_METRE = 2e-5
-"""SPEC bound of the small-angle branch (arc length for chord): border²/24 = 1.3e-5 < 2e-5."""
+"""The bound of the small-angle branch (arc length for chord): border²/24 = 1.3e-5 < 2e-5."""
 CHORD_TOLERANCE = 1e-9
 DEFAULT_BORDER = math.pi / 180.0
 

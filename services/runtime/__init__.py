@@ -1,4 +1,4 @@
-"""The service runtime every service stands on, in layers:
+"""The service runtime every service stands on, in layers (docs/architecture.md):
 
 - :mod:`~services.runtime.session`: the zenoh session (configuration, opening, signals);
 - :mod:`~services.runtime.logs`: logging, and the one rate-limited log and bad-input count;

@@ -1,7 +1,7 @@
 """Logging: the format, and the one rate-limited log every "this can happen at will" line goes
 through (bad input, internal errors, late torques), with the bad-input count a status reports.
 
-Bad input (docs/input.md) never kills a service: it is dropped, logged in one line
+Bad input (docs/protocol.md section 8) never kills a service: it is dropped, logged in one line
 naming the key and the reason (at most one line per key per :data:`LOG_INTERVAL_S`), and counted.
 """
 
