@@ -50,6 +50,7 @@ from services.scenarios import (
 )
 from services.service import ServiceCommand, finite_number, positive_seconds
 from services.sim_time import PeriodicSchedule, StampClock, check_stamp_near
+from services.sim_watch import SimulatorWatch
 
 FINAL_ZERO_TICKS = 3
 """Ticks on which the final zero velocity is published before the drive exits."""
@@ -132,7 +133,6 @@ class DriveService:
         self.commands_published = 0
         self.final_zeros = 0
         self.finished = False
-        self.sim_alive = False
         self.odometry_alive = False
         self.pose_wait_s = config.sim.lockstep_timeout
         self.pose_wait_timeouts = 0
@@ -141,11 +141,20 @@ class DriveService:
         """Lockstep: (tick stamp, wall deadline) of a tick waiting for the odometry pose of its stamp."""
         self.publisher = node.publisher(node.keys.drive_target_velocity)
         self._path = node.latched_publisher(node.keys.drive_path)
+        self.sim = sim = SimulatorWatch(node, self.clock.restart)
         self._clock_input = node.subscribe(
-            node.keys.sim_wheel_angles, TimedDoubleSeq, self._on_clock, Delivery.SAMPLED, with_attachment=True
+            node.keys.sim_wheel_angles,
+            TimedDoubleSeq,
+            sim.clock(self._on_clock),
+            Delivery.SAMPLED,
+            with_attachment=True,
         )
-        self._pose_input = node.subscribe(node.keys.odometry_pose, TimedPosition, self._on_pose, Delivery.SAMPLED)
-        node.watch(Service.SIM, self._on_sim_liveliness)
+        self._pose_input = node.subscribe(
+            node.keys.odometry_pose,
+            TimedPosition,
+            sim.stamped(node.keys.odometry_pose, self._on_pose),
+            Delivery.SAMPLED,
+        )
         node.watch(Service.ODOMETRY, self._on_odometry_liveliness)
         node.participate(self.publisher, self.rate_hz)
         node.wait_with(self._next_wait)
@@ -195,14 +204,6 @@ class DriveService:
         if self.pose_stamp_ns is None or abs(now_ns - self.pose_stamp_ns) > self.pose_timeout_ns:
             return None
         return self.pose
-
-    def _on_sim_liveliness(self, alive: bool) -> None:
-        # Every PUT, not DELETE-then-PUT: zenoh shows a new token on the same key only once the
-        # old one is gone. Only a clock that then goes back is a new run: a PUT from the same
-        # simulator, after a reconnection, must not restart the scenario.
-        self.sim_alive = alive
-        if alive:
-            self.clock.allow_restart()
 
     def _restart(self, now_ns: int) -> None:
         """A new simulator, whose clock started again: the scenario starts over at ``now_ns``."""
@@ -291,8 +292,8 @@ class DriveService:
             "done": runner.done,
             "rate_hz": self.rate_hz,
             "commands_published": self.commands_published,
-            "sim_alive": self.sim_alive,
-            "time_base_restarts": self.clock.restarts,
+            "sim_alive": self.sim.alive,
+            "time_base_restarts": self.clock.restart.restarts,
             "odometry_alive": self.odometry_alive,
             "lockstep_participant": self.node.participating,
             "pose_wait_timeouts": self.pose_wait_timeouts,

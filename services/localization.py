@@ -24,6 +24,7 @@ from services.localization_core import Fix, Localizer, resolve_seed
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
 from services.service import ServiceCommand
+from services.sim_watch import SimulatorWatch
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -81,11 +82,10 @@ class LocalizationService:
         self.config = config.localization
         self.seed = resolve_seed(self.config.seed)
         self.localizer = Localizer.from_config(config, self.seed)
-        self.sim_alive = False
         self.publisher = node.publisher(node.keys.localization_pose)
         node.participate(self.publisher, self.config.rate)
         node.subscribe(node.keys.motor_sim_pose_localization, TimedDoubleSeq, self._on_sim_pose, Delivery.SAMPLED)
-        node.watch(Service.SIM, self._on_sim_liveliness)
+        self.sim = SimulatorWatch(node, self.localizer.restart)
         node.set_status(self.status)
         node.log.info(
             "fixes at %g Hz of simulation time, noise σ = (%g m, %g m, %g rad), seed %d",
@@ -95,13 +95,6 @@ class LocalizationService:
             self.config.noise_theta,
             self.seed,
         )
-
-    def _on_sim_liveliness(self, alive: bool) -> None:
-        # Every PUT, not DELETE-then-PUT: zenoh shows a new token on the same key only once the
-        # old one is gone. Only a clock that then goes back is a new time base.
-        self.sim_alive = alive
-        if alive:
-            self.localizer.simulator_appeared()
 
     def _on_sim_pose(self, message: TimedDoubleSeq) -> None:
         localizer = self.localizer
@@ -131,7 +124,7 @@ class LocalizationService:
             "state": state,
             "fixes_published": self.localizer.fixes,
             "time_base_restarts": self.localizer.time_base_restarts,
-            "sim_alive": self.sim_alive,
+            "sim_alive": self.sim.alive,
             "last_fix": _pose_dict(self.localizer.last_fix),
             "rate_hz": self.config.rate,
             "noise": {"x": self.config.noise_x, "y": self.config.noise_y, "theta": self.config.noise_theta},

@@ -13,8 +13,8 @@ x, y, z, θ stamped with simulation time) into localized fixes:
   axis (σx, σy, σθ), θ wrapped into (−π, π]. The grid is anchored at time 0, not at t0, so a
   lockstep simulator knows the ticks from the rate alone (services/lockstep.py).
 
-When the simulator restarts (:meth:`Localizer.simulator_appeared`, then a stamp not after the
-last one: its clock started again), that sample starts a new time base and, once the schedule
+When the simulator restarts (its token appeared, :attr:`Localizer.restart`, then a stamp not
+after the last one: its clock started again), that sample starts a new time base and, once the schedule
 runs, takes a fix at once (the simulated pose, with noise: not the initial pose again), then
 one at every tick of the grid after it.
 
@@ -35,7 +35,7 @@ from schemas.keys import SIM_POSE_LENGTH
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import Config, InputConfig
 from services.planar import Pose, check_coordinates, wrap_angle
-from services.sim_time import PeriodicSchedule, StampClock
+from services.sim_time import ClockRestart, PeriodicSchedule, StampClock
 
 SEED_BITS = 63
 """Seeds drawn from the OS fit a signed 64-bit integer, so they can be passed back as ``seed``."""
@@ -111,13 +111,13 @@ class Localizer:
         )
 
     @property
-    def time_base_restarts(self) -> int:
-        return self._clock.restarts
+    def restart(self) -> ClockRestart:
+        """Told when a simulator's token appears; the next stamp decides if it was restarted."""
+        return self._clock.restart
 
-    def simulator_appeared(self) -> None:
-        """A simulator's liveliness token appeared: if the next stamp is not after the last one,
-        it was restarted (see the module docstring); otherwise nothing changes."""
-        self._clock.allow_restart()
+    @property
+    def time_base_restarts(self) -> int:
+        return self._clock.restart.restarts
 
     def on_sim_pose(self, stamp_ns: int, data: Sequence[float], may_start: bool = True) -> Fix | None:
         """Take one simulated pose [x, y, z, θ]; return the fix it triggers, if any.

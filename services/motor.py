@@ -5,8 +5,9 @@ Every ``sim/wheel_angles`` sample gets exactly one ``motor/torque`` with the sam
 input (undecodable, a wheel id out of range, dt <= 0) is dropped and gets no torque.
 Every ``sim/body_pose`` becomes ``motor/sim_pose/gui`` and ``motor/sim_pose/localization``.
 The Motor interface answers on ``motor/gui/<method>`` and ``motor/bump/<method>``.
-Whenever the simulator's liveliness token appears, the wheel-angle time base starts again
-with the next sample (a restarted simulator's clock starts again at 0).
+When the simulator's liveliness token appears and the next wheel-angle sample is not after
+the last one, that sample starts a new time base (a restarted simulator's clock starts again at
+0; a reconnected one's goes on, and costs nothing): services/sim_watch.py.
 In lockstep a wheel-angle sample is held until the drive's target its attachment says it is
 owed has arrived (services/lockstep.py); a target applies from the first sample after its stamp.
 See docs/motor.md.
@@ -28,12 +29,14 @@ from schemas.codec import BadInput, decode
 from schemas.keys import METHOD_ARGUMENTS, Method, MethodFamily, Service, Topic
 from schemas.messages import NoArguments, PDGains, Time, TimedDoubleSeq, TimedVelocity
 from services.config import Config, TargetAngleMode
-from services.lockstep import Hold, decode_owed
+from services.lockstep import Hold
 from services.motor_core import MotorCore
 from services.runtime.inputs import Delivery
 from services.runtime.logs import RateLimitedLog
 from services.runtime.node import Node, Wait
 from services.service import ServiceCommand, TraceFile
+from services.sim_time import ClockRestart
+from services.sim_watch import HeldSample, SimulatorWatch
 
 STATE_HOME_VARIABLE = "XDG_STATE_HOME"
 STATE_DIRECTORY = "invent-zenoh"
@@ -111,12 +114,12 @@ class MotorService:
         self.core = MotorCore(config.robot, config.motor, config.input)
         self.torques_published = 0
         # Lockstep: a wheel-angle sample waits for the drive's target it is owed (the sim took it).
-        self.target_hold: Hold[tuple[TimedDoubleSeq, bytes | None]] = Hold(
+        self.target_hold: Hold[HeldSample] = Hold(
             Topic.DRIVE_TARGET_VELOCITY,
             lambda held: node.guard(node.keys.sim_wheel_angles, self._control, *held),
             capacity=1,
         )
-        self.sim_alive = False
+        self.sim = SimulatorWatch(node, ClockRestart(self.core.horizon_ns))
         self._timeouts_logged = 0
         self._nonfinite_logged = 0
         self._warn = RateLimitedLog(node.log)
@@ -132,22 +135,27 @@ class MotorService:
         # Wheel angles first: the thread waits in their channel and answers with the torque before
         # it converts the body pose, then takes the newest target (calls, posted events, come
         # before all three). A flood of targets holds one sample and delays no wheel angle.
+        sim = self.sim
         node.subscribe(
             keys.sim_wheel_angles,
             TimedDoubleSeq,
-            self._on_wheel_angles,
+            sim.held_clock(self.target_hold, self.core, "stop/finish latches, gains and target kept"),
             Delivery.EVERY,
             wakes=True,
             with_attachment=True,
         )
-        node.subscribe(keys.sim_body_pose, TimedDoubleSeq, self._on_body_pose, Delivery.EVERY)
+        node.subscribe(
+            keys.sim_body_pose, TimedDoubleSeq, sim.stamped(keys.sim_body_pose, self._on_body_pose), Delivery.EVERY
+        )
         self._targets = node.subscribe(
-            keys.drive_target_velocity, TimedVelocity, self._on_target_velocity, Delivery.NEWEST
+            keys.drive_target_velocity,
+            TimedVelocity,
+            sim.stamped(keys.drive_target_velocity, self._on_target_velocity),
+            Delivery.NEWEST,
         )
         for family in MethodFamily:
             for method in Method:
                 node.queryable(keys.method(family, method), partial(self._call, family, method), mutates=True)
-        node.watch(Service.SIM, self._on_sim_liveliness)
         node.wait_with(self._next_wait)
         node.set_status(self.status)
         node.log.info(
@@ -181,9 +189,6 @@ class MotorService:
         )
         return {"from": str(path), **msgspec.to_builtins(saved)}
 
-    def _on_wheel_angles(self, angles: TimedDoubleSeq, attachment: bytes | None) -> None:
-        self.target_hold.offer((angles, attachment), decode_owed(attachment, angles.tm.to_nanoseconds()))
-
     def _control(self, angles: TimedDoubleSeq, attachment: bytes | None) -> None:
         tm = angles.tm
         core = self.core
@@ -210,21 +215,6 @@ class MotorService:
                 "no %s for %g s of wheel-angle time: braking to zero until one arrives",
                 self.node.keys.drive_target_velocity,
                 core.motor.command_timeout,
-            )
-
-    def _on_sim_liveliness(self, alive: bool) -> None:
-        # Zenoh reports one token per key: a new simulator shows as a PUT only after the old one's
-        # DELETE, and not at all while both exist. So every PUT restarts the time base; a PUT from
-        # the same simulator (a reconnection) costs one zero-torque cycle.
-        self.sim_alive = alive
-        if not alive:
-            self.node.log.debug("simulator gone: waiting for wheel angles from the next one")
-            return
-        self.target_hold.forget()
-        if self.core.restart_time_base():
-            self.node.log.info(
-                "simulator (re)appeared: wheel-angle time starts again with its next sample "
-                "(stop/finish latches, gains and target kept)"
             )
 
     def _trace_record(self, angles: TimedDoubleSeq, torques: list[float]) -> TraceRecord:
@@ -283,9 +273,11 @@ class MotorService:
         return self.node.status()
 
     def status(self) -> dict[str, Any]:
+        status = self.core.status()
+        status["counters"]["time_base_restarts"] = self.sim.restart.restarts
         return {
-            **self.core.status(),
-            "sim_alive": self.sim_alive,
+            **status,
+            "sim_alive": self.sim.alive,
             "torques_published": self.torques_published,
             "lockstep_holds": {"held": self.target_hold.holds, "released_unanswered": self.target_hold.overflows},
             "trace": None if self._trace is None else self._trace.path,

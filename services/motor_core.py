@@ -100,7 +100,7 @@ class MotorCore:
     Call :meth:`step` for every wheel-angle sample (it returns the torque vector),
     :meth:`set_target` for every target velocity, :meth:`sim_pose` for every body pose, and
     the Motor methods :meth:`set_pd_gain`, :meth:`start`, :meth:`finish`, :meth:`stop`,
-    :meth:`clear`; :meth:`restart_time_base` when a simulator (re)appears. Bad input raises
+    :meth:`clear`; :meth:`restart_time_base` when a restarted simulator's clock starts again. Bad input raises
     BadInput and changes nothing.
 
     After each :meth:`step`, ``cycle_state``, ``dq``, ``dq_ref`` and ``q_ref`` describe that
@@ -111,7 +111,7 @@ class MotorCore:
         self.robot = robot
         self.motor = motor
         self.limits = limits
-        self._horizon_ns = round(limits.stamp_horizon * NANOSECONDS_PER_SECOND)
+        self.horizon_ns = round(limits.stamp_horizon * NANOSECONDS_PER_SECOND)
         # A target older than the command timeout would be timed out anyway.
         self._target_history_ns = round((motor.command_timeout or limits.stamp_horizon) * NANOSECONDS_PER_SECOND)
         self._max_wheel_speed = limits.max_wheel_speed
@@ -152,7 +152,6 @@ class MotorCore:
         self.target_velocity_samples = 0
         self.targets_ignored = 0
         self.command_timeouts = 0
-        self.time_base_restarts = 0
         self.nonfinite_torques = 0
         """Cycles whose torque came out non-finite: zero torque was sent instead."""
 
@@ -194,7 +193,7 @@ class MotorCore:
             self._accept(stamp_ns, q_l, q_r)
             self.dq = self.dq_ref = self.q_ref = None
             return torques
-        check_next_stamp(stamp_ns, previous, self._horizon_ns)
+        check_next_stamp(stamp_ns, previous, self.horizon_ns)
         dt = (stamp_ns - previous) / NANOSECONDS_PER_SECOND
         old_l, old_r = self.q
         dq_l, dq_r = (q_l - old_l) / dt, (q_r - old_r) / dt
@@ -243,24 +242,25 @@ class MotorCore:
         torques[self._left], torques[self._right] = torque_l, torque_r
         return torques
 
-    def restart_time_base(self) -> bool:
-        """A simulator (re)appeared: its clock may start again at 0, so forget the last stamp.
+    @property
+    def time_ns(self) -> int | None:
+        """The stamp of the last wheel-angle sample taken; None before the first (or a restart)."""
+        return self._stamp_ns
+
+    def restart_time_base(self) -> None:
+        """A restarted simulator, whose clock started again: forget the last stamp.
 
         The next wheel-angle sample initialises like the very first one (zero torque, no Δt).
         The latches (``stop``, ``finish``), gains, target and counters are kept; control
         resumes from rest (limits ramp from zero, ``integrated`` re-anchors), and the target's
         age for the command timeout counts again from that next sample (a timed-out command
-        stays timed out). Returns True if a time base was in use (and is now discarded).
+        stays timed out).
         """
-        in_use = self._stamp_ns is not None
         self._stamp_ns = None
         self._target_stamp_ns = None
         self._deferred_target = None
         self._release()
         self.dq = self.dq_ref = self.q_ref = None
-        if in_use:
-            self.time_base_restarts += 1
-        return in_use
 
     def _accept(self, stamp_ns: int, q_l: float, q_r: float) -> None:
         self._stamp_ns = stamp_ns
@@ -309,7 +309,7 @@ class MotorCore:
         message's stamp; None is for callers with no clock of their own).
         """
         if stamp_ns is not None and self._stamp_ns is not None:
-            check_stamp_near(stamp_ns, self._stamp_ns, self._horizon_ns, self._target_history_ns, "target")
+            check_stamp_near(stamp_ns, self._stamp_ns, self.horizon_ns, self._target_history_ns, "target")
         b = self._half_axle
         wheel_speeds = ((vx - b * w) / self._radius_l, (vx + b * w) / self._radius_r)
         if not all(abs(speed) <= self._max_wheel_speed for speed in wheel_speeds):
@@ -344,7 +344,7 @@ class MotorCore:
         the horizon either way from the wheel-angle time, once there is one (the simulator stamps
         both with its one clock)."""
         if stamp_ns is not None and self._stamp_ns is not None:
-            check_stamp_near(stamp_ns, self._stamp_ns, self._horizon_ns, self._horizon_ns, "body pose")
+            check_stamp_near(stamp_ns, self._stamp_ns, self.horizon_ns, self.horizon_ns, "body pose")
         pose = self._pose(data)
         check_coordinates(pose[0], pose[1], self.limits.max_coordinate)
         self.body_pose_samples += 1
@@ -443,6 +443,5 @@ class MotorCore:
                 "target_velocity_samples": self.target_velocity_samples,
                 "targets_ignored": self.targets_ignored,
                 "command_timeouts": self.command_timeouts,
-                "time_base_restarts": self.time_base_restarts,
             },
         }

@@ -3,9 +3,10 @@
 Subscribes ``motor/wheel_angles`` and ``localization/pose``; publishes ``odometry/pose`` (with
 the ``tm`` of the wheel-angle sample) for every accepted sample, the first one included. A
 localized pose overwrites the pose the next step starts from. ``--trace FILE`` writes one JSON
-line per accepted wheel-angle sample (docs/odometry.md describes the fields). Whenever the
-simulator's liveliness token appears, the next wheel-angle sample starts a new time base (the
-stamps are the simulator's, and a restarted simulator's clock starts again at 0).
+line per accepted wheel-angle sample (docs/odometry.md describes the fields). When the
+simulator's liveliness token appears and the next wheel-angle sample is not after the last one,
+that sample starts a new time base (the stamps are the simulator's, and a restarted simulator's
+clock starts again at 0; a reconnected one's goes on, and costs nothing): services/sim_watch.py.
 """
 
 from __future__ import annotations
@@ -18,11 +19,13 @@ import msgspec
 from schemas.keys import Service, Topic
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
 from services.config import Config
-from services.lockstep import Hold, decode_owed
+from services.lockstep import Hold
 from services.odometry_core import FIX_HISTORY_STEPS, Branch, Odometry
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
 from services.service import ServiceCommand, TraceFile, no_overrides
+from services.sim_time import ClockRestart
+from services.sim_watch import HeldSample, SimulatorWatch
 
 STATE_IDLE = "idle"
 """No wheel angles seen yet: the pose is the starting (or localized) pose."""
@@ -38,14 +41,13 @@ class OdometryService:
         self.odometry = Odometry(config.robot, config.odometry, limits=config.input)
         self.samples = 0
         self.localization_resets = 0
-        self.time_base_restarts = 0
-        self.sim_alive = False
+        self.sim = SimulatorWatch(node, ClockRestart(self.odometry.horizon_ns))
         self.branches = dict.fromkeys(Branch, 0)
         self.last_tm: Time | None = None
         # Lockstep: a wheel-angle sample waits for the localization's fix it is owed (the sim took it).
-        self.fix_hold: Hold[TimedDoubleSeq] = Hold(
+        self.fix_hold: Hold[HeldSample] = Hold(
             Topic.LOCALIZATION_POSE,
-            lambda held: node.guard(node.keys.motor_wheel_angles, self._integrate, held),
+            lambda held: node.guard(node.keys.motor_wheel_angles, self._integrate, *held),
             capacity=FIX_HISTORY_STEPS,
         )
         self._trace = TraceFile.from_flag(args.trace)
@@ -53,29 +55,20 @@ class OdometryService:
         node.subscribe(
             node.keys.motor_wheel_angles,
             TimedDoubleSeq,
-            self.on_wheel_angles,
+            self.sim.held_clock(self.fix_hold, self.odometry, "pose kept"),
             Delivery.EVERY,
             wakes=True,
             with_attachment=True,
         )
-        node.subscribe(node.keys.localization_pose, TimedPosition, self.on_localized_pose, Delivery.QUEUED)
-        node.watch(Service.SIM, self.on_sim_liveliness)
+        node.subscribe(
+            node.keys.localization_pose,
+            TimedPosition,
+            self.sim.stamped(node.keys.localization_pose, self._on_localized_pose),
+            Delivery.QUEUED,
+        )
         node.set_status(self.status)
 
-    def on_sim_liveliness(self, alive: bool) -> None:
-        # Every PUT, not DELETE-then-PUT: zenoh shows a new token on the same key only once the
-        # old one is gone, and a DELETE says nothing about the stamps still to come.
-        self.sim_alive = alive
-        if alive:
-            self.fix_hold.forget()
-        if alive and self.odometry.restart_time_base():
-            self.time_base_restarts += 1
-            self.node.log.info("simulator (re)appeared: wheel-angle time starts again with its next sample (pose kept)")
-
-    def on_wheel_angles(self, sample: TimedDoubleSeq, attachment: bytes | None = None) -> None:
-        self.fix_hold.offer(sample, decode_owed(attachment, sample.tm.to_nanoseconds()))
-
-    def _integrate(self, sample: TimedDoubleSeq) -> None:
+    def _integrate(self, sample: TimedDoubleSeq, _attachment: bytes | None) -> None:
         step = self.odometry.step(sample.tm.to_nanoseconds(), sample.data)
         self.samples += 1
         self.branches[step.branch] += 1
@@ -84,7 +77,7 @@ class OdometryService:
             self._trace.write({"tm": sample.tm, **step._asdict(), "localization_resets": self.localization_resets})
         self._pose.put(TimedPosition(tm=sample.tm, id=[], x=step.x, y=step.y, theta=step.theta, error=[]))
 
-    def on_localized_pose(self, pose: TimedPosition) -> None:
+    def _on_localized_pose(self, pose: TimedPosition) -> None:
         stamp_ns = pose.tm.to_nanoseconds()
         self.odometry.reset_at(stamp_ns, pose.x, pose.y, pose.theta)
         self.localization_resets += 1
@@ -96,14 +89,14 @@ class OdometryService:
         odometry = self.odometry
         return {
             "state": STATE_RUNNING if self.odometry.initialised else STATE_IDLE,
-            "sim_alive": self.sim_alive,
+            "sim_alive": self.sim.alive,
             "pose": pose._asdict(),
             "velocity": {"v": v, "omega": omega},
             "last_wheel_angles_tm": self.last_tm,
             "counters": {
                 "wheel_angle_samples": self.samples,
                 "localization_resets": self.localization_resets,
-                "time_base_restarts": self.time_base_restarts,
+                "time_base_restarts": self.sim.restart.restarts,
                 "lockstep_holds": {"held": self.fix_hold.holds, "released_unanswered": self.fix_hold.overflows},
                 "branches": {str(branch): count for branch, count in self.branches.items()},
             },

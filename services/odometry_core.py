@@ -24,7 +24,7 @@ RotationAngleBorder²/24 (1.3e-5 at the default).
 The first sample only initialises (the robot is taken to be at rest: V_old = 0, which only the
 seed's trapezoid reads). A localized pose (:meth:`Odometry.reset`) overwrites (x_old, y_old,
 θ_old) before the next step.
-:meth:`Odometry.restart_time_base` (a restarted simulator, whose clock starts again) makes the
+:meth:`Odometry.restart_time_base` (a restarted simulator, whose clock started again) makes the
 next sample initialise again, keeping the pose. The hot path runs thousands of times a second:
 plain floats, no allocation beyond the returned step.
 """
@@ -117,7 +117,6 @@ class Odometry:
         "_angle_border",
         "_b",
         "_history",
-        "_horizon_ns",
         "_left_id",
         "_max_coordinate",
         "_max_wheel_speed",
@@ -138,6 +137,7 @@ class Odometry:
         "_y",
         "config",
         "geometry",
+        "horizon_ns",
         "robot",
     )
 
@@ -152,7 +152,7 @@ class Odometry:
         parameters and the input limits."""
         self.robot, self.config = robot, odometry
         self.geometry = geometry = CalibratedGeometry.of(robot, odometry)
-        self._horizon_ns = round(limits.stamp_horizon * NANOSECONDS_PER_SECOND)
+        self.horizon_ns = round(limits.stamp_horizon * NANOSECONDS_PER_SECOND)
         self._max_wheel_speed = limits.max_wheel_speed
         self._max_coordinate = limits.max_coordinate
         self._left_id = robot.left_wheel_id
@@ -174,6 +174,11 @@ class Odometry:
     def initialised(self) -> bool:
         """True once the first wheel-angle sample has arrived."""
         return self._time_ns is not None
+
+    @property
+    def time_ns(self) -> int | None:
+        """The stamp of the last sample integrated; None before the first (or a restart)."""
+        return self._time_ns
 
     @property
     def pose(self) -> Pose:
@@ -217,7 +222,7 @@ class Odometry:
         if stamp_ns == self._time_ns:
             return self.reset(x, y, theta)
         oldest_ns = self._history[0][0]
-        check_stamp_near(stamp_ns, self._time_ns, self._horizon_ns, self._time_ns - oldest_ns, "fix")
+        check_stamp_near(stamp_ns, self._time_ns, self.horizon_ns, self._time_ns - oldest_ns, "fix")
         if stamp_ns > self._time_ns:
             self._pending_fix = (stamp_ns, x, y, theta)
             return self.pose
@@ -233,19 +238,17 @@ class Odometry:
             theta + (self._theta - base_theta),
         )
 
-    def restart_time_base(self) -> bool:
+    def restart_time_base(self) -> None:
         """Forget the last sample's time and angles: the next sample initialises, like the first.
 
-        For a simulator that (re)appeared: its clock may start again at 0 and its wheel angles
-        belong to a new world. The pose is kept (the next localized pose corrects it); the
-        robot is taken to be at rest again (V_old = 0). Returns True if a time base was in use.
+        For a restarted simulator: its clock started again and its wheel angles belong to a new
+        world. The pose is kept (the next localized pose corrects it); the robot is taken to be
+        at rest again (V_old = 0).
         """
-        in_use = self._time_ns is not None
         self._time_ns = None
         self._v = self._omega = 0.0
         self._history.clear()
         self._pending_fix = None
-        return in_use
 
     def step(self, time_ns: int, wheel_angles: Sequence[float]) -> Step:
         """Integrate one sample taken at ``time_ns`` (nanoseconds); the wheels are picked by id.
@@ -272,7 +275,7 @@ class Odometry:
             return Step(
                 Branch.INITIAL, q_left, q_right, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, None, 0.0, self._x, self._y, self._theta
             )
-        check_next_stamp(time_ns, self._time_ns, self._horizon_ns)
+        check_next_stamp(time_ns, self._time_ns, self.horizon_ns)
         dt = (time_ns - self._time_ns) / NANOSECONDS_PER_SECOND
         rate_left, rate_right = (q_left - self._q_left) / dt, (q_right - self._q_right) / dt
         if not (abs(rate_left) <= self._max_wheel_speed and abs(rate_right) <= self._max_wheel_speed):

@@ -46,43 +46,67 @@ def check_stamp_near(stamp_ns: int, reference_ns: int, horizon_ns: int, history_
         )
 
 
-class StampClock:
-    """Accepts a stream of increasing stamps, each at most ``horizon_ns`` after the last
-    (:func:`check_next_stamp`); anything else is bad input.
+class ClockRestart:
+    """The one rule by which every service follows a restarted simulator (docs/protocol.md section 8.6).
 
-    A restarted simulator's clock starts again (at 0): after :meth:`allow_restart` (its
-    liveliness token appeared), a next stamp that is not after the last one starts a new time
-    base instead of being bad input. A stamp that is later just goes on: a simulator that only
-    reconnected keeps its clock, and a running scenario or fix schedule is not disturbed.
+    Zenoh shows the simulator's liveliness token appear both when a new simulator starts (its
+    clock starts again, at 0) and when the same one reconnects (its clock goes on), and cannot
+    tell the two apart; the stamps can. After :meth:`simulator_appeared`, the first sample of the
+    simulator's clock *decides* (:meth:`decide`): a stamp not after the last one taken starts a
+    new time base; a later one, within the horizon, means the clock goes on, and nothing
+    restarts: a reconnect costs nothing. A stamp beyond the horizon decides nothing (it is bad
+    input; a forged one must not make a genuine restart look like time going back).
+
+    Until a sample decides, the service cannot judge an input stamped in the simulator's time
+    (a target, a fix, a pose) against its old time base: ``deciding`` says so, and the service
+    keeps such inputs until the sample that decides.
     """
 
     def __init__(self, horizon_ns: int) -> None:
         self.horizon_ns = horizon_ns
+        self.deciding = False
+        """True from the token's appearance until a sample of the clock decides."""
+        self.restarts = 0
+        """Time bases started again since the first."""
+
+    def simulator_appeared(self) -> None:
+        self.deciding = True
+
+    def decide(self, stamp_ns: int, last_ns: int | None) -> bool:
+        """Called with every clock sample's stamp before the service takes it (``last_ns``: the
+        newest stamp it took, None before the first); True if the sample starts a new time base."""
+        if not self.deciding or (last_ns is not None and stamp_ns - last_ns > self.horizon_ns):
+            return False
+        self.deciding = False
+        restarted = last_ns is not None and stamp_ns <= last_ns
+        self.restarts += restarted
+        return restarted
+
+
+class StampClock:
+    """Accepts a stream of increasing stamps, each at most ``horizon_ns`` after the last
+    (:func:`check_next_stamp`); anything else is bad input, but for the sample that starts a
+    new time base after a simulator appeared (``restart``, a :class:`ClockRestart`).
+    """
+
+    def __init__(self, horizon_ns: int) -> None:
+        self.horizon_ns = horizon_ns
+        self.restart = ClockRestart(horizon_ns)
         self.first_ns: int | None = None
         """The first stamp of the current time base."""
         self.last_ns: int | None = None
-        self.restarts = 0
-        """Time bases started again since the first."""
-        self._restart_allowed = False
-
-    def allow_restart(self) -> None:
-        """Let the next stamp start a new time base if it is not after the last one."""
-        self._restart_allowed = True
 
     def advance(self, stamp_ns: int) -> bool:
         """Take ``stamp_ns`` as the new time; True if it started a new time base.
 
-        Raises BadInput (state unchanged) if the stamp is not later and no restart is allowed.
+        Raises BadInput (state unchanged) if the stamp is not later, or too far ahead, and does
+        not start a new time base.
         """
         last_ns = self.last_ns
-        restarted = False
-        if last_ns is not None and stamp_ns <= last_ns and self._restart_allowed:
-            self.first_ns, restarted = None, True
-            self.restarts += 1
-        elif last_ns is not None:
+        restarted = self.restart.decide(stamp_ns, last_ns)
+        if not restarted and last_ns is not None:
             check_next_stamp(stamp_ns, last_ns, self.horizon_ns)
-        self._restart_allowed = False
-        if self.first_ns is None:
+        if restarted or self.first_ns is None:
             self.first_ns = stamp_ns
         self.last_ns = stamp_ns
         return restarted

@@ -15,7 +15,7 @@ from schemas.codec import BadInput
 from services.config import Config, InputConfig, LocalizationConfig
 from services.localization_core import Localizer, Noise, resolve_seed
 from services.planar import Pose, wrap_angle
-from services.sim_time import PeriodicSchedule, StampClock
+from services.sim_time import PeriodicSchedule
 
 MS = 1_000_000
 S = 1_000_000_000
@@ -184,39 +184,13 @@ def test_noise_rejects_negative_or_non_finite_sigmas() -> None:
             Noise(**bad)
 
 
-def test_stamp_clock_accepts_only_increasing_stamps() -> None:
-    clock = StampClock(HORIZON_NS)
-    clock.advance(5)
-    clock.advance(6)
-    with pytest.raises(BadInput):
-        clock.advance(6)
-    assert (clock.first_ns, clock.last_ns) == (5, 6)
-    assert clock.restarts == 0
-
-
-def test_stamp_clock_restarts_only_when_allowed_and_the_stamp_goes_back() -> None:
-    clock = StampClock(HORIZON_NS)
-    clock.allow_restart()
-    assert clock.advance(5) is False, "the first stamp is no restart"
-    clock.allow_restart()
-    assert clock.advance(9) is False, "a later stamp just goes on (a reconnection)"
-    assert (clock.first_ns, clock.last_ns, clock.restarts) == (5, 9, 0)
-    with pytest.raises(BadInput):
-        clock.advance(2)
-    clock.allow_restart()
-    assert clock.advance(2) is True
-    assert (clock.first_ns, clock.last_ns, clock.restarts) == (2, 2, 1)
-    with pytest.raises(BadInput):
-        clock.advance(2)
-
-
 def test_after_a_restart_the_first_sample_takes_a_fix_at_once_and_anchors_the_grid() -> None:
     loc = localizer(rate=2.0, initial=Pose(5.0, 5.0, 0.0))
     fixes = feed(loc, [k * 100 * MS for k in range(31)])  # 3 s: the initial pose, then 6 fixes
     assert len(fixes) == 7 and loc.fixes == 7
     with pytest.raises(BadInput):
         loc.on_sim_pose(0, sim_pose(0))
-    loc.simulator_appeared()
+    loc.restart.simulator_appeared()
     restart_ns = 30 * MS  # the new clock starts again, before the old one's last stamp
     first = loc.on_sim_pose(restart_ns, [1.0, 2.0, 0.0, 0.5])
     assert first is not None and not first.initial, "a fix of the simulated pose, not the initial pose again"
@@ -235,7 +209,7 @@ def test_a_simulator_appearing_with_a_clock_that_goes_on_changes_nothing() -> No
         return [fix.stamp_ns for stamp in taken if (fix := loc.on_sim_pose(stamp, sim_pose(0))) is not None]
 
     before = fix_stamps(appeared, stamps[:7])
-    appeared.simulator_appeared()
+    appeared.restart.simulator_appeared()
     expected = [0, 500 * MS, 1 * S, 1500 * MS, 2 * S]
     assert before + fix_stamps(appeared, stamps[7:]) == fix_stamps(reference, stamps) == expected
     assert appeared.time_base_restarts == 0
@@ -244,20 +218,10 @@ def test_a_simulator_appearing_with_a_clock_that_goes_on_changes_nothing() -> No
 def test_a_restart_before_the_schedule_starts_keeps_the_initial_pose_first() -> None:
     loc = localizer(initial=Pose(5.0, 0.0, 0.0))
     assert loc.on_sim_pose(9 * S, sim_pose(0), may_start=False) is None
-    loc.simulator_appeared()
+    loc.restart.simulator_appeared()
     first = loc.on_sim_pose(0, sim_pose(1))
     assert first is not None and first.initial and first.stamp_ns == 0
     assert loc.time_base_restarts == 1
-
-
-def test_stamp_clock_refuses_a_jump_beyond_the_horizon_and_keeps_its_time_base() -> None:
-    clock = StampClock(HORIZON_NS)
-    clock.advance(5 * S)
-    for forged in (5 * S + HORIZON_NS + 1, 100_000 * S, 10**29 * S):
-        with pytest.raises(BadInput, match="ahead of the time base"):
-            clock.advance(forged)
-    assert clock.last_ns == 5 * S
-    assert clock.advance(5 * S + HORIZON_NS) is False, "a jump of exactly the horizon is fine"
 
 
 def test_a_forged_far_future_sim_pose_does_not_freeze_the_fixes() -> None:

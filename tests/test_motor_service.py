@@ -455,47 +455,72 @@ def test_trace_lines_and_command_timeout_warning_in_an_integrated_motor(tmp_path
     assert err.count("braking to zero") == 1
 
 
-def test_a_restarted_simulator_is_answered_again_from_its_new_clock(endpoint, session):
-    """Own process: a simulator plays 0, 1, 2 ... ms, leaves, and a new one plays from 0 again;
-    the motor, never restarted, answers every sample of both runs as a fresh motor would."""
+def test_a_reconnected_simulator_costs_nothing_and_a_restarted_one_is_answered_from_its_new_clock(endpoint, session):
+    """Own process. A simulator plays 0, 1, 2 ... ms; its token goes and comes back while its
+    clock goes on (a reconnection): every sample is answered as if nothing happened. Then a new
+    simulator plays from 0 again, its drive's first target arriving before its first sample:
+    the motor answers it as a fresh motor would, and refuses nothing."""
     robot = "mot3"
     keys = Keys(robot)
     config = load_config(overrides={"robot.name": robot, **OVERRIDES})
     motor_link = MotorLink(session, keys, config)
     samples = 12
+
+    def sim_alive(alive: bool) -> None:
+        wait_until(lambda: motor_link.status()["sim_alive"] is alive, what=f"the motor to see sim_alive {alive}")
+
+    def answered_from_zero() -> None:
+        motor_link.time_ns = -STEP_NS  # the first sample is stamped 0
+        answers = [motor_link.cycle(moving(k)) for k in range(samples)]
+        assert answers[0][0] == [0.0, 0.0, 0.0], "the first sample of a clock only initialises"
+        for torques, expected in answers[1:]:
+            assert torques == expected and torques[1] != 0.0
+
     try:
         with InventProcess("motor", "--connect", endpoint, "--robot", robot, *set_flags(OVERRIDES)) as motor:
             wait_alive(session, keys.alive(Service.MOTOR))
             motor_link.wait_matched()
             motor_link.target(0.4, 0.3)
-            for run in range(2):
-                with SimPresence(endpoint, keys) as sim:
-                    wait_until(
-                        lambda run=run: (
-                            (status := motor_link.status())["sim_alive"]
-                            and status["counters"]["time_base_restarts"] == run
-                        ),
-                        what="the motor to see the simulator appear",
-                    )
-                    motor_link.mirror = MotorCore(config.robot, config.motor)
-                    motor_link.mirror.set_target(0.4, 0.3)
-                    motor_link.time_ns = -STEP_NS  # the first sample is stamped 0
-                    answers = [motor_link.cycle(moving(k)) for k in range(samples)]
-                    assert answers[0][0] == [0.0, 0.0, 0.0], f"run {run}: the first sample only initialises"
-                    for torques, expected in answers[1:]:
-                        assert torques == expected and torques[1] != 0.0, f"run {run}"
-                    sim.leave(session)
+            with SimPresence(endpoint, keys) as sim:
+                sim_alive(True)
+                motor_link.mirror = MotorCore(config.robot, config.motor)
+                motor_link.mirror.set_target(0.4, 0.3, FIRST_TM.to_nanoseconds())
+                answered_from_zero()
+                sim.leave(session)
+                sim_alive(False)
+            with SimPresence(endpoint, keys) as sim:
+                sim_alive(True)
+                # Steps of 0.1 s: the clock goes on past the 0.5 s of target history the motor keeps,
+                # so the next run's first target is older than that by the old time base.
+                for k in range(samples, 2 * samples):
+                    torques, expected = motor_link.cycle(moving(k), 100 * STEP_NS)
+                    assert torques == expected and torques[1] != 0.0, "a reconnection costs no zero-torque cycle"
+                assert motor_link.counter("time_base_restarts") == 0
+                sim.leave(session)
+                sim_alive(False)
+            with SimPresence(endpoint, keys) as sim:
+                sim_alive(True)
+                targets_taken = motor_link.status()["inputs"][keys.drive_target_velocity]["samples"]
+                motor_link.put(keys.drive_target_velocity, encode(TimedVelocity(Time(0, 0), [], 0.2, 0.0, -0.1, [])))
+                wait_until(
+                    lambda: motor_link.status()["inputs"][keys.drive_target_velocity]["samples"] > targets_taken,
+                    what="the new run's first target to reach the motor",
+                )
+                motor_link.mirror = MotorCore(config.robot, config.motor)
+                motor_link.mirror.set_target(0.2, -0.1, 0)
+                answered_from_zero()
+                sim.leave(session)
             status = motor_link.status()
             code, _out, err = motor.stop()
     finally:
         motor_link.close()
     assert code == 0, err
     assert motor_link.torques.drain() == [], "exactly one torque per sample"
-    assert status["bad_input"]["total"] == 0
+    assert status["bad_input"]["total"] == 0, status["bad_input"]
+    assert status["target"] == {"vx": 0.2, "w": -0.1}, "the new run's first target, taken once its clock decided"
     assert status["counters"]["time_base_restarts"] == 1
-    assert status["counters"]["wheel_angle_samples"] == 2 * samples
-    assert status["sim_alive"] is False
-    assert err.count("simulator (re)appeared") == 1
+    assert status["counters"]["wheel_angle_samples"] == 3 * samples
+    assert err.count("a new simulator") == 1
 
 
 def sim_summary(stderr: str) -> dict[str, int]:

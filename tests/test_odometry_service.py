@@ -259,32 +259,55 @@ def test_status_reports_pose_velocity_parameters_and_counters(link: OdometryLink
     assert parameters["rho_border"] == 10000.0
 
 
-def test_a_restarted_simulator_starts_a_new_time_base_from_the_kept_pose(
+def test_a_reconnected_simulator_costs_nothing_and_a_restarted_one_starts_from_the_kept_pose(
     link: OdometryLink, module_endpoint: str, module_session: zenoh.Session
 ) -> None:
-    """Two simulators in turn, each clock starting at 0 (before them, the module's samples at
-    100 s and later): each time the next sample initialises again, from the pose reached."""
+    """The simulator's token comes back while its clock goes on (a reconnection): every sample is
+    integrated as if nothing happened. Then two new simulators in turn, each clock starting at 0
+    (the first after samples at 100 s and later), each run's first fix arriving before its first
+    sample: the sample initialises again from the pose reached, and the fix is applied, not refused."""
     before = link.status()
+    counters = before["counters"]
+    inputs_taken = before["inputs"][link.keys.localization_pose]["samples"]
+
+    def sim_alive(alive: bool) -> None:
+        wait_until(lambda: link.status()["sim_alive"] is alive, what=f"the odometry to see sim_alive {alive}")
+
+    with SimPresence(module_endpoint, link.keys) as sim:
+        sim_alive(True)
+        for k in range(1, 4):
+            step, pose = link.advance(0.25, 0.25 + k * 2**-6)
+            assert step.branch is not Branch.INITIAL, "a reconnection starts no new time base"
+            assert_published(step, pose)
+        sim.leave(module_session)
+        sim_alive(False)
     for run in (1, 2):
         with SimPresence(module_endpoint, link.keys) as sim:
+            sim_alive(True)
+            fix = (1.0 * run, -2.0, 0.5)
+            link.localization.put(encode(TimedPosition(Time(0, 0), [], *fix, [])))
+            inputs_taken += 1
             wait_until(
-                lambda run=run: (
-                    link.status()["counters"]["time_base_restarts"] == before["counters"]["time_base_restarts"] + run
-                ),
-                what="the odometry to see the simulator appear",
+                lambda taken=inputs_taken: link.status()["inputs"][link.keys.localization_pose]["samples"] == taken,
+                what="the new run's first fix to reach the odometry",
             )
             kept = link.mirror.pose
             link.mirror = Odometry(
                 link.mirror.robot, link.mirror.config, start=kept, limits=load_config(overrides=OVERRIDES).input
             )
+            link.mirror.reset_at(0, *fix)
             step, pose = link.send_wheels(0, 4.0, -3.0)
             assert step.branch is Branch.INITIAL and (pose.x, pose.y, pose.theta) == kept
             for k in range(1, 6):
                 step, pose = link.advance(0.25, 0.25 + k * 2**-6, dt_ns=1_000_000)
                 assert_published(step, pose)
-            assert step.branch is not Branch.INITIAL and (pose.x, pose.y) != kept[:2]
+            assert math.hypot(pose.x - fix[0], pose.y - fix[1]) < 0.2 < math.dist(kept[:2], fix[:2]), "from the fix"
             sim.leave(module_session)
-    assert link.status()["bad_input"]["total"] == before["bad_input"]["total"]
+            sim_alive(False)
+    after = link.status()
+    assert after["bad_input"]["total"] == before["bad_input"]["total"], after["bad_input"]
+    assert after["counters"]["time_base_restarts"] == counters["time_base_restarts"] + 2
+    assert after["counters"]["localization_resets"] == counters["localization_resets"] + 2
 
 
 def test_trace_writes_one_line_per_accepted_step(link: OdometryLink, trace_path: Path) -> None:

@@ -1,0 +1,114 @@
+"""A service's view of the simulator (docs/protocol.md section 8.6): whether its liveliness token is
+there, and, through one :class:`~services.sim_time.ClockRestart`, when its clock starts again.
+
+Every consumer of the simulator's stamps (motor, odometry, localization, drive) follows the same
+rule: the token's appearance lets the next sample of the clock decide whether a new time base
+starts; inputs stamped in the simulator's time that arrive before that sample wait for it
+(:meth:`SimulatorWatch.stamped`), since the old time base cannot judge them: a new run's first
+target or fix would look older than the history kept.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from functools import partial
+from typing import Any, Protocol
+
+from schemas.keys import Service
+from schemas.messages import NANOSECONDS_PER_SECOND, TimedDoubleSeq
+from services.lockstep import Hold, decode_owed
+from services.runtime.node import Node
+from services.sim_time import ClockRestart
+
+HeldSample = tuple[TimedDoubleSeq, bytes | None]
+"""A wheel-angle sample and its lockstep attachment, as a :class:`Hold` keeps it."""
+
+
+class TimeBase(Protocol):
+    """A core that integrates the wheel-angle clock (the motor's, odometry's)."""
+
+    @property
+    def time_ns(self) -> int | None:
+        """The stamp of the last sample taken; None before the first (or a restart)."""
+
+    def restart_time_base(self) -> None:
+        """The next sample initialises, like the very first."""
+
+
+class SimulatorWatch:
+    """Declared by a service (it watches ``sim/alive`` through its node); its handlers wrap the
+    service's own: :meth:`clock` or :meth:`held_clock` for the simulator's clock input,
+    :meth:`stamped` for the other inputs stamped in the simulator's time."""
+
+    def __init__(self, node: Node, restart: ClockRestart) -> None:
+        self.alive = False
+        """Whether the simulator's liveliness token is there."""
+        self.restart = restart
+        self._node = node
+        self._waiting: dict[str, Callable[[], None]] = {}
+        """Per key, the newest stamped input that came while the clock was deciding."""
+        node.watch(Service.SIM, self._on_token)
+
+    def _on_token(self, alive: bool) -> None:
+        # Every appearance, not a disappearance then an appearance: zenoh shows a new token on the
+        # same key only once the old one is gone, and a disappearance says nothing about the
+        # stamps to come.
+        self.alive = alive
+        if alive:
+            self.restart.simulator_appeared()
+
+    def clock(self, handler: Callable[..., None]) -> Callable[..., None]:
+        """``handler`` of the simulator's clock input, which calls ``restart.decide`` (directly or
+        through a :class:`~services.sim_time.StampClock`) before it takes a sample; the inputs
+        that waited for the decision are handled right after the sample that made it."""
+
+        def handle(*args: Any) -> None:
+            try:
+                handler(*args)
+            finally:  # a sample that decided, then proved bad input, decided all the same
+                waiting = self._waiting
+                if waiting and not self.restart.deciding:
+                    handles = list(waiting.values())
+                    waiting.clear()
+                    for handle_waiting in handles:
+                        handle_waiting()
+
+        return handle
+
+    def held_clock(self, hold: Hold[HeldSample], time_base: TimeBase, kept: str) -> Callable[..., None]:
+        """The handler of a wheel-angle input whose samples go through a lockstep ``hold`` before
+        ``time_base`` takes them (motor, odometry).
+
+        Whether a sample starts a new time base is decided when it arrives, not when it is taken:
+        in lockstep it may be held, and the new run's first target or fix must not be judged by the
+        old time base meanwhile. A new time base drops the held samples; the INFO line says what is
+        ``kept``."""
+        log = self._node.log
+
+        def handle(sample: TimedDoubleSeq, attachment: bytes | None) -> None:
+            stamp_ns = sample.tm.to_nanoseconds()
+            owed = decode_owed(attachment, stamp_ns)
+            if self.restart.decide(stamp_ns, time_base.time_ns):
+                hold.forget()
+                time_base.restart_time_base()
+                log.info(
+                    "simulation time went back to %.3f s (a new simulator): a new time base (%s)",
+                    stamp_ns / NANOSECONDS_PER_SECOND,
+                    kept,
+                )
+            hold.offer((sample, attachment), owed)
+
+        return self.clock(handle)
+
+    def stamped(self, key: str, handler: Callable[..., None]) -> Callable[..., None]:
+        """``handler`` of an input stamped in the simulator's time (``key``), other than the clock:
+        while the clock decides, the newest such input waits for the sample that decides."""
+        node, restart, waiting = self._node, self.restart, self._waiting
+
+        def handle(*args: Any) -> None:
+            if restart.deciding:
+                waiting[key] = partial(node.guard, key, handler, *args)
+            else:
+                handler(*args)
+
+        return handle
