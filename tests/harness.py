@@ -83,7 +83,7 @@ class Collector:
 
     def __init__(self, session: zenoh.Session, key: str, message_type: type[MessageT] | None = None) -> None:
         self.key = key
-        self.samples: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self.samples: queue.Queue[Any] = queue.Queue()
         self._type = message_type
         self._subscriber = session.declare_subscriber(key, lambda s: self.samples.put(s.payload.to_bytes()))
 

@@ -153,7 +153,7 @@ def test_router_lets_each_role_put_only_its_own_keys_and_refuses_strangers(tmp_p
         # query. A session's query reaches it after everything that session put before it (one
         # transport each way, in order), so its arrival closes that session's puts.
         witness = open_as(Role.ODOMETRY)
-        received: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
+        received: queue.Queue[tuple[str, str]] = queue.Queue()
         witness.declare_subscriber(
             KEYS.everything, lambda sample: received.put((str(sample.key_expr), sample.payload.to_string()))
         )
@@ -242,12 +242,12 @@ def test_up_secure_runs_the_square_and_enforces_every_role(tmp_path):
             return zenoh.open(zenoh.Config.from_file(str(secrets / f"{role}.json5")))
 
         with open_as(Role.OBSERVER) as observer, open_as(Role.OBSERVER) as witness, open_as(Role.OPERATOR) as operator:
-            poses: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+            poses: queue.Queue[bytes] = queue.Queue()
             observer.declare_subscriber(keys.odometry_pose, lambda sample: poses.put(sample.payload.to_bytes()))
             msgspec.json.decode(poses.get(timeout=20.0), type=TimedPosition)
             wait_until(lambda: call(observer, keys.status(Service.MOTOR))[1]["state"] == "running", 20, "the motor")
 
-            targets: queue.SimpleQueue[float] = queue.SimpleQueue()
+            targets: queue.Queue[float] = queue.Queue()
             witness.declare_subscriber(
                 keys.drive_target_velocity,
                 lambda sample: targets.put(msgspec.json.decode(sample.payload.to_bytes(), type=TimedVelocity).vx),

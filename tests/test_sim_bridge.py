@@ -33,7 +33,7 @@ class TorqueSource:
 
     def __init__(self, session: zenoh.Session, torque: Torque) -> None:
         self.torque = torque
-        self.samples: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+        self.samples: queue.Queue[bytes] = queue.Queue()
         self.answered: list[TimedDoubleSeq] = []
         self._session = session
         self._subscriber = session.declare_subscriber(
@@ -239,7 +239,7 @@ def test_a_late_torque_source_is_picked_up_and_a_dead_one_dropped(session, endpo
 
 
 def test_realtime_mode_holds_its_pace_and_applies_the_newest_torque(session, endpoint):
-    factor, arrivals = 2.0, queue.SimpleQueue()
+    factor, arrivals = 2.0, queue.Queue()
     subscriber = session.declare_subscriber(
         KEYS.sim_body_pose, lambda sample: arrivals.put((time.monotonic(), sample.payload.to_bytes()))
     )
@@ -264,7 +264,7 @@ def test_realtime_mode_holds_its_pace_and_applies_the_newest_torque(session, end
 
 
 def test_driving_into_the_box_publishes_sim_bump_and_calls_motor_bump_stop(session, endpoint):
-    stop_calls: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+    stop_calls: queue.Queue[bytes] = queue.Queue()
 
     def on_stop(query: zenoh.Query) -> None:
         stop_calls.put(query.payload.to_bytes() if query.payload is not None else b"")
