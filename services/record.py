@@ -38,7 +38,10 @@ log = logging.getLogger("invent.record")
 SAMPLE_CAPACITY = 1 << 20
 """Samples a subscription holds until the loop takes them: seconds of the loop (a full channel
 would make zenoh wait, and with it the loop's publishers)."""
-IDLE_POLL_S = 0.001
+TAKE_PERIOD_S = 0.02
+"""How often a recorder or a live view takes what waits in its subscriptions (zenoh's channels
+hold a loop's samples meanwhile). Taking each sample as it came kept the process polling at every
+step of the loop, on the loop's CPUs: that cost the loop more than the recording itself."""
 STATUS_PERIOD_S = 0.5
 RUN_END_TIMEOUT_S = 10.0
 """``--until-run-ends``: how long to wait, after the summary, for the data up to its time."""
@@ -230,8 +233,7 @@ def run_record(
     run_end_deadline: float | None = None
     try:
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-            if not observer.spin_once():
-                time.sleep(IDLE_POLL_S)
+            observer.spin_once()
             summary = observer.run_summary
             if until_run_ends and summary is not None:
                 run_end_deadline = run_end_deadline or time.monotonic() + RUN_END_TIMEOUT_S
@@ -244,6 +246,7 @@ def run_record(
                         RUN_END_TIMEOUT_S,
                     )
                     break
+            stop.wait(TAKE_PERIOD_S)
         observer.spin_once()
     finally:
         observer.close()

@@ -40,7 +40,7 @@ from services import view
 from services.composition import Composition
 from services.config import Config, ConfigError, SimMode
 from services.lockstep import LOOP_BEFORE_FIRST_STEP
-from services.record import RUN_END_TIMEOUT_S, Observer, writer_sink
+from services.record import RUN_END_TIMEOUT_S, TAKE_PERIOD_S, Observer, writer_sink
 from services.recording import McapWriter, write_run_report
 from services.report import degradation_line, degradations, health_lines, loop_health, summary
 from services.runtime.inputs import Publisher
@@ -349,7 +349,7 @@ class InProcessRecorder:
             summary = observer.run_summary
             if summary is not None and observer.reached(summary.tm.to_nanoseconds()):
                 return
-            time.sleep(0.02)
+            time.sleep(TAKE_PERIOD_S)
         say(f"the recording did not reach the run's end within {RUN_END_TIMEOUT_S} s")
 
     def close(self) -> None:

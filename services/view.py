@@ -36,7 +36,7 @@ import zenoh
 from schemas.codec import ENCODING
 from schemas.keys import VIEW, Keys
 from services.config import Config
-from services.record import IDLE_POLL_S, Observer, writer_sink
+from services.record import TAKE_PERIOD_S, Observer, writer_sink
 from services.recording import JSON, JSON_SCHEMA, key_json_schema
 
 log = logging.getLogger("invent.view")
@@ -162,8 +162,8 @@ def run_view(
         log.info("Foxglove live view on %s (open Foxglove → Open connection → Foxglove WebSocket)", url)
         while not stop.is_set():
             _answer_status(status_queries, keys, url, started, channels)
-            if not observer.spin_once():
-                time.sleep(IDLE_POLL_S)
+            observer.spin_once()
+            stop.wait(TAKE_PERIOD_S)
     finally:
         status_queries.undeclare()
         server.stop()
