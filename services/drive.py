@@ -152,7 +152,7 @@ class DriveService:
         self._pose_input = node.subscribe(
             node.keys.odometry_pose,
             TimedPosition,
-            sim.stamped(node.keys.odometry_pose, self._on_pose),
+            sim.stamped(node.keys.odometry_pose, self._on_pose, awaited=lambda: self._pending_tick is not None),
             Delivery.SAMPLED,
         )
         node.watch(Service.ODOMETRY, self._on_odometry_liveliness)

@@ -145,12 +145,16 @@ class MotorService:
             with_attachment=True,
         )
         node.subscribe(
-            keys.sim_body_pose, TimedDoubleSeq, sim.stamped(keys.sim_body_pose, self._on_body_pose), Delivery.EVERY
+            keys.sim_body_pose,
+            TimedDoubleSeq,
+            # Never awaited: the simulator publishes a step's body pose with its wheel angles, which decide.
+            sim.stamped(keys.sim_body_pose, self._on_body_pose, awaited=lambda: False),
+            Delivery.EVERY,
         )
         self._targets = node.subscribe(
             keys.drive_target_velocity,
             TimedVelocity,
-            sim.stamped(keys.drive_target_velocity, self._on_target_velocity),
+            sim.stamped(keys.drive_target_velocity, self._on_target_velocity, awaited=lambda: self.target_hold.holding),
             Delivery.NEWEST,
         )
         for family in MethodFamily:

@@ -63,7 +63,9 @@ class OdometryService:
         node.subscribe(
             node.keys.localization_pose,
             TimedPosition,
-            self.sim.stamped(node.keys.localization_pose, self._on_localized_pose),
+            self.sim.stamped(
+                node.keys.localization_pose, self._on_localized_pose, awaited=lambda: self.fix_hold.holding
+            ),
             Delivery.QUEUED,
         )
         node.set_status(self.status)

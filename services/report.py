@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from schemas.keys import Service
 from services.config import RobotConfig
 from services.motor_core import SimPoseConverter
 from services.planar import Pose
@@ -120,8 +121,10 @@ DEGRADED_FRACTION = 0.01
 
 def loop_health(sim_status: dict[str, Any] | None, statuses: dict[str, dict[str, Any] | None]) -> dict[str, Any]:
     """What the loop actually did, from the services' last status replies: the sim's torque
-    figures and each service's bad-input, internal-error and dropped-event counts."""
+    figures, the lockstep waits that timed out (the sim's, the drive's for its poses) and each
+    service's bad-input, internal-error and dropped-event counts."""
     counters = (sim_status or {}).get("counters", {})
+    drive = statuses.get(str(Service.DRIVE)) or {}
     steps = (sim_status or {}).get("steps", 0)
     lockstep = (sim_status or {}).get("mode") == "lockstep"
     late = counters.get("late_torques" if lockstep else "realtime_late_steps", 0)
@@ -142,6 +145,7 @@ def loop_health(sim_status: dict[str, Any] | None, statuses: dict[str, dict[str,
         "lockstep": {
             "timeouts": counters.get("late_torques", 0) if lockstep else 0,
             "tick_timeouts": counters.get("tick_timeouts", 0) if lockstep else 0,
+            "pose_wait_timeouts": drive.get("pose_wait_timeouts", 0) if lockstep else 0,
         },
         "realtime": {"resyncs": counters.get("realtime_resyncs", 0)},
         "services": {
@@ -171,6 +175,12 @@ def degradations(health: dict[str, Any]) -> list[str]:
         reasons.append(
             f"{health['lockstep']['tick_timeouts']} lockstep tick timeouts (steps that went on without a drive "
             "command or a localization fix they waited for)"
+        )
+    # .get: recordings made before the drive's waits were reported have no such field.
+    if pose_waits := health["lockstep"].get("pose_wait_timeouts", 0):
+        reasons.append(
+            f"{pose_waits} drive ticks commanded from an older pose (odometry's pose "
+            "of the tick did not come within sim.lockstep_timeout)"
         )
     for name, counts in health["services"].items():
         for counter in ("internal_errors", "dropped_events"):

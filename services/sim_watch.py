@@ -3,9 +3,13 @@ there, and, through one :class:`~services.sim_time.ClockRestart`, when its clock
 
 Every consumer of the simulator's stamps (motor, odometry, localization, drive) follows the same
 rule: the token's appearance lets the next sample of the clock decide whether a new time base
-starts; inputs stamped in the simulator's time that arrive before that sample wait for it
-(:meth:`SimulatorWatch.stamped`), since the old time base cannot judge them: a new run's first
-target or fix would look older than the history kept.
+starts. An input stamped in the simulator's time that comes meanwhile waits for that sample
+(:meth:`SimulatorWatch.stamped`), since the old time base cannot judge it: a new run's first
+target or fix would look older than the history kept, or, after a short run, be taken as a late
+input of the old one. The one exception is an input the service is waiting for in lockstep (the
+motor's target for a held sample, odometry's fix, the drive's pose for a pending tick): what
+waits for it came before the token, so the input is of the old time base, and holding it back
+would stall the loop (the simulator waits for the service, which would wait for the next sample).
 """
 
 from __future__ import annotations
@@ -46,7 +50,7 @@ class SimulatorWatch:
         self.restart = restart
         self._node = node
         self._waiting: dict[str, Callable[[], None]] = {}
-        """Per key, the newest stamped input that came while the clock was deciding."""
+        """Per key, the newest input that came while the clock was deciding."""
         node.watch(Service.SIM, self._on_token)
 
     def _on_token(self, alive: bool) -> None:
@@ -100,13 +104,14 @@ class SimulatorWatch:
 
         return self.clock(handle)
 
-    def stamped(self, key: str, handler: Callable[..., None]) -> Callable[..., None]:
+    def stamped(self, key: str, handler: Callable[..., None], awaited: Callable[[], bool]) -> Callable[..., None]:
         """``handler`` of an input stamped in the simulator's time (``key``), other than the clock:
-        while the clock decides, the newest such input waits for the sample that decides."""
+        while the clock decides, the newest such input waits for the sample that decides, unless
+        ``awaited()``: the service waits for this very input to go on."""
         node, restart, waiting = self._node, self.restart, self._waiting
 
         def handle(*args: Any) -> None:
-            if restart.deciding:
+            if restart.deciding and not awaited():
                 waiting[key] = partial(node.guard, key, handler, *args)
             else:
                 handler(*args)

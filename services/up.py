@@ -233,23 +233,27 @@ class Run:
 
     def supervise(
         self, drive: Any, started: float, between_looks: Callable[[], None] | None, until_interrupted: bool = False
-    ) -> dict[str, Any] | None:
+    ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
         """Wait for the drive to finish its scenario (or, ``until_interrupted``, for Ctrl-C: the end
-        of a ``--loop`` run), printing progress and calling ``between_looks``; return the sim's last status."""
+        of a ``--loop`` run), printing progress and calling ``between_looks``; return the sim's last
+        status and the drive's (taken at every look while it runs: it exits at the end)."""
         sim_status: dict[str, Any] | None = None
+        drive_status: dict[str, Any] | None = None
         next_progress = time.monotonic()
         while True:
             if until_interrupted and self.interrupted.is_set():
-                return self.status(Service.SIM) or sim_status
+                return self.status(Service.SIM) or sim_status, self.status(Service.DRIVE) or drive_status
             self.check(expected_to_finish=drive.name)
             code = drive.finished()
+            if code is None:
+                drive_status = self.status(Service.DRIVE) or drive_status
             if time.monotonic() >= next_progress or code is not None:
                 sim_status = self.status(Service.SIM) or sim_status
                 next_progress = time.monotonic() + PROGRESS_INTERVAL_S
                 if sim_status:
                     _progress(sim_status, time.monotonic() - started)
             if code == 0:
-                return self.sim_at_end(sim_status)
+                return self.sim_at_end(sim_status), drive_status
             if code is not None:
                 raise ChildDied(f"drive exited unexpectedly ({_describe_exit(code)})")
             if between_looks:
@@ -506,11 +510,12 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
             ]
             launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *sim_flags])
             started = time.monotonic()
-            sim_status = run.supervise(
+            sim_status, drive_status = run.supervise(
                 drive, started, recorder.during if recorder else None, until_interrupted=args.loop
             )
             wall_time_s = time.monotonic() - started
             statuses = {str(service): run.status(service) for service in Service if service != Service.DRIVE}
+            statuses[str(Service.DRIVE)] = drive_status
             health = loop_health(sim_status, statuses)
             if recorder:
                 summary_publisher.put(

@@ -20,9 +20,10 @@ import pytest
 import zenoh
 
 from schemas.codec import ENCODING, decode, encode
-from schemas.keys import Keys, Method, MethodFamily, Service
+from schemas.keys import Keys, Method, MethodFamily, Service, Topic
 from schemas.messages import PDGains, Time, TimedDoubleSeq, TimedVelocity
 from services.config import TargetAngleMode, load_config
+from services.lockstep import encode_owed
 from services.motor_core import MotorCore
 from tests.harness import (
     Collector,
@@ -457,12 +458,15 @@ def test_trace_lines_and_command_timeout_warning_in_an_integrated_motor(tmp_path
 
 def test_a_reconnected_simulator_costs_nothing_and_a_restarted_one_is_answered_from_its_new_clock(endpoint, session):
     """Own process. A simulator plays 0, 1, 2 ... ms; its token goes and comes back while its
-    clock goes on (a reconnection): every sample is answered as if nothing happened. Then a new
+    clock goes on (a reconnection): every sample is answered as if nothing happened, and a lockstep
+    sample held for its target when the token comes back is answered once the target comes. Then a new
     simulator plays from 0 again, its drive's first target arriving before its first sample:
     the motor answers it as a fresh motor would, and refuses nothing."""
     robot = "mot3"
     keys = Keys(robot)
-    config = load_config(overrides={"robot.name": robot, **OVERRIDES})
+    # No command timeout: the target history is then the stamp horizon (1 s), and targets do not age out.
+    overrides = {**OVERRIDES, "motor.command_timeout": 0.0}
+    config = load_config(overrides={"robot.name": robot, **overrides})
     motor_link = MotorLink(session, keys, config)
     samples = 12
 
@@ -477,25 +481,47 @@ def test_a_reconnected_simulator_costs_nothing_and_a_restarted_one_is_answered_f
             assert torques == expected and torques[1] != 0.0
 
     try:
-        with InventProcess("motor", "--connect", endpoint, "--robot", robot, *set_flags(OVERRIDES)) as motor:
+        with InventProcess("motor", "--connect", endpoint, "--robot", robot, *set_flags(overrides)) as motor:
             wait_alive(session, keys.alive(Service.MOTOR))
             motor_link.wait_matched()
+            motor_link.time_ns = 0
             motor_link.target(0.4, 0.3)
             with SimPresence(endpoint, keys) as sim:
                 sim_alive(True)
                 motor_link.mirror = MotorCore(config.robot, config.motor)
-                motor_link.mirror.set_target(0.4, 0.3, FIRST_TM.to_nanoseconds())
+                motor_link.mirror.set_target(0.4, 0.3, 0)
                 answered_from_zero()
                 sim.leave(session)
                 sim_alive(False)
             with SimPresence(endpoint, keys) as sim:
                 sim_alive(True)
-                # Steps of 0.1 s: the clock goes on past the 0.5 s of target history the motor keeps,
-                # so the next run's first target is older than that by the old time base.
+                # Steps of 0.1 s: the clock goes on past the 1 s of target history the motor keeps, so
+                # the next run's first target is older than that by the old time base.
                 for k in range(samples, 2 * samples):
                     torques, expected = motor_link.cycle(moving(k), 100 * STEP_NS)
                     assert torques == expected and torques[1] != 0.0, "a reconnection costs no zero-torque cycle"
                 assert motor_link.counter("time_base_restarts") == 0
+                sim.leave(session)
+                sim_alive(False)
+            # Lockstep: a sample held for the drive's target, then the token appears (the clock now
+            # decides) before that target comes. The target is of the old time base: taken at once,
+            # not kept for a next sample that the simulator, waiting for this torque, never sends.
+            held_ns, target_ns = motor_link.time_ns + STEP_NS, motor_link.time_ns + STEP_NS // 2
+            held = TimedDoubleSeq(Time.from_nanoseconds(held_ns), moving(2 * samples))
+            owed = encode_owed({Topic.DRIVE_TARGET_VELOCITY: target_ns})
+            motor_link.publishers[keys.sim_wheel_angles].put(encode(held), attachment=owed)
+            wait_until(lambda: motor_link.status()["lockstep_holds"]["held"] == 1, what="the sample to be held")
+            with SimPresence(endpoint, keys) as sim:
+                sim_alive(True)
+                motor_link.put(
+                    keys.drive_target_velocity,
+                    encode(TimedVelocity(Time.from_nanoseconds(target_ns), [], 0.3, 0.0, 0.2, [])),
+                )
+                torque = motor_link.torques.get()
+                motor_link.mirror.set_target(0.3, 0.2, target_ns)
+                assert torque.tm == held.tm and torque.data == motor_link.mirror.step(held_ns, held.data)
+                assert motor_link.passed_on.get() == held
+                motor_link.time_ns = held_ns
                 sim.leave(session)
                 sim_alive(False)
             with SimPresence(endpoint, keys) as sim:
@@ -519,7 +545,7 @@ def test_a_reconnected_simulator_costs_nothing_and_a_restarted_one_is_answered_f
     assert status["bad_input"]["total"] == 0, status["bad_input"]
     assert status["target"] == {"vx": 0.2, "w": -0.1}, "the new run's first target, taken once its clock decided"
     assert status["counters"]["time_base_restarts"] == 1
-    assert status["counters"]["wheel_angle_samples"] == 3 * samples
+    assert status["counters"]["wheel_angle_samples"] == 3 * samples + 1
     assert err.count("a new simulator") == 1
 
 

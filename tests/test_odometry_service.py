@@ -18,9 +18,10 @@ import pytest
 import zenoh
 
 from schemas.codec import encode
-from schemas.keys import Keys, Service
+from schemas.keys import Keys, Service, Topic
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
 from services.config import load_config
+from services.lockstep import encode_owed
 from services.odometry_core import Branch, Odometry, Step
 from tests.harness import (
     Collector,
@@ -263,7 +264,8 @@ def test_a_reconnected_simulator_costs_nothing_and_a_restarted_one_starts_from_t
     link: OdometryLink, module_endpoint: str, module_session: zenoh.Session
 ) -> None:
     """The simulator's token comes back while its clock goes on (a reconnection): every sample is
-    integrated as if nothing happened. Then two new simulators in turn, each clock starting at 0
+    integrated as if nothing happened, and a lockstep sample held for its fix when the token comes
+    back is integrated once the fix comes. Then two new simulators in turn, each clock starting at 0
     (the first after samples at 100 s and later), each run's first fix arriving before its first
     sample: the sample initialises again from the pose reached, and the fix is applied, not refused."""
     before = link.status()
@@ -279,6 +281,27 @@ def test_a_reconnected_simulator_costs_nothing_and_a_restarted_one_starts_from_t
             step, pose = link.advance(0.25, 0.25 + k * 2**-6)
             assert step.branch is not Branch.INITIAL, "a reconnection starts no new time base"
             assert_published(step, pose)
+        sim.leave(module_session)
+        sim_alive(False)
+    # Lockstep: a sample held for its fix, then the token appears (the clock now decides) before the
+    # fix comes. The fix is of the old time base: taken at once, not kept for a next sample.
+    held_ns, fix_ns = link.time_ns + STEP_NS, link.time_ns + STEP_NS // 2
+    q_left, q_right = link.q_left + 0.25, link.q_right + 0.25 + 2**-6
+    held = TimedDoubleSeq(Time.from_nanoseconds(held_ns), wheel_data(q_left, q_right))
+    holds = link.status()["counters"]["lockstep_holds"]["held"]
+    link.wheels.put(encode(held), attachment=encode_owed({Topic.LOCALIZATION_POSE: fix_ns}))
+    wait_until(lambda: link.status()["counters"]["lockstep_holds"]["held"] == holds + 1, what="the sample to be held")
+    with SimPresence(module_endpoint, link.keys) as sim:
+        sim_alive(True)
+        fix = (0.5, 0.25, 0.125)
+        link.localization.put(encode(TimedPosition(Time.from_nanoseconds(fix_ns), [], *fix, [])))
+        inputs_taken += 1
+        link.mirror.reset_at(fix_ns, *fix)
+        step = link.mirror.step(held_ns, held.data)
+        pose = link.poses.get(timeout=5.0)
+        assert pose.tm == held.tm
+        assert_published(step, pose)
+        link.time_ns, link.q_left, link.q_right = held_ns, q_left, q_right
         sim.leave(module_session)
         sim_alive(False)
     for run in (1, 2):
@@ -307,7 +330,7 @@ def test_a_reconnected_simulator_costs_nothing_and_a_restarted_one_starts_from_t
     after = link.status()
     assert after["bad_input"]["total"] == before["bad_input"]["total"], after["bad_input"]
     assert after["counters"]["time_base_restarts"] == counters["time_base_restarts"] + 2
-    assert after["counters"]["localization_resets"] == counters["localization_resets"] + 2
+    assert after["counters"]["localization_resets"] == counters["localization_resets"] + 3
 
 
 def test_trace_writes_one_line_per_accepted_step(link: OdometryLink, trace_path: Path) -> None:

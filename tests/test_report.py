@@ -51,3 +51,19 @@ def test_any_lockstep_timeout_internal_error_or_dropped_event_degrades_a_run():
 def test_no_sim_status_gives_zeros_not_an_error():
     health = loop_health(None, {})
     assert health["torques"]["late_fraction"] == 0.0 and degradations(health) == []
+
+
+def test_a_drive_tick_commanded_from_an_older_pose_degrades_a_lockstep_run():
+    drive = {**_service(), "pose_wait_timeouts": 1}
+    health = loop_health(_sim("lockstep", 20_000), {"motor": _service(), "drive": drive})
+    assert health["lockstep"]["pose_wait_timeouts"] == 1
+    (reason,) = degradations(health)
+    assert reason.startswith("1 drive ticks commanded from an older pose")
+    realtime = loop_health(_sim("realtime", 20_000), {"drive": drive})
+    assert degradations(realtime) == [], "in realtime the drive never waits for a pose"
+
+
+def test_a_health_recorded_before_the_drive_was_reported_still_reads():
+    health = loop_health(_sim("lockstep", 20_000), {})
+    del health["lockstep"]["pose_wait_timeouts"]
+    assert degradations(health) == []
