@@ -180,7 +180,7 @@ def test_square_returns_to_the_start_and_writes_the_report(runs):
     assert report["path_error"]["max_m"] < 0.10
     assert report["odometry_error"]["max_m"] < 0.05
     assert report["steps"] == round(report["sim_time_s"] / 0.001)
-    assert report["bad_inputs"] == {"motor": 0, "odometry": 0, "sim": 0, "localization": 0}
+    assert report["bad_inputs"] == {"motor": 0, "odometry": 0, "sim": 0, "localization": 0, "drive": 0}
     assert report["degraded"] == []
     assert (run.report_dir / "trajectory.png").stat().st_size > 10_000
     assert (run.report_dir / "wheel_speeds.png").stat().st_size > 10_000

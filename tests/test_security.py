@@ -283,5 +283,5 @@ def test_up_secure_runs_the_square_and_enforces_every_role(tmp_path):
     assert math.hypot(end["x"] - start["x"], end["y"] - start["y"]) < 0.05
     assert report["path_error"]["max_m"] < 0.10
     assert report["odometry_error"]["max_m"] < 0.05
-    assert report["bad_inputs"] == {"motor": 0, "odometry": 0, "sim": 0, "localization": 0}
+    assert report["bad_inputs"] == {"motor": 0, "odometry": 0, "sim": 0, "localization": 0, "drive": 0}
     assert all(stat.S_IMODE(path.stat().st_mode) == 0o600 for path in secrets.iterdir())
