@@ -163,6 +163,46 @@ def test_a_wake_never_pushes_the_newest_sample_out_of_a_newest_input(session, no
     assert handled == [3]
 
 
+class _DescheduledSample(LatestSample):
+    """A newest-only input whose thread, blocked in its receive, does not run again for a while (a
+    loaded machine), and which counts the wake samples it is sent meanwhile."""
+
+    DESCHEDULED_S = 0.2
+    """Twenty of the waker's periods."""
+
+    def __init__(self, *args) -> None:
+        super().__init__(*args)
+        self.wakes = 0
+
+    def receive(self):
+        time.sleep(self.DESCHEDULED_S)  # the thread not running, not a wait for a condition
+        return super().receive()
+
+    def wake(self) -> None:
+        self.wakes += 1
+        super().wake()
+
+
+def test_a_thread_kept_from_running_in_its_receive_is_woken_once_and_its_newest_sample_survives(session):
+    """Seen under load: the waker sent a wake every 10 ms to a thread that had not run yet; two
+    wakes filled the newest-only ring and pushed out the lockstep tick's clock sample."""
+    handled = []
+    executor = Executor()
+    clock = _DescheduledSample(session, KEYS.sim_wheel_angles, lambda payload, _attachment: handled.append(payload))
+    executor.add_sampled(clock)
+    thread = threading.Thread(target=executor.spin_once, args=(0.05, clock), daemon=True)
+    thread.start()
+    wait_until(lambda: clock.wakes >= 1, 5, "the waker to end the wait")
+    session.put(KEYS.sim_wheel_angles, _sample(7))
+    thread.join(5)
+    while executor.spin_once(0):
+        pass
+    assert handled == [_sample(7)], "the newest sample survived the wakes"
+    assert clock.wakes == 1
+    executor.remove_input(clock)
+    clock.undeclare()
+
+
 def test_a_blocked_receive_ends_when_its_timeout_is_over_and_the_wake_is_seen_by_no_one(session, node, remote):
     handled = []
     key = KEYS.sim_wheel_angles

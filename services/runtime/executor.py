@@ -70,6 +70,11 @@ class Executor:
         """While the thread waits in a channel receive: when that wait is over (monotonic seconds)."""
         self._blocked_in: NodeInput | None = None
         """The input in whose receive the thread waits (meaningful while ``_blocked_until`` is set)."""
+        self._woken = False
+        """Whether the waker has already ended the receive in progress. Once is enough, and more
+        would harm: while a loaded machine keeps the thread from running, every further wake sample
+        would push a real one out of a newest-only input's two-sample ring (a lockstep tick's clock
+        sample was lost so, and the loop waited out its timeout)."""
         self._waker: threading.Thread | None = None
         self._waker_stop = threading.Event()
         self._waker_call = threading.Event()
@@ -191,6 +196,7 @@ class Executor:
             self._posted.acquire(True, -1 if remaining is None else remaining)
             return
         self._blocked_in = blocking_in
+        self._woken = False
         self._blocked_until = math.inf if remaining is None else time.monotonic() + remaining
         if self._events:  # posted after the last look: the waker may have checked before the mark
             self._blocked_until = None
@@ -213,5 +219,11 @@ class Executor:
             if self._waker_stop.is_set():
                 return
             until, blocked_in = self._blocked_until, self._blocked_in
-            if until is not None and blocked_in is not None and (self._events or time.monotonic() >= until):
+            if (
+                until is not None
+                and blocked_in is not None
+                and not self._woken
+                and (self._events or time.monotonic() >= until)
+            ):
+                self._woken = True
                 blocked_in.wake()
