@@ -16,6 +16,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 
 from schemas.keys import DEFAULT_ROBOT, validate_robot_name
+from schemas.messages import NANOSECONDS_PER_SECOND
 
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0.0)]
@@ -213,6 +214,11 @@ class InputConfig(_Section, frozen=True):
     max_coordinate: Positive = 10_000.0
     """m: a pose (localization fix, odometry pose, simulated pose) further than this from the
     origin on either axis is implausible."""
+
+    @property
+    def stamp_horizon_ns(self) -> int:
+        """``stamp_horizon`` in the integer nanoseconds stamps are compared in."""
+        return round(self.stamp_horizon * NANOSECONDS_PER_SECOND)
 
 
 class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):

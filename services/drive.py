@@ -125,7 +125,7 @@ class DriveService:
         self.pose_timeout_ns = round(config.drive.pose_timeout * NANOSECONDS_PER_SECOND)
         self.mode, scenario = scenario_from_args(args)
         self.runner = ScenarioRunner(scenario, config.drive, loop=args.loop)
-        self.clock = StampClock(round(config.input.stamp_horizon * NANOSECONDS_PER_SECOND))
+        self.clock = StampClock(config.input.stamp_horizon_ns)
         self.max_coordinate = config.input.max_coordinate
         self.schedule: PeriodicSchedule | None = None
         self.pose: Pose | None = None

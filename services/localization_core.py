@@ -88,7 +88,7 @@ class Localizer:
         self._sigmas = (noise.x, noise.y, noise.theta)
         self._rng = rng
         self._max_coordinate = limits.max_coordinate
-        self._clock = StampClock(round(limits.stamp_horizon * NANOSECONDS_PER_SECOND))
+        self._clock = StampClock(limits.stamp_horizon_ns)
         self._schedule: PeriodicSchedule | None = None
         self.fixes = 0
         self.last_fix: Fix | None = None

@@ -119,7 +119,7 @@ class MotorService:
             lambda held: node.guard(node.keys.sim_wheel_angles, self._control, *held),
             capacity=1,
         )
-        self.sim = SimulatorWatch(node, ClockRestart(self.core.horizon_ns))
+        self.sim = SimulatorWatch(node, ClockRestart(config.input.stamp_horizon_ns))
         self._timeouts_logged = 0
         self._nonfinite_logged = 0
         self._warn = RateLimitedLog(node.log)

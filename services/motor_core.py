@@ -111,7 +111,7 @@ class MotorCore:
         self.robot = robot
         self.motor = motor
         self.limits = limits
-        self.horizon_ns = round(limits.stamp_horizon * NANOSECONDS_PER_SECOND)
+        self._horizon_ns = limits.stamp_horizon_ns
         # A target older than the command timeout would be timed out anyway.
         self._target_history_ns = round((motor.command_timeout or limits.stamp_horizon) * NANOSECONDS_PER_SECOND)
         self._max_wheel_speed = limits.max_wheel_speed
@@ -193,7 +193,7 @@ class MotorCore:
             self._accept(stamp_ns, q_l, q_r)
             self.dq = self.dq_ref = self.q_ref = None
             return torques
-        check_next_stamp(stamp_ns, previous, self.horizon_ns)
+        check_next_stamp(stamp_ns, previous, self._horizon_ns)
         dt = (stamp_ns - previous) / NANOSECONDS_PER_SECOND
         old_l, old_r = self.q
         dq_l, dq_r = (q_l - old_l) / dt, (q_r - old_r) / dt
@@ -309,7 +309,7 @@ class MotorCore:
         message's stamp; None is for callers with no clock of their own).
         """
         if stamp_ns is not None and self._stamp_ns is not None:
-            check_stamp_near(stamp_ns, self._stamp_ns, self.horizon_ns, self._target_history_ns, "target")
+            check_stamp_near(stamp_ns, self._stamp_ns, self._horizon_ns, self._target_history_ns, "target")
         b = self._half_axle
         wheel_speeds = ((vx - b * w) / self._radius_l, (vx + b * w) / self._radius_r)
         if not all(abs(speed) <= self._max_wheel_speed for speed in wheel_speeds):
@@ -344,7 +344,7 @@ class MotorCore:
         the horizon either way from the wheel-angle time, once there is one (the simulator stamps
         both with its one clock)."""
         if stamp_ns is not None and self._stamp_ns is not None:
-            check_stamp_near(stamp_ns, self._stamp_ns, self.horizon_ns, self.horizon_ns, "body pose")
+            check_stamp_near(stamp_ns, self._stamp_ns, self._horizon_ns, self._horizon_ns, "body pose")
         pose = self._pose(data)
         check_coordinates(pose[0], pose[1], self.limits.max_coordinate)
         self.body_pose_samples += 1

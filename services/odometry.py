@@ -41,7 +41,7 @@ class OdometryService:
         self.odometry = Odometry(config.robot, config.odometry, limits=config.input)
         self.samples = 0
         self.localization_resets = 0
-        self.sim = SimulatorWatch(node, ClockRestart(self.odometry.horizon_ns))
+        self.sim = SimulatorWatch(node, ClockRestart(config.input.stamp_horizon_ns))
         self.branches = dict.fromkeys(Branch, 0)
         self.last_tm: Time | None = None
         # Lockstep: a wheel-angle sample waits for the localization's fix it is owed (the sim took it).

@@ -117,6 +117,7 @@ class Odometry:
         "_angle_border",
         "_b",
         "_history",
+        "_horizon_ns",
         "_left_id",
         "_max_coordinate",
         "_max_wheel_speed",
@@ -137,7 +138,6 @@ class Odometry:
         "_y",
         "config",
         "geometry",
-        "horizon_ns",
         "robot",
     )
 
@@ -152,7 +152,7 @@ class Odometry:
         parameters and the input limits."""
         self.robot, self.config = robot, odometry
         self.geometry = geometry = CalibratedGeometry.of(robot, odometry)
-        self.horizon_ns = round(limits.stamp_horizon * NANOSECONDS_PER_SECOND)
+        self._horizon_ns = limits.stamp_horizon_ns
         self._max_wheel_speed = limits.max_wheel_speed
         self._max_coordinate = limits.max_coordinate
         self._left_id = robot.left_wheel_id
@@ -222,7 +222,7 @@ class Odometry:
         if stamp_ns == self._time_ns:
             return self.reset(x, y, theta)
         oldest_ns = self._history[0][0]
-        check_stamp_near(stamp_ns, self._time_ns, self.horizon_ns, self._time_ns - oldest_ns, "fix")
+        check_stamp_near(stamp_ns, self._time_ns, self._horizon_ns, self._time_ns - oldest_ns, "fix")
         if stamp_ns > self._time_ns:
             self._pending_fix = (stamp_ns, x, y, theta)
             return self.pose
@@ -275,7 +275,7 @@ class Odometry:
             return Step(
                 Branch.INITIAL, q_left, q_right, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, None, 0.0, self._x, self._y, self._theta
             )
-        check_next_stamp(time_ns, self._time_ns, self.horizon_ns)
+        check_next_stamp(time_ns, self._time_ns, self._horizon_ns)
         dt = (time_ns - self._time_ns) / NANOSECONDS_PER_SECOND
         rate_left, rate_right = (q_left - self._q_left) / dt, (q_right - self._q_right) / dt
         if not (abs(rate_left) <= self._max_wheel_speed and abs(rate_right) <= self._max_wheel_speed):

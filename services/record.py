@@ -68,7 +68,7 @@ class Observer:
         self._keys = keys
         self._sink = sink
         self._scene = Scene(config.robot, config.sim)
-        self._horizon_ns = round(config.input.stamp_horizon * NANOSECONDS_PER_SECOND)
+        self._horizon_ns = config.input.stamp_horizon_ns
         self._not_shown = RateLimitedLog(log)
         self._topics = {keys.topic(topic): topic for topic in Topic}
         self._subscribers = [

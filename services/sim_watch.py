@@ -70,14 +70,18 @@ class SimulatorWatch:
             try:
                 handler(*args)
             finally:  # a sample that decided, then proved bad input, decided all the same
-                waiting = self._waiting
-                if waiting and not self.restart.deciding:
-                    handles = list(waiting.values())
-                    waiting.clear()
-                    for handle_waiting in handles:
-                        handle_waiting()
+                self._take_waiting()
 
         return handle
+
+    def _take_waiting(self) -> None:
+        """Handle the inputs that waited for the clock to decide, once it has."""
+        waiting = self._waiting
+        if waiting and not self.restart.deciding:
+            handles = list(waiting.values())
+            waiting.clear()
+            for handle_waiting in handles:
+                handle_waiting()
 
     def held_clock(self, hold: Hold[HeldSample], time_base: TimeBase, kept: str) -> Callable[..., None]:
         """The handler of a wheel-angle input whose samples go through a lockstep ``hold`` before
@@ -86,7 +90,8 @@ class SimulatorWatch:
         Whether a sample starts a new time base is decided when it arrives, not when it is taken:
         in lockstep it may be held, and the new run's first target or fix must not be judged by the
         old time base meanwhile. A new time base drops the held samples; the INFO line says what is
-        ``kept``."""
+        ``kept``. (Not wrapped in :meth:`clock`: a hold hands its samples on through
+        ``Node.guard``, so nothing after the decision raises, and the per-step path stays one call.)"""
         log = self._node.log
 
         def handle(sample: TimedDoubleSeq, attachment: bytes | None) -> None:
@@ -101,8 +106,9 @@ class SimulatorWatch:
                     kept,
                 )
             hold.offer((sample, attachment), owed)
+            self._take_waiting()
 
-        return self.clock(handle)
+        return handle
 
     def stamped(self, key: str, handler: Callable[..., None], awaited: Callable[[], bool]) -> Callable[..., None]:
         """``handler`` of an input stamped in the simulator's time (``key``), other than the clock:
