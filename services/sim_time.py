@@ -141,8 +141,11 @@ class PeriodicSchedule:
             return False
         period = self._period_ns
         last_passed = (now_ns - self.start_ns) * period.denominator // period.numerator
-        if self._tick_ns(last_passed) > now_ns:  # rounding put that tick just after now
+        # rounding moves a tick by half a nanosecond at most: the floor is off by one at most either way
+        if self._tick_ns(last_passed) > now_ns:
             last_passed -= 1
+        elif self._tick_ns(last_passed + 1) <= now_ns:
+            last_passed += 1
         self.index = max(last_passed, self.index) + 1
         self.next_ns = self._tick_ns(self.index)
         return True

@@ -275,5 +275,13 @@ def test_schedule_due_returns_at_once_for_any_stamp(rate, start, now) -> None:
     assert schedule.index == 1 or schedule._tick_ns(schedule.index - 1) <= start + now
 
 
+def test_a_stamp_on_a_tick_that_rounds_down_onto_it_takes_that_tick() -> None:
+    """1e9 / 1.9 as a float's exact value puts tick 475 a hair past 250 s, and rounding puts it on it."""
+    schedule = PeriodicSchedule(1.9, 0)
+    assert schedule.due(250 * 10**9)
+    assert schedule.index == 476 and schedule.next_ns > 250 * 10**9
+    assert not schedule.due(250 * 10**9 + 1), "one stamp later is not another tick"
+
+
 def test_the_measured_hang_returns() -> None:
     assert _returns_within(lambda: PeriodicSchedule(50, 0).due(10**38)) is True
