@@ -226,11 +226,6 @@ def build_parser() -> argparse.ArgumentParser:
         "--output", "-o", metavar="FILE.mcap", default="invent.mcap", help="file to write (default invent.mcap)"
     )
     record.add_argument("--duration", type=positive_seconds, metavar="S", help="stop after S seconds of wall time")
-    record.add_argument(
-        "--until-run-ends",
-        action="store_true",
-        help="stop once `invent up` publishes its run's summary (up/run) and the data has reached its time",
-    )
     record.set_defaults(handler=_record)
 
     view_parser = commands.add_parser(
@@ -321,6 +316,8 @@ def build_parser() -> argparse.ArgumentParser:
             str(command.service), parents=[connection, service], help=command.help, description=command.description
         )
         command.add_arguments(sub)
+        # invent up's own: where a service keeps what it publishes, for the run's recording
+        sub.add_argument("--journal", metavar="DIR", help=argparse.SUPPRESS)
         sub.set_defaults(handler=_serve, service_command=command)
     return parser
 
@@ -377,7 +374,6 @@ def _record(args: argparse.Namespace) -> int:
             config,
             stop,
             duration_s=args.duration,
-            until_run_ends=args.until_run_ends,
         )
 
 

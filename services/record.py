@@ -1,19 +1,26 @@
 """``invent record``: every sample of some keys into an MCAP file (services/recording.py says what
-the file holds), with the Foxglove scene of the robot beside them; and the loop shared with
-``invent view``, which shows the same channels live.
+the file holds), with the Foxglove scene of the robot beside them; the loop shared with ``invent
+view``, which shows the same channels live; and ``invent up``'s ``run.mcap``, the same file made
+of what its services published.
 
 The samples wait in zenoh FIFO channels (no Python runs in zenoh's threads); the loop takes
-them, stamps each with the time it took it (``log_time``), and hands it on. In ``invent up
---composed`` the observer is in the loop's own process and only buffers samples while the loop
-runs (a recorder process would make that session encode and send every sample: the loop ran
-at half its speed); the samples then carry the router-session's publication timestamps. Every
-:data:`STATUS_PERIOD_S` it asks the robot's services for their ``status`` (a read-only query)
-and records each reply on its key: the motor's state and the sim's late/missing torque
-counters then plot beside the data.
+them, stamps each with the time it took it (``log_time``; with the time it passed the router, if
+the router stamped it), and hands it on. Every :data:`STATUS_PERIOD_S` it asks the robot's
+services for their ``status`` (a read-only query) and records each reply on its key: the motor's
+state and the sim's late/missing torque counters then plot beside the data.
+
+``invent up`` records its run without a recorder process: each of its services keeps what it
+publishes in a journal (services/runtime/journal.py) and ``up`` its status replies and summary in
+its own; at the end :func:`write_run_recording` makes ``run.mcap`` of them, with the same scene,
+``log_time`` then the time of publication. A recorder in another process would cost the loop
+zenoh's delivery of every sample to it (benchmarks/README.md, "What recording costs"); a run's
+recording holds what the run's own processes published, and ``invent record`` whatever anyone
+publishes.
 """
 
 from __future__ import annotations
 
+import heapq
 import logging
 import threading
 import time
@@ -26,9 +33,10 @@ import zenoh
 
 from schemas.codec import BadInput, decode
 from schemas.keys import LATCHED_TOPICS, TOPIC_TYPES, Keys, Topic, TopicMessage
-from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary
 from services.config import Config
 from services.recording import LATEST_STAMP_NS, McapWriter
+from services.runtime.journal import SUFFIX as JOURNAL_SUFFIX
+from services.runtime.journal import JournalEntry, JournalReader
 from services.runtime.logs import RateLimitedLog
 from services.runtime.session import has_match
 from services.scene import WHEEL_SPEEDS_SCHEMA, WHEEL_SPEEDS_TOPIC, Scene
@@ -43,8 +51,6 @@ TAKE_PERIOD_S = 0.02
 hold a loop's samples meanwhile). Taking each sample as it came kept the process polling at every
 step of the loop, on the loop's CPUs: that cost the loop more than the recording itself."""
 STATUS_PERIOD_S = 0.5
-RUN_END_TIMEOUT_S = 10.0
-"""``--until-run-ends``: how long to wait, after the summary, for the data up to its time."""
 
 
 @dataclass(frozen=True)
@@ -57,33 +63,73 @@ class Sink:
     """(topic, Foxglove message or JSON value, stamp ns, log time ns)"""
 
 
+class SceneBuilder:
+    """Hands each sample on to a sink, and the Foxglove scene it builds from the robot's own keys
+    (no zenoh here: the samples come from an :class:`Observer`, or from journals)."""
+
+    def __init__(self, config: Config, sink: Sink) -> None:
+        self._sink = sink
+        self._scene = Scene(config.robot, config.sim)
+        self._not_shown = RateLimitedLog(log)
+        self._topics = {Keys(config.robot.name).topic(topic): topic for topic in Topic}
+        self.keys_taken: set[str] = set()
+
+    def take(self, key: str, payload: bytes, log_time_ns: int) -> None:
+        self.keys_taken.add(key)
+        topic = self._topics.get(key)
+        message = None if topic is None else _decoded(TOPIC_TYPES[topic], payload)
+        stamp_ns = None if message is None else message.tm.to_nanoseconds()
+        if topic is None or message is None or stamp_ns is None or stamp_ns > LATEST_STAMP_NS:
+            self._sink.sample(key, payload, log_time_ns, None)
+            return
+        self._sink.sample(key, payload, log_time_ns, stamp_ns)
+        try:
+            shown_messages = self._scene.add(topic, message)
+        except ValueError as error:  # well-formed but wrong (BadInput): recorded as it is, not shown
+            self._not_shown(key, logging.WARNING, "not shown in the scene: %s: %s", key, error)
+            return
+        for shown_topic, shown in shown_messages:
+            self._sink.shown(shown_topic, shown, stamp_ns, log_time_ns)
+
+
+class StatusPoll:
+    """Asks every service of the robot for its ``status`` (a read-only query) every
+    :data:`STATUS_PERIOD_S`, and hands each reply to ``record(key, payload, time taken in Unix ns)``."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, record: Callable[[str, bytes, int], None]) -> None:
+        self._session = session
+        self._key = keys.every_status
+        self._record = record
+        self._replies: Any = None
+        self._next = 0.0
+
+    def poll(self) -> None:
+        """Take the replies that have come, and ask again when it is time (never waits)."""
+        if self._replies is not None:
+            try:
+                while (reply := self._replies.try_recv()) is not None:
+                    if reply.ok is not None:
+                        self._record(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.time_ns())
+            except zenoh.ZError:  # every reply taken, and the query is over
+                self._replies = None
+        now = time.monotonic()
+        if now >= self._next:
+            self._next = now + STATUS_PERIOD_S
+            self._replies = self._session.get(self._key, timeout=STATUS_PERIOD_S)
+
+
 class Observer:
-    """Takes every sample of ``key_exprs`` and every status reply of ``keys.robot``'s services, and
-    builds the Foxglove scene from the robot's own keys."""
+    """Takes every sample of ``key_exprs`` and every status reply of ``keys.robot``'s services into
+    a :class:`SceneBuilder`."""
 
     def __init__(
         self, session: zenoh.Session, keys: Keys, key_exprs: Sequence[str], config: Config, sink: Sink
     ) -> None:
-        self._session = session
-        self._keys = keys
-        self._sink = sink
-        self._scene = Scene(config.robot, config.sim)
-        self._horizon_ns = config.input.stamp_horizon_ns
-        self._not_shown = RateLimitedLog(log)
-        self._topics = {keys.topic(topic): topic for topic in Topic}
+        self._builder = SceneBuilder(config, sink)
         self._subscribers = [
             session.declare_subscriber(expr, zenoh.handlers.FifoChannel(SAMPLE_CAPACITY)) for expr in key_exprs
         ]
-        self._status_key = keys.every_status
-        self._status_replies: Any = None
-        self._next_status = 0.0
-        self.latest_ns: dict[str, int] = {}
-        """The newest stamp taken on each of the robot's data keys, each at most the stamp horizon
-        (``input.stamp_horizon``) past the one before, as the services take them: a forged
-        far-future stamp does not end a recording ``--until-run-ends``."""
-        self.run_summary: RunSummary | None = None
-        self._buffered: list[tuple[zenoh.Sample, int]] = []
-        """Samples taken from the subscriptions, each with the time it was taken (Unix ns)."""
+        self._status = StatusPoll(session, keys, lambda key, payload, now_ns: sink.sample(key, payload, now_ns, None))
         self._latched_queriers = [
             session.declare_querier(keys.topic(topic), timeout=STATUS_PERIOD_S) for topic in LATCHED_TOPICS
         ]
@@ -100,71 +146,20 @@ class Observer:
         for replies in list(self._latched_replies):
             try:
                 while (reply := replies.try_recv()) is not None:
-                    if reply.ok is not None and str(reply.ok.key_expr) not in self.latest_ns:
-                        self._buffered.append((reply.ok, time.time_ns()))
+                    key = str(reply.ok.key_expr) if reply.ok is not None else None
+                    if key is not None and key not in self._builder.keys_taken:
+                        self._builder.take(key, reply.ok.payload.to_bytes(), time.time_ns())
             except zenoh.ZError:  # every reply taken, and the query is over
                 self._latched_replies.remove(replies)
 
-    def spin_once(self) -> bool:
-        """Take what waits (and what :meth:`buffer` kept); False if nothing did."""
-        self.buffer()
-        taken = bool(self._buffered)
-        for sample, taken_ns in self._buffered:
-            self._take(str(sample.key_expr), sample.payload.to_bytes(), _log_time(sample, taken_ns))
-        self._buffered.clear()
-        return taken
-
-    def buffer(self) -> None:
-        """Keep the samples that wait, untouched, for the next :meth:`spin_once`: for a loop in this
-        very process (``invent up --composed``), with which this then shares the interpreter as
-        little as it can while the loop runs (the status replies, a few every 0.5 s, go through)."""
+    def spin_once(self) -> None:
+        """Take what waits in the subscriptions, the latched replies and the status replies."""
         now_ns = time.time_ns()
         for subscriber in self._subscribers:
             while (sample := subscriber.try_recv()) is not None:
-                self._buffered.append((sample, now_ns))
+                self._builder.take(str(sample.key_expr), sample.payload.to_bytes(), _log_time(sample, now_ns))
         self._ask_latched()
-        self._poll_status()
-
-    def _poll_status(self) -> None:
-        if self._status_replies is not None:
-            try:
-                while (reply := self._status_replies.try_recv()) is not None:
-                    if reply.ok is not None:
-                        self._sink.sample(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.time_ns(), None)
-            except zenoh.ZError:  # every reply taken, and the query is over
-                self._status_replies = None
-        now = time.monotonic()
-        if now >= self._next_status:
-            self._next_status = now + STATUS_PERIOD_S
-            self._status_replies = self._session.get(self._status_key, timeout=STATUS_PERIOD_S)
-
-    def _take(self, key: str, payload: bytes, log_time_ns: int) -> None:
-        topic = self._topics.get(key)
-        message = None if topic is None else _decoded(TOPIC_TYPES[topic], payload)
-        stamp_ns = None if message is None else message.tm.to_nanoseconds()
-        if topic is None or message is None or stamp_ns is None or stamp_ns > LATEST_STAMP_NS:
-            self._sink.sample(key, payload, log_time_ns, None)
-            return
-        self._sink.sample(key, payload, log_time_ns, stamp_ns)
-        latest_ns = self.latest_ns.get(key)
-        if latest_ns is None or latest_ns < stamp_ns <= latest_ns + self._horizon_ns:
-            self.latest_ns[key] = stamp_ns
-        if isinstance(message, RunSummary):
-            self.run_summary = message
-        try:
-            shown_messages = self._scene.add(topic, message)
-        except ValueError as error:  # well-formed but wrong (BadInput): recorded as it is, not shown
-            self._not_shown(key, logging.WARNING, "not shown in the scene: %s: %s", key, error)
-            return
-        for shown_topic, shown in shown_messages:
-            self._sink.shown(shown_topic, shown, stamp_ns, log_time_ns)
-
-    def reached(self, until_ns: int) -> bool:
-        """Whether the ground truth and the odometry taken reach ``until_ns`` of simulation time
-        (what the loop published up to then: the two series a report compares)."""
-        return all(
-            self.latest_ns.get(key, -1) >= until_ns for key in (self._keys.sim_body_pose, self._keys.odometry_pose)
-        )
+        self._status.poll()
 
     def close(self) -> None:
         for subscriber in self._subscribers:
@@ -181,8 +176,7 @@ def _decoded(message_type: type[TopicMessage], payload: bytes) -> TopicMessage |
 
 
 def _log_time(sample: zenoh.Sample, taken_ns: int) -> int:
-    """When the sample was published, in Unix ns, if a router stamped it (the session of ``up
-    --composed`` is the router: its own samples are stamped as they are published), else when the
+    """When the sample passed the router, in Unix ns, if the router stamped it, else when the
     observer took it from its subscription (``taken_ns``)."""
     stamp = sample.timestamp
     if stamp is None:
@@ -222,30 +216,15 @@ def run_record(
     config: Config,
     stop: threading.Event,
     duration_s: float | None = None,
-    until_run_ends: bool = False,
 ) -> int:
-    """Record until ``stop``, ``duration_s`` of wall time, or (``until_run_ends``) the run's summary
-    and the data up to its time; the file is closed properly in every case."""
+    """Record until ``stop`` or ``duration_s`` of wall time; the file is closed properly in every case."""
     writer = McapWriter(output)
     observer = Observer(session, keys, key_exprs or [keys.everything], config, writer_sink(writer))
     log.info("recording %s into %s", ", ".join(key_exprs or [keys.everything]), output)
     deadline = None if duration_s is None else time.monotonic() + duration_s
-    run_end_deadline: float | None = None
     try:
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
             observer.spin_once()
-            summary = observer.run_summary
-            if until_run_ends and summary is not None:
-                run_end_deadline = run_end_deadline or time.monotonic() + RUN_END_TIMEOUT_S
-                if observer.reached(summary.tm.to_nanoseconds()):
-                    break
-                if time.monotonic() > run_end_deadline:
-                    log.warning(
-                        "the data did not reach t = %.3f s within %g s of the run's end; closing the file",
-                        summary.tm.to_nanoseconds() / NANOSECONDS_PER_SECOND,
-                        RUN_END_TIMEOUT_S,
-                    )
-                    break
             stop.wait(TAKE_PERIOD_S)
         observer.spin_once()
     finally:
@@ -253,3 +232,23 @@ def run_record(
         writer.close()
     log.info("recorded %d messages into %s", writer.messages, output)
     return 0
+
+
+def write_run_recording(journals: Path, output: Path, config: Config) -> list[Path]:
+    """``output`` (``invent up``'s ``run.mcap``) from the journals in ``journals``
+    (services/runtime/journal.py), merged in publication order a frame at a time, with the scene,
+    as :func:`run_record` would have recorded them; returns the journals that were cut short
+    (their publisher was killed)."""
+    readers = [JournalReader(path) for path in sorted(journals.glob(f"*{JOURNAL_SUFFIX}"))]
+    writer = McapWriter(output)
+    try:
+        builder = SceneBuilder(config, writer_sink(writer))
+        for key, payload, published_ns in heapq.merge(*readers, key=_publication_time):
+            builder.take(key, payload, published_ns)
+    finally:
+        writer.close()
+    return [reader.path for reader in readers if not reader.complete]
+
+
+def _publication_time(entry: JournalEntry) -> int:
+    return entry[2]

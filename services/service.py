@@ -23,6 +23,7 @@ import zenoh
 from schemas.keys import Keys, Service, validate_robot_name
 from services.config import Config, ConfigError, load_config, parse_override
 from services.runtime.executor import Executor
+from services.runtime.journal import Journal, journal_path
 from services.runtime.node import Node
 
 
@@ -157,13 +158,25 @@ def start_service(
     executor: Executor | None = None,
 ) -> tuple[Node, RunningService]:
     """Build ``command``'s service on ``session`` (opened by the caller, maybe shared), its node
-    on ``executor`` (default: one of its own)."""
-    node = Node(session, Keys(config.robot.name), command.service, executor=executor)
+    on ``executor`` (default: one of its own), keeping what it publishes in a journal in
+    ``args.journal`` if given (``invent up`` records its run so)."""
+    journal = _journal(args, command.service)
+    node = Node(session, Keys(config.robot.name), command.service, executor=executor, journal=journal)
     try:
         return node, command.factory(node, config, args)
     except BaseException:
         node.close()
         raise
+
+
+def _journal(args: argparse.Namespace, service: Service) -> Journal | None:
+    directory = getattr(args, "journal", None)
+    if directory is None:
+        return None
+    try:
+        return Journal(journal_path(Path(directory), str(service)))
+    except OSError as error:
+        raise ConfigError(f"--journal {directory}: {error.strerror}") from None
 
 
 def run_service(

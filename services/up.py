@@ -6,12 +6,12 @@ starts the sim last, so a lockstep run steps the whole loop from its first step 
 same way every time (services/lockstep.py). Children's output is prefixed with their name. The
 run ends when the drive finishes its scenario (exit 0) and the sim holds at the step of its
 last command (``--until-drive-ends``): ``up`` then reads the services' status, publishes the
-run's summary (``up/run``), waits for ``invent record`` (its child from the start, in both modes)
-to close ``run.mcap``, stops every child with SIGINT and builds the report from the recording, as
-``invent report run.mcap`` does (``--no-record``: no recording, no report, for long runs and
-benchmarks). A child that dies early makes ``up`` say which one, stop the others and exit 1.
-Ctrl-C stops everything cleanly (exit 130). With ``--composed`` the same services run in this
-one process instead (``services/composition.py``).
+run's summary (``up/run``), stops every child with SIGINT, makes ``run.mcap`` of what they
+published (:class:`RunRecorder`) and builds the report from it, as ``invent report run.mcap``
+does (``--no-record``: no recording, no report, for long runs and benchmarks). A child that dies
+early makes ``up`` say which one, stop the others and exit 1. Ctrl-C stops everything cleanly
+(exit 130). Either way ``run.mcap`` holds the run up to then. With ``--composed`` the same
+services run in this one process instead (``services/composition.py``).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import argparse
 import ctypes
 import datetime
 import json
+import shutil
 import signal
 import socket
 import subprocess
@@ -40,10 +41,11 @@ from services import view
 from services.composition import Composition
 from services.config import Config, ConfigError, SimMode
 from services.lockstep import LOOP_BEFORE_FIRST_STEP
-from services.record import RUN_END_TIMEOUT_S, TAKE_PERIOD_S, Observer, writer_sink
-from services.recording import McapWriter, write_run_report
+from services.record import StatusPoll, write_run_recording
+from services.recording import write_run_report
 from services.report import degradation_line, degradations, health_lines, loop_health, summary
 from services.runtime.inputs import Publisher
+from services.runtime.journal import Journal, journal_path
 from services.runtime.session import DEFAULT_ENDPOINT, open_session, session_config
 from services.security import Profile, Role, write_profile
 from services.service import port_number
@@ -57,6 +59,8 @@ STOP_TIMEOUT_S = 10.0
 PROGRESS_INTERVAL_S = 1.0
 SECRETS_DIRECTORY = "secrets"
 RECORDING_FILE = "run.mcap"
+JOURNALS_DIRECTORY = "journals"
+"""Where the services keep what they publish while the run lasts (made into ``run.mcap`` at its end)."""
 MOTOR_STATE_FILE = "motor-state.json"
 """The run's own motor state file (latches, gains), in the report directory: a run starts afresh."""
 SERVICES_BEFORE_DRIVE = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
@@ -261,47 +265,43 @@ class Run:
             time.sleep(0.05)
 
 
-class RecorderProcess:
-    """``invent record`` as a child: it records the run into ``path`` and closes the file itself
-    once it has the run's summary and the data up to its time."""
+class RunRecorder:
+    """The run's recording, made where the samples already are (services/record.py): each service
+    keeps what it publishes in a journal in ``<report dir>/journals/``, and this, in ``up``'s own
+    journal, the services' status replies and the run's summary. :meth:`write` makes ``run.mcap``
+    of them once every service has stopped (and closed its journal)."""
 
-    def __init__(self, flags: list[str], path: Path) -> None:
-        self._children = Supervisor()
-        self._child = self._children.start("record", ["record", *flags, "--output", str(path), "--until-run-ends"])
+    def __init__(self, report_dir: Path) -> None:
+        self.directory = report_dir / JOURNALS_DIRECTORY
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            self.journal = Journal(journal_path(self.directory, "up"))
+        except OSError as error:
+            raise ConfigError(f"--report {report_dir}: {error.strerror}") from None
+        self.flags = ["--journal", str(self.directory)]
+        """What a service needs to keep its journal here."""
+        self._statuses: StatusPoll | None = None
 
-    def wait_subscribed(self, run: Run, summary_publisher: Publisher) -> None:
-        """Until the recorder subscribes (to the robot's keys, the run's summary among them)."""
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while not summary_publisher.matched:
-            run.check()
-            self._child.check_running()
-            if time.monotonic() > deadline:
-                raise ChildDied(f"the recorder did not subscribe within {STARTUP_TIMEOUT_S} s")
-            time.sleep(0.02)
+    def watch(self, session: zenoh.Session, keys: Keys) -> None:
+        """Record the services' status from now on, at each :meth:`during`."""
+        self._statuses = StatusPoll(session, keys, self.journal.write)
 
     def during(self) -> None:
-        """It has its own process."""
+        if self._statuses is not None:
+            self._statuses.poll()
 
-    def finish(self, run: Run) -> None:
-        limit_s = RUN_END_TIMEOUT_S + STOP_TIMEOUT_S
-        deadline = time.monotonic() + limit_s
-        while self._child.finished() is None:
-            if run.interrupted.is_set():
-                raise Interrupted
-            if time.monotonic() > deadline:
-                raise ChildDied(f"the recorder did not close the recording within {limit_s} s")
-            time.sleep(0.02)
-        self._child.check_running(unless_exit_code=0)
-
-    def close(self) -> None:
-        """Stop it if it still runs (Ctrl-C, a service died): SIGINT, so it closes the file properly."""
-        self._children.stop()
+    def write(self, path: Path, config: Config) -> None:
+        self._statuses = None
+        self.journal.close()
+        say(f"writing {path} from what the services published")
+        for journal in write_run_recording(self.directory, path, config):
+            say(f"{journal.name} was cut short (its service was killed): {path} lacks its last samples")
+        shutil.rmtree(self.directory)
 
 
 class ViewProcess:
     """``invent view`` as a child (``up --view``): the run live in Foxglove. Another process in
-    both modes: a view is for watching, so it may cost a composed loop the encoding of every
-    sample, and it must not stop with the run's recorder."""
+    both modes: a view is for watching, so it may cost the loop zenoh's delivery of every sample."""
 
     def __init__(self, flags: list[str], port: int) -> None:
         self._children = Supervisor()
@@ -330,37 +330,6 @@ class ViewProcess:
         code = self._children.stop()["view"]
         if code != 0:
             say(f"view did not exit cleanly ({_describe_exit(code)})")
-
-
-class InProcessRecorder:
-    """``up --composed``: the recorder's observer in this process, on the composed session, only
-    buffering samples while the loop runs (see services/record.py); the file is written at the end."""
-
-    def __init__(self, session: zenoh.Session, keys: Keys, path: Path, config: Config) -> None:
-        self._writer = McapWriter(path)
-        self._observer = Observer(session, keys, [keys.everything], config, writer_sink(self._writer))
-        self._closed = False
-
-    def during(self) -> None:
-        self._observer.buffer()
-
-    def finish(self, run: Run) -> None:
-        """Until the run's summary and the data up to its time have come (or the timeout)."""
-        deadline = time.monotonic() + RUN_END_TIMEOUT_S
-        observer = self._observer
-        while time.monotonic() < deadline:
-            observer.spin_once()
-            summary = observer.run_summary
-            if summary is not None and observer.reached(summary.tm.to_nanoseconds()):
-                return
-            time.sleep(TAKE_PERIOD_S)
-        say(f"the recording did not reach the run's end within {RUN_END_TIMEOUT_S} s")
-
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            self._observer.close()
-            self._writer.close()
 
 
 def _child_args(args: argparse.Namespace, endpoint: str) -> list[str]:
@@ -466,32 +435,25 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     signal.signal(signal.SIGINT, lambda *_: interrupted.set())
     signal.signal(signal.SIGTERM, lambda *_: interrupted.set())
     recording = not (args.no_record or args.loop)
-    recorder: RecorderProcess | InProcessRecorder | None = None
+    recorder = RunRecorder(report_dir) if recording else None
+    journal_flags = recorder.flags if recorder else []
     try:
         with _launch(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
             run = Run(launcher, session, keys, interrupted)
-            summary_publisher = Publisher(session, keys.run_summary)
-            if recording:
-                report_dir.mkdir(parents=True, exist_ok=True)
-                path = report_dir / RECORDING_FILE
-                if args.composed:
-                    recorder = InProcessRecorder(session, keys, path, config)
-                else:
-                    recorder = RecorderProcess([*common, *access.flags(Role.OBSERVER)], path)
-                closing.callback(recorder.close)
-                if isinstance(recorder, RecorderProcess):
-                    recorder.wait_subscribed(run, summary_publisher)
+            summary_publisher = Publisher(session, keys.run_summary, recorder.journal if recorder else None)
+            if recorder:
+                recorder.watch(session, keys)
             if args.view is not None:
                 live_view = ViewProcess([*common, *access.flags(Role.OBSERVER)], args.view)
                 closing.callback(live_view.close)
                 live_view.wait_serving(run)
             own_flags = {Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE)]}
             for service in SERVICES_BEFORE_DRIVE:
-                flags = [*common, *access.flags(Role(service)), *own_flags.get(service, [])]
+                flags = [*common, *access.flags(Role(service)), *journal_flags, *own_flags.get(service, [])]
                 launcher.start(str(service), [str(service), *flags])
             run.wait_alive(SERVICES_BEFORE_DRIVE)
             drive_flags = ["--scenario", args.scenario, *(["--loop"] if args.loop else [])]
-            drive = launcher.start("drive", ["drive", *common, *access.flags(Role.DRIVE), *drive_flags])
+            drive = launcher.start("drive", ["drive", *common, *access.flags(Role.DRIVE), *journal_flags, *drive_flags])
             run.wait_alive((Service.DRIVE,))
             run.wait_tokens(
                 [
@@ -508,7 +470,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
                 *wait_for,
                 *(["--gui"] if args.gui else []),
             ]
-            launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *sim_flags])
+            launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *journal_flags, *sim_flags])
             started = time.monotonic()
             sim_status, drive_status = run.supervise(
                 drive, started, recorder.during if recorder else None, until_interrupted=args.loop
@@ -531,8 +493,6 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
                         health=health,
                     )
                 )
-                recorder.finish(run)
-                recorder.close()
             unclean = {name: code for name, code in launcher.stop().items() if code != 0}
             if unclean:
                 say(f"services that did not exit cleanly: {unclean}")
@@ -542,7 +502,10 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     except Interrupted:
         say("interrupted; stopped everything")
         return EXIT_INTERRUPTED
-    if not recording:
+    finally:
+        if recorder:
+            recorder.write(report_dir / RECORDING_FILE, config)
+    if not recorder:
         degraded = degradations(health)
         print("\n".join([*health_lines(health), *map(degradation_line, degraded)]), flush=True)
         return _verdict(

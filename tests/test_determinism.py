@@ -186,9 +186,10 @@ def test_square_returns_to_the_start_and_writes_the_report(runs):
     assert (run.report_dir / "wheel_speeds.png").stat().st_size > 10_000
     assert "scenario square (lockstep)" in run.output
     pids = {name: int(pid) for name, pid in re.findall(r"started (\w+) \(pid (\d+)\)", run.output)}
-    assert set(pids) == {"motor", "odometry", "localization", "sim", "drive", "record"}, (
-        "and no router: it connects to ours"
+    assert set(pids) == {"motor", "odometry", "localization", "sim", "drive"}, (
+        "no router (it connects to ours), no recorder (each service keeps what it publishes)"
     )
+    assert not (run.report_dir / "journals").exists(), "the journals are gone once run.mcap is written"
     assert not [name for name, pid in pids.items() if pid_alive(pid)]
 
 

@@ -11,27 +11,32 @@ from pathlib import Path
 
 import pytest
 
+from schemas.keys import Keys, Service
+from services.recording import read_messages
 from tests.harness import REPO, free_port, invent_command, pid_alive, run_invent, start_up, wait_until
 
 pytestmark = pytest.mark.slow
+
+KEYS = Keys()
 
 
 def _child_pids(output: str) -> dict[str, int]:
     return {name: int(pid) for name, pid in re.findall(r"started (\w+) \(pid (\d+)\)", output)}
 
 
-def test_killing_the_motor_mid_run_stops_everything_and_exits_non_zero(tmp_path):
+def test_killing_the_motor_mid_run_stops_everything_exits_non_zero_and_leaves_the_run_so_far(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     process = start_up("--scenario", "square", "--report", str(tmp_path), "--listen", endpoint)
     output: list[str] = []
     try:
 
-        def drive_started() -> bool:
+        def under_way() -> bool:
             line = process.stdout.readline()
             output.append(line)
-            return "started drive" in line or not line
+            progress = re.search(r"sim +([\d.]+) s \|", line)
+            return (progress is not None and float(progress[1]) > 0.5) or not line
 
-        wait_until(drive_started, 60, "invent up to start the drive")
+        wait_until(under_way, 60, "the loop to run")
         pids = _child_pids("".join(output))
         os.kill(pids["motor"], signal.SIGKILL)
         rest, _ = process.communicate(timeout=60)
@@ -44,6 +49,10 @@ def test_killing_the_motor_mid_run_stops_everything_and_exits_non_zero(tmp_path)
     assert "motor exited unexpectedly (killed by SIGKILL)" in text
     wait_until(lambda: not [pid for pid in pids.values() if pid_alive(pid)], 15, "every child to be gone")
     assert not (tmp_path / "report.json").exists()
+    assert "motor.journal was cut short" in text
+    recorded = read_messages(tmp_path / "run.mcap")
+    assert recorded.complete, "the run up to the motor's death, in a whole file"
+    assert {KEYS.sim_wheel_angles, KEYS.drive_path, KEYS.status(Service.SIM)} <= {m.topic for m in recorded.messages}
 
 
 def test_up_straight_follows_the_waypoints_with_the_real_services(tmp_path):

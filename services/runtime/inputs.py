@@ -17,6 +17,7 @@ import msgspec
 import zenoh
 
 from schemas.codec import ENCODING, encode
+from services.runtime.journal import Journal
 from services.runtime.session import has_match
 
 
@@ -45,14 +46,19 @@ class Delivery(StrEnum):
 
 
 class Publisher:
-    """A zenoh publisher of one message type, encoding with the project's codec."""
+    """A zenoh publisher of one message type, encoding with the project's codec; each message it
+    puts is also kept in ``journal``, if given (``invent up``'s recording)."""
 
-    def __init__(self, session: zenoh.Session, key: str) -> None:
+    def __init__(self, session: zenoh.Session, key: str, journal: Journal | None = None) -> None:
         self.key = key
         self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(ENCODING))
+        self._journal = journal
 
     def put(self, message: msgspec.Struct, attachment: bytes | None = None) -> None:
-        self._publisher.put(encode(message), attachment=attachment)
+        payload = encode(message)
+        self._publisher.put(payload, attachment=attachment)
+        if self._journal is not None:
+            self._journal.write(self.key, payload)
 
     @property
     def matched(self) -> bool:

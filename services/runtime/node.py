@@ -34,6 +34,7 @@ from services.runtime.inputs import (
     Publisher,
     contents,
 )
+from services.runtime.journal import Journal
 from services.runtime.logs import BadInputCounter, RateLimitedLog, log
 
 LIVELINESS_QUERY_TIMEOUT_S = 1.0
@@ -71,6 +72,7 @@ class Node:
         service: Service,
         status: Callable[[], dict[str, Any]] = dict,
         executor: Executor | None = None,
+        journal: Journal | None = None,
     ) -> None:
         self.session = session
         self.keys = keys
@@ -86,6 +88,7 @@ class Node:
         self._declarations: list[Any] = []
         self._inputs: list[NodeInput] = []
         self._publishers: list[Publisher] = []
+        self._journal = journal
         self._taken: dict[str, InputTaken] = {}
         self._started = time.monotonic()
         self._next_wait: Callable[[], Wait] = _no_wait
@@ -212,7 +215,7 @@ class Node:
         return dispatch
 
     def publisher(self, key: str) -> Publisher:
-        publisher = Publisher(self.session, key)
+        publisher = Publisher(self.session, key, self._journal)
         self._publishers.append(publisher)
         return publisher
 
@@ -308,7 +311,8 @@ class Node:
         self._internal_error_log(key, logging.ERROR, "internal error handling %s: %s", key, error, exc_info=True)
 
     def close(self) -> None:
-        """Withdraw the liveliness token and undeclare everything (the session stays open)."""
+        """Withdraw the liveliness token and undeclare everything (the session stays open); the
+        journal of what it published, if it keeps one, is then complete."""
         for node_input in self._inputs:
             self.executor.remove_input(node_input)
             node_input.undeclare()
@@ -319,3 +323,5 @@ class Node:
             publisher.undeclare()
         self._declarations.clear()
         self._publishers.clear()
+        if self._journal is not None:
+            self._journal.close()
