@@ -17,6 +17,7 @@ wheel angles, compute the torques, apply them, step.
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import socket
@@ -64,10 +65,14 @@ class LoopResult:
     missing_fraction: float
     steps: int
     window_s: float
+    cpu_us_per_step: float
+    """CPU time (user + system) of every process of the loop over the window, per step: what the
+    machine's load does not change, where ``steps_per_s`` moves with it."""
 
     def as_dict(self) -> dict[str, Any]:
         return {
             "steps_per_s": self.steps_per_s,
+            "cpu_us_per_step": self.cpu_us_per_step,
             "real_time_factor": self.sim_seconds_per_s,
             "latency_us": self.latency_us,
             "late_fraction": self.late_fraction,
@@ -139,6 +144,11 @@ class UpRun:
         self._log = self.log_path.open("w")
         self.process = subprocess.Popen(argv, cwd=REPO, stdout=self._log, stderr=subprocess.STDOUT)
 
+    @property
+    def pids(self) -> list[int]:
+        """``up``: its processes are its descendants."""
+        return [self.process.pid]
+
     def output(self, lines: int = 30) -> str:
         return "\n".join(self.log_path.read_text().splitlines()[-lines:])
 
@@ -191,6 +201,10 @@ class ServicesRun:
         _wait(lambda: _alive(session, Service.DRIVE), "the drive", self)
         wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
         self._start("sim", ["sim", *connect, *self._sim_flags, "--wait-for", *wait_for])
+
+    @property
+    def pids(self) -> list[int]:
+        return [process.pid for process in self.processes.values()]
 
     def output(self, lines: int = 30) -> str:
         return "\n".join(self.log_path.read_text().splitlines()[-lines:])
@@ -259,13 +273,36 @@ def window_latency(first: dict[str, Any], last: dict[str, Any]) -> dict[str, flo
     return {"p50": p50, "p99": p99, "max": top}
 
 
+def cpu_seconds(roots: Sequence[int]) -> float:
+    """User + system CPU seconds of the processes ``roots`` and all their descendants, those
+    already reaped included (in their parent's children's times), from /proc (Linux)."""
+    tree: dict[int, list[int]] = {}
+    times: dict[int, float] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:  # it ended meanwhile
+            continue
+        pid = int(entry)
+        tree.setdefault(int(fields[1]), []).append(pid)
+        times[pid] = sum(int(field) for field in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+    total, pending = 0.0, list(roots)
+    while pending:
+        pid = pending.pop()
+        total += times.get(pid, 0.0)
+        pending.extend(tree.get(pid, []))
+    return total
+
+
 def _measure(session: zenoh.Session, run: UpRun | ServicesRun, warmup_s: float, window_s: float) -> LoopResult:
     _wait(lambda: _alive(session, Service.DRIVE), "the drive", run)
     _wait(lambda: (_sim_status(session) or {}).get("state") == "running", "the sim running", run)
     time.sleep(warmup_s)
-    first, first_wall = _sim_status(session), time.monotonic()
+    first, first_wall, first_cpu = _sim_status(session), time.monotonic(), cpu_seconds(run.pids)
     time.sleep(window_s)
-    last, last_wall = _sim_status(session), time.monotonic()
+    last, last_wall, last_cpu = _sim_status(session), time.monotonic(), cpu_seconds(run.pids)
     run.check()
     if first is None or last is None:
         raise RuntimeError("the sim did not answer its status")
@@ -281,4 +318,5 @@ def _measure(session: zenoh.Session, run: UpRun | ServicesRun, warmup_s: float, 
         missing_fraction=counters["missing_torques"] / steps if steps else 1.0,
         steps=steps,
         window_s=wall,
+        cpu_us_per_step=(last_cpu - first_cpu) / steps * 1e6 if steps else math.inf,
     )

@@ -89,6 +89,16 @@ def _cost(recording: float | None, not_recording: float | None) -> float | None:
     return None if ratio is None else 100.0 * (1.0 - ratio)
 
 
+def _cpu_cost(recording: float | None, not_recording: float | None) -> float | None:
+    """How much more CPU per step the loop took with its recording, in % of the CPU without."""
+    ratio = _ratio(recording, not_recording)
+    return None if ratio is None else 100.0 * (ratio - 1.0)
+
+
+def _cpu_per_step(runs: list[loop.LoopResult]) -> float | None:
+    return _median([run.cpu_us_per_step for run in runs])
+
+
 def _timed(what: str, action: Callable[[], Any], failures: list[str]) -> Any:
     """``action()``, timed on the console; None (and the reason in ``failures``) if a run failed."""
     started = time.monotonic()
@@ -135,9 +145,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
                 failures,
             )
         )
-        with_up.append(
-            _timed("invent up (its recorder too)", lambda: loop.measure_up([], args.warmup, args.window), failures)
-        )
+        with_up.append(_timed("invent up (recording)", lambda: loop.measure_up([], args.warmup, args.window), failures))
         up_not_recording.append(
             _timed(
                 "invent up --no-record",
@@ -155,7 +163,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
             )
             together_recording.append(
                 _timed(
-                    "composed, its recorder too",
+                    "composed, recording",
                     lambda: loop.measure_up([loop.COMPOSED_FLAG], args.warmup, args.window),
                     failures,
                 )
@@ -182,6 +190,12 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         "composed_ratio": _ratio(shared["steps_per_s"], limit) if shared else None,
         "composed_latency_us": shared["latency_us"] if shared else None,
         "composed_recording_steps_per_s": _median([run.steps_per_s for run in together_recording]),
+        "cpu_us_per_step": {
+            "up": _cpu_per_step(with_up),
+            "up_not_recording": _cpu_per_step(up_not_recording),
+            "composed": _cpu_per_step(together),
+            "composed_recording": _cpu_per_step(together_recording),
+        },
         "composed_note": (
             None if composed else f"this checkout's `invent up` has no {loop.COMPOSED_FLAG} {loop.NO_RECORD_FLAG}"
         ),
@@ -242,9 +256,20 @@ def _fmt(value: Any, digits: int = 0) -> str:
     return f"{value:,.{digits}f}"
 
 
+def _recording_cost(lockstep: dict[str, Any], cpu: dict[str, Any], recording: str, not_recording: str) -> str:
+    """What recording cost the loop of one mode, in steps/s and in CPU per step (same run)."""
+    steps = _cost(lockstep[f"{recording}_steps_per_s"], lockstep[f"{not_recording}_steps_per_s"])
+    cpu_cost = _cpu_cost(cpu.get(recording), cpu.get(not_recording))
+    return (
+        f"recording costs {_fmt(steps, 1)} % of the steps/s, {_fmt(cpu_cost, 1)} % CPU per step "
+        f"({_fmt(cpu.get(recording))} vs {_fmt(cpu.get(not_recording))} µs)"
+    )
+
+
 def table(results: dict[str, Any]) -> str:
     """The results as a Markdown table (printed, and pasted into the README)."""
     lockstep, realtime, machine_info = results["lockstep"], results["realtime"], results["machine"]
+    cpu = lockstep.get("cpu_us_per_step") or {}
     rows = [
         (
             "lockstep, separate processes",
@@ -264,7 +289,7 @@ def table(results: dict[str, Any]) -> str:
         (
             "lockstep, `invent up` (recording run.mcap)",
             f"{_fmt(lockstep['up_steps_per_s'])} steps/s",
-            f"recording costs {_fmt(_cost(lockstep['up_steps_per_s'], lockstep['up_not_recording_steps_per_s']), 1)} %",
+            _recording_cost(lockstep, cpu, "up", "up_not_recording"),
         ),
         (
             "lockstep, composed (`invent up --composed --no-record`)",
@@ -274,7 +299,7 @@ def table(results: dict[str, Any]) -> str:
         (
             "lockstep, composed, recording run.mcap (`invent up --composed`)",
             f"{_fmt(lockstep['composed_recording_steps_per_s'])} steps/s",
-            f"recording costs {_fmt(_cost(lockstep['composed_recording_steps_per_s'], lockstep['composed_steps_per_s']), 1)} %",
+            _recording_cost(lockstep, cpu, "composed_recording", "composed"),
         ),
         ("lockstep, in one process, no zenoh (limit)", f"{_fmt(lockstep['inprocess_steps_per_s'])} steps/s", "1"),
         (
