@@ -58,7 +58,7 @@ class Sink:
     """Where the loop hands what it takes: each zenoh sample, and each Foxglove message of the scene."""
 
     sample: Callable[[str, bytes, int, int | None], None]
-    """(key, payload, log time ns, the message's stamp in ns if the observer decoded it)"""
+    """(key, payload, log time ns, the message's stamp in ns if the builder decoded it)"""
     shown: Callable[[str, Any, int, int], None]
     """(topic, Foxglove message or JSON value, stamp ns, log time ns)"""
 
