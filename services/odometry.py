@@ -47,7 +47,7 @@ class OdometryService:
         # Lockstep: a wheel-angle sample waits for the localization's fix it is owed (the sim took it).
         self.fix_hold: Hold[HeldSample] = Hold(
             Topic.LOCALIZATION_POSE,
-            lambda held: node.guard(node.keys.motor_wheel_angles, self._integrate, *held),
+            lambda held: node.guard(node.keys.motor_wheel_angles, self._integrate, held[0]),
             capacity=FIX_HISTORY_STEPS,
         )
         self._trace = TraceFile.from_flag(args.trace)
@@ -70,7 +70,7 @@ class OdometryService:
         )
         node.set_status(self.status)
 
-    def _integrate(self, sample: TimedDoubleSeq, _attachment: bytes | None) -> None:
+    def _integrate(self, sample: TimedDoubleSeq) -> None:
         step = self.odometry.step(sample.tm.to_nanoseconds(), sample.data)
         self.samples += 1
         self.branches[step.branch] += 1

@@ -90,11 +90,14 @@ class StampClock:
     """
 
     def __init__(self, horizon_ns: int) -> None:
-        self.horizon_ns = horizon_ns
         self.restart = ClockRestart(horizon_ns)
         self.first_ns: int | None = None
         """The first stamp of the current time base."""
         self.last_ns: int | None = None
+
+    @property
+    def horizon_ns(self) -> int:
+        return self.restart.horizon_ns
 
     def advance(self, stamp_ns: int) -> bool:
         """Take ``stamp_ns`` as the new time; True if it started a new time base.

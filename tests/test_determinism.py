@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import subprocess
 import sys
@@ -26,6 +25,7 @@ import pytest
 import zenoh
 from mcap.reader import make_reader
 
+from benchmarks.loop import cpu_seconds
 from schemas.codec import decode
 from schemas.keys import Keys, Service, Topic, schema_for_key
 from services.recording import read_messages
@@ -72,12 +72,6 @@ class SquareRun:
     """Each CPU burner's share of a core during the run (loaded run only)."""
 
 
-def _cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    user_ticks, system_ticks = int(fields[11]), int(fields[12])
-    return (user_ticks + system_ticks) / os.sysconf("SC_CLK_TCK")
-
-
 @contextmanager
 def _burning_cpus(count: int) -> Iterator[list[float]]:
     """Yields a list that holds, once the block ends, each burner's share of a core while it ran."""
@@ -88,7 +82,7 @@ def _burning_cpus(count: int) -> Iterator[list[float]]:
         yield shares
     finally:
         lifetime = time.monotonic() - started
-        shares.extend(_cpu_seconds(burner.pid) / lifetime for burner in burners)
+        shares.extend(cpu_seconds([burner.pid]) / lifetime for burner in burners)
         for burner in burners:
             burner.kill()
             burner.wait()
