@@ -10,7 +10,7 @@ angles published -> matching torque received) of exactly the window's steps; the
 give the late and missing fractions. The processes are then stopped with SIGINT, as Ctrl-C would.
 
 The in-process limit steps the same robot (:class:`~sim_bridge.simulator.Simulator`) with the
-same PD law (:class:`~services.motor_core.MotorCore`) in one loop with no zenoh: read the
+same PD law (:class:`~services.motor.core.MotorCore`) in one loop with no zenoh: read the
 wheel angles, compute the torques, apply them, step.
 """
 
@@ -33,9 +33,9 @@ from typing import Any
 import zenoh
 
 from schemas.keys import Keys, Service
+from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config
-from services.lockstep import LOOP_BEFORE_FIRST_STEP
-from services.motor_core import MotorCore
+from services.motor.core import MotorCore
 from services.runtime.session import open_session, session_config
 from sim_bridge.latency import percentiles
 

@@ -167,7 +167,7 @@ class Keys:
 
     def ticks(self, service: Service, rate_hz: float) -> str:
         """The liveliness token of a lockstep participant: ``service`` outputs on a grid of
-        ``rate_hz`` ticks per second of simulation time (services/lockstep.py)."""
+        ``rate_hz`` ticks per second of simulation time (services/clock/lockstep.py)."""
         return f"{self.prefix}/{service}/{_TICKS}/{rate_hz!r}"
 
     def ticks_at_any_rate(self, service: Service) -> str:

@@ -1,1 +1,12 @@
-"""invent-zenoh services: the runtime, the configuration, the CLI and each service."""
+"""invent-zenoh services, one room each (docs/architecture.md):
+
+- ``motor/``, ``odometry/``, ``localization/``, ``drive/``: each service, its shell beside its pure core(s);
+- ``clock/``: simulation time, lockstep and the simulator watch every service shares;
+- ``runtime/``: the runtime every service stands on (session, inputs, executor, node);
+- ``recording/``: recording, reports, replay and the live view;
+- ``cli/``: the ``invent`` command, the launcher (``up``, composition) and the zenoh tools;
+- ``config.py`` (the robot description), ``service.py`` (what a service command is),
+  ``planar.py`` (planar geometry), ``security.py`` (roles, access control, credentials).
+
+The simulator bridge is the top-level package ``sim_bridge``.
+"""

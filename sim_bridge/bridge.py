@@ -11,7 +11,7 @@ applies the wheel torques and steps:
   answers in a row the motor control counts as silent: each step then waits only one
   real-time period for its torque (the sim runs at real-time pace, zero torque, slow enough
   for a motor control to work off its backlog) until a torque from it arrives again.
-  The whole loop is in lockstep too (services/lockstep.py): at each tick of a participant (the
+  The whole loop is in lockstep too (services/clock/lockstep.py): at each tick of a participant (the
   drive, the localization: liveliness tokens ``<service>/ticks/<rate>``) the step also waits for
   its output, and each step's wheel angles carry the ``Owed`` attachment the motor and odometry
   hold their samples by. ``--wait-for`` and ``--until-drive-ends`` make a run start and end at
@@ -52,8 +52,8 @@ from schemas.messages import (
     TimedPosition,
     TimedVelocity,
 )
+from services.clock.lockstep import FINAL, OUTPUTS, TickBarrier, encode_owed
 from services.config import Config, SimConfig, SimMode
-from services.lockstep import FINAL, OUTPUTS, TickBarrier, encode_owed
 from services.runtime.executor import STOP_POLL_S
 from services.runtime.inputs import Delivery, NodeInput
 from services.runtime.logs import RateLimitedLog

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from services.motor import STATE_HOME_VARIABLE
+from services.motor.state import STATE_HOME_VARIABLE
 from tests.harness import peer_session, running_router
 
 

@@ -11,7 +11,7 @@ import yaml
 import zenoh
 
 from schemas.keys import Service
-from services.cli import build_parser
+from services.cli.main import build_parser
 from services.security import DICTIONARY, ROUTER_CONFIG, Role
 from services.service import config_from_args
 from tests.harness import REPO

@@ -122,7 +122,7 @@ def test_cli_exits_2_on_an_invalid_file(tmp_path):
 
 
 def test_an_unset_service_flag_keeps_the_set_override():
-    from services.cli import build_parser
+    from services.cli.main import build_parser
     from services.service import config_from_args
 
     args = build_parser().parse_args(["motor", "--set", "motor.command_timeout=2.5"])

@@ -28,9 +28,9 @@ from mcap.reader import make_reader
 from benchmarks.loop import cpu_seconds
 from schemas.codec import decode
 from schemas.keys import Keys, Service, Topic, schema_for_key
-from services.recording import read_messages
+from services.recording.mcap_files import read_messages
+from services.recording.scene import LOCALIZATION_TOPIC, ODOMETRY_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
 from services.runtime.session import open_session, session_config
-from services.scene import LOCALIZATION_TOPIC, ODOMETRY_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
 from tests.harness import (
     REPO,
     InventProcess,

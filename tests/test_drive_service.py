@@ -18,8 +18,8 @@ from schemas.codec import encode
 from schemas.keys import Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition, TimedVelocity
 from services.config import DriveConfig
-from services.drive import FINAL_ZERO_TICKS
-from services.path_following import Command
+from services.drive.path_following import Command
+from services.drive.service import FINAL_ZERO_TICKS
 from services.planar import Pose
 from tests.harness import Collector, InventProcess, call, wait_alive, wait_until
 from tests.sim_presence import SimPresence

@@ -12,10 +12,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
+from services.clock.sim_time import PeriodicSchedule
 from services.config import Config, InputConfig, LocalizationConfig
-from services.localization_core import Localizer, Noise, resolve_seed
+from services.localization.core import Localizer, Noise, resolve_seed
 from services.planar import Pose, wrap_angle
-from services.sim_time import PeriodicSchedule
 
 MS = 1_000_000
 S = 1_000_000_000

@@ -13,7 +13,7 @@ import zenoh
 from schemas.codec import encode
 from schemas.keys import Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
-from services.localization_core import Localizer, Noise
+from services.localization.core import Localizer, Noise
 from services.planar import Pose, wrap_angle
 from tests.harness import Collector, InventProcess, call, run_invent, wait_alive, wait_until
 from tests.sim_presence import SimPresence

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from schemas.codec import BadInput
 from schemas.keys import Keys, Service, Topic, parse_ticks_key
-from services.lockstep import Hold, TickBarrier, decode_owed, encode_owed
+from services.clock.lockstep import Hold, TickBarrier, decode_owed, encode_owed
 
 MS = 1_000_000
 STEP = MS

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from schemas.codec import BadInput
 from schemas.messages import PDGains
 from services.config import InputConfig, MotorConfig, RobotConfig, TargetAngleMode
-from services.motor_core import MotorCore, MotorState, SimPoseConverter
+from services.motor.core import MotorCore, MotorState, SimPoseConverter
 
 MS = 1_000_000
 """One millisecond in nanoseconds."""

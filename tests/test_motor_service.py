@@ -22,9 +22,9 @@ import zenoh
 from schemas.codec import ENCODING, decode, encode
 from schemas.keys import Keys, Method, MethodFamily, Service, Topic
 from schemas.messages import PDGains, Time, TimedDoubleSeq, TimedVelocity
+from services.clock.lockstep import encode_owed
 from services.config import TargetAngleMode, load_config
-from services.lockstep import encode_owed
-from services.motor_core import MotorCore
+from services.motor.core import MotorCore
 from tests.harness import (
     Collector,
     InventProcess,

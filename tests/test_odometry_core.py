@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from schemas.codec import BadInput
 from services.config import Config, InputConfig, load_config
-from services.odometry_core import Branch, CalibratedGeometry, Odometry, Step, wrap_angle
+from services.odometry.core import Branch, CalibratedGeometry, Odometry, Step, wrap_angle
 from services.planar import Pose
 
 NS = 1_000_000_000

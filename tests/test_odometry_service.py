@@ -20,9 +20,9 @@ import zenoh
 from schemas.codec import encode
 from schemas.keys import Keys, Service, Topic
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+from services.clock.lockstep import encode_owed
 from services.config import load_config
-from services.lockstep import encode_owed
-from services.odometry_core import Branch, Odometry, Step
+from services.odometry.core import Branch, Odometry, Step
 from tests.harness import (
     Collector,
     InventProcess,

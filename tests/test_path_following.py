@@ -12,9 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.config import DriveConfig
-from services.path_following import STOPPED, Command, PathFollower, Phase, limit_rate
+from services.drive.path_following import STOPPED, Command, PathFollower, Phase, limit_rate
+from services.drive.scenarios import distance_to_path
 from services.planar import Pose, wrap_angle
-from services.scenarios import distance_to_path
 
 PARAMS = DriveConfig()
 CONTROL_DT = 1.0 / DriveConfig().rate

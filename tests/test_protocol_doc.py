@@ -17,7 +17,7 @@ import pytest
 
 from schemas.keys import METHOD_ARGUMENTS, TOPIC_TYPES, Keys, Method, MethodFamily, Service, Topic
 from schemas.messages import MESSAGE_TYPES
-from services.lockstep import OUTPUTS
+from services.clock.lockstep import OUTPUTS
 
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL = ROOT / "docs" / "protocol.md"

@@ -8,7 +8,7 @@ from mcap.reader import make_reader
 from schemas.codec import encode
 from schemas.keys import Keys
 from schemas.messages import Time, TimedDoubleSeq
-from services.recording import CHUNK_SIZE, read_messages
+from services.recording.mcap_files import CHUNK_SIZE, read_messages
 from tests.harness import InventProcess, peer_session, running_router, wait_until
 
 pytestmark = pytest.mark.slow

@@ -1,11 +1,11 @@
-"""What ``invent replay`` publishes, and in which order (services/recording.py: no zenoh here)."""
+"""What ``invent replay`` publishes, and in which order (services/recording/mcap_files.py: no zenoh here)."""
 
 import pytest
 
 from schemas.keys import Keys, Service, Topic
 from services.config import ConfigError
-from services.recording import RecordedMessage, replay_schedule
-from services.replay import parse_topics
+from services.recording.mcap_files import RecordedMessage, replay_schedule
+from services.recording.replay import parse_topics
 from tests.harness import run_invent
 
 KEYS = Keys("rh0")

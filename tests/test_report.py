@@ -1,7 +1,7 @@
 """The run's health in the report: the sim's torque figures and each service's counters, and
 when a run counts as degraded."""
 
-from services.report import DEGRADED_FRACTION, degradations, loop_health
+from services.recording.report import DEGRADED_FRACTION, degradations, loop_health
 
 
 def _service(bad: int = 0, internal: int = 0, dropped: int = 0) -> dict:

@@ -1,4 +1,4 @@
-"""``invent up``'s run.mcap, made of its processes' journals (services/record.py,
+"""``invent up``'s run.mcap, made of its processes' journals (services/recording/record.py,
 ``write_run_recording``): every published sample on its key's channel in publication order, the
 Foxglove scene beside them, and a journal cut short named."""
 
@@ -8,10 +8,10 @@ from schemas.codec import encode
 from schemas.keys import Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
 from services.config import load_config
-from services.record import write_run_recording
-from services.recording import read_messages
+from services.recording.mcap_files import read_messages
+from services.recording.record import write_run_recording
+from services.recording.scene import ODOMETRY_TOPIC, TRANSFORMS_TOPIC
 from services.runtime.journal import Journal, journal_path
-from services.scene import ODOMETRY_TOPIC, TRANSFORMS_TOPIC
 
 KEYS = Keys("rh0")
 PUBLISHED_NS = 1_800_000_000 * 10**9

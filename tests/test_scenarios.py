@@ -8,9 +8,8 @@ from pathlib import Path
 import pytest
 
 from services.config import ConfigError, DriveConfig
-from services.path_following import STOPPED, Command
-from services.planar import Pose
-from services.scenarios import (
+from services.drive.path_following import STOPPED, Command
+from services.drive.scenarios import (
     BUILTIN_SCENARIOS,
     ConstantSegment,
     Scenario,
@@ -23,6 +22,7 @@ from services.scenarios import (
     planned_path,
     planned_path_for,
 )
+from services.planar import Pose
 from tests.harness import REPO, run_invent
 
 PARAMS = DriveConfig()

@@ -1,4 +1,4 @@
-"""services/scene.py: the Foxglove messages of the robot's loop, built from its decoded samples
+"""services/recording/scene.py: the Foxglove messages of the robot's loop, built from its decoded samples
 (a pure module: no zenoh, no server, no file). Each message is read back through its protobuf
 encoding with Foxglove's own compiled schemas, as Foxglove reads it."""
 
@@ -15,7 +15,7 @@ from schemas.codec import BadInput
 from schemas.keys import Topic
 from schemas.messages import Obstacle, PlannedPath, SimWorld, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
 from services.config import Config
-from services.scene import (
+from services.recording.scene import (
     LOCALIZATION_TOPIC,
     ODOMETRY_TOPIC,
     POSE_PERIOD_NS,

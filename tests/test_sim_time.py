@@ -8,8 +8,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
+from services.clock.sim_time import ClockRestart, StampClock
 from services.config import InputConfig
-from services.sim_time import ClockRestart, StampClock
 
 S = 1_000_000_000
 HORIZON_NS = round(InputConfig().stamp_horizon * S)

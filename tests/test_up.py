@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from schemas.keys import Keys, Service
-from services.recording import read_messages
+from services.recording.mcap_files import read_messages
 from tests.harness import REPO, free_port, invent_command, pid_alive, run_invent, start_up, wait_until
 
 pytestmark = pytest.mark.slow

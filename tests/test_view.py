@@ -36,7 +36,7 @@ from schemas.codec import decode
 from schemas.keys import Keys, Service, Topic, schema_for_key
 from schemas.messages import TimedDoubleSeq
 from services.config import Config
-from services.scene import (
+from services.recording.scene import (
     LOCALIZATION_TOPIC,
     ODOMETRY_TOPIC,
     ROBOT_FRAME,
@@ -46,7 +46,7 @@ from services.scene import (
     WHEEL_SPEEDS_TOPIC,
     WORLD_FRAME,
 )
-from services.view import EXIT_NO_SERVER, FoxgloveChannels, run_view
+from services.recording.view import EXIT_NO_SERVER, FoxgloveChannels, run_view
 from tests.harness import REPO, call, free_port, invent_command, peer_session, running_router, wait_until
 
 pytestmark = pytest.mark.slow

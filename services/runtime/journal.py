@@ -1,5 +1,5 @@
 """What a service published, kept where it was published: the pieces ``invent up`` makes its
-``run.mcap`` of (services/record.py, :func:`~services.record.write_run_recording`).
+``run.mcap`` of (services/recording/record.py, :func:`~services.recording.record.write_run_recording`).
 
 Recording a run from another process costs the loop zenoh's delivery of every sample to that
 process, on both ends of the link: it nearly doubled the loop's CPU per step

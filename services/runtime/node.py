@@ -245,7 +245,7 @@ class Node:
         )
 
     def participate(self, publisher: Publisher, rate_hz: float) -> None:
-        """Take part in lockstep (services/lockstep.py), outputting on ``publisher`` at ``rate_hz``
+        """Take part in lockstep (services/clock/lockstep.py), outputting on ``publisher`` at ``rate_hz``
         ticks per second of simulation time: hold the token ``Keys.ticks`` once ``publisher`` has a
         subscriber (before, the outputs would reach no one, and waiting for them would only time out)."""
         post = self.executor.post

@@ -5,8 +5,8 @@ A recording has one channel per zenoh key, named by the key, message encoding ``
 payloads as they were published. A key of the project's key space (``schemas/keys.py``) has a
 ``jsonschema`` schema named after its message type and generated from it
 (``msgspec.json.schema``); any other key has no schema. ``log_time`` is when the sample was
-received (services/record.py), ``publish_time`` the message's ``tm`` where it has one (simulation time), else the
-``log_time``. Beside those, the Foxglove channels of :mod:`services.scene` (protobuf, with
+received (services/recording/record.py), ``publish_time`` the message's ``tm`` where it has one (simulation time), else the
+``log_time``. Beside those, the Foxglove channels of :mod:`services.recording.scene` (protobuf, with
 Foxglove's well-known schemas), so Foxglove shows a recording as it shows the live view.
 
 Messages are written in chunks of :data:`CHUNK_SIZE` bytes, each straight to the file: a
@@ -46,9 +46,9 @@ from schemas.messages import (
     TimedVelocity,
 )
 from services.config import Config, ConfigError, InputConfig, RobotConfig
+from services.drive.scenarios import planned_path_for
 from services.planar import Pose, check_coordinates
-from services.report import Point, Recording, build_report, pose_from_body_pose, write_plots, write_report
-from services.scenarios import planned_path_for
+from services.recording.report import Point, Recording, build_report, pose_from_body_pose, write_plots, write_report
 
 CHUNK_SIZE = 256 * 1024
 """Bytes of messages per chunk: about a fifth of a second of the loop in lockstep."""

@@ -1,4 +1,4 @@
-"""``invent record``: every sample of some keys into an MCAP file (services/recording.py says what
+"""``invent record``: every sample of some keys into an MCAP file (services/recording/mcap_files.py says what
 the file holds), with the Foxglove scene of the robot beside them; the loop shared with ``invent
 view``, which shows the same channels live; and ``invent up``'s ``run.mcap``, the same file made
 of what its services published.
@@ -34,12 +34,12 @@ import zenoh
 from schemas.codec import BadInput, decode
 from schemas.keys import LATCHED_TOPICS, TOPIC_TYPES, Keys, Topic, TopicMessage
 from services.config import Config
-from services.recording import LATEST_STAMP_NS, McapWriter
+from services.recording.mcap_files import LATEST_STAMP_NS, McapWriter
+from services.recording.scene import WHEEL_SPEEDS_SCHEMA, WHEEL_SPEEDS_TOPIC, Scene
 from services.runtime.journal import SUFFIX as JOURNAL_SUFFIX
 from services.runtime.journal import JournalEntry, JournalReader
 from services.runtime.logs import RateLimitedLog
 from services.runtime.session import has_match
-from services.scene import WHEEL_SPEEDS_SCHEMA, WHEEL_SPEEDS_TOPIC, Scene
 
 log = logging.getLogger("invent.record")
 
@@ -186,7 +186,7 @@ def _log_time(sample: zenoh.Sample, taken_ns: int) -> int:
 
 class SceneWriter(Protocol):
     """What a :class:`Sink` writes into, one channel per key or topic: the MCAP file
-    (:class:`McapWriter`) or the live view's channels (``services.view.FoxgloveChannels``)."""
+    (:class:`McapWriter`) or the live view's channels (``services.recording.view.FoxgloveChannels``)."""
 
     def write_sample(self, key: str, payload: bytes, log_time_ns: int, publish_time_ns: int | None) -> None: ...
 

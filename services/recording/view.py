@@ -1,9 +1,9 @@
 """``invent view``: the running robot, live in Foxglove, over a Foxglove WebSocket server.
 
-What it serves is what ``invent record`` writes (services/recording.py), live: the loop of
-:class:`services.record.Observer` takes every sample of ``invent/<robot>/**`` and the services'
+What it serves is what ``invent record`` writes (services/recording/mcap_files.py), live: the loop of
+:class:`services.recording.record.Observer` takes every sample of ``invent/<robot>/**`` and the services'
 status replies every 0.5 s, and hands them, with the robot's Foxglove scene
-(:mod:`services.scene`), to :class:`FoxgloveChannels`:
+(:mod:`services.recording.scene`), to :class:`FoxgloveChannels`:
 
 - one channel per zenoh key, named by the key, JSON messages as published, with the JSON schema
   of the key's message type (named ``TimedDoubleSeq``, ``TimedPosition``, ..., the schema a
@@ -36,8 +36,8 @@ import zenoh
 from schemas.codec import ENCODING
 from schemas.keys import VIEW, Keys
 from services.config import Config
-from services.record import TAKE_PERIOD_S, Observer, writer_sink
-from services.recording import JSON, JSON_SCHEMA, key_json_schema
+from services.recording.mcap_files import JSON, JSON_SCHEMA, key_json_schema
+from services.recording.record import TAKE_PERIOD_S, Observer, writer_sink
 
 log = logging.getLogger("invent.view")
 
@@ -60,7 +60,7 @@ def _foxglove_schema(name: str, encoding: str, data: bytes) -> foxglove.Schema:
 
 class FoxgloveChannels:
     """The channels of one view, on its own ``context``, created on their first message; written
-    as an MCAP file is (:class:`services.record.SceneWriter`), for every client of the server."""
+    as an MCAP file is (:class:`services.recording.record.SceneWriter`), for every client of the server."""
 
     def __init__(self, context: foxglove.Context) -> None:
         self._context = context

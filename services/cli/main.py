@@ -13,10 +13,11 @@ import msgspec
 import zenoh
 
 from schemas.keys import DEFAULT_ROBOT, Keys
-from services import record, replay, tools, up, view
+from services.cli import tools, up
 from services.config import ConfigError
-from services.recording import read_messages, replay_schedule, write_run_report
-from services.report import summary
+from services.recording import record, replay, view
+from services.recording.mcap_files import read_messages, replay_schedule, write_run_report
+from services.recording.report import summary
 from services.runtime.logs import configure_logging
 from services.runtime.session import (
     DEFAULT_ENDPOINT,
@@ -42,10 +43,10 @@ EXIT_NO_SESSION = 1
 
 SERVICE_MODULES = (
     "sim_bridge.bridge",
-    "services.motor",
-    "services.odometry",
-    "services.localization",
-    "services.drive",
+    "services.motor.service",
+    "services.odometry.service",
+    "services.localization.service",
+    "services.drive.service",
 )
 """Modules that each define ``COMMAND: ServiceCommand``; one ``invent <service>`` subcommand each."""
 
@@ -438,7 +439,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SessionFailed as error:
         print(f"invent {args.command}: {error}", file=sys.stderr)
         return EXIT_NO_SESSION
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -4,7 +4,7 @@ A :class:`Scenario` is an ordered list of segments, each either
 
 - ``constant``: a body velocity (vx m/s, w rad/s) held for ``duration`` simulated seconds, or
 - ``waypoints``: a path through points of the world frame (m), followed by
-  :class:`~services.path_following.PathFollower` on the robot's pose.
+  :class:`~services.drive.path_following.PathFollower` on the robot's pose.
 
 Built-ins: ``straight``, ``circle``, ``square``, ``figure8`` (:data:`BUILTIN_SCENARIOS`).
 A scenario file is TOML, loaded strictly (an unknown key, a wrong type or a value out of range
@@ -40,7 +40,7 @@ import msgspec
 
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import ConfigError, DriveConfig
-from services.path_following import STOPPED, Command, PathFollower, Phase, Point
+from services.drive.path_following import STOPPED, Command, PathFollower, Phase, Point
 from services.planar import Pose, wrap_angle
 
 PositiveSeconds = Annotated[float, msgspec.Meta(gt=0.0)]

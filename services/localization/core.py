@@ -11,7 +11,7 @@ x, y, z, θ stamped with simulation time) into localized fixes:
 - then one fix at every tick k/rate (k = 1, 2, ...) of simulation time after t0, taken by the
   first sample at or after the tick: that sample's pose plus Gaussian noise, independent per
   axis (σx, σy, σθ), θ wrapped into (−π, π]. The grid is anchored at time 0, not at t0, so a
-  lockstep simulator knows the ticks from the rate alone (services/lockstep.py).
+  lockstep simulator knows the ticks from the rate alone (services/clock/lockstep.py).
 
 When the simulator restarts (its token appeared, :attr:`Localizer.restart`, then a stamp not
 after the last one: its clock started again), that sample starts a new time base and, once the schedule
@@ -33,9 +33,9 @@ import numpy as np
 from schemas.codec import BadInput
 from schemas.keys import SIM_POSE_LENGTH
 from schemas.messages import NANOSECONDS_PER_SECOND
+from services.clock.sim_time import ClockRestart, PeriodicSchedule, StampClock
 from services.config import Config, InputConfig
 from services.planar import Pose, check_coordinates, wrap_angle
-from services.sim_time import ClockRestart, PeriodicSchedule, StampClock
 
 SEED_BITS = 63
 """Seeds drawn from the OS fit a signed 64-bit integer, so they can be passed back as ``seed``."""

@@ -7,9 +7,9 @@ Every ``sim/body_pose`` becomes ``motor/sim_pose/gui`` and ``motor/sim_pose/loca
 The Motor interface answers on ``motor/gui/<method>`` and ``motor/bump/<method>``.
 When the simulator's liveliness token appears and the next wheel-angle sample is not after
 the last one, that sample starts a new time base (a restarted simulator's clock starts again at
-0; a reconnected one's goes on, and costs nothing): services/sim_watch.py.
+0; a reconnected one's goes on, and costs nothing): services/clock/sim_watch.py.
 In lockstep a wheel-angle sample is held until the drive's target its attachment says it is
-owed has arrived (services/lockstep.py); a target applies from the first sample after its stamp.
+owed has arrived (services/clock/lockstep.py); a target applies from the first sample after its stamp.
 See docs/motor.md.
 """
 
@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import typing
 from functools import partial
 from pathlib import Path
@@ -28,19 +27,23 @@ import msgspec
 from schemas.codec import BadInput, decode
 from schemas.keys import METHOD_ARGUMENTS, Method, MethodFamily, Service, Topic
 from schemas.messages import NoArguments, PDGains, Time, TimedDoubleSeq, TimedVelocity
+from services.clock.lockstep import Hold
+from services.clock.sim_time import ClockRestart
+from services.clock.sim_watch import HeldSample, SimulatorWatch
 from services.config import Config, TargetAngleMode
-from services.lockstep import Hold
-from services.motor_core import MotorCore
+from services.motor.core import MotorCore
+from services.motor.state import (
+    STATE_DIRECTORY,
+    STATE_FILE,
+    STATE_HOME_VARIABLE,
+    SavedState,
+    StateFile,
+    default_state_path,
+)
 from services.runtime.inputs import Delivery
 from services.runtime.logs import RateLimitedLog
 from services.runtime.node import Node, Wait
 from services.service import ServiceCommand, TraceFile
-from services.sim_time import ClockRestart
-from services.sim_watch import HeldSample, SimulatorWatch
-
-STATE_HOME_VARIABLE = "XDG_STATE_HOME"
-STATE_DIRECTORY = "invent-zenoh"
-STATE_FILE = "motor.json"
 
 
 class TraceRecord(msgspec.Struct, frozen=True):
@@ -63,46 +66,6 @@ class TraceRecord(msgspec.Struct, frozen=True):
     q_ref: tuple[float, float] | None
     gains: PDGains
     torque: list[float]
-
-
-class SavedState(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """What a motor keeps across restarts (``--state FILE``): a stopped robot stays stopped until
-    someone clears it, and gains set at run time stay set."""
-
-    stopped: bool
-    finished: bool
-    gains: PDGains
-
-
-def default_state_path(robot: str) -> Path:
-    """``$XDG_STATE_HOME/invent-zenoh/<robot>/motor.json`` (default ``~/.local/state/...``)."""
-    base = os.environ.get(STATE_HOME_VARIABLE) or Path.home() / ".local" / "state"
-    return Path(base) / STATE_DIRECTORY / robot / STATE_FILE
-
-
-class StateFile:
-    """The motor's state file: read once at start, rewritten (atomically) after every method call."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-
-    def load(self) -> SavedState | None:
-        """The saved state; None when there is no file. Raises ValueError when it cannot be read."""
-        try:
-            return msgspec.json.decode(self.path.read_bytes(), type=SavedState)
-        except FileNotFoundError:
-            return None
-        except (OSError, msgspec.DecodeError) as error:
-            raise ValueError(str(error)) from None
-
-    def save(self, core: MotorCore) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        partial_path = self.path.with_name(self.path.name + ".partial")
-        with partial_path.open("wb") as file:
-            file.write(msgspec.json.encode(SavedState(core.stopped, core.finished, core.gains)))
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(partial_path, self.path)
 
 
 class MotorService:
@@ -263,7 +226,7 @@ class MotorService:
             core.clear()
             self.node.bad_inputs.reset()
         try:
-            self._state_file.save(core)
+            self._state_file.save(SavedState(core.stopped, core.finished, core.gains))
         except OSError as error:  # the call has acted: say what will not survive a restart
             self._warn(
                 "state_file",

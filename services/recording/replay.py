@@ -1,5 +1,5 @@
 """``invent replay``: a recording's samples published again, for a changed odometry,
-localization or drive to run on yesterday's inputs (services/recording.py chooses and orders them).
+localization or drive to run on yesterday's inputs (services/recording/mcap_files.py chooses and orders them).
 
 Paced by the recorded simulation time scaled by ``--rate``; at ``--rate 0`` as fast as the
 consumers take them: every service that takes every sample of a replayed key says in its
@@ -24,11 +24,11 @@ import zenoh
 from schemas.codec import ENCODING
 from schemas.keys import Keys, Topic
 from schemas.messages import NANOSECONDS_PER_SECOND
+from services.cli.tools import service_statuses
 from services.config import ConfigError
-from services.recording import Replayed
+from services.recording.mcap_files import Replayed
 from services.runtime.inputs import CHANNEL_CAPACITY
 from services.runtime.session import has_match
-from services.tools import service_statuses
 
 log = logging.getLogger("invent.replay")
 

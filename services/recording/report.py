@@ -14,9 +14,9 @@ from typing import Any
 
 from schemas.keys import Service
 from services.config import RobotConfig
-from services.motor_core import SimPoseConverter
+from services.drive.scenarios import distance_to_path
+from services.motor.core import SimPoseConverter
 from services.planar import Pose
-from services.scenarios import distance_to_path
 
 Point = tuple[float, float]
 

@@ -1,5 +1,5 @@
 """A service's view of the simulator (docs/protocol.md section 8.6): whether its liveliness token is
-there, and, through one :class:`~services.sim_time.ClockRestart`, when its clock starts again.
+there, and, through one :class:`~services.clock.sim_time.ClockRestart`, when its clock starts again.
 
 Every consumer of the simulator's stamps (motor, odometry, localization, drive) follows the same
 rule: the token's appearance lets the next sample of the clock decide whether a new time base
@@ -20,9 +20,9 @@ from typing import Any, Protocol
 
 from schemas.keys import Service
 from schemas.messages import NANOSECONDS_PER_SECOND, TimedDoubleSeq
-from services.lockstep import Hold, decode_owed
+from services.clock.lockstep import Hold, decode_owed
+from services.clock.sim_time import ClockRestart
 from services.runtime.node import Node
-from services.sim_time import ClockRestart
 
 HeldSample = tuple[TimedDoubleSeq, bytes | None]
 """A wheel-angle sample and its lockstep attachment, as a :class:`Hold` keeps it."""
@@ -63,7 +63,7 @@ class SimulatorWatch:
 
     def clock(self, handler: Callable[..., None]) -> Callable[..., None]:
         """``handler`` of the simulator's clock input, which calls ``restart.decide`` (directly or
-        through a :class:`~services.sim_time.StampClock`) before it takes a sample; the inputs
+        through a :class:`~services.clock.sim_time.StampClock`) before it takes a sample; the inputs
         that waited for the decision are handled right after the sample that made it."""
 
         def handle(*args: Any) -> None:

@@ -6,7 +6,7 @@ tick grid of their own are stepped too; they are the *participants*:
 
 - A participant holds the liveliness token ``Keys.ticks(service, rate)``. Its ticks are the
   grid ``round(k·1e9/rate)`` ns of simulation time; each is taken by the first stamp at or after
-  it (:class:`~services.sim_time.PeriodicSchedule` anchored at 0), and the output is stamped
+  it (:class:`~services.clock.sim_time.PeriodicSchedule` anchored at 0), and the output is stamped
   with that stamp. The last output of a participant that ends (the drive at the end of its
   scenario) carries the attachment :data:`FINAL`.
 - The simulator, at a step that is a tick of a participant, waits for that participant's
@@ -39,7 +39,7 @@ import msgspec
 from schemas.codec import BadInput
 from schemas.keys import Service, Topic
 from schemas.messages import NANOSECONDS_PER_SECOND
-from services.sim_time import PeriodicSchedule
+from services.clock.sim_time import PeriodicSchedule
 
 SampleT = TypeVar("SampleT")
 

@@ -4,7 +4,7 @@ Subscribes ``motor/sim_pose/localization`` ([x, y, z, θ] stamped with simulatio
 publishes ``localization/pose``: first the configured initial pose, stamped with the first
 simulation time seen once someone (odometry) subscribes, then every 1/rate seconds of
 simulation time the latest simulated pose plus optional Gaussian noise
-(:mod:`services.localization_core`). Odometry resets its pose on every fix. When the
+(:mod:`services.localization.core`). Odometry resets its pose on every fix. When the
 simulator's liveliness token appears and the next stamp is not after the last one (a restarted
 simulator's clock starts again at 0), that sample starts a new time base and takes a fix at once.
 
@@ -19,12 +19,12 @@ from typing import Any
 
 from schemas.keys import Service
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition
+from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, LocalizationConfig
-from services.localization_core import Fix, Localizer, resolve_seed
+from services.localization.core import Fix, Localizer, resolve_seed
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
 from services.service import ServiceCommand
-from services.sim_watch import SimulatorWatch
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -10,14 +10,14 @@ every ``localization/pose`` fix, so this is the localized pose corrected by odom
 inputs are sampled (:attr:`~services.runtime.inputs.Delivery.SAMPLED`): the drive acts on the newest clock
 stamp and pose, never on a backlog.
 
-The drive is a lockstep participant (services/lockstep.py): once the motor subscribes it holds
+The drive is a lockstep participant (services/clock/lockstep.py): once the motor subscribes it holds
 the token ``drive/ticks/<rate>``, and in lockstep (the clock's samples carry the simulator's
 attachment) a tick's command is computed from the odometry pose stamped with that tick, waited
 for while odometry is alive (at most ``sim.lockstep_timeout`` of wall time).
 
 When the scenario ends the drive publishes zero velocity on :data:`FINAL_ZERO_TICKS`
 successive ticks, so the stop is not lost, the last with the attachment
-:data:`~services.lockstep.FINAL`, and exits 0.
+:data:`~services.clock.lockstep.FINAL`, and exits 0.
 
 A restarted simulator (its liveliness token appears, then its clock goes back) starts the
 scenario over from its first stamp: a new simulator is a new run, the robot back at its start.
@@ -32,12 +32,11 @@ from typing import Any
 
 from schemas.keys import Service
 from schemas.messages import NANOSECONDS_PER_SECOND, PlannedPath, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
+from services.clock.lockstep import FINAL, decode_owed
+from services.clock.sim_time import PeriodicSchedule, StampClock, check_stamp_near
+from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, ConfigError, DriveConfig
-from services.lockstep import FINAL, decode_owed
-from services.planar import Pose, check_coordinates
-from services.runtime.inputs import Delivery
-from services.runtime.node import Node, Wait
-from services.scenarios import (
+from services.drive.scenarios import (
     BUILTIN_SCENARIOS,
     ConstantSegment,
     Scenario,
@@ -48,9 +47,10 @@ from services.scenarios import (
     parse_waypoints,
     planned_path,
 )
+from services.planar import Pose, check_coordinates
+from services.runtime.inputs import Delivery
+from services.runtime.node import Node, Wait
 from services.service import ServiceCommand, finite_number, positive_seconds
-from services.sim_time import PeriodicSchedule, StampClock, check_stamp_near
-from services.sim_watch import SimulatorWatch
 
 FINAL_ZERO_TICKS = 3
 """Ticks on which the final zero velocity is published before the drive exits."""

@@ -23,9 +23,9 @@ import msgspec
 from schemas.codec import BadInput
 from schemas.keys import BODY_POSE_LENGTH
 from schemas.messages import NANOSECONDS_PER_SECOND, PDGains
+from services.clock.sim_time import check_next_stamp, check_stamp_near
 from services.config import InputConfig, MotorConfig, RobotConfig, TargetAngleMode
 from services.planar import check_coordinates, wrap_angle
-from services.sim_time import check_next_stamp, check_stamp_near
 
 """The two ``motor.target_angle`` modes."""
 

@@ -3,7 +3,7 @@
 Starts the router, then motor, odometry, localization and the drive with the scenario, waits
 until they are alive and the drive and the localization hold their lockstep tokens, and
 starts the sim last, so a lockstep run steps the whole loop from its first step and starts the
-same way every time (services/lockstep.py). Children's output is prefixed with their name. The
+same way every time (services/clock/lockstep.py). Children's output is prefixed with their name. The
 run ends when the drive finishes its scenario (exit 0) and the sim holds at the step of its
 last command (``--until-drive-ends``): ``up`` then reads the services' status, publishes the
 run's summary (``up/run``), stops every child with SIGINT, makes ``run.mcap`` of what they
@@ -11,7 +11,7 @@ published (:class:`RunRecorder`) and builds the report from it, as ``invent repo
 does (``--no-record``: no recording, no report, for long runs and benchmarks). A child that dies
 early makes ``up`` say which one, stop the others and exit 1. Ctrl-C stops everything cleanly
 (exit 130). Either way ``run.mcap`` holds the run up to then. With ``--composed`` the same
-services run in this one process instead (``services/composition.py``).
+services run in this one process instead (``services/cli/composition.py``).
 """
 
 from __future__ import annotations
@@ -37,13 +37,13 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, Time
-from services import view
-from services.composition import Composition
+from services.cli.composition import Composition
+from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config, ConfigError, SimMode
-from services.lockstep import LOOP_BEFORE_FIRST_STEP
-from services.record import StatusPoll, write_run_recording
-from services.recording import write_run_report
-from services.report import degradation_line, degradations, health_lines, loop_health, summary
+from services.recording import view
+from services.recording.mcap_files import write_run_report
+from services.recording.record import StatusPoll, write_run_recording
+from services.recording.report import degradation_line, degradations, health_lines, loop_health, summary
 from services.runtime.inputs import Publisher
 from services.runtime.journal import Journal, journal_path
 from services.runtime.session import DEFAULT_ENDPOINT, open_session, session_config
@@ -266,7 +266,7 @@ class Run:
 
 
 class RunRecorder:
-    """The run's recording, made where the samples already are (services/record.py): each service
+    """The run's recording, made where the samples already are (services/recording/record.py): each service
     keeps what it publishes in a journal in ``<report dir>/journals/``, and this, in ``up``'s own
     journal, the services' status replies and the run's summary. :meth:`write` makes ``run.mcap``
     of them once every service has stopped (and closed its journal)."""

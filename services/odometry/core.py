@@ -39,9 +39,9 @@ from typing import NamedTuple
 
 from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND
+from services.clock.sim_time import check_next_stamp, check_stamp_near
 from services.config import InputConfig, OdometryConfig, RobotConfig
 from services.planar import Pose, check_coordinates, wrap_angle
-from services.sim_time import check_next_stamp, check_stamp_near
 
 __all__ = ["Branch", "CalibratedGeometry", "Odometry", "Pose", "Step", "wrap_angle"]
 

@@ -50,7 +50,7 @@ from schemas.messages import (
     TimedVelocity,
 )
 from services.config import RobotConfig, SimConfig
-from services.report import pose_from_body_pose
+from services.recording.report import pose_from_body_pose
 from sim_bridge.geometry import CASTER_RADIUS_FRACTION, CASTER_REACH_FRACTION
 
 WORLD_FRAME = "world"

@@ -1,4 +1,4 @@
-"""``invent odometry``: the OdometryRTC port (docs/protocol.md section 5), a thin shell around odometry_core.
+"""``invent odometry``: the OdometryRTC port (docs/protocol.md section 5), a thin shell around services/odometry/core.py.
 
 Subscribes ``motor/wheel_angles`` and ``localization/pose``; publishes ``odometry/pose`` (with
 the ``tm`` of the wheel-angle sample) for every accepted sample, the first one included. A
@@ -6,7 +6,7 @@ localized pose overwrites the pose the next step starts from. ``--trace FILE`` w
 line per accepted wheel-angle sample (docs/odometry.md describes the fields). When the
 simulator's liveliness token appears and the next wheel-angle sample is not after the last one,
 that sample starts a new time base (the stamps are the simulator's, and a restarted simulator's
-clock starts again at 0; a reconnected one's goes on, and costs nothing): services/sim_watch.py.
+clock starts again at 0; a reconnected one's goes on, and costs nothing): services/clock/sim_watch.py.
 """
 
 from __future__ import annotations
@@ -18,14 +18,14 @@ import msgspec
 
 from schemas.keys import Service, Topic
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+from services.clock.lockstep import Hold
+from services.clock.sim_time import ClockRestart
+from services.clock.sim_watch import HeldSample, SimulatorWatch
 from services.config import Config
-from services.lockstep import Hold
-from services.odometry_core import FIX_HISTORY_STEPS, Branch, Odometry
+from services.odometry.core import FIX_HISTORY_STEPS, Branch, Odometry
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
 from services.service import ServiceCommand, TraceFile, no_overrides
-from services.sim_time import ClockRestart
-from services.sim_watch import HeldSample, SimulatorWatch
 
 STATE_IDLE = "idle"
 """No wheel angles seen yet: the pose is the starting (or localized) pose."""
