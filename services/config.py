@@ -7,6 +7,7 @@ raises :class:`ConfigError` naming the field, and the CLI exits with code 2.
 
 from __future__ import annotations
 
+import functools
 import math
 import tomllib
 from enum import StrEnum
@@ -23,6 +24,11 @@ NonNegative = Annotated[float, msgspec.Meta(ge=0.0)]
 WheelId = Annotated[int, msgspec.Meta(ge=0)]
 
 
+NONE = "none"
+"""How a file or ``--set`` turns off an optional parameter (a motor limit, the localization's seed,
+the sim's world): TOML has no null, so ``max_vx = "none"`` or ``--set motor.max_vx=none`` is None."""
+
+
 class ConfigError(ValueError):
     """An invalid configuration file, value or override; the message names the field."""
 
@@ -32,7 +38,19 @@ class _Section(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
         for name in self.__struct_fields__:
             value = getattr(self, name)
             if isinstance(value, float) and not math.isfinite(value):
-                raise ValueError(f"`{name}` must be finite, got {value}")
+                hint = f' (write "{NONE}" to turn it off)' if name in optional_fields(type(self)) else ""
+                raise ValueError(f"`{name}` must be finite, got {value}{hint}")
+
+
+@functools.cache
+def optional_fields(section: type[msgspec.Struct]) -> frozenset[str]:
+    """The fields of ``section`` that may be None (written :data:`NONE` in a file or ``--set``)."""
+    return frozenset(
+        field.name
+        for field in msgspec.inspect.type_info(section).fields  # type: ignore[attr-defined]
+        if isinstance(field.type, msgspec.inspect.UnionType)
+        and any(isinstance(member, msgspec.inspect.NoneType) for member in field.type.types)
+    )
 
 
 class RobotConfig(_Section, frozen=True):
@@ -85,8 +103,9 @@ class MotorConfig(_Section, frozen=True):
     target_angle: TargetAngleMode = TargetAngleMode.SEED
     """How the target wheel angle is formed (see TargetAngleMode)."""
     max_vx: Positive | None = 1.0
-    """Limit on |vx| in m/s (as ros2's diff_drive_controller users expect); None = no limit, the
-    seed's behaviour. The defaults fit the default robot and sit above what the drive commands."""
+    """Limit on |vx| in m/s (as ros2's diff_drive_controller users expect); None (``"none"`` in a
+    file or ``--set``) = no limit, the seed's behaviour. The defaults fit the default robot and sit
+    above what the drive commands."""
     max_ax: Positive | None = 2.0
     """Limit on the rate of change of vx in m/s^2 (a step in wheel speed slips: docs/motor.md)."""
     max_w: Positive | None = 3.0
@@ -136,7 +155,7 @@ class SimConfig(_Section, frozen=True):
     torque_max_age: Positive = 0.01
     """Realtime mode: simulated seconds after which the newest torque is stale (zero is applied)."""
     world: str | None = None
-    """World file (TOML) or built-in world name (sim_bridge/worlds/); None = an empty floor."""
+    """World file (TOML) or built-in world name (sim_bridge/worlds/); None (``"none"``) = an empty floor."""
     body_mass: Positive = 20.0
     """kg; the body's centre of mass sits on the axle centre."""
     body_height: Positive = 0.15
@@ -171,7 +190,7 @@ class LocalizationConfig(_Section, frozen=True):
     noise_theta: NonNegative = 0.0
     """Standard deviation of the noise on theta, in rad."""
     seed: Annotated[int, msgspec.Meta(ge=0)] | None = None
-    """Random seed for the noise (>= 0); None draws one from the OS (shown in status)."""
+    """Random seed for the noise (>= 0); None (``"none"``) draws one from the OS (shown in status)."""
 
 
 class DriveConfig(_Section, frozen=True):
@@ -237,6 +256,13 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
                 raise ValueError(f"`motor.{name}` = {getattr(motor, name)} is above `input.max_gain` = {ceiling}")
 
 
+SECTIONS: dict[str, type[msgspec.Struct]] = {
+    name: msgspec.inspect.type_info(Config).fields[index].type.cls  # type: ignore[attr-defined]
+    for index, name in enumerate(Config.__struct_fields__)
+}
+"""Each table of the robot description, by name, and its section struct."""
+
+
 SEED_NAMES: dict[str, str] = {
     "PGainL": "motor.p_gain_l",
     "PGainR": "motor.p_gain_r",
@@ -258,10 +284,27 @@ SEED_NAMES: dict[str, str] = {
 
 
 def _build(raw: dict[str, Any]) -> Config:
+    _read_nones(raw)
     try:
         return msgspec.convert(raw, Config)
     except msgspec.ValidationError as error:
-        raise ConfigError(str(error).replace("$.", "")) from None
+        message = str(error).replace("$.", "")
+        field = message.rpartition(" - at `")[2].rstrip("`").split(".")
+        if len(field) == 2 and field[1] in optional_fields(SECTIONS.get(field[0], _Section)):
+            message += f' (write "{NONE}" to turn it off)'
+        raise ConfigError(message) from None
+
+
+def _read_nones(raw: dict[str, Any]) -> None:
+    """Every optional parameter written :data:`NONE` becomes None (in place)."""
+    for section, section_type in SECTIONS.items():
+        table = raw.get(section)
+        if not isinstance(table, dict):
+            continue
+        for name in optional_fields(section_type):
+            value = table.get(name)
+            if isinstance(value, str) and value.strip().lower() == NONE:
+                table[name] = None
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:

@@ -2,11 +2,14 @@
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 
 from services.config import SEED_NAMES, Config, ConfigError, load_config, parse_override
 from tests.harness import run_invent
+
+ROOT = Path(__file__).resolve().parent.parent
 
 SEED_DEFAULTS = {
     "PGainL": 5.0,
@@ -129,3 +132,53 @@ def test_an_unset_service_flag_keeps_the_set_override():
     assert config_from_args(args.service_command, args).motor.command_timeout == 2.5
     args = build_parser().parse_args(["motor", "--set", "motor.command_timeout=2.5", "--command-timeout", "1"])
     assert config_from_args(args.service_command, args).motor.command_timeout == 1.0
+
+
+OPTIONAL_FIELDS = ("motor.max_vx", "motor.max_ax", "motor.max_w", "motor.max_aw", "sim.world", "localization.seed")
+
+
+@pytest.mark.parametrize("dotted", OPTIONAL_FIELDS)
+def test_none_turns_an_optional_parameter_off_in_a_file_and_in_set(tmp_path, dotted):
+    section, field = dotted.split(".")
+    path = tmp_path / "robot.toml"
+    path.write_text(f'[{section}]\n{field} = "none"\n')
+    assert _value(load_config(path), dotted) is None
+    _, value = parse_override(f"{dotted}=none")
+    assert _value(load_config(overrides={dotted: value}), dotted) is None
+    assert _value(load_config(overrides={dotted: "None"}), dotted) is None
+
+
+def test_the_optional_parameters_are_the_ones_documented():
+    from services.config import SECTIONS, optional_fields
+
+    found = {f"{name}.{field}" for name, section in SECTIONS.items() for field in optional_fields(section)}
+    assert found == set(OPTIONAL_FIELDS)
+    documented = (ROOT / "docs" / "configuration.md").read_text()
+    assert all(f"`{dotted}`" in documented for dotted in OPTIONAL_FIELDS)
+
+
+@pytest.mark.parametrize("value", ["0", "inf", "-1", "nope"])
+def test_a_limit_that_cannot_be_taken_says_how_to_turn_it_off(value):
+    result = run_invent("config", "--set", f"motor.max_vx={value}")
+    assert result.returncode == 2
+    assert "max_vx" in result.stderr and 'write "none" to turn it off' in result.stderr
+
+
+def test_a_motor_without_limits_commands_what_it_is_told():
+    from schemas.messages import NANOSECONDS_PER_SECOND
+    from services.motor.core import MotorCore
+
+    overrides = {f"motor.{limit}": "none" for limit in ("max_vx", "max_ax", "max_w", "max_aw")}
+    unlimited, limited = load_config(overrides=overrides), load_config()
+    step_ns = NANOSECONDS_PER_SECOND // 1000
+    references = []
+    for config in (unlimited, limited):
+        core = MotorCore(config.robot, config.motor, config.input)
+        core.set_target(2.5, 4.0)  # above the default limits of 1 m/s and 3 rad/s, at once
+        core.step(0, [0.0, 0.0])
+        core.step(step_ns, [0.0, 0.0])
+        references.append(core.dq_ref)
+    radius, half_axle = unlimited.robot.radius_of_left_wheel, unlimited.robot.half_axle
+    expected = ((2.5 - 4.0 * half_axle) / radius, (2.5 + 4.0 * half_axle) / radius)
+    assert references[0] == pytest.approx(expected)
+    assert abs(references[1][0]) < abs(expected[0]) and abs(references[1][1]) < abs(expected[1])
