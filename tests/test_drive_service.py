@@ -117,6 +117,28 @@ def test_constant_velocity_for_one_simulated_second_then_zero_and_exit_0(endpoin
     assert received[ticks_per_second].tm.to_nanoseconds() - start_ns == 1_000_000_000, "zero 1 s of sim time later"
 
 
+def test_a_twist_is_held_until_stopped_stamped_with_simulation_time(endpoint: str, session: zenoh.Session) -> None:
+    """``--twist VX W`` is a target by hand the motor takes: stamped with the simulation's time
+    (here 100 s in, far past the motor's command timeout), on every tick, until Ctrl-C."""
+    commands = Collector(session, KEYS.drive_target_velocity, TimedVelocity)
+    with drive(endpoint, "--twist", "0.2", "-0.5") as process:
+        wait_alive(session, KEYS.alive(Service.DRIVE))
+        loop = SyntheticLoop(session, commands)
+        loop.now_ns = 100_000_000_000
+        first = loop.first_command()
+        start_ns = first.tm.to_nanoseconds()
+        ticks = round(2.5 * DRIVE.rate)  # beyond the 1 s pass it plays over and over
+        received = [first] + [loop.next_command(first) for _ in range(ticks)]
+        status = call(session, KEYS.status(Service.DRIVE))[1]
+        assert (status["mode"], status["state"], status["done"], status["loop"]) == ("twist", "running", False, True)
+        assert process.process.poll() is None, "a twist runs until stopped"
+        assert process.stop()[0] == 0
+
+    assert start_ns >= 100_000_000_000
+    assert {(c.vx, c.vy, c.w) for c in received} == {(0.2, 0.0, -0.5)}
+    assert [c.tm.to_nanoseconds() - start_ns for c in received] == [k * TICK_NS for k in range(len(received))]
+
+
 def test_waypoints_reach_a_1m_straight_goal_in_the_loop(endpoint: str, session: zenoh.Session) -> None:
     commands = Collector(session, KEYS.drive_target_velocity, TimedVelocity)
     with drive(endpoint, "--waypoints", "1,0") as process:

@@ -141,3 +141,12 @@ def test_messages_published_by_a_node_reach_a_subscriber(endpoint, session, node
     wait_until(lambda: publisher.matched, 10, "the collector")
     publisher.put(TimedDoubleSeq(Time(0, 1), [1.0, 2.0]))
     assert collector.get() == TimedDoubleSeq(Time(0, 1), [1.0, 2.0])
+
+
+def test_call_help_says_how_to_send_a_target_by_hand():
+    """Targets are data the motor takes by its stamp, not methods: `invent call --help` says so and
+    names the tool that stamps them with simulation time."""
+    result = run_invent("call", "--help")
+    text = " ".join(result.stdout.split())
+    assert result.returncode == 0
+    assert "drive/target_velocity" in text and "stamped 0.0" in text and "invent drive --twist VX W" in text

@@ -54,6 +54,8 @@ from services.service import ServiceCommand, finite_number, positive_seconds
 
 FINAL_ZERO_TICKS = 3
 """Ticks on which the final zero velocity is published before the drive exits."""
+TWIST_PASS_S = 1.0
+"""``--twist``: the constant segment played over and over (its path is this much of the arc ahead)."""
 
 
 def _argument(parse):
@@ -70,7 +72,7 @@ def _argument(parse):
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    what = parser.add_argument_group("what to drive (exactly one of --for, --scenario, --waypoints)")
+    what = parser.add_argument_group("what to drive (exactly one of --for, --twist, --scenario, --waypoints)")
     mode = what.add_mutually_exclusive_group(required=True)
     mode.add_argument(
         "--for",
@@ -78,6 +80,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=positive_seconds,
         metavar="S",
         help="constant velocity (--vx, --w) for S seconds of simulation time",
+    )
+    mode.add_argument(
+        "--twist",
+        nargs=2,
+        type=finite_number,
+        metavar=("VX", "W"),
+        help="hold the velocity VX m/s, W rad/s until Ctrl-C: a target by hand, stamped with simulation time "
+        "(the motor refuses a target stamped otherwise, e.g. 0.0, once the simulation is past "
+        "motor.command_timeout)",
     )
     mode.add_argument(
         "--scenario",
@@ -106,16 +117,20 @@ def overrides(args: argparse.Namespace) -> dict[str, Any]:
     return {"drive.rate": args.rate}
 
 
-def scenario_from_args(args: argparse.Namespace) -> tuple[str, Scenario]:
-    """(mode, scenario) for the flags: ``constant``, ``scenario`` or ``waypoints``."""
+def scenario_from_args(args: argparse.Namespace) -> tuple[str, Scenario, bool]:
+    """(mode, scenario, loop) for the flags: ``constant``, ``twist``, ``scenario`` or ``waypoints``."""
     if args.duration is None and (args.vx is not None or args.w is not None):
-        raise ConfigError("--vx and --w go with --for (a constant velocity for a duration)")
+        raise ConfigError("--vx and --w go with --for (a constant velocity for a duration); --twist VX W holds one")
+    if args.twist is not None:
+        vx, w = args.twist
+        return "twist", Scenario(name="twist", segments=[ConstantSegment(vx=vx, w=w, duration=TWIST_PASS_S)]), True
+    loop = args.loop
     if args.scenario is not None:
-        return "scenario", args.scenario
+        return "scenario", args.scenario, loop
     if args.waypoints is not None:
-        return "waypoints", Scenario(name="waypoints", segments=[WaypointSegment(waypoints=args.waypoints)])
+        return "waypoints", Scenario(name="waypoints", segments=[WaypointSegment(waypoints=args.waypoints)]), loop
     segment = ConstantSegment(vx=args.vx or 0.0, w=args.w or 0.0, duration=args.duration)
-    return "constant", Scenario(name="constant", segments=[segment])
+    return "constant", Scenario(name="constant", segments=[segment]), loop
 
 
 class DriveService:
@@ -123,8 +138,8 @@ class DriveService:
         self.node = node
         self.rate_hz = config.drive.rate
         self.pose_timeout_ns = round(config.drive.pose_timeout * NANOSECONDS_PER_SECOND)
-        self.mode, scenario = scenario_from_args(args)
-        self.runner = ScenarioRunner(scenario, config.drive, loop=args.loop)
+        self.mode, scenario, loop = scenario_from_args(args)
+        self.runner = ScenarioRunner(scenario, config.drive, loop=loop)
         self.clock = StampClock(config.input.stamp_horizon_ns)
         self.max_coordinate = config.input.max_coordinate
         self.schedule: PeriodicSchedule | None = None
@@ -163,7 +178,7 @@ class DriveService:
             "%s %r%s at %g Hz of simulation time:\n%s",
             self.mode,
             scenario.name,
-            " (looping)" if args.loop else "",
+            " (looping)" if loop else "",
             self.rate_hz,
             describe(scenario),
         )
@@ -319,7 +334,8 @@ COMMAND = ServiceCommand(
     description="Publish drive/target_velocity at drive.rate per second of simulation time (clock: the "
     "stamps on sim/wheel_angles). Waypoint paths are followed (pure pursuit, turn-in-place at sharp "
     "corners) on odometry/pose. Publishes zero velocity at the end and exits 0 (unless --loop). "
-    "Examples: invent drive --vx 0.3 --w 0.1 --for 5; invent drive --scenario square; "
+    "Examples: invent drive --vx 0.3 --w 0.1 --for 5; invent drive --twist 0.2 0.5 (until Ctrl-C); "
+    "invent drive --scenario square; "
     'invent drive --waypoints "1,0 1,1 0,1 0,0". See docs/drive.md.',
     add_arguments=add_arguments,
     overrides=overrides,
