@@ -90,6 +90,7 @@ def test_no_record_runs_the_loop_and_writes_nothing_with_a_live_view_beside_it(t
     assert "no recording, no report (--no-record)" in result.stdout
     assert f"Foxglove live view: ws://127.0.0.1:{view_port}" in result.stdout, "serving before the loop starts"
     assert "view did not exit cleanly" not in result.stdout, "the view stopped with the run"
+    assert "handshake failed" not in result.stdout and "ERROR" not in result.stdout, "a readiness probe without errors"
     assert list(tmp_path.iterdir()) == [], "no runs/ directory, no report, no plots"
     final_sim_time = float(re.findall(r"sim +([\d.]+) s \|", result.stdout)[-1])
     assert final_sim_time > 20.0, "the square scenario ran to its end"

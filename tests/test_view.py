@@ -34,7 +34,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from schemas.codec import decode
 from schemas.keys import Keys, Service, Topic, schema_for_key
-from schemas.messages import TimedDoubleSeq
+from schemas.messages import Time, TimedDoubleSeq
 from services.config import Config
 from services.recording.scene import (
     LOCALIZATION_TOPIC,
@@ -63,6 +63,9 @@ UNKNOWN_CHANNEL = re.compile(r'"op":"status".*Unknown channel ID: (\d+)')
 STARTUP_TIMEOUT_S = 60.0
 WATCH_TIMEOUT_S = 60.0
 PER_SUBSCRIPTION = 3
+FLOOD_STOP_S = 5.0
+"""A view stops within this of SIGINT while a flood comes (``invent up`` waits 10 s before killing it)."""
+FLOOD_SAMPLES = 100_000
 SUBSCRIBED = {
     TRANSFORMS_TOPIC: "foxglove.FrameTransforms",
     SCENE_TOPIC: "foxglove.SceneUpdate",
@@ -324,3 +327,39 @@ def test_a_port_taken_is_an_error_not_a_hang(session) -> None:
     finally:
         taken.stop()
     assert code == EXIT_NO_SERVER
+
+
+def test_a_view_behind_a_flood_stops_at_once_on_sigint() -> None:
+    """A loop that publishes faster than the view takes (a lockstep run on a busy machine) keeps
+    samples waiting in the view's subscription: on SIGINT it stops at once, not once they are taken."""
+    pose = TimedDoubleSeq(
+        tm=Time.from_nanoseconds(0), data=[0.0, 0.0, 0.05, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    )
+    flooding = threading.Event()
+    published = [0]
+    with running_router() as endpoint, peer_session(endpoint) as flooder:
+        view = _Process("view", "--connect", endpoint, "--port", "0", "--log-level", "info")
+        try:
+            wait_until(lambda: URL_LINE.search(view.output), STARTUP_TIMEOUT_S, "the view's URL")
+            publisher = flooder.declare_publisher(KEYS.sim_body_pose)
+            wait_until(lambda: publisher.matching_status.matching, what="the view's subscription")
+
+            def flood() -> None:
+                while flooding.is_set():
+                    published[0] += 1
+                    stamped = msgspec.structs.replace(pose, tm=Time.from_nanoseconds(published[0]))
+                    publisher.put(msgspec.json.encode(stamped))
+
+            flooding.set()
+            threading.Thread(target=flood, daemon=True).start()
+            wait_until(lambda: published[0] > FLOOD_SAMPLES, what=f"{FLOOD_SAMPLES} samples flooded")
+            stopping = time.monotonic()
+            code = view.stop(timeout=FLOOD_STOP_S * 4)
+            stopped_in = time.monotonic() - stopping
+        finally:
+            flooding.clear()
+            view.kill()
+    assert code == 0, view.output[-3000:]
+    served = re.search(r"served (\d+) messages", view.output)
+    assert served and 0 < int(served.group(1)), view.output[-3000:]
+    assert stopped_in < FLOOD_STOP_S, f"stopped {stopped_in:.1f} s after SIGINT, the flood still coming"

@@ -22,7 +22,6 @@ import datetime
 import json
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -218,7 +217,11 @@ class Run:
                 subscriber.undeclare()
 
     def status(self, service: Service) -> dict[str, Any] | None:
-        for reply in self.session.get(self.keys.status(service), timeout=2.0):
+        return self.query(self.keys.status(service))
+
+    def query(self, key: str) -> dict[str, Any] | None:
+        """The first JSON reply to a query on ``key`` (a status), or None when nothing answers."""
+        for reply in self.session.get(key, timeout=2.0):
             if reply.ok is not None:
                 return json.loads(reply.ok.payload.to_bytes())
         return None
@@ -309,22 +312,17 @@ class ViewProcess:
         self._child = self._children.start("view", ["view", *flags, "--port", str(port)])
 
     def wait_serving(self, run: Run) -> None:
-        """Until its WebSocket server accepts connections, so the address printed works at once."""
+        """Until the view answers on ``view/status``, which it serves once its WebSocket server
+        listens, so the address printed works at once. (Opening a connection to the port instead
+        would be a client that never speaks, whose failed handshake the server logs as an error.)"""
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while True:
+        while (status := run.query(run.keys.view_status)) is None:
             run.check()
             self._child.check_running()
-            try:
-                socket.create_connection((view.DEFAULT_HOST, self._port), timeout=0.5).close()
-            except OSError:
-                if time.monotonic() > deadline:
-                    raise ChildDied(
-                        f"the view did not serve on port {self._port} within {STARTUP_TIMEOUT_S} s"
-                    ) from None
-                time.sleep(0.05)
-            else:
-                say(f"Foxglove live view: ws://{view.DEFAULT_HOST}:{self._port} (Foxglove → Open connection)")
-                return
+            if time.monotonic() > deadline:
+                raise ChildDied(f"the view did not serve on port {self._port} within {STARTUP_TIMEOUT_S} s")
+            time.sleep(0.05)
+        say(f"Foxglove live view: {status['url']} (Foxglove → Open connection)")
 
     def close(self) -> None:
         code = self._children.stop()["view"]

@@ -50,6 +50,11 @@ TAKE_PERIOD_S = 0.02
 """How often a recorder or a live view takes what waits in its subscriptions (zenoh's channels
 hold a loop's samples meanwhile). Taking each sample as it came kept the process polling at every
 step of the loop, on the loop's CPUs: that cost the loop more than the recording itself."""
+TAKE_BUDGET_S = 0.1
+"""Most wall time one :meth:`Observer.spin_once` spends taking samples: a loop that publishes faster
+than a recorder or view takes would otherwise keep it taking for ever, deaf to its stop."""
+FINAL_TAKE_BUDGET_S = 2.0
+"""What a stopping recorder may spend taking the samples that wait (those that came before its stop)."""
 STATUS_PERIOD_S = 0.5
 
 
@@ -152,14 +157,22 @@ class Observer:
             except zenoh.ZError:  # every reply taken, and the query is over
                 self._latched_replies.remove(replies)
 
-    def spin_once(self) -> None:
-        """Take what waits in the subscriptions, the latched replies and the status replies."""
+    def spin_once(self, budget_s: float = TAKE_BUDGET_S) -> bool:
+        """Take what waits in the subscriptions, for at most ``budget_s`` of wall time, then the
+        latched replies and the status replies. False when samples were still waiting at the end of
+        the budget (this observer is behind the loop)."""
         now_ns = time.time_ns()
+        deadline = time.monotonic() + budget_s
+        caught_up = True
         for subscriber in self._subscribers:
             while (sample := subscriber.try_recv()) is not None:
                 self._builder.take(str(sample.key_expr), sample.payload.to_bytes(), _log_time(sample, now_ns))
+                if time.monotonic() > deadline:
+                    caught_up = False
+                    break
         self._ask_latched()
         self._status.poll()
+        return caught_up
 
     def close(self) -> None:
         for subscriber in self._subscribers:
@@ -224,9 +237,10 @@ def run_record(
     deadline = None if duration_s is None else time.monotonic() + duration_s
     try:
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-            observer.spin_once()
-            stop.wait(TAKE_PERIOD_S)
-        observer.spin_once()
+            if observer.spin_once():
+                stop.wait(TAKE_PERIOD_S)
+        if not observer.spin_once(FINAL_TAKE_BUDGET_S):
+            log.warning("stopped behind the loop: the samples still waiting at the end are not in %s", output)
     finally:
         observer.close()
         writer.close()

@@ -48,11 +48,6 @@ DEFAULT_PORT = 8765
 EXIT_NO_SERVER = 1
 """``run_view``'s exit code when the server cannot listen (the port is taken, no such address)."""
 
-DEFAULT_PORT = 8765
-"""Foxglove's default WebSocket port."""
-DEFAULT_HOST = "127.0.0.1"
-"""Services listen on loopback unless told otherwise."""
-
 
 def _foxglove_schema(name: str, encoding: str, data: bytes) -> foxglove.Schema:
     return foxglove.Schema(name=name, encoding=encoding, data=data)
@@ -162,8 +157,8 @@ def run_view(
         log.info("Foxglove live view on %s (open Foxglove → Open connection → Foxglove WebSocket)", url)
         while not stop.is_set():
             _answer_status(status_queries, keys, url, started, channels)
-            observer.spin_once()
-            stop.wait(TAKE_PERIOD_S)
+            if observer.spin_once():
+                stop.wait(TAKE_PERIOD_S)
     finally:
         status_queries.undeclare()
         server.stop()
