@@ -152,6 +152,46 @@ def test_gui_without_a_display_exits_2_before_anything_starts():
     assert "started" not in result.stdout and "Traceback" not in result.stderr + result.stdout
 
 
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (("--scenario", "nope"), "scenario 'nope' is neither a built-in"),
+        (("--set", "sim.world=nowhere"), "'nowhere' is neither a file nor a built-in world"),
+    ],
+)
+def test_a_scenario_or_world_a_service_would_refuse_exits_2_before_anything_starts(tmp_path, flags, message):
+    result = subprocess.run(
+        invent_command("up", *flags), cwd=tmp_path, capture_output=True, text=True, timeout=60, check=False
+    )
+    assert result.returncode == 2 and message in result.stderr, result.stderr
+    assert "started" not in result.stdout
+    assert list(tmp_path.iterdir()) == [], "nothing left behind"
+
+
+def test_a_run_interrupted_before_the_sim_starts_leaves_nothing_behind(tmp_path):
+    """Ctrl-C while the services start: the run never started, so no run.mcap of nothing and no
+    runs/ directory (a service at another router, here none, never shows its token)."""
+    nobody = f"tcp/127.0.0.1:{free_port()}"
+    up = subprocess.Popen(
+        invent_command("up", "--connect", nobody),
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    assert up.stdout is not None
+    lines = []
+    for line in up.stdout:
+        lines.append(line)
+        if "started localization" in line:
+            up.send_signal(signal.SIGINT)
+            break
+    lines.extend(up.stdout)
+    assert up.wait(timeout=60) == 130, "".join(lines)
+    assert any("never started" in line for line in lines), "".join(lines)
+    assert list(tmp_path.iterdir()) == [], "no runs/ directory, no run.mcap"
+
+
 def test_a_view_on_any_free_port_is_refused_naming_the_flag():
     result = run_invent("up", "--view", "0")
     assert result.returncode == 2 and "--view" in result.stderr

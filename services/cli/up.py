@@ -39,6 +39,7 @@ from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, Time
 from services.cli.composition import Composition
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config, ConfigError, SimMode
+from services.drive.scenarios import load_scenario
 from services.recording import view
 from services.recording.mcap_files import write_run_report
 from services.recording.record import StatusPoll, write_run_recording
@@ -49,6 +50,7 @@ from services.runtime.session import DEFAULT_ENDPOINT, open_session, session_con
 from services.security import Profile, Role, write_profile
 from services.service import port_number
 from sim_bridge.display import require_display
+from sim_bridge.world import load_world
 
 EXIT_CHILD_DIED = 1
 EXIT_DEGRADED = 1
@@ -276,6 +278,10 @@ class RunRecorder:
 
     def __init__(self, report_dir: Path) -> None:
         self.directory = report_dir / JOURNALS_DIRECTORY
+        self._made = [
+            directory for directory in (self.directory, report_dir, *report_dir.parents) if not directory.exists()
+        ]
+        """The directories this run makes, deepest first: a run that never starts removes them again."""
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
             self.journal = Journal(journal_path(self.directory, "up"))
@@ -300,6 +306,18 @@ class RunRecorder:
         for journal in write_run_recording(self.directory, path, config):
             say(f"{journal.name} was cut short (its service was killed): {path} lacks its last samples")
         shutil.rmtree(self.directory)
+
+    def discard(self) -> None:
+        """A run that never started (the sim never did): no recording of nothing, and the
+        directories this run made are removed unless something else was put in them."""
+        self._statuses = None
+        self.journal.close()
+        shutil.rmtree(self.directory)
+        for directory in self._made[1:]:
+            try:
+                directory.rmdir()
+            except OSError:  # not empty: the run's secrets, or someone else's files
+                break
 
 
 class ViewProcess:
@@ -418,11 +436,19 @@ def _access(args: argparse.Namespace, keys: Keys, report_dir: Path) -> Access:
     return Access(profile, None)
 
 
-def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentParser) -> int:
+def check_before_start(args: argparse.Namespace, config: Config) -> None:
+    """Refuse (ConfigError: exit 2) what a child would refuse once started, before any starts: a
+    service that exits 2 would take the others down noisily and leave a run of nothing behind."""
     if args.gui:
-        require_display()  # before any child starts: a sim that exits 2 would take the others down noisily
+        require_display()
     if args.view == 0:
         raise ConfigError("--view: the view's port must be fixed (1..65535), for the address to open in Foxglove")
+    load_scenario(args.scenario)
+    load_world(config.sim.world)
+
+
+def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentParser) -> int:
+    check_before_start(args, config)
     keys = Keys(config.robot.name)
     report_dir = Path(args.report) if args.report else _default_report_dir()
     access = _access(args, keys, report_dir)
@@ -435,6 +461,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     recording = not (args.no_record or args.loop)
     recorder = RunRecorder(report_dir) if recording else None
     journal_flags = recorder.flags if recorder else []
+    sim_started = False
     try:
         with _launch(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
             run = Run(launcher, session, keys, interrupted)
@@ -469,6 +496,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
                 *(["--gui"] if args.gui else []),
             ]
             launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *journal_flags, *sim_flags])
+            sim_started = True
             started = time.monotonic()
             sim_status, drive_status = run.supervise(
                 drive, started, recorder.during if recorder else None, until_interrupted=args.loop
@@ -501,8 +529,11 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
         say("interrupted; stopped everything")
         return EXIT_INTERRUPTED
     finally:
-        if recorder:
+        if recorder and sim_started:
             recorder.write(report_dir / RECORDING_FILE, config)
+        elif recorder:
+            recorder.discard()
+            say("the run never started (the sim did not): nothing recorded")
     if not recorder:
         degraded = degradations(health)
         print("\n".join([*health_lines(health), *map(degradation_line, degraded)]), flush=True)
