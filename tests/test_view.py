@@ -363,3 +363,26 @@ def test_a_view_behind_a_flood_stops_at_once_on_sigint() -> None:
     served = re.search(r"served (\d+) messages", view.output)
     assert served and 0 < int(served.group(1)), view.output[-3000:]
     assert stopped_in < FLOOD_STOP_S, f"stopped {stopped_in:.1f} s after SIGINT, the flood still coming"
+
+
+def test_only_clients_offering_the_current_subprotocol_are_served() -> None:
+    """What the README says of clients: ``foxglove.sdk.v1`` is served; a client offering only
+    ``foxglove.websocket.v1`` (@foxglove/ws-protocol 0.8.0, older Lichtblick) gets HTTP 400."""
+    server = foxglove.start_server(host="127.0.0.1", port=0, context=foxglove.Context())
+
+    async def offer(subprotocols: list[str]) -> str | int:
+        try:
+            async with websockets.connect(
+                f"ws://127.0.0.1:{server.port}", subprotocols=subprotocols, open_timeout=10
+            ) as client:
+                return str(client.subprotocol)
+        except websockets.InvalidStatus as refused:
+            return refused.response.status_code
+
+    try:
+        served = asyncio.run(offer(["foxglove.sdk.v1"]))
+        refused = asyncio.run(offer(["foxglove.websocket.v1"]))
+    finally:
+        server.stop()
+    assert served == "foxglove.sdk.v1"
+    assert refused == 400

@@ -16,8 +16,9 @@ received, as in a recording (what Foxglove's live timeline shows); a message's o
 simulation time.
 
 The server is foxglove-sdk's: it speaks the Foxglove WebSocket protocol under its current
-subprotocol name, ``foxglove.sdk.v1``, which Foxglove offers; a client that offers only the old
-name, ``foxglove.websocket.v1`` (Lichtblick, old Foxglove Studio), is refused (HTTP 400). Each
+subprotocol name, ``foxglove.sdk.v1``, which Foxglove and Lichtblick (since v1.22.1) offer; a
+client that offers only the old name, ``foxglove.websocket.v1`` (older Lichtblick, old Foxglove
+Studio, the ``@foxglove/ws-protocol`` client library 0.8.0), is refused (HTTP 400). Each
 view has its own :class:`foxglove.Context`, so its channels and server share nothing with any
 other view or Foxglove sink in the same process. ``docs/foxglove/layout.json`` is a layout for it.
 """
