@@ -2,6 +2,7 @@
 
 import json
 import logging
+import signal
 import threading
 
 import pytest
@@ -9,7 +10,7 @@ import pytest
 from schemas import BadInput, Keys, Service, Time, TimedDoubleSeq
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
-from services.runtime.session import DEFAULT_ENDPOINT, LOOPBACK_LISTEN, has_match, session_config
+from services.runtime.session import DEFAULT_ENDPOINT, LOOPBACK_LISTEN, has_match, session_config, stop_on_signals
 from tests.harness import call, free_port, run_invent, wait_until
 
 
@@ -208,3 +209,29 @@ def test_a_session_that_cannot_connect_exits_1_naming_the_endpoint(tmp_path):
     assert result.returncode == 1
     assert f"cannot open a zenoh session connecting to {endpoint}" in result.stderr, result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_a_second_signal_while_the_first_sets_the_stop_event_does_not_deadlock():
+    """SIGTERM then SIGINT: Python may run the second handler inside the first one's Event.set,
+    which holds the event's lock. The second must return, not wait for that lock for ever."""
+    previous = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        stop = stop_on_signals()
+        handler = signal.getsignal(signal.SIGTERM)
+        assert callable(handler)
+        set_event = stop.set
+
+        def set_while_a_second_signal_comes() -> None:
+            with stop._cond:  # the first handler is inside Event.set, holding the event's lock
+                handler(signal.SIGINT, None)
+            set_event()
+
+        stop.set = set_while_a_second_signal_comes  # type: ignore[method-assign]
+        handled = threading.Thread(target=handler, args=(signal.SIGTERM, None), daemon=True)
+        handled.start()
+        handled.join(timeout=5.0)
+        assert not handled.is_alive(), "the second signal's handler waited for the first one's lock"
+        assert stop.is_set()
+    finally:
+        for number, handler_before in previous.items():
+            signal.signal(number, handler_before)

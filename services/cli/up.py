@@ -46,7 +46,7 @@ from services.recording.record import StatusPoll, write_run_recording
 from services.recording.report import degradation_line, degradations, health_lines, loop_health, summary
 from services.runtime.inputs import Publisher
 from services.runtime.journal import Journal, journal_path
-from services.runtime.session import DEFAULT_ENDPOINT, open_session, session_config
+from services.runtime.session import DEFAULT_ENDPOINT, open_session, session_config, stop_on_signals
 from services.security import Profile, Role, write_profile
 from services.service import port_number
 from sim_bridge.display import require_display
@@ -455,9 +455,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     endpoint = access.profile.endpoint if access.profile else (args.connect or args.listen or [DEFAULT_ENDPOINT])[0]
     common = _child_args(args, endpoint)
     mode = args.mode or config.sim.mode
-    interrupted = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: interrupted.set())
-    signal.signal(signal.SIGTERM, lambda *_: interrupted.set())
+    interrupted = stop_on_signals()
     recording = not (args.no_record or args.loop)
     recorder = RunRecorder(report_dir) if recording else None
     journal_flags = recorder.flags if recorder else []

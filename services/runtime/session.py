@@ -115,10 +115,21 @@ def open_session(config: zenoh.Config) -> Iterator[zenoh.Session]:
 
 
 def stop_on_signals() -> threading.Event:
-    """An event set by SIGINT or SIGTERM (the service then shuts down cleanly, exit 0)."""
+    """An event set by SIGINT or SIGTERM (the service then shuts down cleanly, exit 0).
+
+    Only the first signal sets it. Python runs a signal's handler between two bytecodes of the
+    main thread, so a second signal (SIGTERM, then SIGINT from an impatient supervisor) can run
+    its handler inside the first one's ``Event.set``, which holds the event's lock: setting it
+    again there would wait for that lock for ever (seen: a service hung on stop, its stack two
+    handlers deep in ``Event.set``)."""
     stop = threading.Event()
+    signalled = False
 
     def handle(_signum: int, _frame: object) -> None:
+        nonlocal signalled
+        if signalled:
+            return
+        signalled = True
         stop.set()
 
     signal.signal(signal.SIGINT, handle)
