@@ -51,7 +51,7 @@ from schemas.messages import (
 )
 from services.config import RobotConfig, SimConfig
 from services.recording.report import pose_from_body_pose
-from sim_bridge.geometry import CASTER_RADIUS_FRACTION, CASTER_REACH_FRACTION
+from sim_bridge.geometry import robot_body
 
 WORLD_FRAME = "world"
 ROBOT_FRAME = "base_link"
@@ -292,34 +292,31 @@ def _pose_in_world(message: TimedPosition) -> PoseInFrame:
 
 def _robot_entity(robot: RobotConfig, sim: SimConfig) -> dict[str, Any]:
     """The robot's primitives in ``base_link`` (the axle centre, at axle height), as the sim builds it."""
-    axle_height = (robot.radius_of_left_wheel + robot.radius_of_right_wheel) / 2.0
-    body_diameter = 2.0 * robot.radius_of_body_area
-    caster_radius = CASTER_RADIUS_FRACTION * min(robot.radius_of_left_wheel, robot.radius_of_right_wheel)
-    caster_x = CASTER_REACH_FRACTION * robot.radius_of_body_area
-    caster_z = caster_radius - axle_height
+    shape = robot_body(robot, sim)
+    body_diameter = 2.0 * shape.body_radius
     wheels = [
         CylinderPrimitive(
-            pose=_pose(0.0, side * robot.half_axle, 0.0, _WHEEL_AXIS_ALONG_Y),
-            size=Vector3(x=2.0 * radius, y=2.0 * radius, z=sim.wheel_width),
+            pose=_pose(0.0, wheel.y, 0.0, _WHEEL_AXIS_ALONG_Y),
+            size=Vector3(x=2.0 * wheel.radius, y=2.0 * wheel.radius, z=wheel.width),
             bottom_scale=1.0,
             top_scale=1.0,
             color=_WHEEL,
         )
-        for side, radius in ((1.0, robot.radius_of_left_wheel), (-1.0, robot.radius_of_right_wheel))
+        for wheel in shape.wheels
     ]
     body = CylinderPrimitive(
-        pose=_pose(0.0, 0.0, sim.body_height / 2.0),
-        size=Vector3(x=body_diameter, y=body_diameter, z=sim.body_height),
+        pose=_pose(0.0, 0.0, shape.body_height / 2.0),
+        size=Vector3(x=body_diameter, y=body_diameter, z=shape.body_height),
         bottom_scale=1.0,
         top_scale=1.0,
         color=_BODY,
     )
     casters = [
         SpherePrimitive(
-            pose=_pose(x, 0.0, caster_z),
-            size=Vector3(x=2 * caster_radius, y=2 * caster_radius, z=2 * caster_radius),
+            pose=_pose(caster.x, 0.0, caster.z),
+            size=Vector3(x=2 * caster.radius, y=2 * caster.radius, z=2 * caster.radius),
             color=_WHEEL,
         )
-        for x in (caster_x, -caster_x)
+        for caster in shape.casters
     ]
     return {"cylinders": [body, *wheels], "spheres": casters}
