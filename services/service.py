@@ -132,6 +132,9 @@ class ServiceCommand:
     overrides: Callable[[argparse.Namespace], dict[str, Any]]
     """Maps the service's flags to config keys ({"motor.target_angle": args.target_angle}); None = unset."""
     factory: ServiceFactory
+    timestamped: bool = False
+    """Its session stamps what it publishes (zenoh's ``timestamping``): a zenoh-ext advanced
+    publisher with a cache, which the ROS 2 bridge's latched topics are, needs it."""
 
 
 def no_overrides(_args: argparse.Namespace) -> dict[str, Any]:

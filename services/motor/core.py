@@ -70,6 +70,19 @@ class SimPoseConverter:
         ]
 
 
+def check_target_velocity(vx: float, w: float, robot: RobotConfig, limits: InputConfig) -> None:
+    """BadInput for a body velocity implying a wheel speed beyond ``input.max_wheel_speed`` (the
+    robot's kinematics: ω_L,R = (vx ∓ b·w) / r_L,R). One within it but beyond the motor's velocity
+    limits is plausible: the limits clamp it."""
+    b = robot.half_axle
+    wheel_speeds = ((vx - b * w) / robot.radius_of_left_wheel, (vx + b * w) / robot.radius_of_right_wheel)
+    if not all(abs(speed) <= limits.max_wheel_speed for speed in wheel_speeds):
+        raise BadInput(
+            f"target (vx {vx:g} m/s, w {w:g} rad/s) implies wheel speeds {wheel_speeds[0]:g}, "
+            f"{wheel_speeds[1]:g} rad/s, beyond input.max_wheel_speed = {limits.max_wheel_speed:g} rad/s"
+        )
+
+
 @dataclass(frozen=True)
 class SpeedLimiter:
     """Velocity and acceleration limits on one commanded speed, as in ROS 2's diff_drive_controller.
@@ -310,13 +323,7 @@ class MotorCore:
         """
         if stamp_ns is not None and self._stamp_ns is not None:
             check_stamp_near(stamp_ns, self._stamp_ns, self._horizon_ns, self._target_history_ns, "target")
-        b = self._half_axle
-        wheel_speeds = ((vx - b * w) / self._radius_l, (vx + b * w) / self._radius_r)
-        if not all(abs(speed) <= self._max_wheel_speed for speed in wheel_speeds):
-            raise BadInput(
-                f"target (vx {vx:g} m/s, w {w:g} rad/s) implies wheel speeds {wheel_speeds[0]:g}, "
-                f"{wheel_speeds[1]:g} rad/s, beyond input.max_wheel_speed = {self._max_wheel_speed:g} rad/s"
-            )
+        check_target_velocity(vx, w, self.robot, self.limits)
         if self._stopped:
             self.targets_ignored += 1
             return False

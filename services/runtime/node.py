@@ -125,7 +125,23 @@ class Node:
         ``with_attachment``: the sample's attachment bytes or None). The handler may raise
         BadInput. ``wakes``: the thread, idle, waits in this input's receive (an ``EVERY`` input
         that paces the service). Returns the input, for ``waiting_for`` (None for ``QUEUED``)."""
-        dispatch = self._dispatch(key, message_type, handler, with_attachment, delivery.every_sample)
+
+        def handle(payload: bytes, attachment: bytes | None) -> None:
+            if with_attachment:
+                handler(decode(message_type, payload), attachment)
+            else:
+                handler(decode(message_type, payload))
+
+        return self._subscribe(key, self._dispatch(key, handle, delivery), delivery, wakes)
+
+    def subscribe_bytes(
+        self, key: str, handler: Callable[[bytes, bytes | None], None], delivery: Delivery, *, wakes: bool = False
+    ) -> NodeInput | None:
+        """:meth:`subscribe` for payloads that are not the project's JSON (ROS 2's CDR):
+        ``handler(payload, attachment)`` decodes them itself, raising BadInput for bad ones."""
+        return self._subscribe(key, self._dispatch(key, handler, delivery), delivery, wakes)
+
+    def _subscribe(self, key: str, dispatch: Dispatch, delivery: Delivery, wakes: bool) -> NodeInput | None:
         if delivery is Delivery.QUEUED:
             post = self.executor.post
 
@@ -189,26 +205,16 @@ class Node:
 
         self._declarations.append(self.session.declare_queryable(key, on_query))
 
-    def _dispatch(
-        self,
-        key: str,
-        message_type: type[MessageT],
-        handler: Callable[..., None],
-        with_attachment: bool,
-        every_sample: bool,
-    ) -> Dispatch:
-        """Count, decode and handle a sample of ``key`` (``inputs`` in the status); bad input and
-        bugs are counted, never raised (:meth:`guard`)."""
-        taken = self._taken[key] = InputTaken(every_sample)
+    def _dispatch(self, key: str, handle: Callable[[bytes, bytes | None], None], delivery: Delivery) -> Dispatch:
+        """Count and handle (decode included) a sample of ``key`` (``inputs`` in the status); bad
+        input and bugs are counted, never raised (:meth:`guard`)."""
+        taken = self._taken[key] = InputTaken(delivery.every_sample)
         failed = self._failed
 
         def dispatch(payload: bytes, attachment: bytes | None) -> None:
             taken.samples += 1
             try:
-                if with_attachment:
-                    handler(decode(message_type, payload), attachment)
-                else:
-                    handler(decode(message_type, payload))
+                handle(payload, attachment)
             except Exception as error:  # noqa: BLE001 (bad input and bugs alike must not kill the service)
                 failed(key, error)
 

@@ -40,7 +40,12 @@ these settings (zenohd's defaults) still talks to these, over the ordinary trans
 
 
 def session_config(
-    *, connect: Iterable[str] = (), listen: Iterable[str] = (), mode: str = "peer", file: str | None = None
+    *,
+    connect: Iterable[str] = (),
+    listen: Iterable[str] = (),
+    mode: str = "peer",
+    file: str | None = None,
+    timestamping: bool = False,
 ) -> zenoh.Config:
     """The zenoh configuration of a service or tool.
 
@@ -50,7 +55,8 @@ def session_config(
     ``connect`` endpoints override either's. A peer listens on :data:`LOOPBACK_LISTEN` plus any
     ``listen`` endpoints (unless its file names its own); a router on ``listen``, else its file's
     or :data:`DEFAULT_ENDPOINT`; a client listens on nothing unless told. A file that zenoh cannot
-    read is a :class:`ConfigError`.
+    read is a :class:`ConfigError`. ``timestamping`` turns on zenoh's timestamps on what the
+    session publishes (a router's are on by zenoh's default).
     """
     connect, listen = list(connect), list(listen)
     path = file or os.environ.get(ZENOH_CONFIG_VARIABLE)
@@ -74,6 +80,8 @@ def session_config(
                 config.insert_json5(path_in_config, value)
     if json.loads(config.get_json("mode")) == "peer" and not _listens_explicitly(config):
         listen = [LOOPBACK_LISTEN, *listen]
+    if timestamping:
+        config.insert_json5("timestamping/enabled", "true")
     if connect:
         config.insert_json5("connect/endpoints", json.dumps(connect))
     if listen:
