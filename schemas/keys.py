@@ -36,6 +36,12 @@ class Service(StrEnum):
     SIM = "sim"
     LOCALIZATION = "localization"
     DRIVE = "drive"
+    ROS2 = "ros2"
+    """The ROS 2 bridge (``invent ros2``): not part of the loop; its ROS keys are outside ``invent/``."""
+
+
+LOOP_SERVICES = tuple(service for service in Service if service is not Service.ROS2)
+"""The services of the closed loop that ``invent up`` always runs (every one but the ROS 2 bridge)."""
 
 
 class Topic(StrEnum):

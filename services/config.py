@@ -218,6 +218,45 @@ class DriveConfig(_Section, frozen=True):
     the drive then commands zero until a fresh one arrives."""
 
 
+Covariance = tuple[NonNegative, NonNegative, NonNegative, NonNegative, NonNegative, NonNegative]
+"""The diagonal of a 6x6 covariance (x, y, z, roll, pitch, yaw), as diff_drive_controller takes it."""
+FrameId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_/]*$")]
+
+
+class Ros2Config(_Section, frozen=True):
+    """``invent ros2``: the robot as ROS 2 sees it over rmw_zenoh (docs/ros2.md)."""
+
+    namespace: Annotated[str, msgspec.Meta(pattern=r"^(/?[A-Za-z][A-Za-z0-9_]*)*/?$")] = ""
+    """ROS namespace of the bridge's node, topics and services (``--namespace``): "" = none, or
+    names of letters, digits and underscores (each starting with a letter) joined by ``/``."""
+    node_name: Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z][A-Za-z0-9_]*$")] = "invent_bridge"
+    distro: Literal["jazzy", "kilted", "rolling", "humble"] = "jazzy"
+    """The ROS 2 release of the nodes to talk to: Humble's rmw_zenoh has no type hashes and writes
+    ``TypeHashNotSupported`` in their place in keys and tokens; the others the RIHS01 hash."""
+    map_frame: FrameId = "map"
+    odom_frame: FrameId = "odom"
+    base_frame: FrameId = "base_link"
+    """The robot's root frame (the axle centre, as the sim's body pose); the URDF's root link."""
+    publish_rate: Positive = 50.0
+    """``/odom``, ``/tf`` and ``/joint_states`` per second of simulation time (diff_drive_controller's
+    ``publish_rate``)."""
+    clock_rate: Positive = 100.0
+    """``/clock`` messages per second of simulation time: the resolution of ROS time with ``use_sim_time``."""
+    cmd_vel_rate: Positive = 50.0
+    """The most ``/cmd_vel`` messages forwarded as target velocities per second of simulation time;
+    between two, only the newest is kept (a flood is coalesced and counted)."""
+    pose_covariance: Covariance = (0.001, 0.001, 0.001, 0.001, 0.001, 0.01)
+    """``/odom`` pose covariance diagonal (diff_drive_controller's default)."""
+    twist_covariance: Covariance = (0.001, 0.001, 0.001, 0.001, 0.001, 0.01)
+    """``/odom`` twist covariance diagonal (diff_drive_controller's default)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("pose_covariance", "twist_covariance"):
+            if not all(math.isfinite(value) for value in getattr(self, name)):
+                raise ValueError(f"`{name}` must be finite")
+
+
 class InputConfig(_Section, frozen=True):
     """What every service accepts as plausible input (docs/input.md). Outside these bounds a
     well-formed sample is bad input: dropped, counted, and its stamp never moves a time base."""
@@ -248,6 +287,7 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     localization: LocalizationConfig = msgspec.field(default_factory=LocalizationConfig)
     drive: DriveConfig = msgspec.field(default_factory=DriveConfig)
     input: InputConfig = msgspec.field(default_factory=InputConfig)
+    ros2: Ros2Config = msgspec.field(default_factory=Ros2Config)
 
     def __post_init__(self) -> None:
         motor, ceiling = self.motor, self.input.max_gain

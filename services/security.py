@@ -28,6 +28,9 @@ from pathlib import Path
 from typing import Any
 
 from schemas.keys import LATCHED_TOPICS, ROOT, Keys, Method, MethodFamily, Service, Topic, all_robots_status
+from services.config import Config
+from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, SUBSCRIPTIONS, BridgeGraph, bridge_graph
+from services.ros2.wire import ADMIN_SPACE
 
 ROUTER_CONFIG = "router.json5"
 DICTIONARY = "dictionary.txt"
@@ -45,6 +48,10 @@ TLS_NAMES = ("localhost", "127.0.0.1")
 """Names the router's certificate is valid for by default (``--tls-name`` adds more)."""
 
 
+DEFAULT_ROS = bridge_graph(Config(), environ={})
+"""The ROS graph the ROS roles are granted by default: domain 0, the bridge's default namespace and node."""
+
+
 class Role(StrEnum):
     """Who a session is. The five services, plus two for people and their tools."""
 
@@ -53,6 +60,10 @@ class Role(StrEnum):
     ODOMETRY = Service.ODOMETRY.value
     LOCALIZATION = Service.LOCALIZATION.value
     DRIVE = Service.DRIVE.value
+    ROS2 = Service.ROS2.value
+    """The ROS 2 bridge: its ROS keys, ``drive/target_velocity`` and the Motor methods ROS calls."""
+    ROS_NODE = "ros_node"
+    """A ROS 2 node over rmw_zenoh (RViz, teleop, Nav2): anything in the ROS domain, reading ours."""
     OPERATOR = "operator"
     """Teleop or GUI: puts target velocities, calls the Motor methods (``motor/gui/*``); and
     ``invent up`` itself, which puts the run's summary (``up/run``) at the end of a run."""
@@ -98,8 +109,47 @@ def _methods(keys: Keys, family: MethodFamily) -> tuple[str, ...]:
     return tuple(keys.method(family, method) for method in Method)
 
 
-def grants(role: Role, keys: Keys) -> list[Grant]:
-    """Everything ``role`` may do on robot ``keys.robot``; the router denies anything else."""
+def _ros_grants(role: Role, keys: Keys, ros: BridgeGraph) -> list[Grant]:
+    """The ROS side of the bridge (``ros2``) or of a ROS node (``ros_node``): rmw_zenoh's keys of
+    domain ``ros.domain``, the graph's tokens, and a zenoh-ext advanced publisher's own keys
+    (``<key>/@adv/...``: its cache's queryable, its detection token, its heartbeats)."""
+    # ``**`` does not match a verbatim chunk (``@adv``): an advanced publisher's keys are named apart.
+    domain = (f"{ros.domain}/**", f"{ros.domain}/**/@adv/**", f"{ADMIN_SPACE}/{ros.domain}/**")
+    if role is Role.ROS_NODE:
+        everything = (
+            Message.PUT,
+            Message.DECLARE_SUBSCRIBER,
+            Message.DECLARE_QUERYABLE,
+            Message.QUERY,
+            Message.REPLY,
+            Message.LIVELINESS_TOKEN,
+            Message.DECLARE_LIVELINESS_SUBSCRIBER,
+            Message.LIVELINESS_QUERY,
+        )
+        return [Grant(everything, Flow.INGRESS, domain), Grant(everything, Flow.EGRESS, domain)]
+    published = tuple(ros.key(entity) for entity in PUBLICATIONS.values())
+    latched = tuple(ros.key(entity) for entity in PUBLICATIONS.values() if entity.qos.transient_local)
+    advanced = tuple(f"{key}/@adv/**" for key in latched)
+    subscribed = tuple(ros.key(entity) for entity in SUBSCRIPTIONS)
+    served = tuple(ros.key(entity) for entity in MOTOR_SERVICES.values())
+    return [
+        Grant((Message.PUT,), Flow.INGRESS, (*published, *advanced, keys.drive_target_velocity)),
+        Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (*served, *advanced)),
+        # a latched topic's cache answers a late subscriber with the samples, on the topic's own key
+        Grant((Message.REPLY,), Flow.INGRESS, latched),
+        Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (*ros.node_tokens, *advanced)),
+        Grant((Message.DECLARE_SUBSCRIBER,), Flow.INGRESS, subscribed),
+        Grant((Message.PUT,), Flow.EGRESS, subscribed),
+        # a ROS node subscribing a topic of the bridge: the bridge's publisher matches it
+        Grant((Message.DECLARE_SUBSCRIBER,), Flow.EGRESS, published),
+        Grant((Message.QUERY,), Flow.EGRESS, (*served, *advanced)),
+        Grant((Message.QUERY,), Flow.INGRESS, tuple(keys.method(MethodFamily.GUI, m) for m in MOTOR_SERVICES)),
+    ]
+
+
+def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant]:
+    """Everything ``role`` may do on robot ``keys.robot`` (and, for the ROS roles, in the ROS domain
+    and namespace of ``ros``); the router denies anything else."""
     everything = (f"{ROOT}/**",)
     reading = [
         Grant(
@@ -132,6 +182,14 @@ def grants(role: Role, keys: Keys) -> list[Grant]:
             Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (keys.view_status,)),
             Grant((Message.QUERY,), Flow.EGRESS, (all_robots_status(),)),
         ]
+    if role in (Role.ROS2, Role.ROS_NODE):
+        own_status = [
+            Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (keys.status(Service.ROS2),)),
+            Grant((Message.QUERY,), Flow.EGRESS, (keys.status(Service.ROS2),)),
+        ]
+        own_token = [Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (keys.alive(Service.ROS2),))]
+        service_own = [*own_status, *own_token] if role is Role.ROS2 else []
+        return [*reading, *service_own, *_ros_grants(role, keys, ros)]
     if role is Role.OPERATOR:
         return [
             *reading,
@@ -156,7 +214,7 @@ def grants(role: Role, keys: Keys) -> list[Grant]:
     return [*reading, *own]
 
 
-def access_control(users: dict[Role, str], keys: Keys) -> dict[str, Any]:
+def access_control(users: dict[Role, str], keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> dict[str, Any]:
     """The router's ``access_control`` section: one subject per role (by username), its grants."""
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
@@ -165,7 +223,7 @@ def access_control(users: dict[Role, str], keys: Keys) -> dict[str, Any]:
         subject = f"role-{role}"
         subjects.append({"id": subject, "usernames": [user]})
         ids = []
-        for number, grant in enumerate(grants(role, keys)):
+        for number, grant in enumerate(grants(role, keys, ros)):
             rule_id = f"{role}-{number}"
             ids.append(rule_id)
             rules.append(
@@ -237,6 +295,7 @@ def write_profile(
     tls_names: Iterable[str] = (),
     seen_as: Path | None = None,
     router_base: dict[str, Any] | None = None,
+    ros: BridgeGraph = DEFAULT_ROS,
 ) -> Profile:
     """Write a fresh profile into ``directory`` (created 0700; every file 0600).
 
@@ -245,7 +304,7 @@ def write_profile(
     container's mount point; default the directory itself). ``router_base`` holds extra sections
     of the router's configuration (zenohd's plugins). With ``tls`` every endpoint is ``tls/``
     and a local CA signs the router's certificate for ``localhost``, ``127.0.0.1`` and
-    ``tls_names``.
+    ``tls_names``. ``ros`` is the ROS domain and the bridge's namespace the ROS roles are granted.
     """
     directory.mkdir(parents=True, exist_ok=True)
     directory.chmod(0o700)
@@ -260,7 +319,7 @@ def write_profile(
         "listen": {"endpoints": listen},
         "scouting": {"multicast": {"enabled": False}, "delay": 0},
         "transport": {"auth": {"usrpwd": {"dictionary_file": str(seen / DICTIONARY)}}},
-        "access_control": access_control({role: c.user for role, c in credentials.items()}, keys),
+        "access_control": access_control({role: c.user for role, c in credentials.items()}, keys, ros),
     }
     client_tls: dict[str, Any] = {}
     if tls:
@@ -284,6 +343,9 @@ def write_profile(
             "scouting": {"multicast": {"enabled": False}},
             "transport": {"auth": {"usrpwd": {"user": login.user, "password": login.password}}, **client_tls},
         }
+        if role in (Role.ROS2, Role.ROS_NODE):
+            # zenoh-ext advanced publishers with a cache (ROS's transient-local topics) need timestamps.
+            client["timestamping"] = {"enabled": True}
         _write_private(profile.client_config(role), _json5(client, f"role {role} of an invent secure deployment"))
     return profile
 

@@ -21,7 +21,7 @@ import pytest
 import zenoh
 
 from schemas.codec import encode
-from schemas.keys import Keys, Method, MethodFamily, Service
+from schemas.keys import LOOP_SERVICES, Keys, Method, MethodFamily, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition, TimedVelocity
 from tests.harness import call, free_port, peer_session, start_up, wait_until
 
@@ -160,7 +160,7 @@ def _statuses_once_forgeries_are_handled(session: zenoh.Session) -> dict[Service
     handled first), so a status read right after the last put may miss the last few rounds."""
 
     def statuses_if_handled() -> dict[Service, dict] | None:
-        statuses = {service: _status(session, service) for service in Service}
+        statuses = {service: _status(session, service) for service in LOOP_SERVICES}
         handled = all(
             refused(statuses[service]).get(key, 0) >= count for (service, key), count in EXACTLY_REFUSED.items()
         )

@@ -38,13 +38,14 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.clock\.(sim_time|lockstep)", CORE),
     (r"services\.planar", CORE),
     (r"sim_bridge\.(simulator|robot|world|geometry|latency|display)", CORE),
-    (r"services\.(motor|odometry|localization|drive)\.service", SHELL),
+    (r"services\.ros2\.(core|wire|interfaces|urdf|graph)", CORE),
+    (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
     (r"sim_bridge\.bridge", SHELL),
     (r"services\.service", SHELL_SUPPORT),
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
     (r"services\.(cli|recording)(\..*)?", TOOL),
     (r"services\.security", TOOL),
-    (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock))", "package"),
+    (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2))", "package"),
 )
 
 PROJECT = re.compile(r"(schemas|services|sim_bridge)(\..*)?")

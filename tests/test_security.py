@@ -14,12 +14,15 @@ from pathlib import Path
 import msgspec
 import pytest
 import zenoh
+import zenoh.ext
 
 from schemas.codec import encode
-from schemas.keys import LATCHED_TOPICS, Keys, Method, MethodFamily, Service, Topic, all_robots_status
+from schemas.keys import LATCHED_TOPICS, LOOP_SERVICES, Keys, Method, MethodFamily, Service, Topic, all_robots_status
 from schemas.messages import Time, TimedPosition, TimedVelocity
+from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, BridgeGraph
 from services.security import (
     CA_CERTIFICATE,
+    DEFAULT_ROS,
     DICTIONARY,
     TLS_DIRECTORY,
     Flow,
@@ -63,19 +66,44 @@ def _methods(family: MethodFamily) -> set[str]:
 
 
 def test_each_service_role_puts_exactly_the_keys_under_its_own_name():
-    for service in Service:
+    for service in LOOP_SERVICES:
         expected = {KEYS.topic(topic) for topic in Topic if topic.split("/")[0] == service}
         assert _put_keys(Role(service.value)) == expected, service
     assert _put_keys(Role.OPERATOR) == {KEYS.drive_target_velocity, KEYS.run_summary}, "the run's summary: invent up"
     assert _put_keys(Role.OBSERVER) == set()
 
 
-def test_only_the_operator_and_the_sim_query_motor_methods_each_its_own_family():
+def test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_trigger_methods():
+    ros = DEFAULT_ROS
+    published = {ros.key(entity) for entity in PUBLICATIONS.values()}
+    cache_keys = {f"{ros.key(PUBLICATIONS[name])}/@adv/**" for name in ("tf_static", "robot_description")}
+    assert _put_keys(Role.ROS2) == published | cache_keys | {KEYS.drive_target_velocity}
+    assert all(key.startswith("0/") for key in published)
+    assert {KEYS.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES} == (
+        _queried_keys(Role.ROS2) - {all_robots_status()} - LATCHED
+    )
+    assert KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN) not in _queried_keys(Role.ROS2)
+    served = _granted(Role.ROS2, Message.DECLARE_QUERYABLE)
+    assert served == {KEYS.status(Service.ROS2)} | {ros.key(e) for e in MOTOR_SERVICES.values()} | cache_keys
+
+
+def test_the_ros_roles_are_granted_the_domain_and_namespace_they_are_written_for():
+    ros = BridgeGraph(7, "/rh1", "invent_bridge")
+    bridge = {key for grant in grants(Role.ROS2, KEYS, ros) for key in grant.key_exprs}
+    assert ros.key(PUBLICATIONS["odom"]) == "7/rh1/odom/" + ros.key(PUBLICATIONS["odom"]).split("/", 3)[3]
+    assert ros.key(PUBLICATIONS["odom"]) in bridge and DEFAULT_ROS.key(PUBLICATIONS["odom"]) not in bridge
+    assert "@ros2_lv/7/*/*/*/*/*/%rh1/invent_bridge/**" in bridge
+    node = {key for grant in grants(Role.ROS_NODE, KEYS, ros) for key in grant.key_exprs}
+    assert {"7/**", "7/**/@adv/**", "@ros2_lv/7/**"} <= node and not any(key.startswith("0/") for key in node)
+
+
+def test_only_the_operator_the_sim_and_the_ros2_bridge_query_motor_methods():
     status = {all_robots_status()} | LATCHED
     assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI)
     assert _queried_keys(Role.SIM) == status | _methods(MethodFamily.BUMP)
     for role in (Role.OBSERVER, Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE):
         assert _queried_keys(role) == status, role
+    assert _queried_keys(Role.ROS_NODE) == status | {"0/**", "0/**/@adv/**", "@ros2_lv/0/**"}
 
 
 def test_only_the_motor_serves_the_methods_and_each_service_only_its_status_and_latched_keys():
@@ -87,6 +115,10 @@ def test_only_the_motor_serves_the_methods_and_each_service_only_its_status_and_
             assert served == set(), role
         elif role is Role.OBSERVER:
             assert served == {KEYS.view_status}, "invent view's status"
+        elif role is Role.ROS_NODE:
+            assert served == {"0/**", "0/**/@adv/**", "@ros2_lv/0/**"}, "a ROS node serves in its domain only"
+        elif role is Role.ROS2:
+            continue  # test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_trigger_methods
         else:
             service = Service(role.value)
             assert served == {KEYS.status(service)} | {key for key in LATCHED if f"/{service}/" in key}, role
@@ -173,7 +205,8 @@ def test_router_lets_each_role_put_only_its_own_keys_and_refuses_strangers(tmp_p
         delivered = set()
         while not received.empty():
             delivered.add(received.get())
-        expected = {(key, str(role)) for role in Role for key in _put_keys(role)}
+        ours = {KEYS.topic(topic) for topic in Topic}
+        expected = {(key, str(role)) for role in Role for key in _put_keys(role) & ours}
         assert delivered == expected
 
         stranger_endpoint = profile.endpoint
@@ -226,7 +259,7 @@ def test_up_secure_runs_the_square_and_enforces_every_role(tmp_path):
     secrets = report_dir / "secrets"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     keys = Keys()
-    process = start_up("--secure", "--scenario", "square", "--report", str(report_dir), "--listen", endpoint)
+    process = start_up("--secure", "--ros2", "--scenario", "square", "--report", str(report_dir), "--listen", endpoint)
     output: list[str] = []
 
     def drive_started() -> bool:
@@ -267,6 +300,15 @@ def test_up_secure_runs_the_square_and_enforces_every_role(tmp_path):
                 with pytest.raises(zenoh.ZError):
                     zenoh.open(_client_config(endpoint, user, password))
 
+            with open_as(Role.ROS_NODE) as ros_node:
+                odom_key = DEFAULT_ROS.key(PUBLICATIONS["odom"])
+                odometry: queue.Queue[bytes | None] = queue.Queue()
+                ros_node.declare_subscriber(
+                    odom_key, lambda s: odometry.put(s.attachment.to_bytes() if s.attachment else None)
+                )
+                attachment = odometry.get(timeout=20.0)
+                assert attachment is not None and len(attachment) == 33, "the bridge's /odom through the router"
+
             ok, status = call(operator, stop)
             assert ok and status["state"] == "stopped"
             ok, status = call(operator, keys.method(MethodFamily.GUI, Method.CLEAR))
@@ -283,5 +325,76 @@ def test_up_secure_runs_the_square_and_enforces_every_role(tmp_path):
     assert math.hypot(end["x"] - start["x"], end["y"] - start["y"]) < 0.05
     assert report["path_error"]["max_m"] < 0.10
     assert report["odometry_error"]["max_m"] < 0.05
-    assert report["bad_inputs"] == {"motor": 0, "odometry": 0, "sim": 0, "localization": 0, "drive": 0}
+    assert report["bad_inputs"] == {"motor": 0, "odometry": 0, "sim": 0, "localization": 0, "drive": 0, "ros2": 0}
     assert all(stat.S_IMODE(path.stat().st_mode) == 0o600 for path in secrets.iterdir())
+
+
+def test_router_lets_the_ros2_bridge_put_only_its_ros_keys_and_call_only_its_methods(tmp_path):
+    """Real sessions through a secured router: the bridge's role reaches ROS nodes on its own topics,
+    its tokens and its latched cache, and nowhere else; ROS nodes reach its /cmd_vel."""
+    from tests import ros_client
+
+    ros = DEFAULT_ROS
+    odom, description = ros.key(PUBLICATIONS["odom"]), ros.key(PUBLICATIONS["robot_description"])
+    cmd_vel = ros_client.topic_key(0, "cmd_vel", "geometry_msgs/msg/Twist")
+    with _secured_router(tmp_path, tls=False) as (_profile, open_as):
+        bridge, ros_node, motor = open_as(Role.ROS2), open_as(Role.ROS_NODE), open_as(Role.MOTOR)
+        at_node: queue.Queue[str] = queue.Queue()
+        ros_node.declare_subscriber("0/**", lambda sample: at_node.put(str(sample.key_expr)))
+        ros_node.declare_subscriber(odom, lambda _sample: None)  # as rmw_zenoh subscribes: the topic's key
+        at_bridge: queue.Queue[str] = queue.Queue()
+        bridge.declare_subscriber(cmd_vel, lambda sample: at_bridge.put(str(sample.key_expr)))
+        at_motor: queue.Queue[str] = queue.Queue()
+        motor.declare_subscriber(KEYS.everything, lambda sample: at_motor.put(str(sample.key_expr)))
+        calls: list[str] = []
+        for method in Method:
+            key = KEYS.method(MethodFamily.GUI, method)
+            motor.declare_queryable(
+                key, lambda query: (calls.append(str(query.key_expr)), query.reply(query.key_expr, b"{}"))
+            )
+        publisher = bridge.declare_publisher(odom)
+        wait_until(lambda: publisher.matching_status.matching, 10, "the ROS node's subscription to match")
+        for forbidden in (cmd_vel, odom.replace("/odom/", "/elsewhere/"), KEYS.motor_torque):
+            bridge.put(forbidden, b"forged")
+        bridge.put(KEYS.drive_target_velocity, b"a target")
+        publisher.put(b"odom")
+        assert at_node.get(timeout=5.0) == odom, "its own topic reaches the ROS node, the forgeries before it do not"
+        assert at_motor.get(timeout=5.0) == KEYS.drive_target_velocity, "and drive/target_velocity reaches us"
+        assert at_node.empty() and at_motor.empty()
+
+        wait_until(lambda: ros_node.declare_publisher(cmd_vel).matching_status.matching, 10, "the bridge's /cmd_vel")
+        ros_node.put(cmd_vel, b"twist")
+        assert at_bridge.get(timeout=5.0) == cmd_vel, "a ROS node's /cmd_vel reaches the bridge"
+
+        for method in Method:
+            list(bridge.get(KEYS.method(MethodFamily.GUI, method), timeout=1.0))
+        assert sorted(calls) == sorted(KEYS.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES)
+
+        tokens = [  # held: a token object dropped is a token withdrawn
+            bridge.liveliness().declare_token(f"@ros2_lv/0/{bridge.zid()}/0/0/NN/%/%/{name}")
+            for name in ("invent_bridge", "someone_else")
+        ]
+        seen = wait_until(
+            lambda: [str(r.ok.key_expr) for r in ros_node.liveliness().get("@ros2_lv/0/**", timeout=1.0) if r.ok],
+            10,
+            "the bridge's node token",
+        )
+        assert [token.rsplit("/", 1)[1] for token in seen] == ["invent_bridge"] and len(tokens) == 2
+
+        cached = zenoh.ext.declare_advanced_publisher(  # as the bridge declares a latched topic
+            bridge,
+            description,
+            cache=zenoh.ext.CacheConfig(1),
+            publisher_detection=True,
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=1.0),
+        )
+        cached.put(b"<robot/>")
+        late: queue.Queue[bytes] = queue.Queue()
+        late_subscriber = zenoh.ext.declare_advanced_subscriber(
+            ros_node,
+            description,
+            lambda sample: late.put(sample.payload.to_bytes()),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+        )
+        assert late.get(timeout=10.0) == b"<robot/>", "a late ROS node gets the latched topic through the router"
+        late_subscriber.undeclare()

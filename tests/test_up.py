@@ -157,11 +157,21 @@ def test_gui_without_a_display_exits_2_before_anything_starts():
     [
         (("--scenario", "nope"), "scenario 'nope' is neither a built-in"),
         (("--set", "sim.world=nowhere"), "'nowhere' is neither a file nor a built-in world"),
+        (("--ros2",), "ROS_DOMAIN_ID"),
+        (("--teleop",), "--teleop (--ros2)"),
+        (("--ros2", "--teleop", "--mode", "lockstep"), "--teleop (--mode lockstep)"),
     ],
 )
 def test_a_scenario_or_world_a_service_would_refuse_exits_2_before_anything_starts(tmp_path, flags, message):
+    environment = {**os.environ, "ROS_DOMAIN_ID": "999"}
     result = subprocess.run(
-        invent_command("up", *flags), cwd=tmp_path, capture_output=True, text=True, timeout=60, check=False
+        invent_command("up", *flags),
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+        env=environment,
     )
     assert result.returncode == 2 and message in result.stderr, result.stderr
     assert "started" not in result.stdout

@@ -14,10 +14,11 @@ import zenoh
 
 from schemas.keys import DEFAULT_ROBOT, Keys
 from services.cli import tools, up
-from services.config import ConfigError
+from services.config import ConfigError, load_config
 from services.recording import record, replay, view
 from services.recording.mcap_files import read_messages, replay_schedule, write_run_report
 from services.recording.report import summary
+from services.ros2.graph import bridge_graph
 from services.runtime.logs import configure_logging
 from services.runtime.session import (
     DEFAULT_ENDPOINT,
@@ -47,6 +48,7 @@ SERVICE_MODULES = (
     "services.odometry.service",
     "services.localization.service",
     "services.drive.service",
+    "services.ros2.service",
 )
 """Modules that each define ``COMMAND: ServiceCommand``; one ``invent <service>`` subcommand each."""
 
@@ -124,8 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
     secrets_parser = commands.add_parser(
         "secrets",
         help="write a secure deployment's credentials, router and per-role zenoh configurations",
-        description="Write fresh credentials for every role (sim, motor, odometry, localization, drive, "
-        "operator, observer) into DIR: router.json5 (usrpwd authentication and access control, default "
+        description="Write fresh credentials for every role (sim, motor, odometry, localization, drive, ros2, "
+        "ros_node, operator, observer) into DIR: router.json5 (usrpwd authentication and access control, default "
         "deny), dictionary.txt, and ROLE.json5, a complete client configuration per role (mode client, the "
         "router's endpoint, that role's user and password), all mode 0600. Start the router with "
         "`invent router --config DIR/router.json5` and each service with `--zenoh-config DIR/ROLE.json5`.",
@@ -165,6 +167,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="a zenoh router configuration whose plugins (REST, storages) the router's file keeps, "
         "e.g. docker/zenohd.json5",
+    )
+    secrets_parser.add_argument(
+        "--ros-namespace",
+        metavar="NS",
+        help="the ROS namespace of the ROS 2 bridge the ros2 role is granted (default none; the domain is "
+        "$ROS_DOMAIN_ID, default 0); the ros_node role may do anything in that domain",
     )
     secrets_parser.set_defaults(handler=_secrets, log_level="info")
 
@@ -326,8 +334,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _session_config(args: argparse.Namespace, mode: str = "peer") -> zenoh.Config:
-    return session_config(connect=args.connect, listen=args.listen, mode=mode, file=args.zenoh_config)
+def _session_config(args: argparse.Namespace, mode: str = "peer", timestamping: bool = False) -> zenoh.Config:
+    return session_config(
+        connect=args.connect, listen=args.listen, mode=mode, file=args.zenoh_config, timestamping=timestamping
+    )
 
 
 def _router(args: argparse.Namespace) -> int:
@@ -363,6 +373,7 @@ def _secrets(args: argparse.Namespace) -> int:
         tls_names=args.tls_name,
         seen_as=Path(args.seen_as) if args.seen_as else None,
         router_base=args.router_base,
+        ros=bridge_graph(load_config(overrides={"ros2.namespace": args.ros_namespace})),
     )
 
 
@@ -427,7 +438,7 @@ def _serve(args: argparse.Namespace) -> int:
     command: ServiceCommand = args.service_command
     config = config_from_args(command, args)
     stop = stop_on_signals()
-    with open_session(_session_config(args)) as session:
+    with open_session(_session_config(args, timestamping=command.timestamped)) as session:
         return run_service(command, session, config, args, stop)
 
 

@@ -21,6 +21,7 @@ import zenoh
 from schemas.codec import ENCODING, BadMessage, decode
 from schemas.keys import Keys, Service, all_robots_alive, parse_alive_key, schema_for_key
 from services.config import ConfigError
+from services.ros2.graph import BridgeGraph
 from services.runtime.session import has_match
 from services.security import write_profile
 
@@ -74,6 +75,7 @@ def run_secrets(
     tls_names: Sequence[str],
     seen_as: Path | None,
     router_base: str | None,
+    ros: BridgeGraph,
 ) -> int:
     """Write a secure deployment's profile (:func:`services.security.write_profile`) and say what is where."""
     try:
@@ -86,6 +88,7 @@ def run_secrets(
             tls_names=tls_names,
             seen_as=seen_as,
             router_base=_router_plugins(router_base) if router_base else None,
+            ros=ros,
         )
     except ValueError as error:
         raise ConfigError(str(error)) from None

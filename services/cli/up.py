@@ -44,6 +44,7 @@ from services.recording import view
 from services.recording.mcap_files import write_run_report
 from services.recording.record import StatusPoll, write_run_recording
 from services.recording.report import degradation_line, degradations, health_lines, loop_health, summary
+from services.ros2.graph import bridge_graph
 from services.runtime.inputs import Publisher
 from services.runtime.journal import Journal, journal_path
 from services.runtime.session import DEFAULT_ENDPOINT, open_session, session_config, stop_on_signals
@@ -65,6 +66,8 @@ JOURNALS_DIRECTORY = "journals"
 MOTOR_STATE_FILE = "motor-state.json"
 """The run's own motor state file (latches, gains), in the report directory: a run starts afresh."""
 SERVICES_BEFORE_DRIVE = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
+TELEOP = "teleop"
+"""The scenario name of a ``--teleop`` run (ROS 2 drives it)."""
 
 _PR_SET_PDEATHSIG = 1
 NAME_WIDTH = max(len(str(service)) for service in Service)
@@ -241,20 +244,25 @@ class Run:
         return sim_status
 
     def supervise(
-        self, drive: Any, started: float, between_looks: Callable[[], None] | None, until_interrupted: bool = False
+        self,
+        drive: Any | None,
+        started: float,
+        between_looks: Callable[[], None] | None,
+        until_interrupted: bool = False,
     ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
         """Wait for the drive to finish its scenario (or, ``until_interrupted``, for Ctrl-C: the end
-        of a ``--loop`` run), printing progress and calling ``between_looks``; return the sim's last
-        status and the drive's (taken at every look while it runs: it exits at the end)."""
+        of a ``--loop`` or ``--teleop`` run, which has no drive), printing progress and calling
+        ``between_looks``; return the sim's last status and the drive's (taken at every look while it
+        runs: it exits at the end)."""
         sim_status: dict[str, Any] | None = None
         drive_status: dict[str, Any] | None = None
         next_progress = time.monotonic()
         while True:
             if until_interrupted and self.interrupted.is_set():
                 return self.status(Service.SIM) or sim_status, self.status(Service.DRIVE) or drive_status
-            self.check(expected_to_finish=drive.name)
-            code = drive.finished()
-            if code is None:
+            self.check(expected_to_finish=drive.name if drive else None)
+            code = drive.finished() if drive else None
+            if drive and code is None:
                 drive_status = self.status(Service.DRIVE) or drive_status
             if time.monotonic() >= next_progress or code is not None:
                 sim_status = self.status(Service.SIM) or sim_status
@@ -372,9 +380,9 @@ def _launch(
     router (so outside zenoh tools still see every key)."""
     if args.composed:
         mode_config = (
-            session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR))
+            session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR), timestamping=args.ros2)
             if args.connect
-            else session_config(listen=[endpoint], mode="router")
+            else session_config(listen=[endpoint], mode="router", timestamping=args.ros2)
         )
         with open_session(mode_config) as session:
             composition = Composition(session, parser)
@@ -412,7 +420,7 @@ class Access:
         return ["--config", str(self.profile.router_config)] if self.profile else ["--listen", endpoint]
 
 
-def _access(args: argparse.Namespace, keys: Keys, report_dir: Path) -> Access:
+def _access(args: argparse.Namespace, config: Config, report_dir: Path) -> Access:
     """The run's :class:`Access`; with ``--secure``, the profile is written before anything starts."""
     if args.tls and not args.secure:
         raise ConfigError("--tls: it is an option of --secure (use both)")
@@ -427,7 +435,12 @@ def _access(args: argparse.Namespace, keys: Keys, report_dir: Path) -> Access:
         )
     listen = args.listen or [DEFAULT_ENDPOINT]
     profile = write_profile(
-        report_dir / SECRETS_DIRECTORY, keys, endpoint=listen[0], router_listen=listen, tls=args.tls
+        report_dir / SECRETS_DIRECTORY,
+        Keys(config.robot.name),
+        endpoint=listen[0],
+        router_listen=listen,
+        tls=args.tls,
+        ros=bridge_graph(config),
     )
     say(
         f"secure: usrpwd and access control on the router{', TLS' if profile.tls else ''}; every service a client; "
@@ -443,20 +456,32 @@ def check_before_start(args: argparse.Namespace, config: Config) -> None:
         require_display()
     if args.view == 0:
         raise ConfigError("--view: the view's port must be fixed (1..65535), for the address to open in Foxglove")
-    load_scenario(args.scenario)
+    if args.teleop:
+        given = {"--ros2": not args.ros2, "--mode lockstep": args.mode == SimMode.LOCKSTEP, "--loop": args.loop}
+        wrong = [flag for flag, conflicting in given.items() if conflicting]
+        if wrong:
+            raise ConfigError(
+                f"--teleop ({', '.join(wrong)}): it runs the loop in realtime with no scenario, the robot following "
+                "ROS 2's /cmd_vel through the bridge, so it needs --ros2 and takes neither --mode lockstep nor --loop"
+            )
+    else:
+        load_scenario(args.scenario)
     load_world(config.sim.world)
+    if args.ros2:
+        bridge_graph(config)  # $ROS_DOMAIN_ID
 
 
 def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentParser) -> int:
     check_before_start(args, config)
     keys = Keys(config.robot.name)
     report_dir = Path(args.report) if args.report else _default_report_dir()
-    access = _access(args, keys, report_dir)
+    access = _access(args, config, report_dir)
     endpoint = access.profile.endpoint if access.profile else (args.connect or args.listen or [DEFAULT_ENDPOINT])[0]
     common = _child_args(args, endpoint)
-    mode = args.mode or config.sim.mode
+    mode = SimMode.REALTIME if args.teleop else args.mode or config.sim.mode
+    scenario = TELEOP if args.teleop else args.scenario
     interrupted = stop_on_signals()
-    recording = not (args.no_record or args.loop)
+    recording = not (args.no_record or args.loop or args.teleop)
     recorder = RunRecorder(report_dir) if recording else None
     journal_flags = recorder.flags if recorder else []
     sim_started = False
@@ -471,33 +496,36 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
                 closing.callback(live_view.close)
                 live_view.wait_serving(run)
             own_flags = {Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE)]}
-            for service in SERVICES_BEFORE_DRIVE:
+            before_drive = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if args.ros2 else ()))
+            for service in before_drive:
                 flags = [*common, *access.flags(Role(service)), *journal_flags, *own_flags.get(service, [])]
                 launcher.start(str(service), [str(service), *flags])
-            run.wait_alive(SERVICES_BEFORE_DRIVE)
-            drive_flags = ["--scenario", args.scenario, *(["--loop"] if args.loop else [])]
-            drive = launcher.start("drive", ["drive", *common, *access.flags(Role.DRIVE), *journal_flags, *drive_flags])
-            run.wait_alive((Service.DRIVE,))
-            run.wait_tokens(
-                [
-                    keys.ticks(Service.DRIVE, config.drive.rate),
-                    keys.ticks(Service.LOCALIZATION, config.localization.rate),
-                ]
-            )
-            wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
-            sim_flags = [
-                "--mode",
-                mode,
-                "--until-drive-ends",
-                "--wait-for",
-                *wait_for,
-                *(["--gui"] if args.gui else []),
-            ]
+            run.wait_alive(before_drive)
+            drive = None
+            if args.teleop:
+                sim_flags = ["--mode", mode, "--wait-for", str(Service.MOTOR)]
+            else:
+                drive_flags = ["--scenario", args.scenario, *(["--loop"] if args.loop else [])]
+                drive = launcher.start(
+                    "drive", ["drive", *common, *access.flags(Role.DRIVE), *journal_flags, *drive_flags]
+                )
+                run.wait_alive((Service.DRIVE,))
+                run.wait_tokens(
+                    [
+                        keys.ticks(Service.DRIVE, config.drive.rate),
+                        keys.ticks(Service.LOCALIZATION, config.localization.rate),
+                    ]
+                )
+                wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
+                sim_flags = ["--mode", mode, "--until-drive-ends", "--wait-for", *wait_for]
+            sim_flags += ["--gui"] if args.gui else []
+            if args.teleop:
+                say("teleop: the robot follows ROS 2's /cmd_vel (Twist or TwistStamped) until Ctrl-C; see docs/ros2.md")
             launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *journal_flags, *sim_flags])
             sim_started = True
             started = time.monotonic()
             sim_status, drive_status = run.supervise(
-                drive, started, recorder.during if recorder else None, until_interrupted=args.loop
+                drive, started, recorder.during if recorder else None, until_interrupted=args.loop or args.teleop
             )
             wall_time_s = time.monotonic() - started
             statuses = {str(service): run.status(service) for service in Service if service != Service.DRIVE}
@@ -509,7 +537,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
                         tm=Time.from_nanoseconds(
                             round((sim_status or {}).get("sim_time_s", 0.0) * NANOSECONDS_PER_SECOND)
                         ),
-                        scenario=args.scenario,
+                        scenario=scenario,
                         mode=mode,
                         composed=args.composed,
                         wall_time_s=wall_time_s,
@@ -536,7 +564,11 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
         degraded = degradations(health)
         print("\n".join([*health_lines(health), *map(degradation_line, degraded)]), flush=True)
         return _verdict(
-            args, degraded, "done; no recording, no report (" + ("--loop" if args.loop else "--no-record") + ")"
+            args,
+            degraded,
+            "done; no recording, no report ("
+            + ("--teleop" if args.teleop else "--loop" if args.loop else "--no-record")
+            + ")",
         )
     report, path, plots = write_run_report(report_dir / RECORDING_FILE, report_dir, config)
     print(summary(report), flush=True)
@@ -613,6 +645,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--tls", action="store_true", help="with --secure: TLS on every link, a local CA and router certificate"
+    )
+    parser.add_argument(
+        "--ros2",
+        action="store_true",
+        help="start `invent ros2` beside the loop: the robot in the ROS 2 graph over rmw_zenoh (/odom, /tf, "
+        "/joint_states, /clock, /robot_description, /cmd_vel, the motor's Trigger services; docs/ros2.md)",
+    )
+    parser.add_argument(
+        "--teleop",
+        action="store_true",
+        help="with --ros2: no scenario; the loop runs in realtime, the robot following /cmd_vel from ROS 2 "
+        "(teleop_twist_keyboard, Nav2) until Ctrl-C; records nothing, prints the run's health at the end",
     )
     parser.add_argument(
         "--composed",

@@ -1,0 +1,240 @@
+"""The ROS 2 bridge's pure core: what it publishes, built from what the loop publishes, and what a
+``/cmd_vel`` becomes. No zenoh here.
+
+Frames (REP 105). ``odometry/pose`` is this stack's localized pose: odometry integrated from the
+wheel angles and reset by every localization fix, so it is the robot in ``map``, and it jumps
+(a little) at each fix. ROS wants two poses: ``map -> base_link`` may jump, ``odom -> base_link``
+must not. So the bridge integrates the wheel angles itself, with the odometry service's own core
+and no fixes (:class:`ContinuousOdometry`): that is ``odom -> base_link`` and ``/odom``, continuous,
+from (0, 0, 0) where the bridge started. ``map -> odom`` is the correction between the two at
+the localized pose's stamp: ``map_T_odom = map_T_base(t) * inverse(odom_T_base(t))``, constant
+between fixes up to the difference of the two integrations (the odometry service integrates
+every step, the bridge the steps it takes), moving at each fix.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from schemas.codec import BadInput
+from schemas.messages import NANOSECONDS_PER_SECOND, TimedDoubleSeq, TimedPosition
+from services.config import Config, Ros2Config
+from services.motor.core import check_target_velocity
+from services.odometry.core import Odometry
+from services.planar import Pose, wrap_angle
+from services.ros2 import interfaces
+from sim_bridge.geometry import RobotBody
+
+POSE_HISTORY = 4096
+"""Poses of the continuous odometry kept, by stamp, to meet a localized pose of the same stamp."""
+
+
+def ros_time(stamp_ns: int) -> Any:
+    sec, nanosec = divmod(stamp_ns, NANOSECONDS_PER_SECOND)
+    return interfaces.message_class("builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec)
+
+
+def _header(stamp_ns: int, frame: str) -> Any:
+    return interfaces.message_class("std_msgs/msg/Header")(stamp=ros_time(stamp_ns), frame_id=frame)
+
+
+def _quaternion(x: float = 0.0, y: float = 0.0, z: float = 0.0, w: float = 1.0) -> Any:
+    return interfaces.message_class("geometry_msgs/msg/Quaternion")(x=x, y=y, z=z, w=w)
+
+
+def _yaw(theta: float) -> Any:
+    return _quaternion(z=math.sin(theta / 2.0), w=math.cos(theta / 2.0))
+
+
+def _vector(x: float = 0.0, y: float = 0.0, z: float = 0.0, kind: str = "Vector3") -> Any:
+    return interfaces.message_class(f"geometry_msgs/msg/{kind}")(x=x, y=y, z=z)
+
+
+def transform(stamp_ns: int, parent: str, child: str, x: float, y: float, z: float, rotation: Any) -> Any:
+    """geometry_msgs/TransformStamped ``parent -> child``."""
+    return interfaces.message_class("geometry_msgs/msg/TransformStamped")(
+        header=_header(stamp_ns, parent),
+        child_frame_id=child,
+        transform=interfaces.message_class("geometry_msgs/msg/Transform")(
+            translation=_vector(x, y, z), rotation=rotation
+        ),
+    )
+
+
+def planar_transform(stamp_ns: int, parent: str, child: str, pose: Pose) -> Any:
+    return transform(stamp_ns, parent, child, pose.x, pose.y, 0.0, _yaw(pose.theta))
+
+
+def tf_message(transforms: list[Any]) -> Any:
+    return interfaces.message_class(interfaces.TF_MESSAGE)(transforms=transforms)
+
+
+def clock(stamp_ns: int) -> Any:
+    return interfaces.message_class(interfaces.CLOCK)(clock=ros_time(stamp_ns))
+
+
+def string(text: str) -> Any:
+    return interfaces.message_class(interfaces.STRING)(data=text)
+
+
+def compose(a: Pose, b: Pose) -> Pose:
+    """``a * b``: the pose ``b`` (given in ``a``'s frame) in the frame ``a`` is given in."""
+    cos, sin = math.cos(a.theta), math.sin(a.theta)
+    return Pose(a.x + cos * b.x - sin * b.y, a.y + sin * b.x + cos * b.y, wrap_angle(a.theta + b.theta))
+
+
+def inverse(pose: Pose) -> Pose:
+    cos, sin = math.cos(pose.theta), math.sin(pose.theta)
+    return Pose(-(cos * pose.x + sin * pose.y), sin * pose.x - cos * pose.y, wrap_angle(-pose.theta))
+
+
+@dataclass(frozen=True)
+class WheelSample:
+    """The newest wheel angles the bridge took, and the wheel speeds since the one before."""
+
+    stamp_ns: int
+    angles: tuple[float, float]
+    velocities: tuple[float, float]
+
+
+class ContinuousOdometry:
+    """``odom -> base_link``: the wheel angles integrated with the odometry service's own core
+    (the same geometry, calibration and branches) and no fix, so it never jumps. Its poses of the
+    last :data:`POSE_HISTORY` stamps are kept, to meet a localized pose of the same stamp."""
+
+    def __init__(self, config: Config) -> None:
+        self._odometry = Odometry(config.robot, config.odometry, limits=config.input)
+        self._left, self._right = config.robot.left_wheel_id, config.robot.right_wheel_id
+        self._poses: deque[tuple[int, Pose]] = deque(maxlen=POSE_HISTORY)
+        self.wheels: WheelSample | None = None
+
+    @property
+    def pose(self) -> Pose:
+        return self._odometry.pose
+
+    @property
+    def velocity(self) -> tuple[float, float]:
+        """(V in m/s, Ω in rad/s) over the last interval integrated."""
+        return self._odometry.velocity
+
+    def take(self, angles: TimedDoubleSeq) -> WheelSample:
+        """Integrate a wheel-angle sample (BadInput, nothing changed, for one the core refuses)."""
+        stamp_ns = angles.tm.to_nanoseconds()
+        previous = self.wheels
+        self._odometry.step(stamp_ns, angles.data)
+        pair = (angles.data[self._left], angles.data[self._right])
+        velocities = (0.0, 0.0)
+        if previous is not None:
+            dt = (stamp_ns - previous.stamp_ns) / NANOSECONDS_PER_SECOND
+            velocities = ((pair[0] - previous.angles[0]) / dt, (pair[1] - previous.angles[1]) / dt)
+        self.wheels = WheelSample(stamp_ns, pair, velocities)
+        self._poses.append((stamp_ns, self._odometry.pose))
+        return self.wheels
+
+    def restart(self) -> None:
+        """A new simulator: its clock starts again, and so does ``odom`` (at the origin)."""
+        self._odometry.restart_time_base()
+        self._odometry.reset(0.0, 0.0, 0.0)
+        self._poses.clear()
+        self.wheels = None
+
+    def pose_at(self, stamp_ns: int) -> Pose | None:
+        """The pose integrated up to ``stamp_ns`` (the newest at or before it), if still kept."""
+        for stamp, pose in reversed(self._poses):
+            if stamp <= stamp_ns:
+                return pose
+        return None
+
+
+def map_to_odom(localized: TimedPosition, odometry: ContinuousOdometry) -> Pose | None:
+    """``map -> odom`` from a localized pose and the continuous odometry at its stamp (None when
+    the bridge has no pose of that time)."""
+    continuous = odometry.pose_at(localized.tm.to_nanoseconds())
+    if continuous is None:
+        return None
+    return compose(Pose(localized.x, localized.y, localized.theta), inverse(continuous))
+
+
+def _covariance(diagonal: tuple[float, ...]) -> np.ndarray:
+    """A row-major 6x6 ``float64[36]`` with ``diagonal`` on its diagonal."""
+    return np.diag(np.array(diagonal, dtype=np.float64)).reshape(36)
+
+
+def odometry_message(stamp_ns: int, odometry: ContinuousOdometry, settings: Ros2Config) -> Any:
+    """nav_msgs/Odometry: the continuous pose in ``odom``, the body twist in ``base_link``."""
+    pose = odometry.pose
+    v, omega = odometry.velocity
+    return interfaces.message_class(interfaces.ODOMETRY)(
+        header=_header(stamp_ns, settings.odom_frame),
+        child_frame_id=settings.base_frame,
+        pose=interfaces.message_class("geometry_msgs/msg/PoseWithCovariance")(
+            pose=interfaces.message_class("geometry_msgs/msg/Pose")(
+                position=_vector(pose.x, pose.y, 0.0, kind="Point"), orientation=_yaw(pose.theta)
+            ),
+            covariance=_covariance(settings.pose_covariance),
+        ),
+        twist=interfaces.message_class("geometry_msgs/msg/TwistWithCovariance")(
+            twist=interfaces.message_class(interfaces.TWIST)(linear=_vector(v), angular=_vector(z=omega)),
+            covariance=_covariance(settings.twist_covariance),
+        ),
+    )
+
+
+def wheel_transforms(stamp_ns: int, base_frame: str, body: RobotBody, angles: tuple[float, float]) -> list[Any]:
+    """``base_link -> <wheel>``: each wheel turned about +y by its angle."""
+    return [
+        transform(
+            stamp_ns, base_frame, wheel.link, 0.0, wheel.y, 0.0, _quaternion(y=math.sin(a / 2.0), w=math.cos(a / 2.0))
+        )
+        for wheel, a in zip(body.wheels, angles, strict=True)
+    ]
+
+
+def static_transforms(stamp_ns: int, base_frame: str, body: RobotBody) -> list[Any]:
+    """``base_link -> <caster>``: what never moves (``/tf_static``)."""
+    return [
+        transform(stamp_ns, base_frame, caster.link, caster.x, 0.0, caster.z, _quaternion()) for caster in body.casters
+    ]
+
+
+def joint_state(stamp_ns: int, body: RobotBody, wheels: WheelSample, efforts: tuple[float, float] | None) -> Any:
+    """sensor_msgs/JointState of the wheel joints: angle (rad), velocity (rad/s), torque (N m)."""
+    return interfaces.message_class(interfaces.JOINT_STATE)(
+        header=_header(stamp_ns, ""),
+        name=[wheel.joint for wheel in body.wheels],
+        position=_array(wheels.angles),
+        velocity=_array(wheels.velocities),
+        effort=_array(efforts) if efforts is not None else _array(()),
+    )
+
+
+def _array(values: tuple[float, ...]) -> np.ndarray:
+    """A ``float64[]`` field: rosbags takes numpy arrays for sequences of numbers."""
+    return np.array(values, dtype=np.float64)
+
+
+MAX_TWIST_PAYLOAD = 4096
+"""Bytes: a ``/cmd_vel`` sample larger than this is bad input, refused before it is decoded (a
+Twist is 52 bytes of CDR, a TwistStamped with a frame id a few more)."""
+
+
+def twist_of(message: Any) -> tuple[float, float]:
+    """(vx, w) of a geometry_msgs Twist or TwistStamped: ``linear.x`` and ``angular.z`` (a diff drive
+    cannot move sideways or tilt; like diff_drive_controller, the other components are ignored)."""
+    twist = message.twist if message.__msgtype__ == interfaces.TWIST_STAMPED else message
+    return float(twist.linear.x), float(twist.angular.z)
+
+
+def target_from_twist(message: Any, config: Config) -> tuple[float, float]:
+    """The target (vx, w) a twist asks for; BadInput for one that is not finite or implies a wheel
+    speed beyond ``input.max_wheel_speed`` (the motor's own rule, so it never sees it)."""
+    vx, w = twist_of(message)
+    if not (math.isfinite(vx) and math.isfinite(w)):
+        raise BadInput(f"twist (linear.x {vx}, angular.z {w}) is not finite")
+    check_target_velocity(vx, w, config.robot, config.input)
+    return vx, w

@@ -1,0 +1,94 @@
+"""What the bridge is in the ROS graph (pure, no zenoh): its topics, subscriptions and services, with
+their interfaces and QoS, and the keys they travel on for a domain and namespace. The bridge
+declares exactly these (services/ros2/service.py), and the secure profile grants exactly these
+(services/security.py).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from schemas.keys import Method
+from services.config import Config, ConfigError
+from services.ros2 import interfaces, wire
+
+DOMAIN_VARIABLE = "ROS_DOMAIN_ID"
+MAX_DOMAIN = 232
+"""The highest ROS domain id (ROS 2's rule for DDS ports; rmw_zenoh takes the same range)."""
+
+
+@dataclass(frozen=True)
+class Entity:
+    name: str
+    """Relative to the namespace, or absolute (``/tf``, ``/clock``: global by ROS convention)."""
+    interface: str
+    qos: wire.Qos
+
+
+PUBLICATIONS: dict[str, Entity] = {
+    "clock": Entity("/clock", interfaces.CLOCK, wire.CLOCK),
+    "odom": Entity("odom", interfaces.ODOMETRY, wire.SYSTEM_DEFAULT),
+    "tf": Entity("/tf", interfaces.TF_MESSAGE, wire.TF),
+    "tf_static": Entity("/tf_static", interfaces.TF_MESSAGE, wire.LATCHED),
+    "joint_states": Entity("joint_states", interfaces.JOINT_STATE, wire.SYSTEM_DEFAULT),
+    "robot_description": Entity("robot_description", interfaces.STRING, wire.LATCHED),
+}
+SUBSCRIPTIONS = (
+    Entity("cmd_vel", interfaces.TWIST, wire.SYSTEM_DEFAULT),
+    Entity("cmd_vel", interfaces.TWIST_STAMPED, wire.SYSTEM_DEFAULT),
+)
+MOTOR_SERVICES: dict[Method, Entity] = {
+    method: Entity(f"motor/{method}", interfaces.TRIGGER, wire.SERVICES)
+    for method in (Method.STOP, Method.CLEAR, Method.START, Method.FINISH)
+}
+"""The Motor methods ROS calls, as std_srvs/Trigger services (``set_pd_gain`` takes arguments Trigger has not)."""
+
+
+@dataclass(frozen=True)
+class BridgeGraph:
+    """The bridge's node and entities in one ROS domain and namespace."""
+
+    domain: int
+    namespace: str
+    """``""`` or absolute (:func:`wire.absolute_namespace`)."""
+    node_name: str
+    type_hashes: bool = True
+    """False for Humble, whose rmw_zenoh writes ``TypeHashNotSupported`` in place of the hash."""
+
+    def name(self, entity: Entity) -> str:
+        return wire.full_name(self.namespace, entity.name)
+
+    def type_hash(self, entity: Entity) -> str:
+        return interfaces.interface(entity.interface).type_hash if self.type_hashes else wire.TYPE_HASH_NOT_SUPPORTED
+
+    def key(self, entity: Entity) -> str:
+        return wire.data_key(self.domain, self.name(entity), entity.interface, self.type_hash(entity))
+
+    @property
+    def node_tokens(self) -> tuple[str, str]:
+        """Key expressions of the node's token and of its entities' tokens, for any session id."""
+        node = f"{wire.ADMIN_SPACE}/{self.domain}/*/*/*/*/*/{wire.mangle(self.namespace)}/{self.node_name}"
+        return node, f"{node}/**"
+
+
+def ros_domain(environ: Mapping[str, str] = os.environ) -> int:
+    """``$ROS_DOMAIN_ID`` (default 0); ConfigError naming it when it is not 0..232."""
+    text = environ.get(DOMAIN_VARIABLE, "").strip()
+    if not text:
+        return 0
+    if not text.isdigit() or int(text) > MAX_DOMAIN:
+        raise ConfigError(f"${DOMAIN_VARIABLE}={text!r}: a ROS domain id is a whole number 0..{MAX_DOMAIN}")
+    return int(text)
+
+
+def bridge_graph(config: Config, environ: Mapping[str, str] = os.environ) -> BridgeGraph:
+    """The bridge of ``config`` (``[ros2]``) in the domain of ``$ROS_DOMAIN_ID``."""
+    settings = config.ros2
+    return BridgeGraph(
+        ros_domain(environ),
+        wire.absolute_namespace(settings.namespace),
+        settings.node_name,
+        type_hashes=settings.distro != "humble",
+    )

@@ -1,0 +1,407 @@
+"""``invent ros2``: the robot as a ROS 2 citizen on the same zenoh network, speaking rmw_zenoh's
+wire format (services/ros2/wire.py) with no ROS installation. docs/ros2.md is the walkthrough.
+
+One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
+
+- publishers: ``/clock`` (the simulation time, at ``ros2.clock_rate`` per simulated second),
+  ``odom`` and ``/tf`` (``map -> odom -> base_link`` and the wheels) and ``joint_states`` (at
+  ``ros2.publish_rate``), and, latched (transient-local, zenoh-ext advanced publishers with a
+  cache), ``/tf_static`` (the casters) and ``robot_description`` (the URDF);
+- subscriptions: ``cmd_vel`` as geometry_msgs/Twist and as TwistStamped (diff_drive_controller's
+  since Jazzy), each forwarded as ``drive/target_velocity`` stamped with the newest simulation time
+  (at most ``ros2.cmd_vel_rate`` per simulated second, the newest kept between two), so the motor's
+  command timeout works as diff_drive_controller's ``cmd_vel_timeout``;
+- services ``motor/stop``, ``motor/clear``, ``motor/start``, ``motor/finish`` (std_srvs/Trigger),
+  each calling the Motor method of that name (``motor/gui/<method>``, as an operator would).
+
+Its inputs from the loop are sampled (the newest of each, never a backlog): ``sim/wheel_angles``
+(the clock, the wheels, and the continuous odometry, services/ros2/core.py), ``odometry/pose``
+(``map``) and ``motor/torque`` (the wheels' efforts). Bad input (a sample without rmw_zenoh's
+attachment, malformed CDR, a twist not finite or implausible) is counted under its ROS key and
+dropped; nothing from ROS reaches the motor unchecked.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import time
+from dataclasses import dataclass
+from functools import partial
+from typing import Any
+
+import msgspec
+import zenoh
+import zenoh.ext
+
+from schemas.codec import BadInput
+from schemas.keys import Method, MethodFamily, Service
+from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
+from services.clock.sim_time import PeriodicSchedule, StampClock
+from services.clock.sim_watch import SimulatorWatch
+from services.config import Config
+from services.planar import Pose
+from services.ros2 import core, graph, interfaces, wire
+from services.ros2.urdf import robot_urdf
+from services.runtime.inputs import Delivery
+from services.runtime.node import Node, Wait
+from services.service import ServiceCommand
+from sim_bridge.geometry import robot_body
+
+SERVICE_CALL_TIMEOUT_S = 2.0
+"""How long a service call waits for the motor's answer before it answers ``success: false``."""
+PENDING_CALLS = 16
+"""Service calls waiting for the motor at once; beyond, a call is answered ``success: false`` at once."""
+MAX_REQUEST_PAYLOAD = 64
+"""Bytes: a Trigger request is 5 (CDR header, one byte); a larger one is bad input."""
+SPORADIC_HEARTBEAT_S = 1.0
+"""rmw_zenoh's heartbeat period for a reliable transient-local publisher's sample-miss detection."""
+
+
+class GraphTokens:
+    """This process's node in the ROS graph: its liveliness token, and one token per entity, each
+    with an id of its own counted from the node's."""
+
+    def __init__(self, session: zenoh.Session, bridge: graph.BridgeGraph) -> None:
+        self.session = session
+        self.bridge = bridge
+        self.identity = wire.NodeIdentity(bridge.domain, str(session.zid()), bridge.namespace, bridge.node_name)
+        self._ids = itertools.count(self.identity.node_id + 1)
+        self._tokens: list[Any] = [session.liveliness().declare_token(self.identity.token())]
+
+    def declare(self, kind: wire.EntityKind, entity: graph.Entity) -> str:
+        """Hold the token of one more entity; returns it."""
+        token = self.identity.entity_token(
+            next(self._ids), kind, self.bridge.name(entity), entity.interface, self.bridge.type_hash(entity), entity.qos
+        )
+        self._tokens.append(self.session.liveliness().declare_token(token))
+        return token
+
+    def close(self) -> None:
+        for token in reversed(self._tokens):
+            token.undeclare()
+        self._tokens.clear()
+
+
+class RosPublisher:
+    """One ROS topic's publisher: CDR payloads, each with its attachment (sequence from 1, one GID).
+    A transient-local one is a zenoh-ext advanced publisher with a cache of ``depth`` samples,
+    publisher detection and (reliable) sample-miss detection, as rmw_zenoh declares it, so a late
+    subscriber gets the last message."""
+
+    def __init__(self, tokens: GraphTokens, entity: graph.Entity) -> None:
+        self.name = tokens.bridge.name(entity)
+        self.key = tokens.bridge.key(entity)
+        self.sequence = wire.Sequence(wire.gid_of(tokens.declare(wire.EntityKind.PUBLISHER, entity)))
+        qos = entity.qos
+        self._publisher: Any
+        if qos.transient_local:
+            self._publisher = zenoh.ext.declare_advanced_publisher(
+                tokens.session,
+                self.key,
+                cache=zenoh.ext.CacheConfig(qos.depth),
+                publisher_detection=True,
+                sample_miss_detection=zenoh.ext.MissDetectionConfig(
+                    heartbeat=None, sporadic_heartbeat=SPORADIC_HEARTBEAT_S
+                )
+                if qos.reliability is wire.Reliability.RELIABLE
+                else None,
+            )
+        else:
+            self._publisher = tokens.session.declare_publisher(self.key)
+
+    @property
+    def published(self) -> int:
+        return self.sequence.last
+
+    def put(self, message: Any) -> None:
+        self._publisher.put(interfaces.serialize(message), attachment=self.sequence.next(time.time_ns()))
+
+    def undeclare(self) -> None:
+        self._publisher.undeclare()
+
+
+@dataclass
+class PendingCall:
+    """A ROS service call waiting for the motor's answer."""
+
+    query: zenoh.Query
+    key: str
+    attachment: wire.Attachment
+    method: Method
+
+
+class Ros2Bridge:
+    finished = False
+    """It serves until stopped."""
+
+    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+        self.node = node
+        self.config = config
+        self.settings = settings = config.ros2
+        self.body = robot_body(config.robot, config.sim)
+        self.graph = bridge = graph.bridge_graph(config)
+        self.tokens = tokens = GraphTokens(node.session, bridge)
+        self.publishers = {name: RosPublisher(tokens, entity) for name, entity in graph.PUBLICATIONS.items()}
+        self.target = node.publisher(node.keys.drive_target_velocity)
+        self.clock = StampClock(config.input.stamp_horizon_ns)
+        self.sim = sim = SimulatorWatch(node, self.clock.restart)
+        self.odometry = core.ContinuousOdometry(config)
+        self.map_to_odom: tuple[int, Pose] | None = None
+        """(stamp of the localized pose it comes from, ``map -> odom``)."""
+        self.efforts: tuple[float, float] | None = None
+        self._schedules: tuple[PeriodicSchedule, PeriodicSchedule] | None = None
+        self._wheel_ids = (config.robot.left_wheel_id, config.robot.right_wheel_id)
+        self._min_forward_ns = round(NANOSECONDS_PER_SECOND / settings.cmd_vel_rate)
+        self._pending_twist: tuple[float, float] | None = None
+        self._last_forward_ns: int | None = None
+        self.cmd_vel = {"received": 0, "forwarded": 0, "coalesced": 0}
+        self.calls = {"answered": 0, "failed": 0}
+        self._pending_calls: dict[int, PendingCall] = {}
+        self._call_ids = itertools.count(1)
+
+        self._clock_input = node.subscribe(
+            node.keys.sim_wheel_angles, TimedDoubleSeq, sim.clock(self._on_wheels), Delivery.SAMPLED
+        )
+        node.subscribe(
+            node.keys.odometry_pose,
+            TimedPosition,
+            sim.stamped(node.keys.odometry_pose, self._on_localized, awaited=lambda: False),
+            Delivery.SAMPLED,
+        )
+        node.subscribe(
+            node.keys.motor_torque,
+            TimedDoubleSeq,
+            sim.stamped(node.keys.motor_torque, self._on_torque, awaited=lambda: False),
+            Delivery.SAMPLED,
+        )
+        self.cmd_vel_keys: dict[str, str] = {}
+        for entity in graph.SUBSCRIPTIONS:
+            key = self.cmd_vel_keys[entity.interface] = bridge.key(entity)
+            tokens.declare(wire.EntityKind.SUBSCRIPTION, entity)
+            node.subscribe_bytes(key, partial(self._on_cmd_vel, entity.interface), Delivery.EVERY)
+        self._queryables: list[Any] = []
+        self._motor_methods: dict[Method, Any] = {}
+        self.service_keys: dict[Method, str] = {}
+        for method, entity in graph.MOTOR_SERVICES.items():
+            key = self.service_keys[method] = bridge.key(entity)
+            tokens.declare(wire.EntityKind.SERVICE, entity)
+            self._queryables.append(
+                node.session.declare_queryable(key, partial(self._on_query, method, key), complete=True)
+            )
+            self._motor_methods[method] = node.session.declare_querier(
+                node.keys.method(MethodFamily.GUI, method), timeout=SERVICE_CALL_TIMEOUT_S
+            )
+        self._publish_latched()
+        node.wait_with(lambda: Wait(self._clock_input))
+        node.set_status(self.status)
+        node.log.info(
+            "ROS 2 node %s in domain %d (zid %s): %s",
+            wire.full_name(bridge.namespace, settings.node_name),
+            bridge.domain,
+            tokens.identity.zid,
+            ", ".join(publisher.name for publisher in self.publishers.values()),
+        )
+
+    def _publish_latched(self) -> None:
+        base = self.settings.base_frame
+        self.publishers["tf_static"].put(core.tf_message(core.static_transforms(0, base, self.body)))
+        urdf = robot_urdf(self.config.robot.name, base, self.body)
+        self.publishers["robot_description"].put(core.string(urdf))
+
+    # -- the loop's side ------------------------------------------------------------------------
+
+    def _on_wheels(self, message: TimedDoubleSeq) -> None:
+        now_ns = message.tm.to_nanoseconds()
+        if self.clock.advance(now_ns):
+            self._restart(now_ns)
+        wheels = self.odometry.take(message)
+        if self._schedules is None:
+            self._schedules = (
+                PeriodicSchedule(self.settings.clock_rate, now_ns),
+                PeriodicSchedule(self.settings.publish_rate, now_ns),
+            )
+        clock_schedule, publish_schedule = self._schedules
+        if clock_schedule.due(now_ns):
+            self.publishers["clock"].put(core.clock(now_ns))
+        if publish_schedule.due(now_ns):
+            self._publish_state(now_ns, wheels)
+        self._forward_twist()
+
+    def _publish_state(self, now_ns: int, wheels: core.WheelSample) -> None:
+        settings = self.settings
+        transforms = [
+            core.planar_transform(now_ns, settings.odom_frame, settings.base_frame, self.odometry.pose),
+            *core.wheel_transforms(now_ns, settings.base_frame, self.body, wheels.angles),
+        ]
+        if self.map_to_odom is not None:
+            stamp_ns, correction = self.map_to_odom
+            transforms.append(core.planar_transform(stamp_ns, settings.map_frame, settings.odom_frame, correction))
+        self.publishers["odom"].put(core.odometry_message(now_ns, self.odometry, settings))
+        self.publishers["tf"].put(core.tf_message(transforms))
+        self.publishers["joint_states"].put(core.joint_state(now_ns, self.body, wheels, self.efforts))
+
+    def _on_localized(self, message: TimedPosition) -> None:
+        correction = core.map_to_odom(message, self.odometry)
+        if correction is not None:
+            self.map_to_odom = (message.tm.to_nanoseconds(), correction)
+
+    def _on_torque(self, message: TimedDoubleSeq) -> None:
+        left, right = self._wheel_ids
+        if len(message.data) <= max(left, right):
+            raise BadInput(f"{len(message.data)} torques, wheel ids {left} and {right}")
+        self.efforts = (message.data[left], message.data[right])
+
+    def _restart(self, now_ns: int) -> None:
+        """A new simulator, whose clock started again: ``odom`` starts again at the origin."""
+        self.odometry.restart()
+        self._schedules = None
+        self.map_to_odom = None
+        self.efforts = None
+        self._last_forward_ns = None
+        self.node.log.info(
+            "simulation time went back to %.3f s (a new simulator): odom starts again", now_ns / NANOSECONDS_PER_SECOND
+        )
+
+    # -- ROS's side -----------------------------------------------------------------------------
+
+    def _on_cmd_vel(self, interface_name: str, payload: bytes, attachment: bytes | None) -> None:
+        wire.Attachment.decode(attachment)
+        if len(payload) > core.MAX_TWIST_PAYLOAD:
+            raise BadInput(f"{len(payload)} bytes, more than a twist's {core.MAX_TWIST_PAYLOAD}")
+        target = core.target_from_twist(interfaces.deserialize(payload, interface_name), self.config)
+        self.cmd_vel["received"] += 1
+        if self._pending_twist is not None:
+            self.cmd_vel["coalesced"] += 1
+        self._pending_twist = target
+        self._forward_twist()
+
+    def _forward_twist(self) -> None:
+        """Send the newest twist as a target stamped with the newest simulation time, unless one was
+        sent less than 1/``cmd_vel_rate`` of simulation time ago (it waits for the clock then)."""
+        now_ns = self.clock.last_ns
+        if self._pending_twist is None or now_ns is None:
+            return
+        if self._last_forward_ns is not None and now_ns - self._last_forward_ns < self._min_forward_ns:
+            return
+        vx, w = self._pending_twist
+        self.target.put(TimedVelocity(tm=Time.from_nanoseconds(now_ns), id=[], vx=vx, vy=0.0, w=w, error=[]))
+        self._pending_twist = None
+        self._last_forward_ns = now_ns
+        self.cmd_vel["forwarded"] += 1
+
+    def _on_query(self, method: Method, key: str, query: zenoh.Query) -> None:
+        """zenoh's thread: a call on a Motor service's exact key goes to the service thread; any
+        other query that reaches the queryable (a wildcard) is dropped, unanswered: looking never acts."""
+        if str(query.key_expr) == key:
+            self.node.executor.post(self._take_call, (method, key, query))
+
+    def _take_call(self, call: tuple[Method, str, zenoh.Query]) -> None:
+        method, key, query = call
+        try:
+            attachment = wire.Attachment.decode(query.attachment.to_bytes() if query.attachment is not None else None)
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            if len(payload) > MAX_REQUEST_PAYLOAD:
+                raise BadInput(f"{len(payload)} bytes, more than a Trigger request's {MAX_REQUEST_PAYLOAD}")
+            interfaces.deserialize(payload, interfaces.TRIGGER_REQUEST)
+        except BadInput as error:
+            self.node.bad_inputs.record(key, str(error))
+            query.drop()
+            return
+        pending = PendingCall(query, key, attachment, method)
+        if len(self._pending_calls) >= PENDING_CALLS:
+            self._answer(pending, False, f"{PENDING_CALLS} calls already wait for the motor")
+            return
+        call_id = next(self._call_ids)
+        self._pending_calls[call_id] = pending
+        post = self.node.executor.post
+        self._motor_methods[method].get(
+            zenoh.handlers.Callback(
+                lambda reply: post(self._motor_replied, (call_id, *_reply_text(reply))),
+                lambda: post(self._motor_done, call_id),
+            ),
+            payload=b"{}",
+        )
+
+    def _motor_replied(self, reply: tuple[int, bool, str]) -> None:
+        call_id, ok, text = reply
+        pending = self._pending_calls.pop(call_id, None)
+        if pending is not None:
+            self._answer(pending, ok, text)
+
+    def _motor_done(self, call_id: int) -> None:
+        pending = self._pending_calls.pop(call_id, None)
+        if pending is not None:
+            self._answer(pending, False, "the motor did not answer (is `invent motor` running?)")
+
+    def _answer(self, pending: PendingCall, success: bool, message: str) -> None:
+        response = interfaces.message_class(interfaces.TRIGGER_RESPONSE)(success=success, message=message)
+        attachment = wire.Attachment(pending.attachment.sequence_number, time.time_ns(), pending.attachment.gid)
+        try:
+            pending.query.reply(pending.key, interfaces.serialize(response), attachment=attachment.encode())
+        finally:
+            pending.query.drop()
+        self.calls["answered" if success else "failed"] += 1
+        self.node.log.info("%s: %s", pending.key, message)
+
+    def status(self) -> dict[str, Any]:
+        identity = self.tokens.identity
+        return {
+            "domain": identity.domain,
+            "namespace": identity.namespace,
+            "node": wire.full_name(identity.namespace, identity.name),
+            "zid": identity.zid,
+            "sim_alive": self.sim.alive,
+            "sim_time_s": None if self.clock.last_ns is None else self.clock.last_ns / NANOSECONDS_PER_SECOND,
+            "time_base_restarts": self.clock.restart.restarts,
+            "published": {publisher.name: publisher.published for publisher in self.publishers.values()},
+            "cmd_vel": dict(self.cmd_vel),
+            "service_calls": {**self.calls, "waiting": len(self._pending_calls)},
+            "odom": self.odometry.pose._asdict(),
+        }
+
+    def close(self) -> None:
+        for pending in self._pending_calls.values():
+            pending.query.drop()
+        self._pending_calls.clear()
+        for entity in (*self._queryables, *self._motor_methods.values(), *self.publishers.values()):
+            entity.undeclare()
+        self.tokens.close()
+
+
+def _reply_text(reply: zenoh.Reply) -> tuple[bool, str]:
+    """zenoh's thread: (ok, what to tell the ROS caller) of the motor's reply."""
+    if reply.ok is None:
+        return False, f"the motor refused: {reply.err.payload.to_bytes().decode(errors='replace') if reply.err else ''}"
+    try:
+        state = msgspec.json.decode(reply.ok.payload.to_bytes()).get("state", "?")
+    except (msgspec.DecodeError, AttributeError):
+        state = "?"
+    return True, f"motor state: {state}"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--namespace",
+        metavar="NS",
+        help="ROS namespace of the node, its topics and services (ros2.namespace; default none), e.g. rh0",
+    )
+
+
+def overrides(args: argparse.Namespace) -> dict[str, Any]:
+    return {"ros2.namespace": args.namespace}
+
+
+COMMAND = ServiceCommand(
+    service=Service.ROS2,
+    help="bridge the robot to ROS 2 over rmw_zenoh: /odom, /tf, /joint_states, /clock, /cmd_vel, Trigger services",
+    description=f"The robot as one ROS 2 node on this zenoh network, in rmw_zenoh's wire format (no ROS install "
+    f"needed on this side): /clock, odom, /tf, /tf_static, joint_states, robot_description out; cmd_vel "
+    f"(Twist or TwistStamped) in, as drive/target_velocity stamped with simulation time; motor/stop, "
+    f"motor/clear, motor/start, motor/finish as std_srvs/srv/Trigger services. Domain: ${graph.DOMAIN_VARIABLE} "
+    f"(default 0). Frames, rates and covariances: [ros2] in the robot description. See docs/ros2.md.",
+    add_arguments=add_arguments,
+    overrides=overrides,
+    factory=Ros2Bridge,
+    timestamped=True,
+)
