@@ -53,6 +53,7 @@ CLOCK_CHECK_STEPS = 500
 KEYS = Keys()
 COMPOSED_FLAG = "--composed"
 NO_RECORD_FLAG = "--no-record"
+ROS2_FLAG = "--ros2"
 
 
 @dataclass(frozen=True)

@@ -6,8 +6,9 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
   and drive, each its own process, started as ``invent up`` starts them), of ``invent up``
   itself recording its run.mcap and with ``--no-record``, of the composed loop (``invent up
   --composed --no-record``, and recording, as plain ``invent up --composed``) and of the
-  in-process limit, with their ratios and what recording costs in each mode; the step exchange
-  latency measured by the sim.
+  in-process limit, with their ratios and what recording costs in each mode; what the ROS 2 bridge
+  beside the loop (``--ros2``) costs, separate and composed; the step exchange latency measured by
+  the sim.
 - ``realtime``: the same processes with the sim in realtime mode at 1 kHz: achieved rate,
   late fraction, torque latency.
 - ``codec``: ns per encode + decode per message type, the project's codec against stdlib json.
@@ -132,6 +133,8 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
     low_latency: list[loop.LoopResult] = []
     together: list[loop.LoopResult] = []
     together_recording: list[loop.LoopResult] = []
+    up_ros2: list[loop.LoopResult] = []
+    together_ros2: list[loop.LoopResult] = []
     for repeat in range(args.repeats):
         print(f"lockstep, run {repeat + 1} of {args.repeats}", flush=True)
         inprocess.append(_timed("in-process limit", lambda: loop.inprocess_steps_per_s(args.inprocess), failures))
@@ -153,7 +156,23 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
                 failures,
             )
         )
+        up_ros2.append(
+            _timed(
+                "invent up --no-record --ros2",
+                lambda: loop.measure_up([loop.NO_RECORD_FLAG, loop.ROS2_FLAG], args.warmup, args.window),
+                failures,
+            )
+        )
         if composed:
+            together_ros2.append(
+                _timed(
+                    "composed, --ros2",
+                    lambda: loop.measure_up(
+                        [loop.COMPOSED_FLAG, loop.NO_RECORD_FLAG, loop.ROS2_FLAG], args.warmup, args.window
+                    ),
+                    failures,
+                )
+            )
             together.append(
                 _timed(
                     "composed",
@@ -169,9 +188,18 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
                 )
             )
     inprocess = [value for value in inprocess if value is not None]
-    separate, with_up, up_not_recording, low_latency, together, together_recording = (
+    separate, with_up, up_not_recording, low_latency, together, together_recording, up_ros2, together_ros2 = (
         [run for run in runs if run is not None]
-        for runs in (separate, with_up, up_not_recording, low_latency, together, together_recording)
+        for runs in (
+            separate,
+            with_up,
+            up_not_recording,
+            low_latency,
+            together,
+            together_recording,
+            up_ros2,
+            together_ros2,
+        )
     )
     limit = _median(inprocess)
     alone, shared = _loop_summary(separate), _loop_summary(together) if together else None
@@ -190,11 +218,15 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         "composed_ratio": _ratio(shared["steps_per_s"], limit) if shared else None,
         "composed_latency_us": shared["latency_us"] if shared else None,
         "composed_recording_steps_per_s": _median([run.steps_per_s for run in together_recording]),
+        "up_ros2_steps_per_s": _median([run.steps_per_s for run in up_ros2]),
+        "composed_ros2_steps_per_s": _median([run.steps_per_s for run in together_ros2]),
         "cpu_us_per_step": {
             "up": _cpu_per_step(with_up),
             "up_not_recording": _cpu_per_step(up_not_recording),
             "composed": _cpu_per_step(together),
             "composed_recording": _cpu_per_step(together_recording),
+            "up_ros2": _cpu_per_step(up_ros2),
+            "composed_ros2": _cpu_per_step(together_ros2),
         },
         "composed_note": (
             None if composed else f"this checkout's `invent up` has no {loop.COMPOSED_FLAG} {loop.NO_RECORD_FLAG}"
@@ -207,6 +239,8 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
             "lowlatency": [run.as_dict() for run in low_latency],
             "composed": [run.as_dict() for run in together],
             "composed_recording": [run.as_dict() for run in together_recording],
+            "up_ros2": [run.as_dict() for run in up_ros2],
+            "composed_ros2": [run.as_dict() for run in together_ros2],
         },
     }
 
@@ -256,13 +290,14 @@ def _fmt(value: Any, digits: int = 0) -> str:
     return f"{value:,.{digits}f}"
 
 
-def _recording_cost(lockstep: dict[str, Any], cpu: dict[str, Any], recording: str, not_recording: str) -> str:
-    """What recording cost the loop of one mode, in steps/s and in CPU per step (same run)."""
-    steps = _cost(lockstep[f"{recording}_steps_per_s"], lockstep[f"{not_recording}_steps_per_s"])
-    cpu_cost = _cpu_cost(cpu.get(recording), cpu.get(not_recording))
+def _cost_line(what: str, lockstep: dict[str, Any], cpu: dict[str, Any], loaded: str, bare: str) -> str:
+    """What ``what`` (recording, the ROS 2 bridge) cost the loop of one mode, in steps/s and in CPU
+    per step: the run ``loaded`` against the run ``bare``, measured in the same session."""
+    steps = _cost(lockstep[f"{loaded}_steps_per_s"], lockstep[f"{bare}_steps_per_s"])
+    cpu_cost = _cpu_cost(cpu.get(loaded), cpu.get(bare))
     return (
-        f"recording costs {_fmt(steps, 1)} % of the steps/s, {_fmt(cpu_cost, 1)} % CPU per step "
-        f"({_fmt(cpu.get(recording))} vs {_fmt(cpu.get(not_recording))} µs)"
+        f"{what} costs {_fmt(steps, 1)} % of the steps/s, {_fmt(cpu_cost, 1)} % CPU per step "
+        f"({_fmt(cpu.get(loaded))} vs {_fmt(cpu.get(bare))} µs)"
     )
 
 
@@ -289,7 +324,7 @@ def table(results: dict[str, Any]) -> str:
         (
             "lockstep, `invent up` (recording run.mcap)",
             f"{_fmt(lockstep['up_steps_per_s'])} steps/s",
-            _recording_cost(lockstep, cpu, "up", "up_not_recording"),
+            _cost_line("recording", lockstep, cpu, "up", "up_not_recording"),
         ),
         (
             "lockstep, composed (`invent up --composed --no-record`)",
@@ -299,7 +334,17 @@ def table(results: dict[str, Any]) -> str:
         (
             "lockstep, composed, recording run.mcap (`invent up --composed`)",
             f"{_fmt(lockstep['composed_recording_steps_per_s'])} steps/s",
-            _recording_cost(lockstep, cpu, "composed_recording", "composed"),
+            _cost_line("recording", lockstep, cpu, "composed_recording", "composed"),
+        ),
+        (
+            "lockstep, `invent up --no-record --ros2`",
+            f"{_fmt(lockstep['up_ros2_steps_per_s'])} steps/s",
+            _cost_line("the ROS 2 bridge", lockstep, cpu, "up_ros2", "up_not_recording"),
+        ),
+        (
+            "lockstep, composed, `--ros2`",
+            f"{_fmt(lockstep['composed_ros2_steps_per_s'])} steps/s",
+            _cost_line("the ROS 2 bridge", lockstep, cpu, "composed_ros2", "composed"),
         ),
         ("lockstep, in one process, no zenoh (limit)", f"{_fmt(lockstep['inprocess_steps_per_s'])} steps/s", "1"),
         (
