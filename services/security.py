@@ -185,7 +185,8 @@ def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant
     if role in (Role.ROS2, Role.ROS_NODE):
         own_status = [
             Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (keys.status(Service.ROS2),)),
-            Grant((Message.QUERY,), Flow.EGRESS, (keys.status(Service.ROS2),)),
+            # as for every service: a query on invent/*/*/status must be let through to it whole
+            Grant((Message.QUERY,), Flow.EGRESS, everything),
         ]
         own_token = [Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (keys.alive(Service.ROS2),))]
         service_own = [*own_status, *own_token] if role is Role.ROS2 else []

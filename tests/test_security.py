@@ -366,6 +366,14 @@ def test_router_lets_the_ros2_bridge_put_only_its_ros_keys_and_call_only_its_met
         ros_node.put(cmd_vel, b"twist")
         assert at_bridge.get(timeout=5.0) == cmd_vel, "a ROS node's /cmd_vel reaches the bridge"
 
+        status = KEYS.status(Service.ROS2)
+        bridge.declare_queryable(status, lambda query: query.reply(status, b"{}"))
+        observer = open_as(Role.OBSERVER)
+        wait_until(
+            lambda: [r for r in observer.get(all_robots_status(), timeout=1.0) if r.ok is not None],
+            10,
+            "the bridge's status, asked as invent/*/*/status",
+        )
         for method in Method:
             list(bridge.get(KEYS.method(MethodFamily.GUI, method), timeout=1.0))
         assert sorted(calls) == sorted(KEYS.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES)

@@ -347,6 +347,7 @@ class Ros2Bridge:
     def status(self) -> dict[str, Any]:
         identity = self.tokens.identity
         return {
+            "state": "waiting_for_clock" if self.clock.last_ns is None else "running",
             "domain": identity.domain,
             "namespace": identity.namespace,
             "node": wire.full_name(identity.namespace, identity.name),
