@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,7 @@ from services.config import ConfigError, DriveConfig
 from services.drive.path_following import STOPPED, Command
 from services.drive.scenarios import (
     BUILTIN_SCENARIOS,
+    PATH_SEGMENT_SAMPLES,
     ConstantSegment,
     Scenario,
     ScenarioRunner,
@@ -85,6 +87,19 @@ def test_planned_path_chains_segments_from_where_the_last_one_ended() -> None:
     path = planned_path(scenario, ORIGIN)
     assert path[:3] == [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)]
     assert path[-1] == pytest.approx((1.0, 2.0)), "the robot faces +y after the last leg, then drives 1 m"
+
+
+def test_a_long_constant_segment_is_planned_in_bounded_work() -> None:
+    """A scenario of hours (a benchmark's circle): one turn of the circle, its end, and a straight
+    line's end only; the drive plans it when it starts, in the loop's time."""
+    circle = Scenario(name="long", segments=[ConstantSegment(vx=0.3, w=0.3, duration=100_000.0)])
+    started = time.perf_counter()
+    path = planned_path(circle, ORIGIN)
+    assert time.perf_counter() - started < 0.5
+    assert len(path) <= PATH_SEGMENT_SAMPLES + 2
+    assert all(math.dist(point, (0.0, 1.0)) == pytest.approx(1.0) for point in path), "on the circle"
+    line = Scenario(name="line", segments=[ConstantSegment(vx=0.5, w=0.0, duration=3600.0)])
+    assert planned_path(line, ORIGIN) == [(0.0, 0.0), pytest.approx((1800.0, 0.0))]
 
 
 def test_planned_path_for_loads_by_name_or_file(tmp_path: Path) -> None:

@@ -46,6 +46,9 @@ from services.planar import Pose, wrap_angle
 PositiveSeconds = Annotated[float, msgspec.Meta(gt=0.0)]
 PATH_SAMPLE_S = 0.05
 """Time step at which :func:`planned_path` samples a constant-velocity segment."""
+PATH_SEGMENT_SAMPLES = 1000
+"""The most points :func:`planned_path` gives one constant-velocity segment (a longer arc is
+sampled more coarsely): a scenario of hours must not cost the drive seconds when it starts."""
 
 
 def _require_finite(**values: float) -> None:
@@ -266,9 +269,8 @@ def planned_path(scenario: Scenario, start: Pose) -> list[Point]:
     path: list[Point] = [(start.x, start.y)]
     for segment in scenario.segments:
         if isinstance(segment, ConstantSegment):
-            samples = max(1, math.ceil(segment.duration / PATH_SAMPLE_S))
-            for index in range(1, samples + 1):
-                path.append(_xy(_advance(pose, segment.vx, segment.w, segment.duration * index / samples)))
+            for elapsed in _arc_samples(segment):
+                path.append(_xy(_advance(pose, segment.vx, segment.w, elapsed)))
             pose = _advance(pose, segment.vx, segment.w, segment.duration)
         else:
             heading = pose.theta
@@ -279,6 +281,18 @@ def planned_path(scenario: Scenario, start: Pose) -> list[Point]:
                 path.append((x, y))
             pose = Pose(path[-1][0], path[-1][1], heading)
     return path
+
+
+def _arc_samples(segment: ConstantSegment) -> list[float]:
+    """The times into ``segment`` at which its path is sampled: a straight line needs its end
+    only; an arc every :data:`PATH_SAMPLE_S` over one turn at most (beyond, it retraces the
+    circle), at most :data:`PATH_SEGMENT_SAMPLES` of them, and its end."""
+    if segment.w == 0.0:
+        return [segment.duration]
+    traced = min(segment.duration, 2.0 * math.pi / abs(segment.w))
+    samples = min(PATH_SEGMENT_SAMPLES, max(1, math.ceil(traced / PATH_SAMPLE_S)))
+    times = [traced * index / samples for index in range(1, samples + 1)]
+    return times if traced == segment.duration else [*times, segment.duration]
 
 
 def planned_path_for(name_or_path: str, start: tuple[float, float, float] | None = None) -> list[Point]:
