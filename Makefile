@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-fast lint fuzz bench secrets clean
+.PHONY: run test test-fast lint fuzz bench profile secrets clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +32,10 @@ fuzz: $(STAMP)  ## 10^4 generated bad payloads per consumed key and queryable in
 
 bench: $(STAMP)  ## benchmarks/ -> benchmarks/results/latest.json, not committed (never part of `make test`)
 	$(BIN)/python -m benchmarks
+
+profile: $(STAMP)  ## where each process of the lockstep loop spends its time (py-spy; ARGS=--composed for one process)
+	$(BIN)/python -m pip install --quiet py-spy
+	$(BIN)/python -m benchmarks.profile $(ARGS)
 
 secrets: $(STAMP)  ## fresh credentials for `docker compose up`, in docker/secure/secrets/ (never committed)
 	PATH="$(CURDIR)/$(BIN):$$PATH" docker/secure/make-secrets

@@ -111,7 +111,7 @@ def scenario_file(directory: Path) -> Path:
     return path
 
 
-def _free_port() -> int:
+def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         return probe.getsockname()[1]
@@ -132,7 +132,7 @@ class UpRun:
     """One ``invent up`` in the background, its output in a log file."""
 
     def __init__(self, flags: Sequence[str], directory: Path) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.log_path = directory / f"up-{time.monotonic_ns()}.log"
         argv = [
             sys.executable, "-m", "services.cli", "up",
@@ -174,7 +174,7 @@ class ServicesRun:
     without ``up``'s run recorder: the loop itself, nothing listening beside it."""
 
     def __init__(self, flags: Sequence[str], directory: Path, env: Mapping[str, str] | None = None) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.log_path = directory / f"services-{time.monotonic_ns()}.log"
         self._log = self.log_path.open("w")
         self._directory = directory

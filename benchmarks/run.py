@@ -9,6 +9,9 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
   in-process limit, with their ratios and what recording costs in each mode; what the ROS 2 bridge
   beside the loop (``--ros2``) costs, separate and composed; the step exchange latency measured by
   the sim.
+- ``lockstep.floor_*``: the floor zenoh sets: a bare zenoh-python ping-pong between two processes
+  configured as the services are (``benchmarks/floor.py``), and the separate-process loop's steps
+  per second against it (``floor_ratio``): one lockstep step needs at least one such round trip.
 - ``realtime``: the same processes with the sim in realtime mode at 1 kHz: achieved rate,
   late fraction, torque latency.
 - ``codec``: ns per encode + decode per message type, the project's codec against stdlib json.
@@ -30,16 +33,16 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmarks import codec, loop, machine
+from benchmarks import codec, floor, loop, machine
 from services.runtime.session import LOW_LATENCY_VARIABLE
 
 RESULTS = Path(__file__).resolve().parent / "results" / "latest.json"
 
 TARGETS = {
-    "lockstep.ratio": 0.07,
-    "lockstep.composed_ratio": 0.25,
-    "realtime.late_fraction": 0.01,
-    "realtime.latency_us.p99": 1000.0,
+    "lockstep.floor_ratio": 0.5,
+    "lockstep.composed_ratio": 0.4,
+    "realtime.late_fraction": 0.001,
+    "realtime.latency_us.p99": 500.0,
     "codec.min_ratio": 5.0,
 }
 """The issue's "Must show": ratios are lower bounds, late fraction and latency upper bounds."""
@@ -57,6 +60,7 @@ def _parser() -> argparse.ArgumentParser:
         "--realtime-window", type=float, default=10.0, metavar="S", help="realtime measuring window, wall s"
     )
     parser.add_argument("--inprocess", type=float, default=2.0, metavar="S", help="in-process limit run, wall s")
+    parser.add_argument("--floor", type=float, default=3.0, metavar="S", help="zenoh ping-pong floor run, wall s")
     parser.add_argument("--codec-repeats", type=int, default=5, metavar="N", help="timed batches per codec figure")
     parser.add_argument("--out", type=Path, default=RESULTS, help=f"results file (default {RESULTS})")
     parser.add_argument("--quick", action="store_true", help="tiny durations: checks that everything runs")
@@ -127,6 +131,7 @@ def _loop_summary(runs: list[loop.LoopResult]) -> dict[str, Any]:
 
 def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) -> dict[str, Any]:
     inprocess: list[float] = []
+    floors: list[dict[str, float]] = []
     separate: list[loop.LoopResult] = []
     with_up: list[loop.LoopResult] = []
     up_not_recording: list[loop.LoopResult] = []
@@ -138,6 +143,13 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
     for repeat in range(args.repeats):
         print(f"lockstep, run {repeat + 1} of {args.repeats}", flush=True)
         inprocess.append(_timed("in-process limit", lambda: loop.inprocess_steps_per_s(args.inprocess), failures))
+        floors.append(
+            _timed(
+                "zenoh ping-pong floor",
+                lambda: floor.measure(args.floor, f"tcp/127.0.0.1:{loop.free_port()}"),
+                failures,
+            )
+        )
         separate.append(
             _timed("separate processes", lambda: loop.measure_services([], args.warmup, args.window), failures)
         )
@@ -188,6 +200,8 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
                 )
             )
     inprocess = [value for value in inprocess if value is not None]
+    floors = [value for value in floors if value is not None]
+    floor_rate = _median([value["round_trips_per_s"] for value in floors])
     separate, with_up, up_not_recording, low_latency, together, together_recording, up_ros2, together_ros2 = (
         [run for run in runs if run is not None]
         for runs in (
@@ -207,6 +221,11 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         "steps_per_s": alone["steps_per_s"],
         "inprocess_steps_per_s": limit,
         "ratio": _ratio(alone["steps_per_s"], limit),
+        "floor_round_trips_per_s": floor_rate,
+        "floor_ratio": _ratio(alone["steps_per_s"], floor_rate),
+        "floor_latency_us": {
+            quantile: _median([value[f"{quantile}_us"] for value in floors]) for quantile in ("p50", "p99")
+        },
         "latency_us": alone["latency_us"],
         "late_fraction": alone["late_fraction"],
         "up_steps_per_s": _median([run.steps_per_s for run in with_up]),
@@ -233,6 +252,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         ),
         "runs": {
             "inprocess_steps_per_s": inprocess,
+            "floor": floors,
             "separate": [run.as_dict() for run in separate],
             "up": [run.as_dict() for run in with_up],
             "up_not_recording": [run.as_dict() for run in up_not_recording],
@@ -312,6 +332,11 @@ def table(results: dict[str, Any]) -> str:
             f"ratio {_fmt(lockstep['ratio'], 3)}",
         ),
         (
+            "floor: bare zenoh ping-pong between two processes",
+            f"{_fmt(lockstep['floor_round_trips_per_s'])} round trips/s",
+            f"p50 {_fmt(lockstep['floor_latency_us']['p50'])} µs; separate loop / floor = {_fmt(lockstep['floor_ratio'], 3)}",
+        ),
+        (
             f"lockstep, separate, low-latency transport (opt-in, `{LOW_LATENCY_VARIABLE}=1`)",
             f"{_fmt(lockstep['lowlatency_steps_per_s'])} steps/s",
             f"ratio {_fmt(lockstep['lowlatency_ratio'], 3)}",
@@ -386,7 +411,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.quick:
         args.repeats, args.warmup, args.window, args.realtime_window = 1, 0.2, 0.5, 0.5
-        args.inprocess, args.codec_repeats = 0.2, 1
+        args.inprocess, args.codec_repeats, args.floor = 0.2, 1, 0.3
     started = time.monotonic()
     results: dict[str, Any] = {"machine": machine.describe()}
     composed = composed_available()
@@ -398,7 +423,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     results["codec_min_ratio"] = min(entry["ratio"] for entry in results["codec"].values())
     results["targets"] = check_targets({**results, "codec": {"min_ratio": results["codec_min_ratio"]}})
     results["settings"] = {
-        key: getattr(args, key) for key in ("repeats", "warmup", "window", "realtime_window", "inprocess", "quick")
+        key: getattr(args, key)
+        for key in ("repeats", "warmup", "window", "realtime_window", "inprocess", "floor", "quick")
     }
     results["failures"] = failures
     results["duration_s"] = time.monotonic() - started

@@ -15,6 +15,8 @@ NUMBERS = (
     "lockstep.steps_per_s",
     "lockstep.inprocess_steps_per_s",
     "lockstep.ratio",
+    "lockstep.floor_round_trips_per_s",
+    "lockstep.floor_ratio",
     "lockstep.up_steps_per_s",
     "lockstep.up_not_recording_steps_per_s",
     "lockstep.lowlatency_steps_per_s",
@@ -69,7 +71,7 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
         assert entry["codec_ns"] > 0 and entry["json_ns"] > 0 and entry["ratio"] == entry["json_ns"] / entry["codec_ns"]
     assert {"python", "zenoh", "pybullet", "date"} <= set(results["machine"])
     assert set(results["targets"]) == {
-        "lockstep.ratio",
+        "lockstep.floor_ratio",
         "lockstep.composed_ratio",
         "realtime.late_fraction",
         "realtime.latency_us.p99",
