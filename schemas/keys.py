@@ -48,6 +48,7 @@ class Topic(StrEnum):
     """Data keys, relative to ``invent/<robot>/``."""
 
     SIM_WHEEL_ANGLES = "sim/wheel_angles"
+    SIM_CLOCK = "sim/clock"
     SIM_BODY_POSE = "sim/body_pose"
     SIM_BUMP = "sim/bump"
     MOTOR_TORQUE = "motor/torque"
@@ -67,6 +68,7 @@ TopicMessage = TimedDoubleSeq | TimedVelocity | TimedPosition | BumpEvent | SimW
 
 TOPIC_TYPES: dict[Topic, type[TopicMessage]] = {
     Topic.SIM_WHEEL_ANGLES: TimedDoubleSeq,
+    Topic.SIM_CLOCK: TimedDoubleSeq,
     Topic.SIM_BODY_POSE: TimedDoubleSeq,
     Topic.SIM_BUMP: BumpEvent,
     Topic.MOTOR_TORQUE: TimedDoubleSeq,
@@ -117,6 +119,7 @@ _STATUS = "status"
 VIEW = "view"
 _ALIVE = "alive"
 _TICKS = "ticks"
+_OBSERVES = "observes"
 
 
 def validate_robot_name(name: str) -> str:
@@ -185,7 +188,24 @@ class Keys:
         """Key expression matching every lockstep participant's token of this robot."""
         return f"{self.prefix}/*/{_TICKS}/*"
 
+    def observes(self, service: Service, rate_hz: float) -> str:
+        """The liveliness token of an observer: ``service`` takes what the loop observes (the
+        simulation clock, poses) ``rate_hz`` times per second of simulation time, on the same grid
+        as a participant's ticks, so the simulator marks those steps observed (docs/protocol.md
+        section 2.7) without waiting for anything."""
+        return f"{self.prefix}/{service}/{_OBSERVES}/{rate_hz!r}"
+
+    def observes_at_any_rate(self, service: Service) -> str:
+        """Key expression matching ``service``'s observer tokens, whatever their rates."""
+        return f"{self.prefix}/{service}/{_OBSERVES}/*"
+
+    @property
+    def every_observes(self) -> str:
+        """Key expression matching every observer's token of this robot."""
+        return f"{self.prefix}/*/{_OBSERVES}/*"
+
     sim_wheel_angles = property(lambda self: self.topic(Topic.SIM_WHEEL_ANGLES))
+    sim_clock = property(lambda self: self.topic(Topic.SIM_CLOCK))
     sim_body_pose = property(lambda self: self.topic(Topic.SIM_BODY_POSE))
     sim_bump = property(lambda self: self.topic(Topic.SIM_BUMP))
     motor_torque = property(lambda self: self.topic(Topic.MOTOR_TORQUE))
@@ -219,8 +239,17 @@ def parse_alive_key(key: str) -> tuple[str, Service] | None:
 
 def parse_ticks_key(key: str) -> tuple[Service, float] | None:
     """``invent/rh0/drive/ticks/50.0`` -> ``(Service.DRIVE, 50.0)``; None for any other key."""
+    return _parse_rate_key(key, _TICKS)
+
+
+def parse_observes_key(key: str) -> tuple[Service, float] | None:
+    """``invent/rh0/ros2/observes/50.0`` -> ``(Service.ROS2, 50.0)``; None for any other key."""
+    return _parse_rate_key(key, _OBSERVES)
+
+
+def _parse_rate_key(key: str, kind: str) -> tuple[Service, float] | None:
     parts = key.split("/")
-    if len(parts) != 5 or parts[0] != ROOT or parts[3] != _TICKS or parts[2] not in Service._value2member_map_:
+    if len(parts) != 5 or parts[0] != ROOT or parts[3] != kind or parts[2] not in Service._value2member_map_:
         return None
     try:
         rate_hz = float(parts[4])

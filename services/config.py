@@ -146,6 +146,11 @@ class SimConfig(_Section, frozen=True):
     mode: SimMode = SimMode.LOCKSTEP
     step: Positive = 0.001
     """Simulated seconds per physics step."""
+    observe_every: Annotated[int, msgspec.Meta(ge=1)] = 20
+    """Steps between two observed steps, beside every lockstep participant's tick: the steps at
+    which what is observed rather than controlled goes out (``sim/clock``, ``sim/body_pose``,
+    the motor's simulated poses, ``odometry/pose``; docs/protocol.md section 2.7). 1 = every
+    step, the seeds' every-cycle behaviour. A recorded run records every step all the same."""
     lockstep_timeout: Positive = 0.5
     """Wall seconds a lockstep step waits for its torque before applying zero and going on."""
     lockstep_max_late: Annotated[int, msgspec.Meta(ge=1)] = 3

@@ -188,7 +188,13 @@ def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant
             # as for every service: a query on invent/*/*/status must be let through to it whole
             Grant((Message.QUERY,), Flow.EGRESS, everything),
         ]
-        own_token = [Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (keys.alive(Service.ROS2),))]
+        own_token = [
+            Grant(
+                (Message.LIVELINESS_TOKEN,),
+                Flow.INGRESS,
+                (keys.alive(Service.ROS2), keys.observes_at_any_rate(Service.ROS2)),
+            )
+        ]
         service_own = [*own_status, *own_token] if role is Role.ROS2 else []
         return [*reading, *service_own, *_ros_grants(role, keys, ros)]
     if role is Role.OPERATOR:

@@ -1,7 +1,11 @@
 """``invent sim``: the PyBullet simulator bridge (docs/protocol.md section 6), a thin shell around the simulator core.
 
-Every step publishes ``sim/wheel_angles`` then ``sim/body_pose`` stamped with simulation time,
-applies the wheel torques and steps:
+Every step publishes ``sim/wheel_angles`` stamped with simulation time, applies the wheel
+torques and steps. The observed steps (services/clock/observation.py: every ``sim.observe_every``-th
+step and each tick of a rate someone holds a token for) also publish ``sim/clock`` and
+``sim/body_pose``; a recorded run publishes the body pose at every step. Each step's wheel angles
+carry its :class:`~services.clock.lockstep.StepMark`: whether it is observed, and in lockstep
+what it owes.
 
 - **lockstep** (default): before stepping, wait for the ``motor/torque`` whose ``tm`` is this
   step's; a torque with any other ``tm`` is stale (counted, ignored). The wait happens only
@@ -13,8 +17,8 @@ applies the wheel torques and steps:
   for a motor control to work off its backlog) until a torque from it arrives again.
   The whole loop is in lockstep too (services/clock/lockstep.py): at each tick of a participant (the
   drive, the localization: liveliness tokens ``<service>/ticks/<rate>``) the step also waits for
-  its output, and each step's wheel angles carry the ``Owed`` attachment the motor and odometry
-  hold their samples by. ``--wait-for`` and ``--until-drive-ends`` make a run start and end at
+  its output, and the marks of the steps' wheel angles say what the motor and odometry hold
+  their samples for. ``--wait-for`` and ``--until-drive-ends`` make a run start and end at
   the same step every time.
 - **realtime**: steps paced to the wall clock times ``sim.realtime_factor``; each applies the
   newest torque, or zero when the newest is older than ``sim.torque_max_age``. A step whose own
@@ -41,7 +45,7 @@ import msgspec
 import zenoh
 
 from schemas.codec import BadInput, encode
-from schemas.keys import Method, MethodFamily, Service, parse_ticks_key
+from schemas.keys import Method, MethodFamily, Service, parse_observes_key, parse_ticks_key
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
     BumpEvent,
@@ -52,7 +56,8 @@ from schemas.messages import (
     TimedPosition,
     TimedVelocity,
 )
-from services.clock.lockstep import FINAL, OUTPUTS, TickBarrier, encode_owed
+from services.clock.lockstep import FINAL, OUTPUTS, TickBarrier, encode_mark
+from services.clock.observation import ObservedSteps
 from services.config import Config, SimConfig, SimMode
 from services.runtime.executor import STOP_POLL_S
 from services.runtime.inputs import Delivery, NodeInput
@@ -104,9 +109,10 @@ class SimService:
         self.barrier = TickBarrier()
         self._outputs: dict[Service, NodeInput | None] = {}
         """Lockstep: the participants' output channels, to wait in at their ticks."""
-        self._owed_attachment: bytes | None = None
-        """The attachment of every lockstep wheel-angle sample: what the barrier owes (None in
-        realtime). Encoded when it changes, not at every step."""
+        self.observation = ObservedSteps(config.sim.observe_every)
+        self._marks = (b"", b"")
+        """The attachment of a step's wheel angles, (not observed, observed): what the barrier owes
+        (in lockstep) and whether the step is observed. Encoded when they change, not at every step."""
         self._owed_changed()
         self.counters = dict.fromkeys(COUNTERS, 0)
         self.motor_alive = False
@@ -123,6 +129,8 @@ class SimService:
         self._newest_ns = -1
         self._published_ns = -1
         """The stamp of the latest step published: no torque can answer a later one."""
+        self._clock: tuple[TimedDoubleSeq, bytes] | None = None
+        """(wheel angles, mark) of an observed step published, while its ``sim/clock`` waits."""
         self._max_age_ns = round(config.sim.torque_max_age * NANOSECONDS_PER_SECOND)
         self._warn = RateLimitedLog(node.log)
         # Imported here, not at the top: every `invent` command imports this module for its flags,
@@ -146,6 +154,7 @@ class SimService:
         node, keys = self.node, self.node.keys
         self._pose_publisher = node.publisher(keys.sim_body_pose)
         self._angles_publisher = node.publisher(keys.sim_wheel_angles)
+        self._clock_publisher = node.publisher(keys.sim_clock)
         self._bump_publisher = node.publisher(keys.sim_bump)
         self._world_publisher = node.latched_publisher(keys.sim_world)
         # Lockstep waits in the torque channel's receive itself, and in a participant's output
@@ -165,6 +174,9 @@ class SimService:
         self._ticks_watch = node.session.liveliness().declare_subscriber(
             keys.every_ticks, self._on_ticks_token, history=True
         )
+        self._observers_watch = node.session.liveliness().declare_subscriber(
+            keys.every_observes, self._on_observes_token, history=True
+        )
         self._bump_stop = node.session.declare_querier(
             keys.method(MethodFamily.BUMP, Method.STOP), timeout=BUMP_STOP_TIMEOUT_S
         )
@@ -175,6 +187,9 @@ class SimService:
 
     def _on_ticks_token(self, sample: zenoh.Sample) -> None:
         self.node.post(partial(self._participant_changed, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
+
+    def _on_observes_token(self, sample: zenoh.Sample) -> None:
+        self.node.post(partial(self._observer_changed, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
 
     def _on_bump_stop_reply(self, reply: zenoh.Reply) -> None:
         result = reply.result
@@ -215,15 +230,33 @@ class SimService:
             return
         service, rate_hz = parsed
         if alive:
+            self.observation.add(key, rate_hz, self._present())
             self.barrier.announce(service, rate_hz, from_start=self._started is None)
             if self.mode == SimMode.LOCKSTEP:
                 self.node.log.info("%s ticks at %g Hz: steps at its ticks wait for its output", service, rate_hz)
-        elif self.barrier.withdraw(service):
+            return
+        self.observation.remove(key)
+        if self.barrier.withdraw(service):
             self._owed_changed()
             if self.mode == SimMode.LOCKSTEP:
                 self.node.log.info("%s gone: its ticks are not waited for", service)
             if service is Service.DRIVE:
                 self.drive_ended = True
+
+    def _observer_changed(self, key: str, alive: bool) -> None:
+        parsed = parse_observes_key(key)
+        if parsed is None:
+            return
+        service, rate_hz = parsed
+        if alive:
+            self.observation.add(key, rate_hz, self._present())
+            self.node.log.info("%s observes at %g Hz: those steps are observed too", service, rate_hz)
+        else:
+            self.observation.remove(key)
+
+    def _present(self) -> int | None:
+        """The stamp of the latest step published; None before the first."""
+        return self._published_ns if self._published_ns >= 0 else None
 
     def _on_output(self, service: Service, message: TimedVelocity | TimedPosition, attachment: bytes | None) -> None:
         final = attachment == FINAL
@@ -262,16 +295,31 @@ class SimService:
             self._newest_torque, self._newest_ns = torque.data, tm_ns
 
     def _publish_state(self) -> int:
+        """Publish this step's wheel angles, then its body pose if it is observed (or recorded):
+        the motor converts the pose once it has answered the wheel angles, in the same wake. The
+        step's clock waits for :meth:`_publish_clock`."""
         sim = self.sim
         tm_ns = sim.time_ns
+        observed = self.observation.observed(sim.step_index, tm_ns)
+        mark = self._marks[observed]
         tm = Time.from_nanoseconds(tm_ns)
-        # Wheel angles first: they trigger the motor's torque, which the next step waits for.
         angles = TimedDoubleSeq(tm=tm, data=sim.wheel_angles())
         self.latency.published(tm_ns, time.perf_counter_ns())
         self._published_ns = tm_ns
-        self._angles_publisher.put(angles, self._owed_attachment)
-        self._pose_publisher.put(TimedDoubleSeq(tm=tm, data=sim.body_pose()))
+        self._angles_publisher.put(angles, mark)
+        if observed or self.node.recording:
+            self._pose_publisher.put(TimedDoubleSeq(tm=tm, data=sim.body_pose()), mark)
+        if observed:
+            self._clock = (angles, mark)
         return tm_ns
+
+    def _publish_clock(self) -> None:
+        """Publish this step's ``sim/clock`` if it is observed, once the step's torque is in or its
+        wait is over: the drive's command (and the ROS 2 bridge's messages) are then computed while
+        the simulator steps, not while the motor computes the torque."""
+        pending, self._clock = self._clock, None
+        if pending is not None:
+            self._clock_publisher.put(*pending)
 
     def _step(self) -> None:
         for contact in self.sim.step():
@@ -355,8 +403,8 @@ class SimService:
                 node.spin_once(min(remaining, STOP_POLL_S), self._outputs[missing[0]])
 
     def _owed_changed(self) -> None:
-        if self.mode == SimMode.LOCKSTEP:
-            self._owed_attachment = encode_owed(self.barrier.owed())
+        owed = self.barrier.owed() if self.mode == SimMode.LOCKSTEP else None
+        self._marks = (encode_mark(owed, observed=False), encode_mark(owed, observed=True))
 
     def _ended(self) -> bool:
         return self.until_drive_ends and self.drive_ended
@@ -366,6 +414,7 @@ class SimService:
         while sim.step_index < self._end_step and not stop.is_set():
             tm_ns = self._publish_state()
             self._lockstep_torque(tm_ns, stop)
+            self._publish_clock()
             self._lockstep_ticks(tm_ns, stop)
             if self._ended():
                 return
@@ -391,6 +440,9 @@ class SimService:
             deadline = origin + (sim.step_index + 1 - origin_step) * period
             while (remaining := deadline - time.monotonic()) > 0.0:
                 node.spin_once(min(remaining, STOP_POLL_S))
+                if self._newest_ns == tm_ns:
+                    self._publish_clock()
+            self._publish_clock()
             if -remaining > MAX_REALTIME_LAG_S:
                 self.counters["realtime_resyncs"] += 1
                 origin, origin_step = time.monotonic(), sim.step_index + 1
@@ -525,9 +577,12 @@ class SimService:
             "torque_latency": self.latency.summary(),
             "late_fraction": self._late_fraction(),
             "lockstep_participants": self.barrier.status(),
+            "observed_steps": self.observation.count,
+            "observed_rates": self.observation.rates(),
             "drive_ended": self.drive_ended,
             "parameters": {
                 "step": self.parameters.step,
+                "observe_every": self.parameters.observe_every,
                 "duration": self.duration,
                 "lockstep_timeout": self.parameters.lockstep_timeout,
                 "lockstep_max_late": self.parameters.lockstep_max_late,
@@ -544,6 +599,7 @@ class SimService:
 
     def close(self) -> None:
         self._ticks_watch.undeclare()
+        self._observers_watch.undeclare()
         self._bump_stop.undeclare()
         self.sim.close()
 

@@ -33,7 +33,7 @@ TICK_NS = round(1e9 / DRIVE.rate)
 class SyntheticLoop:
     def __init__(self, session: zenoh.Session, commands: Collector) -> None:
         self.commands = commands
-        self.clock = session.declare_publisher(KEYS.sim_wheel_angles)
+        self.clock = session.declare_publisher(KEYS.sim_clock)
         self.odometry = session.declare_publisher(KEYS.odometry_pose)
         wait_until(lambda: self.clock.matching_status.matching, what="the drive's clock subscriber")
         wait_until(lambda: self.odometry.matching_status.matching, what="the drive's pose subscriber")

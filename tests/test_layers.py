@@ -35,7 +35,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.(motor|odometry|localization)\.core", CORE),
     (r"services\.motor\.state", CORE),
     (r"services\.drive\.(scenarios|path_following)", CORE),
-    (r"services\.clock\.(sim_time|lockstep)", CORE),
+    (r"services\.clock\.(sim_time|lockstep|observation)", CORE),
     (r"services\.planar", CORE),
     (r"sim_bridge\.(simulator|robot|world|geometry|latency|display)", CORE),
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph)", CORE),

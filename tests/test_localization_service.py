@@ -147,8 +147,11 @@ def test_a_restarted_simulator_takes_a_fix_at_once_and_restarts_the_schedule(
             assert first.tm == sample(restart_k).tm
             x, y, _z, theta = sim_pose(restart_k)
             assert (first.x, first.y, first.theta) == (x, y, theta), "a fix of the simulated pose, not the initial"
-            received = play(publisher, fixes, restart_k, SAMPLES_PER_SECOND, SAMPLES_PER_SECOND // 2)
-            assert [fix.tm for fix in received] == [sample(restart_k + 50).tm, sample(restart_k + 100).tm]
+            # then the ticks of the grid anchored at 0, every 0.5 s: samples 50 and 100
+            to_first_tick = 50 - restart_k
+            received = play(publisher, fixes, restart_k, to_first_tick, to_first_tick)
+            received += play(publisher, fixes, 50, 50, 50)
+            assert [fix.tm for fix in received] == [sample(50).tm, sample(100).tm]
         status = localization_status(session)
         assert (status["fixes_published"], status["time_base_restarts"], status["bad_input"]["total"]) == (6, 1, 0)
         code, _out, err = process.stop()

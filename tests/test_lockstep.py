@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from schemas.codec import BadInput
 from schemas.keys import Keys, Service, Topic, parse_ticks_key
-from services.clock.lockstep import Hold, TickBarrier, decode_owed, encode_owed
+from services.clock.lockstep import Hold, StepMark, TickBarrier, decode_mark, decode_owed, encode_mark, observed
 
 MS = 1_000_000
 STEP = MS
@@ -95,15 +95,39 @@ def test_an_output_stamped_after_the_present_is_bad_input_and_changes_nothing():
     assert barrier.missing() == [Service.DRIVE] and barrier.owed() == {}
 
 
-def test_the_attachment_round_trips_and_a_forged_one_is_bad_input():
-    attachment = encode_owed({Topic.DRIVE_TARGET_VELOCITY: 20 * MS})
+def test_the_mark_round_trips_and_a_forged_one_is_bad_input():
+    attachment = encode_mark({Topic.DRIVE_TARGET_VELOCITY: 20 * MS}, observed=False)
     assert decode_owed(attachment, 21 * MS) == {"drive/target_velocity": 20 * MS}
+    assert decode_mark(attachment, 21 * MS) == StepMark({"drive/target_velocity": 20 * MS}, observed=False)
     assert decode_owed(None, 21 * MS) is None
-    for forged in (b"x", b'{"owed": 1}', b'{"owed": {}, "more": 1}', b'{"owed": {"a": 1, "b": 2, "c": 3}}'):
+    forgeries = (
+        b"x",
+        b'{"owed": 1}',
+        b'{"owed": {}, "more": 1}',
+        b'{"owed": {"a": 1, "b": 2, "c": 3}}',
+        b'{"observed": "yes"}',
+        b"[]",
+    )
+    for forged in forgeries:
         with pytest.raises(BadInput):
-            decode_owed(forged, 21 * MS)
+            decode_mark(forged, 21 * MS)
     with pytest.raises(BadInput, match="not before the sample"):
         decode_owed(attachment, 20 * MS)
+
+
+def test_a_realtime_mark_owes_nothing_and_says_whether_the_step_is_observed():
+    unobserved, seen = encode_mark(None, observed=False), encode_mark(None, observed=True)
+    assert len(unobserved) < len(seen) <= len(b'{"observed":true}'), "the every-step mark stays small"
+    assert decode_owed(unobserved, 0) is None and decode_owed(seen, 0) is None
+    assert not observed(decode_mark(unobserved, 0))
+    assert observed(decode_mark(seen, 0))
+    assert observed(decode_mark(encode_mark({Topic.LOCALIZATION_POSE: 0}, observed=True), MS))
+
+
+def test_a_sample_without_a_mark_counts_as_observed():
+    """A replayed or hand-made stream has no mark: every sample of it is observed, as before marks."""
+    assert decode_mark(None, 0) is None
+    assert observed(None)
 
 
 def test_the_ticks_token_names_the_participant_and_its_rate():

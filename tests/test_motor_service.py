@@ -22,7 +22,7 @@ import zenoh
 from schemas.codec import ENCODING, decode, encode
 from schemas.keys import Keys, Method, MethodFamily, Service, Topic
 from schemas.messages import PDGains, Time, TimedDoubleSeq, TimedVelocity
-from services.clock.lockstep import encode_owed
+from services.clock.lockstep import encode_mark
 from services.config import TargetAngleMode, load_config
 from services.motor.core import MotorCore
 from tests.harness import (
@@ -373,6 +373,22 @@ def test_body_pose_becomes_the_sim_pose_on_both_keys(link):
         assert pose.data == pytest.approx([1.045795, 2.0, 0.3, 1.5708 - math.pi / 2], abs=1e-12)
 
 
+def test_only_the_body_poses_of_observed_steps_become_sim_poses(link):
+    """The simulator marks each step observed or not; the motor converts and publishes the body
+    pose of an observed step only (a pose without a mark, as from a hand-made stream, always)."""
+    link.reset(vx=0.0, w=0.0)
+    identity_pose = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    skipped, seen = Time.from_nanoseconds(link.time_ns), Time.from_nanoseconds(link.time_ns + STEP_NS)
+    publisher = link.publishers[link.keys.sim_body_pose]
+    converted = link.counter("body_pose_samples")
+    publisher.put(encode(TimedDoubleSeq(skipped, identity_pose)), attachment=encode_mark(None, observed=False))
+    publisher.put(encode(TimedDoubleSeq(seen, identity_pose)), attachment=encode_mark(None, observed=True))
+    for collector in (link.pose_gui, link.pose_localization):
+        assert collector.get().tm == seen
+        assert collector.drain() == [], "nothing for the step that is not observed"
+    assert link.counter("body_pose_samples") == converted + 1, "the unobserved pose was not even converted"
+
+
 def test_command_timeout_brakes_after_silence(link):
     link.reset(vx=0.5, w=0.0)
     link.cycle(moving(1))
@@ -508,7 +524,7 @@ def test_a_reconnected_simulator_costs_nothing_and_a_restarted_one_is_answered_f
             # not kept for a next sample that the simulator, waiting for this torque, never sends.
             held_ns, target_ns = motor_link.time_ns + STEP_NS, motor_link.time_ns + STEP_NS // 2
             held = TimedDoubleSeq(Time.from_nanoseconds(held_ns), moving(2 * samples))
-            owed = encode_owed({Topic.DRIVE_TARGET_VELOCITY: target_ns})
+            owed = encode_mark({Topic.DRIVE_TARGET_VELOCITY: target_ns}, observed=True)
             motor_link.publishers[keys.sim_wheel_angles].put(encode(held), attachment=owed)
             wait_until(lambda: motor_link.status()["lockstep_holds"]["held"] == 1, what="the sample to be held")
             with SimPresence(endpoint, keys) as sim:

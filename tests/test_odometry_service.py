@@ -20,7 +20,7 @@ import zenoh
 from schemas.codec import encode
 from schemas.keys import Keys, Service, Topic
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
-from services.clock.lockstep import encode_owed
+from services.clock.lockstep import encode_mark
 from services.config import load_config
 from services.odometry.core import Branch, Odometry, Step
 from tests.harness import (
@@ -180,6 +180,29 @@ def test_poses_equal_the_cores_for_a_sample_sequence(link: OdometryLink) -> None
     assert branches == {Branch.STRAIGHT, Branch.RHO_BORDER, Branch.SMALL_ANGLE, Branch.CHORD}
 
 
+def test_every_sample_is_integrated_and_only_observed_steps_publish_a_pose(link: OdometryLink) -> None:
+    """The motor passes the simulator's step mark on: a step that is not observed is integrated
+    all the same but publishes nothing; the next observed step's pose includes it."""
+    unobserved, observed_step = encode_mark(None, observed=False), encode_mark(None, observed=True)
+    samples = link.status()["counters"]["wheel_angle_samples"]
+    steps = []
+    for k, mark in enumerate((unobserved, unobserved, observed_step), start=1):
+        time_ns = link.time_ns + k * STEP_NS
+        q_left, q_right = link.q_left + k * 0.01, link.q_right + k * 0.02
+        link.wheels.put(
+            encode(TimedDoubleSeq(Time.from_nanoseconds(time_ns), wheel_data(q_left, q_right))), attachment=mark
+        )
+        steps.append((time_ns, q_left, q_right))
+    poses = [link.poses.get(timeout=5.0)]
+    for time_ns, q_left, q_right in steps:
+        expected = link.mirror.step(time_ns, wheel_data(q_left, q_right))
+    link.time_ns, link.q_left, link.q_right = steps[-1]
+    assert poses[0].tm == Time.from_nanoseconds(steps[-1][0]), "the observed step's pose"
+    assert_published(expected, poses[0])
+    assert link.poses.drain() == [], "no pose for the steps that are not observed"
+    assert link.status()["counters"]["wheel_angle_samples"] == samples + 3, "every sample integrated"
+
+
 def test_localization_pose_resets_the_pose(link: OdometryLink) -> None:
     before = link.status()["counters"]["localization_resets"]
     stamp = Time.from_nanoseconds(link.time_ns)  # the last sample's time: a plain overwrite
@@ -289,7 +312,7 @@ def test_a_reconnected_simulator_costs_nothing_and_a_restarted_one_starts_from_t
     q_left, q_right = link.q_left + 0.25, link.q_right + 0.25 + 2**-6
     held = TimedDoubleSeq(Time.from_nanoseconds(held_ns), wheel_data(q_left, q_right))
     holds = link.status()["counters"]["lockstep_holds"]["held"]
-    link.wheels.put(encode(held), attachment=encode_owed({Topic.LOCALIZATION_POSE: fix_ns}))
+    link.wheels.put(encode(held), attachment=encode_mark({Topic.LOCALIZATION_POSE: fix_ns}, observed=True))
     wait_until(lambda: link.status()["counters"]["lockstep_holds"]["held"] == holds + 1, what="the sample to be held")
     with SimPresence(module_endpoint, link.keys) as sim:
         sim_alive(True)

@@ -160,6 +160,7 @@ def test_every_spec_data_key_has_its_schema():
     keys = Keys("rh0")
     spec = {
         "sim/wheel_angles": TimedDoubleSeq,
+        "sim/clock": TimedDoubleSeq,
         "sim/body_pose": TimedDoubleSeq,
         "motor/torque": TimedDoubleSeq,
         "motor/wheel_angles": TimedDoubleSeq,

@@ -16,6 +16,9 @@ import zenoh
 from schemas.codec import ENCODING, decode, encode
 from schemas.keys import Keys, Method, MethodFamily, Service
 from schemas.messages import BumpEvent, NoArguments, TimedDoubleSeq
+from services.clock.lockstep import StepMark, decode_mark, observed
+from services.config import SimConfig
+from services.runtime.inputs import contents
 from sim_bridge.display import DISPLAY_VARIABLE
 from tests.harness import Collector, InventProcess, call, wait_alive, wait_until
 
@@ -33,11 +36,13 @@ class TorqueSource:
 
     def __init__(self, session: zenoh.Session, torque: Torque) -> None:
         self.torque = torque
-        self.samples: queue.Queue[bytes] = queue.Queue()
+        self.samples: queue.Queue[tuple[bytes, bytes | None]] = queue.Queue()
         self.answered: list[TimedDoubleSeq] = []
+        self.marks: list[StepMark | None] = []
+        """The mark of each sample answered."""
         self._session = session
         self._subscriber = session.declare_subscriber(
-            KEYS.sim_wheel_angles, lambda sample: self.samples.put(sample.payload.to_bytes())
+            KEYS.sim_wheel_angles, lambda sample: self.samples.put(contents(sample))
         )
         self.publisher = session.declare_publisher(KEYS.motor_torque, encoding=zenoh.Encoding(ENCODING))
         self._token: zenoh.LivelinessToken | None = None
@@ -51,10 +56,12 @@ class TorqueSource:
         self._token = None
 
     def answer_one(self, timeout: float = 10.0) -> TimedDoubleSeq:
-        angles = decode(TimedDoubleSeq, self.samples.get(timeout=timeout))
+        payload, attachment = self.samples.get(timeout=timeout)
+        angles = decode(TimedDoubleSeq, payload)
         wait_until(lambda: self.publisher.matching_status.matching, what="the sim's motor/torque subscriber")
         self.publisher.put(encode(TimedDoubleSeq(tm=angles.tm, data=self.torque(angles))))
         self.answered.append(angles)
+        self.marks.append(decode_mark(attachment, angles.tm.to_nanoseconds()))
         return angles
 
     def answer(self, count: int) -> None:
@@ -106,10 +113,16 @@ def yaw(data: list[float]) -> float:
     return math.atan2(data[6], data[3])
 
 
-def run_with_source(session: zenoh.Session, endpoint: str, torque: Torque, *flags: str) -> tuple[list, list, str]:
+EVERY_STEP = ("--set", "sim.observe_every=1")
+"""The seeds' behaviour: every step observed, so every step has its body pose."""
+
+
+def run_with_source(
+    session: zenoh.Session, endpoint: str, torque: Torque, *flags: str, source: TorqueSource | None = None
+) -> tuple[list, list, str]:
     """One lockstep ``--duration`` run answered by a TorqueSource; (wheel angles answered, body poses, stderr)."""
     poses = Collector(session, KEYS.sim_body_pose, TimedDoubleSeq)
-    source = TorqueSource(session, torque)
+    source = source or TorqueSource(session, torque)
     source.declare_alive()
     try:
         with sim_process(endpoint, *flags) as sim:
@@ -121,18 +134,41 @@ def run_with_source(session: zenoh.Session, endpoint: str, torque: Torque, *flag
         poses.close()
 
 
-def test_wheel_angles_and_body_pose_have_the_spec_shapes_and_simulation_time(session, endpoint):
-    answered, poses, err = run_with_source(session, endpoint, constant(2.0, 2.0), "--duration", "0.5")
+def test_wheel_angles_every_step_body_pose_and_clock_at_the_observed_steps(session, endpoint):
+    clock = Collector(session, KEYS.sim_clock, TimedDoubleSeq)
+    source = TorqueSource(session, constant(2.0, 2.0))
+    answered, poses, err = run_with_source(session, endpoint, constant(2.0, 2.0), "--duration", "0.5", source=source)
     expected_tms = [k * STEP_NS for k in range(500)]
     assert [a.tm.to_nanoseconds() for a in answered] == expected_tms, "one sample per 1 ms step, none skipped"
-    assert [p.tm.to_nanoseconds() for p in poses] == expected_tms
+    every = SimConfig().observe_every
+    observed_tms = [k * STEP_NS for k in range(0, 500, every)]
+    assert [p.tm.to_nanoseconds() for p in poses] == observed_tms, f"a body pose every {every} steps"
+    clocks = clock.drain()
+    assert [c.tm for c in clocks] == [a.tm for a in answered[::every]], "sim/clock: the observed steps"
+    assert [c.data for c in clocks] == [a.data for a in answered[::every]], "with their wheel angles"
+    assert [observed(mark) for mark in source.marks] == [k % every == 0 for k in range(500)]
+    assert all(mark is not None and mark.owed == {} for mark in source.marks), "lockstep, no participant"
     assert all(len(a.data) == 2 for a in answered) and all(len(p.data) == 12 for p in poses)
     assert "finished: 500 steps" in err and "torques_applied 500" in err and "late_torques 0" in err
 
 
+def test_an_observer_token_adds_the_steps_of_its_rate(session, endpoint):
+    """The ROS 2 bridge's ``observes`` token, held here: the steps of a 100 Hz grid are observed too."""
+    token = session.liveliness().declare_token(KEYS.observes(Service.ROS2, 100.0))
+    try:
+        _answered, poses, err = run_with_source(session, endpoint, constant(1.0, 1.0), "--duration", "0.2")
+    finally:
+        token.undeclare()
+    # From 50 ms on: the token reaches the sim within its first steps, on a busy machine too.
+    assert [p.tm.to_nanoseconds() for p in poses if p.tm.to_nanoseconds() >= 50 * STEP_NS] == [
+        k * STEP_NS for k in range(50, 200, 10)
+    ]
+    assert "ros2 observes at 100 Hz" in err
+
+
 def test_the_step_flag_sets_the_simulation_time_increment(session, endpoint):
     answered, poses, err = run_with_source(
-        session, endpoint, constant(1.0, 1.0), "--step", "0.002", "--duration", "0.02"
+        session, endpoint, constant(1.0, 1.0), "--step", "0.002", "--duration", "0.02", *EVERY_STEP
     )
     assert [a.tm.to_nanoseconds() for a in answered] == [k * 2 * STEP_NS for k in range(10)]
     assert [p.tm.to_nanoseconds() for p in poses] == [k * 2 * STEP_NS for k in range(10)]
@@ -166,7 +202,7 @@ def wobbly(angles: TimedDoubleSeq) -> list[float]:
 
 
 def test_two_lockstep_runs_with_the_same_torques_are_bit_identical(session, endpoint):
-    runs = [run_with_source(session, endpoint, wobbly, "--duration", "0.4") for _ in range(2)]
+    runs = [run_with_source(session, endpoint, wobbly, "--duration", "0.4", *EVERY_STEP) for _ in range(2)]
     (angles_a, poses_a, _), (angles_b, poses_b, _) = runs
     assert len(poses_a) == len(poses_b) == 400
     assert poses_a[-1].data == poses_b[-1].data
@@ -225,7 +261,7 @@ def test_a_late_torque_source_is_picked_up_and_a_dead_one_dropped(session, endpo
             assert before["counters"]["late_torques"] == 0
             assert before["torques"] == [2.0, 2.0]
 
-            waiting_on = decode(TimedDoubleSeq, source.samples.get(timeout=5)).tm.to_nanoseconds() // STEP_NS
+            waiting_on = decode(TimedDoubleSeq, source.samples.get(timeout=5)[0]).tm.to_nanoseconds() // STEP_NS
             for _ in range(3):
                 assert status(session)["steps"] == waiting_on, "the sim waits for the unanswered step"
 

@@ -14,16 +14,20 @@ tick grid of their own are stepped too; they are the *participants*:
   whose token was there when the simulator started is waited for from its first tick; one that
   comes later, from its first output; one that misses a tick (the wait times out) or withdraws
   its token is not waited for again until it outputs again.
-- Each lockstep step's wheel angles carry an :class:`Owed` attachment: for each participant's
-  output key, the stamp of the newest output the simulator took. A consumer takes the sample
-  only once it has taken that output too (:class:`Hold`): the motor the drive's target; odometry
-  (the motor passes the attachment on with ``motor/wheel_angles``) the localization's fix. Zenoh
-  delivers each link in order but not across links, so without it a target could reach the
-  motor before or after the next wheel angles, depending on the machine's load.
+- Each lockstep step's wheel angles carry a :class:`StepMark` attachment whose ``owed`` says,
+  for each participant's output key, the stamp of the newest output the simulator took. A
+  consumer takes the sample only once it has taken that output too (:class:`Hold`): the motor
+  the drive's target; odometry (the motor passes the attachment on with ``motor/wheel_angles``)
+  the localization's fix. Zenoh delivers each link in order but not across links, so without it
+  a target could reach the motor before or after the next wheel angles, depending on the
+  machine's load.
 - Consumers apply an output by its stamp: a target stamped t from the first wheel sample after
   t; a fix stamped t replaces the pose integrated up to t.
 
-A realtime simulator sends no :class:`Owed` attachment: nobody holds anything, nothing waits.
+The mark also says whether the step is *observed*, in both modes
+(:class:`~services.clock.observation.ObservedSteps`): the outputs that are observed rather than
+controlled go out at those steps only (docs/protocol.md section 2.7). A realtime simulator's
+mark owes nothing: nobody holds anything, nothing waits.
 """
 
 from __future__ import annotations
@@ -56,47 +60,69 @@ LOOP_BEFORE_FIRST_STEP: tuple[Service, ...] = (Service.MOTOR, *OUTPUTS)
 of the whole loop starts at the same step every time: the motor and every participant."""
 
 
-class Owed(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """The attachment of a lockstep step's wheel angles: per output key (relative to the robot),
-    the stamp in ns of the newest output the simulator took before it published the sample."""
+class StepMark(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_defaults=True):
+    """The attachment of every step's wheel angles (passed on with ``motor/wheel_angles``).
 
-    owed: dict[str, int]
+    ``owed``, in lockstep only (None in realtime): per output key (relative to the robot), the
+    stamp in ns of the newest output the simulator took before it published the sample.
+    ``observed``: the step is observed, so the outputs observed rather than controlled go out."""
+
+    owed: dict[str, int] | None = None
+    observed: bool = False
 
 
-_OWED_DECODER = msgspec.json.Decoder(Owed)
+_MARK_DECODER = msgspec.json.Decoder(StepMark)
 _MAX_OWED = len(OUTPUTS)
 
 
-def encode_owed(owed: dict[Topic, int]) -> bytes:
-    return msgspec.json.encode(Owed({str(topic): stamp for topic, stamp in owed.items()}))
+def encode_mark(owed: dict[Topic, int] | None, observed: bool) -> bytes:
+    """A step's attachment: ``owed`` in lockstep (None in realtime), and whether it is observed."""
+    return msgspec.json.encode(
+        StepMark(None if owed is None else {str(topic): stamp for topic, stamp in owed.items()}, observed)
+    )
 
 
-def decode_owed(attachment: bytes | None, stamp_ns: int) -> dict[str, int] | None:
-    """The outputs a sample stamped ``stamp_ns`` is owed; None without an attachment (realtime).
+def decode_mark(attachment: bytes | None, stamp_ns: int) -> StepMark | None:
+    """The mark of a sample stamped ``stamp_ns``; None without an attachment (a stream that is not
+    the simulator's: replayed, or made by hand).
 
-    Raises BadInput for an attachment that is not an :class:`Owed`, or that owes an output
+    Raises BadInput for an attachment that is not a :class:`StepMark`, or that owes an output
     stamped at or after the sample (an output is always for an earlier step).
     """
     if attachment is None:
         return None
-    owed, newest_ns = _parse_owed(attachment)
-    if owed and newest_ns >= stamp_ns:
-        key = max(owed, key=owed.__getitem__)
+    mark, newest_ns = _parse_mark(attachment)
+    if mark.owed and newest_ns >= stamp_ns:
+        key = max(mark.owed, key=mark.owed.__getitem__)
         raise BadInput(f"lockstep attachment owes {key} stamped {newest_ns} ns, not before the sample ({stamp_ns} ns)")
-    return owed
+    return mark
 
 
-@functools.lru_cache(maxsize=4)
-def _parse_owed(attachment: bytes) -> tuple[dict[str, int], int]:
-    """(owed, its newest stamp), kept for the last few attachments: a lockstep attachment changes
-    only at a participant's tick, and every step's sample carries one. Callers must not mutate it."""
+def decode_owed(attachment: bytes | None, stamp_ns: int) -> dict[str, int] | None:
+    """The outputs a sample stamped ``stamp_ns`` is owed; None in realtime or without an attachment."""
+    mark = decode_mark(attachment, stamp_ns)
+    return None if mark is None else mark.owed
+
+
+def observed(mark: StepMark | None) -> bool:
+    """Whether a sample's step is observed: the simulator's mark says so; a sample without one (a
+    replayed or hand-made stream) always is, as every sample was before steps were marked."""
+    return mark is None or mark.observed
+
+
+@functools.lru_cache(maxsize=8)
+def _parse_mark(attachment: bytes) -> tuple[StepMark, int]:
+    """(mark, the newest stamp it owes), kept for the last few attachments: a step's mark changes
+    only at a participant's tick or an observed step, and every step's sample carries one.
+    Callers must not mutate it."""
     try:
-        owed = _OWED_DECODER.decode(attachment).owed
+        mark = _MARK_DECODER.decode(attachment)
     except msgspec.DecodeError as error:
-        raise BadInput(f"lockstep attachment: {error}") from None
+        raise BadInput(f"step attachment: {error}") from None
+    owed = mark.owed or {}
     if len(owed) > _MAX_OWED:
         raise BadInput(f"lockstep attachment owes {len(owed)} outputs, at most {_MAX_OWED} exist")
-    return owed, max(owed.values(), default=-1)
+    return mark, max(owed.values(), default=-1)
 
 
 class Hold(Generic[SampleT]):

@@ -1,7 +1,8 @@
 """``invent drive``: the velocity source (the seed's DriveControlRTC), docs/protocol.md section 7.
 
 Publishes ``drive/target_velocity`` at ``drive.rate`` per second of simulation time. The
-clock is the stamps on ``sim/wheel_angles``: the ticks are the grid ``round(k·1e9/rate)`` ns,
+clock is the stamps on ``sim/clock`` (the simulator's observed steps, among them each of the
+drive's ticks: its ticks token asks for them, docs/protocol.md section 2.7): the ticks are the grid ``round(k·1e9/rate)`` ns,
 each taken by the first stamp at or after it; scenario time starts at the first stamp seen once
 someone (the motor) subscribes to the target velocity, and a command is stamped with the stamp
 that took its tick. When the scenario starts, it publishes the path it plans on ``drive/path``
@@ -158,7 +159,7 @@ class DriveService:
         self._path = node.latched_publisher(node.keys.drive_path)
         self.sim = sim = SimulatorWatch(node, self.clock.restart)
         self._clock_input = node.subscribe(
-            node.keys.sim_wheel_angles,
+            node.keys.sim_clock,
             TimedDoubleSeq,
             sim.clock(self._on_clock),
             Delivery.SAMPLED,
@@ -332,7 +333,7 @@ COMMAND = ServiceCommand(
     service=Service.DRIVE,
     help="publish target velocities: a constant, a scenario or a waypoint path (sim time)",
     description="Publish drive/target_velocity at drive.rate per second of simulation time (clock: the "
-    "stamps on sim/wheel_angles). Waypoint paths are followed (pure pursuit, turn-in-place at sharp "
+    "stamps on sim/clock). Waypoint paths are followed (pure pursuit, turn-in-place at sharp "
     "corners) on odometry/pose. Publishes zero velocity at the end and exits 0 (unless --loop). "
     "Examples: invent drive --vx 0.3 --w 0.1 --for 5; invent drive --twist 0.2 0.5 (until Ctrl-C); "
     "invent drive --scenario square; "

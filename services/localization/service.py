@@ -9,7 +9,10 @@ simulator's liveliness token appears and the next stamp is not after the last on
 simulator's clock starts again at 0), that sample starts a new time base and takes a fix at once.
 
 The simulated pose is sampled (:attr:`~services.runtime.inputs.Delivery.SAMPLED`): a fix is always the
-newest pose, never one from a backlog, which odometry would take for the present.
+newest pose, never one from a backlog, which odometry would take for the present. The motor puts
+it at the simulator's observed steps only (docs/protocol.md section 2.7), each of the
+localization's ticks among them (its ticks token asks for them); the thread waits in its receive,
+never polls.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, LocalizationConfig
 from services.localization.core import Fix, Localizer, resolve_seed
 from services.runtime.inputs import Delivery
-from services.runtime.node import Node
+from services.runtime.node import Node, Wait
 from services.service import ServiceCommand
 
 
@@ -84,7 +87,10 @@ class LocalizationService:
         self.localizer = Localizer.from_config(config, self.seed)
         self.publisher = node.publisher(node.keys.localization_pose)
         node.participate(self.publisher, self.config.rate)
-        node.subscribe(node.keys.motor_sim_pose_localization, TimedDoubleSeq, self._on_sim_pose, Delivery.SAMPLED)
+        sim_pose = node.subscribe(
+            node.keys.motor_sim_pose_localization, TimedDoubleSeq, self._on_sim_pose, Delivery.SAMPLED
+        )
+        node.wait_with(lambda: Wait(sim_pose))
         self.sim = SimulatorWatch(node, self.localizer.restart)
         node.set_status(self.status)
         node.log.info(

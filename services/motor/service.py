@@ -3,7 +3,9 @@
 Every ``sim/wheel_angles`` sample gets exactly one ``motor/torque`` with the sample's own
 ``tm``, then ``motor/wheel_angles`` (the input, same ``tm``). A wheel-angle sample that is bad
 input (undecodable, a wheel id out of range, dt <= 0) is dropped and gets no torque.
-Every ``sim/body_pose`` becomes ``motor/sim_pose/gui`` and ``motor/sim_pose/localization``.
+A ``sim/body_pose`` of an observed step (its mark says so, docs/protocol.md section 2.7) becomes
+``motor/sim_pose/localization``, and ``motor/sim_pose/gui`` while someone subscribes to it; a
+recorded run keeps both at every step it gets a body pose for.
 The Motor interface answers on ``motor/gui/<method>`` and ``motor/bump/<method>``.
 When the simulator's liveliness token appears and the next wheel-angle sample is not after
 the last one, that sample starts a new time base (a restarted simulator's clock starts again at
@@ -27,7 +29,7 @@ import msgspec
 from schemas.codec import BadInput, decode
 from schemas.keys import METHOD_ARGUMENTS, Method, MethodFamily, Service, Topic
 from schemas.messages import NoArguments, PDGains, Time, TimedDoubleSeq, TimedVelocity
-from services.clock.lockstep import Hold
+from services.clock.lockstep import Hold, decode_mark, observed
 from services.clock.sim_time import ClockRestart
 from services.clock.sim_watch import HeldSample, SimulatorWatch
 from services.config import Config, TargetAngleMode
@@ -113,6 +115,7 @@ class MotorService:
             # Never awaited: the simulator publishes a step's body pose with its wheel angles, which decide.
             sim.stamped(keys.sim_body_pose, self._on_body_pose, awaited=lambda: False),
             Delivery.EVERY,
+            with_attachment=True,
         )
         self._targets = node.subscribe(
             keys.drive_target_velocity,
@@ -200,10 +203,21 @@ class MotorService:
             torque=torques,
         )
 
-    def _on_body_pose(self, pose: TimedDoubleSeq) -> None:
-        sim_pose = TimedDoubleSeq(pose.tm, self.core.sim_pose(pose.data, pose.tm.to_nanoseconds()))
-        self._sim_pose_gui.put(sim_pose)
-        self._sim_pose_localization.put(sim_pose)
+    def _on_body_pose(self, pose: TimedDoubleSeq, attachment: bytes | None) -> None:
+        stamp_ns = pose.tm.to_nanoseconds()
+        publish = observed(decode_mark(attachment, stamp_ns))
+        recording = self.node.recording
+        if not (publish or recording):
+            return
+        sim_pose = TimedDoubleSeq(pose.tm, self.core.sim_pose(pose.data, stamp_ns))
+        for publisher, put in (
+            (self._sim_pose_localization, publish),
+            (self._sim_pose_gui, publish and self._sim_pose_gui.matched),
+        ):
+            if put:
+                publisher.put(sim_pose)
+            elif recording:
+                publisher.record(sim_pose)
 
     def _on_target_velocity(self, velocity: TimedVelocity) -> None:
         stamp_ns = velocity.tm.to_nanoseconds()

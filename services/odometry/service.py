@@ -1,8 +1,9 @@
 """``invent odometry``: the OdometryRTC port (docs/protocol.md section 5), a thin shell around services/odometry/core.py.
 
-Subscribes ``motor/wheel_angles`` and ``localization/pose``; publishes ``odometry/pose`` (with
-the ``tm`` of the wheel-angle sample) for every accepted sample, the first one included. A
-localized pose overwrites the pose the next step starts from. ``--trace FILE`` writes one JSON
+Subscribes ``motor/wheel_angles`` and ``localization/pose``; integrates every accepted sample and
+publishes ``odometry/pose`` (with the ``tm`` of the wheel-angle sample) for those of observed
+steps (their mark says so, docs/protocol.md section 2.7), for every sample without a mark (a
+replayed or hand-made stream), and for every sample in a recorded run. A localized pose overwrites the pose the next step starts from. ``--trace FILE`` writes one JSON
 line per accepted wheel-angle sample (docs/odometry.md describes the fields). When the
 simulator's liveliness token appears and the next wheel-angle sample is not after the last one,
 that sample starts a new time base (the stamps are the simulator's, and a restarted simulator's
@@ -18,7 +19,7 @@ import msgspec
 
 from schemas.keys import Service, Topic
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
-from services.clock.lockstep import Hold
+from services.clock.lockstep import Hold, decode_mark, observed
 from services.clock.sim_time import ClockRestart
 from services.clock.sim_watch import HeldSample, SimulatorWatch
 from services.config import Config
@@ -47,7 +48,7 @@ class OdometryService:
         # Lockstep: a wheel-angle sample waits for the localization's fix it is owed (the sim took it).
         self.fix_hold: Hold[HeldSample] = Hold(
             Topic.LOCALIZATION_POSE,
-            lambda held: node.guard(node.keys.motor_wheel_angles, self._integrate, held[0]),
+            lambda held: node.guard(node.keys.motor_wheel_angles, self._integrate, *held),
             capacity=FIX_HISTORY_STEPS,
         )
         self._trace = TraceFile.from_flag(args.trace)
@@ -70,14 +71,16 @@ class OdometryService:
         )
         node.set_status(self.status)
 
-    def _integrate(self, sample: TimedDoubleSeq) -> None:
-        step = self.odometry.step(sample.tm.to_nanoseconds(), sample.data)
+    def _integrate(self, sample: TimedDoubleSeq, attachment: bytes | None) -> None:
+        stamp_ns = sample.tm.to_nanoseconds()
+        step = self.odometry.step(stamp_ns, sample.data)
         self.samples += 1
         self.branches[step.branch] += 1
         self.last_tm = sample.tm
         if self._trace is not None:
             self._trace.write({"tm": sample.tm, **step._asdict(), "localization_resets": self.localization_resets})
-        self._pose.put(TimedPosition(tm=sample.tm, id=[], x=step.x, y=step.y, theta=step.theta, error=[]))
+        if self.node.recording or observed(decode_mark(attachment, stamp_ns)):
+            self._pose.put(TimedPosition(tm=sample.tm, id=[], x=step.x, y=step.y, theta=step.theta, error=[]))
 
     def _on_localized_pose(self, pose: TimedPosition) -> None:
         stamp_ns = pose.tm.to_nanoseconds()
@@ -130,7 +133,7 @@ COMMAND = ServiceCommand(
     service=Service.ODOMETRY,
     help="dead-reckoned pose from wheel angles, reset by localized poses",
     description="The OdometryRTC port: integrates motor/wheel_angles into odometry/pose (one pose per "
-    "sample, stamped with the sample's tm); every localization/pose overwrites the pose the next step "
+    "observed step, stamped with the sample's tm); every localization/pose overwrites the pose the next step "
     "starts from. Parameters: [robot] geometry and [odometry] in the robot description.",
     add_arguments=add_arguments,
     overrides=no_overrides,

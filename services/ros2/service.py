@@ -14,9 +14,11 @@ One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
 - services ``motor/stop``, ``motor/clear``, ``motor/start``, ``motor/finish`` (std_srvs/Trigger),
   each calling the Motor method of that name (``motor/gui/<method>``, as an operator would).
 
-Its inputs from the loop are sampled (the newest of each, never a backlog): ``sim/wheel_angles``
-(the clock, the wheels, and the continuous odometry, services/ros2/core.py), ``odometry/pose``
-(``map``) and ``motor/torque`` (the wheels' efforts). Bad input (a sample without rmw_zenoh's
+Its inputs from the loop are sampled (the newest of each, never a backlog): ``sim/clock`` (the
+clock, the wheels, and the continuous odometry, services/ros2/core.py), ``odometry/pose``
+(``map``) and ``motor/torque`` (the wheels' efforts). ``sim/clock`` comes at the simulator's
+observed steps: the bridge holds an observer token for ``ros2.clock_rate`` and one for
+``ros2.publish_rate`` (docs/protocol.md section 2.7), so each of its ticks is one of them. Bad input (a sample without rmw_zenoh's
 attachment, malformed CDR, a twist not finite or implausible) is counted under its ROS key and
 dropped; nothing from ROS reaches the motor unchecked.
 """
@@ -161,8 +163,10 @@ class Ros2Bridge:
         self._call_ids = itertools.count(1)
 
         self._clock_input = node.subscribe(
-            node.keys.sim_wheel_angles, TimedDoubleSeq, sim.clock(self._on_wheels), Delivery.SAMPLED
+            node.keys.sim_clock, TimedDoubleSeq, sim.clock(self._on_wheels), Delivery.SAMPLED
         )
+        for rate_hz in sorted({settings.clock_rate, settings.publish_rate}):
+            node.observe(rate_hz)
         node.subscribe(
             node.keys.odometry_pose,
             TimedPosition,
@@ -217,9 +221,10 @@ class Ros2Bridge:
             self._restart(now_ns)
         wheels = self.odometry.take(message)
         if self._schedules is None:
+            # On the simulator's grid (anchored at 0), whose observed steps the observer tokens ask for.
             self._schedules = (
-                PeriodicSchedule(self.settings.clock_rate, now_ns),
-                PeriodicSchedule(self.settings.publish_rate, now_ns),
+                PeriodicSchedule(self.settings.clock_rate, 0),
+                PeriodicSchedule(self.settings.publish_rate, 0),
             )
         clock_schedule, publish_schedule = self._schedules
         if clock_schedule.due(now_ns):

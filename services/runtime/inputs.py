@@ -60,6 +60,12 @@ class Publisher:
         if self._journal is not None:
             self._journal.write(self.key, payload)
 
+    def record(self, message: msgspec.Struct) -> None:
+        """Keep ``message`` in the journal (if any) without publishing it: an output computed at a
+        step that is not observed, for a recorded run (docs/protocol.md section 2.7)."""
+        if self._journal is not None:
+            self._journal.write(self.key, encode(message))
+
     @property
     def matched(self) -> bool:
         """True once at least one subscriber matches this key."""

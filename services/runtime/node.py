@@ -95,6 +95,12 @@ class Node:
         self.queryable(keys.status(service), lambda _payload: self.status())
         self._declarations.append(session.liveliness().declare_token(keys.alive(service)))
 
+    @property
+    def recording(self) -> bool:
+        """Whether the node keeps a journal of what it publishes (``invent up``'s recording): a
+        recorded run records its observed outputs at every step."""
+        return self._journal is not None
+
     def set_status(self, status: Callable[[], dict[str, Any]]) -> None:
         self._status = status
 
@@ -266,6 +272,12 @@ class Node:
         self._declarations.append(
             publisher.declare_matching_listener(lambda status: post(on_matching, status.matching))
         )
+
+    def observe(self, rate_hz: float) -> None:
+        """Take what the loop observes (``sim/clock``, the poses) at ``rate_hz`` per second of
+        simulation time: hold the token ``Keys.observes``, so the simulator marks the steps of that
+        grid observed (services/clock/observation.py). Nothing waits for this service."""
+        self._declarations.append(self.session.liveliness().declare_token(self.keys.observes(self.service, rate_hz)))
 
     def alive_now(self, service: Service, timeout: float = LIVELINESS_QUERY_TIMEOUT_S) -> bool:
         """Whether ``service``'s liveliness token exists now: one query, answered by the router
