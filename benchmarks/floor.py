@@ -6,8 +6,12 @@ So the loop's steps per second are measured against this, in the same run: two p
 configured as the services' are (``session_config``: peer, multicast scouting off, a router to
 connect to, a loopback listener; they then talk directly), a payload the size of a wheel-angle
 sample, each side taking samples from a FIFO channel on its own thread as the services do, one
-message in flight. Run as ``python -m benchmarks.floor ping|pong ENDPOINT``; :func:`measure`
-starts the router and both sides.
+message in flight. Run as ``python -m benchmarks.floor ping|pong ENDPOINT [SECONDS [RATE_HZ]]``;
+:func:`measure` starts the router and both sides.
+
+Paced (``rate_hz``), the ping sends at that rate of wall time, as the realtime simulator does,
+and the figures include the round trips longer than a period: what a realtime loop at that rate
+would count as late torques if it did nothing but the exchange.
 """
 
 from __future__ import annotations
@@ -51,8 +55,9 @@ def pong(endpoint: str) -> int:
             publisher.put(payload)
 
 
-def ping(endpoint: str, seconds: float) -> int:
-    """Ping, wait for the pong, again, for ``seconds``; print the figures as one JSON line."""
+def ping(endpoint: str, seconds: float, rate_hz: float | None = None) -> int:
+    """Ping, wait for the pong, again (at ``rate_hz`` if given, else at once), for ``seconds``;
+    print the figures as one JSON line."""
     with open_session(session_config(connect=[endpoint])) as session:
         pongs = session.declare_subscriber(PONG_KEY, zenoh.handlers.FifoChannel(CHANNEL))
         publisher = session.declare_publisher(PING_KEY)
@@ -68,7 +73,11 @@ def ping(endpoint: str, seconds: float) -> int:
         latencies: list[int] = []
         cpu_start, started = _cpu_seconds(), time.perf_counter()
         end = started + seconds
+        period = None if rate_hz is None else 1.0 / rate_hz
         while True:
+            if period is not None:
+                while (wait := started + len(latencies) * period - time.perf_counter()) > 0.0:
+                    time.sleep(wait)
             sent = time.perf_counter_ns()
             publisher.put(PAYLOAD)
             pongs.recv()
@@ -78,23 +87,24 @@ def ping(endpoint: str, seconds: float) -> int:
         elapsed, cpu = time.perf_counter() - started, _cpu_seconds() - cpu_start
         publisher.put(b"")
         latencies.sort()
-        print(
-            json.dumps(
-                {
-                    "round_trips_per_s": len(latencies) / elapsed,
-                    "p50_us": latencies[len(latencies) // 2] / 1000,
-                    "p99_us": latencies[int(len(latencies) * 0.99)] / 1000,
-                    "ping_cpu_us_per_round_trip": cpu / len(latencies) * 1e6,
-                    "round_trips": len(latencies),
-                }
-            ),
-            flush=True,
-        )
+        figures = {
+            "round_trips_per_s": len(latencies) / elapsed,
+            "p50_us": latencies[len(latencies) // 2] / 1000,
+            "p99_us": latencies[int(len(latencies) * 0.99)] / 1000,
+            "max_us": latencies[-1] / 1000,
+            "ping_cpu_us_per_round_trip": cpu / len(latencies) * 1e6,
+            "round_trips": len(latencies),
+        }
+        if period is not None:
+            longer = sum(latency > period * 1e9 for latency in latencies)
+            figures["longer_than_period_fraction"] = longer / len(latencies)
+        print(json.dumps(figures), flush=True)
         return 0
 
 
-def measure(seconds: float, endpoint: str) -> dict[str, float]:
-    """A router, the pong side, then the ping side for ``seconds``: its figures."""
+def measure(seconds: float, endpoint: str, rate_hz: float | None = None) -> dict[str, float]:
+    """A router, the pong side, then the ping side for ``seconds`` (paced at ``rate_hz`` if
+    given): its figures."""
     command = [sys.executable, "-m"]
     router = subprocess.Popen(
         [*command, "services.cli", "router", "--listen", endpoint, "--log-level", "error"],
@@ -110,7 +120,14 @@ def measure(seconds: float, endpoint: str) -> dict[str, float]:
         if responder.stdout.readline().strip() != "ready":
             raise RuntimeError("the floor's pong side did not start")
         result = subprocess.run(
-            [*command, "benchmarks.floor", "ping", endpoint, str(seconds)],
+            [
+                *command,
+                "benchmarks.floor",
+                "ping",
+                endpoint,
+                str(seconds),
+                *([] if rate_hz is None else [str(rate_hz)]),
+            ],
             cwd=REPO,
             capture_output=True,
             text=True,
@@ -131,4 +148,6 @@ def measure(seconds: float, endpoint: str) -> dict[str, float]:
 
 if __name__ == "__main__":
     role, address = sys.argv[1], sys.argv[2]
-    sys.exit(pong(address) if role == "pong" else ping(address, float(sys.argv[3])))
+    if role == "pong":
+        sys.exit(pong(address))
+    sys.exit(ping(address, float(sys.argv[3]), float(sys.argv[4]) if len(sys.argv) > 4 else None))

@@ -13,7 +13,8 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
   configured as the services are (``benchmarks/floor.py``), and the separate-process loop's steps
   per second against it (``floor_ratio``): one lockstep step needs at least one such round trip.
 - ``realtime``: the same processes with the sim in realtime mode at 1 kHz: achieved rate,
-  late fraction, torque latency.
+  late fraction, torque latency; and the floor ping-pong paced at 1 kHz (``floor_*``): its round
+  trips' latency and the fraction longer than a period, what the bare exchange would count late.
 - ``codec``: ns per encode + decode per message type, the project's codec against stdlib json.
 - ``machine``: where it ran.
 
@@ -265,10 +266,22 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
     }
 
 
+REALTIME_HZ = 1000.0
+"""The realtime runs' step rate (the sim's default: 1 ms steps at a realtime factor of 1)."""
+
+
 def run_realtime(args: argparse.Namespace, failures: list[str]) -> dict[str, Any]:
     runs: list[loop.LoopResult] = []
+    floors: list[dict[str, float]] = []
     for repeat in range(args.repeats):
         print(f"realtime, 1 kHz, run {repeat + 1} of {args.repeats}", flush=True)
+        floors.append(
+            _timed(
+                "zenoh ping-pong paced at 1 kHz (floor)",
+                lambda: floor.measure(args.realtime_window, f"tcp/127.0.0.1:{loop.free_port()}", REALTIME_HZ),
+                failures,
+            )
+        )
         result = _timed(
             "separate processes",
             lambda: loop.measure_services(["--mode", "realtime"], args.warmup, args.realtime_window),
@@ -276,8 +289,13 @@ def run_realtime(args: argparse.Namespace, failures: list[str]) -> dict[str, Any
         )
         if result is not None:
             runs.append(result)
+    floors = [value for value in floors if value is not None]
     return {
         "rate_hz": _median([run.steps_per_s for run in runs]),
+        "floor_latency_us": {
+            quantile: _median([value[f"{quantile}_us"] for value in floors]) for quantile in ("p50", "p99", "max")
+        },
+        "floor_late_fraction": _median([value["longer_than_period_fraction"] for value in floors]),
         "real_time_factor": _median([run.sim_seconds_per_s for run in runs]),
         "late_fraction": _median([run.late_fraction for run in runs]),
         "missing_fraction": _median([run.missing_fraction for run in runs]),
@@ -285,6 +303,7 @@ def run_realtime(args: argparse.Namespace, failures: list[str]) -> dict[str, Any
             quantile: _median([run.latency_us[quantile] for run in runs]) for quantile in ("p50", "p99", "max")
         },
         "runs": [run.as_dict() for run in runs],
+        "floor_runs": floors,
     }
 
 
@@ -302,6 +321,10 @@ def check_targets(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
         met = None if value is None else (value < target if name in UPPER_BOUNDS else value >= target)
         checks[name] = {"target": target, "value": value, "met": met}
     return checks
+
+
+def _percent(fraction: float | None) -> float | None:
+    return None if fraction is None else 100 * fraction
 
 
 def _fmt(value: Any, digits: int = 0) -> str:
@@ -380,12 +403,17 @@ def table(results: dict[str, Any]) -> str:
         (
             "realtime 1 kHz, separate processes",
             f"{_fmt(realtime['rate_hz'])} steps/s",
-            f"late {_fmt(None if realtime['late_fraction'] is None else 100 * realtime['late_fraction'], 2)} %",
+            f"late {_fmt(_percent(realtime['late_fraction']), 2)} %",
         ),
         (
             "realtime torque latency",
             f"p50 {_fmt(realtime['latency_us']['p50'])} µs",
             f"p99 {_fmt(realtime['latency_us']['p99'])} µs",
+        ),
+        (
+            "realtime floor: bare zenoh ping-pong paced at 1 kHz",
+            f"p50 {_fmt(realtime['floor_latency_us']['p50'])} µs, p99 {_fmt(realtime['floor_latency_us']['p99'])} µs",
+            f"longer than 1 ms: {_fmt(_percent(realtime['floor_late_fraction']), 2)} %",
         ),
     ]
     rows += [

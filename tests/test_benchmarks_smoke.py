@@ -37,6 +37,8 @@ NUMBERS = (
     "realtime.late_fraction",
     "realtime.latency_us.p50",
     "realtime.latency_us.p99",
+    "realtime.floor_latency_us.p99",
+    "realtime.floor_late_fraction",
     "machine.cores",
 )
 MESSAGE_TYPES = ("Time", "TimedDoubleSeq", "TimedVelocity", "TimedPosition", "BumpEvent", "PDGains", "NoArguments")
