@@ -91,12 +91,14 @@ def _inject(session: zenoh.Session, clock: SimClock) -> bool:
         if round_index == 0:
             put(KEYS.drive_target_velocity, _velocity(now_ns, 1.0))
         put(KEYS.sim_wheel_angles, _seq(far_ns + 1_000_000, angles))
+        put(KEYS.sim_clock, _seq(far_ns, angles))  # the drive's clock
         put(KEYS.motor_wheel_angles, _seq(far_ns, angles))
         put(KEYS.motor_sim_pose_localization, _seq(far_ns, [0.0, 0.0, 0.0, 0.0]))
         # A forged torque from the future hijacked the realtime sim.
         put(KEYS.motor_torque, _seq(now_ns + 10 * 1_000_000_000, [20.0, -20.0]))
         # tm.sec = 10^29 hung the drive's and the localization's schedules.
         put(KEYS.sim_wheel_angles, _raw_seq(ABSURD_SEC, "0.0, 0.0"))
+        put(KEYS.sim_clock, _raw_seq(ABSURD_SEC, "0.0, 0.0"))
         put(KEYS.motor_sim_pose_localization, _raw_seq(ABSURD_SEC, "0.0, 0.0, 0.0, 0.0"))
         # Absurd but finite values.
         put(KEYS.drive_target_velocity, _velocity(now_ns, 1e300))
@@ -215,7 +217,7 @@ def test_forged_and_absurd_input_is_counted_and_the_square_still_comes_home(tmp_
     for (service, key), count in EXACTLY_REFUSED.items():
         assert refused(statuses[service])[key] == count, (service, key, statuses[service]["bad_input"])
     assert localization["motor/sim_pose/localization"] >= 1, localization
-    assert refused(statuses[Service.DRIVE])["sim/wheel_angles"] >= 1
+    assert refused(statuses[Service.DRIVE])["sim/clock"] >= 1
     for service, status in statuses.items():
         assert status["internal_errors"] == 0, (service, status)
     assert statuses[Service.MOTOR]["gains"]["p_gain_l"] == 5.0
