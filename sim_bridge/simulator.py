@@ -22,23 +22,81 @@ from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import ConfigError, RobotConfig, SimConfig
 from sim_bridge.display import require_display
 from sim_bridge.robot import RobotModel, build_robot
-from sim_bridge.world import World
+from sim_bridge.world import InitialPose, World
 
 GRAVITY = 9.81
 """m/s^2, along -z."""
 _NO_CONTACTS: tuple[Contact, ...] = ()
-_CONTACT_POSITION_ON_OBSTACLE = 6
+_CONTACT_POSITION_ON_A = 5
+_CONTACT_POSITION_ON_B = 6
 _CONTACT_DISTANCE = 8
 
 
 @dataclass(frozen=True)
 class Contact:
-    """The robot began touching ``obstacle`` at world point (x, y, z)."""
+    """Robot ``robot`` (its index in :attr:`Simulator.robots`) began touching ``obstacle`` (an
+    obstacle's name, or another robot's) at world point (x, y, z), on the obstacle's surface."""
 
+    robot: int
     obstacle: str
     x: float
     y: float
     z: float
+
+
+@dataclass(frozen=True)
+class Placement:
+    """A robot of the world: its name, its description, where it starts."""
+
+    name: str
+    robot: RobotConfig
+    pose: InitialPose
+
+
+class SimulatedRobot:
+    """One robot's body in the world: its wheel angles, body pose and the torques of its next step."""
+
+    def __init__(self, client: int, placement: Placement, sim: SimConfig) -> None:
+        robot = placement.robot
+        self.name = placement.name
+        self.client = client
+        self.wheel_count = max(robot.left_wheel_id, robot.right_wheel_id) + 1
+        self.max_torque = sim.max_wheel_torque
+        self._left, self._right = robot.left_wheel_id, robot.right_wheel_id
+        self.model: RobotModel = build_robot(client, robot, sim, placement.pose)
+        self.body = self.model.body
+        self.wheels = self.model.wheel_joints
+        self.forces = [0.0, 0.0]
+        """Left and right torque of the next step, after saturation."""
+        self.applied_torques = [0.0] * self.wheel_count
+        """The torques applied during the next step, by wheel id (after saturation)."""
+
+    def wheel_angles(self) -> list[float]:
+        """Wheel joint angles in rad (unwrapped), by wheel id."""
+        left, right = p.getJointStates(self.body, self.wheels, physicsClientId=self.client)
+        angles = [0.0] * self.wheel_count
+        angles[self._left] = left[0]
+        angles[self._right] = right[0]
+        return angles
+
+    def body_pose(self) -> list[float]:
+        """x, y, z of the axle centre, then its rotation matrix row-major (12 values)."""
+        position, orientation = p.getBasePositionAndOrientation(self.body, physicsClientId=self.client)
+        return [*position, *p.getMatrixFromQuaternion(orientation)]
+
+    def set_torques(self, torques: Sequence[float]) -> None:
+        """Wheel torques in N·m by wheel id for the next step, each saturated at ``sim.max_wheel_torque``."""
+        if len(torques) != self.wheel_count:
+            raise BadInput(f"{len(torques)} torques, expected {self.wheel_count} (one per wheel id)")
+        limit = self.max_torque
+        left = min(max(torques[self._left], -limit), limit)
+        right = min(max(torques[self._right], -limit), limit)
+        self.forces[0] = self.applied_torques[self._left] = left
+        self.forces[1] = self.applied_torques[self._right] = right
+
+    def set_zero_torques(self) -> None:
+        self.forces[0] = self.forces[1] = 0.0
+        self.applied_torques[self._left] = self.applied_torques[self._right] = 0.0
 
 
 def connect(gui: bool) -> int:
@@ -52,16 +110,24 @@ def connect(gui: bool) -> int:
 
 
 class Simulator:
-    """A diff-drive robot in a world, stepped by :meth:`step` with the torques of :meth:`set_torques`."""
+    """Diff-drive robots in a world, stepped together by :meth:`step`. One robot (``robot``, at the
+    world's initial pose) unless ``fleet`` places several; the single-robot methods
+    (:meth:`wheel_angles`, :meth:`set_torques`, ...) are the first robot's."""
 
-    def __init__(self, robot: RobotConfig, sim: SimConfig, world: World, *, gui: bool = False) -> None:
+    def __init__(
+        self,
+        robot: RobotConfig,
+        sim: SimConfig,
+        world: World,
+        *,
+        gui: bool = False,
+        fleet: Sequence[Placement] = (),
+    ) -> None:
         self.step_ns = round(sim.step * NANOSECONDS_PER_SECOND)
         if self.step_ns < 1:
             raise ConfigError(f"`sim.step`: {sim.step} s is shorter than 1 ns")
         self.robot_config, self.sim_config, self.world = robot, sim, world
-        self.wheel_count = max(robot.left_wheel_id, robot.right_wheel_id) + 1
-        self.max_torque = sim.max_wheel_torque
-        self._left, self._right = robot.left_wheel_id, robot.right_wheel_id
+        self.placements = tuple(fleet) or (Placement(robot.name, robot, world.initial_pose),)
         self._release_steps = max(1, round(sim.bump_release * NANOSECONDS_PER_SECOND / self.step_ns))
         self.client = connect(gui)
         self._build()
@@ -79,14 +145,24 @@ class Simulator:
         ground = p.createMultiBody(0.0, ground_shape, physicsClientId=client)
         p.changeDynamics(ground, -1, lateralFriction=self.world.ground.friction, physicsClientId=client)
         self._obstacles = self._build_obstacles()
-        self.model: RobotModel = build_robot(client, self.robot_config, self.sim_config, self.world.initial_pose)
-        self._body = self.model.body
-        self._wheels = self.model.wheel_joints
+        self.robots = tuple(SimulatedRobot(client, placement, self.sim_config) for placement in self.placements)
+        first = self.robots[0]
+        self.model = first.model
+        self.wheel_count = first.wheel_count
+        self.max_torque = first.max_torque
         self.step_index = 0
-        self._forces = [0.0, 0.0]
-        self.applied_torques = [0.0] * self.wheel_count
-        """The torques applied during the next step, by wheel id (after saturation)."""
-        self._last_contact_step: list[int | None] = [None] * len(self._obstacles)
+        # Each pair (robot, obstacle) and each pair of robots, checked for a contact at every step.
+        self._pairs = [
+            (index, robot.body, obstacle, name, False)
+            for index, robot in enumerate(self.robots)
+            for obstacle, name in self._obstacles
+        ] + [
+            (index, robot.body, other.body, other.name, True)
+            for index, robot in enumerate(self.robots)
+            for other in self.robots[index + 1 :]
+        ]
+        self._last_contact_step: list[int | None] = [None] * len(self._pairs)
+        self._index_of_body = {robot.body: index for index, robot in enumerate(self.robots)}
 
     def _build_obstacles(self) -> tuple[tuple[int, str], ...]:
         client = self.client
@@ -120,56 +196,52 @@ class Simulator:
         """Simulation time of the current state."""
         return self.step_index * self.step_ns
 
+    @property
+    def applied_torques(self) -> list[float]:
+        return self.robots[0].applied_torques
+
     def wheel_angles(self) -> list[float]:
-        """Wheel joint angles in rad (unwrapped), by wheel id."""
-        left, right = p.getJointStates(self._body, self._wheels, physicsClientId=self.client)
-        angles = [0.0] * self.wheel_count
-        angles[self._left] = left[0]
-        angles[self._right] = right[0]
-        return angles
+        return self.robots[0].wheel_angles()
 
     def body_pose(self) -> list[float]:
-        """x, y, z of the axle centre, then its rotation matrix row-major (12 values)."""
-        position, orientation = p.getBasePositionAndOrientation(self._body, physicsClientId=self.client)
-        return [*position, *p.getMatrixFromQuaternion(orientation)]
+        return self.robots[0].body_pose()
 
     def set_torques(self, torques: Sequence[float]) -> None:
-        """Wheel torques in N·m by wheel id for the next step, each saturated at ``sim.max_wheel_torque``."""
-        if len(torques) != self.wheel_count:
-            raise BadInput(f"{len(torques)} torques, expected {self.wheel_count} (one per wheel id)")
-        limit = self.max_torque
-        left = min(max(torques[self._left], -limit), limit)
-        right = min(max(torques[self._right], -limit), limit)
-        self._forces[0] = self.applied_torques[self._left] = left
-        self._forces[1] = self.applied_torques[self._right] = right
+        self.robots[0].set_torques(torques)
 
     def set_zero_torques(self) -> None:
-        self._forces[0] = self._forces[1] = 0.0
-        self.applied_torques[self._left] = self.applied_torques[self._right] = 0.0
+        self.robots[0].set_zero_torques()
 
     def step(self) -> tuple[Contact, ...]:
-        """Apply the torques, advance one step; return the obstacle contacts that began in it."""
+        """Apply every robot's torques, advance one step; return the contacts that began in it
+        (a contact between two robots once for each of them)."""
         client = self.client
         # PyBullet clears applied joint torques after every step: they must be set again each time.
-        p.setJointMotorControlArray(
-            self._body, self._wheels, p.TORQUE_CONTROL, forces=self._forces, physicsClientId=client
-        )
+        for robot in self.robots:
+            p.setJointMotorControlArray(
+                robot.body, robot.wheels, p.TORQUE_CONTROL, forces=robot.forces, physicsClientId=client
+            )
         p.stepSimulation(physicsClientId=client)
         self.step_index += 1
-        return self._new_contacts() if self._obstacles else _NO_CONTACTS
+        return self._new_contacts() if self._pairs else _NO_CONTACTS
 
     def _new_contacts(self) -> tuple[Contact, ...]:
         began = []
-        for index, (obstacle, name) in enumerate(self._obstacles):
-            points = p.getContactPoints(bodyA=self._body, bodyB=obstacle, physicsClientId=self.client)
+        for pair_index, (robot, body, other, name, other_is_robot) in enumerate(self._pairs):
+            points = p.getContactPoints(bodyA=body, bodyB=other, physicsClientId=self.client)
             # Bullet also reports points within its contact margin, not yet touching.
             touching = [point for point in points if point[_CONTACT_DISTANCE] <= 0.0]
             if not touching:
                 continue
-            last = self._last_contact_step[index]
+            last = self._last_contact_step[pair_index]
             if last is None or self.step_index - last > self._release_steps:
-                began.append(Contact(name, *touching[0][_CONTACT_POSITION_ON_OBSTACLE]))
-            self._last_contact_step[index] = self.step_index
+                point = touching[0]
+                began.append(Contact(robot, name, *point[_CONTACT_POSITION_ON_B]))
+                if other_is_robot:
+                    began.append(
+                        Contact(self._index_of_body[other], self.robots[robot].name, *point[_CONTACT_POSITION_ON_A])
+                    )
+            self._last_contact_step[pair_index] = self.step_index
         return tuple(began)
 
     def close(self) -> None:

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from schemas.codec import BadInput
 from services.config import ConfigError, RobotConfig, SimConfig
 from sim_bridge.display import DISPLAY_VARIABLE
-from sim_bridge.simulator import Contact, Simulator, connect
-from sim_bridge.world import load_world, parse_world
+from sim_bridge.simulator import Contact, Placement, Simulator, connect
+from sim_bridge.world import InitialPose, load_world, parse_world
 
 Torques = Callable[[int], list[float]]
 
@@ -205,3 +205,37 @@ def test_gui_without_a_display_is_a_config_error(monkeypatch: pytest.MonkeyPatch
     monkeypatch.delenv(DISPLAY_VARIABLE, raising=False)
     with pytest.raises(ConfigError, match=r"--gui needs a display.*\$DISPLAY"):
         connect(gui=True)
+
+
+def test_two_robots_in_one_world_move_independently_and_a_head_on_meeting_is_a_contact_for_each():
+    facing = (
+        Placement("rh0", RobotConfig(name="rh0"), InitialPose(x=0.0, y=0.0, theta=0.0)),
+        Placement("rh1", RobotConfig(name="rh1"), InitialPose(x=1.0, y=0.0, theta=math.pi)),
+    )
+    with Simulator(RobotConfig(), SimConfig(), load_world(None), fleet=facing) as sim:
+        first, second = sim.robots
+        assert [robot.name for robot in sim.robots] == ["rh0", "rh1"]
+        assert second.body_pose()[0] == pytest.approx(1.0) and sim.body_pose() == first.body_pose()
+        began: list[Contact] = []
+        for _ in range(3000):
+            first.set_torques([1.0, 1.0])
+            second.set_torques([1.0, 1.0])
+            began.extend(sim.step())
+            if began:
+                break
+        assert sorted((contact.robot, contact.obstacle) for contact in began) == [(0, "rh1"), (1, "rh0")]
+        assert all(contact.x == pytest.approx(0.5, abs=0.01) for contact in began), "they meet half-way"
+        assert first.body_pose()[0] == pytest.approx(1.0 - second.body_pose()[0], abs=1e-6), "mirror images"
+
+
+def test_a_fleet_of_one_at_the_worlds_start_is_the_one_robot_simulator():
+    alone = (Placement("rh0", RobotConfig(), InitialPose()),)
+    with (
+        Simulator(RobotConfig(), SimConfig(), load_world(None)) as single,
+        Simulator(RobotConfig(), SimConfig(), load_world(None), fleet=alone) as fleet,
+    ):
+        for sim in (single, fleet):
+            for step in range(500):
+                sim.set_torques(varying(step))
+                sim.step()
+        assert fleet.body_pose() == single.body_pose() and fleet.wheel_angles() == single.wheel_angles()
