@@ -120,6 +120,12 @@ StraightStep = Literal["exact", "seed"]
 
 
 class OdometryConfig(_Section, frozen=True):
+    initial_x: float = 0.0
+    """The pose the odometry starts from, before any fix: x in m (a fleet sets it to the robot's start)."""
+    initial_y: float = 0.0
+    """Starting pose: y in m."""
+    initial_theta: float = 0.0
+    """Starting pose: heading in rad."""
     rotation_angle_border: Positive = math.pi / 180.0
     """|dphi| below which a step takes arc length for chord (the seed's RotationAngleBorder), rad."""
     rho_border: Positive = 10000.0

@@ -108,6 +108,28 @@ BUILTIN_SCENARIOS: dict[str, Scenario] = {
 circles, left then right."""
 
 
+def is_builtin(scenario: Scenario) -> bool:
+    """Whether ``scenario`` is one of :data:`BUILTIN_SCENARIOS` (not a file's, even of that name)."""
+    return any(scenario is builtin for builtin in BUILTIN_SCENARIOS.values())
+
+
+def placed(scenario: Scenario, start: Pose) -> Scenario:
+    """``scenario`` moved from the origin to ``start``: its waypoints turned by ``start.theta`` and
+    shifted to (``start.x``, ``start.y``); constant segments are relative already. A built-in runs
+    so from wherever its robot starts (a fleet's robots each from their own start)."""
+    if (start.x, start.y, start.theta) == (0.0, 0.0, 0.0):
+        return scenario
+    cos, sin = math.cos(start.theta), math.sin(start.theta)
+
+    def moved(segment: Segment) -> Segment:
+        if isinstance(segment, ConstantSegment):
+            return segment
+        waypoints = [(start.x + cos * x - sin * y, start.y + sin * x + cos * y) for x, y in segment.waypoints]
+        return WaypointSegment(waypoints=waypoints)
+
+    return Scenario(name=scenario.name, segments=[moved(segment) for segment in scenario.segments])
+
+
 def load_scenario(name_or_path: str) -> Scenario:
     """A built-in scenario by name, else a scenario TOML file; ConfigError naming what is wrong."""
     if name_or_path in BUILTIN_SCENARIOS:
@@ -296,8 +318,11 @@ def _arc_samples(segment: ConstantSegment) -> list[float]:
 
 
 def planned_path_for(name_or_path: str, start: tuple[float, float, float] | None = None) -> list[Point]:
-    """:func:`planned_path` of a built-in or a scenario file, from ``start`` (x, y, θ; default the origin)."""
-    return planned_path(load_scenario(name_or_path), Pose(*start) if start is not None else Pose(0.0, 0.0, 0.0))
+    """:func:`planned_path` of a built-in (:func:`placed` at ``start``) or a scenario file, from
+    ``start`` (x, y, θ; default the origin)."""
+    scenario = load_scenario(name_or_path)
+    pose = Pose(*start) if start is not None else Pose(0.0, 0.0, 0.0)
+    return planned_path(placed(scenario, pose) if is_builtin(scenario) else scenario, pose)
 
 
 def _xy(pose: Pose) -> Point:

@@ -44,8 +44,10 @@ from services.drive.scenarios import (
     ScenarioRunner,
     WaypointSegment,
     describe,
+    is_builtin,
     load_scenario,
     parse_waypoints,
+    placed,
     planned_path,
 )
 from services.planar import Pose, check_coordinates
@@ -140,7 +142,12 @@ class DriveService:
         self.rate_hz = config.drive.rate
         self.pose_timeout_ns = round(config.drive.pose_timeout * NANOSECONDS_PER_SECOND)
         self.mode, scenario, loop = scenario_from_args(args)
-        self.runner = ScenarioRunner(scenario, config.drive, loop=loop)
+        odometry = config.odometry
+        start = Pose(odometry.initial_x, odometry.initial_y, odometry.initial_theta)
+        # A built-in scenario runs from where the robot starts, as the odometry does.
+        self.runner = ScenarioRunner(
+            placed(scenario, start) if is_builtin(scenario) else scenario, config.drive, loop=loop
+        )
         self.clock = StampClock(config.input.stamp_horizon_ns)
         self.max_coordinate = config.input.max_coordinate
         self.schedule: PeriodicSchedule | None = None

@@ -24,6 +24,7 @@ from services.clock.sim_time import ClockRestart
 from services.clock.sim_watch import HeldSample, SimulatorWatch
 from services.config import Config
 from services.odometry.core import FIX_HISTORY_STEPS, Branch, Odometry
+from services.planar import Pose
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
 from services.service import ServiceCommand, TraceFile, no_overrides
@@ -39,7 +40,9 @@ class OdometryService:
 
     def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
         self.node = node
-        self.odometry = Odometry(config.robot, config.odometry, limits=config.input)
+        odometry = config.odometry
+        start = Pose(odometry.initial_x, odometry.initial_y, odometry.initial_theta)
+        self.odometry = Odometry(config.robot, odometry, start=start, limits=config.input)
         self.samples = 0
         self.localization_resets = 0
         self.sim = SimulatorWatch(node, ClockRestart(config.input.stamp_horizon_ns))
