@@ -141,8 +141,9 @@ def no_overrides(_args: argparse.Namespace) -> dict[str, Any]:
     return {}
 
 
-def config_from_args(command: ServiceCommand | None, args: argparse.Namespace) -> Config:
-    """The robot description for ``args``: file, then ``--set``, then ``--robot`` and ``command``'s flags."""
+def overrides_from_args(command: ServiceCommand | None, args: argparse.Namespace) -> dict[str, Any]:
+    """What ``args`` sets over the robot description file: ``--set``, then ``--robot`` and
+    ``command``'s flags."""
     overrides: dict[str, Any] = {}
     for text in args.set or ():
         path, value = parse_override(text)
@@ -150,7 +151,12 @@ def config_from_args(command: ServiceCommand | None, args: argparse.Namespace) -
     overrides["robot.name"] = args.robot
     if command is not None:
         overrides.update({key: value for key, value in command.overrides(args).items() if value is not None})
-    return load_config(args.config, overrides)
+    return overrides
+
+
+def config_from_args(command: ServiceCommand | None, args: argparse.Namespace) -> Config:
+    """The robot description for ``args``: file, then ``--set``, then ``--robot`` and ``command``'s flags."""
+    return load_config(args.config, overrides_from_args(command, args))
 
 
 def start_service(

@@ -45,7 +45,7 @@ import msgspec
 import zenoh
 
 from schemas.codec import BadInput, encode
-from schemas.keys import Method, MethodFamily, Service, parse_observes_key, parse_ticks_key
+from schemas.keys import Keys, Method, MethodFamily, Service, parse_observes_key, parse_ticks_key
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
     BumpEvent,
@@ -59,16 +59,17 @@ from schemas.messages import (
 from services.clock.lockstep import FINAL, OUTPUTS, TickBarrier, encode_mark
 from services.clock.observation import ObservedSteps
 from services.config import Config, SimConfig, SimMode
+from services.fleet.description import load_fleet, robot_config
 from services.runtime.executor import STOP_POLL_S
 from services.runtime.inputs import Delivery, NodeInput
 from services.runtime.logs import RateLimitedLog
 from services.runtime.node import Node
-from services.service import ServiceCommand, positive_seconds
+from services.service import ServiceCommand, overrides_from_args, positive_seconds
 from sim_bridge.latency import TorqueLatency
-from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, obstacles, read_world, resolve_world
+from sim_bridge.world import DEFAULT_WORLD, InitialPose, builtin_worlds, obstacles, read_world, resolve_world
 
 if TYPE_CHECKING:
-    from sim_bridge.simulator import Contact
+    from sim_bridge.simulator import Contact, SimulatedRobot
 
 BUMP_STOP_TIMEOUT_S = 1.0
 """How long a ``motor/bump/stop`` call stays open for its reply."""
@@ -95,76 +96,62 @@ COUNTERS = (
 """The counters of ``sim/status`` (docs/sim.md explains each)."""
 
 
-class SimService:
-    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+class RobotLink:
+    """One robot of the world as the bridge serves it: its node (keys, liveliness token, status),
+    publishers and inputs, its motor's state, its lockstep barrier and observed steps, its counters
+    and torque latency. A one-robot sim has one link, on the service's own node; a fleet sim one
+    per robot, their nodes on the same executor, so the loop's one thread serves them all."""
+
+    def __init__(self, service: SimService, node: Node, body: SimulatedRobot) -> None:
+        self.service = service
         self.node = node
-        self.parameters = config.sim
-        self.mode = config.sim.mode
-        self.duration: float | None = args.duration
-        self.until_drive_ends: bool = args.until_drive_ends
-        self.wait_for: list[Service] = args.wait_for or []
-        self.drive_ended = False
-        """The drive's last target (its scenario ended) has arrived, or the drive has gone: its token
-        and its last target travel separately, and the token may come first."""
+        self.body = body
+        self.name = body.name
         self.barrier = TickBarrier()
-        self._outputs: dict[Service, NodeInput | None] = {}
+        self.outputs: dict[Service, NodeInput | None] = {}
         """Lockstep: the participants' output channels, to wait in at their ticks."""
-        self.observation = ObservedSteps(config.sim.observe_every)
-        self._marks = (b"", b"")
+        self.observation = ObservedSteps(service.parameters.observe_every)
+        self.marks = (b"", b"")
         """The attachment of a step's wheel angles, (not observed, observed): what the barrier owes
         (in lockstep) and whether the step is observed. Encoded when they change, not at every step."""
-        self._owed_changed()
+        self.owed_changed()
         self.counters = dict.fromkeys(COUNTERS, 0)
         self.motor_alive = False
         self.motor_silent = False
         """Alive but not answering: lockstep steps at real-time pace until its next torque."""
-        self._late_in_a_row = 0
-        self._silent_wait_s = config.sim.step / config.sim.realtime_factor
-        self.finished = False
-        self._started: float | None = None
-        self._stopped_at: float | None = None
-        self._awaited_ns = -1
-        self._answered = False
-        self._newest_torque: list[float] | None = None
-        self._newest_ns = -1
-        self._published_ns = -1
-        """The stamp of the latest step published: no torque can answer a later one."""
-        self._clock: tuple[TimedDoubleSeq, bytes] | None = None
+        self.motor_lost = False
+        """Its motor control was alive and has gone: until one is back, nothing its participants
+        command can move the robot, so the world does not wait at their ticks (in a fleet, the
+        other robots go on at their pace)."""
+        self.late_in_a_row = 0
+        self.drive_ended = False
+        """The drive's last target (its scenario ended) has arrived, or the drive has gone: its token
+        and its last target travel separately, and the token may come first."""
+        self.awaited_ns = -1
+        self.answered = False
+        self.newest_torque: list[float] | None = None
+        self.newest_ns = -1
+        self.clock: tuple[TimedDoubleSeq, bytes] | None = None
         """(wheel angles, mark) of an observed step published, while its ``sim/clock`` waits."""
-        self._max_age_ns = round(config.sim.torque_max_age * NANOSECONDS_PER_SECOND)
-        self._warn = RateLimitedLog(node.log)
-        # Imported here, not at the top: every `invent` command imports this module for its flags,
-        # and importing PyBullet prints its build banner.
-        from sim_bridge.simulator import Simulator
-
-        self.world_file = resolve_world(config.sim.world)
-        self.world = read_world(self.world_file)
-        self.sim = Simulator(config.robot, config.sim, self.world, gui=args.gui)
-        self.latency = TorqueLatency(self.sim.step_ns)
-        self._end_step = (
-            math.inf if args.duration is None else round(args.duration * NANOSECONDS_PER_SECOND / self.sim.step_ns)
-        )
-        try:
-            self._declare()
-        except BaseException:
-            self.sim.close()
-            raise
+        self.latency = TorqueLatency(service.sim.step_ns)
+        self.warn = RateLimitedLog(node.log)
+        self._declare()
 
     def _declare(self) -> None:
         node, keys = self.node, self.node.keys
-        self._pose_publisher = node.publisher(keys.sim_body_pose)
-        self._angles_publisher = node.publisher(keys.sim_wheel_angles)
-        self._clock_publisher = node.publisher(keys.sim_clock)
-        self._bump_publisher = node.publisher(keys.sim_bump)
-        self._world_publisher = node.latched_publisher(keys.sim_world)
+        self.pose_publisher = node.publisher(keys.sim_body_pose)
+        self.angles_publisher = node.publisher(keys.sim_wheel_angles)
+        self.clock_publisher = node.publisher(keys.sim_clock)
+        self.bump_publisher = node.publisher(keys.sim_bump)
+        self.world_publisher = node.latched_publisher(keys.sim_world)
         # Lockstep waits in the torque channel's receive itself, and in a participant's output
         # channel at its ticks; realtime waits for its step's deadline, which a posted torque must
         # interrupt.
-        lockstep = self.mode == SimMode.LOCKSTEP
+        lockstep = self.service.mode == SimMode.LOCKSTEP
         delivery = Delivery.EVERY if lockstep else Delivery.QUEUED
-        node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, delivery, wakes=lockstep)
+        self.torque_input = node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, delivery, wakes=lockstep)
         for service, message_type in ((Service.DRIVE, TimedVelocity), (Service.LOCALIZATION, TimedPosition)):
-            self._outputs[service] = node.subscribe(
+            self.outputs[service] = node.subscribe(
                 keys.topic(OUTPUTS[service]),
                 message_type,
                 partial(self._on_output, service),
@@ -180,7 +167,7 @@ class SimService:
         self._bump_stop = node.session.declare_querier(
             keys.method(MethodFamily.BUMP, Method.STOP), timeout=BUMP_STOP_TIMEOUT_S
         )
-        node.watch(Service.MOTOR, self._set_motor_alive)
+        node.watch(Service.MOTOR, self.set_motor_alive)
         node.set_status(self.status)
 
     # --- zenoh callbacks: they only hand over to the service thread ---
@@ -199,47 +186,53 @@ class SimService:
 
     # --- service thread ---
 
-    def _set_motor_alive(self, alive: bool) -> None:
+    def set_motor_alive(self, alive: bool) -> None:
         if alive == self.motor_alive:
             return
+        self.motor_lost = self.motor_alive and not alive
         self.motor_alive = alive
-        self._set_motor_silent(False)
-        lockstep = self.mode == SimMode.LOCKSTEP
+        self.set_motor_silent(False)
+        lockstep = self.service.mode == SimMode.LOCKSTEP
         if alive:
             effect = "steps wait for its torques" if lockstep else "applying its torques"
         else:
             effect = "stepping on with zero torque" if lockstep else "zero torque"
-        self.node.log.info("motor control %s: %s", "alive" if alive else "gone", effect)
+        self.node.log.info("%smotor control %s: %s", self.service.prefix(self), "alive" if alive else "gone", effect)
 
-    def _set_motor_silent(self, silent: bool) -> None:
-        self._late_in_a_row = 0
+    def set_motor_silent(self, silent: bool) -> None:
+        self.late_in_a_row = 0
         if silent == self.motor_silent:
             return
         self.motor_silent = silent
+        prefix = self.service.prefix(self)
         if silent:
             self.node.log.warning(
-                "motor control alive but silent for %d steps: stepping at real-time pace until it answers",
-                self.parameters.lockstep_max_late,
+                "%smotor control alive but silent for %d steps: stepping at real-time pace until it answers",
+                prefix,
+                self.service.parameters.lockstep_max_late,
             )
         elif self.motor_alive:
-            self.node.log.info("motor control answers again: steps wait for its torques")
+            self.node.log.info("%smotor control answers again: steps wait for its torques", prefix)
 
     def _participant_changed(self, key: str, alive: bool) -> None:
         parsed = parse_ticks_key(key)
         if parsed is None or parsed[0] not in OUTPUTS:
             return
         service, rate_hz = parsed
+        lockstep, prefix = self.service.mode == SimMode.LOCKSTEP, self.service.prefix(self)
         if alive:
-            self.observation.add(key, rate_hz, self._present())
-            self.barrier.announce(service, rate_hz, from_start=self._started is None)
-            if self.mode == SimMode.LOCKSTEP:
-                self.node.log.info("%s ticks at %g Hz: steps at its ticks wait for its output", service, rate_hz)
+            self.observation.add(key, rate_hz, self.service.present())
+            self.barrier.announce(service, rate_hz, from_start=not self.service.started)
+            if lockstep:
+                self.node.log.info(
+                    "%s%s ticks at %g Hz: steps at its ticks wait for its output", prefix, service, rate_hz
+                )
             return
         self.observation.remove(key)
         if self.barrier.withdraw(service):
-            self._owed_changed()
-            if self.mode == SimMode.LOCKSTEP:
-                self.node.log.info("%s gone: its ticks are not waited for", service)
+            self.owed_changed()
+            if lockstep:
+                self.node.log.info("%s%s gone: its ticks are not waited for", prefix, service)
             if service is Service.DRIVE:
                 self.drive_ended = True
 
@@ -249,190 +242,326 @@ class SimService:
             return
         service, rate_hz = parsed
         if alive:
-            self.observation.add(key, rate_hz, self._present())
-            self.node.log.info("%s observes at %g Hz: those steps are observed too", service, rate_hz)
+            self.observation.add(key, rate_hz, self.service.present())
+            self.node.log.info(
+                "%s%s observes at %g Hz: those steps are observed too", self.service.prefix(self), service, rate_hz
+            )
         else:
             self.observation.remove(key)
 
-    def _present(self) -> int | None:
-        """The stamp of the latest step published; None before the first."""
-        return self._published_ns if self._published_ns >= 0 else None
-
     def _on_output(self, service: Service, message: TimedVelocity | TimedPosition, attachment: bytes | None) -> None:
         final = attachment == FINAL
-        self.barrier.took(service, message.tm.to_nanoseconds(), self._published_ns, final=final)
-        self._owed_changed()
+        self.barrier.took(service, message.tm.to_nanoseconds(), self.service.published_ns, final=final)
+        self.owed_changed()
         if final and service is Service.DRIVE and not self.drive_ended:
             self.drive_ended = True
-            self.node.log.info("the drive's scenario ended at t = %.3f s", message.tm.to_seconds())
+            self.node.log.info(
+                "%sthe drive's scenario ended at t = %.3f s", self.service.prefix(self), message.tm.to_seconds()
+            )
 
     def _record_bump_stop_reply(self, ok: bool, reason: str) -> None:
         if ok:
             self.counters["bump_stop_acks"] += 1
         else:
             self.counters["bump_stop_errors"] += 1
-            self.node.log.warning("motor/bump/stop answered with an error: %s", reason)
+            self.node.log.warning("%smotor/bump/stop answered with an error: %s", self.service.prefix(self), reason)
 
     def _on_torque(self, torque: TimedDoubleSeq) -> None:
-        if len(torque.data) != self.sim.wheel_count:
-            raise BadInput(f"{len(torque.data)} torques, expected {self.sim.wheel_count} (one per wheel id)")
+        body = self.body
+        if len(torque.data) != body.wheel_count:
+            raise BadInput(f"{len(torque.data)} torques, expected {body.wheel_count} (one per wheel id)")
         tm_ns = torque.tm.to_nanoseconds()
         self.latency.answered(tm_ns, time.perf_counter_ns())
-        if self.mode == SimMode.LOCKSTEP:
+        if self.service.mode == SimMode.LOCKSTEP:
             if self.motor_silent:
-                self._set_motor_silent(False)
-            if tm_ns != self._awaited_ns or self._answered:
+                self.set_motor_silent(False)
+            if tm_ns != self.awaited_ns or self.answered:
                 self.counters["stale_torques"] += 1
                 return
-            self.sim.set_torques(torque.data)
-            self._answered = True
-        elif tm_ns > self._published_ns:
+            body.set_torques(torque.data)
+            self.answered = True
+        elif tm_ns > self.service.published_ns:
+            published_ns = self.service.published_ns
             raise BadInput(
                 f"torque stamped t = {tm_ns / NANOSECONDS_PER_SECOND:.6f} s, after the latest step "
-                f"(t = {self._published_ns / NANOSECONDS_PER_SECOND:.6f} s): from the future"
+                f"(t = {published_ns / NANOSECONDS_PER_SECOND:.6f} s): from the future"
             )
-        elif tm_ns > self._newest_ns:
-            self._newest_torque, self._newest_ns = torque.data, tm_ns
+        elif tm_ns > self.newest_ns:
+            self.newest_torque, self.newest_ns = torque.data, tm_ns
 
-    def _publish_state(self) -> int:
+    def publish_state(self, step_index: int, tm_ns: int, tm: Time, recording: bool) -> None:
         """Publish this step's wheel angles, then its body pose if it is observed (or recorded):
         the motor converts the pose once it has answered the wheel angles, in the same wake. The
-        step's clock waits for :meth:`_publish_clock`."""
-        sim = self.sim
-        tm_ns = sim.time_ns
-        observed = self.observation.observed(sim.step_index, tm_ns)
-        mark = self._marks[observed]
-        tm = Time.from_nanoseconds(tm_ns)
-        angles = TimedDoubleSeq(tm=tm, data=sim.wheel_angles())
+        step's clock waits for :meth:`publish_clock`."""
+        body = self.body
+        observed = self.observation.observed(step_index, tm_ns)
+        mark = self.marks[observed]
+        angles = TimedDoubleSeq(tm=tm, data=body.wheel_angles())
         self.latency.published(tm_ns, time.perf_counter_ns())
-        self._published_ns = tm_ns
-        self._angles_publisher.put(angles, mark)
-        if observed or self.node.recording:
-            self._pose_publisher.put(TimedDoubleSeq(tm=tm, data=sim.body_pose()), mark)
+        self.angles_publisher.put(angles, mark)
+        if observed or recording:
+            self.pose_publisher.put(TimedDoubleSeq(tm=tm, data=body.body_pose()), mark)
         if observed:
-            self._clock = (angles, mark)
-        return tm_ns
+            self.clock = (angles, mark)
 
-    def _publish_clock(self) -> None:
+    def publish_clock(self) -> None:
         """Publish this step's ``sim/clock`` if it is observed, once the step's torque is in or its
         wait is over: the drive's command (and the ROS 2 bridge's messages) are then computed while
         the simulator steps, not while the motor computes the torque."""
-        pending, self._clock = self._clock, None
+        pending, self.clock = self.clock, None
         if pending is not None:
-            self._clock_publisher.put(*pending)
+            self.clock_publisher.put(*pending)
 
-    def _step(self) -> None:
-        for contact in self.sim.step():
-            self._bump(contact)
-
-    def _bump(self, contact: Contact) -> None:
+    def bump(self, contact: Contact, tm: Time) -> None:
         self.counters["bumps"] += 1
-        tm = Time.from_nanoseconds(self.sim.time_ns)
         self.node.log.info(
-            "bump: began touching %r at (%.3f, %.3f, %.3f), t = %.3f s; calling motor/bump/stop",
+            "%sbump: began touching %r at (%.3f, %.3f, %.3f), t = %.3f s; calling motor/bump/stop",
+            self.service.prefix(self),
             contact.obstacle,
             contact.x,
             contact.y,
             contact.z,
             tm.to_seconds(),
         )
-        self._bump_publisher.put(BumpEvent(tm=tm, obstacle=contact.obstacle, x=contact.x, y=contact.y, z=contact.z))
+        self.bump_publisher.put(BumpEvent(tm=tm, obstacle=contact.obstacle, x=contact.x, y=contact.y, z=contact.z))
         self.counters["bump_stop_calls"] += 1
         self._bump_stop.get(self._on_bump_stop_reply, payload=_BUMP_STOP_PAYLOAD)
 
-    def _lockstep_torque(self, tm_ns: int, stop: threading.Event) -> None:
-        """Set this step's torque: the motor's answer for ``tm_ns``, or zero."""
-        node, counters = self.node, self.counters
-        self._awaited_ns, self._answered = tm_ns, False
-        if self.motor_alive:
-            silent = self.motor_silent
+    def begin_torque_wait(self, tm_ns: int) -> None:
+        self.awaited_ns, self.answered = tm_ns, False
+
+    def end_torque_wait(self) -> None:
+        """After the wait for this step's torque: count it, or apply zero torque."""
+        self.awaited_ns = -1
+        if self.answered:
+            self.late_in_a_row = 0
+            self.counters["torques_applied"] += 1
+        else:
+            self.body.set_zero_torques()
+
+    def late(self, tm_ns: int) -> None:
+        parameters = self.service.parameters
+        self.counters["late_torques"] += 1
+        self.warn(
+            "late_torque",
+            logging.WARNING,
+            "%sno motor/torque for t = %.3f s within %.3f s: zero torque",
+            self.service.prefix(self),
+            tm_ns / NANOSECONDS_PER_SECOND,
+            parameters.lockstep_timeout,
+        )
+        self.late_in_a_row += 1
+        if self.late_in_a_row >= parameters.lockstep_max_late:
+            self.set_motor_silent(True)
+
+    def tick_timed_out(self, service: Service, tm_ns: int) -> None:
+        self.barrier.gave_up(service)
+        self.counters["tick_timeouts"] += 1
+        self.warn(
+            f"tick_timeout_{service}",
+            logging.WARNING,
+            "%sno %s for t = %.3f s within %.3f s: stepping on; waiting for it again once it outputs",
+            self.service.prefix(self),
+            OUTPUTS[service],
+            tm_ns / NANOSECONDS_PER_SECOND,
+            self.service.parameters.lockstep_timeout,
+        )
+
+    def realtime_torque(self, tm_ns: int, max_age_ns: int) -> None:
+        if self.newest_ns != tm_ns:
+            self.counters["realtime_late_steps"] += 1
+        newest = self.newest_torque
+        if newest is not None and 0 <= tm_ns - self.newest_ns <= max_age_ns:
+            self.body.set_torques(newest)
+            self.counters["torques_applied"] += 1
+        else:
+            self.body.set_zero_torques()
+            self.counters["missing_torques"] += 1
+
+    def owed_changed(self) -> None:
+        owed = self.barrier.owed() if self.service.mode == SimMode.LOCKSTEP else None
+        self.marks = (encode_mark(owed, observed=False), encode_mark(owed, observed=True))
+
+    def planar_pose(self) -> dict[str, float]:
+        x, y, _z, r00, _r01, _r02, r10 = self.body.body_pose()[:7]
+        return {"x": x, "y": y, "theta": math.atan2(r10, r00)}
+
+    def summary(self) -> str:
+        pose = self.planar_pose()
+        counters = ", ".join(f"{name} {count}" for name, count in self.counters.items())
+        return f"{counters}; pose x {pose['x']:.4f} m, y {pose['y']:.4f} m, theta {pose['theta']:.4f} rad"
+
+    def late_fraction(self) -> float:
+        """Steps whose torque came late: past the timeout (lockstep), after the step (realtime)."""
+        steps = self.service.sim.step_index
+        late = self.counters["late_torques" if self.service.mode == SimMode.LOCKSTEP else "realtime_late_steps"]
+        return late / steps if steps else 0.0
+
+    def status(self) -> dict[str, Any]:
+        status = self.service.world_status()
+        status.update(
+            motor_alive=self.motor_alive,
+            motor_silent=self.motor_silent,
+            torques=list(self.body.applied_torques),
+            pose=self.planar_pose(),
+            counters=dict(self.counters),
+            torque_latency=self.latency.summary(),
+            late_fraction=self.late_fraction(),
+            lockstep_participants=self.barrier.status(),
+            observed_steps=self.observation.count,
+            observed_rates=self.observation.rates(),
+            drive_ended=self.drive_ended,
+        )
+        return status
+
+    def close(self) -> None:
+        self._ticks_watch.undeclare()
+        self._observers_watch.undeclare()
+        self._bump_stop.undeclare()
+
+
+class SimService:
+    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+        self.node = node
+        self.parameters = config.sim
+        self.mode = config.sim.mode
+        self.duration: float | None = args.duration
+        self.until_drive_ends: bool = args.until_drive_ends
+        self.wait_for: list[Service] = args.wait_for or []
+        self.started = False
+        self._started_at: float | None = None
+        self._stopped_at: float | None = None
+        self.finished = False
+        self.published_ns = -1
+        """The stamp of the latest step published: no torque can answer a later one."""
+        self._silent_wait_s = config.sim.step / config.sim.realtime_factor
+        self._max_age_ns = round(config.sim.torque_max_age * NANOSECONDS_PER_SECOND)
+        # Imported here, not at the top: every `invent` command imports this module for its flags,
+        # and importing PyBullet prints its build banner.
+        from sim_bridge.simulator import Placement, Simulator
+
+        self.fleet = load_fleet(args.fleet) if args.fleet else None
+        self.world_file = resolve_world(config.sim.world)
+        self.world = read_world(self.world_file)
+        placements: list[Placement] = []
+        if self.fleet is not None:
+            overrides = overrides_from_args(COMMAND, args)
+            for robot in self.fleet.robots:
+                start = robot.start
+                description = robot_config(robot, args.config, overrides).robot
+                placements.append(
+                    Placement(robot.name, description, InitialPose(x=start.x, y=start.y, theta=start.theta))
+                )
+        self.sim = Simulator(config.robot, config.sim, self.world, gui=args.gui, fleet=placements)
+        self._end_step = (
+            math.inf if args.duration is None else round(args.duration * NANOSECONDS_PER_SECOND / self.sim.step_ns)
+        )
+        self.links: list[RobotLink] = []
+        try:
+            for index, body in enumerate(self.sim.robots):
+                robot_node = (
+                    node
+                    if index == 0
+                    else Node(node.session, Keys(body.name), Service.SIM, executor=node.executor, journal=node.journal)
+                )
+                self.links.append(RobotLink(self, robot_node, body))
+        except BaseException:
+            self.close()
+            raise
+
+    def prefix(self, link: RobotLink) -> str:
+        """What a log line about ``link`` starts with: its robot's name, in a fleet."""
+        return f"{link.name}: " if self.fleet is not None else ""
+
+    def present(self) -> int | None:
+        """The stamp of the latest step published; None before the first."""
+        return self.published_ns if self.published_ns >= 0 else None
+
+    def _publish_state(self) -> int:
+        sim = self.sim
+        tm_ns = sim.time_ns
+        tm = Time.from_nanoseconds(tm_ns)
+        self.published_ns = tm_ns
+        recording = self.node.recording
+        for link in self.links:
+            link.publish_state(sim.step_index, tm_ns, tm, recording)
+        return tm_ns
+
+    def _publish_clocks(self) -> None:
+        for link in self.links:
+            link.publish_clock()
+
+    def _step(self) -> None:
+        contacts = self.sim.step()
+        if contacts:
+            tm = Time.from_nanoseconds(self.sim.time_ns)
+            for contact in contacts:
+                self.links[contact.robot].bump(contact, tm)
+
+    def _lockstep_torques(self, tm_ns: int, stop: threading.Event) -> None:
+        """Set this step's torque of every robot: its motor's answer for ``tm_ns``, or zero."""
+        for link in self.links:
+            link.begin_torque_wait(tm_ns)
+        for link in self.links:
+            self._lockstep_torque(link, tm_ns, stop)
+        for link in self.links:
+            link.end_torque_wait()
+
+    def _lockstep_torque(self, link: RobotLink, tm_ns: int, stop: threading.Event) -> None:
+        node = self.node
+        if link.motor_alive:
+            silent = link.motor_silent
             deadline = time.monotonic() + (self._silent_wait_s if silent else self.parameters.lockstep_timeout)
-            while not self._answered and self.motor_alive and not stop.is_set():
+            while not link.answered and link.motor_alive and not stop.is_set():
                 remaining = deadline - time.monotonic()
                 if remaining <= 0.0:
                     if silent:
-                        counters["missing_torques"] += 1
+                        link.counters["missing_torques"] += 1
                     else:
-                        self._late(tm_ns)
+                        link.late(tm_ns)
                     break
-                node.spin_once(min(remaining, STOP_POLL_S))
+                node.spin_once(min(remaining, STOP_POLL_S), link.torque_input)
         else:
             node.drain()
-            if not self._answered:
-                counters["missing_torques"] += 1
-        self._awaited_ns = -1
-        if self._answered:
-            self._late_in_a_row = 0
-            counters["torques_applied"] += 1
-        else:
-            self.sim.set_zero_torques()
-
-    def _late(self, tm_ns: int) -> None:
-        self.counters["late_torques"] += 1
-        self._warn(
-            "late_torque",
-            logging.WARNING,
-            "no motor/torque for t = %.3f s within %.3f s: zero torque",
-            tm_ns / NANOSECONDS_PER_SECOND,
-            self.parameters.lockstep_timeout,
-        )
-        self._late_in_a_row += 1
-        if self._late_in_a_row >= self.parameters.lockstep_max_late:
-            self._set_motor_silent(True)
+            if not link.answered:
+                link.counters["missing_torques"] += 1
 
     def _lockstep_ticks(self, tm_ns: int, stop: threading.Event) -> None:
         """Wait for the outputs of the participants with a tick at ``tm_ns`` (or give up on them)."""
-        barrier, node = self.barrier, self.node
-        if barrier.ticks(tm_ns):
-            deadline = time.monotonic() + self.parameters.lockstep_timeout
-            while (missing := barrier.missing()) and not stop.is_set():
+        node = self.node
+        due = [link for link in self.links if link.barrier.ticks(tm_ns)]
+        if not due:
+            return
+        deadline = time.monotonic() + self.parameters.lockstep_timeout
+        for link in due:
+            if link.motor_lost:
+                for service in link.barrier.missing():
+                    link.barrier.gave_up(service)
+                continue
+            while (missing := link.barrier.missing()) and not stop.is_set():
                 remaining = deadline - time.monotonic()
                 if remaining <= 0.0:
                     for service in missing:
-                        barrier.gave_up(service)
-                        self.counters["tick_timeouts"] += 1
-                        self._warn(
-                            f"tick_timeout_{service}",
-                            logging.WARNING,
-                            "no %s for t = %.3f s within %.3f s: stepping on; waiting for it again once it outputs",
-                            OUTPUTS[service],
-                            tm_ns / NANOSECONDS_PER_SECOND,
-                            self.parameters.lockstep_timeout,
-                        )
+                        link.tick_timed_out(service, tm_ns)
                     break
-                node.spin_once(min(remaining, STOP_POLL_S), self._outputs[missing[0]])
-
-    def _owed_changed(self) -> None:
-        owed = self.barrier.owed() if self.mode == SimMode.LOCKSTEP else None
-        self._marks = (encode_mark(owed, observed=False), encode_mark(owed, observed=True))
+                node.spin_once(min(remaining, STOP_POLL_S), link.outputs[missing[0]])
 
     def _ended(self) -> bool:
-        return self.until_drive_ends and self.drive_ended
+        return self.until_drive_ends and all(link.drive_ended for link in self.links)
 
     def _run_lockstep(self, stop: threading.Event) -> None:
         sim = self.sim
         while sim.step_index < self._end_step and not stop.is_set():
             tm_ns = self._publish_state()
-            self._lockstep_torque(tm_ns, stop)
-            self._publish_clock()
+            self._lockstep_torques(tm_ns, stop)
+            self._publish_clocks()
             self._lockstep_ticks(tm_ns, stop)
             if self._ended():
                 return
             self._step()
 
-    def _realtime_torque(self, tm_ns: int) -> None:
-        if self._newest_ns != tm_ns:
-            self.counters["realtime_late_steps"] += 1
-        newest = self._newest_torque
-        if newest is not None and 0 <= tm_ns - self._newest_ns <= self._max_age_ns:
-            self.sim.set_torques(newest)
-            self.counters["torques_applied"] += 1
-        else:
-            self.sim.set_zero_torques()
-            self.counters["missing_torques"] += 1
-
     def _run_realtime(self, stop: threading.Event) -> None:
-        sim, node = self.sim, self.node
+        sim, node, links = self.sim, self.node, self.links
         period = sim.step_ns / NANOSECONDS_PER_SECOND / self.parameters.realtime_factor
         origin, origin_step = time.monotonic(), sim.step_index
         while sim.step_index < self._end_step and not stop.is_set():
@@ -440,36 +569,45 @@ class SimService:
             deadline = origin + (sim.step_index + 1 - origin_step) * period
             while (remaining := deadline - time.monotonic()) > 0.0:
                 node.spin_once(min(remaining, STOP_POLL_S))
-                if self._newest_ns == tm_ns:
-                    self._publish_clock()
-            self._publish_clock()
+                for link in links:
+                    if link.newest_ns == tm_ns:
+                        link.publish_clock()
+            self._publish_clocks()
             if -remaining > MAX_REALTIME_LAG_S:
-                self.counters["realtime_resyncs"] += 1
+                for link in links:
+                    link.counters["realtime_resyncs"] += 1
                 origin, origin_step = time.monotonic(), sim.step_index + 1
             node.drain()
-            self._realtime_torque(tm_ns)
+            for link in links:
+                link.realtime_torque(tm_ns, self._max_age_ns)
             if self._ended():
                 return
             self._step()
 
     def run(self, stop: threading.Event) -> int:
         # Asked once at start, so the first steps already know whether to wait.
-        self._set_motor_alive(self.node.alive_now(Service.MOTOR))
+        for link in self.links:
+            link.set_motor_alive(link.node.alive_now(Service.MOTOR))
         self.node.drain()
         self._await_services(stop)
-        if self.motor_alive and self.mode == SimMode.LOCKSTEP:
-            self._await_motor_subscription()
-        if self.mode == SimMode.LOCKSTEP:
+        lockstep = self.mode == SimMode.LOCKSTEP
+        if lockstep and any(link.motor_alive for link in self.links):
+            self._await_motor_subscriptions()
+        if lockstep:
             self._await_participants()
         self.node.log.info(
-            "simulating %s in %s mode, step %g s%s",
+            "simulating %s in %s mode, step %g s%s%s",
             self.world_file,
             self.mode,
             self.parameters.step,
             "" if self.duration is None else f", for {self.duration:g} s",
+            "" if self.fleet is None else f", robots {', '.join(link.name for link in self.links)}",
         )
-        self._world_publisher.put(SimWorld(Time.from_nanoseconds(self.sim.time_ns), obstacles(self.world)))
-        self._started = time.monotonic()
+        world = SimWorld(Time.from_nanoseconds(self.sim.time_ns), obstacles(self.world))
+        for link in self.links:
+            link.world_publisher.put(world)
+        self._started_at = time.monotonic()
+        self.started = True
         {SimMode.LOCKSTEP: self._run_lockstep, SimMode.REALTIME: self._run_realtime}[self.mode](stop)
         self.finished = self.sim.step_index >= self._end_step or self._ended()
         self._stopped_at = time.monotonic()
@@ -479,31 +617,35 @@ class SimService:
             self.node.serve(stop, finished=lambda: False)
         return 0
 
-    def _await_motor_subscription(self) -> None:
+    def _await_motor_subscriptions(self) -> None:
         """Give the first wheel angles a subscriber to reach, so the first step does not time out."""
         deadline = time.monotonic() + self.parameters.lockstep_timeout
-        while not self._angles_publisher.matched and time.monotonic() < deadline:
+        waiting = [link for link in self.links if link.motor_alive]
+        while any(not link.angles_publisher.matched for link in waiting) and time.monotonic() < deadline:
             self.node.spin_once(STOP_POLL_S / 10.0)
 
     def _await_services(self, stop: threading.Event) -> None:
-        """``--wait-for``: before the first step, until each named service is alive (a lockstep
-        participant: holds its ticks token), so that the run starts the same way every time."""
+        """``--wait-for``: before the first step, until each named service of every robot is alive
+        (a lockstep participant: holds its ticks token), so that the run starts the same way every time."""
         if not self.wait_for:
             return
 
         def missing() -> list[str]:
             return [
-                str(service)
+                f"{self.prefix(link)}{service}"
+                for link in self.links
                 for service in self.wait_for
-                if not (self.motor_alive if service is Service.MOTOR else self.barrier.announced(service))
+                if not (link.motor_alive if service is Service.MOTOR else link.barrier.announced(service))
             ]
 
-        deadline = time.monotonic() + START_HANDSHAKE_TIMEOUT_S
+        deadline = time.monotonic() + START_HANDSHAKE_TIMEOUT_S * len(self.links)
         while missing() and time.monotonic() < deadline and not stop.is_set():
             self.node.spin_once(STOP_POLL_S)
         if missing():
             self.node.log.warning(
-                "starting without %s: not there within %g s", ", ".join(missing()), START_HANDSHAKE_TIMEOUT_S
+                "starting without %s: not there within %g s",
+                ", ".join(missing()),
+                START_HANDSHAKE_TIMEOUT_S * len(self.links),
             )
 
     def _await_participants(self) -> None:
@@ -513,73 +655,65 @@ class SimService:
         The thread keeps handling events meanwhile (composed, it serves those participants too)."""
         node = self.node
         deadline = time.monotonic() + START_HANDSHAKE_TIMEOUT_S
-        waiting = set(self.barrier.waited_for()) | ({Service.MOTOR} if self.motor_alive else set())
-        asked: dict[Service, Any] = {}
+        waiting = {
+            (index, service)
+            for index, link in enumerate(self.links)
+            for service in (*link.barrier.waited_for(), *((Service.MOTOR,) if link.motor_alive else ()))
+        }
+        asked: dict[tuple[int, Service], Any] = {}
         while waiting and time.monotonic() < deadline:
-            for service in waiting - set(asked):
-                asked[service] = node.session.get(node.keys.status(service), timeout=STOP_POLL_S)
+            for index, service in waiting - set(asked):
+                asked[index, service] = node.session.get(
+                    self.links[index].node.keys.status(service), timeout=STOP_POLL_S
+                )
             node.spin_once(STOP_POLL_S / 10.0)
-            for service, replies in list(asked.items()):
+            for participant, replies in list(asked.items()):
                 try:
                     reply = replies.try_recv()
                 except zenoh.ZError:  # unanswered within its timeout: asked again
-                    del asked[service]
+                    del asked[participant]
                     continue
                 if reply is None:
                     continue
-                del asked[service]  # answered: asked again unless it sees this simulator
+                del asked[participant]  # answered: asked again unless it sees this simulator
                 if reply.ok is not None and msgspec.json.decode(reply.ok.payload.to_bytes()).get("sim_alive"):
-                    waiting.discard(service)
+                    waiting.discard(participant)
         if waiting:
-            node.log.warning("%s did not see this simulator before its first step", ", ".join(sorted(waiting)))
+            names = sorted(f"{self.prefix(self.links[index])}{service}" for index, service in waiting)
+            node.log.warning("%s did not see this simulator before its first step", ", ".join(names))
 
     def _elapsed(self) -> float:
-        if self._started is None:
+        if self._started_at is None:
             return 0.0
-        return (self._stopped_at if self._stopped_at is not None else time.monotonic()) - self._started
+        return (self._stopped_at if self._stopped_at is not None else time.monotonic()) - self._started_at
 
     def _steps_per_second(self) -> float:
         elapsed = self._elapsed()
         return self.sim.step_index / elapsed if elapsed > 0.0 else 0.0
 
-    def _planar_pose(self) -> dict[str, float]:
-        x, y, _z, r00, _r01, _r02, r10 = self.sim.body_pose()[:7]
-        return {"x": x, "y": y, "theta": math.atan2(r10, r00)}
-
     def _summary(self) -> str:
         sim = self.sim
-        pose = self._planar_pose()
-        counters = ", ".join(f"{name} {count}" for name, count in self.counters.items())
-        return (
+        head = (
             f"{sim.step_index} steps, {sim.time_ns / NANOSECONDS_PER_SECOND:.3f} s simulated "
-            f"in {self._elapsed():.3f} s "
-            f"({self._steps_per_second():.0f} steps/s); {counters}; "
-            f"pose x {pose['x']:.4f} m, y {pose['y']:.4f} m, theta {pose['theta']:.4f} rad"
+            f"in {self._elapsed():.3f} s ({self._steps_per_second():.0f} steps/s)"
         )
+        if self.fleet is None:
+            return f"{head}; {self.links[0].summary()}"
+        return head + "".join(f"; {link.name}: {link.summary()}" for link in self.links)
 
-    def status(self) -> dict[str, Any]:
+    def world_status(self) -> dict[str, Any]:
+        """The part of every robot's ``sim/status`` that is the world's."""
         sim = self.sim
         simulated = sim.time_ns / NANOSECONDS_PER_SECOND
         elapsed = self._elapsed()
-        return {
-            "state": "finished" if self.finished else ("running" if self._started is not None else "starting"),
+        status: dict[str, Any] = {
+            "state": "finished" if self.finished else ("running" if self.started else "starting"),
             "mode": self.mode,
             "world": str(self.world_file),
-            "motor_alive": self.motor_alive,
-            "motor_silent": self.motor_silent,
             "sim_time_s": simulated,
             "steps": sim.step_index,
             "steps_per_second": self._steps_per_second(),
             "realtime_factor_achieved": simulated / elapsed if elapsed > 0.0 else 0.0,
-            "torques": list(sim.applied_torques),
-            "pose": self._planar_pose(),
-            "counters": dict(self.counters),
-            "torque_latency": self.latency.summary(),
-            "late_fraction": self._late_fraction(),
-            "lockstep_participants": self.barrier.status(),
-            "observed_steps": self.observation.count,
-            "observed_rates": self.observation.rates(),
-            "drive_ended": self.drive_ended,
             "parameters": {
                 "step": self.parameters.step,
                 "observe_every": self.parameters.observe_every,
@@ -591,16 +725,19 @@ class SimService:
                 "max_wheel_torque": self.parameters.max_wheel_torque,
             },
         }
+        if self.fleet is not None:
+            status["fleet"] = [link.name for link in self.links]
+        return status
 
-    def _late_fraction(self) -> float:
-        """Steps whose torque came late: past the timeout (lockstep), after the step (realtime)."""
-        late = self.counters["late_torques" if self.mode == SimMode.LOCKSTEP else "realtime_late_steps"]
-        return late / self.sim.step_index if self.sim.step_index else 0.0
+    def status(self) -> dict[str, Any]:
+        return self.links[0].status()
 
     def close(self) -> None:
-        self._ticks_watch.undeclare()
-        self._observers_watch.undeclare()
-        self._bump_stop.undeclare()
+        for link in reversed(self.links):
+            link.close()
+            if link.node is not self.node:
+                link.node.close()
+        self.links.clear()
         self.sim.close()
 
 
@@ -640,14 +777,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"world TOML file, or a built-in world ({', '.join(builtin_worlds())}); default: {DEFAULT_WORLD}",
     )
     group.add_argument("--gui", action="store_true", help="open a PyBullet window (needs a display)")
+    group.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="simulate every robot of this fleet file in one world, each robot's keys under its name "
+        "(docs/fleet.md); its world is the fleet's unless --world is given; --robot is then the fleet's",
+    )
 
 
 def overrides(args: argparse.Namespace) -> dict[str, Any]:
+    fleet = load_fleet(args.fleet) if args.fleet else None
     return {
         "sim.mode": args.mode,
         "sim.step": args.step,
         "sim.realtime_factor": args.realtime_factor,
-        "sim.world": args.world,
+        "sim.world": args.world or (fleet.world if fleet else None),
+        "robot.name": fleet.robots[0].name if fleet else None,
     }
 
 

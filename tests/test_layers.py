@@ -37,6 +37,8 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.drive\.(scenarios|path_following)", CORE),
     (r"services\.clock\.(sim_time|lockstep|observation)", CORE),
     (r"services\.planar", CORE),
+    (r"services\.fleet\.(description|summary)", CORE),
+    (r"services\.fleet\.launch", TOOL),
     (r"sim_bridge\.(simulator|robot|world|geometry|latency|display)", CORE),
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph)", CORE),
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
@@ -45,7 +47,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
     (r"services\.(cli|recording)(\..*)?", TOOL),
     (r"services\.security", TOOL),
-    (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2))", "package"),
+    (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet))", "package"),
 )
 
 PROJECT = re.compile(r"(schemas|services|sim_bridge)(\..*)?")

@@ -96,6 +96,12 @@ class Node:
         self._declarations.append(session.liveliness().declare_token(keys.alive(service)))
 
     @property
+    def journal(self) -> Journal | None:
+        """The journal of what the node publishes, if it keeps one: another node of the same
+        process (the fleet simulator's, one per robot) may write to it too."""
+        return self._journal
+
+    @property
     def recording(self) -> bool:
         """Whether the node keeps a journal of what it publishes (``invent up``'s recording): a
         recorded run records its observed outputs at every step."""

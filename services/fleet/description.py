@@ -1,0 +1,157 @@
+"""The fleet file: one world, several robots, each with its start pose, scenario and overrides.
+
+```toml
+world = "empty"                      # as sim.world: a built-in name or a world file
+[[robots]]
+name = "rh0"
+start = { x = 0.0, y = 0.0, theta = 0.0 }
+scenario = "square"                  # built-in or file; a built-in runs from this start pose
+[[robots]]
+name = "rh1"
+start = { x = 0.0, y = 3.0, theta = 0.0 }
+set = { "motor.p_gain_l" = 6.0 }     # optional per-robot overrides of the robot description
+```
+
+Loading is strict, as for the robot description and world files: an unknown key, a wrong type, a
+duplicate or invalid robot name, an override that does not fit the robot description raises
+:class:`~services.config.ConfigError` naming the field, so the command exits with code 2. The world
+is one for all: a robot's overrides may not touch ``sim.*`` (one simulator steps them all) or
+``robot.name``. Pure: no zenoh, no PyBullet.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from schemas.keys import validate_robot_name
+from services.config import Config, ConfigError, load_config
+
+FLEET_WIDE_SECTION = "sim"
+"""The section a robot may not override: its parameters are the one simulator's."""
+
+
+class Start(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """Where a robot's axle centre starts on the floor (m), and its heading (rad)."""
+
+    x: float = 0.0
+    y: float = 0.0
+    theta: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in self.__struct_fields__:
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"`start.{name}` must be finite, got {getattr(self, name)}")
+
+
+class FleetRobot(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    name: str
+    start: Start = msgspec.field(default_factory=Start)
+    scenario: str | None = None
+    """A built-in scenario or a scenario file; None: the drive's default."""
+    set: dict[str, Any] = msgspec.field(default_factory=dict)
+    """Overrides of the robot description, ``"section.key" = value`` (nested tables are flattened)."""
+
+
+class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    world: str | None = None
+    """As ``sim.world``: a built-in world's name or a world file; None: the default world."""
+    robots: tuple[FleetRobot, ...]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(robot.name for robot in self.robots)
+
+    def robot(self, name: str) -> FleetRobot:
+        return next(robot for robot in self.robots if robot.name == name)
+
+
+def _flatten(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"motor": {"p_gain_l": 6}}`` and ``{"motor.p_gain_l": 6}`` alike -> ``{"motor.p_gain_l": 6}``."""
+    flat: dict[str, Any] = {}
+    for key, value in table.items():
+        dotted = f"{prefix}{key}"
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{dotted}."))
+        else:
+            flat[dotted] = value
+    return flat
+
+
+def _check(fleet: Fleet, source: str) -> Fleet:
+    if not fleet.robots:
+        raise ConfigError(f"fleet file {source}: `robots`: a fleet needs at least one robot")
+    seen: set[str] = set()
+    robots = []
+    for index, robot in enumerate(fleet.robots):
+        field = f"fleet file {source}: `robots[{index}]"
+        try:
+            validate_robot_name(robot.name)
+        except ValueError as error:
+            raise ConfigError(f"{field}.name`: {error}") from None
+        if robot.name in seen:
+            raise ConfigError(f"{field}.name`: robot name {robot.name!r} is used twice")
+        seen.add(robot.name)
+        overrides = _flatten(robot.set)
+        for key in overrides:
+            section = key.split(".", 1)[0]
+            if section == FLEET_WIDE_SECTION or key == "robot.name":
+                raise ConfigError(
+                    f"{field}.set`: {key!r} cannot differ between robots "
+                    f"({'the name is `name`' if key == 'robot.name' else 'one simulator steps the whole fleet'})"
+                )
+        robots.append(msgspec.structs.replace(robot, set=overrides))
+    return msgspec.structs.replace(fleet, robots=tuple(robots))
+
+
+def parse_fleet(text: str, source: str = "fleet") -> Fleet:
+    """A fleet from TOML text; ConfigError names ``source`` and the offending field."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"fleet file {source}: {error}") from None
+    try:
+        fleet = msgspec.convert(raw, Fleet)
+    except msgspec.ValidationError as error:
+        raise ConfigError(f"fleet file {source}: {str(error).replace('$.', '')}") from None
+    return _check(fleet, source)
+
+
+def load_fleet(path: str | Path) -> Fleet:
+    try:
+        text = Path(path).read_text()
+    except OSError as error:
+        raise ConfigError(f"--fleet {path}: {error.strerror}") from None
+    return parse_fleet(text, str(path))
+
+
+def robot_overrides(robot: FleetRobot) -> dict[str, Any]:
+    """The robot description's overrides for ``robot``: its own ``set``, its name, and its start
+    as the pose the odometry starts from and the localization reports before its first fix."""
+    return {
+        **robot.set,
+        "robot.name": robot.name,
+        "localization.initial_x": robot.start.x,
+        "localization.initial_y": robot.start.y,
+        "localization.initial_theta": robot.start.theta,
+        "odometry.initial_x": robot.start.x,
+        "odometry.initial_y": robot.start.y,
+        "odometry.initial_theta": robot.start.theta,
+    }
+
+
+def robot_config(robot: FleetRobot, config_path: str | Path | None, overrides: dict[str, Any]) -> Config:
+    """``robot``'s description: the file, ``overrides`` (the command line's), then the robot's own."""
+    try:
+        return load_config(config_path, {**overrides, **robot_overrides(robot)})
+    except ConfigError as error:
+        raise ConfigError(f"fleet robot {robot.name!r}: {error}") from None
+
+
+def fleet_configs(fleet: Fleet, config_path: str | Path | None, overrides: dict[str, Any]) -> dict[str, Config]:
+    """Every robot's description (:func:`robot_config`), by name, in the fleet's order."""
+    return {robot.name: robot_config(robot, config_path, overrides) for robot in fleet.robots}
