@@ -12,22 +12,39 @@ so they name exactly the keys the services use. Reading (subscribing, liveliness
 ``status`` and the latched keys) is open to every authenticated role; every put and every Motor
 method query that no grant names is denied, and a session without valid credentials is refused
 at connection.
+
+A **fleet** (several robots in one world, :func:`write_fleet_profile`) has one user per robot for
+each of :data:`PER_ROBOT_ROLES` (``rh1-motor``: the motor of ``rh1``, granted exactly what the
+motor role is granted on ``rh1`` and nothing on any other robot) and one user for the whole fleet
+for each of :data:`FLEET_ROLES` (``sim``: one simulator steps every robot; ``operator``,
+``observer``, ``ros_node``), granted what that role may on every robot of the fleet.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import ipaddress
 import json
 import os
 import secrets
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from schemas.keys import LATCHED_TOPICS, ROOT, Keys, Method, MethodFamily, Service, Topic, all_robots_status
+from schemas.keys import (
+    LATCHED_TOPICS,
+    ROOT,
+    Keys,
+    Method,
+    MethodFamily,
+    Service,
+    Topic,
+    all_robots_status,
+    validate_robot_name,
+)
 from services.config import Config
 from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, SUBSCRIPTIONS, BridgeGraph, bridge_graph
 from services.ros2.wire import ADMIN_SPACE
@@ -69,6 +86,60 @@ class Role(StrEnum):
     ``invent up`` itself, which puts the run's summary (``up/run``) at the end of a run."""
     OBSERVER = "observer"
     """Watches: subscribes, gets ``status`` and liveliness, nothing else."""
+
+
+PER_ROBOT_ROLES: tuple[Role, ...] = (Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE, Role.ROS2)
+"""In a fleet, each robot has its own user of each of these roles, allowed only that robot's keys."""
+FLEET_ROLES: tuple[Role, ...] = tuple(role for role in Role if role not in PER_ROBOT_ROLES)
+"""In a fleet, one user each for the whole fleet: the sim (one simulator steps every robot), ROS 2
+nodes, the operator (``invent up`` among them) and the observer, each allowed on every robot what
+its role is allowed on one."""
+
+
+@dataclass(frozen=True)
+class Identity:
+    """Who a session logs in as: a role, and in a fleet the robot a per-robot role is for."""
+
+    role: Role
+    robot: str | None = None
+    """None: a fleet-wide role, or any role of a single robot's profile."""
+
+    @property
+    def user(self) -> str:
+        """The usrpwd user name, and the client file's name (``<user>.json5``): the role's name, or
+        ``<robot>-<role>`` (``rh1-motor``). No role's name holds a ``-``, so the last ``-`` splits a
+        user back into robot and role, and no two identities share a user or a file."""
+        return str(self.role) if self.robot is None else f"{self.robot}-{self.role}"
+
+
+def fleet_robots(robots: Iterable[str]) -> tuple[str, ...]:
+    """``robots`` as a fleet: at least one, each a valid robot name (one key chunk), none twice;
+    ValueError naming the first that is not."""
+    fleet: list[str] = []
+    for robot in robots:
+        validate_robot_name(robot)
+        if robot in fleet:
+            raise ValueError(f"robot {robot!r} is named twice")
+        fleet.append(robot)
+    if not fleet:
+        raise ValueError("a fleet has at least one robot")
+    return tuple(fleet)
+
+
+def fleet_identities(robots: Sequence[str]) -> tuple[Identity, ...]:
+    """Every user of a fleet's profile: the fleet-wide roles, then each robot's per-robot roles."""
+    return (
+        *(Identity(role) for role in FLEET_ROLES),
+        *(Identity(role, robot) for robot in robots for role in PER_ROBOT_ROLES),
+    )
+
+
+def robot_bridge(ros: BridgeGraph, robot: str) -> BridgeGraph:
+    """The ROS 2 bridge of ``robot`` in a fleet, by default: ``ros``'s domain and node name, in the
+    namespace ``<ros.namespace>/<robot>`` (``/rh1/odom``, ``/rh1/cmd_vel``, ``/rh1/motor/stop``), so
+    that no two robots' bridges are granted the same topics (``/tf``, ``/tf_static`` and ``/clock``
+    are global in ROS: every bridge of the domain may publish them)."""
+    return dataclasses.replace(ros, namespace=f"{ros.namespace}/{robot}")
 
 
 class Message(StrEnum):
@@ -221,16 +292,55 @@ def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant
     return [*reading, *own]
 
 
+def fleet_grants(identity: Identity, robots: Sequence[str], bridges: Mapping[str, BridgeGraph]) -> list[Grant]:
+    """Everything ``identity`` may do in the fleet of ``robots``, whose ROS 2 bridges are
+    ``bridges[robot]``: a per-robot role exactly what :func:`grants` gives its role on its own robot,
+    nothing on any other; a fleet-wide role what :func:`grants` gives it on each robot of the fleet,
+    merged (one rule per message set and flow, on the union of their key expressions)."""
+    if (identity.robot is None) != (identity.role in FLEET_ROLES):
+        raise ValueError(f"role {identity.role} is {'fleet-wide' if identity.role in FLEET_ROLES else 'per robot'}")
+    if identity.robot is not None:
+        if identity.robot not in robots:
+            raise ValueError(f"robot {identity.robot!r} is not in the fleet {', '.join(robots)}")
+        return grants(identity.role, Keys(identity.robot), bridges[identity.robot])
+    return _merged(grant for robot in robots for grant in grants(identity.role, Keys(robot), bridges[robot]))
+
+
+def _merged(many: Iterable[Grant]) -> list[Grant]:
+    """``many`` as one grant per (messages, flow), in first-seen order, each on the union of the key
+    expressions, each once."""
+    merged: dict[tuple[tuple[Message, ...], Flow], dict[str, None]] = {}
+    for grant in many:
+        merged.setdefault((grant.messages, grant.flow), {}).update(dict.fromkeys(grant.key_exprs))
+    return [Grant(messages, flow, tuple(key_exprs)) for (messages, flow), key_exprs in merged.items()]
+
+
 def access_control(users: dict[Role, str], keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> dict[str, Any]:
     """The router's ``access_control`` section: one subject per role (by username), its grants."""
+    return _access_control((str(role), user, grants(role, keys, ros)) for role, user in users.items())
+
+
+def fleet_access_control(
+    users: Mapping[Identity, str], robots: Sequence[str], bridges: Mapping[str, BridgeGraph]
+) -> dict[str, Any]:
+    """The router's ``access_control`` section for a fleet: one subject per identity (by username),
+    its :func:`fleet_grants`."""
+    return _access_control(
+        (identity.user, user, fleet_grants(identity, robots, bridges)) for identity, user in users.items()
+    )
+
+
+def _access_control(entries: Iterable[tuple[str, str, list[Grant]]]) -> dict[str, Any]:
+    """Default deny; for each (name, username, grants): subject ``role-<name>``, rules
+    ``<name>-<n>``, policy ``policy-<name>``."""
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
-    for role, user in users.items():
+    for role, user, granted in entries:
         subject = f"role-{role}"
         subjects.append({"id": subject, "usernames": [user]})
         ids = []
-        for number, grant in enumerate(grants(role, keys, ros)):
+        for number, grant in enumerate(granted):
             rule_id = f"{role}-{number}"
             ids.append(rule_id)
             rules.append(
@@ -260,7 +370,11 @@ class Credentials:
 
 def fresh_credentials() -> dict[Role, Credentials]:
     """One user per role, named after it, with a new random password."""
-    return {role: Credentials(str(role), secrets.token_urlsafe(PASSWORD_BYTES)) for role in Role}
+    return {role: Credentials(str(role), _fresh_password()) for role in Role}
+
+
+def _fresh_password() -> str:
+    return secrets.token_urlsafe(PASSWORD_BYTES)
 
 
 @dataclass(frozen=True)
@@ -273,13 +387,38 @@ class Profile:
     router_listen: tuple[str, ...]
     tls: bool
     roles: tuple[Role, ...] = field(default=tuple(Role))
+    robots: tuple[str, ...] = ()
+    """The fleet's robots (:func:`write_fleet_profile`); empty for a single robot's profile."""
 
     @property
     def router_config(self) -> Path:
         return self.directory / ROUTER_CONFIG
 
-    def client_config(self, role: Role) -> Path:
-        return self.directory / f"{role}.json5"
+    @property
+    def identities(self) -> tuple[Identity, ...]:
+        """Every user of the profile, one client file each: each role, for a single robot; the
+        fleet-wide roles and each robot's per-robot roles, for a fleet."""
+        return fleet_identities(self.robots) if self.robots else tuple(Identity(role) for role in self.roles)
+
+    def identity(self, role: Role, robot: str | None = None) -> Identity:
+        """Who runs ``role`` (for ``robot``, in a fleet): a fleet-wide role is one identity whatever
+        the robot; a per-robot role of a fleet needs one of its robots. ValueError otherwise."""
+        if not self.robots:
+            if robot is not None:
+                raise ValueError(f"a single robot's profile has no per-robot users (asked for {robot!r})")
+            return Identity(role)
+        if robot is not None and robot not in self.robots:
+            raise ValueError(f"robot {robot!r} is not in the fleet {', '.join(self.robots)}")
+        if role in FLEET_ROLES:
+            return Identity(role)
+        if robot is None:
+            raise ValueError(f"role {role} is per robot in a fleet: name one of {', '.join(self.robots)}")
+        return Identity(role, robot)
+
+    def client_config(self, role: Role, robot: str | None = None) -> Path:
+        """The client file of ``role`` (of ``robot``'s, for a per-robot role in a fleet): ``<role>.json5``,
+        or ``<robot>-<role>.json5`` (:attr:`Identity.user`); ValueError as :meth:`identity`."""
+        return self.directory / f"{self.identity(role, robot).user}.json5"
 
 
 def _with_scheme(endpoint: str, tls: bool) -> str:
@@ -313,12 +452,80 @@ def write_profile(
     and a local CA signs the router's certificate for ``localhost``, ``127.0.0.1`` and
     ``tls_names``. ``ros`` is the ROS domain and the bridge's namespace the ROS roles are granted.
     """
+    credentials = fresh_credentials()
+    return _write_profile(
+        directory,
+        {Identity(role): login for role, login in credentials.items()},
+        access_control({role: c.user for role, c in credentials.items()}, keys, ros),
+        endpoint=endpoint,
+        router_listen=router_listen,
+        tls=tls,
+        tls_names=tls_names,
+        seen_as=seen_as,
+        router_base=router_base,
+    )
+
+
+def write_fleet_profile(
+    directory: Path,
+    robots: Iterable[str],
+    *,
+    endpoint: str,
+    router_listen: Sequence[str] = (),
+    tls: bool = False,
+    tls_names: Iterable[str] = (),
+    seen_as: Path | None = None,
+    router_base: dict[str, Any] | None = None,
+    ros: BridgeGraph = DEFAULT_ROS,
+    bridges: Mapping[str, BridgeGraph] | None = None,
+) -> Profile:
+    """Write a fresh profile for the fleet of ``robots`` (several robots in one world) into
+    ``directory``, as :func:`write_profile` does for one robot (same arguments, same files).
+
+    The users (:func:`fleet_identities`, :attr:`Identity.user`) are the fleet-wide roles
+    (``sim``, ``ros_node``, ``operator``, ``observer``) and, for each robot, ``<robot>-<role>`` for
+    each of :data:`PER_ROBOT_ROLES` (``rh1-motor``); each has its client file ``<user>.json5``
+    beside ``router.json5`` (:meth:`Profile.client_config`). Robot ``r``'s ROS 2 bridge is granted
+    ``bridges[r]``, by default :func:`robot_bridge` of ``ros`` (namespace ``/<r>``); ``ros_node``
+    the domains of them all. ValueError for a bad fleet (:func:`fleet_robots`) or endpoint.
+    """
+    fleet = fleet_robots(robots)
+    graphs = {robot: (bridges or {}).get(robot) or robot_bridge(ros, robot) for robot in fleet}
+    credentials = {identity: Credentials(identity.user, _fresh_password()) for identity in fleet_identities(fleet)}
+    return _write_profile(
+        directory,
+        credentials,
+        fleet_access_control({identity: c.user for identity, c in credentials.items()}, fleet, graphs),
+        endpoint=endpoint,
+        router_listen=router_listen,
+        tls=tls,
+        tls_names=tls_names,
+        seen_as=seen_as,
+        router_base=router_base,
+        robots=fleet,
+    )
+
+
+def _write_profile(
+    directory: Path,
+    credentials: Mapping[Identity, Credentials],
+    rules: dict[str, Any],
+    *,
+    endpoint: str,
+    router_listen: Sequence[str],
+    tls: bool,
+    tls_names: Iterable[str],
+    seen_as: Path | None,
+    router_base: dict[str, Any] | None,
+    robots: tuple[str, ...] = (),
+) -> Profile:
+    """The files of :func:`write_profile` and :func:`write_fleet_profile`: one user and one client
+    file per identity of ``credentials``, the router's configuration with ``rules``, its ``access_control``."""
     directory.mkdir(parents=True, exist_ok=True)
     directory.chmod(0o700)
     seen = (seen_as or directory).absolute()
     endpoint = _with_scheme(endpoint, tls)
     listen = [_with_scheme(address, tls) for address in router_listen] or [endpoint]
-    credentials = fresh_credentials()
     _write_private(directory / DICTIONARY, "".join(f"{c.user}:{c.password}\n" for c in credentials.values()))
     router: dict[str, Any] = {
         **(router_base or {}),
@@ -326,7 +533,7 @@ def write_profile(
         "listen": {"endpoints": listen},
         "scouting": {"multicast": {"enabled": False}, "delay": 0},
         "transport": {"auth": {"usrpwd": {"dictionary_file": str(seen / DICTIONARY)}}},
-        "access_control": access_control({role: c.user for role, c in credentials.items()}, keys, ros),
+        "access_control": rules,
     }
     client_tls: dict[str, Any] = {}
     if tls:
@@ -341,8 +548,8 @@ def write_profile(
         }
         client_tls = {"link": {"tls": {"root_ca_certificate": str(tls_dir / CA_CERTIFICATE)}}}
     _write_private(directory / ROUTER_CONFIG, _json5(router, "the router of an invent secure deployment"))
-    profile = Profile(directory, endpoint, tuple(listen), tls)
-    for role, login in credentials.items():
+    profile = Profile(directory, endpoint, tuple(listen), tls, robots=robots)
+    for identity, login in credentials.items():
         client = {
             "mode": "client",
             "connect": {"endpoints": [endpoint], "timeout_ms": CLIENT_CONNECT_TIMEOUT_MS},
@@ -350,10 +557,14 @@ def write_profile(
             "scouting": {"multicast": {"enabled": False}},
             "transport": {"auth": {"usrpwd": {"user": login.user, "password": login.password}}, **client_tls},
         }
-        if role in (Role.ROS2, Role.ROS_NODE):
+        if identity.role in (Role.ROS2, Role.ROS_NODE):
             # zenoh-ext advanced publishers with a cache (ROS's transient-local topics) need timestamps.
             client["timestamping"] = {"enabled": True}
-        _write_private(profile.client_config(role), _json5(client, f"role {role} of an invent secure deployment"))
+        what = f"role {identity.role}" + (f" of robot {identity.robot}" if identity.robot is not None else "")
+        _write_private(
+            profile.client_config(identity.role, identity.robot),
+            _json5(client, f"{what} of an invent secure deployment"),
+        )
     return profile
 
 

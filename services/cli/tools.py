@@ -6,6 +6,7 @@ to ``jq`` or read by tests, and errors as one line on stderr.
 
 from __future__ import annotations
 
+import argparse
 import json
 import queue
 import sys
@@ -23,7 +24,7 @@ from schemas.keys import Keys, Service, all_robots_alive, parse_alive_key, schem
 from services.config import ConfigError
 from services.ros2.graph import BridgeGraph
 from services.runtime.session import has_match
-from services.security import write_profile
+from services.security import fleet_robots, write_fleet_profile, write_profile
 
 EXIT_NO_ANSWER = 1
 
@@ -76,27 +77,58 @@ def run_secrets(
     seen_as: Path | None,
     router_base: str | None,
     ros: BridgeGraph,
+    robots: Sequence[str] = (),
 ) -> int:
-    """Write a secure deployment's profile (:func:`services.security.write_profile`) and say what is where."""
+    """Write a secure deployment's profile (:func:`services.security.write_profile`) and say what is where.
+
+    With ``robots`` (``--robots``), a fleet's profile (:func:`services.security.write_fleet_profile`)
+    for those robots in place of ``keys``'s one; ``ros`` then places each robot's bridge in the
+    namespace ``<ros.namespace>/<robot>``."""
     try:
-        profile = write_profile(
-            directory,
-            keys,
-            endpoint=endpoint,
-            router_listen=router_listen,
-            tls=tls,
-            tls_names=tls_names,
-            seen_as=seen_as,
-            router_base=_router_plugins(router_base) if router_base else None,
-            ros=ros,
-        )
+        base = _router_plugins(router_base) if router_base else None
+        if robots:
+            profile = write_fleet_profile(
+                directory,
+                robots,
+                endpoint=endpoint,
+                router_listen=router_listen,
+                tls=tls,
+                tls_names=tls_names,
+                seen_as=seen_as,
+                router_base=base,
+                ros=ros,
+            )
+        else:
+            profile = write_profile(
+                directory,
+                keys,
+                endpoint=endpoint,
+                router_listen=router_listen,
+                tls=tls,
+                tls_names=tls_names,
+                seen_as=seen_as,
+                router_base=base,
+                ros=ros,
+            )
     except ValueError as error:
         raise ConfigError(str(error)) from None
-    print(f"invent secrets: wrote {profile.directory} (clients connect to {profile.endpoint})", file=sys.stderr)
+    fleet = f" for the fleet {', '.join(profile.robots)}" if profile.robots else ""
+    print(f"invent secrets: wrote {profile.directory}{fleet} (clients connect to {profile.endpoint})", file=sys.stderr)
     print(f"  router:   invent router --config {profile.router_config}", file=sys.stderr)
-    for role in profile.roles:
-        print(f"  {role + ':':<13} --zenoh-config {profile.client_config(role)}", file=sys.stderr)
+    width = max(13, *(len(identity.user) + 1 for identity in profile.identities))
+    for identity in profile.identities:
+        path = profile.client_config(identity.role, identity.robot)
+        print(f"  {identity.user + ':':<{width}} --zenoh-config {path}", file=sys.stderr)
     return 0
+
+
+def robot_names(text: str) -> tuple[str, ...]:
+    """``--robots rh0,rh1``: a fleet's robot names, comma-separated (an argparse ``type``: a bad or
+    repeated name is a usage error, exit 2, naming the flag)."""
+    try:
+        return fleet_robots(name.strip() for name in text.split(","))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def _router_plugins(path: str) -> dict[str, Any]:
