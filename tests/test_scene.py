@@ -11,10 +11,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from schemas.codec import BadInput
-from schemas.keys import Topic
+from schemas.codec import BadInput, encode
+from schemas.keys import Keys, Topic
 from schemas.messages import Obstacle, PlannedPath, SimWorld, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
-from services.config import Config
+from services.config import Config, load_config
+from services.recording.record import SceneBuilder, Sink
 from services.recording.scene import (
     LOCALIZATION_TOPIC,
     ODOMETRY_TOPIC,
@@ -156,3 +157,28 @@ def test_wrong_samples_are_bad_input_not_a_crash():
     scene.add(Topic.MOTOR_WHEEL_ANGLES, _angles(0, 0.0, 0.0))
     with pytest.raises(BadInput, match="not finite"):
         scene.add(Topic.MOTOR_WHEEL_ANGLES, _angles(1, 1e308, -1e308))
+
+
+def test_a_fleets_scene_names_each_robots_frame_topics_and_entities_after_the_robot():
+    fleet = [load_config(overrides={"robot.name": name}) for name in ("rh0", "rh1")]
+    shown: list[tuple[str, Any]] = []
+    builder = SceneBuilder(
+        fleet[0], Sink(lambda *_sample: None, lambda topic, message, *_: shown.append((topic, message))), fleet
+    )
+    for index, name in enumerate(("rh0", "rh1")):
+        keys, tm = Keys(name), Time.from_nanoseconds(0)
+        pose = [float(index), 3.0 * index, 0.1, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        builder.take(keys.sim_body_pose, encode(TimedDoubleSeq(tm=tm, data=pose)), 0)
+        builder.take(keys.odometry_pose, encode(TimedPosition(tm, [], float(index), 3.0 * index, 0.0, [])), 0)
+    frames = [
+        t.child_frame_id for topic, message in shown if topic == TRANSFORMS_TOPIC for t in _decoded(message).transforms
+    ]
+    assert frames == ["rh0/base_link", "rh1/base_link"]
+    entities = {e.id for topic, message in shown if topic == SCENE_TOPIC for e in _decoded(message).entities}
+    assert {"rh0/robot", "rh1/robot", "rh0/trails", "rh1/trails", "obstacles"} <= entities
+    assert {topic for topic, _ in shown} >= {"/rh0/odometry/pose", "/rh1/odometry/pose", TRANSFORMS_TOPIC, SCENE_TOPIC}
+
+
+def test_one_robots_scene_keeps_the_plain_names():
+    scene = Scene(ROBOT, CONFIG.sim)
+    assert scene.frame == "base_link" and scene.topics[ODOMETRY_TOPIC] == ODOMETRY_TOPIC

@@ -91,6 +91,15 @@ class Composition:
                 return composed.name, reason
         return None
 
+    def exits(self) -> dict[str, tuple[int, str]]:
+        """Every service whose loop has ended (or that has finished by itself): (exit code, how), by name."""
+        ended = {}
+        for composed in self.services:
+            code = composed.finished()
+            if code is not None:
+                ended[composed.name] = (code, f"crashed: {composed.error!r}" if composed.error else f"returned {code}")
+        return ended
+
     def stop(self) -> dict[str, int]:
         """Stop every loop, then close services and nodes, newest first."""
         self._stop.set()

@@ -15,6 +15,7 @@ import zenoh
 from schemas.keys import DEFAULT_ROBOT, Keys
 from services.cli import tools, up
 from services.config import ConfigError, load_config
+from services.fleet.description import fleet_configs, load_fleet
 from services.recording import record, replay, view
 from services.recording.mcap_files import read_messages, replay_schedule, write_run_report
 from services.recording.report import summary
@@ -33,6 +34,7 @@ from services.service import (
     ServiceCommand,
     config_from_args,
     non_negative_float,
+    overrides_from_args,
     port_number,
     positive_seconds,
     robot_name,
@@ -135,6 +137,15 @@ def build_parser() -> argparse.ArgumentParser:
     secrets_parser.add_argument("directory", metavar="DIR", help="where to write the files (created 0700)")
     secrets_parser.add_argument(
         "--robot", default=DEFAULT_ROBOT, metavar="NAME", help=f"the robot the rules name (default {DEFAULT_ROBOT})"
+    )
+    secrets_parser.add_argument(
+        "--robots",
+        type=tools.robot_names,
+        default=(),
+        metavar="R1,R2,...",
+        help="a fleet's credentials, in place of --robot's: per robot, one user and ROBOT-ROLE.json5 for each of "
+        "motor, odometry, localization, drive and ros2 (that robot's keys only; its bridge in the ROS namespace "
+        "/ROBOT under --ros-namespace); one sim, operator, observer and ros_node for the whole fleet",
     )
     secrets_parser.add_argument(
         "--endpoint", default=DEFAULT_ENDPOINT, metavar="EP", help=f"where clients connect (default {DEFAULT_ENDPOINT})"
@@ -267,6 +278,12 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"address to serve on (default {view.DEFAULT_HOST}, this machine only; 0.0.0.0 for every "
         "interface, e.g. in a container)",
     )
+    view_parser.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="show every robot of this fleet file: each robot's frame <robot>/base_link, its poses and wheel "
+        "speeds under /<robot>/..., its body, path and trails in /scene (docs/fleet.md)",
+    )
     view_parser.set_defaults(handler=_view)
 
     report = commands.add_parser(
@@ -374,6 +391,7 @@ def _secrets(args: argparse.Namespace) -> int:
         seen_as=Path(args.seen_as) if args.seen_as else None,
         router_base=args.router_base,
         ros=bridge_graph(load_config(overrides={"ros2.namespace": args.ros_namespace})),
+        robots=args.robots,
     )
 
 
@@ -394,9 +412,16 @@ def _record(args: argparse.Namespace) -> int:
 
 def _view(args: argparse.Namespace) -> int:
     config = config_from_args(None, args)
+    fleet = (
+        tuple(fleet_configs(load_fleet(args.fleet), args.config, overrides_from_args(None, args)).values())
+        if args.fleet
+        else ()
+    )
     stop = stop_on_signals()
     with open_session(_session_config(args)) as session:
-        return view.run_view(session, Keys(config.robot.name), config, stop, host=args.host, port=args.port)
+        return view.run_view(
+            session, Keys(config.robot.name), config, stop, host=args.host, port=args.port, fleet=fleet
+        )
 
 
 def _report(args: argparse.Namespace) -> int:

@@ -144,6 +144,14 @@ class Supervisor:
                 return child.name, _describe_exit(code)
         return None
 
+    def exits(self) -> dict[str, tuple[int, str]]:
+        """Every child that has exited: its (exit code, how it ended), by name."""
+        return {
+            child.name: (code, _describe_exit(code))
+            for child in self.children
+            if (code := child.process.poll()) is not None
+        }
+
     def stop(self) -> dict[str, int]:
         """SIGINT every child, newest first; kill what does not stop in time. Returns exit codes."""
         for child in reversed(self.children):
@@ -174,6 +182,8 @@ class Launcher(Protocol):
     def start(self, name: str, argv: Sequence[str]) -> Any: ...
 
     def exited(self, exclude: str | None = None) -> tuple[str, str] | None: ...
+
+    def exits(self) -> dict[str, tuple[int, str]]: ...
 
     def stop(self) -> dict[str, int]: ...
 
@@ -307,11 +317,12 @@ class RunRecorder:
         if self._statuses is not None:
             self._statuses.poll()
 
-    def write(self, path: Path, config: Config) -> None:
+    def write(self, path: Path, config: Config, fleet: Sequence[Config] = ()) -> None:
+        """``run.mcap`` with the scene of ``config``'s robot, or of every robot of ``fleet``."""
         self._statuses = None
         self.journal.close()
         say(f"writing {path} from what the services published")
-        for journal in write_run_recording(self.directory, path, config):
+        for journal in write_run_recording(self.directory, path, config, fleet):
             say(f"{journal.name} was cut short (its service was killed): {path} lacks its last samples")
         shutil.rmtree(self.directory)
 
@@ -472,6 +483,10 @@ def check_before_start(args: argparse.Namespace, config: Config) -> None:
 
 
 def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentParser) -> int:
+    if args.fleet:
+        from services.fleet.launch import run_fleet  # it builds on this module
+
+        return run_fleet(args, parser)
     check_before_start(args, config)
     keys = Keys(config.robot.name)
     report_dir = Path(args.report) if args.report else _default_report_dir()
@@ -598,7 +613,17 @@ def _progress(sim_status: dict[str, Any], wall_s: float) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scenario", default="square", help="built-in scenario or TOML file (default square)")
+    parser.add_argument(
+        "--scenario",
+        default="square",
+        help="built-in scenario or TOML file (default square); with --fleet, of the robots that name none",
+    )
+    parser.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="run every robot of this fleet file in one world, each with its own motor, odometry, localization "
+        "and drive; report.json has each robot's report under robots.<name> and a fleet summary (docs/fleet.md)",
+    )
     parser.add_argument(
         "--mode",
         choices=list(SimMode),

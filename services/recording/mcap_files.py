@@ -307,25 +307,31 @@ def write_run_report(path: Path, report_dir: Path, config: Config) -> tuple[dict
     """``report.json`` and the plots of the run recorded in ``path`` (``invent up`` writes that
     file; ``invent report`` reads any): (report, its path, the plots' paths). ConfigError when the
     file holds no run (no ``up/run`` summary of ``config.robot.name``)."""
+    report, recording = robot_report(path, read_messages(path).messages, config)
+    report_path = write_report(report, report_dir)
+    plots = write_plots(recording, report.get("planned_path"), config.robot, report_dir)
+    return report, report_path, plots
+
+
+def robot_report(path: Path, messages: list[RecordedMessage], config: Config) -> tuple[dict[str, Any], Recording]:
+    """The report of robot ``config.robot.name`` in the run recorded in ``path`` (its ``messages``),
+    and the series it is built from. ConfigError when the file holds no run of that robot."""
     keys = Keys(config.robot.name)
-    read = read_messages(path)
-    summary = run_summary(read.messages, keys)
+    summary = run_summary(messages, keys)
     if summary is None:
         raise ConfigError(
             f"{path}: no run summary on {keys.run_summary}: not a recording of `invent up` for robot "
             f"{keys.robot!r} (or it was cut short; --robot names another robot)"
         )
-    recording = recording_from(read.messages, keys, config.robot, config.input, summary.tm.to_seconds())
+    recording = recording_from(messages, keys, config.robot, config.input, summary.tm.to_seconds())
     report = build_report(
         recording,
         scenario=summary.scenario,
         mode=summary.mode,
-        planned_path=_planned_path(summary, read.messages, keys, recording),
+        planned_path=_planned_path(summary, messages, keys, recording),
         wall_time_s=summary.wall_time_s,
         steps=summary.steps,
         health=summary.health,
     )
     report["composed"] = summary.composed
-    report_path = write_report(report, report_dir)
-    plots = write_plots(recording, report.get("planned_path"), config.robot, report_dir)
-    return report, report_path, plots
+    return report, recording

@@ -72,24 +72,30 @@ class SceneBuilder:
     """Hands each sample on to a sink, and the Foxglove scene it builds from the robot's own keys
     (no zenoh here: the samples come from an :class:`Observer`, or from journals)."""
 
-    def __init__(self, config: Config, sink: Sink) -> None:
+    def __init__(self, config: Config, sink: Sink, fleet: Sequence[Config] = ()) -> None:
+        """The scene of ``config``'s robot, or of every robot of ``fleet`` (each robot's description)."""
         self._sink = sink
-        self._scene = Scene(config.robot, config.sim)
+        robots = tuple(fleet) or (config,)
+        self._scenes = {robot.robot.name: Scene(robot.robot, robot.sim, fleet=bool(fleet)) for robot in robots}
         self._not_shown = RateLimitedLog(log)
-        self._topics = {Keys(config.robot.name).topic(topic): topic for topic in Topic}
+        self._topics = {
+            Keys(robot.robot.name).topic(topic): (topic, self._scenes[robot.robot.name])
+            for robot in robots
+            for topic in Topic
+        }
         self.keys_taken: set[str] = set()
 
     def take(self, key: str, payload: bytes, log_time_ns: int) -> None:
         self.keys_taken.add(key)
-        topic = self._topics.get(key)
+        topic, scene = self._topics.get(key, (None, None))
         message = None if topic is None else _decoded(TOPIC_TYPES[topic], payload)
         stamp_ns = None if message is None else message.tm.to_nanoseconds()
-        if topic is None or message is None or stamp_ns is None or stamp_ns > LATEST_STAMP_NS:
+        if topic is None or scene is None or message is None or stamp_ns is None or stamp_ns > LATEST_STAMP_NS:
             self._sink.sample(key, payload, log_time_ns, None)
             return
         self._sink.sample(key, payload, log_time_ns, stamp_ns)
         try:
-            shown_messages = self._scene.add(topic, message)
+            shown_messages = scene.add(topic, message)
         except ValueError as error:  # well-formed but wrong (BadInput): recorded as it is, not shown
             self._not_shown(key, logging.WARNING, "not shown in the scene: %s: %s", key, error)
             return
@@ -128,15 +134,25 @@ class Observer:
     a :class:`SceneBuilder`."""
 
     def __init__(
-        self, session: zenoh.Session, keys: Keys, key_exprs: Sequence[str], config: Config, sink: Sink
+        self,
+        session: zenoh.Session,
+        keys: Keys,
+        key_exprs: Sequence[str],
+        config: Config,
+        sink: Sink,
+        fleet: Sequence[Config] = (),
     ) -> None:
-        self._builder = SceneBuilder(config, sink)
+        """``fleet``: the scene of each of these robots (their descriptions), not only ``keys.robot``'s."""
+        self._builder = SceneBuilder(config, sink, fleet)
         self._subscribers = [
             session.declare_subscriber(expr, zenoh.handlers.FifoChannel(SAMPLE_CAPACITY)) for expr in key_exprs
         ]
         self._status = StatusPoll(session, keys, lambda key, payload, now_ns: sink.sample(key, payload, now_ns, None))
+        robots = [Keys(robot.robot.name) for robot in fleet] or [keys]
         self._latched_queriers = [
-            session.declare_querier(keys.topic(topic), timeout=STATUS_PERIOD_S) for topic in LATCHED_TOPICS
+            session.declare_querier(robot.topic(topic), timeout=STATUS_PERIOD_S)
+            for robot in robots
+            for topic in LATCHED_TOPICS
         ]
         self._unasked = list(self._latched_queriers)
         self._latched_replies: list[Any] = []
@@ -213,7 +229,7 @@ def writer_sink(writer: SceneWriter) -> Sink:
     :data:`WHEEL_SPEEDS_SCHEMA`, its other messages as Foxglove's well-known messages."""
 
     def shown(topic: str, message: Any, stamp_ns: int, log_time_ns: int) -> None:
-        if topic == WHEEL_SPEEDS_TOPIC:
+        if topic.endswith(WHEEL_SPEEDS_TOPIC):  # a fleet's robots' too: /<robot>/plot/wheel_speeds
             writer.write_json(topic, message, WHEEL_SPEEDS_SCHEMA, stamp_ns, log_time_ns)
         else:
             writer.write_foxglove(topic, message, stamp_ns, log_time_ns)
@@ -248,15 +264,15 @@ def run_record(
     return 0
 
 
-def write_run_recording(journals: Path, output: Path, config: Config) -> list[Path]:
-    """``output`` (``invent up``'s ``run.mcap``) from the journals in ``journals``
-    (services/runtime/journal.py), merged in publication order a frame at a time, with the scene,
-    as :func:`run_record` would have recorded them; returns the journals that were cut short
-    (their publisher was killed)."""
-    readers = [JournalReader(path) for path in sorted(journals.glob(f"*{JOURNAL_SUFFIX}"))]
+def write_run_recording(journals: Path, output: Path, config: Config, fleet: Sequence[Config] = ()) -> list[Path]:
+    """``output`` (``invent up``'s ``run.mcap``) from the journals (services/runtime/journal.py) in
+    ``journals`` and below it (a fleet's robots have a folder each), merged in publication order a
+    frame at a time, with the scene, as :func:`run_record` would have recorded them; returns the
+    journals that were cut short (their publisher was killed)."""
+    readers = [JournalReader(path) for path in sorted(journals.rglob(f"*{JOURNAL_SUFFIX}"))]
     writer = McapWriter(output)
     try:
-        builder = SceneBuilder(config, writer_sink(writer))
+        builder = SceneBuilder(config, writer_sink(writer), fleet)
         for key, payload, published_ns in heapq.merge(*readers, key=_publication_time):
             builder.take(key, payload, published_ns)
     finally:

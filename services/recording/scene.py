@@ -135,10 +135,20 @@ class _Trail:
 
 
 class Scene:
-    """The Foxglove messages of one robot's loop; see the module docstring."""
+    """The Foxglove messages of one robot's loop; see the module docstring. In a fleet
+    (``fleet=True``) every name is the robot's own, so several scenes share one recording or view:
+    its frame ``<robot>/base_link``, its topics ``/<robot>/odometry/pose``, ... and its entities
+    ``<robot>/robot``, ``<robot>/planned_path``, ``<robot>/trails`` (``/tf`` and ``/scene`` are
+    shared; the obstacles are the world's, one entity)."""
 
-    def __init__(self, robot: RobotConfig, sim: SimConfig) -> None:
+    def __init__(self, robot: RobotConfig, sim: SimConfig, *, fleet: bool = False) -> None:
         self._robot = robot
+        prefix = f"{robot.name}/" if fleet else ""
+        self.frame = prefix + ROBOT_FRAME
+        self._ids = {entity: prefix + entity for entity in ("robot", "planned_path", "trails")}
+        self.topics = {
+            topic: f"/{prefix}{topic.lstrip('/')}" for topic in (ODOMETRY_TOPIC, LOCALIZATION_TOPIC, WHEEL_SPEEDS_TOPIC)
+        }
         self._robot_entity = _robot_entity(robot, sim)
         self._cylinders: list[CylinderPrimitive] = []
         self._cubes: list[CubePrimitive] = []
@@ -183,7 +193,7 @@ class Scene:
             transform = FrameTransform(
                 timestamp=timestamp(message.tm),
                 parent_frame_id=WORLD_FRAME,
-                child_frame_id=ROBOT_FRAME,
+                child_frame_id=self.frame,
                 translation=Vector3(x=x, y=y, z=z),
                 rotation=Quaternion(x=qx, y=qy, z=qz, w=qw),
             )
@@ -200,10 +210,10 @@ class Scene:
         if self._next_odometry_ns - POSE_PERIOD_NS <= stamp_ns < self._next_odometry_ns:
             return []
         self._next_odometry_ns = stamp_ns + POSE_PERIOD_NS
-        return [(ODOMETRY_TOPIC, _pose_in_world(message))]
+        return [(self.topics[ODOMETRY_TOPIC], _pose_in_world(message))]
 
     def _localization_pose(self, message: TimedPosition) -> list[tuple[str, Any]]:
-        return [(LOCALIZATION_TOPIC, _pose_in_world(message))]
+        return [(self.topics[LOCALIZATION_TOPIC], _pose_in_world(message))]
 
     def _target(self, message: TimedVelocity) -> None:
         robot, b = self._robot, self._robot.half_axle
@@ -231,7 +241,7 @@ class Scene:
             "commanded": {"left": self._commanded[0], "right": self._commanded[1]},
             "measured": {"left": measured[0], "right": measured[1]},
         }
-        return [(WHEEL_SPEEDS_TOPIC, speeds)]
+        return [(self.topics[WHEEL_SPEEDS_TOPIC], speeds)]
 
     def _world(self, message: SimWorld) -> None:
         self._cubes = [
@@ -260,14 +270,16 @@ class Scene:
         stamp = timestamp(tm)
         path = [Point3(x=x, y=y, z=0.005) for x, y in self._path]
         entities = [
-            SceneEntity(timestamp=stamp, frame_id=ROBOT_FRAME, id="robot", frame_locked=True, **self._robot_entity),
+            SceneEntity(
+                timestamp=stamp, frame_id=self.frame, id=self._ids["robot"], frame_locked=True, **self._robot_entity
+            ),
             SceneEntity(
                 timestamp=stamp, frame_id=WORLD_FRAME, id="obstacles", cubes=self._cubes, cylinders=self._cylinders
             ),
             SceneEntity(
                 timestamp=stamp,
                 frame_id=WORLD_FRAME,
-                id="planned_path",
+                id=self._ids["planned_path"],
                 lines=[LinePrimitive(pose=_pose(0.0, 0.0, 0.0), thickness=0.01, points=path, color=_PATH)]
                 if path
                 else [],
@@ -275,7 +287,7 @@ class Scene:
             SceneEntity(
                 timestamp=stamp,
                 frame_id=WORLD_FRAME,
-                id="trails",
+                id=self._ids["trails"],
                 lines=[self._truth.line(_TRUTH), self._odometry.line(_ODOMETRY)],
             ),
         ]

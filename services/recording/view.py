@@ -29,6 +29,7 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import foxglove
@@ -139,9 +140,11 @@ def run_view(
     stop: threading.Event,
     host: str,
     port: int,
+    fleet: Sequence[Config] = (),
 ) -> int:
-    """Serve the robot of ``keys`` on ws://``host``:``port`` (port 0: any free port) until ``stop``;
-    :data:`EXIT_NO_SERVER` when the server cannot listen there."""
+    """Serve the robot of ``keys`` (or every robot of ``fleet``: their descriptions) on
+    ws://``host``:``port`` (port 0: any free port) until ``stop``; :data:`EXIT_NO_SERVER` when the
+    server cannot listen there."""
     context = foxglove.Context()
     channels = FoxgloveChannels(context)
     try:
@@ -154,7 +157,8 @@ def run_view(
     observer: Observer | None = None
     status_queries = session.declare_queryable(keys.view_status, zenoh.handlers.RingChannel(STATUS_QUERIES))
     try:
-        observer = Observer(session, keys, [keys.everything], config, writer_sink(channels))
+        watched = [Keys(robot.robot.name).everything for robot in fleet] or [keys.everything]
+        observer = Observer(session, keys, watched, config, writer_sink(channels), fleet)
         log.info("Foxglove live view on %s (open Foxglove → Open connection → Foxglove WebSocket)", url)
         while not stop.is_set():
             _answer_status(status_queries, keys, url, started, channels)
@@ -166,5 +170,5 @@ def run_view(
         if observer is not None:
             observer.close()
         channels.close()
-    log.info("served %d messages of %s", channels.messages, keys.everything)
+    log.info("served %d messages of %s", channels.messages, ", ".join(watched))
     return 0

@@ -1,0 +1,422 @@
+"""``invent up --fleet FILE``: every robot of a fleet in one world, each with its own services.
+
+Starts the router, then for each robot its motor, odometry and localization (``--robot`` its name,
+its overrides and start pose as ``--set``), then each robot's drive with its scenario, waits until
+every robot's services are alive and its drive and localization hold their lockstep tokens, and
+starts one ``invent sim --fleet FILE`` last: the sim steps when every robot's torque and every
+participant's tick output has arrived, so a fleet run repeats bit for bit as a one-robot run does.
+
+A robot whose service dies degrades only its own part of the run: the sim steps on without waiting
+for what is gone (a dead motor's robot gets zero torque, a dead drive counts as ended), the other
+robots go on, and the report names the robot and the service. The run ends when every robot's
+drive has ended; ``run.mcap`` then holds every robot's keys, ``report.json`` each robot's report under
+``robots.<name>`` (the one-robot report's fields) and a fleet summary (closest approach between two
+robots, their bumps into each other), and ``<report dir>/<robot>/`` its plots.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+from schemas.codec import decode
+from schemas.keys import Keys, Service
+from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, RunSummary, Time
+from services.cli.up import (
+    EXIT_CHILD_DIED,
+    EXIT_INTERRUPTED,
+    MOTOR_STATE_FILE,
+    RECORDING_FILE,
+    SECRETS_DIRECTORY,
+    SERVICES_BEFORE_DRIVE,
+    STARTUP_TIMEOUT_S,
+    Access,
+    ChildDied,
+    Interrupted,
+    Launcher,
+    Run,
+    RunRecorder,
+    ViewProcess,
+    _default_report_dir,
+    _launch,
+    _verdict,
+    say,
+)
+from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
+from services.config import Config, ConfigError
+from services.drive.scenarios import load_scenario
+from services.fleet.description import Fleet, FleetRobot, fleet_configs, load_fleet, robot_overrides
+from services.fleet.summary import bumps_between, closest_approach
+from services.recording.mcap_files import read_messages, robot_report
+from services.recording.report import (
+    degradation_line,
+    degradations,
+    loop_health,
+    summary,
+    write_plots,
+    write_report,
+)
+from services.runtime.inputs import Publisher
+from services.runtime.session import DEFAULT_ENDPOINT, stop_on_signals
+from services.security import Role, write_fleet_profile
+from services.service import overrides_from_args
+from sim_bridge.world import load_world
+
+PROGRESS_INTERVAL_S = 1.0
+LOOK_INTERVAL_S = 0.05
+UNSUPPORTED = {
+    "--robot": "the robots are the fleet file's",
+    "--ros2": "the ROS 2 bridge serves one robot",
+    "--teleop": "teleop drives one robot over ROS 2",
+    "--loop": "a fleet runs each robot's scenario once",
+    "--gui": "the PyBullet window is not offered for a fleet yet",
+    "--connect": "a fleet run starts its own router",
+}
+
+
+def check_fleet(args: argparse.Namespace) -> tuple[Fleet, dict[str, Config]]:
+    """The fleet and each robot's description; ConfigError (exit 2) for anything a child would
+    refuse once started, before any starts."""
+    given = {flag: getattr(args, flag.removeprefix("--"), None) for flag in UNSUPPORTED}
+    wrong = [f"{flag} ({UNSUPPORTED[flag]})" for flag, value in given.items() if value]
+    if wrong:
+        raise ConfigError(f"--fleet with {', '.join(wrong)}")
+    fleet = load_fleet(args.fleet)
+    overrides = overrides_from_args(None, args)
+    configs = fleet_configs(fleet, args.config, overrides)
+    for robot in fleet.robots:
+        try:
+            load_scenario(_scenario(robot, args))
+        except ConfigError as error:
+            raise ConfigError(f"fleet robot {robot.name!r}: {error}") from None
+    load_world(fleet.world or configs[fleet.robots[0].name].sim.world)
+    return fleet, configs
+
+
+def fleet_access(args: argparse.Namespace, fleet: Fleet, report_dir: Path) -> Access:
+    """The run's :class:`Access`; with ``--secure`` a fresh fleet profile (services/security.py): a
+    user per robot and service, each allowed only its own robot's keys, written before anything starts."""
+    if args.tls and not args.secure:
+        raise ConfigError("--tls: it is an option of --secure (use both)")
+    if not args.secure:
+        return Access(None, args.zenoh_config)
+    if args.composed or args.zenoh_config:
+        raise ConfigError(
+            "--secure with --composed or --zenoh-config: a secure fleet starts its own router and runs every "
+            "service as a client of it, each with its robot's and role's credentials"
+        )
+    listen = args.listen or [DEFAULT_ENDPOINT]
+    profile = write_fleet_profile(
+        report_dir / SECRETS_DIRECTORY, fleet.names, endpoint=listen[0], router_listen=listen, tls=args.tls
+    )
+    say(f"secure: a user per robot and service, credentials in {profile.directory}/")
+    return Access(profile, None)
+
+
+def role_flags(access: Access, role: Role, robot: str | None = None) -> list[str]:
+    """How a service of ``robot`` (None: the fleet-wide sim) connects: its robot's role's file when secure."""
+    if access.profile is None:
+        return access.flags(role)
+    return ["--zenoh-config", str(access.profile.client_config(role, robot))]
+
+
+def _scenario(robot: FleetRobot, args: argparse.Namespace) -> str:
+    """A robot's scenario: its own, else ``--scenario``."""
+    return robot.scenario or args.scenario
+
+
+def _toml(value: Any) -> str:
+    """``value`` as ``--set`` reads it (TOML)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    return repr(value)
+
+
+def robot_flags(robot: FleetRobot) -> list[str]:
+    """What a robot's services are started with: its name, its overrides and its start pose."""
+    flags = []
+    for key, value in robot_overrides(robot).items():
+        if key != "robot.name":
+            flags += ["--set", f"{key}={_toml(value)}"]
+    return ["--robot", robot.name, *flags]
+
+
+def _common_flags(args: argparse.Namespace, endpoint: str) -> list[str]:
+    common = ["--connect", endpoint, "--log-level", args.log_level]
+    if args.config:
+        common += ["--config", args.config]
+    for override in args.set or ():
+        common += ["--set", override]
+    return common
+
+
+class FleetRun:
+    """One fleet run: its launcher, session, and which robot lost which service."""
+
+    def __init__(self, launcher: Launcher, session: Any, fleet: Fleet, interrupted: Any) -> None:
+        self.launcher = launcher
+        self.session = session
+        self.fleet = fleet
+        self.interrupted = interrupted
+        self.lost: dict[str, dict[str, str]] = {name: {} for name in fleet.names}
+        """Per robot, the services that ended before the run did, and how."""
+        self._drives = {f"{name}/{Service.DRIVE}" for name in fleet.names}
+        self.drive_statuses: dict[str, dict[str, Any] | None] = dict.fromkeys(fleet.names)
+        """Each robot's drive's last status, taken while it runs: it exits at the end of its scenario."""
+
+    def look(self) -> None:
+        """Ctrl-C raises Interrupted, a dead router or sim ChildDied; a robot's dead service is noted
+        (once) for that robot only, and a drive that ended its scenario is not dead."""
+        if self.interrupted.is_set():
+            raise Interrupted
+        for name, (code, how) in self.launcher.exits().items():
+            robot, _, service = name.partition("/")
+            if not service:
+                raise ChildDied(f"{name} exited unexpectedly ({how})")
+            if (name in self._drives and code == 0) or service in self.lost[robot]:
+                continue
+            self.lost[robot][service] = how
+            say(f"{robot}: {service} ended ({how}): only {robot} degrades, the others go on")
+
+    def wait_tokens(self, keys: list[str]) -> None:
+        alive: set[str] = set()
+        subscribers = [
+            self.session.liveliness().declare_subscriber(key, lambda s: alive.add(str(s.key_expr)), history=True)
+            for key in keys
+        ]
+        try:
+            deadline = time.monotonic() + STARTUP_TIMEOUT_S
+            while len(alive) < len(keys):
+                self.look()
+                if any(self.lost.values()):
+                    raise ChildDied(f"a service ended while the fleet started: {self.lost}")
+                self.launcher.idle()
+                if time.monotonic() > deadline:
+                    raise ChildDied(f"not there after {STARTUP_TIMEOUT_S} s: {', '.join(sorted(set(keys) - alive))}")
+                time.sleep(0.02)
+        finally:
+            for subscriber in subscribers:
+                subscriber.undeclare()
+
+    def status(self, keys: Keys, service: Service) -> dict[str, Any] | None:
+        for reply in self.session.get(keys.status(service), timeout=2.0):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_bytes())
+        return None
+
+    def _over(self) -> bool:
+        """Whether every robot is done though the sim is not holding: a robot that lost a service
+        cannot finish its scenario (a robot whose motor died never reaches its next waypoint), so
+        the run is over once each robot has either ended its scenario or lost a service."""
+        if not any(self.lost.values()):
+            return False
+        for name in self.fleet.names:
+            if self.lost[name]:
+                continue
+            status = self.status(Keys(name), Service.SIM)
+            if not (status and status.get("drive_ended")):
+                return False
+        return True
+
+    def supervise(self, started: float) -> dict[str, Any] | None:
+        """Until the sim holds at the last robot's last command (or every robot is done, some having
+        lost a service); progress every second. The sim's last status (of the first robot: the
+        world's part is the same for every robot)."""
+        first = Keys(self.fleet.robots[0].name)
+        sim_status: dict[str, Any] | None = None
+        next_progress = time.monotonic()
+        while True:
+            self.look()
+            if time.monotonic() >= next_progress:
+                for name in self.fleet.names:
+                    if f"{name}/{Service.DRIVE}" not in self.launcher.exits():
+                        self.drive_statuses[name] = self.status(Keys(name), Service.DRIVE) or self.drive_statuses[name]
+                sim_status = self.status(first, Service.SIM) or sim_status
+                next_progress = time.monotonic() + PROGRESS_INTERVAL_S
+                if sim_status:
+                    if sim_status.get("state") == "finished" or self._over():
+                        return sim_status
+                    wall = time.monotonic() - started
+                    sim_time = sim_status.get("sim_time_s", 0.0)
+                    say(f"sim {sim_time:7.2f} s | {sim_time / wall if wall > 0 else 0:5.2f}x real time")
+            time.sleep(LOOK_INTERVAL_S)
+
+
+def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    fleet, configs = check_fleet(args)
+    report_dir = Path(args.report) if args.report else _default_report_dir()
+    access = fleet_access(args, fleet, report_dir)
+    endpoint = access.profile.endpoint if access.profile else (args.listen or [DEFAULT_ENDPOINT])[0]
+    common = _common_flags(args, endpoint)
+    first = configs[fleet.robots[0].name]
+    mode = args.mode or first.sim.mode
+    interrupted = stop_on_signals()
+    recorder = None if args.no_record else RunRecorder(report_dir)
+    sim_started = False
+    health: dict[str, dict[str, Any]] = {}
+    try:
+        with _launch(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
+            run = FleetRun(launcher, session, fleet, interrupted)
+            if args.view is not None:
+                live_view = ViewProcess(
+                    [*common, *role_flags(access, Role.OBSERVER), "--robot", fleet.names[0], "--fleet", args.fleet],
+                    args.view,
+                )
+                closing.callback(live_view.close)
+                live_view.wait_serving(Run(launcher, session, Keys(fleet.names[0]), interrupted))
+            publishers = {
+                name: Publisher(session, Keys(name).run_summary, recorder.journal if recorder else None)
+                for name in fleet.names
+            }
+
+            def journal(robot: str) -> list[str]:
+                if recorder is None:
+                    return []
+                directory = recorder.directory / robot
+                directory.mkdir(exist_ok=True)
+                return ["--journal", str(directory)]
+
+            for robot in fleet.robots:
+                state = report_dir / robot.name / MOTOR_STATE_FILE
+                own = {Service.MOTOR: ["--state", str(state)]}
+                for service in SERVICES_BEFORE_DRIVE:
+                    flags = [*common, *role_flags(access, Role(service), robot.name), *robot_flags(robot)]
+                    flags += journal(robot.name)
+                    launcher.start(f"{robot.name}/{service}", [str(service), *flags, *own.get(service, [])])
+            run.wait_tokens([Keys(name).alive(service) for name in fleet.names for service in SERVICES_BEFORE_DRIVE])
+            for robot in fleet.robots:
+                flags = [*common, *role_flags(access, Role.DRIVE, robot.name), *robot_flags(robot)]
+                flags += journal(robot.name)
+                launcher.start(f"{robot.name}/drive", ["drive", *flags, "--scenario", _scenario(robot, args)])
+            tokens = []
+            for name in fleet.names:
+                keys, config = Keys(name), configs[name]
+                tokens += [
+                    keys.alive(Service.DRIVE),
+                    keys.ticks(Service.DRIVE, config.drive.rate),
+                    keys.ticks(Service.LOCALIZATION, config.localization.rate),
+                ]
+            run.wait_tokens(tokens)
+            wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
+            sim_flags = ["--fleet", args.fleet, "--mode", mode, "--until-drive-ends", "--wait-for", *wait_for]
+            launcher.start(
+                "sim",
+                ["sim", *common, *role_flags(access, Role.SIM), *(recorder.flags if recorder else []), *sim_flags],
+            )
+            sim_started = True
+            started = time.monotonic()
+            say(f"fleet of {len(fleet.robots)}: {', '.join(fleet.names)}; {mode} mode")
+            sim_status = run.supervise(started)
+            wall_time_s = time.monotonic() - started
+            for name in fleet.names:
+                keys = Keys(name)
+                statuses = {
+                    str(service): None if str(service) in run.lost[name] else run.status(keys, service)
+                    for service in SERVICES_BEFORE_DRIVE
+                }
+                statuses[str(Service.DRIVE)] = run.status(keys, Service.DRIVE) or run.drive_statuses[name]
+                robot_sim = run.status(keys, Service.SIM) or sim_status
+                health[name] = loop_health(robot_sim, statuses)
+                health[name]["lost_services"] = dict(run.lost[name])
+                if recorder:
+                    publishers[name].put(
+                        RunSummary(
+                            tm=Time.from_nanoseconds(
+                                round((robot_sim or {}).get("sim_time_s", 0.0) * NANOSECONDS_PER_SECOND)
+                            ),
+                            scenario=_scenario(fleet.robot(name), args),
+                            mode=mode,
+                            composed=args.composed,
+                            wall_time_s=wall_time_s,
+                            steps=int(robot_sim["steps"]) if robot_sim else 0,
+                            health=health[name],
+                        )
+                    )
+            unclean = {
+                name: code
+                for name, code in launcher.stop().items()
+                if code != 0 and name.partition("/")[2] not in run.lost.get(name.partition("/")[0], {})
+            }
+            if unclean:
+                say(f"services that did not exit cleanly: {unclean}")
+    except ChildDied as error:
+        say(f"{error}; stopped everything")
+        return EXIT_CHILD_DIED
+    except Interrupted:
+        say("interrupted; stopped everything")
+        return EXIT_INTERRUPTED
+    finally:
+        if recorder and sim_started:
+            recorder.write(report_dir / RECORDING_FILE, first, tuple(configs.values()))
+        elif recorder:
+            recorder.discard()
+            say("the run never started (the sim did not): nothing recorded")
+    if recorder is None:
+        degraded = [f"{name}: {reason}" for name in fleet.names for reason in _degradations(health[name])]
+        for line in degraded:
+            print(degradation_line(line), flush=True)
+        return _verdict(args, degraded, "done; no recording, no report (--no-record)")
+    report = fleet_report(report_dir, fleet, configs)
+    for name, robot in report["robots"].items():
+        print(f"--- {name} ---\n{summary(robot)}", flush=True)
+    print(fleet_summary_line(report["fleet"]), flush=True)
+    return _verdict(args, report["degraded"], f"recording: {report_dir / RECORDING_FILE}; report: {report_dir}")
+
+
+def _degradations(health: dict[str, Any]) -> list[str]:
+    """What degraded a robot's part of the run: its services that ended early, then the loop's health."""
+    lost = [f"{service} ended early ({how})" for service, how in health.get("lost_services", {}).items()]
+    return [*lost, *degradations(health)]
+
+
+def fleet_report(report_dir: Path, fleet: Fleet, configs: dict[str, Config]) -> dict[str, Any]:
+    """``report.json`` of a fleet run from its ``run.mcap``: each robot's report (and plots in its
+    folder), the fleet summary, and what degraded, each reason prefixed with its robot."""
+    path = report_dir / RECORDING_FILE
+    messages = read_messages(path).messages
+    robots: dict[str, dict[str, Any]] = {}
+    tracks: dict[str, list[tuple[float, float, float]]] = {}
+    bumps: dict[str, list[tuple[float, str]]] = {}
+    for name in fleet.names:
+        report, recording = robot_report(path, messages, configs[name])
+        report["degraded"] = _degradations(report["health"])
+        robots[name] = report
+        (report_dir / name).mkdir(parents=True, exist_ok=True)
+        write_plots(recording, report.get("planned_path"), configs[name].robot, report_dir / name)
+        tracks[name] = [(t, pose.x, pose.y) for t, pose in recording.ground_truth]
+        bump_key = Keys(name).sim_bump
+        bumps[name] = [
+            (event.tm.to_seconds(), event.obstacle)
+            for event in (decode(BumpEvent, m.data) for m in messages if m.topic == bump_key)
+        ]
+        robots[name]["bumps"] = [{"t_s": t, "obstacle": obstacle} for t, obstacle in bumps[name]]
+    report = {
+        "fleet": {
+            "robots": list(fleet.names),
+            "world": fleet.world,
+            "closest_approach": closest_approach(tracks),
+            "bumps_between_robots": bumps_between(bumps, fleet.names),
+        },
+        "robots": robots,
+        "degraded": [f"{name}: {reason}" for name, robot in robots.items() for reason in robot["degraded"]],
+    }
+    write_report(report, report_dir)
+    return report
+
+
+def fleet_summary_line(fleet: dict[str, Any]) -> str:
+    closest = fleet["closest_approach"]
+    approach = (
+        f"closest approach {closest['distance_m']:.3f} m ({' and '.join(closest['robots'])}, t = {closest['t_s']:.3f} s)"
+        if closest
+        else "one robot"
+    )
+    bumps = fleet["bumps_between_robots"]
+    between = "; ".join(f"{b['robot']} bumped {b['other']} at t = {b['t_s']:.3f} s" for b in bumps) or "no bumps"
+    return f"fleet: {approach}; {between}"

@@ -1,0 +1,191 @@
+"""A fleet in one world, end to end: ``invent up --fleet``.
+
+Two robots drive the square each from its own start: both come home, and the run is the same bit
+for bit composed on a quiet machine and as separate processes beside two CPU burners. Two robots
+driven head-on meet: a bump for each naming the other, both motors latched stopped. A robot whose
+motor dies degrades only its own part of the report, and the other robot still comes home.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from schemas.keys import Keys, Topic
+from services.config import RobotConfig
+from services.recording.mcap_files import read_messages
+from tests.harness import free_port, start_up, wait_until
+
+pytestmark = pytest.mark.slow
+
+SQUARES = """
+world = "empty"
+[[robots]]
+name = "rh0"
+start = { x = 0.0, y = 0.0, theta = 0.0 }
+scenario = "square"
+[[robots]]
+name = "rh1"
+start = { x = 0.5, y = 3.0, theta = 1.5707963267948966 }
+scenario = "square"
+set = { "motor.p_gain_l" = 6.0 }
+"""
+HEAD_ON = """
+[[robots]]
+name = "rh0"
+start = { x = 0.0, y = 0.0, theta = 0.0 }
+scenario = "{scenario}"
+[[robots]]
+name = "rh1"
+start = { x = 2.0, y = 0.0, theta = 3.141592653589793 }
+scenario = "{scenario}"
+"""
+FORWARD = '[[segments]]\ntype = "constant"\nvx = 0.3\nw = 0.0\nduration = 6.0\n'
+COMPARED = (Topic.SIM_BODY_POSE, Topic.ODOMETRY_POSE, Topic.LOCALIZATION_POSE, Topic.DRIVE_TARGET_VELOCITY)
+PATIENT = ("--set", "sim.lockstep_timeout=5")
+"""As in test_determinism: beside two burners a lockstep wait may take longer than the default."""
+HOME_M = 0.05
+
+
+@contextmanager
+def _burning_cpus(count: int) -> Iterator[None]:
+    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+    try:
+        yield
+    finally:
+        for burner in burners:
+            burner.kill()
+            burner.wait()
+
+
+def _up(directory: Path, fleet: str, *flags: str, timeout: float = 240.0) -> tuple[int, str, dict]:
+    fleet_file = directory / "fleet.toml"
+    fleet_file.write_text(fleet)
+    report = directory / "report"
+    process = start_up(
+        "--fleet", str(fleet_file), "--report", str(report), "--listen", f"tcp/127.0.0.1:{free_port()}", *flags
+    )
+    output, _ = process.communicate(timeout=timeout)
+    loaded = json.loads((report / "report.json").read_text()) if (report / "report.json").exists() else {}
+    return process.returncode, output, loaded
+
+
+def _samples(report_dir: Path) -> dict[str, list[bytes]]:
+    """Every payload of the compared keys of both robots in run.mcap, in publication order, and
+    under ``"shown"`` the names of the Foxglove topics of its scene."""
+    keys = {Keys(name).topic(topic) for name in ("rh0", "rh1") for topic in COMPARED}
+    samples: dict[str, list[bytes]] = {key: [] for key in keys}
+    shown: set[str] = set()
+    for message in read_messages(report_dir / "run.mcap").messages:
+        if message.topic in samples:
+            samples[message.topic].append(message.data)
+        elif message.topic.startswith("/"):
+            shown.add(message.topic)
+    return {**samples, "shown": sorted(item.encode() for item in shown)}
+
+
+def _home(report: dict) -> float:
+    start, end = report["start"], report["final"]["ground_truth"]
+    return math.hypot(end["x"] - start["x"], end["y"] - start["y"])
+
+
+@pytest.fixture(scope="module")
+def squares(tmp_path_factory) -> dict[str, tuple[int, str, dict, dict[str, list[bytes]]]]:
+    runs = {}
+    quiet = tmp_path_factory.mktemp("quiet_composed")
+    code, output, report = _up(quiet, SQUARES, "--composed")
+    runs["quiet composed"] = (code, output, report, _samples(quiet / "report") if code == 0 else {})
+    loaded = tmp_path_factory.mktemp("loaded_separate")
+    with _burning_cpus(2):
+        code, output, report = _up(loaded, SQUARES, *PATIENT)
+    runs["loaded separate"] = (code, output, report, _samples(loaded / "report") if code == 0 else {})
+    return runs
+
+
+def test_both_robots_drive_their_square_from_their_own_start_and_come_home(squares):
+    for name, (code, output, report, _samples_of_run) in squares.items():
+        assert code == 0, (name, output[-3000:])
+        assert set(report["robots"]) == {"rh0", "rh1"} and report["degraded"] == [], (name, report["degraded"])
+        for robot, start in (("rh0", (0.0, 0.0)), ("rh1", (0.5, 3.0))):
+            part = report["robots"][robot]
+            assert (part["start"]["x"], part["start"]["y"]) == pytest.approx(start, abs=1e-3), (name, robot)
+            assert _home(part) < HOME_M, (name, robot, part["final"])
+            assert part["path_error"]["max_m"] < 0.10 and part["scenario"] == "square"
+        turned = report["robots"]["rh1"]["planned_path"][1]
+        assert turned == pytest.approx([0.5, 4.0], abs=1e-9), "rh1's square is placed at its start, facing +y"
+        closest = report["fleet"]["closest_approach"]
+        assert closest["robots"] == ["rh0", "rh1"] and closest["distance_m"] > 1.0
+        assert report["fleet"]["bumps_between_robots"] == []
+        shown = {topic.decode() for topic in squares[name][3]["shown"]}
+        assert {"/rh0/odometry/pose", "/rh1/odometry/pose", "/tf", "/scene"} <= shown, "run.mcap shows every robot"
+
+
+def test_a_fleet_run_is_the_same_bit_for_bit_composed_quietly_and_separate_beside_burners(squares):
+    (quiet, loaded) = (squares["quiet composed"][3], squares["loaded separate"][3])
+    assert quiet and loaded, "both runs recorded"
+    for key, payloads in quiet.items():
+        assert len(payloads) > 5, (
+            key
+        )  # localization: 1 Hz over 21 s; the scene's topics: 8  # localization: 1 Hz over 21 s
+        assert loaded[key] == payloads, f"{key}: {len(payloads)} samples quiet, {len(loaded[key])} loaded"
+    rh0_pose, rh1_pose = (quiet[Keys(name).odometry_pose] for name in ("rh0", "rh1"))
+    assert rh0_pose != rh1_pose, "each robot has its own keys and its own motion"
+
+
+def test_robots_that_meet_head_on_each_get_a_bump_naming_the_other_and_stay_stopped(tmp_path):
+    scenario = tmp_path / "forward.toml"
+    scenario.write_text(FORWARD)
+    code, output, report = _up(tmp_path, HEAD_ON.replace("{scenario}", str(scenario)), "--composed")
+    assert code == 0, output[-3000:]
+    between = report["fleet"]["bumps_between_robots"]
+    assert {(bump["robot"], bump["other"]) for bump in between} == {("rh0", "rh1"), ("rh1", "rh0")}, between
+    assert between[0]["t_s"] == between[1]["t_s"], "one contact, a bump for each at the same step"
+    for robot, other in (("rh0", "rh1"), ("rh1", "rh0")):
+        part = report["robots"][robot]
+        assert part["bumps"][0]["obstacle"] == other
+        state = json.loads((tmp_path / "report" / robot / "motor-state.json").read_text())
+        assert state["stopped"] is True, (robot, state)
+        end = part["final"]["ground_truth"]
+        assert abs(end["x"] - 1.0) < 0.5, f"{robot} stopped near where they met, not 6 s * 0.3 m/s on"
+    body = 2 * RobotConfig().radius_of_body_area
+    assert report["fleet"]["closest_approach"]["distance_m"] == pytest.approx(body, abs=0.02), "bodies touching"
+
+
+def test_a_robot_whose_motor_dies_degrades_only_its_own_part_and_the_other_comes_home(tmp_path):
+    fleet_file = tmp_path / "fleet.toml"
+    fleet_file.write_text(SQUARES)
+    report_dir = tmp_path / "report"
+    process = start_up(
+        "--fleet", str(fleet_file), "--report", str(report_dir), "--listen", f"tcp/127.0.0.1:{free_port()}"
+    )
+    output: list[str] = []
+    reader = threading.Thread(target=lambda: output.extend(process.stdout), daemon=True)
+    reader.start()
+    try:
+        wait_until(lambda: re.search(r"sim +[3-9]\.\d\d s", "".join(output)), 120, "the fleet 3 s into its run")
+        motor = re.search(r"started rh1/motor \(pid (\d+)\)", "".join(output))
+        assert motor, "".join(output)[-2000:]
+        subprocess.run(["kill", "-KILL", motor.group(1)], check=True)
+        process.wait(timeout=180)
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+            process.wait(timeout=30)
+    reader.join(5)
+    log = "".join(output)
+    assert process.returncode == 0, log[-3000:]
+    assert "rh1: motor ended (killed by SIGKILL): only rh1 degrades" in log
+    report = json.loads((report_dir / "report.json").read_text())
+    assert report["robots"]["rh0"]["degraded"] == [] and _home(report["robots"]["rh0"]) < HOME_M
+    assert report["robots"]["rh1"]["degraded"][0] == "motor ended early (killed by SIGKILL)"
+    assert report["degraded"][0] == "rh1: motor ended early (killed by SIGKILL)"

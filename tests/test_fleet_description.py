@@ -1,0 +1,156 @@
+"""The fleet file, a scenario placed at a robot's start, and the fleet summary: pure, no zenoh."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from services.config import ConfigError
+from services.drive.scenarios import BUILTIN_SCENARIOS, ConstantSegment, is_builtin, load_scenario, placed
+from services.fleet.description import load_fleet, parse_fleet, robot_config, robot_overrides
+from services.fleet.launch import robot_flags
+from services.fleet.summary import bumps_between, closest_approach
+from services.planar import Pose
+
+ISSUE_EXAMPLE = """
+world = "empty"                      # as sim.world: a built-in name or a world file
+[[robots]]
+name = "rh0"
+start = { x = 0.0, y = 0.0, theta = 0.0 }
+scenario = "square"                  # built-in or file; a built-in runs from this start pose
+[[robots]]
+name = "rh1"
+start = { x = 0.0, y = 3.0, theta = 0.0 }
+scenario = "square"
+set = { "motor.p_gain_l" = 6.0 }     # optional per-robot overrides of the robot description
+"""
+
+
+def test_the_documented_fleet_file_loads_with_each_robots_start_scenario_and_overrides():
+    fleet = parse_fleet(ISSUE_EXAMPLE)
+    assert fleet.world == "empty" and fleet.names == ("rh0", "rh1")
+    rh1 = fleet.robot("rh1")
+    assert (rh1.start.x, rh1.start.y, rh1.start.theta) == (0.0, 3.0, 0.0)
+    assert rh1.scenario == "square" and rh1.set == {"motor.p_gain_l": 6.0}
+    assert fleet.robot("rh0").set == {}
+
+
+def test_a_robots_description_is_the_file_then_the_command_line_then_its_own(tmp_path):
+    base = tmp_path / "robot.toml"
+    base.write_text("[motor]\np_gain_l = 4.0\np_gain_r = 4.5\n")
+    fleet = parse_fleet(ISSUE_EXAMPLE)
+    rh0 = robot_config(fleet.robot("rh0"), base, {"motor.d_gain_l": 1.5})
+    rh1 = robot_config(fleet.robot("rh1"), base, {"motor.d_gain_l": 1.5})
+    assert (rh0.motor.p_gain_l, rh1.motor.p_gain_l) == (4.0, 6.0)
+    assert rh0.motor.p_gain_r == rh1.motor.p_gain_r == 4.5 and rh1.motor.d_gain_l == 1.5
+    assert (rh1.robot.name, rh1.odometry.initial_y, rh1.localization.initial_y) == ("rh1", 3.0, 3.0)
+
+
+def test_nested_overrides_are_the_dotted_ones():
+    fleet = parse_fleet('[[robots]]\nname = "rh0"\nset = { motor = { p_gain_l = 6.0 } }\n')
+    assert fleet.robot("rh0").set == {"motor.p_gain_l": 6.0}
+
+
+@pytest.mark.parametrize(
+    ("text", "names"),
+    [
+        ("robots = []", "`robots`: a fleet needs at least one robot"),
+        ('[[robots]]\nname = "rh/0"', "`robots[0].name`"),
+        ('[[robots]]\nname = "rh0"\n[[robots]]\nname = "rh0"', "`robots[1].name`: robot name 'rh0' is used twice"),
+        ('[[robots]]\nname = "rh0"\nset = { "sim.step" = 0.002 }', "`robots[0].set`: 'sim.step' cannot differ"),
+        ('[[robots]]\nname = "rh0"\nset = { "robot.name" = "x" }', "`robots[0].set`: 'robot.name'"),
+        ('[[robots]]\nname = "rh0"\nspeed = 1', "speed"),
+        ('[[robots]]\nname = "rh0"\nstart = { x = nan }', "start.x"),
+        ('world = 3\n[[robots]]\nname = "rh0"', "world"),
+        ("[[robots", "fleet file"),
+    ],
+)
+def test_a_wrong_fleet_file_is_a_configuration_error_naming_the_field(text, names):
+    with pytest.raises(ConfigError, match=None) as raised:
+        parse_fleet(text, "f.toml")
+    assert names in str(raised.value) and "f.toml" in str(raised.value)
+
+
+def test_a_missing_fleet_file_and_a_wrong_override_name_the_flag_and_the_robot(tmp_path):
+    with pytest.raises(ConfigError, match="--fleet"):
+        load_fleet(tmp_path / "none.toml")
+    fleet = parse_fleet('[[robots]]\nname = "rh7"\nset = { "motor.no_such_gain" = 1 }')
+    with pytest.raises(ConfigError, match="fleet robot 'rh7'.*no_such_gain"):
+        robot_config(fleet.robot("rh7"), None, {})
+
+
+def test_a_robots_services_are_started_with_its_name_overrides_and_start():
+    robot = parse_fleet(ISSUE_EXAMPLE).robot("rh1")
+    flags = robot_flags(robot)
+    assert flags[:2] == ["--robot", "rh1"]
+    sets = dict(flag.split("=", 1) for flag in flags[3::2])
+    assert sets["motor.p_gain_l"] == "6.0" and sets["odometry.initial_y"] == "3.0"
+    assert len(sets) == len(robot_overrides(robot)) - 1  # all but the name, which is --robot
+
+
+poses = st.builds(
+    Pose,
+    st.floats(-50, 50, allow_nan=False),
+    st.floats(-50, 50, allow_nan=False),
+    st.floats(-math.pi, math.pi, allow_nan=False),
+)
+
+
+@given(start=poses)
+def test_a_placed_square_keeps_its_side_lengths_and_starts_its_first_leg_along_the_heading(start):
+    square = placed(BUILTIN_SCENARIOS["square"], start)
+    points = [(start.x, start.y), *square.segments[0].waypoints]
+    sides = [math.dist(a, b) for a, b in itertools.pairwise(points)]
+    assert sides == pytest.approx([1.0, 1.0, 1.0, 1.0], abs=1e-9)
+    assert points[-1] == pytest.approx(points[0], abs=1e-9)
+    first_leg = math.atan2(points[1][1] - points[0][1], points[1][0] - points[0][0])
+    assert math.remainder(first_leg - start.theta, math.tau) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_placing_at_the_origin_changes_nothing_and_constant_segments_are_relative_already():
+    circle = BUILTIN_SCENARIOS["circle"]
+    assert placed(circle, Pose(0.0, 0.0, 0.0)) is circle
+    moved = placed(circle, Pose(3.0, 4.0, 1.0))
+    assert all(isinstance(segment, ConstantSegment) for segment in moved.segments)
+    assert moved.segments == circle.segments
+
+
+def test_only_a_built_in_is_placed(tmp_path):
+    path = tmp_path / "square.toml"
+    path.write_text('[[segments]]\ntype = "waypoints"\nwaypoints = [[1.0, 0.0]]\n')
+    assert is_builtin(load_scenario("square")) and not is_builtin(load_scenario(str(path)))
+
+
+def test_the_closest_approach_is_at_a_common_stamp_and_names_both_robots():
+    tracks = {
+        "rh0": [(0.0, 0.0, 0.0), (1.0, 1.0, 0.0), (2.0, 2.0, 0.0)],
+        "rh1": [(0.0, 3.0, 0.0), (1.0, 1.5, 0.0), (2.0, 1.0, 0.0)],
+        "rh2": [(0.0, 0.0, 9.0)],
+    }
+    assert closest_approach(tracks) == {"distance_m": 0.5, "t_s": 1.0, "robots": ["rh0", "rh1"]}
+    assert closest_approach({"rh0": tracks["rh0"]}) is None
+
+
+def test_bumps_between_robots_leave_out_obstacles_and_are_in_time_order():
+    bumps = {"rh0": [(2.0, "rh1"), (5.0, "box")], "rh1": [(2.0, "rh0")]}
+    assert bumps_between(bumps, ["rh0", "rh1"]) == [
+        {"t_s": 2.0, "robot": "rh0", "other": "rh1"},
+        {"t_s": 2.0, "robot": "rh1", "other": "rh0"},
+    ]
+
+
+@pytest.mark.parametrize(
+    "path", sorted((Path(__file__).resolve().parent.parent / "examples" / "fleets").glob("*.toml"))
+)
+def test_the_example_fleets_load_with_their_scenarios(path, monkeypatch):
+    monkeypatch.chdir(path.parent.parent.parent)  # their scenario paths are from the repository's root
+    fleet = load_fleet(path)
+    assert len(fleet.robots) >= 2
+    for robot in fleet.robots:
+        robot_config(robot, None, {})
+        load_scenario(robot.scenario or "square")
