@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from schemas.codec import BadInput
 from schemas.messages import PDGains
+from services.clock.sim_time import GAP_ADOPTION_SAMPLES
 from services.config import InputConfig, MotorConfig, RobotConfig, TargetAngleMode
 from services.motor.core import MotorCore, MotorState, SimPoseConverter
 
@@ -627,3 +628,19 @@ def test_a_target_waiting_for_its_sample_is_dropped_by_an_emergency_stop():
     motor_core.clear()
     motor_core.step(6 * MS, [0.0, 0.0])
     assert motor_core.target == (0.0, 0.0)
+
+
+def test_wheel_angles_back_after_a_gap_are_taken_again_from_rest_at_the_fifth_steady_sample():
+    motor = MotorCore(RobotConfig(), MotorConfig(), InputConfig())
+    motor.start()
+    motor.set_target(0.2, 0.0)
+    horizon_ns = InputConfig().stamp_horizon_ns
+    for step in range(10):
+        motor.step(step * 1_000_000, [0.001 * step, 0.001 * step])
+    back_ns = 9_000_000 + 3 * horizon_ns
+    for index in range(GAP_ADOPTION_SAMPLES - 1):
+        with pytest.raises(BadInput, match="ahead of the time base"):
+            motor.step(back_ns + index * 1_000_000, [0.5, 0.5])
+    taken = motor.step(back_ns + (GAP_ADOPTION_SAMPLES - 1) * 1_000_000, [0.5, 0.5])
+    assert taken == [0.0, 0.0], "the first sample after the gap: no Δt across it, zero torque"
+    assert any(motor.step(back_ns + (GAP_ADOPTION_SAMPLES + 1) * 1_000_000, [0.501, 0.501])), "controlled again"

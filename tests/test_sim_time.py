@@ -8,7 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
-from services.clock.sim_time import ClockRestart, StampClock
+from services.clock.sim_time import GAP_ADOPTION_SAMPLES, ClockRestart, StampClock, StampGap
 from services.config import InputConfig
 
 S = 1_000_000_000
@@ -118,3 +118,40 @@ def test_stamp_clock_refuses_a_jump_beyond_the_horizon_and_keeps_its_time_base()
             clock.advance(forged)
     assert clock.last_ns == 5 * S
     assert clock.advance(5 * S + HORIZON_NS) is False, "a jump of exactly the horizon is fine"
+
+
+def test_a_stream_back_after_a_gap_is_taken_at_its_fifth_steady_sample():
+    gap = StampGap(horizon_ns=1_000, samples=GAP_ADOPTION_SAMPLES)
+    assert gap.check(1_500, 1_000) is False
+    back = [10_000 + 100 * index for index in range(GAP_ADOPTION_SAMPLES)]
+    for stamp in back[:-1]:
+        with pytest.raises(BadInput, match="ahead of the time base"):
+            gap.check(stamp, 1_500)
+    assert gap.check(back[-1], 1_500) is True and gap.gaps == 1
+
+
+def test_one_forged_stamp_or_forgeries_among_a_live_stream_are_never_taken():
+    gap = StampGap(horizon_ns=1_000, samples=3)
+    last = 0
+    for step in range(1, 50):
+        with pytest.raises(BadInput):
+            gap.check(10**12 + step, last)  # forged, steady among themselves
+        assert gap.check(last + 100, last) is False  # the live stream, which the time base takes
+        last += 100
+    assert gap.gaps == 0
+
+
+@given(st.lists(st.integers(min_value=1, max_value=5_000), min_size=1, max_size=40))
+def test_a_run_is_taken_only_when_every_stamp_of_it_is_steady(steps):
+    gap = StampGap(horizon_ns=1_000, samples=4)
+    stamp, run = 100_000, 0
+    for step in steps:
+        stamp += step
+        run = run + 1 if run > 0 and step <= 1_000 else 1
+        try:
+            taken = gap.check(stamp, 0)
+        except BadInput:
+            taken = False
+        assert taken == (run >= 4)
+        if taken:
+            run = 0

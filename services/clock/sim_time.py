@@ -30,6 +30,48 @@ def check_next_stamp(stamp_ns: int, last_ns: int, horizon_ns: int) -> None:
         )
 
 
+GAP_ADOPTION_SAMPLES = 5
+"""A stream back after a gap longer than the horizon is taken again at its 5th steady sample."""
+
+
+class StampGap:
+    """:func:`check_next_stamp` for one stream, which also takes the stream back after a gap.
+
+    A link down for a while loses the samples in between: the first one after it jumps further
+    than the horizon, is refused, and leaves the time base where it was, so every later sample
+    jumps further still and the stream would be refused for ever. So a run of
+    :data:`GAP_ADOPTION_SAMPLES` stamps beyond the gap, each after the one before by at most the
+    horizon, with no sample in between that the time base took, is the stream come back: the last
+    of them is taken (:meth:`check` returns True). One forged stamp, or forgeries among a live
+    stream's samples, never make such a run: each genuine sample the time base takes ends it."""
+
+    def __init__(self, horizon_ns: int, samples: int = GAP_ADOPTION_SAMPLES) -> None:
+        self.horizon_ns = horizon_ns
+        self.samples = samples
+        self.gaps = 0
+        """Streams taken back after a gap."""
+        self._run = 0
+        self._run_last_ns = 0
+
+    def check(self, stamp_ns: int, last_ns: int) -> bool:
+        """False for a stamp the time base takes as usual; True for the stamp that takes the stream
+        back after a gap (the caller takes it, with no Δt across the gap if it needs one); raises
+        BadInput for the others, as :func:`check_next_stamp` does."""
+        if 0 < stamp_ns - last_ns <= self.horizon_ns:
+            self._run = 0
+            return False
+        if stamp_ns > last_ns:
+            steady = self._run > 0 and 0 < stamp_ns - self._run_last_ns <= self.horizon_ns
+            self._run = self._run + 1 if steady else 1
+            self._run_last_ns = stamp_ns
+            if self._run >= self.samples:
+                self._run = 0
+                self.gaps += 1
+                return True
+        check_next_stamp(stamp_ns, last_ns, self.horizon_ns)
+        raise AssertionError("unreachable: check_next_stamp raised")  # pragma: no cover
+
+
 def check_stamp_near(stamp_ns: int, reference_ns: int, horizon_ns: int, history_ns: float, what: str) -> None:
     """The stamp policy of an input checked against another time base (a target or a fix against
     the wheel-angle time): no further ahead than the horizon, no further back than the history
@@ -86,11 +128,13 @@ class ClockRestart:
 class StampClock:
     """Accepts a stream of increasing stamps, each at most ``horizon_ns`` after the last
     (:func:`check_next_stamp`); anything else is bad input, but for the sample that starts a
-    new time base after a simulator appeared (``restart``, a :class:`ClockRestart`).
+    new time base after a simulator appeared (``restart``, a :class:`ClockRestart`) and the one
+    that takes the stream back after a gap (``gap``, a :class:`StampGap`).
     """
 
     def __init__(self, horizon_ns: int) -> None:
         self.restart = ClockRestart(horizon_ns)
+        self.gap = StampGap(horizon_ns)
         self.first_ns: int | None = None
         """The first stamp of the current time base."""
         self.last_ns: int | None = None
@@ -108,7 +152,7 @@ class StampClock:
         last_ns = self.last_ns
         restarted = self.restart.decide(stamp_ns, last_ns)
         if not restarted and last_ns is not None:
-            check_next_stamp(stamp_ns, last_ns, self.horizon_ns)
+            self.gap.check(stamp_ns, last_ns)
         if restarted or self.first_ns is None:
             self.first_ns = stamp_ns
         self.last_ns = stamp_ns

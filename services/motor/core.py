@@ -23,7 +23,7 @@ import msgspec
 from schemas.codec import BadInput
 from schemas.keys import BODY_POSE_LENGTH
 from schemas.messages import NANOSECONDS_PER_SECOND, PDGains
-from services.clock.sim_time import check_next_stamp, check_stamp_near
+from services.clock.sim_time import StampGap, check_stamp_near
 from services.config import InputConfig, MotorConfig, RobotConfig, TargetAngleMode
 from services.planar import check_coordinates, wrap_angle
 
@@ -125,6 +125,7 @@ class MotorCore:
         self.motor = motor
         self.limits = limits
         self._horizon_ns = limits.stamp_horizon_ns
+        self._gap = StampGap(limits.stamp_horizon_ns)
         # A target older than the command timeout would be timed out anyway.
         self._target_history_ns = round((motor.command_timeout or limits.stamp_horizon) * NANOSECONDS_PER_SECOND)
         self._max_wheel_speed = limits.max_wheel_speed
@@ -201,12 +202,12 @@ class MotorCore:
         q_l, q_r = angles[self._left], angles[self._right]
         previous = self._stamp_ns
         torques = [0.0] * count
-        if previous is None:
+        # The first sample, or the first taken back after a gap (a link down): no Δt to differentiate.
+        if previous is None or self._gap.check(stamp_ns, previous):
             self.cycle_state = self.state
             self._accept(stamp_ns, q_l, q_r)
             self.dq = self.dq_ref = self.q_ref = None
             return torques
-        check_next_stamp(stamp_ns, previous, self._horizon_ns)
         dt = (stamp_ns - previous) / NANOSECONDS_PER_SECOND
         old_l, old_r = self.q
         dq_l, dq_r = (q_l - old_l) / dt, (q_r - old_r) / dt

@@ -39,7 +39,7 @@ from typing import NamedTuple
 
 from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND
-from services.clock.sim_time import check_next_stamp, check_stamp_near
+from services.clock.sim_time import StampGap, check_stamp_near
 from services.config import InputConfig, OdometryConfig, RobotConfig
 from services.planar import Pose, check_coordinates, wrap_angle
 
@@ -116,6 +116,7 @@ class Odometry:
     __slots__ = (
         "_angle_border",
         "_b",
+        "_gap",
         "_history",
         "_horizon_ns",
         "_left_id",
@@ -153,6 +154,7 @@ class Odometry:
         self.robot, self.config = robot, odometry
         self.geometry = geometry = CalibratedGeometry.of(robot, odometry)
         self._horizon_ns = limits.stamp_horizon_ns
+        self._gap = StampGap(limits.stamp_horizon_ns)
         self._max_wheel_speed = limits.max_wheel_speed
         self._max_coordinate = limits.max_coordinate
         self._left_id = robot.left_wheel_id
@@ -275,7 +277,8 @@ class Odometry:
             return Step(
                 Branch.INITIAL, q_left, q_right, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, None, 0.0, self._x, self._y, self._theta
             )
-        check_next_stamp(time_ns, self._time_ns, self._horizon_ns)
+        # After a gap (a link down) the stream is taken back and the step spans the gap.
+        self._gap.check(time_ns, self._time_ns)
         dt = (time_ns - self._time_ns) / NANOSECONDS_PER_SECOND
         rate_left, rate_right = (q_left - self._q_left) / dt, (q_right - self._q_right) / dt
         if not (abs(rate_left) <= self._max_wheel_speed and abs(rate_right) <= self._max_wheel_speed):
