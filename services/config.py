@@ -165,6 +165,11 @@ class SimConfig(_Section, frozen=True):
     """Realtime mode: simulated seconds per wall second."""
     torque_max_age: Positive = 0.01
     """Realtime mode: simulated seconds after which the newest torque is stale (zero is applied)."""
+    brake_after: Positive | None = 0.5
+    """Simulated seconds without a torque from the robot's motor control (gone, silent, or cut off
+    by a link down) after which the simulated motor driver brakes the wheels (to rest, at most
+    ``max_wheel_torque``) until a torque comes again, as a driver's watchdog does; the default is
+    the motor's own ``command_timeout``. None (``"none"``): the wheels run free on zero torque."""
     world: str | None = None
     """World file (TOML) or built-in world name (sim_bridge/worlds/); None (``"none"``) = an empty floor."""
     body_mass: Positive = 20.0

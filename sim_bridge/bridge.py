@@ -92,6 +92,7 @@ COUNTERS = (
     "realtime_resyncs",
     "realtime_late_steps",
     "tick_timeouts",
+    "braked_steps",
 )
 """The counters of ``sim/status`` (docs/sim.md explains each)."""
 
@@ -134,6 +135,13 @@ class RobotLink:
         self.clock: tuple[TimedDoubleSeq, bytes] | None = None
         """(wheel angles, mark) of an observed step published, while its ``sim/clock`` waits."""
         self.latency = TorqueLatency(service.sim.step_ns)
+        brake_after = service.parameters.brake_after
+        self.brake_steps = (
+            None if brake_after is None else max(1, round(brake_after * NANOSECONDS_PER_SECOND / service.sim.step_ns))
+        )
+        """Steps without a torque after which the wheels are braked (``sim.brake_after``)."""
+        self.torque_step = 0
+        """The step at which a torque of the motor control was last applied (or the run began)."""
         self.warn = RateLimitedLog(node.log)
         self._declare()
 
@@ -331,11 +339,27 @@ class RobotLink:
         self.awaited_ns, self.answered = tm_ns, False
 
     def end_torque_wait(self) -> None:
-        """After the wait for this step's torque: count it, or apply zero torque."""
+        """After the wait for this step's torque: count it, or apply zero torque (or brake)."""
         self.awaited_ns = -1
         if self.answered:
             self.late_in_a_row = 0
             self.counters["torques_applied"] += 1
+            self.torque_step = self.service.sim.step_index
+        else:
+            self.no_torque()
+
+    def no_torque(self) -> None:
+        """No torque for this step: zero torque, or the brakes once there has been none for
+        ``sim.brake_after`` (the motor control gone, silent, or cut off by a link down)."""
+        if self.brake_steps is not None and self.service.sim.step_index - self.torque_step >= self.brake_steps:
+            if not self.body.braking:
+                self.node.log.warning(
+                    "%sno torque for %g s: braking the wheels until one comes",
+                    self.service.prefix(self),
+                    self.service.parameters.brake_after,
+                )
+            self.body.brake()
+            self.counters["braked_steps"] += 1
         else:
             self.body.set_zero_torques()
 
@@ -374,8 +398,9 @@ class RobotLink:
         if newest is not None and 0 <= tm_ns - self.newest_ns <= max_age_ns:
             self.body.set_torques(newest)
             self.counters["torques_applied"] += 1
+            self.torque_step = self.service.sim.step_index
         else:
-            self.body.set_zero_torques()
+            self.no_torque()
             self.counters["missing_torques"] += 1
 
     def owed_changed(self) -> None:
@@ -411,6 +436,7 @@ class RobotLink:
             observed_steps=self.observation.count,
             observed_rates=self.observation.rates(),
             drive_ended=self.drive_ended,
+            braking=self.body.braking,
         )
         return status
 
@@ -722,6 +748,7 @@ class SimService:
                 "lockstep_max_late": self.parameters.lockstep_max_late,
                 "realtime_factor": self.parameters.realtime_factor,
                 "torque_max_age": self.parameters.torque_max_age,
+                "brake_after": self.parameters.brake_after,
                 "max_wheel_torque": self.parameters.max_wheel_torque,
             },
         }

@@ -68,6 +68,10 @@ class SimulatedRobot:
         self.wheels = self.model.wheel_joints
         self.forces = [0.0, 0.0]
         """Left and right torque of the next step, after saturation."""
+        self.braking = False
+        """The next step brakes the wheels to rest (at most ``max_torque``) instead of applying ``forces``."""
+        self._brakes_on = False
+        """Whether the wheels' velocity motors are on (they brake), in the physics client."""
         self.applied_torques = [0.0] * self.wheel_count
         """The torques applied during the next step, by wheel id (after saturation)."""
 
@@ -93,10 +97,32 @@ class SimulatedRobot:
         right = min(max(torques[self._right], -limit), limit)
         self.forces[0] = self.applied_torques[self._left] = left
         self.forces[1] = self.applied_torques[self._right] = right
+        self.braking = False
 
     def set_zero_torques(self) -> None:
         self.forces[0] = self.forces[1] = 0.0
         self.applied_torques[self._left] = self.applied_torques[self._right] = 0.0
+        self.braking = False
+
+    def brake(self) -> None:
+        """Brake the wheels to rest in the next step, as a motor driver does when its commands stop."""
+        self.set_zero_torques()
+        self.braking = True
+
+    def apply(self) -> None:
+        """Set this step's wheel motors in the physics client: the torques, or the brakes."""
+        client, body, wheels = self.client, self.body, self.wheels
+        if self.braking != self._brakes_on:
+            # PyBullet's velocity motors brake; force 0 turns them off again, for torque control.
+            limit = self.max_torque if self.braking else 0.0
+            p.setJointMotorControlArray(
+                body, wheels, p.VELOCITY_CONTROL, targetVelocities=(0.0, 0.0), forces=(limit, limit),
+                physicsClientId=client,
+            )  # fmt: skip
+            self._brakes_on = self.braking
+        if not self.braking:
+            # PyBullet clears applied joint torques after every step: they must be set again each time.
+            p.setJointMotorControlArray(body, wheels, p.TORQUE_CONTROL, forces=self.forces, physicsClientId=client)
 
 
 def connect(gui: bool) -> int:
@@ -215,13 +241,9 @@ class Simulator:
     def step(self) -> tuple[Contact, ...]:
         """Apply every robot's torques, advance one step; return the contacts that began in it
         (a contact between two robots once for each of them)."""
-        client = self.client
-        # PyBullet clears applied joint torques after every step: they must be set again each time.
         for robot in self.robots:
-            p.setJointMotorControlArray(
-                robot.body, robot.wheels, p.TORQUE_CONTROL, forces=robot.forces, physicsClientId=client
-            )
-        p.stepSimulation(physicsClientId=client)
+            robot.apply()
+        p.stepSimulation(physicsClientId=self.client)
         self.step_index += 1
         return self._new_contacts() if self._pairs else _NO_CONTACTS
 

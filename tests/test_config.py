@@ -134,7 +134,15 @@ def test_an_unset_service_flag_keeps_the_set_override():
     assert config_from_args(args.service_command, args).motor.command_timeout == 1.0
 
 
-OPTIONAL_FIELDS = ("motor.max_vx", "motor.max_ax", "motor.max_w", "motor.max_aw", "sim.world", "localization.seed")
+OPTIONAL_FIELDS = (
+    "motor.max_vx",
+    "motor.max_ax",
+    "motor.max_w",
+    "motor.max_aw",
+    "sim.world",
+    "sim.brake_after",
+    "localization.seed",
+)
 
 
 @pytest.mark.parametrize("dotted", OPTIONAL_FIELDS)

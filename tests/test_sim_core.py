@@ -239,3 +239,20 @@ def test_a_fleet_of_one_at_the_worlds_start_is_the_one_robot_simulator():
                 sim.set_torques(varying(step))
                 sim.step()
         assert fleet.body_pose() == single.body_pose() and fleet.wheel_angles() == single.wheel_angles()
+
+
+def test_a_braked_robot_comes_to_rest_and_torques_release_the_brakes(sim: Simulator):
+    drive(sim, constant(2.0, 2.0), 1000)
+    moving = sim.body_pose()[0]
+    robot = sim.robots[0]
+    for _ in range(300):
+        robot.brake()
+        sim.step()
+    stopped = sim.body_pose()[0]
+    for _ in range(100):
+        robot.brake()
+        sim.step()
+    assert stopped > moving and sim.body_pose()[0] == pytest.approx(stopped, abs=1e-4), "at rest, held"
+    assert robot.braking and robot.applied_torques == [0.0, 0.0]
+    drive(sim, constant(2.0, 2.0), 500)
+    assert not robot.braking and sim.body_pose()[0] > stopped + 0.05, "torques drive it again"
