@@ -2,8 +2,9 @@
 
 Two robots drive the square each from its own start: both come home, and the run is the same bit
 for bit composed on a quiet machine and as separate processes beside two CPU burners. Two robots
-driven head-on meet: a bump for each naming the other, both motors latched stopped. A robot whose
-motor dies degrades only its own part of the report, and the other robot still comes home.
+driven head-on meet: a bump for each naming the other, both motors latched stopped. In a secure
+fleet (every service with its own robot's credentials) a robot whose motor dies degrades only its
+own part of the report, and the other robot still comes home.
 """
 
 from __future__ import annotations
@@ -161,13 +162,16 @@ def test_robots_that_meet_head_on_each_get_a_bump_naming_the_other_and_stay_stop
     assert report["fleet"]["closest_approach"]["distance_m"] == pytest.approx(body, abs=0.02), "bodies touching"
 
 
-def test_a_robot_whose_motor_dies_degrades_only_its_own_part_and_the_other_comes_home(tmp_path):
+def test_a_secure_fleet_whose_robots_motor_dies_degrades_only_that_robot_and_the_other_comes_home(tmp_path):
+    """With --secure, every service runs with its own robot's credentials (the run proves them
+    enough); rh1's motor is then SIGKILLed."""
     fleet_file = tmp_path / "fleet.toml"
     fleet_file.write_text(SQUARES)
     report_dir = tmp_path / "report"
     process = start_up(
-        "--fleet", str(fleet_file), "--report", str(report_dir), "--listen", f"tcp/127.0.0.1:{free_port()}"
-    )
+        "--fleet", str(fleet_file), "--report", str(report_dir), "--listen", f"tcp/127.0.0.1:{free_port()}",
+        "--secure",
+    )  # fmt: skip
     output: list[str] = []
     reader = threading.Thread(target=lambda: output.extend(process.stdout), daemon=True)
     reader.start()
@@ -184,6 +188,9 @@ def test_a_robot_whose_motor_dies_degrades_only_its_own_part_and_the_other_comes
     reader.join(5)
     log = "".join(output)
     assert process.returncode == 0, log[-3000:]
+    secrets = report_dir / "secrets"
+    assert (secrets / "rh1-motor.json5").is_file() and not (secrets / "motor.json5").exists()
+    assert f"--zenoh-config {secrets / 'rh1-motor.json5'}" in log, "rh1's motor ran with rh1's credentials"
     assert "rh1: motor ended (killed by SIGKILL): only rh1 degrades" in log
     report = json.loads((report_dir / "report.json").read_text())
     assert report["robots"]["rh0"]["degraded"] == [] and _home(report["robots"]["rh0"]) < HOME_M
