@@ -12,7 +12,7 @@ import math
 import tomllib
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
 import msgspec
 
@@ -361,6 +361,22 @@ def _read_nones(raw: dict[str, Any]) -> None:
             value = table.get(name)
             if isinstance(value, str) and value.strip().lower() == NONE:
                 table[name] = None
+
+
+StructT = TypeVar("StructT", bound=msgspec.Struct)
+
+
+def convert_toml(text: str, struct_type: type[StructT], what: str) -> StructT:
+    """A ``struct_type`` from TOML text (a world, scenario or fleet file), strictly: ConfigError
+    starting with ``what`` (the file) and naming the offending field otherwise."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{what}: {error}") from None
+    try:
+        return msgspec.convert(raw, struct_type)
+    except msgspec.ValidationError as error:
+        raise ConfigError(f"{what}: {str(error).replace('$.', '')}") from None
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:

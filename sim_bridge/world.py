@@ -9,14 +9,13 @@ live in ``sim_bridge/worlds/`` and can be named without a path (``--world bump``
 from __future__ import annotations
 
 import math
-import tomllib
 from pathlib import Path
 from typing import Annotated
 
 import msgspec
 
 from schemas.messages import Obstacle
-from services.config import ConfigError
+from services.config import ConfigError, convert_toml
 
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0.0)]
@@ -125,14 +124,7 @@ def resolve_world(world: str | None) -> Path:
 
 def parse_world(text: str, source: str = "world") -> World:
     """A world from TOML text; ConfigError names ``source`` and the offending field."""
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
-        raise ConfigError(f"world file {source}: {error}") from None
-    try:
-        return msgspec.convert(raw, World)
-    except msgspec.ValidationError as error:
-        raise ConfigError(f"world file {source}: {str(error).replace('$.', '')}") from None
+    return convert_toml(text, World, f"world file {source}")
 
 
 def read_world(path: Path) -> World:

@@ -12,23 +12,14 @@ from hypothesis import strategies as st
 
 from services.config import ConfigError
 from services.drive.scenarios import BUILTIN_SCENARIOS, ConstantSegment, is_builtin, load_scenario, placed
+from services.fleet import description
 from services.fleet.description import load_fleet, parse_fleet, robot_config, robot_overrides
 from services.fleet.launch import robot_flags
 from services.fleet.summary import bumps_between, closest_approach
 from services.planar import Pose
 
-ISSUE_EXAMPLE = """
-world = "empty"                      # as sim.world: a built-in name or a world file
-[[robots]]
-name = "rh0"
-start = { x = 0.0, y = 0.0, theta = 0.0 }
-scenario = "square"                  # built-in or file; a built-in runs from this start pose
-[[robots]]
-name = "rh1"
-start = { x = 0.0, y = 3.0, theta = 0.0 }
-scenario = "square"
-set = { "motor.p_gain_l" = 6.0 }     # optional per-robot overrides of the robot description
-"""
+ISSUE_EXAMPLE = description.__doc__.split("```toml\n")[1].split("```")[0]
+"""The fleet file of the issue that asked for fleets, as the module documents it."""
 
 
 def test_the_documented_fleet_file_loads_with_each_robots_start_scenario_and_overrides():

@@ -86,30 +86,19 @@ def run_secrets(
     namespace ``<ros.namespace>/<robot>``."""
     try:
         base = _router_plugins(router_base) if router_base else None
+        options: dict[str, Any] = {
+            "endpoint": endpoint,
+            "router_listen": router_listen,
+            "tls": tls,
+            "tls_names": tls_names,
+            "seen_as": seen_as,
+            "router_base": base,
+            "ros": ros,
+        }
         if robots:
-            profile = write_fleet_profile(
-                directory,
-                robots,
-                endpoint=endpoint,
-                router_listen=router_listen,
-                tls=tls,
-                tls_names=tls_names,
-                seen_as=seen_as,
-                router_base=base,
-                ros=ros,
-            )
+            profile = write_fleet_profile(directory, robots, **options)
         else:
-            profile = write_profile(
-                directory,
-                keys,
-                endpoint=endpoint,
-                router_listen=router_listen,
-                tls=tls,
-                tls_names=tls_names,
-                seen_as=seen_as,
-                router_base=base,
-                ros=ros,
-            )
+            profile = write_profile(directory, keys, **options)
     except ValueError as error:
         raise ConfigError(str(error)) from None
     fleet = f" for the fleet {', '.join(profile.robots)}" if profile.robots else ""

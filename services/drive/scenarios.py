@@ -31,7 +31,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated
@@ -39,7 +38,7 @@ from typing import Annotated
 import msgspec
 
 from schemas.messages import NANOSECONDS_PER_SECOND
-from services.config import ConfigError, DriveConfig
+from services.config import ConfigError, DriveConfig, convert_toml
 from services.drive.path_following import STOPPED, Command, PathFollower, Phase, Point
 from services.planar import Pose, wrap_angle
 
@@ -147,14 +146,7 @@ def load_scenario(name_or_path: str) -> Scenario:
 
 def parse_scenario(text: str, source: str = "scenario", default_name: str = "") -> Scenario:
     """Parse scenario TOML; the name defaults to ``default_name`` when the file gives none."""
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
-        raise ConfigError(f"{source}: {error}") from None
-    try:
-        scenario = msgspec.convert(raw, Scenario)
-    except msgspec.ValidationError as error:
-        raise ConfigError(f"{source}: {str(error).replace('$.', '')}") from None
+    scenario = convert_toml(text, Scenario, source)
     return scenario if scenario.name else msgspec.structs.replace(scenario, name=default_name)
 
 

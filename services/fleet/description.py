@@ -9,6 +9,7 @@ scenario = "square"                  # built-in or file; a built-in runs from th
 [[robots]]
 name = "rh1"
 start = { x = 0.0, y = 3.0, theta = 0.0 }
+scenario = "square"
 set = { "motor.p_gain_l" = 6.0 }     # optional per-robot overrides of the robot description
 ```
 
@@ -22,14 +23,13 @@ is one for all: a robot's overrides may not touch ``sim.*`` (one simulator steps
 from __future__ import annotations
 
 import math
-import tomllib
 from pathlib import Path
 from typing import Any
 
 import msgspec
 
 from schemas.keys import validate_robot_name
-from services.config import Config, ConfigError, load_config
+from services.config import Config, ConfigError, convert_toml, load_config
 
 FLEET_WIDE_SECTION = "sim"
 """The section a robot may not override: its parameters are the one simulator's."""
@@ -110,15 +110,7 @@ def _check(fleet: Fleet, source: str) -> Fleet:
 
 def parse_fleet(text: str, source: str = "fleet") -> Fleet:
     """A fleet from TOML text; ConfigError names ``source`` and the offending field."""
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
-        raise ConfigError(f"fleet file {source}: {error}") from None
-    try:
-        fleet = msgspec.convert(raw, Fleet)
-    except msgspec.ValidationError as error:
-        raise ConfigError(f"fleet file {source}: {str(error).replace('$.', '')}") from None
-    return _check(fleet, source)
+    return _check(convert_toml(text, Fleet, f"fleet file {source}"), source)
 
 
 def load_fleet(path: str | Path) -> Fleet:

@@ -33,7 +33,6 @@ from services.cli.up import (
     RECORDING_FILE,
     SECRETS_DIRECTORY,
     SERVICES_BEFORE_DRIVE,
-    STARTUP_TIMEOUT_S,
     Access,
     ChildDied,
     Interrupted,
@@ -184,26 +183,6 @@ class FleetRun:
             self.lost[robot][service] = how
             say(f"{robot}: {service} ended ({how}): only {robot} degrades, the others go on")
 
-    def wait_tokens(self, keys: list[str]) -> None:
-        alive: set[str] = set()
-        subscribers = [
-            self.session.liveliness().declare_subscriber(key, lambda s: alive.add(str(s.key_expr)), history=True)
-            for key in keys
-        ]
-        try:
-            deadline = time.monotonic() + STARTUP_TIMEOUT_S
-            while len(alive) < len(keys):
-                self.look()
-                if any(self.lost.values()):
-                    raise ChildDied(f"a service ended while the fleet started: {self.lost}")
-                self.launcher.idle()
-                if time.monotonic() > deadline:
-                    raise ChildDied(f"not there after {STARTUP_TIMEOUT_S} s: {', '.join(sorted(set(keys) - alive))}")
-                time.sleep(0.02)
-        finally:
-            for subscriber in subscribers:
-                subscriber.undeclare()
-
     def status(self, keys: Keys, service: Service) -> dict[str, Any] | None:
         for reply in self.session.get(keys.status(service), timeout=2.0):
             if reply.ok is not None:
@@ -263,13 +242,15 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     try:
         with _launch(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
             run = FleetRun(launcher, session, fleet, interrupted)
+            # Until the sim starts, any service that ends ends the run, as in a one-robot run.
+            starting = Run(launcher, session, Keys(fleet.names[0]), interrupted)
             if args.view is not None:
                 live_view = ViewProcess(
                     [*common, *role_flags(access, Role.OBSERVER), "--robot", fleet.names[0], "--fleet", args.fleet],
                     args.view,
                 )
                 closing.callback(live_view.close)
-                live_view.wait_serving(Run(launcher, session, Keys(fleet.names[0]), interrupted))
+                live_view.wait_serving(starting)
             publishers = {
                 name: Publisher(session, Keys(name).run_summary, recorder.journal if recorder else None)
                 for name in fleet.names
@@ -289,7 +270,9 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                     flags = [*common, *role_flags(access, Role(service), robot.name), *robot_flags(robot)]
                     flags += journal(robot.name)
                     launcher.start(f"{robot.name}/{service}", [str(service), *flags, *own.get(service, [])])
-            run.wait_tokens([Keys(name).alive(service) for name in fleet.names for service in SERVICES_BEFORE_DRIVE])
+            starting.wait_tokens(
+                [Keys(name).alive(service) for name in fleet.names for service in SERVICES_BEFORE_DRIVE]
+            )
             for robot in fleet.robots:
                 flags = [*common, *role_flags(access, Role.DRIVE, robot.name), *robot_flags(robot)]
                 flags += journal(robot.name)
@@ -302,7 +285,7 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                     keys.ticks(Service.DRIVE, config.drive.rate),
                     keys.ticks(Service.LOCALIZATION, config.localization.rate),
                 ]
-            run.wait_tokens(tokens)
+            starting.wait_tokens(tokens)
             wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
             sim_flags = ["--fleet", args.fleet, "--mode", mode, "--until-drive-ends", "--wait-for", *wait_for]
             launcher.start(
