@@ -16,6 +16,9 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
   late fraction, torque latency; and the floor ping-pong paced at 1 kHz (``floor_*``): its round
   trips' latency and the fraction longer than a period, what the bare exchange would count late.
 - ``codec``: ns per encode + decode per message type, the project's codec against stdlib json.
+- ``fleet``: how the loop scales with the robots of one world (``invent up --fleet --no-record``,
+  N = 1, 2, 4, 8, separate and composed): steps/s, CPU per robot-step, the sim's share of the CPU
+  (``benchmarks/fleet.py``).
 - ``machine``: where it ran.
 
 Loop figures are medians over ``--repeats`` runs (lockstep runs interleaved with the in-process
@@ -25,7 +28,9 @@ limit, so a ratio compares numbers taken under the same machine load).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -35,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks import codec, floor, loop, machine
+from benchmarks import fleet as fleet_bench
 from services.runtime.session import LOW_LATENCY_VARIABLE
 
 RESULTS = Path(__file__).resolve().parent / "results" / "latest.json"
@@ -45,8 +51,10 @@ TARGETS = {
     "realtime.late_fraction": 0.001,
     "realtime.latency_us.p99": 500.0,
     "codec.min_ratio": 5.0,
+    "fleet.composed.4.steps_per_s": 1000.0,
 }
-"""The issue's "Must show": ratios are lower bounds, late fraction and latency upper bounds."""
+"""The issues' "Must show": ratios are lower bounds, late fraction and latency upper bounds; the fleet's
+(issue 26): composed with 4 robots at least at real time (1,000 steps/s at the default 1 ms step)."""
 UPPER_BOUNDS = frozenset({"realtime.late_fraction", "realtime.latency_us.p99"})
 
 
@@ -65,7 +73,35 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--codec-repeats", type=int, default=5, metavar="N", help="timed batches per codec figure")
     parser.add_argument("--out", type=Path, default=RESULTS, help=f"results file (default {RESULTS})")
     parser.add_argument("--quick", action="store_true", help="tiny durations: checks that everything runs")
+    parser.add_argument(
+        "--fleet-sizes",
+        type=_sizes,
+        default=FLEET_SIZES,
+        metavar="N,N,...",
+        help=f"robots per fleet run (default {','.join(map(str, FLEET_SIZES))}; --quick: 2)",
+    )
+    parser.add_argument(
+        "--only",
+        nargs="+",
+        choices=SECTIONS,
+        metavar="SECTION",
+        help=f"run only these sections ({', '.join(SECTIONS)}: loop is lockstep and realtime; default all); the "
+        "others' targets are then not measured",
+    )
     return parser
+
+
+SECTIONS = ("loop", "codec", "fleet")
+"""``loop``: the ``lockstep`` and ``realtime`` sections; ``fleet``: benchmarks/fleet.py."""
+FLEET_SIZES = (1, 2, 4, 8)
+QUICK_FLEET_SIZES = (2,)
+
+
+def _sizes(text: str) -> tuple[int, ...]:
+    sizes = tuple(int(value) for value in text.split(","))
+    if not sizes or min(sizes) < 1:
+        raise argparse.ArgumentTypeError(f"robot counts must be positive integers: {text!r}")
+    return sizes
 
 
 def composed_available() -> bool:
@@ -307,6 +343,52 @@ def run_realtime(args: argparse.Namespace, failures: list[str]) -> dict[str, Any
     }
 
 
+FLEET_MODES = {"separate": False, "composed": True}
+FLEET_FIELDS = (
+    "steps_per_s",
+    "robot_steps_per_s",
+    "cpu_us_per_robot_step",
+    "sim_share",
+    "late_fraction",
+    "cpu_cores",
+)
+
+
+def run_fleet(args: argparse.Namespace, composed: bool, failures: list[str]) -> dict[str, Any]:
+    """``invent up --fleet --no-record`` of each size, separate and composed, runs interleaved; per
+    mode and size (as a string: a JSON key) the medians of :data:`FLEET_FIELDS`."""
+    modes = {mode: flag for mode, flag in FLEET_MODES.items() if composed or not flag}
+    runs: dict[str, dict[str, list[dict[str, Any]]]] = {
+        mode: {str(size): [] for size in args.fleet_sizes} for mode in modes
+    }
+    for repeat in range(args.repeats):
+        print(f"fleet, run {repeat + 1} of {args.repeats}", flush=True)
+        for size in args.fleet_sizes:
+            for mode, flag in modes.items():
+                result = _timed(
+                    f"{size} robot{'s' * (size > 1)}, {mode}",
+                    functools.partial(fleet_bench.measure_fleet, size, flag, args.warmup, args.window),
+                    failures,
+                )
+                if result is not None:
+                    runs[mode][str(size)].append(result.as_dict())
+    medians = {
+        mode: {
+            size: {field: _median([run[field] for run in sized]) for field in FLEET_FIELDS}
+            for size, sized in by_size.items()
+        }
+        for mode, by_size in runs.items()
+    }
+    return {
+        "sizes": list(args.fleet_sizes),
+        **medians,
+        "load_average_at_end": [round(load, 2) for load in os.getloadavg()],
+        "sim_share_note": fleet_bench.COMPOSED_SIM_SHARE_NOTE,
+        "composed_note": None if composed else f"this checkout's `invent up` has no {loop.COMPOSED_FLAG}",
+        "runs": runs,
+    }
+
+
 def _lookup(results: dict[str, Any], dotted: str) -> Any:
     value: Any = results
     for part in dotted.split("."):
@@ -344,9 +426,9 @@ def _cost_line(what: str, lockstep: dict[str, Any], cpu: dict[str, Any], loaded:
     )
 
 
-def table(results: dict[str, Any]) -> str:
-    """The results as a Markdown table (printed, and pasted into the README)."""
-    lockstep, realtime, machine_info = results["lockstep"], results["realtime"], results["machine"]
+def _loop_rows(results: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The ``lockstep`` and ``realtime`` sections' rows of :func:`table`."""
+    lockstep, realtime = results["lockstep"], results["realtime"]
     cpu = lockstep.get("cpu_us_per_step") or {}
     rows = [
         (
@@ -416,17 +498,45 @@ def table(results: dict[str, Any]) -> str:
             f"longer than 1 ms: {_fmt(_percent(realtime['floor_late_fraction']), 2)} %",
         ),
     ]
+    return rows
+
+
+def fleet_table(fleet: dict[str, Any]) -> str:
+    """The ``fleet`` section as a Markdown table: per size and mode, the medians of its runs."""
+    lines = [
+        "| robots | mode | steps/s | robot-steps/s | CPU µs per robot-step | sim's share of the CPU | cores busy |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for size in fleet["sizes"]:
+        for mode in FLEET_MODES:
+            entry = fleet.get(mode, {}).get(str(size))
+            if entry is None:
+                continue
+            share = "n/a (one thread)" if mode == "composed" else f"{_fmt(_percent(entry['sim_share']))} %"
+            lines.append(
+                f"| {size} | {mode} | {_fmt(entry['steps_per_s'])} | {_fmt(entry['robot_steps_per_s'])} | "
+                f"{_fmt(entry['cpu_us_per_robot_step'])} | {share} | {_fmt(entry['cpu_cores'], 2)} |"
+            )
+    return "\n".join(lines)
+
+
+def table(results: dict[str, Any]) -> str:
+    """The results as Markdown tables (printed, and pasted into the README): the sections run."""
+    machine_info = results["machine"]
+    rows = _loop_rows(results) if "lockstep" in results else []
     rows += [
         (
             f"codec {name}",
             f"{_fmt(entry['codec_ns'])} ns (json {_fmt(entry['json_ns'])} ns)",
             f"{_fmt(entry['ratio'], 1)}x",
         )
-        for name, entry in results["codec"].items()
+        for name, entry in (results.get("codec") or {}).items()
     ]
-    lines = ["| measurement | value | ratio / detail |", "|---|---|---|"]
+    lines = ["| measurement | value | ratio / detail |", "|---|---|---|"] if rows else []
     lines += [f"| {a} | {b} | {c} |" for a, b, c in rows]
-    lines.append("")
+    lines += [""] if rows else []
+    if "fleet" in results:
+        lines += [fleet_table(results["fleet"]), ""]
     lines.append(
         f"Machine: {machine_info['cores']} cores ({machine_info['cpu']}), Python {machine_info['python']}, "
         f"zenoh {machine_info['zenoh']}, pybullet {machine_info['pybullet']}, msgspec {machine_info['msgspec']}; "
@@ -440,20 +550,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.quick:
         args.repeats, args.warmup, args.window, args.realtime_window = 1, 0.2, 0.5, 0.5
         args.inprocess, args.codec_repeats, args.floor = 0.2, 1, 0.3
+        args.fleet_sizes = QUICK_FLEET_SIZES if args.fleet_sizes == FLEET_SIZES else args.fleet_sizes
+    sections = args.only or SECTIONS
     started = time.monotonic()
     results: dict[str, Any] = {"machine": machine.describe()}
     composed = composed_available()
     failures: list[str] = []
-    results["lockstep"] = run_lockstep(args, composed, failures)
-    results["realtime"] = run_realtime(args, failures)
-    print("codec", flush=True)
-    results["codec"] = _timed("encode + decode per type", lambda: codec.run(args.codec_repeats), failures)
-    results["codec_min_ratio"] = min(entry["ratio"] for entry in results["codec"].values())
-    results["targets"] = check_targets({**results, "codec": {"min_ratio": results["codec_min_ratio"]}})
+    if "loop" in sections:
+        results["lockstep"] = run_lockstep(args, composed, failures)
+        results["realtime"] = run_realtime(args, failures)
+    if "codec" in sections:
+        print("codec", flush=True)
+        results["codec"] = _timed("encode + decode per type", lambda: codec.run(args.codec_repeats), failures)
+        results["codec_min_ratio"] = min(entry["ratio"] for entry in results["codec"].values())
+    if "fleet" in sections:
+        results["fleet"] = run_fleet(args, composed, failures)
+    results["targets"] = check_targets({**results, "codec": {"min_ratio": results.get("codec_min_ratio")}})
     results["settings"] = {
         key: getattr(args, key)
-        for key in ("repeats", "warmup", "window", "realtime_window", "inprocess", "floor", "quick")
+        for key in ("repeats", "warmup", "window", "realtime_window", "inprocess", "floor", "quick", "fleet_sizes")
     }
+    results["settings"]["sections"] = list(sections)
     results["failures"] = failures
     results["duration_s"] = time.monotonic() - started
     args.out.parent.mkdir(parents=True, exist_ok=True)

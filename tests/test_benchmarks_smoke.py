@@ -40,6 +40,12 @@ NUMBERS = (
     "realtime.floor_latency_us.p99",
     "realtime.floor_late_fraction",
     "machine.cores",
+    *(
+        f"fleet.{mode}.2.{field}"
+        for mode in ("separate", "composed")
+        for field in ("steps_per_s", "robot_steps_per_s", "cpu_us_per_robot_step", "late_fraction")
+    ),
+    "fleet.separate.2.sim_share",
 )
 MESSAGE_TYPES = ("Time", "TimedDoubleSeq", "TimedVelocity", "TimedPosition", "BumpEvent", "PDGains", "NoArguments")
 
@@ -78,7 +84,11 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
         "realtime.late_fraction",
         "realtime.latency_us.p99",
         "codec.min_ratio",
+        "fleet.composed.4.steps_per_s",
     }
+    assert results["fleet"]["sizes"] == [2]
+    assert results["fleet"]["composed"]["2"]["sim_share"] is None  # one thread: not separable
+    assert "| robots | mode | steps/s |" in result.stdout
     assert "| lockstep, separate processes |" in result.stdout and f"wrote {out}" in result.stdout
 
 
