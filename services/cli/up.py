@@ -326,6 +326,15 @@ class RunRecorder:
             say(f"{journal.name} was cut short (its service was killed): {path} lacks its last samples")
         shutil.rmtree(self.directory)
 
+    def finish(self, started: bool, path: Path, config: Config, fleet: Sequence[Config] = ()) -> None:
+        """At the run's end, however it ended: ``run.mcap`` of what was published (:meth:`write`),
+        or, for a run that never started (the sim did not), nothing left behind (:meth:`discard`)."""
+        if started:
+            self.write(path, config, fleet)
+        else:
+            self.discard()
+            say("the run never started (the sim did not): nothing recorded")
+
     def discard(self) -> None:
         """A run that never started (the sim never did): no recording of nothing, and the
         directories this run made are removed unless something else was put in them."""
@@ -570,11 +579,8 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
         say("interrupted; stopped everything")
         return EXIT_INTERRUPTED
     finally:
-        if recorder and sim_started:
-            recorder.write(report_dir / RECORDING_FILE, config)
-        elif recorder:
-            recorder.discard()
-            say("the run never started (the sim did not): nothing recorded")
+        if recorder:
+            recorder.finish(sim_started, report_dir / RECORDING_FILE, config)
     if not recorder:
         degraded = degradations(health)
         print("\n".join([*health_lines(health), *map(degradation_line, degraded)]), flush=True)

@@ -335,11 +335,8 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         say("interrupted; stopped everything")
         return EXIT_INTERRUPTED
     finally:
-        if recorder and sim_started:
-            recorder.write(report_dir / RECORDING_FILE, first, tuple(configs.values()))
-        elif recorder:
-            recorder.discard()
-            say("the run never started (the sim did not): nothing recorded")
+        if recorder:
+            recorder.finish(sim_started, report_dir / RECORDING_FILE, first, tuple(configs.values()))
     if recorder is None:
         degraded = [f"{name}: {reason}" for name in fleet.names for reason in _degradations(health[name])]
         for line in degraded:
