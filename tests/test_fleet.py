@@ -29,39 +29,27 @@ from tests.harness import free_port, start_up, wait_until
 
 pytestmark = pytest.mark.slow
 
-SQUARES = """
-world = "empty"
-[[robots]]
-name = "rh0"
-start = { x = 0.0, y = 0.0, theta = 0.0 }
-scenario = "square"
-[[robots]]
-name = "rh1"
-start = { x = 0.5, y = 3.0, theta = 1.5707963267948966 }
-scenario = "square"
-set = { "motor.p_gain_l" = 6.0 }
-"""
-HEAD_ON = """
-[[robots]]
-name = "rh0"
-start = { x = 0.0, y = 0.0, theta = 0.0 }
-scenario = "{scenario}"
-[[robots]]
-name = "rh1"
-start = { x = 2.0, y = 0.0, theta = 3.141592653589793 }
-scenario = "{scenario}"
-"""
-STRAIGHTS = """
-[[robots]]
-name = "rh0"
-start = { x = 0.0, y = 0.0, theta = 0.0 }
-scenario = "straight"
-[[robots]]
-name = "rh1"
-start = { x = 0.0, y = 3.0, theta = 0.0 }
-scenario = "straight"
-"""
+
+def _robot(name: str, x: float, y: float, theta: float, scenario: str, overrides: str = "") -> str:
+    """One ``[[robots]]`` entry of a fleet file."""
+    entry = f'[[robots]]\nname = "{name}"\nstart = {{ x = {x}, y = {y}, theta = {theta} }}\nscenario = "{scenario}"\n'
+    return entry + (f"set = {{ {overrides} }}\n" if overrides else "")
+
+
+SQUARES = (
+    'world = "empty"\n'
+    + _robot("rh0", 0.0, 0.0, 0.0, "square")
+    + _robot("rh1", 0.5, 3.0, math.pi / 2, "square", '"motor.p_gain_l" = 6.0')
+)
+STRAIGHTS = _robot("rh0", 0.0, 0.0, 0.0, "straight") + _robot("rh1", 0.0, 3.0, 0.0, "straight")
 """Each robot 2 m straight ahead, rh0 to (2, 0): shorter than the square, for the run that loses a motor."""
+
+
+def _head_on(scenario: Path) -> str:
+    """Two robots 2 m apart facing each other, both driving ``scenario``."""
+    return _robot("rh0", 0.0, 0.0, 0.0, str(scenario)) + _robot("rh1", 2.0, 0.0, math.pi, str(scenario))
+
+
 FORWARD = '[[segments]]\ntype = "constant"\nvx = 0.3\nw = 0.0\nduration = 6.0\n'
 COMPARED = (Topic.SIM_BODY_POSE, Topic.ODOMETRY_POSE, Topic.LOCALIZATION_POSE, Topic.DRIVE_TARGET_VELOCITY)
 PATIENT = ("--set", "sim.lockstep_timeout=5")
@@ -157,7 +145,7 @@ def test_a_fleet_run_is_the_same_bit_for_bit_composed_quietly_and_separate_besid
 def test_robots_that_meet_head_on_each_get_a_bump_naming_the_other_and_stay_stopped(tmp_path):
     scenario = tmp_path / "forward.toml"
     scenario.write_text(FORWARD)
-    code, output, report = _up(tmp_path, HEAD_ON.replace("{scenario}", str(scenario)), "--composed")
+    code, output, report = _up(tmp_path, _head_on(scenario), "--composed")
     assert code == 0, output[-3000:]
     between = report["fleet"]["bumps_between_robots"]
     assert {(bump["robot"], bump["other"]) for bump in between} == {("rh0", "rh1"), ("rh1", "rh0")}, between

@@ -387,12 +387,12 @@ def _child_args(args: argparse.Namespace, endpoint: str) -> list[str]:
     return common
 
 
-def _default_report_dir() -> Path:
+def default_report_dir() -> Path:
     return Path("runs") / datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
 
 
 @contextmanager
-def _launch(
+def launch_services(
     args: argparse.Namespace, endpoint: str, parser: argparse.ArgumentParser, access: Access
 ) -> Iterator[tuple[Launcher, zenoh.Session]]:
     """The launcher and the session ``up`` watches through: separate processes around a router
@@ -498,7 +498,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
         return run_fleet(args, parser)
     check_before_start(args, config)
     keys = Keys(config.robot.name)
-    report_dir = Path(args.report) if args.report else _default_report_dir()
+    report_dir = Path(args.report) if args.report else default_report_dir()
     access = _access(args, config, report_dir)
     endpoint = access.profile.endpoint if access.profile else (args.connect or args.listen or [DEFAULT_ENDPOINT])[0]
     common = _child_args(args, endpoint)
@@ -510,7 +510,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     journal_flags = recorder.flags if recorder else []
     sim_started = False
     try:
-        with _launch(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
+        with launch_services(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
             run = Run(launcher, session, keys, interrupted)
             summary_publisher = Publisher(session, keys.run_summary, recorder.journal if recorder else None)
             if recorder:
@@ -584,7 +584,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     if not recorder:
         degraded = degradations(health)
         print("\n".join([*health_lines(health), *map(degradation_line, degraded)]), flush=True)
-        return _verdict(
+        return verdict(
             args,
             degraded,
             "done; no recording, no report ("
@@ -593,14 +593,14 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
         )
     report, path, plots = write_run_report(report_dir / RECORDING_FILE, report_dir, config)
     print(summary(report), flush=True)
-    return _verdict(
+    return verdict(
         args,
         report["degraded"],
         f"recording: {report_dir / RECORDING_FILE}; report: {path}; plots: {', '.join(str(p) for p in plots)}",
     )
 
 
-def _verdict(args: argparse.Namespace, degraded: list[str], done: str) -> int:
+def verdict(args: argparse.Namespace, degraded: list[str], done: str) -> int:
     """Say what was written; under ``--strict`` a degraded run exits 1."""
     say(done)
     if degraded and args.strict:

@@ -36,14 +36,13 @@ from services.cli.up import (
     Access,
     ChildDied,
     Interrupted,
-    Launcher,
     Run,
     RunRecorder,
     ViewProcess,
-    _default_report_dir,
-    _launch,
-    _verdict,
+    default_report_dir,
+    launch_services,
     say,
+    verdict,
 )
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config, ConfigError
@@ -158,11 +157,11 @@ def _common_flags(args: argparse.Namespace, endpoint: str) -> list[str]:
 class FleetRun:
     """One fleet run: its launcher, session, and which robot lost which service."""
 
-    def __init__(self, launcher: Launcher, session: Any, fleet: Fleet, interrupted: Any) -> None:
-        self.launcher = launcher
-        self.session = session
+    def __init__(self, run: Run, fleet: Fleet) -> None:
+        self.run = run
+        """The run as ``up`` watches one robot's: its launcher, session, queries, start-up waits."""
+        self.launcher = run.launcher
         self.fleet = fleet
-        self.interrupted = interrupted
         self.lost: dict[str, dict[str, str]] = {name: {} for name in fleet.names}
         """Per robot, the services that ended before the run did, and how."""
         self._drives = {f"{name}/{Service.DRIVE}" for name in fleet.names}
@@ -172,7 +171,7 @@ class FleetRun:
     def look(self) -> None:
         """Ctrl-C raises Interrupted, a dead router or sim ChildDied; a robot's dead service is noted
         (once) for that robot only, and a drive that ended its scenario is not dead."""
-        if self.interrupted.is_set():
+        if self.run.interrupted.is_set():
             raise Interrupted
         for name, (code, how) in self.launcher.exits().items():
             robot, _, service = name.partition("/")
@@ -184,10 +183,7 @@ class FleetRun:
             say(f"{robot}: {service} ended ({how}): only {robot} degrades, the others go on")
 
     def status(self, keys: Keys, service: Service) -> dict[str, Any] | None:
-        for reply in self.session.get(keys.status(service), timeout=2.0):
-            if reply.ok is not None:
-                return json.loads(reply.ok.payload.to_bytes())
-        return None
+        return self.run.query(keys.status(service))
 
     def _over(self) -> bool:
         """Whether every robot is done though the sim is not holding: a robot that lost a service
@@ -229,7 +225,7 @@ class FleetRun:
 
 def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     fleet, configs = check_fleet(args)
-    report_dir = Path(args.report) if args.report else _default_report_dir()
+    report_dir = Path(args.report) if args.report else default_report_dir()
     access = fleet_access(args, fleet, report_dir)
     endpoint = access.profile.endpoint if access.profile else (args.listen or [DEFAULT_ENDPOINT])[0]
     common = _common_flags(args, endpoint)
@@ -240,17 +236,15 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     sim_started = False
     health: dict[str, dict[str, Any]] = {}
     try:
-        with _launch(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
-            run = FleetRun(launcher, session, fleet, interrupted)
-            # Until the sim starts, any service that ends ends the run, as in a one-robot run.
-            starting = Run(launcher, session, Keys(fleet.names[0]), interrupted)
+        with launch_services(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
+            run = FleetRun(Run(launcher, session, Keys(fleet.names[0]), interrupted), fleet)
             if args.view is not None:
                 live_view = ViewProcess(
                     [*common, *role_flags(access, Role.OBSERVER), "--robot", fleet.names[0], "--fleet", args.fleet],
                     args.view,
                 )
                 closing.callback(live_view.close)
-                live_view.wait_serving(starting)
+                live_view.wait_serving(run.run)
             publishers = {
                 name: Publisher(session, Keys(name).run_summary, recorder.journal if recorder else None)
                 for name in fleet.names
@@ -270,7 +264,8 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                     flags = [*common, *role_flags(access, Role(service), robot.name), *robot_flags(robot)]
                     flags += journal(robot.name)
                     launcher.start(f"{robot.name}/{service}", [str(service), *flags, *own.get(service, [])])
-            starting.wait_tokens(
+            # Until the sim starts, any service that ends ends the run, as in a one-robot run.
+            run.run.wait_tokens(
                 [Keys(name).alive(service) for name in fleet.names for service in SERVICES_BEFORE_DRIVE]
             )
             for robot in fleet.robots:
@@ -285,7 +280,7 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                     keys.ticks(Service.DRIVE, config.drive.rate),
                     keys.ticks(Service.LOCALIZATION, config.localization.rate),
                 ]
-            starting.wait_tokens(tokens)
+            run.run.wait_tokens(tokens)
             wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
             sim_flags = ["--fleet", args.fleet, "--mode", mode, "--until-drive-ends", "--wait-for", *wait_for]
             launcher.start(
@@ -341,12 +336,12 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         degraded = [f"{name}: {reason}" for name in fleet.names for reason in _degradations(health[name])]
         for line in degraded:
             print(degradation_line(line), flush=True)
-        return _verdict(args, degraded, "done; no recording, no report (--no-record)")
+        return verdict(args, degraded, "done; no recording, no report (--no-record)")
     report = fleet_report(report_dir, fleet, configs)
     for name, robot in report["robots"].items():
         print(f"--- {name} ---\n{summary(robot)}", flush=True)
     print(fleet_summary_line(report["fleet"]), flush=True)
-    return _verdict(args, report["degraded"], f"recording: {report_dir / RECORDING_FILE}; report: {report_dir}")
+    return verdict(args, report["degraded"], f"recording: {report_dir / RECORDING_FILE}; report: {report_dir}")
 
 
 def _degradations(health: dict[str, Any]) -> list[str]:
