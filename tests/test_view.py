@@ -336,6 +336,7 @@ def test_a_view_behind_a_flood_stops_at_once_on_sigint() -> None:
         tm=Time.from_nanoseconds(0), data=[0.0, 0.0, 0.05, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
     )
     flooding = threading.Event()
+    flooder_thread: threading.Thread | None = None
     published = [0]
     with running_router() as endpoint, peer_session(endpoint) as flooder:
         view = _Process("view", "--connect", endpoint, "--port", "0", "--log-level", "info")
@@ -351,13 +352,16 @@ def test_a_view_behind_a_flood_stops_at_once_on_sigint() -> None:
                     publisher.put(msgspec.json.encode(stamped))
 
             flooding.set()
-            threading.Thread(target=flood, daemon=True).start()
+            flooder_thread = threading.Thread(target=flood, daemon=True)
+            flooder_thread.start()
             wait_until(lambda: published[0] > FLOOD_SAMPLES, what=f"{FLOOD_SAMPLES} samples flooded")
             stopping = time.monotonic()
             code = view.stop(timeout=FLOOD_STOP_S * 4)
             stopped_in = time.monotonic() - stopping
         finally:
             flooding.clear()
+            if flooder_thread is not None:  # done putting before its session closes
+                flooder_thread.join(5)
             view.kill()
     assert code == 0, view.output[-3000:]
     served = re.search(r"served (\d+) messages", view.output)
