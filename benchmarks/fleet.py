@@ -14,7 +14,7 @@ window, as :func:`benchmarks.loop._measure` does:
   (steps × N), from /proc;
 - ``cpu_cores``: the tree's CPU seconds per wall second, how many cores the run kept busy;
 - ``sim_share``: the sim process's CPU / the tree's, separate only. Composed, every service of every
-  robot runs in ``up``'s one process and on the sim's one thread (services/cli/composition.py: the
+  robot runs in ``up``'s one process and on the sim's one thread (services/launch/composition.py: the
   sim's lockstep wait spins the shared executor that serves the motors, odometries, drives and
   localizations), so neither the process nor the thread separates the sim's own work from the
   services'; the share is null there (:data:`COMPOSED_SIM_SHARE_NOTE`).

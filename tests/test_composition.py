@@ -3,8 +3,8 @@
 import threading
 
 from schemas import Keys, Service
-from services.cli.composition import Composition
 from services.cli.main import build_parser
+from services.launch.composition import Composition
 from tests.harness import call, wait_until
 
 KEYS = Keys("rh0")

@@ -13,8 +13,7 @@ from hypothesis import strategies as st
 from services.config import ConfigError
 from services.drive.scenarios import BUILTIN_SCENARIOS, ConstantSegment, is_builtin, load_scenario, placed
 from services.fleet import description
-from services.fleet.description import load_fleet, parse_fleet, robot_config, robot_overrides
-from services.fleet.launch import robot_flags
+from services.fleet.description import load_fleet, parse_fleet, robot_config, robot_flags, robot_overrides
 from services.fleet.summary import bumps_between, closest_approach
 from services.planar import Pose
 

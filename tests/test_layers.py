@@ -1,6 +1,8 @@
 """The import rules of docs/architecture.md section 1, read from the code's own imports (``ast``, no
 import runs): a core never imports zenoh, the runtime, a shell or a tool; no shell imports another;
-the runtime imports no service; the schemas import nothing of the project above them. Every module
+the runtime imports no service; the schemas import nothing of the project above them; nothing but
+the command line imports the command line; no modules import each other (a circle); no room holds
+a tool beside a core or a shell. Every module
 of ``schemas/``, ``services/`` and ``sim_bridge/`` has a layer here, so a new one must be placed
 before the suite passes. Plain and fast: no zenoh session.
 """
@@ -17,7 +19,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("schemas", "services", "sim_bridge")
 
-SCHEMAS, CONFIG, RUNTIME, CORE, SHELL, SHELL_SUPPORT, TOOL = (
+SCHEMAS, CONFIG, RUNTIME, CORE, SHELL, SHELL_SUPPORT, TOOL, PACKAGE = (
     "schemas",
     "config",
     "runtime",
@@ -25,7 +27,10 @@ SCHEMAS, CONFIG, RUNTIME, CORE, SHELL, SHELL_SUPPORT, TOOL = (
     "shell",
     "shell support",
     "tool",
+    "package",
 )
+COMMAND_LINE = "services.cli"
+"""The ``invent`` command line: it sits on top, so nothing but itself imports it."""
 
 LAYERS: tuple[tuple[str, str], ...] = (
     # (module pattern, layer); the first pattern that matches a module's whole name places it
@@ -38,16 +43,15 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.clock\.(sim_time|lockstep|observation)", CORE),
     (r"services\.planar", CORE),
     (r"services\.fleet\.(description|summary)", CORE),
-    (r"services\.fleet\.launch", TOOL),
     (r"sim_bridge\.(simulator|robot|world|geometry|latency|display)", CORE),
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph)", CORE),
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
     (r"sim_bridge\.bridge", SHELL),
     (r"services\.service", SHELL_SUPPORT),
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
-    (r"services\.(cli|recording)(\..*)?", TOOL),
+    (r"services\.(cli|launch|recording)(\..*)?", TOOL),
     (r"services\.security", TOOL),
-    (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet))", "package"),
+    (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet))", PACKAGE),
 )
 
 PROJECT = re.compile(r"(schemas|services|sim_bridge)(\..*)?")
@@ -82,6 +86,8 @@ def violations(imports: Mapping[str, set[str]]) -> list[str]:
 
 def _broken_rule(module: str, layer: str, imported: str, imported_layer: str | None) -> str | None:
     project = PROJECT.fullmatch(imported) is not None
+    if _is(imported, COMMAND_LINE) and not _is(module, COMMAND_LINE):
+        return "nothing imports the command line (services/cli/) but itself"
     if layer == SCHEMAS and project and imported_layer != SCHEMAS:
         return "the schemas import only msgspec and the standard library"
     if layer == CONFIG and project and imported_layer != SCHEMAS:
@@ -103,6 +109,63 @@ def _broken_rule(module: str, layer: str, imported: str, imported_layer: str | N
         if imported_layer == TOOL:
             return "a shell never imports a tool"
     return None
+
+
+def import_cycles(imports: Mapping[str, set[str]]) -> list[list[str]]:
+    """Every set of project modules that import each other, directly or through others (a
+    strongly connected component of the import graph with more than one module), each sorted."""
+    graph = {
+        module: {imported for imported in imported_modules if imported in imports and imported != module}
+        for module, imported_modules in imports.items()
+    }
+    index: dict[str, int] = {}
+    lowest: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles: list[list[str]] = []
+
+    def visit(module: str) -> None:  # Tarjan's algorithm
+        index[module] = lowest[module] = len(index)
+        stack.append(module)
+        on_stack.add(module)
+        for imported in sorted(graph[module]):
+            if imported not in index:
+                visit(imported)
+                lowest[module] = min(lowest[module], lowest[imported])
+            elif imported in on_stack:
+                lowest[module] = min(lowest[module], index[imported])
+        if lowest[module] == index[module]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == module:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for module in sorted(graph):
+        if module not in index:
+            visit(module)
+    return sorted(cycles)
+
+
+def rooms_mixing_tools(layers: Mapping[str, str]) -> list[str]:
+    """Every room (a subpackage of ``services/``, or ``sim_bridge/``) that holds a tool beside a core
+    or a shell: a shell or a core that imports from it would import from a room that sits above
+    the command line. ``services/`` itself holds the few pieces every layer shares."""
+    rooms: dict[str, set[str]] = {}
+    for module, layer in layers.items():
+        room = module.rpartition(".")[0]
+        if room != "services":
+            rooms.setdefault(room, set()).add(layer)
+    mixed = []
+    for room, room_layers in sorted(rooms.items()):
+        below = sorted(room_layers & {CORE, SHELL, SHELL_SUPPORT})
+        if TOOL in room_layers and below:
+            mixed.append(f"{room} holds tools beside {' and '.join(below)} modules")
+    return mixed
 
 
 def _module_name(path: Path) -> str:
@@ -151,8 +214,36 @@ def test_the_code_keeps_the_import_rules():
 
 def test_every_module_of_the_project_has_a_layer():
     imports = project_imports()
-    assert {"services.motor.core", "services.motor.service", "sim_bridge.bridge", "services.cli.up"} <= set(imports)
+    assert {"services.motor.core", "services.motor.service", "sim_bridge.bridge", "services.launch.up"} <= set(imports)
     assert [module for module in imports if layer_of(module) is None] == []
+
+
+def test_no_modules_of_the_project_import_each_other():
+    assert import_cycles(project_imports()) == []
+
+
+def test_no_room_holds_a_tool_beside_a_core_or_a_shell():
+    layers = {module: layer_of(module) or "" for module in project_imports() if layer_of(module) != PACKAGE}
+    assert rooms_mixing_tools(layers) == []
+
+
+def test_a_circle_of_imports_is_found_however_long():
+    imports = {
+        "services.launch.up": {"services.launch.fleet", "services.launch.run"},
+        "services.launch.fleet": {"services.launch.run", "services.recording.report"},
+        "services.launch.run": {"services.launch.up"},
+        "services.recording.report": {"services.motor.core"},
+        "services.motor.core": set(),
+    }
+    assert import_cycles(imports) == [["services.launch.fleet", "services.launch.run", "services.launch.up"]]
+    imports["services.launch.run"] = set()
+    assert import_cycles(imports) == []
+
+
+def test_a_room_holding_a_launcher_beside_its_cores_is_found():
+    layers = {"services.fleet.description": CORE, "services.fleet.summary": CORE, "services.fleet.launch": TOOL}
+    assert rooms_mixing_tools(layers) == ["services.fleet holds tools beside core modules"]
+    assert rooms_mixing_tools({"services.recording.record": TOOL, "services.motor.core": CORE}) == []
 
 
 def test_each_service_room_holds_its_shell_and_its_core():
@@ -186,7 +277,13 @@ def test_the_services_top_level_holds_subpackages_and_a_handful_of_shared_module
         ("services.motor.core", "services.recording.report", "a core never imports a tool"),
         ("services.motor.service", "services.odometry.service", "no shell imports another"),
         ("sim_bridge.bridge", "services.drive.service", "no shell imports another"),
-        ("services.drive.service", "services.cli.up", "a shell never imports a tool"),
+        ("services.drive.service", "services.launch.up", "a shell never imports a tool"),
+        (
+            "services.recording.replay",
+            "services.cli.tools",
+            "nothing imports the command line (services/cli/) but itself",
+        ),
+        ("services.launch.up", "services.cli.main", "nothing imports the command line (services/cli/) but itself"),
         ("services.runtime.node", "services.motor.core", "the runtime imports no service, core or tool"),
         ("schemas.keys", "services.config", "the schemas import only msgspec and the standard library"),
     ],

@@ -4,7 +4,7 @@ namespaces (tests/netns.py; root only, skipped with the reason elsewhere).
 The layout of docs/deploy.md, "Running a fleet": the ``sim`` host runs ``invent router`` and
 ``invent sim --fleet FILE --mode realtime``; each robot computer (``rh0``, ``rh1``) runs its own
 ``invent router --connect`` the sim server's, and that robot's motor, odometry, localization and
-drive, each ``--connect`` to its own host's router, with :func:`services.fleet.launch.robot_flags`
+drive, each ``--connect`` to its own host's router, with :func:`services.fleet.description.robot_flags`
 (its name, start pose and overrides from the fleet file, as ``invent up --fleet`` passes them).
 Realtime, as a deployment across a network runs: lockstep would make every step wait for the
 torques of a robot whose link is down.
@@ -31,8 +31,7 @@ from typing import Any
 
 import pytest
 
-from services.fleet.description import Fleet, load_fleet
-from services.fleet.launch import robot_flags
+from services.fleet.description import Fleet, load_fleet, robot_flags
 from services.runtime.session import DEFAULT_ENDPOINT
 from tests.harness import wait_until
 from tests.netns import Event, HostProcess, Network, RemoteSession, Stream, netns_unavailable, network

@@ -13,9 +13,10 @@ import msgspec
 import zenoh
 
 from schemas.keys import DEFAULT_ROBOT, Keys
-from services.cli import tools, up
+from services.cli import tools
 from services.config import ConfigError, load_config
 from services.fleet.description import fleet_configs, load_fleet
+from services.launch import fleet, up
 from services.recording import record, replay, view
 from services.recording.mcap_files import read_messages, replay_schedule, write_run_report
 from services.recording.report import summary
@@ -456,6 +457,8 @@ def _config(args: argparse.Namespace) -> int:
 
 
 def _up(args: argparse.Namespace) -> int:
+    if args.fleet:
+        return fleet.run_fleet(args, build_parser())
     return up.run_up(args, config_from_args(None, args), build_parser())
 
 

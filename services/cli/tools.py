@@ -20,9 +20,10 @@ import msgspec
 import zenoh
 
 from schemas.codec import ENCODING, BadMessage, decode
-from schemas.keys import Keys, Service, all_robots_alive, parse_alive_key, schema_for_key
+from schemas.keys import Keys, all_robots_alive, schema_for_key
 from services.config import ConfigError
 from services.ros2.graph import BridgeGraph
+from services.runtime.discovery import payload_value, service_statuses
 from services.runtime.session import has_match
 from services.security import fleet_robots, write_fleet_profile, write_profile
 
@@ -32,14 +33,6 @@ EXIT_NO_ANSWER = 1
 def _print_json(value: Any, stream=sys.stdout) -> None:
     stream.write(json.dumps(value, separators=(", ", ": ")) + "\n")
     stream.flush()
-
-
-def _payload_value(payload: bytes) -> Any:
-    """A reply payload as JSON when it is JSON, else as text."""
-    try:
-        return json.loads(payload)
-    except ValueError:
-        return payload.decode("utf-8", errors="replace")
 
 
 def describe_sample(key: str, payload: bytes) -> dict[str, Any]:
@@ -181,10 +174,10 @@ def run_call(session: zenoh.Session, key: str, payload: str | None, timeout: flo
         for reply in querier.get(payload=payload, encoding=zenoh.Encoding(ENCODING) if payload else None):
             result = reply.result
             if isinstance(result, zenoh.Sample):
-                _print_json({"key": str(result.key_expr), "value": _payload_value(result.payload.to_bytes())})
+                _print_json({"key": str(result.key_expr), "value": payload_value(result.payload.to_bytes())})
                 replies += 1
             else:
-                error = _payload_value(result.payload.to_bytes())
+                error = payload_value(result.payload.to_bytes())
                 print(f"invent call: {key} replied with an error: {json.dumps(error)}", file=sys.stderr)
                 failed = True
         if not replies and not failed:
@@ -193,41 +186,6 @@ def run_call(session: zenoh.Session, key: str, payload: str | None, timeout: flo
         return EXIT_NO_ANSWER if failed else 0
     finally:
         querier.undeclare()
-
-
-def alive_services(session: zenoh.Session, key_expr: str, timeout: float, settle: float = 0.1) -> list[str]:
-    """Liveliness tokens under ``key_expr``: waits up to ``timeout`` for the first, then ``settle`` for the rest."""
-    tokens: queue.Queue[str] = queue.Queue()
-    found: list[str] = []
-    with session.liveliness().declare_subscriber(
-        key_expr, lambda sample: tokens.put(str(sample.key_expr)), history=True
-    ):
-        wait = timeout
-        while True:
-            try:
-                found.append(tokens.get(timeout=wait))
-            except queue.Empty:
-                break
-            wait = settle
-    return sorted(set(found))
-
-
-def service_statuses(session: zenoh.Session, key_expr: str, timeout: float) -> list[tuple[str, Service, Any]]:
-    """(robot, service, status reply) of each service whose liveliness token matches ``key_expr``:
-    the tokens first (they reach a new session through the router at once), then each one's exact
-    ``status`` key (a query on a wildcard, sent before the queryables reached this session, would
-    reach none). The status is None when it did not answer."""
-    statuses: list[tuple[str, Service, Any]] = []
-    for token in alive_services(session, key_expr, timeout):
-        parsed = parse_alive_key(token)
-        if parsed is None:
-            continue
-        robot_name, service = parsed
-        status: Any = None
-        for reply in session.get(Keys(robot_name).status(service), timeout=timeout):
-            status = _payload_value(reply.result.payload.to_bytes())
-        statuses.append((robot_name, service, status))
-    return statuses
 
 
 def run_status(session: zenoh.Session, robot: str | None, timeout: float) -> int:

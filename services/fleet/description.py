@@ -22,6 +22,7 @@ is one for all: a robot's overrides may not touch ``sim.*`` (one simulator steps
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -147,3 +148,21 @@ def robot_config(robot: FleetRobot, config_path: str | Path | None, overrides: d
 def fleet_configs(fleet: Fleet, config_path: str | Path | None, overrides: dict[str, Any]) -> dict[str, Config]:
     """Every robot's description (:func:`robot_config`), by name, in the fleet's order."""
     return {robot.name: robot_config(robot, config_path, overrides) for robot in fleet.robots}
+
+
+def _toml(value: Any) -> str:
+    """``value`` as ``--set`` reads it (TOML)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    return repr(value)
+
+
+def robot_flags(robot: FleetRobot) -> list[str]:
+    """What a robot's services are started with: its name, its overrides and its start pose."""
+    flags = []
+    for key, value in robot_overrides(robot).items():
+        if key != "robot.name":
+            flags += ["--set", f"{key}={_toml(value)}"]
+    return ["--robot", robot.name, *flags]

@@ -24,9 +24,9 @@ import zenoh
 from schemas.codec import ENCODING
 from schemas.keys import Keys, Topic
 from schemas.messages import NANOSECONDS_PER_SECOND
-from services.cli.tools import service_statuses
 from services.config import ConfigError
 from services.recording.mcap_files import Replayed
+from services.runtime.discovery import service_statuses
 from services.runtime.inputs import CHANNEL_CAPACITY
 from services.runtime.session import has_match
 

@@ -17,7 +17,6 @@ robots, their bumps into each other), and ``<report dir>/<robot>/`` its plots.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from contextlib import ExitStack
 from pathlib import Path
@@ -26,7 +25,14 @@ from typing import Any
 from schemas.codec import decode
 from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, RunSummary, Time
-from services.cli.up import (
+from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
+from services.config import Config, ConfigError
+from services.drive.scenarios import load_scenario
+from services.fleet.description import Fleet, FleetRobot, fleet_configs, load_fleet, robot_flags
+from services.fleet.summary import bumps_between, closest_approach
+from services.launch.children import ChildDied, Interrupted, say
+from services.launch.recorder import RunRecorder
+from services.launch.run import (
     EXIT_CHILD_DIED,
     EXIT_INTERRUPTED,
     MOTOR_STATE_FILE,
@@ -34,21 +40,12 @@ from services.cli.up import (
     SECRETS_DIRECTORY,
     SERVICES_BEFORE_DRIVE,
     Access,
-    ChildDied,
-    Interrupted,
     Run,
-    RunRecorder,
     ViewProcess,
     default_report_dir,
     launch_services,
-    say,
     verdict,
 )
-from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
-from services.config import Config, ConfigError
-from services.drive.scenarios import load_scenario
-from services.fleet.description import Fleet, FleetRobot, fleet_configs, load_fleet, robot_overrides
-from services.fleet.summary import bumps_between, closest_approach
 from services.recording.mcap_files import read_messages, robot_report
 from services.recording.report import (
     degradation_line,
@@ -125,24 +122,6 @@ def role_flags(access: Access, role: Role, robot: str | None = None) -> list[str
 def _scenario(robot: FleetRobot, args: argparse.Namespace) -> str:
     """A robot's scenario: its own, else ``--scenario``."""
     return robot.scenario or args.scenario
-
-
-def _toml(value: Any) -> str:
-    """``value`` as ``--set`` reads it (TOML)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return json.dumps(value)
-    return repr(value)
-
-
-def robot_flags(robot: FleetRobot) -> list[str]:
-    """What a robot's services are started with: its name, its overrides and its start pose."""
-    flags = []
-    for key, value in robot_overrides(robot).items():
-        if key != "robot.name":
-            flags += ["--set", f"{key}={_toml(value)}"]
-    return ["--robot", robot.name, *flags]
 
 
 def _common_flags(args: argparse.Namespace, endpoint: str) -> list[str]:

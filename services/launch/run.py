@@ -1,0 +1,234 @@
+"""What every run of ``invent up`` shares, for one robot (``services/launch/up.py``) and a fleet
+(``services/launch/fleet.py``) alike: where its files go, how its sessions are configured
+(:class:`Access`), how its services are launched (:func:`launch_services`), how it watches them
+(:class:`Run`), its live view, and how it ends: its exit status (:func:`verdict`)."""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from schemas.keys import Keys, Service
+from services.launch.children import ChildDied, Interrupted, Launcher, Supervisor, describe_exit, say
+from services.launch.composition import Composition
+from services.runtime.session import open_session, session_config
+from services.security import Profile, Role
+
+EXIT_CHILD_DIED = 1
+EXIT_DEGRADED = 1
+EXIT_INTERRUPTED = 130
+STARTUP_TIMEOUT_S = 60.0
+END_TIMEOUT_S = 10.0
+"""How long the sim may take to hold at the drive's last command once the drive has ended."""
+PROGRESS_INTERVAL_S = 1.0
+SECRETS_DIRECTORY = "secrets"
+RECORDING_FILE = "run.mcap"
+MOTOR_STATE_FILE = "motor-state.json"
+"""The run's own motor state file (latches, gains), in the report directory: a run starts afresh."""
+SERVICES_BEFORE_DRIVE = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
+
+
+def default_report_dir() -> Path:
+    return Path("runs") / datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+
+
+@dataclass(frozen=True)
+class Access:
+    """How the run's sessions are configured: ``--zenoh-config`` (or zenoh's defaults) for all, or
+    with ``--secure`` a fresh profile: the router's file and one client file per role."""
+
+    profile: Profile | None
+    zenoh_config: str | None
+
+    def config_file(self, role: Role) -> str | None:
+        return str(self.profile.client_config(role)) if self.profile else self.zenoh_config
+
+    def flags(self, role: Role) -> list[str]:
+        path = self.config_file(role)
+        return ["--zenoh-config", path] if path else []
+
+    def router_flags(self, endpoint: str) -> list[str]:
+        return ["--config", str(self.profile.router_config)] if self.profile else ["--listen", endpoint]
+
+
+@contextmanager
+def launch_services(
+    args: argparse.Namespace, endpoint: str, parser: argparse.ArgumentParser, access: Access
+) -> Iterator[tuple[Launcher, zenoh.Session]]:
+    """The launcher and the session ``up`` watches through: separate processes around a router
+    child (or the router at ``--connect``), or one composed process whose session is itself the
+    router (so outside zenoh tools still see every key)."""
+    if args.composed:
+        mode_config = (
+            session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR), timestamping=args.ros2)
+            if args.connect
+            else session_config(listen=[endpoint], mode="router", timestamping=args.ros2)
+        )
+        with open_session(mode_config) as session:
+            composition = Composition(session, parser)
+            try:
+                yield composition, session
+            finally:
+                composition.stop()
+        return
+    supervisor = Supervisor()
+    try:
+        if not args.connect:
+            supervisor.start("router", ["router", *access.router_flags(endpoint), "--log-level", args.log_level])
+        with open_session(session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR))) as session:
+            yield supervisor, session
+    finally:
+        supervisor.stop()
+
+
+@dataclass
+class Run:
+    """One ``invent up`` run: the launcher, its session, and Ctrl-C."""
+
+    launcher: Launcher
+    session: zenoh.Session
+    keys: Keys
+    interrupted: threading.Event
+
+    def check(self, expected_to_finish: str | None = None) -> None:
+        """Raise Interrupted on Ctrl-C, ChildDied when a service other than ``expected_to_finish`` ended."""
+        if self.interrupted.is_set():
+            raise Interrupted
+        exited = self.launcher.exited(exclude=expected_to_finish)
+        if exited is not None:
+            raise ChildDied(f"{exited[0]} exited unexpectedly ({exited[1]})")
+
+    def wait_alive(self, services: Sequence[Service]) -> None:
+        self.wait_tokens([self.keys.alive(service) for service in services])
+
+    def wait_tokens(self, keys: Sequence[str]) -> None:
+        """Wait until every liveliness token of ``keys`` is there."""
+        alive: set[str] = set()
+        subscribers = [
+            self.session.liveliness().declare_subscriber(key, lambda s: alive.add(str(s.key_expr)), history=True)
+            for key in keys
+        ]
+        try:
+            deadline = time.monotonic() + STARTUP_TIMEOUT_S
+            while len(alive) < len(keys):
+                self.check()
+                self.launcher.idle()
+                if time.monotonic() > deadline:
+                    missing = sorted(set(keys) - alive)
+                    raise ChildDied(f"not there after {STARTUP_TIMEOUT_S} s: {', '.join(missing)}")
+                time.sleep(0.02)
+        finally:
+            for subscriber in subscribers:
+                subscriber.undeclare()
+
+    def status(self, service: Service) -> dict[str, Any] | None:
+        return self.query(self.keys.status(service))
+
+    def query(self, key: str) -> dict[str, Any] | None:
+        """The first JSON reply to a query on ``key`` (a status), or None when nothing answers."""
+        for reply in self.session.get(key, timeout=2.0):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_bytes())
+        return None
+
+    def sim_at_end(self, sim_status: dict[str, Any] | None) -> dict[str, Any] | None:
+        """The sim's status once it holds at the drive's last command (``--until-drive-ends``)."""
+        deadline = time.monotonic() + END_TIMEOUT_S
+        while time.monotonic() < deadline:
+            self.check(expected_to_finish=str(Service.DRIVE))
+            sim_status = self.status(Service.SIM) or sim_status
+            if sim_status and sim_status.get("state") == "finished":
+                return sim_status
+            time.sleep(0.02)
+        say(f"the sim did not stop at the drive's last command within {END_TIMEOUT_S} s")
+        return sim_status
+
+    def supervise(
+        self,
+        drive: Any | None,
+        started: float,
+        between_looks: Callable[[], None] | None,
+        until_interrupted: bool = False,
+    ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+        """Wait for the drive to finish its scenario (or, ``until_interrupted``, for Ctrl-C: the end
+        of a ``--loop`` or ``--teleop`` run, which has no drive), printing progress and calling
+        ``between_looks``; return the sim's last status and the drive's (taken at every look while it
+        runs: it exits at the end)."""
+        sim_status: dict[str, Any] | None = None
+        drive_status: dict[str, Any] | None = None
+        next_progress = time.monotonic()
+        while True:
+            if until_interrupted and self.interrupted.is_set():
+                return self.status(Service.SIM) or sim_status, self.status(Service.DRIVE) or drive_status
+            self.check(expected_to_finish=drive.name if drive else None)
+            code = drive.finished() if drive else None
+            if drive and code is None:
+                drive_status = self.status(Service.DRIVE) or drive_status
+            if time.monotonic() >= next_progress or code is not None:
+                sim_status = self.status(Service.SIM) or sim_status
+                next_progress = time.monotonic() + PROGRESS_INTERVAL_S
+                if sim_status:
+                    _progress(sim_status, time.monotonic() - started)
+            if code == 0:
+                return self.sim_at_end(sim_status), drive_status
+            if code is not None:
+                raise ChildDied(f"drive exited unexpectedly ({describe_exit(code)})")
+            if between_looks:
+                between_looks()
+            time.sleep(0.05)
+
+
+class ViewProcess:
+    """``invent view`` as a child (``up --view``): the run live in Foxglove. Another process in
+    both modes: a view is for watching, so it may cost the loop zenoh's delivery of every sample."""
+
+    def __init__(self, flags: list[str], port: int) -> None:
+        self._children = Supervisor()
+        self._port = port
+        self._child = self._children.start("view", ["view", *flags, "--port", str(port)])
+
+    def wait_serving(self, run: Run) -> None:
+        """Until the view answers on ``view/status``, which it serves once its WebSocket server
+        listens, so the address printed works at once. (Opening a connection to the port instead
+        would be a client that never speaks, whose failed handshake the server logs as an error.)"""
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while (status := run.query(run.keys.view_status)) is None:
+            run.check()
+            self._child.check_running()
+            if time.monotonic() > deadline:
+                raise ChildDied(f"the view did not serve on port {self._port} within {STARTUP_TIMEOUT_S} s")
+            time.sleep(0.05)
+        say(f"Foxglove live view: {status['url']} (Foxglove → Open connection)")
+
+    def close(self) -> None:
+        code = self._children.stop()["view"]
+        if code != 0:
+            say(f"view did not exit cleanly ({describe_exit(code)})")
+
+
+def verdict(args: argparse.Namespace, degraded: list[str], done: str) -> int:
+    """Say what was written; under ``--strict`` a degraded run exits 1."""
+    say(done)
+    if degraded and args.strict:
+        say(f"--strict: the run degraded ({len(degraded)} reason{'s' * (len(degraded) > 1)}): exit {EXIT_DEGRADED}")
+        return EXIT_DEGRADED
+    return 0
+
+
+def _progress(sim_status: dict[str, Any], wall_s: float) -> None:
+    sim_time = sim_status.get("sim_time_s", 0.0)
+    pose = sim_status.get("pose") or {}
+    say(
+        f"sim {sim_time:7.2f} s | {sim_time / wall_s if wall_s > 0 else 0:5.2f}x real time | "
+        f"pose x {pose.get('x', 0.0):+.3f} y {pose.get('y', 0.0):+.3f} theta {pose.get('theta', 0.0):+.3f}"
+    )
