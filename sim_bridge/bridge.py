@@ -5,7 +5,8 @@ torques and steps. The observed steps (services/clock/observation.py: every ``si
 step and each tick of a rate someone holds a token for) also publish ``sim/clock`` and
 ``sim/body_pose``; a recorded run publishes the body pose at every step. Each step's wheel angles
 carry its :class:`~services.clock.lockstep.StepMark`: whether it is observed, and in lockstep
-what it owes.
+what it owes. A finite run (``--duration S``) ends by publishing the state at S, observed, and
+(in lockstep) taking the torque that answers it without applying it.
 
 - **lockstep** (default): before stepping, wait for the ``motor/torque`` whose ``tm`` is this
   step's; a torque with any other ``tm`` is stale (counted, ignored). The wait happens only
@@ -297,12 +298,13 @@ class RobotLink:
         elif tm_ns > self.newest_ns:
             self.newest_torque, self.newest_ns = torque.data, tm_ns
 
-    def publish_state(self, step_index: int, tm_ns: int, tm: Time, recording: bool) -> None:
+    def publish_state(self, step_index: int, tm_ns: int, tm: Time, recording: bool, final: bool) -> None:
         """Publish this step's wheel angles, then its body pose if it is observed (or recorded):
         the motor converts the pose once it has answered the wheel angles, in the same wake. The
-        step's clock waits for :meth:`publish_clock`."""
+        step's clock waits for :meth:`publish_clock`. The ``final`` state of a finite run is
+        observed, whatever the step."""
         body = self.body
-        observed = self.observation.observed(step_index, tm_ns)
+        observed = self.observation.observed(step_index, tm_ns) or final
         mark = self.marks[observed]
         angles = TimedDoubleSeq(tm=tm, data=body.wheel_angles())
         self.latency.published(tm_ns, time.perf_counter_ns())
@@ -338,9 +340,12 @@ class RobotLink:
     def begin_torque_wait(self, tm_ns: int) -> None:
         self.awaited_ns, self.answered = tm_ns, False
 
-    def end_torque_wait(self) -> None:
-        """After the wait for this step's torque: count it, or apply zero torque (or brake)."""
+    def end_torque_wait(self, final: bool = False) -> None:
+        """After the wait for this step's torque: count it, or apply zero torque (or brake). The
+        ``final`` state's torque is taken, never applied: the run ends there."""
         self.awaited_ns = -1
+        if final:
+            return
         if self.answered:
             self.late_in_a_row = 0
             self.counters["torques_applied"] += 1
@@ -503,15 +508,20 @@ class SimService:
         """The stamp of the latest step published; None before the first."""
         return self.published_ns if self.published_ns >= 0 else None
 
-    def _publish_state(self) -> int:
+    def _publish_state(self, final: bool) -> int:
         sim = self.sim
         tm_ns = sim.time_ns
         tm = Time.from_nanoseconds(tm_ns)
         self.published_ns = tm_ns
         recording = self.node.recording
         for link in self.links:
-            link.publish_state(sim.step_index, tm_ns, tm, recording)
+            link.publish_state(sim.step_index, tm_ns, tm, recording, final)
         return tm_ns
+
+    def _final(self) -> bool:
+        """Whether the state about to be published is a finite run's last (``--duration``): it is
+        published, observed, and answered as any step's, then the run ends without stepping."""
+        return self.sim.step_index >= self._end_step
 
     def _publish_clocks(self) -> None:
         for link in self.links:
@@ -524,16 +534,18 @@ class SimService:
             for contact in contacts:
                 self.links[contact.robot].bump(contact, tm)
 
-    def _lockstep_torques(self, tm_ns: int, stop: threading.Event) -> None:
+    def _lockstep_torques(self, tm_ns: int, stop: threading.Event, final: bool) -> None:
         """Set this step's torque of every robot: its motor's answer for ``tm_ns``, or zero."""
         for link in self.links:
             link.begin_torque_wait(tm_ns)
         for link in self.links:
-            self._lockstep_torque(link, tm_ns, stop)
+            self._lockstep_torque(link, tm_ns, stop, final)
         for link in self.links:
-            link.end_torque_wait()
+            link.end_torque_wait(final)
 
-    def _lockstep_torque(self, link: RobotLink, tm_ns: int, stop: threading.Event) -> None:
+    def _lockstep_torque(self, link: RobotLink, tm_ns: int, stop: threading.Event, final: bool) -> None:
+        """Wait for ``link``'s torque for ``tm_ns``; a torque that does not come counts as late or
+        missing, but for the ``final`` state's, which is never applied."""
         node = self.node
         if link.motor_alive:
             silent = link.motor_silent
@@ -541,15 +553,15 @@ class SimService:
             while not link.answered and link.motor_alive and not stop.is_set():
                 remaining = deadline - time.monotonic()
                 if remaining <= 0.0:
-                    if silent:
-                        link.counters["missing_torques"] += 1
-                    else:
+                    if not silent:
                         link.late(tm_ns)
+                    elif not final:
+                        link.counters["missing_torques"] += 1
                     break
                 node.spin_once(min(remaining, STOP_POLL_S), link.torque_input)
         else:
             node.drain()
-            if not link.answered:
+            if not (link.answered or final):
                 link.counters["missing_torques"] += 1
 
     def _lockstep_ticks(self, tm_ns: int, stop: threading.Event) -> None:
@@ -576,13 +588,13 @@ class SimService:
         return self.until_drive_ends and all(link.drive_ended for link in self.links)
 
     def _run_lockstep(self, stop: threading.Event) -> None:
-        sim = self.sim
-        while sim.step_index < self._end_step and not stop.is_set():
-            tm_ns = self._publish_state()
-            self._lockstep_torques(tm_ns, stop)
+        while not stop.is_set():
+            final = self._final()
+            tm_ns = self._publish_state(final)
+            self._lockstep_torques(tm_ns, stop, final)
             self._publish_clocks()
             self._lockstep_ticks(tm_ns, stop)
-            if self._ended():
+            if final or self._ended():
                 return
             self._step()
 
@@ -590,8 +602,9 @@ class SimService:
         sim, node, links = self.sim, self.node, self.links
         period = sim.step_ns / NANOSECONDS_PER_SECOND / self.parameters.realtime_factor
         origin, origin_step = time.monotonic(), sim.step_index
-        while sim.step_index < self._end_step and not stop.is_set():
-            tm_ns = self._publish_state()
+        while not stop.is_set():
+            final = self._final()
+            tm_ns = self._publish_state(final)
             deadline = origin + (sim.step_index + 1 - origin_step) * period
             while (remaining := deadline - time.monotonic()) > 0.0:
                 node.spin_once(min(remaining, STOP_POLL_S))
@@ -599,6 +612,8 @@ class SimService:
                     if link.newest_ns == tm_ns:
                         link.publish_clock()
             self._publish_clocks()
+            if final:
+                return
             if -remaining > MAX_REALTIME_LAG_S:
                 for link in links:
                     link.counters["realtime_resyncs"] += 1
@@ -635,7 +650,7 @@ class SimService:
         self._started_at = time.monotonic()
         self.started = True
         {SimMode.LOCKSTEP: self._run_lockstep, SimMode.REALTIME: self._run_realtime}[self.mode](stop)
-        self.finished = self.sim.step_index >= self._end_step or self._ended()
+        self.finished = self._final() or self._ended()
         self._stopped_at = time.monotonic()
         self.node.log.info("%s: %s", "finished" if self.finished else "stopped", self._summary())
         if self._ended():

@@ -138,18 +138,32 @@ def test_wheel_angles_every_step_body_pose_and_clock_at_the_observed_steps(sessi
     clock = Collector(session, KEYS.sim_clock, TimedDoubleSeq)
     source = TorqueSource(session, constant(2.0, 2.0))
     answered, poses, err = run_with_source(session, endpoint, constant(2.0, 2.0), "--duration", "0.5", source=source)
-    expected_tms = [k * STEP_NS for k in range(500)]
-    assert [a.tm.to_nanoseconds() for a in answered] == expected_tms, "one sample per 1 ms step, none skipped"
+    expected_tms = [k * STEP_NS for k in range(501)]
+    assert [a.tm.to_nanoseconds() for a in answered] == expected_tms, "one sample per 1 ms step, and the end state"
     every = SimConfig().observe_every
-    observed_tms = [k * STEP_NS for k in range(0, 500, every)]
+    observed_tms = [k * STEP_NS for k in range(0, 501, every)]
     assert [p.tm.to_nanoseconds() for p in poses] == observed_tms, f"a body pose every {every} steps"
     clocks = clock.drain()
     assert [c.tm for c in clocks] == [a.tm for a in answered[::every]], "sim/clock: the observed steps"
     assert [c.data for c in clocks] == [a.data for a in answered[::every]], "with their wheel angles"
-    assert [observed(mark) for mark in source.marks] == [k % every == 0 for k in range(500)]
+    assert [observed(mark) for mark in source.marks] == [k % every == 0 for k in range(501)]
     assert all(mark is not None and mark.owed == {} for mark in source.marks), "lockstep, no participant"
     assert all(len(a.data) == 2 for a in answered) and all(len(p.data) == 12 for p in poses)
+    # The end state's torque is taken, never applied: the run ends there.
     assert "finished: 500 steps" in err and "torques_applied 500" in err and "late_torques 0" in err
+
+
+@pytest.mark.parametrize("every", [30, 1000])
+def test_the_end_of_a_finite_run_is_observed_whatever_the_observed_steps(session, endpoint, every: int):
+    clock = Collector(session, KEYS.sim_clock, TimedDoubleSeq)
+    _answered, poses, err = run_with_source(
+        session, endpoint, constant(2.0, 2.0), "--duration", "0.5", "--set", f"sim.observe_every={every}"
+    )
+    end_ns = 500 * STEP_NS
+    expected = [*(k * STEP_NS for k in range(0, 500, every)), end_ns]
+    assert [p.tm.to_nanoseconds() for p in poses] == expected, "the observed steps, then the end at 0.5 s"
+    assert [c.tm.to_nanoseconds() for c in clock.drain()] == expected
+    assert "finished: 500 steps, 0.500 s simulated" in err
 
 
 def test_an_observer_token_adds_the_steps_of_its_rate(session, endpoint):
@@ -161,7 +175,7 @@ def test_an_observer_token_adds_the_steps_of_its_rate(session, endpoint):
         token.undeclare()
     # From 50 ms on: the token reaches the sim within its first steps, on a busy machine too.
     assert [p.tm.to_nanoseconds() for p in poses if p.tm.to_nanoseconds() >= 50 * STEP_NS] == [
-        k * STEP_NS for k in range(50, 200, 10)
+        k * STEP_NS for k in range(50, 201, 10)
     ]
     assert "ros2 observes at 100 Hz" in err
 
@@ -170,8 +184,8 @@ def test_the_step_flag_sets_the_simulation_time_increment(session, endpoint):
     answered, poses, err = run_with_source(
         session, endpoint, constant(1.0, 1.0), "--step", "0.002", "--duration", "0.02", *EVERY_STEP
     )
-    assert [a.tm.to_nanoseconds() for a in answered] == [k * 2 * STEP_NS for k in range(10)]
-    assert [p.tm.to_nanoseconds() for p in poses] == [k * 2 * STEP_NS for k in range(10)]
+    assert [a.tm.to_nanoseconds() for a in answered] == [k * 2 * STEP_NS for k in range(11)]
+    assert [p.tm.to_nanoseconds() for p in poses] == [k * 2 * STEP_NS for k in range(11)]
     assert "finished: 10 steps, 0.020 s simulated" in err
 
 
@@ -204,7 +218,7 @@ def wobbly(angles: TimedDoubleSeq) -> list[float]:
 def test_two_lockstep_runs_with_the_same_torques_are_bit_identical(session, endpoint):
     runs = [run_with_source(session, endpoint, wobbly, "--duration", "0.4", *EVERY_STEP) for _ in range(2)]
     (angles_a, poses_a, _), (angles_b, poses_b, _) = runs
-    assert len(poses_a) == len(poses_b) == 400
+    assert len(poses_a) == len(poses_b) == 401, "every step's pose, and the end state's"
     assert poses_a[-1].data == poses_b[-1].data
     assert [p.data for p in poses_a] == [p.data for p in poses_b]
     assert [a.data for a in angles_a] == [a.data for a in angles_b]
@@ -216,7 +230,7 @@ def test_lockstep_without_a_torque_source_finishes_a_one_second_run(session, end
     with sim_process(endpoint, "--duration", "1") as sim:
         err = finish(sim)
     assert "finished: 1000 steps" in err and "missing_torques 1000" in err
-    assert max(a.tm.to_nanoseconds() for a in angles.drain()) == 999 * STEP_NS
+    assert max(a.tm.to_nanoseconds() for a in angles.drain()) == 1000 * STEP_NS, "and the end state at 1 s"
 
 
 def test_a_silent_motor_control_costs_the_timeout_then_is_paced_until_it_answers(session, endpoint):
