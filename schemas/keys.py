@@ -15,10 +15,12 @@ import msgspec
 
 from schemas.messages import (
     BumpEvent,
+    MotorStateReport,
     NoArguments,
     PDGains,
     PlannedPath,
     RunSummary,
+    ScenarioOutcome,
     SimWorld,
     TimedDoubleSeq,
     TimedPosition,
@@ -60,10 +62,22 @@ class Topic(StrEnum):
     LOCALIZATION_POSE = "localization/pose"
     SIM_WORLD = "sim/world"
     DRIVE_PATH = "drive/path"
+    MOTOR_STATE = "motor/state"
+    DRIVE_OUTCOME = "drive/outcome"
     RUN_SUMMARY = "up/run"
 
 
-TopicMessage = TimedDoubleSeq | TimedVelocity | TimedPosition | BumpEvent | SimWorld | PlannedPath | RunSummary
+TopicMessage = (
+    TimedDoubleSeq
+    | TimedVelocity
+    | TimedPosition
+    | BumpEvent
+    | SimWorld
+    | PlannedPath
+    | MotorStateReport
+    | ScenarioOutcome
+    | RunSummary
+)
 """What a data key carries: every one has its ``tm`` stamp."""
 
 TOPIC_TYPES: dict[Topic, type[TopicMessage]] = {
@@ -80,10 +94,12 @@ TOPIC_TYPES: dict[Topic, type[TopicMessage]] = {
     Topic.LOCALIZATION_POSE: TimedPosition,
     Topic.SIM_WORLD: SimWorld,
     Topic.DRIVE_PATH: PlannedPath,
+    Topic.MOTOR_STATE: MotorStateReport,
+    Topic.DRIVE_OUTCOME: ScenarioOutcome,
     Topic.RUN_SUMMARY: RunSummary,
 }
 
-LATCHED_TOPICS = (Topic.SIM_WORLD, Topic.DRIVE_PATH)
+LATCHED_TOPICS = (Topic.SIM_WORLD, Topic.DRIVE_PATH, Topic.MOTOR_STATE, Topic.DRIVE_OUTCOME)
 """Keys whose publisher also answers queries with its last message (a late viewer gets it at once)."""
 
 BODY_POSE_LENGTH = 12
@@ -217,6 +233,8 @@ class Keys:
     localization_pose = property(lambda self: self.topic(Topic.LOCALIZATION_POSE))
     sim_world = property(lambda self: self.topic(Topic.SIM_WORLD))
     drive_path = property(lambda self: self.topic(Topic.DRIVE_PATH))
+    motor_state = property(lambda self: self.topic(Topic.MOTOR_STATE))
+    drive_outcome = property(lambda self: self.topic(Topic.DRIVE_OUTCOME))
     run_summary = property(lambda self: self.topic(Topic.RUN_SUMMARY))
 
 

@@ -162,6 +162,45 @@ class RunSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """The loop's health from the services' status replies (``report.json``'s ``health``)."""
 
 
+MotorStateName = Literal["idle", "running", "stopped", "finished"]
+StopCause = Literal["", "gui", "bump", "state_file"]
+
+
+class MotorStateReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``motor/state``: the motor's state (docs/protocol.md section 4.6), published at every change,
+    latched (project extension: what the drive gives a scenario up on)."""
+
+    tm: Time
+    """The motor's wheel-angle time when the state changed (0 before its first sample)."""
+    state: MotorStateName
+    stopped_by: StopCause
+    """Who latched the emergency stop, while ``state`` is ``stopped``: the Motor method family
+    called (``gui``, ``bump``), or ``state_file`` (restored, or the file unreadable); else ``""``."""
+
+
+ScenarioOutcomeName = Literal["completed", "aborted", "timed_out"]
+
+
+class ScenarioOutcome(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``drive/outcome``: how the drive's scenario ended (project extension), latched, published
+    with the drive's last command: ``completed``, or given up, ``aborted`` (the motor stayed
+    latched stopped) or ``timed_out`` (past the scenario's time limit), with the reason."""
+
+    tm: Time
+    """The simulation time of the drive's last command."""
+    scenario: str
+    outcome: ScenarioOutcomeName
+    reason: str
+    """Why the scenario was given up (the bump and the obstacle, the limit); ``""`` when completed."""
+    iteration: Annotated[int, msgspec.Meta(ge=0)]
+    """The pass that ended (0: the first; a ``--loop`` scenario ends only when a pass is given up)."""
+    elapsed_s: float
+    """Simulated seconds of that pass."""
+
+    def __post_init__(self) -> None:
+        _require_finite(self.elapsed_s)
+
+
 NonNegativeGain = Annotated[float, msgspec.Meta(ge=0.0)]
 
 
@@ -193,4 +232,6 @@ MESSAGE_TYPES: tuple[type[msgspec.Struct], ...] = (
     SimWorld,
     PlannedPath,
     RunSummary,
+    MotorStateReport,
+    ScenarioOutcome,
 )

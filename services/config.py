@@ -232,6 +232,15 @@ class DriveConfig(_Section, frozen=True):
     pose_timeout: Positive = 0.5
     """Seconds of simulation time after which an odometry pose is too old to follow a path on:
     the drive then commands zero until a fresh one arrives."""
+    give_up_after_stop: Positive | None = 2.0
+    """Simulated seconds the motor may stay latched stopped (a bump, an emergency stop) before the
+    drive gives its scenario up (``aborted``); None (``"none"``): it waits for a ``clear`` for ever."""
+    time_limit_factor: Positive | None = 3.0
+    """A pass of a scenario lasting longer than this many times its planned duration, plus
+    ``time_limit_margin``, is given up (``timed_out``), unless the scenario sets its own
+    ``time_limit``; None (``"none"``): only a scenario's own limit applies."""
+    time_limit_margin: NonNegative = 10.0
+    """Simulated seconds added to the time limit a scenario gets from ``time_limit_factor``."""
 
 
 Covariance = tuple[NonNegative, NonNegative, NonNegative, NonNegative, NonNegative, NonNegative]
@@ -295,6 +304,35 @@ class InputConfig(_Section, frozen=True):
         return round(self.stamp_horizon * NANOSECONDS_PER_SECOND)
 
 
+class RecordRate(StrEnum):
+    OBSERVED = "observed"
+    EVERY_STEP = "every_step"
+
+
+class RecordConfig(_Section, frozen=True):
+    """What ``invent up`` records (its ``run.mcap``, and the journals the services keep meanwhile:
+    README.md, "Rates and bounds")."""
+
+    rate: RecordRate = RecordRate.OBSERVED
+    """``observed``: every key at the observed steps (``sim.observe_every``), as the loop publishes
+    them, what the report, plots and views need; ``every_step``: the control path and the poses at
+    every simulation step too, for debugging the loop (about ten times the size)."""
+    max_size: Positive | None = 1024.0
+    """MB: the recording stops here (the run goes on), the journals of the run sharing it."""
+    max_duration: Positive | None = None
+    """Simulated seconds: nothing stamped later is recorded."""
+    split_size: Positive | None = None
+    """MB: a new file of the recording (``run_1.mcap``, ...) once a file has this much."""
+    split_duration: Positive | None = None
+    """Simulated seconds each file of the recording covers."""
+    min_free_disk: NonNegative = 256.0
+    """MB: the recording stops when less than this is free on its disk (the run goes on)."""
+
+    @property
+    def every_step(self) -> bool:
+        return self.rate is RecordRate.EVERY_STEP
+
+
 class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     robot: RobotConfig = msgspec.field(default_factory=RobotConfig)
     motor: MotorConfig = msgspec.field(default_factory=MotorConfig)
@@ -304,6 +342,7 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     drive: DriveConfig = msgspec.field(default_factory=DriveConfig)
     input: InputConfig = msgspec.field(default_factory=InputConfig)
     ros2: Ros2Config = msgspec.field(default_factory=Ros2Config)
+    record: RecordConfig = msgspec.field(default_factory=RecordConfig)
 
     def __post_init__(self) -> None:
         motor, ceiling = self.motor, self.input.max_gain

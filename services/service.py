@@ -21,9 +21,10 @@ import msgspec
 import zenoh
 
 from schemas.keys import Keys, Service, validate_robot_name
-from services.config import Config, ConfigError, load_config, parse_override
+from schemas.messages import NANOSECONDS_PER_SECOND
+from services.config import Config, ConfigError, RecordConfig, load_config, parse_override
 from services.runtime.executor import Executor
-from services.runtime.journal import Journal, journal_path
+from services.runtime.journal import MB, Journal, JournalLimits, journal_path
 from services.runtime.node import Node
 
 
@@ -104,6 +105,12 @@ class RunningService(Protocol):
     """True once the service has ended by itself (a drive at the end of its scenario, a sim at the
     end of its ``--duration``): whatever runs it then stops."""
 
+    @property
+    def exit_code(self) -> int:
+        """The service's exit code once ``finished``: 0, but for a drive whose scenario was given up
+        (services/drive/outcome.py)."""
+        ...
+
     def close(self) -> None:
         """Release what the service holds beyond its node (files, simulators)."""
         ...
@@ -169,7 +176,7 @@ def start_service(
     """Build ``command``'s service on ``session`` (opened by the caller, maybe shared), its node
     on ``executor`` (default: one of its own), keeping what it publishes in a journal in
     ``args.journal`` if given (``invent up`` records its run so)."""
-    journal = _journal(args, command.service)
+    journal = _journal(args, command.service, config.record)
     node = Node(session, Keys(config.robot.name), command.service, executor=executor, journal=journal)
     try:
         return node, command.factory(node, config, args)
@@ -178,14 +185,27 @@ def start_service(
         raise
 
 
-def _journal(args: argparse.Namespace, service: Service) -> Journal | None:
+def _journal(args: argparse.Namespace, service: Service, record: RecordConfig) -> Journal | None:
     directory = getattr(args, "journal", None)
     if directory is None:
         return None
     try:
-        return Journal(journal_path(Path(directory), str(service)))
+        return Journal(
+            journal_path(Path(directory), str(service)),
+            journal_limits(record, getattr(args, "journal_share", 1)),
+            every_step=record.every_step,
+        )
     except OSError as error:
         raise ConfigError(f"--journal {directory}: {error.strerror}") from None
+
+
+def journal_limits(record: RecordConfig, share: int) -> JournalLimits:
+    """A journal's limits under ``record``, ``share`` journals of a run sharing ``record.max_size``."""
+    return JournalLimits(
+        max_bytes=None if record.max_size is None else round(record.max_size * MB / share),
+        max_stamp_ns=None if record.max_duration is None else round(record.max_duration * NANOSECONDS_PER_SECOND),
+        min_free_bytes=round(record.min_free_disk * MB),
+    )
 
 
 def run_service(
@@ -196,7 +216,7 @@ def run_service(
         if isinstance(service, ClockedService):
             return service.run(stop)
         node.serve(stop, lambda: service.finished)
-        return 0
+        return service.exit_code if service.finished else 0
     finally:
         service.close()
         node.close()

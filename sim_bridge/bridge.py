@@ -298,18 +298,18 @@ class RobotLink:
         elif tm_ns > self.newest_ns:
             self.newest_torque, self.newest_ns = torque.data, tm_ns
 
-    def publish_state(self, step_index: int, tm_ns: int, tm: Time, recording: bool, final: bool) -> None:
-        """Publish this step's wheel angles, then its body pose if it is observed (or recorded):
-        the motor converts the pose once it has answered the wheel angles, in the same wake. The
-        step's clock waits for :meth:`publish_clock`. The ``final`` state of a finite run is
-        observed, whatever the step."""
+    def publish_state(self, step_index: int, tm_ns: int, tm: Time, every_step: bool, final: bool) -> None:
+        """Publish this step's wheel angles, then its body pose if it is observed (or the run is
+        recorded at ``every_step``): the motor converts the pose once it has answered the wheel
+        angles, in the same wake. The step's clock waits for :meth:`publish_clock`. The ``final``
+        state of a finite run is observed, whatever the step."""
         body = self.body
         observed = self.observation.observed(step_index, tm_ns) or final
         mark = self.marks[observed]
         angles = TimedDoubleSeq(tm=tm, data=body.wheel_angles())
         self.latency.published(tm_ns, time.perf_counter_ns())
-        self.angles_publisher.put(angles, mark)
-        if observed or recording:
+        self.angles_publisher.put(angles, mark, keep=observed or every_step)
+        if observed or every_step:
             self.pose_publisher.put(TimedDoubleSeq(tm=tm, data=body.body_pose()), mark)
         if observed:
             self.clock = (angles, mark)
@@ -463,6 +463,7 @@ class SimService:
         self._started_at: float | None = None
         self._stopped_at: float | None = None
         self.finished = False
+        self.exit_code = 0
         self.published_ns = -1
         """The stamp of the latest step published: no torque can answer a later one."""
         self._silent_wait_s = config.sim.step / config.sim.realtime_factor
@@ -513,9 +514,9 @@ class SimService:
         tm_ns = sim.time_ns
         tm = Time.from_nanoseconds(tm_ns)
         self.published_ns = tm_ns
-        recording = self.node.recording
+        every_step = self.node.recording_every_step
         for link in self.links:
-            link.publish_state(sim.step_index, tm_ns, tm, recording, final)
+            link.publish_state(sim.step_index, tm_ns, tm, every_step, final)
         return tm_ns
 
     def _final(self) -> bool:

@@ -142,6 +142,12 @@ OPTIONAL_FIELDS = (
     "sim.world",
     "sim.brake_after",
     "localization.seed",
+    "drive.give_up_after_stop",
+    "drive.time_limit_factor",
+    "record.max_size",
+    "record.max_duration",
+    "record.split_size",
+    "record.split_duration",
 )
 
 

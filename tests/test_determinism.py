@@ -3,7 +3,8 @@ bit, on a quiet machine, beside two CPU-burning processes, and composed in one p
 
 Each run is recorded from outside, by this test's own zenoh router, which the run connects to: every
 payload of the ground truth, odometry and localization keys (and the drive's targets), in the
-order it arrived. The three runs of the module are shared by the tests below, including the
+order it arrived. The runs record at every step (``--record-full-rate``: the poses are then
+published at every step too), so the comparisons see the whole run. The three runs of the module are shared by the tests below, including the
 ones that check the square itself and composed mode's outside visibility.
 """
 
@@ -98,7 +99,16 @@ def _run_square(report_dir: Path, *flags: str, ask_status: bool = False) -> Squa
         channels = {key: router.declare_subscriber(key, zenoh.handlers.FifoChannel(1 << 20)) for key in RECORDED}
         process = subprocess.Popen(
             invent_command(
-                "up", "--scenario", "square", "--report", str(report_dir), "--connect", endpoint, *PATIENT, *flags
+                "up",
+                "--scenario",
+                "square",
+                "--report",
+                str(report_dir),
+                "--connect",
+                endpoint,
+                "--record-full-rate",
+                *PATIENT,
+                *flags,
             ),
             cwd=REPO,
             stdout=subprocess.PIPE,

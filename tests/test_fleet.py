@@ -24,6 +24,7 @@ import pytest
 
 from schemas.keys import Keys, Topic
 from services.config import RobotConfig
+from services.drive.outcome import Outcome
 from services.recording.mcap_files import read_messages
 from tests.harness import free_port, start_up, wait_until
 
@@ -45,12 +46,8 @@ STRAIGHTS = _robot("rh0", 0.0, 0.0, 0.0, "straight") + _robot("rh1", 0.0, 3.0, 0
 """Each robot 2 m straight ahead, rh0 to (2, 0): shorter than the square, for the run that loses a motor."""
 
 
-def _head_on(scenario: Path) -> str:
-    """Two robots 2 m apart facing each other, both driving ``scenario``."""
-    return _robot("rh0", 0.0, 0.0, 0.0, str(scenario)) + _robot("rh1", 2.0, 0.0, math.pi, str(scenario))
-
-
-FORWARD = '[[segments]]\ntype = "constant"\nvx = 0.3\nw = 0.0\nduration = 6.0\n'
+HEAD_ON = _robot("rh0", 0.0, 0.0, 0.0, "straight") + _robot("rh1", 3.0, 0.0, math.pi, "straight")
+"""Two robots 3 m apart facing each other, each to drive 2 m straight ahead: they meet half-way."""
 COMPARED = (Topic.SIM_BODY_POSE, Topic.ODOMETRY_POSE, Topic.LOCALIZATION_POSE, Topic.DRIVE_TARGET_VELOCITY)
 PATIENT = ("--set", "sim.lockstep_timeout=5")
 """As in test_determinism: beside two burners a lockstep wait may take longer than the default."""
@@ -142,21 +139,22 @@ def test_a_fleet_run_is_the_same_bit_for_bit_composed_quietly_and_separate_besid
     assert rh0_pose != rh1_pose, "each robot has its own keys and its own motion"
 
 
-def test_robots_that_meet_head_on_each_get_a_bump_naming_the_other_and_stay_stopped(tmp_path):
-    scenario = tmp_path / "forward.toml"
-    scenario.write_text(FORWARD)
-    code, output, report = _up(tmp_path, _head_on(scenario), "--composed")
-    assert code == 0, output[-3000:]
+def test_robots_that_meet_head_on_bump_each_other_stay_stopped_and_both_abort_by_themselves(tmp_path):
+    code, output, report = _up(tmp_path, HEAD_ON, "--composed")
+    assert code == Outcome.ABORTED.exit_code, output[-3000:]
     between = report["fleet"]["bumps_between_robots"]
     assert {(bump["robot"], bump["other"]) for bump in between} == {("rh0", "rh1"), ("rh1", "rh0")}, between
     assert between[0]["t_s"] == between[1]["t_s"], "one contact, a bump for each at the same step"
     for robot, other in (("rh0", "rh1"), ("rh1", "rh0")):
         part = report["robots"][robot]
         assert part["bumps"][0]["obstacle"] == other
+        assert part["outcome"]["outcome"] == "aborted", (robot, part["outcome"])
+        assert f"bumped into {other!r}" in part["outcome"]["reason"], (robot, part["outcome"])
+        assert f"outcome: aborted (bumped into {other!r}" in output
         state = json.loads((tmp_path / "report" / robot / "motor-state.json").read_text())
         assert state["stopped"] is True, (robot, state)
         end = part["final"]["ground_truth"]
-        assert abs(end["x"] - 1.0) < 0.5, f"{robot} stopped near where they met, not 6 s * 0.3 m/s on"
+        assert abs(end["x"] - 1.5) < 0.5, f"{robot} stopped near where they met, not 2 m on"
     body = 2 * RobotConfig().radius_of_body_area
     assert report["fleet"]["closest_approach"]["distance_m"] == pytest.approx(body, abs=0.02), "bodies touching"
 

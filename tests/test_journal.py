@@ -3,12 +3,13 @@ as it goes when its writer was killed."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.runtime.journal import BATCH_SAMPLES, Journal, JournalReader
+from services.runtime.journal import BATCH_SAMPLES, STOPPED_KEY, Journal, JournalLimits, JournalReader
 
 KEY = "invent/rh0/sim/wheel_angles"
 
@@ -73,3 +74,41 @@ def test_bytes_after_the_end_mark_the_journal_as_not_whole(tmp_path):
     path.write_bytes(path.read_bytes() + b"\x05\x00")
     entries, complete = _read(path)
     assert complete is False and len(entries) == 3
+
+
+OUTCOME = "invent/rh0/drive/outcome"
+
+
+def test_a_journal_at_its_share_of_the_size_stops_keeping_samples_but_how_the_run_ended(tmp_path):
+    path = tmp_path / "sim.journal"
+    journal = Journal(path, JournalLimits(max_bytes=1000))
+    for index in range(3 * BATCH_SAMPLES):
+        journal.write(KEY, b'{"n":%d}' % index, index)
+    journal.write(OUTCOME, b"{}", 3 * BATCH_SAMPLES)
+    journal.close()
+    entries, complete = _read(path)
+    assert complete and journal.stopped is not None
+    assert [entry[2] for entry in entries if entry[0] == KEY] == list(range(BATCH_SAMPLES)), "its first batch only"
+    stop = [entry for entry in entries if entry[0] == STOPPED_KEY]
+    assert len(stop) == 1 and json.loads(stop[0][1]) == {"reason": journal.stopped[1], "journal": "sim.journal"}
+    assert entries[-1][0] == OUTCOME
+
+
+def test_a_journal_keeps_nothing_stamped_after_its_max_duration(tmp_path):
+    path = tmp_path / "motor.journal"
+    journal = Journal(path, JournalLimits(max_stamp_ns=5_000_000))
+    for stamp_ms in range(10):
+        journal.write(KEY, b"{}", stamp_ms, stamp_ns=stamp_ms * 1_000_000)
+    journal.close()
+    entries, _complete = _read(path)
+    assert [entry[2] for entry in entries if entry[0] == KEY] == [0, 1, 2, 3, 4, 5]
+    assert b"record.max_duration" in next(entry[1] for entry in entries if entry[0] == STOPPED_KEY)
+
+
+def test_a_journal_on_a_disk_with_less_free_than_its_minimum_keeps_nothing_and_says_so(tmp_path):
+    journal = Journal(tmp_path / "odometry.journal", JournalLimits(min_free_bytes=10**18))
+    journal.write(KEY, b"{}", 1)
+    journal.close()
+    entries, complete = _read(tmp_path / "odometry.journal")
+    assert complete and [entry[0] for entry in entries] == [STOPPED_KEY]
+    assert b"record.min_free_disk" in entries[0][1]

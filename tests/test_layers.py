@@ -39,7 +39,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.runtime(\..*)?", RUNTIME),
     (r"services\.(motor|odometry|localization)\.core", CORE),
     (r"services\.motor\.state", CORE),
-    (r"services\.drive\.(scenarios|path_following)", CORE),
+    (r"services\.drive\.(scenarios|path_following|outcome)", CORE),
     (r"services\.clock\.(sim_time|lockstep|observation)", CORE),
     (r"services\.planar", CORE),
     (r"services\.fleet\.(description|summary)", CORE),
@@ -251,7 +251,7 @@ def test_each_service_room_holds_its_shell_and_its_core():
         "motor": ("core", "state"),
         "odometry": ("core",),
         "localization": ("core",),
-        "drive": ("scenarios", "path_following"),
+        "drive": ("scenarios", "path_following", "outcome"),
     }.items():
         room = ROOT / "services" / service
         assert (room / "service.py").is_file(), service

@@ -1,14 +1,16 @@
 """``invent up``'s run.mcap, made of its processes' journals (services/recording/record.py,
 ``write_run_recording``): every published sample on its key's channel in publication order, the
-Foxglove scene beside them, and a journal cut short named."""
+Foxglove scene beside them, a journal cut short named, and the bounds of ``[record]``: a size cap
+that stops the recording (saying so) but keeps how the run ended, and splits by size and duration
+that the report reads back whole."""
 
 from __future__ import annotations
 
 from schemas.codec import encode
 from schemas.keys import Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
-from services.config import load_config
-from services.recording.mcap_files import read_messages
+from services.config import RecordConfig, load_config
+from services.recording.mcap_files import RECORDING_STOPPED_TOPIC, read_messages, read_run, recording_parts
 from services.recording.record import write_run_recording
 from services.recording.scene import ODOMETRY_TOPIC, TRANSFORMS_TOPIC
 from services.runtime.journal import Journal, journal_path
@@ -41,7 +43,7 @@ def test_the_journals_make_one_recording_in_publication_order_with_the_scene(tmp
         journal.close()
     output = tmp_path / "run.mcap"
 
-    assert write_run_recording(journals, output, load_config(None, {})) == []
+    assert write_run_recording(journals, output, load_config(None, {})).cut_short == []
 
     read = read_messages(output)
     assert read.complete
@@ -74,7 +76,54 @@ def test_a_journal_whose_service_was_killed_is_named_and_its_whole_batches_recor
     killed.write(KEYS.motor_torque, b"{}", PUBLISHED_NS + 1)
     output = tmp_path / "run.mcap"
 
-    cut_short = write_run_recording(journals, output, load_config(None, {}))
+    cut_short = write_run_recording(journals, output, load_config(None, {})).cut_short
 
     assert cut_short == [journal_path(journals, str(Service.MOTOR))]
     assert [m.topic for m in read_messages(output).messages if m.topic.startswith(KEYS.prefix)] == [KEYS.sim_body_pose]
+
+
+def _square_journals(journals, steps: int = 1000) -> None:
+    """A second of a run: a body pose every ms, and at its end the drive's outcome."""
+    journals.mkdir()
+    sim = Journal(journal_path(journals, str(Service.SIM)))
+    for step in range(steps):
+        sim.write(KEYS.sim_body_pose, _body_pose(step * MS, step * 1e-4), PUBLISHED_NS + step * MS)
+    sim.close()
+    drive = Journal(journal_path(journals, str(Service.DRIVE)))
+    drive.write(KEYS.drive_outcome, b"{}", PUBLISHED_NS + steps * MS)
+    drive.close()
+
+
+def test_a_recording_at_its_max_size_stops_says_why_and_keeps_how_the_run_ended(tmp_path):
+    _square_journals(tmp_path / "journals")
+    output = tmp_path / "run.mcap"
+    payload = len(_body_pose(0, 0.0))
+
+    written = write_run_recording(tmp_path / "journals", output, load_config(None, {}), (), RecordConfig(max_size=0.01))
+
+    assert written.stopped is not None and written.stopped["reason"].startswith("record.max_size"), written.stopped
+    messages = read_messages(output).messages
+    kept = sum(len(m.data) for m in messages if m.topic not in (KEYS.drive_outcome, RECORDING_STOPPED_TOPIC))
+    assert 10_000 <= kept < 10_000 + 20 * payload, "up to 10 kB of messages (uncompressed), and a sample's scene"
+    assert len([m for m in messages if m.topic == KEYS.sim_body_pose]) < 1000
+    assert [m.topic for m in messages if m.topic == KEYS.drive_outcome] == [KEYS.drive_outcome], "kept past the cap"
+    stop = [m for m in messages if m.topic == RECORDING_STOPPED_TOPIC]
+    assert len(stop) == 1 and b"record.max_size" in stop[0].data
+
+
+def test_a_recording_split_by_duration_and_by_size_reads_back_whole_in_order(tmp_path):
+    for name, record in (("duration", RecordConfig(split_duration=0.25)), ("size", RecordConfig(split_size=0.05))):
+        _square_journals(tmp_path / name)
+        output = tmp_path / f"{name}.mcap"
+        written = write_run_recording(tmp_path / name, output, load_config(None, {}), (), record)
+        assert written.parts == recording_parts(output) and len(written.parts) > 1, (name, written.parts)
+        assert written.parts[1].name == f"{name}_1.mcap" and written.stopped is None
+        read = read_run(output)
+        stamps = [m.publish_time_ns for m in read.messages if m.topic == KEYS.sim_body_pose]
+        assert read.complete and stamps == [step * MS for step in range(1000)], name
+        for part in written.parts[:-1]:
+            poses = [m.publish_time_ns for m in read_messages(part).messages if m.topic == KEYS.sim_body_pose]
+            if name == "duration":
+                assert poses[-1] - poses[0] == 249 * MS, (part, "a quarter of a second each")
+            else:
+                assert sum(len(m.data) for m in read_messages(part).messages) >= 50_000, part

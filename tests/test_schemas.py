@@ -25,7 +25,7 @@ from schemas import (
     schema_for_key,
 )
 from schemas.keys import TOPIC_TYPES, parse_alive_key
-from schemas.messages import PlannedPath, RunSummary, SimWorld
+from schemas.messages import MotorStateReport, PlannedPath, RunSummary, ScenarioOutcome, SimWorld
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 times = st.builds(Time, st.integers(0, 2**40), st.integers(0, 999_999_999))
@@ -38,6 +38,8 @@ EXAMPLES = [
     TimedPosition(Time(1, 2), [], 1.0, -2.0, math.pi, []),
     BumpEvent(Time(4, 0), "box_1", 1.0, 0.2, 0.1),
     PDGains(5.0, 5.0, 2.0, 2.0),
+    MotorStateReport(Time(1, 871_000_000), "stopped", "bump"),
+    ScenarioOutcome(Time(3, 880_000_000), "straight", "aborted", "bumped into 'box'", 0, 3.88),
 ]
 
 
@@ -172,6 +174,8 @@ def test_every_spec_data_key_has_its_schema():
         "sim/bump": BumpEvent,
         "sim/world": SimWorld,
         "drive/path": PlannedPath,
+        "motor/state": MotorStateReport,
+        "drive/outcome": ScenarioOutcome,
         "up/run": RunSummary,
     }
     assert {str(topic): schema for topic, schema in TOPIC_TYPES.items()} == spec

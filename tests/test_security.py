@@ -110,7 +110,8 @@ def test_only_the_motor_serves_the_methods_and_each_service_only_its_status_and_
     for role in Role:
         served = _granted(role, Message.DECLARE_QUERYABLE)
         if role is Role.MOTOR:
-            assert served == {KEYS.status(Service.MOTOR)} | _methods(MethodFamily.GUI) | _methods(MethodFamily.BUMP)
+            methods = _methods(MethodFamily.GUI) | _methods(MethodFamily.BUMP)
+            assert served == {KEYS.status(Service.MOTOR), KEYS.motor_state} | methods
         elif role is Role.OPERATOR:
             assert served == set(), role
         elif role is Role.OBSERVER:

@@ -1,4 +1,5 @@
-"""invent up: the whole loop in separate processes, its report, and its failure handling."""
+"""invent up: the whole loop in separate processes, its report, how a run ends (its outcome and exit
+status), and its failure handling."""
 
 import json
 import math
@@ -12,6 +13,10 @@ from pathlib import Path
 import pytest
 
 from schemas.keys import Keys, Service
+from services.config import DriveConfig
+from services.drive.outcome import Outcome
+from services.drive.scenarios import BUILTIN_SCENARIOS, planned_duration
+from services.planar import Pose
 from services.recording.mcap_files import read_messages
 from tests.harness import REPO, free_port, invent_command, pid_alive, run_invent, start_up, wait_until
 
@@ -73,6 +78,27 @@ def test_up_straight_follows_the_waypoints_with_the_real_services(tmp_path):
     end = report["final"]["ground_truth"]
     assert math.hypot(end["x"] - goal[0], end["y"] - goal[1]) < 0.05
     assert report["path_error"]["max_m"] < 0.05
+    assert report["outcome"] == {**report["outcome"], "outcome": "completed", "reason": ""}
+    # recorded at the observed steps (sim.observe_every = 20: 50 Hz), not at every step
+    assert (tmp_path / "run.mcap").stat().st_size <= 0.1e6 * report["sim_time_s"], "at most 0.1 MB per simulated s"
+    poses = [m for m in read_messages(tmp_path / "run.mcap").messages if m.topic == KEYS.sim_body_pose]
+    assert len(poses) == pytest.approx(report["steps"] / 20, abs=2), (len(poses), report["steps"])
+
+
+@pytest.mark.parametrize(
+    ("bound", "reason"),
+    [("record.max_duration=2", "record.max_duration"), ("record.min_free_disk=1e12", "record.min_free_disk")],
+)
+def test_a_recording_that_stops_at_its_bound_says_so_and_the_robot_goes_on(tmp_path, bound, reason):
+    result = _up("--composed", "--scenario", "straight", "--report", str(tmp_path), "--set", bound)
+    assert result.returncode == 0, result.stdout[-4000:]
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["recording"]["reason"].startswith(reason), report["recording"]
+    assert report["outcome"]["outcome"] == "completed", "the robot drove its 2 m: the run did not stop"
+    assert report["outcome"]["elapsed_s"] > 6.0
+    assert f"the recording stopped before the run did ({reason}" in result.stdout
+    recorded_until = report["sim_time_s"]
+    assert recorded_until <= 2.0, "nothing after the bound (on a low disk: nothing at all)"
 
 
 def test_no_record_runs_the_loop_and_writes_nothing_with_a_live_view_beside_it(tmp_path):
@@ -96,6 +122,47 @@ def test_no_record_runs_the_loop_and_writes_nothing_with_a_live_view_beside_it(t
     assert list(tmp_path.iterdir()) == [], "no runs/ directory, no report, no plots"
     final_sim_time = float(re.findall(r"sim +([\d.]+) s \|", result.stdout)[-1])
     assert final_sim_time > 20.0, "the square scenario ran to its end"
+
+
+def _up(*flags: str, cwd: Path = REPO) -> subprocess.CompletedProcess[str]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    command = invent_command("up", *flags, "--listen", endpoint)
+    return subprocess.run(command, cwd=cwd, capture_output=True, text=True, timeout=180, check=False)
+
+
+def test_a_straight_into_the_box_ends_by_itself_aborted_naming_the_bump_and_the_box(tmp_path):
+    result = _up("--set", "sim.world=bump", "--scenario", "straight", "--report", str(tmp_path))
+    assert result.returncode == Outcome.ABORTED.exit_code == 3, result.stdout[-4000:]
+    outcome = json.loads((tmp_path / "report.json").read_text())["outcome"]
+    assert outcome["outcome"] == "aborted" and outcome["iteration"] == 0, outcome
+    assert outcome["reason"].startswith("bumped into 'box' at t = 1.8"), outcome
+    # the box touched at 1.87 s, given up drive.give_up_after_stop (2 s) later
+    assert outcome["t_s"] == pytest.approx(3.9, abs=0.1), outcome
+    assert "outcome: aborted (bumped into 'box'" in result.stdout
+    assert "the scenario was given up: exit 3" in result.stdout
+
+
+def test_a_scenario_the_motor_is_too_slow_for_ends_timed_out_at_its_time_limit(tmp_path):
+    limit_s = 1.0 * planned_duration(BUILTIN_SCENARIOS["straight"], Pose(0.0, 0.0, 0.0), DriveConfig()) + 1.0
+    too_slow = ("motor.max_vx=0.01", "drive.time_limit_factor=1", "drive.time_limit_margin=1")
+    result = _up("--composed", "--scenario", "straight", "--report", str(tmp_path), *_sets(too_slow))
+    assert result.returncode == Outcome.TIMED_OUT.exit_code == 4, result.stdout[-4000:]
+    report = json.loads((tmp_path / "report.json").read_text())
+    outcome = report["outcome"]
+    assert outcome["outcome"] == "timed_out" and f"past its time limit of {limit_s:.3f} s" in outcome["reason"]
+    assert outcome["elapsed_s"] == pytest.approx(limit_s, abs=0.05), outcome
+    assert report["final"]["ground_truth"]["x"] < 0.15, "crawled at 1 cm/s, far short of the 2 m"
+
+
+def test_loop_ends_with_the_outcome_of_the_pass_that_gave_up(tmp_path):
+    result = _up("--loop", "--composed", "--set", "sim.world=bump", "--scenario", "straight", cwd=tmp_path)
+    assert result.returncode == 3, result.stdout[-4000:]
+    assert "outcome: aborted (bumped into 'box'" in result.stdout
+    assert "done; no recording, no report (--loop)" in result.stdout
+
+
+def _sets(overrides: tuple[str, ...]) -> list[str]:
+    return [flag for override in overrides for flag in ("--set", override)]
 
 
 def _started_pids(process: subprocess.Popen[str], output: list[str]) -> dict[str, int]:

@@ -14,11 +14,11 @@ import zenoh
 
 from schemas.keys import DEFAULT_ROBOT, Keys
 from services.cli import tools
-from services.config import ConfigError, load_config
+from services.config import ConfigError, RecordRate, load_config
 from services.fleet.description import fleet_configs, load_fleet
 from services.launch import fleet, up
 from services.recording import record, replay, view
-from services.recording.mcap_files import read_messages, replay_schedule, write_run_report
+from services.recording.mcap_files import read_run, replay_schedule, write_run_report
 from services.recording.report import summary
 from services.ros2.graph import bridge_graph
 from services.runtime.logs import configure_logging
@@ -346,8 +346,10 @@ def build_parser() -> argparse.ArgumentParser:
             str(command.service), parents=[connection, service], help=command.help, description=command.description
         )
         command.add_arguments(sub)
-        # invent up's own: where a service keeps what it publishes, for the run's recording
+        # invent up's own: where a service keeps what it publishes, for the run's recording, and how
+        # many journals of the run share record.max_size
         sub.add_argument("--journal", metavar="DIR", help=argparse.SUPPRESS)
+        sub.add_argument("--journal-share", type=int, default=1, help=argparse.SUPPRESS)
         sub.set_defaults(handler=_serve, service_command=command)
     return parser
 
@@ -441,7 +443,7 @@ def _replay(args: argparse.Namespace) -> int:
     path = Path(args.recording)
     if not path.is_file():
         raise ConfigError(f"{path}: no such file")
-    read = read_messages(path)
+    read = read_run(path)  # and the files it was split into, if any
     if not read.complete:
         print(f"{path} was cut short: replaying its whole chunks", file=sys.stderr)
     recorded_robot, schedule = replay_schedule(read.messages, replay.parse_topics(args.keys))
@@ -457,6 +459,8 @@ def _config(args: argparse.Namespace) -> int:
 
 
 def _up(args: argparse.Namespace) -> int:
+    if args.record_full_rate:  # for every service of the run, as the robot description's [record]
+        args.set = [*(args.set or []), f"record.rate={RecordRate.EVERY_STEP}"]
     if args.fleet:
         return fleet.run_fleet(args, build_parser())
     return up.run_up(args, config_from_args(None, args), build_parser())

@@ -82,6 +82,9 @@ Segment = ConstantSegment | WaypointSegment
 
 class Scenario(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     name: str = ""
+    time_limit: PositiveSeconds | None = None
+    """Simulated seconds one pass may last before the drive gives it up (``timed_out``); None: by
+    the drive's rule (``drive.time_limit_factor`` × :func:`planned_duration` + ``drive.time_limit_margin``)."""
     segments: Annotated[list[Segment], msgspec.Meta(min_length=1)]
 
 
@@ -126,7 +129,7 @@ def placed(scenario: Scenario, start: Pose) -> Scenario:
         waypoints = [(start.x + cos * x - sin * y, start.y + sin * x + cos * y) for x, y in segment.waypoints]
         return WaypointSegment(waypoints=waypoints)
 
-    return Scenario(name=scenario.name, segments=[moved(segment) for segment in scenario.segments])
+    return msgspec.structs.replace(scenario, segments=[moved(segment) for segment in scenario.segments])
 
 
 def load_scenario(name_or_path: str) -> Scenario:
@@ -187,6 +190,8 @@ class ScenarioRunner:
         self.waiting_for_pose = False
         self.start_ns: int | None = None
         self.now_ns: int | None = None
+        self.pass_start_ns: int | None = None
+        """When the current pass (iteration) began."""
         self._segment_start_ns: int | None = None
         self._follower: PathFollower | None = None
 
@@ -202,6 +207,20 @@ class ScenarioRunner:
         return (self.now_ns - self.start_ns) / NANOSECONDS_PER_SECOND
 
     @property
+    def pass_elapsed_ns(self) -> int:
+        """Simulated ns since the current pass began (0 before the first step)."""
+        if self.pass_start_ns is None or self.now_ns is None:
+            return 0
+        return self.now_ns - self.pass_start_ns
+
+    def give_up(self) -> None:
+        """End the scenario where it is: from now on the runner is ``done`` and commands zero."""
+        self.done = True
+        self.waiting_for_pose = False
+        self._follower = None
+        self.command = STOPPED
+
+    @property
     def waypoint_index(self) -> int | None:
         """Index of the waypoint the current waypoint segment approaches; None otherwise."""
         return self._follower.waypoint_index if self._follower is not None else None
@@ -214,7 +233,7 @@ class ScenarioRunner:
         """The command from ``now_ns`` (simulation time, ns) until the next tick."""
         dt = 0.0 if self.now_ns is None else (now_ns - self.now_ns) / NANOSECONDS_PER_SECOND
         if self.start_ns is None:
-            self.start_ns = self._segment_start_ns = now_ns
+            self.start_ns = self._segment_start_ns = self.pass_start_ns = now_ns
         self.now_ns = now_ns
         # Each segment that ends hands the same tick to the next, the current one plus one full
         # pass at most, so a looping scenario whose segments are all already done cannot spin.
@@ -256,6 +275,7 @@ class ScenarioRunner:
         elif self.loop:
             self.segment_index = 0
             self.iteration += 1
+            self.pass_start_ns = now_ns
         else:
             self.done = True
 
@@ -295,6 +315,34 @@ def planned_path(scenario: Scenario, start: Pose) -> list[Point]:
                 path.append((x, y))
             pose = Pose(path[-1][0], path[-1][1], heading)
     return path
+
+
+def planned_duration(scenario: Scenario, start: Pose, params: DriveConfig) -> float:
+    """Simulated seconds one pass of ``scenario`` from ``start`` needs by its plan: a constant
+    segment its duration; a waypoint segment each leg at ``cruise_speed`` (plus the time speeding
+    up to it and braking from it, ``cruise_speed``/``max_acceleration``), and each corner sharper
+    than ``turn_in_place_angle`` turned in place at ``max_turn_rate``. An estimate: the drive's
+    time limit is a multiple of it, with a margin."""
+    pose = start
+    total = 0.0
+    for segment in scenario.segments:
+        if isinstance(segment, ConstantSegment):
+            total += segment.duration
+            pose = _advance(pose, segment.vx, segment.w, segment.duration)
+            continue
+        heading, here = pose.theta, (pose.x, pose.y)
+        for point in segment.waypoints:
+            length = math.dist(here, point)
+            if length <= params.goal_tolerance:
+                continue
+            leg_heading = math.atan2(point[1] - here[1], point[0] - here[0])
+            turn = abs(wrap_angle(leg_heading - heading))
+            if turn > params.turn_in_place_angle:
+                total += turn / params.max_turn_rate
+            total += length / params.cruise_speed + params.cruise_speed / params.max_acceleration
+            heading, here = leg_heading, point
+        pose = Pose(here[0], here[1], heading)
+    return total
 
 
 def _arc_samples(segment: ConstantSegment) -> list[float]:

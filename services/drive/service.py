@@ -18,7 +18,11 @@ for while odometry is alive (at most ``sim.lockstep_timeout`` of wall time).
 
 When the scenario ends the drive publishes zero velocity on :data:`FINAL_ZERO_TICKS`
 successive ticks, so the stop is not lost, the last with the attachment
-:data:`~services.clock.lockstep.FINAL`, and exits 0.
+:data:`~services.clock.lockstep.FINAL`, then its outcome on ``drive/outcome`` (latched), and exits
+with the outcome's code (services/drive/outcome.py): 0 ``completed``; 3 ``aborted``, given up
+because the motor stayed latched stopped (``motor/state``; ``sim/bump`` names what it bumped into)
+for ``drive.give_up_after_stop``; 4 ``timed_out``, a pass past the scenario's time limit. A
+``--twist`` holds its target until Ctrl-C and gives nothing up.
 
 A restarted simulator (its liveliness token appears, then its clock goes back) starts the
 scenario over from its first stamp: a new simulator is a new run, the robot back at its start.
@@ -31,12 +35,26 @@ import math
 import time
 from typing import Any
 
+import msgspec
+
 from schemas.keys import Service
-from schemas.messages import NANOSECONDS_PER_SECOND, PlannedPath, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
+from schemas.messages import (
+    NANOSECONDS_PER_SECOND,
+    BumpEvent,
+    MotorStateReport,
+    PlannedPath,
+    ScenarioOutcome,
+    Time,
+    TimedDoubleSeq,
+    TimedPosition,
+    TimedVelocity,
+)
 from services.clock.lockstep import FINAL, decode_owed
 from services.clock.sim_time import PeriodicSchedule, StampClock, check_stamp_near
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, ConfigError, DriveConfig
+from services.drive.outcome import GiveUp, GiveUpRule, Outcome, time_limit
+from services.drive.path_following import STOPPED
 from services.drive.scenarios import (
     BUILTIN_SCENARIOS,
     ConstantSegment,
@@ -148,6 +166,13 @@ class DriveService:
         self.runner = ScenarioRunner(
             placed(scenario, start) if is_builtin(scenario) else scenario, config.drive, loop=loop
         )
+        # A target held by hand (--twist) runs until Ctrl-C: nothing to give up.
+        self.give_up = GiveUpRule(
+            config.drive if self.mode != "twist" else msgspec.structs.replace(config.drive, give_up_after_stop=None),
+            None if self.mode == "twist" else time_limit(self.runner.scenario, start, config.drive),
+        )
+        self.outcome: GiveUp | None = None
+        """How the scenario ended, once it has (completed, or given up)."""
         self.clock = StampClock(config.input.stamp_horizon_ns)
         self.max_coordinate = config.input.max_coordinate
         self.schedule: PeriodicSchedule | None = None
@@ -155,6 +180,7 @@ class DriveService:
         self.pose_stamp_ns: int | None = None
         self.commands_published = 0
         self.final_zeros = 0
+        self._pass_elapsed_s = 0.0
         self.finished = False
         self.odometry_alive = False
         self.pose_wait_s = config.sim.lockstep_timeout
@@ -164,6 +190,9 @@ class DriveService:
         """Lockstep: (tick stamp, wall deadline) of a tick waiting for the odometry pose of its stamp."""
         self.publisher = node.publisher(node.keys.drive_target_velocity)
         self._path = node.latched_publisher(node.keys.drive_path)
+        self._outcome = node.latched_publisher(node.keys.drive_outcome)
+        node.subscribe_latched(node.keys.motor_state, MotorStateReport, self._on_motor_state)
+        node.subscribe(node.keys.sim_bump, BumpEvent, self._on_bump, Delivery.QUEUED)
         self.sim = sim = SimulatorWatch(node, self.clock.restart)
         self._clock_input = node.subscribe(
             node.keys.sim_clock,
@@ -198,6 +227,17 @@ class DriveService:
         if self.schedule is None:
             return "waiting_for_clock" if self.clock.last_ns is None else "waiting_for_subscriber"
         return "waiting_for_pose" if self.runner.waiting_for_pose else "running"
+
+    @property
+    def exit_code(self) -> int:
+        """The outcome's exit code once the drive has finished (services/drive/outcome.py)."""
+        return self.outcome.outcome.exit_code if self.finished and self.outcome is not None else 0
+
+    def _on_motor_state(self, report: MotorStateReport) -> None:
+        self.give_up.motor_state(report.state, report.tm.to_nanoseconds(), report.stopped_by)
+
+    def _on_bump(self, bump: BumpEvent) -> None:
+        self.give_up.bump(bump.obstacle, bump.tm.to_nanoseconds())
 
     def _on_odometry_liveliness(self, alive: bool) -> None:
         self.odometry_alive = alive
@@ -236,6 +276,7 @@ class DriveService:
         self.pose, self.pose_stamp_ns = None, None
         self._pending_tick = None
         self.final_zeros = 0
+        self.outcome = None
         self.node.log.info(
             "simulation time went back to %.3f s (a new simulator): %r starts over",
             now_ns / NANOSECONDS_PER_SECOND,
@@ -285,18 +326,39 @@ class DriveService:
         self._command(tick_ns)
 
     def _command(self, tick_ns: int) -> None:
-        command = self.runner.step(tick_ns, self._fresh_pose(tick_ns))
-        last = self.runner.done and self.final_zeros + 1 >= FINAL_ZERO_TICKS
+        runner = self.runner
+        command = runner.step(tick_ns, self._fresh_pose(tick_ns))
+        if not runner.done and (given_up := self.give_up.check(tick_ns, runner.pass_elapsed_ns)) is not None:
+            runner.give_up()
+            command, self.outcome = STOPPED, given_up
+            self.node.log.warning("%s: %s", given_up.outcome, given_up.reason)
+        last = runner.done and self.final_zeros + 1 >= FINAL_ZERO_TICKS
+        tm = Time.from_nanoseconds(tick_ns)
         self.publisher.put(
-            TimedVelocity(tm=Time.from_nanoseconds(tick_ns), id=[], vx=command.vx, vy=0.0, w=command.w, error=[]),
-            FINAL if last else None,
+            TimedVelocity(tm=tm, id=[], vx=command.vx, vy=0.0, w=command.w, error=[]), FINAL if last else None
         )
         self.commands_published += 1
-        if self.runner.done:
-            self.final_zeros += 1
-            if self.final_zeros == 1:
-                self.node.log.info("scenario ended after %.3f s of simulation time", self.runner.elapsed_s)
-            self.finished = last
+        if not runner.done:
+            return
+        if self.outcome is None:
+            self.outcome = GiveUp(Outcome.COMPLETED, "")
+        self.final_zeros += 1
+        if self.final_zeros == 1:
+            self._pass_elapsed_s = runner.pass_elapsed_ns / NANOSECONDS_PER_SECOND
+            self.node.log.info("scenario %s after %.3f s of simulation time", self.outcome.outcome, runner.elapsed_s)
+        if last:
+            outcome = self.outcome
+            self._outcome.put(
+                ScenarioOutcome(
+                    tm=tm,
+                    scenario=runner.scenario.name,
+                    outcome=outcome.outcome.value,
+                    reason=outcome.reason,
+                    iteration=runner.iteration,
+                    elapsed_s=self._pass_elapsed_s,
+                )
+            )
+            self.finished = True
 
     def status(self) -> dict[str, Any]:
         runner = self.runner
@@ -320,6 +382,13 @@ class DriveService:
             "odometry_alive": self.odometry_alive,
             "lockstep_participant": self.node.participating,
             "pose_wait_timeouts": self.pose_wait_timeouts,
+            "time_limit_s": self.give_up.limit_s,
+            "motor_stopped_since_s": None
+            if self.give_up.stopped_since_ns is None
+            else self.give_up.stopped_since_ns / NANOSECONDS_PER_SECOND,
+            "outcome": None
+            if self.outcome is None
+            else {"outcome": self.outcome.outcome, "reason": self.outcome.reason},
             "pose": None if self.pose is None else self.pose._asdict(),
             "pose_age_s": self.pose_age_s,
         }

@@ -35,10 +35,10 @@ class ComposedService:
     error: BaseException | None = field(default=None, repr=False)
 
     def finished(self) -> int | None:
-        """The exit code once the service's run loop has returned (1 if it raised), or 0 once a
-        service without a loop has finished by itself; else None."""
+        """The exit code once the service's run loop has returned (1 if it raised), or its own once
+        a service without a loop has finished by itself (the drive's outcome); else None."""
         if self.thread is None:
-            return 0 if self.service.finished else None
+            return self.service.exit_code if self.service.finished else None
         if self.thread.is_alive():
             return None
         return self.exit_code if self.error is None else 1

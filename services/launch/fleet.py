@@ -9,7 +9,9 @@ participant's tick output has arrived, so a fleet run repeats bit for bit as a o
 A robot whose service dies degrades only its own part of the run: the sim steps on without waiting
 for what is gone (a dead motor's robot gets zero torque, a dead drive counts as ended), the other
 robots go on, and the report names the robot and the service. The run ends when every robot's
-drive has ended; ``run.mcap`` then holds every robot's keys, ``report.json`` each robot's report under
+drive has ended its scenario with an outcome (completed, aborted or timed out: each robot has its
+own) or lost a service; ``up`` exits 3 if any robot aborted, else 4 if any timed out, else as a
+one-robot run; ``run.mcap`` then holds every robot's keys, ``report.json`` each robot's report under
 ``robots.<name>`` (the one-robot report's fields) and a fleet summary (closest approach between two
 robots, their bumps into each other), and ``<report dir>/<robot>/`` its plots.
 """
@@ -27,6 +29,7 @@ from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, RunSummary, Time
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config, ConfigError
+from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.scenarios import load_scenario
 from services.fleet.description import Fleet, FleetRobot, fleet_configs, load_fleet, robot_flags
 from services.fleet.summary import bumps_between, closest_approach
@@ -40,13 +43,15 @@ from services.launch.run import (
     SECRETS_DIRECTORY,
     SERVICES_BEFORE_DRIVE,
     Access,
+    Outcomes,
     Run,
     ViewProcess,
     default_report_dir,
     launch_services,
+    outcome_exit_code,
     verdict,
 )
-from services.recording.mcap_files import read_messages, robot_report
+from services.recording.mcap_files import read_run, robot_report
 from services.recording.report import (
     degradation_line,
     degradations,
@@ -146,20 +151,30 @@ class FleetRun:
         self._drives = {f"{name}/{Service.DRIVE}" for name in fleet.names}
         self.drive_statuses: dict[str, dict[str, Any] | None] = dict.fromkeys(fleet.names)
         """Each robot's drive's last status, taken while it runs: it exits at the end of its scenario."""
+        self.outcomes: dict[str, Outcome] = {}
+        """Each robot whose drive has ended its scenario, and how (its exit code)."""
 
     def look(self) -> None:
         """Ctrl-C raises Interrupted, a dead router or sim ChildDied; a robot's dead service is noted
-        (once) for that robot only, and a drive that ended its scenario is not dead."""
+        (once) for that robot only, and a drive that ended its scenario (with any outcome) is not dead."""
         if self.run.interrupted.is_set():
             raise Interrupted
         for name, (code, how) in self.launcher.exits().items():
             robot, _, service = name.partition("/")
             if not service:
                 raise ChildDied(f"{name} exited unexpectedly ({how})")
-            if (name in self._drives and code == 0) or service in self.lost[robot]:
+            if name in self._drives and code in OUTCOME_OF_EXIT_CODE:
+                self.outcomes[robot] = OUTCOME_OF_EXIT_CODE[code]
+                continue
+            if service in self.lost[robot]:
                 continue
             self.lost[robot][service] = how
             say(f"{robot}: {service} ended ({how}): only {robot} degrades, the others go on")
+
+    def ended(self, child: str) -> bool:
+        """Whether ``child`` (``robot/service``) ended before the run did: lost, or a drive with an outcome."""
+        robot, _, service = child.partition("/")
+        return service in self.lost.get(robot, {}) or (child in self._drives and robot in self.outcomes)
 
     def status(self, keys: Keys, service: Service) -> dict[str, Any] | None:
         return self.run.query(keys.status(service))
@@ -211,12 +226,15 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     first = configs[fleet.robots[0].name]
     mode = args.mode or first.sim.mode
     interrupted = stop_on_signals()
-    recorder = None if args.no_record else RunRecorder(report_dir)
+    journals = len(fleet.robots) * (len(SERVICES_BEFORE_DRIVE) + 1) + 2  # each robot's services, the sim, up
+    recorder = None if args.no_record else RunRecorder(report_dir, first.record, journals)
     sim_started = False
     health: dict[str, dict[str, Any]] = {}
     try:
         with launch_services(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
             run = FleetRun(Run(launcher, session, Keys(fleet.names[0]), interrupted), fleet)
+            outcomes = Outcomes(session, fleet.names)
+            closing.callback(outcomes.close)
             if args.view is not None:
                 live_view = ViewProcess(
                     [*common, *role_flags(access, Role.OBSERVER), "--robot", fleet.names[0], "--fleet", args.fleet],
@@ -234,7 +252,7 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                     return []
                 directory = recorder.directory / robot
                 directory.mkdir(exist_ok=True)
-                return ["--journal", str(directory)]
+                return ["--journal", str(directory), *recorder.share]
 
             for robot in fleet.robots:
                 state = report_dir / robot.name / MOTOR_STATE_FILE
@@ -295,13 +313,12 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                             health=health[name],
                         )
                     )
-            unclean = {
-                name: code
-                for name, code in launcher.stop().items()
-                if code != 0 and name.partition("/")[2] not in run.lost.get(name.partition("/")[0], {})
-            }
+            for name, published in outcomes.of.items():  # a drive that ended as the sim stopped
+                run.outcomes.setdefault(name, Outcome(published.outcome))
+            unclean = {name: code for name, code in launcher.stop().items() if code != 0 and not run.ended(name)}
             if unclean:
                 say(f"services that did not exit cleanly: {unclean}")
+            outcome_lines = [f"{name}: {outcomes.line(name, outcome)}" for name, outcome in run.outcomes.items()]
     except ChildDied as error:
         say(f"{error}; stopped everything")
         return EXIT_CHILD_DIED
@@ -311,16 +328,19 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     finally:
         if recorder:
             recorder.finish(sim_started, report_dir / RECORDING_FILE, first, tuple(configs.values()))
+    outcome_code = outcome_exit_code(list(run.outcomes.values()))
     if recorder is None:
         degraded = [f"{name}: {reason}" for name in fleet.names for reason in _degradations(health[name])]
-        for line in degraded:
-            print(degradation_line(line), flush=True)
-        return verdict(args, degraded, "done; no recording, no report (--no-record)")
+        for line in [*outcome_lines, *map(degradation_line, degraded)]:
+            print(line, flush=True)
+        return verdict(args, degraded, "done; no recording, no report (--no-record)", outcome_code)
     report = fleet_report(report_dir, fleet, configs)
     for name, robot in report["robots"].items():
         print(f"--- {name} ---\n{summary(robot)}", flush=True)
     print(fleet_summary_line(report["fleet"]), flush=True)
-    return verdict(args, report["degraded"], f"recording: {report_dir / RECORDING_FILE}; report: {report_dir}")
+    return verdict(
+        args, report["degraded"], f"recording: {report_dir / RECORDING_FILE}; report: {report_dir}", outcome_code
+    )
 
 
 def _degradations(health: dict[str, Any]) -> list[str]:
@@ -333,7 +353,7 @@ def fleet_report(report_dir: Path, fleet: Fleet, configs: dict[str, Config]) -> 
     """``report.json`` of a fleet run from its ``run.mcap``: each robot's report (and plots in its
     folder), the fleet summary, and what degraded, each reason prefixed with its robot."""
     path = report_dir / RECORDING_FILE
-    messages = read_messages(path).messages
+    messages = read_run(path).messages
     robots: dict[str, dict[str, Any]] = {}
     tracks: dict[str, list[tuple[float, float, float]]] = {}
     bumps: dict[str, list[tuple[float, str]]] = {}

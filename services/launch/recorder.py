@@ -12,10 +12,11 @@ from pathlib import Path
 import zenoh
 
 from schemas.keys import Keys
-from services.config import Config, ConfigError
+from services.config import Config, ConfigError, RecordConfig
 from services.launch.children import say
-from services.recording.record import StatusPoll, write_run_recording
+from services.recording.record import RunRecording, StatusPoll, write_run_recording
 from services.runtime.journal import Journal, journal_path
+from services.service import journal_limits
 
 JOURNALS_DIRECTORY = "journals"
 """Where the services keep what they publish while the run lasts (made into ``run.mcap`` at its end)."""
@@ -25,9 +26,11 @@ class RunRecorder:
     """The run's recording, made where the samples already are (services/recording/record.py): each service
     keeps what it publishes in a journal in ``<report dir>/journals/``, and this, in ``up``'s own
     journal, the services' status replies and the run's summary. :meth:`write` makes ``run.mcap``
-    of them once every service has stopped (and closed its journal)."""
+    of them once every service has stopped (and closed its journal). ``record`` bounds it all:
+    the ``journals`` journals of the run (the services' and this one) share ``record.max_size``."""
 
-    def __init__(self, report_dir: Path) -> None:
+    def __init__(self, report_dir: Path, record: RecordConfig, journals: int) -> None:
+        self.record = record
         self.directory = report_dir / JOURNALS_DIRECTORY
         self._made = [
             directory for directory in (self.directory, report_dir, *report_dir.parents) if not directory.exists()
@@ -35,10 +38,11 @@ class RunRecorder:
         """The directories this run makes, deepest first: a run that never starts removes them again."""
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
-            self.journal = Journal(journal_path(self.directory, "up"))
+            self.journal = Journal(journal_path(self.directory, "up"), journal_limits(record, journals))
         except OSError as error:
             raise ConfigError(f"--report {report_dir}: {error.strerror}") from None
-        self.flags = ["--journal", str(self.directory)]
+        self.share = ["--journal-share", str(journals)]
+        self.flags = ["--journal", str(self.directory), *self.share]
         """What a service needs to keep its journal here."""
         self._statuses: StatusPoll | None = None
 
@@ -50,14 +54,20 @@ class RunRecorder:
         if self._statuses is not None:
             self._statuses.poll()
 
-    def write(self, path: Path, config: Config, fleet: Sequence[Config] = ()) -> None:
+    def write(self, path: Path, config: Config, fleet: Sequence[Config] = ()) -> RunRecording:
         """``run.mcap`` with the scene of ``config``'s robot, or of every robot of ``fleet``."""
         self._statuses = None
         self.journal.close()
         say(f"writing {path} from what the services published")
-        for journal in write_run_recording(self.directory, path, config, fleet):
+        written = write_run_recording(self.directory, path, config, fleet, self.record)
+        for journal in written.cut_short:
             say(f"{journal.name} was cut short (its service was killed): {path} lacks its last samples")
+        if written.stopped is not None:
+            say(f"the recording stopped before the run did ({written.stopped['reason']}); the robot went on")
+        if len(written.parts) > 1:
+            say(f"the recording is split into {len(written.parts)} files: {', '.join(p.name for p in written.parts)}")
         shutil.rmtree(self.directory)
+        return written
 
     def finish(self, started: bool, path: Path, config: Config, fleet: Sequence[Config] = ()) -> None:
         """At the run's end, however it ended: ``run.mcap`` of what was published (:meth:`write`),

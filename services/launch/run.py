@@ -1,7 +1,8 @@
 """What every run of ``invent up`` shares, for one robot (``services/launch/up.py``) and a fleet
 (``services/launch/fleet.py``) alike: where its files go, how its sessions are configured
 (:class:`Access`), how its services are launched (:func:`launch_services`), how it watches them
-(:class:`Run`), its live view, and how it ends: its exit status (:func:`verdict`)."""
+(:class:`Run`), its live view, and how it ends: each robot's scenario outcome (:class:`Outcomes`)
+and the run's exit status (:func:`verdict`)."""
 
 from __future__ import annotations
 
@@ -13,12 +14,16 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import zenoh
 
+from schemas.codec import BadInput, decode
 from schemas.keys import Keys, Service
+from schemas.messages import ScenarioOutcome
+from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.launch.children import ChildDied, Interrupted, Launcher, Supervisor, describe_exit, say
 from services.launch.composition import Composition
 from services.runtime.session import open_session, session_config
@@ -27,6 +32,8 @@ from services.security import Profile, Role
 EXIT_CHILD_DIED = 1
 EXIT_DEGRADED = 1
 EXIT_INTERRUPTED = 130
+"""With the outcomes' codes (services/drive/outcome.py: 0 completed, 3 aborted, 4 timed out), the
+exit statuses of ``invent up`` (docs/protocol.md section 8.5)."""
 STARTUP_TIMEOUT_S = 60.0
 END_TIMEOUT_S = 10.0
 """How long the sim may take to hold at the drive's last command once the drive has ended."""
@@ -159,17 +166,18 @@ class Run:
         started: float,
         between_looks: Callable[[], None] | None,
         until_interrupted: bool = False,
-    ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
-        """Wait for the drive to finish its scenario (or, ``until_interrupted``, for Ctrl-C: the end
-        of a ``--loop`` or ``--teleop`` run, which has no drive), printing progress and calling
-        ``between_looks``; return the sim's last status and the drive's (taken at every look while it
-        runs: it exits at the end)."""
+    ) -> tuple[dict[str, Any] | None, dict[str, Any] | None, Outcome | None]:
+        """Wait for the drive to end its scenario, with an outcome (its exit code), or, with
+        ``until_interrupted``, for Ctrl-C too (a ``--loop`` run ends when the drive gives a pass up,
+        a ``--teleop`` run, which has no drive, only on Ctrl-C), printing progress and calling
+        ``between_looks``; return the sim's last status, the drive's (taken at every look while it
+        runs: it exits at the end) and the outcome (None: interrupted)."""
         sim_status: dict[str, Any] | None = None
         drive_status: dict[str, Any] | None = None
         next_progress = time.monotonic()
         while True:
             if until_interrupted and self.interrupted.is_set():
-                return self.status(Service.SIM) or sim_status, self.status(Service.DRIVE) or drive_status
+                return self.status(Service.SIM) or sim_status, self.status(Service.DRIVE) or drive_status, None
             self.check(expected_to_finish=drive.name if drive else None)
             code = drive.finished() if drive else None
             if drive and code is None:
@@ -179,13 +187,49 @@ class Run:
                 next_progress = time.monotonic() + PROGRESS_INTERVAL_S
                 if sim_status:
                     _progress(sim_status, time.monotonic() - started)
-            if code == 0:
-                return self.sim_at_end(sim_status), drive_status
+            if code in OUTCOME_OF_EXIT_CODE:
+                return self.sim_at_end(sim_status), drive_status, OUTCOME_OF_EXIT_CODE[code]
             if code is not None:
                 raise ChildDied(f"drive exited unexpectedly ({describe_exit(code)})")
             if between_looks:
                 between_looks()
             time.sleep(0.05)
+
+
+class Outcomes:
+    """Each robot's scenario outcome as its drive publishes it on ``drive/outcome`` with its last
+    command (the reason; the drive's exit code says the outcome even if this sample is lost)."""
+
+    def __init__(self, session: zenoh.Session, robots: Sequence[str]) -> None:
+        self.of: dict[str, ScenarioOutcome] = {}
+        self._subscribers = [
+            session.declare_subscriber(Keys(robot).drive_outcome, partial(self._take, robot)) for robot in robots
+        ]
+
+    def _take(self, robot: str, sample: zenoh.Sample) -> None:
+        try:
+            self.of[robot] = decode(ScenarioOutcome, sample.payload.to_bytes())
+        except BadInput:  # not the drive's: its exit code still tells how its scenario ended
+            pass
+
+    def line(self, robot: str, outcome: Outcome) -> str:
+        """``outcome: aborted (bumped into 'box' ...)``, the reason when the drive's sample came."""
+        published = self.of.get(robot)
+        reason = published.reason if published is not None and published.outcome == outcome else ""
+        return f"outcome: {outcome}" + (f" ({reason})" if reason else "")
+
+    def close(self) -> None:
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+
+
+def outcome_exit_code(outcomes: Sequence[Outcome | None]) -> int:
+    """The run's exit code from its robots' outcomes: aborted if any robot aborted, else timed out
+    if any timed out, else 0 (every robot completed; an interrupted robot has None)."""
+    for worst in (Outcome.ABORTED, Outcome.TIMED_OUT):
+        if worst in outcomes:
+            return worst.exit_code
+    return 0
 
 
 class ViewProcess:
@@ -216,9 +260,13 @@ class ViewProcess:
             say(f"view did not exit cleanly ({describe_exit(code)})")
 
 
-def verdict(args: argparse.Namespace, degraded: list[str], done: str) -> int:
-    """Say what was written; under ``--strict`` a degraded run exits 1."""
+def verdict(args: argparse.Namespace, degraded: list[str], done: str, outcome_code: int = 0) -> int:
+    """Say what was written; a scenario given up exits with its outcome's code, else under
+    ``--strict`` a degraded run exits 1."""
     say(done)
+    if outcome_code:
+        say(f"the scenario was given up: exit {outcome_code}")
+        return outcome_code
     if degraded and args.strict:
         say(f"--strict: the run degraded ({len(degraded)} reason{'s' * (len(degraded) > 1)}): exit {EXIT_DEGRADED}")
         return EXIT_DEGRADED

@@ -4,13 +4,15 @@ Starts the router, then motor, odometry, localization and the drive with the sce
 until they are alive and the drive and the localization hold their lockstep tokens, and
 starts the sim last, so a lockstep run steps the whole loop from its first step and starts the
 same way every time (services/clock/lockstep.py). Children's output is prefixed with their name. The
-run ends when the drive finishes its scenario (exit 0) and the sim holds at the step of its
-last command (``--until-drive-ends``): ``up`` then reads the services' status, publishes the
+run ends when the drive ends its scenario, with an outcome (its exit code: completed, or given up,
+aborted or timed out; services/drive/outcome.py), and the sim holds at the step of its last
+command (``--until-drive-ends``): ``up`` then reads the services' status, publishes the
 run's summary (``up/run``), stops every child with SIGINT, makes ``run.mcap`` of what they
 published (:class:`RunRecorder`) and builds the report from it, as ``invent report run.mcap``
 does (``--no-record``: no recording, no report, for long runs and benchmarks). A child that dies
 early makes ``up`` say which one, stop the others and exit 1. Ctrl-C stops everything cleanly
-(exit 130). Either way ``run.mcap`` holds the run up to then. With ``--composed`` the same
+(exit 130). Either way ``run.mcap`` holds the run up to then. ``up`` exits with the outcome's
+code (0, 3 aborted, 4 timed out; docs/protocol.md section 8.5). With ``--composed`` the same
 services run in this one process instead (``services/launch/composition.py``); a fleet's run is ``services/launch/fleet.py``.
 """
 
@@ -36,10 +38,12 @@ from services.launch.run import (
     SECRETS_DIRECTORY,
     SERVICES_BEFORE_DRIVE,
     Access,
+    Outcomes,
     Run,
     ViewProcess,
     default_report_dir,
     launch_services,
+    outcome_exit_code,
     verdict,
 )
 from services.recording import view
@@ -130,12 +134,16 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     scenario = TELEOP if args.teleop else args.scenario
     interrupted = stop_on_signals()
     recording = not (args.no_record or args.loop or args.teleop)
-    recorder = RunRecorder(report_dir) if recording else None
+    # the journals: the services', the drive's, the sim's and up's own
+    journals = len(SERVICES_BEFORE_DRIVE) + args.ros2 + 3
+    recorder = RunRecorder(report_dir, config.record, journals) if recording else None
     journal_flags = recorder.flags if recorder else []
     sim_started = False
     try:
         with launch_services(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
             run = Run(launcher, session, keys, interrupted)
+            outcomes = Outcomes(session, [keys.robot])
+            closing.callback(outcomes.close)
             summary_publisher = Publisher(session, keys.run_summary, recorder.journal if recorder else None)
             if recorder:
                 recorder.watch(session, keys)
@@ -172,7 +180,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
             launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *journal_flags, *sim_flags])
             sim_started = True
             started = time.monotonic()
-            sim_status, drive_status = run.supervise(
+            sim_status, drive_status, outcome = run.supervise(
                 drive, started, recorder.during if recorder else None, until_interrupted=args.loop or args.teleop
             )
             wall_time_s = time.monotonic() - started
@@ -193,9 +201,14 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
                         health=health,
                     )
                 )
-            unclean = {name: code for name, code in launcher.stop().items() if code != 0}
+            unclean = {
+                name: code
+                for name, code in launcher.stop().items()
+                if code != 0 and not (name == str(Service.DRIVE) and outcome is not None)
+            }
             if unclean:
                 say(f"services that did not exit cleanly: {unclean}")
+            outcome_line = None if outcome is None else outcomes.line(keys.robot, outcome)
     except ChildDied as error:
         say(f"{error}; stopped everything")
         return EXIT_CHILD_DIED
@@ -207,13 +220,15 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
             recorder.finish(sim_started, report_dir / RECORDING_FILE, config)
     if not recorder:
         degraded = degradations(health)
-        print("\n".join([*health_lines(health), *map(degradation_line, degraded)]), flush=True)
+        lines = [*([outcome_line] if outcome_line else []), *health_lines(health), *map(degradation_line, degraded)]
+        print("\n".join(lines), flush=True)
         return verdict(
             args,
             degraded,
             "done; no recording, no report ("
             + ("--teleop" if args.teleop else "--loop" if args.loop else "--no-record")
             + ")",
+            outcome_exit_code([outcome]),
         )
     report, path, plots = write_run_report(report_dir / RECORDING_FILE, report_dir, config)
     print(summary(report), flush=True)
@@ -221,6 +236,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
         args,
         report["degraded"],
         f"recording: {report_dir / RECORDING_FILE}; report: {path}; plots: {', '.join(str(p) for p in plots)}",
+        outcome_exit_code([outcome]),
     )
 
 
@@ -251,6 +267,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-record",
         action="store_true",
         help=f"record nothing, so write no report (it is built from {RECORDING_FILE}): for long runs and benchmarks",
+    )
+    parser.add_argument(
+        "--record-full-rate",
+        action="store_true",
+        help="record every simulation step (the control path, the poses), not only the observed steps the report "
+        "needs: about ten times the size, for debugging the loop (the same as --set record.rate=every_step; "
+        "the [record] table caps and splits a recording: README, Rates and bounds)",
     )
     parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
     parser.add_argument(

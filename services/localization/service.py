@@ -79,6 +79,7 @@ def _pose_dict(fix: Fix | None) -> dict[str, Any] | None:
 class LocalizationService:
     finished = False
     """It serves until stopped."""
+    exit_code = 0
 
     def __init__(self, node: Node, config: Config, _args: argparse.Namespace) -> None:
         self.node = node

@@ -28,7 +28,16 @@ import msgspec
 
 from schemas.codec import BadInput, decode
 from schemas.keys import METHOD_ARGUMENTS, Method, MethodFamily, Service, Topic
-from schemas.messages import NoArguments, PDGains, Time, TimedDoubleSeq, TimedVelocity
+from schemas.messages import (
+    MotorStateName,
+    MotorStateReport,
+    NoArguments,
+    PDGains,
+    StopCause,
+    Time,
+    TimedDoubleSeq,
+    TimedVelocity,
+)
 from services.clock.lockstep import Hold, decode_mark, observed
 from services.clock.sim_time import ClockRestart
 from services.clock.sim_watch import HeldSample, SimulatorWatch
@@ -73,6 +82,7 @@ class TraceRecord(msgspec.Struct, frozen=True):
 class MotorService:
     finished = False
     """It serves until stopped."""
+    exit_code = 0
 
     def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
         self.node = node
@@ -90,9 +100,14 @@ class MotorService:
         self._warn = RateLimitedLog(node.log)
         self._trace = TraceFile.from_flag(args.trace)
         self._state_file = StateFile(Path(args.state) if args.state else default_state_path(config.robot.name))
+        self.stopped_by: StopCause = ""
+        """Who latched the emergency stop (``motor/state``'s ``stopped_by``)."""
         self.restored = self._restore()
 
         keys = node.keys
+        self._state = node.latched_publisher(keys.motor_state)
+        self._state_published: tuple[str, StopCause] = ("", "")
+        self._publish_state()
         self._torque = node.publisher(keys.motor_torque)
         self._wheel_angles = node.publisher(keys.motor_wheel_angles)
         self._sim_pose_gui = node.publisher(keys.motor_sim_pose_gui)
@@ -146,10 +161,13 @@ class MotorService:
                 self.core.restore(saved.stopped, saved.finished, saved.gains)
         except (ValueError, BadInput) as error:
             self.core.stop()
+            self.stopped_by = "state_file"
             log.error("state file %s unreadable (%s): starting stopped; clear to run", path, error)
             return {"from": str(path), "error": str(error), "stopped": True}
         if saved is None:
             return None
+        if saved.stopped:
+            self.stopped_by = "state_file"
         log.log(
             logging.WARNING if saved.stopped else logging.INFO,
             "restored from %s: %s, gains %s",
@@ -162,10 +180,16 @@ class MotorService:
     def _control(self, angles: TimedDoubleSeq, attachment: bytes | None) -> None:
         tm = angles.tm
         core = self.core
-        torques = core.step(tm.to_nanoseconds(), angles.data)
-        self._torque.put(TimedDoubleSeq(tm, torques))
-        self._wheel_angles.put(angles, attachment)
+        stamp_ns = tm.to_nanoseconds()
+        torques = core.step(stamp_ns, angles.data)
+        # A run recorded at the observed steps keeps the control path's samples of those only.
+        node = self.node
+        keep = node.recording and (node.recording_every_step or observed(decode_mark(attachment, stamp_ns)))
+        self._torque.put(TimedDoubleSeq(tm, torques), keep=keep)
+        self._wheel_angles.put(angles, attachment, keep=keep)
         self.torques_published += 1
+        if core.state != self._state_published[0]:
+            self._publish_state()
         trace = self._trace
         if trace is not None:
             trace.write(self._trace_record(angles, torques))
@@ -206,7 +230,7 @@ class MotorService:
     def _on_body_pose(self, pose: TimedDoubleSeq, attachment: bytes | None) -> None:
         stamp_ns = pose.tm.to_nanoseconds()
         publish = observed(decode_mark(attachment, stamp_ns))
-        recording = self.node.recording
+        recording = self.node.recording_every_step
         if not (publish or recording):
             return
         sim_pose = TimedDoubleSeq(pose.tm, self.core.sim_pose(pose.data, stamp_ns))
@@ -218,6 +242,16 @@ class MotorService:
                 publisher.put(sim_pose)
             elif recording:
                 publisher.record(sim_pose)
+
+    def _publish_state(self) -> None:
+        """``motor/state`` (latched), when the state or who stopped the motor has changed."""
+        current = (str(self.core.state), self.stopped_by)
+        if current == self._state_published:
+            return
+        self._state_published = current
+        stamp_ns = self.core.time_ns or 0
+        state = typing.cast(MotorStateName, current[0])
+        self._state.put(MotorStateReport(Time.from_nanoseconds(stamp_ns), state=state, stopped_by=self.stopped_by))
 
     def _on_target_velocity(self, velocity: TimedVelocity) -> None:
         stamp_ns = velocity.tm.to_nanoseconds()
@@ -236,9 +270,12 @@ class MotorService:
             core.finish()
         elif method is Method.STOP:
             core.stop()
+            self.stopped_by = family.value
         elif method is Method.CLEAR:
             core.clear()
+            self.stopped_by = ""
             self.node.bad_inputs.reset()
+        self._publish_state()
         try:
             self._state_file.save(SavedState(core.stopped, core.finished, core.gains))
         except OSError as error:  # the call has acted: say what will not survive a restart

@@ -37,6 +37,7 @@ STATE_RUNNING = "running"
 class OdometryService:
     finished = False
     """It serves until stopped."""
+    exit_code = 0
 
     def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
         self.node = node
@@ -82,7 +83,7 @@ class OdometryService:
         self.last_tm = sample.tm
         if self._trace is not None:
             self._trace.write({"tm": sample.tm, **step._asdict(), "localization_resets": self.localization_resets})
-        if self.node.recording or observed(decode_mark(attachment, stamp_ns)):
+        if self.node.recording_every_step or observed(decode_mark(attachment, stamp_ns)):
             self._pose.put(TimedPosition(tm=sample.tm, id=[], x=step.x, y=step.y, theta=step.theta, error=[]))
 
     def _on_localized_pose(self, pose: TimedPosition) -> None:

@@ -40,6 +40,7 @@ from schemas.messages import (
     NANOSECONDS_PER_SECOND,
     PlannedPath,
     RunSummary,
+    ScenarioOutcome,
     Time,
     TimedDoubleSeq,
     TimedPosition,
@@ -101,6 +102,8 @@ class McapWriter:
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
         self.messages = 0
+        self.message_bytes = 0
+        """The messages' bytes, uncompressed (the file, compressed by chunks, is smaller)."""
 
     def write_sample(self, key: str, payload: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
         """A zenoh sample, on the channel of its key; ``publish_time_ns`` its ``tm`` (found here when None)."""
@@ -131,6 +134,7 @@ class McapWriter:
     def _write(self, channel: int, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
         self._writer.add_message(channel, log_time_ns, data, publish_time_ns, sequence=self.messages)
         self.messages += 1
+        self.message_bytes += len(data)
 
     def _key_schema(self, key: str) -> int:
         schema = key_json_schema(key)
@@ -171,6 +175,21 @@ class ReadResult:
     messages: list[RecordedMessage]
     complete: bool
     """False when the file ends before its summary (the recorder was killed): every whole chunk was read."""
+
+
+def recording_parts(path: Path) -> list[Path]:
+    """The files of the recording ``path`` in order: ``path`` itself, then, for a recording split
+    by ``record.split_size`` or ``record.split_duration``, ``<stem>_1.mcap``, ``<stem>_2.mcap``, ..."""
+    parts = [path]
+    while (part := path.with_name(f"{path.stem}_{len(parts)}{path.suffix}")).exists():
+        parts.append(part)
+    return parts
+
+
+def read_run(path: Path) -> ReadResult:
+    """Every message of the recording ``path`` and of the files it was split into, in order."""
+    results = [read_messages(part) for part in recording_parts(path)]
+    return ReadResult([m for result in results for m in result.messages], all(r.complete for r in results))
 
 
 def read_messages(path: Path) -> ReadResult:
@@ -307,7 +326,7 @@ def write_run_report(path: Path, report_dir: Path, config: Config) -> tuple[dict
     """``report.json`` and the plots of the run recorded in ``path`` (``invent up`` writes that
     file; ``invent report`` reads any): (report, its path, the plots' paths). ConfigError when the
     file holds no run (no ``up/run`` summary of ``config.robot.name``)."""
-    report, recording = robot_report(path, read_messages(path).messages, config)
+    report, recording = robot_report(path, read_run(path).messages, config)
     report_path = write_report(report, report_dir)
     plots = write_plots(recording, report.get("planned_path"), config.robot, report_dir)
     return report, report_path, plots
@@ -334,4 +353,44 @@ def robot_report(path: Path, messages: list[RecordedMessage], config: Config) ->
         health=summary.health,
     )
     report["composed"] = summary.composed
+    report["outcome"] = scenario_outcome(messages, keys)
+    report["recording"] = recording_bounds(messages)
     return report, recording
+
+
+RECORDING_STOPPED_TOPIC = "/recording/stopped"
+"""The message a recording ends with when it stopped before its run (a limit of ``[record]``)."""
+RECORDING_STOPPED_SCHEMA = {
+    "title": "invent.RecordingStopped",
+    "type": "object",
+    "properties": {
+        "reason": {"type": "string"},
+        "journal": {"type": "string"},
+        "stopped_at_s": {"type": ["number", "null"], "description": "the simulation time of the last sample kept"},
+    },
+}
+
+
+def recording_bounds(messages: list[RecordedMessage]) -> dict[str, Any] | None:
+    """Why the recording stopped before its run ended (None: it holds the whole run)."""
+    stops = [m for m in messages if m.topic == RECORDING_STOPPED_TOPIC]
+    return json.loads(stops[0].data) if stops else None
+
+
+def scenario_outcome(messages: list[RecordedMessage], keys: Keys) -> dict[str, Any] | None:
+    """How the robot's scenario ended, from the drive's last ``drive/outcome`` (None: the run was
+    interrupted, or has no scenario: ``--teleop``)."""
+    outcomes = [m for m in messages if m.topic == keys.drive_outcome]
+    if not outcomes:
+        return None
+    try:
+        outcome = decode(ScenarioOutcome, outcomes[-1].data)
+    except BadInput:
+        return None
+    return {
+        "outcome": outcome.outcome,
+        "reason": outcome.reason,
+        "t_s": outcome.tm.to_seconds(),
+        "iteration": outcome.iteration,
+        "elapsed_s": outcome.elapsed_s,
+    }

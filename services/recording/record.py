@@ -21,6 +21,7 @@ publishes.
 from __future__ import annotations
 
 import heapq
+import json
 import logging
 import threading
 import time
@@ -33,11 +34,17 @@ import zenoh
 
 from schemas.codec import BadInput, decode
 from schemas.keys import LATCHED_TOPICS, TOPIC_TYPES, Keys, Topic, TopicMessage
-from services.config import Config
-from services.recording.mcap_files import LATEST_STAMP_NS, McapWriter
+from schemas.messages import NANOSECONDS_PER_SECOND
+from services.config import Config, RecordConfig
+from services.recording.mcap_files import (
+    LATEST_STAMP_NS,
+    RECORDING_STOPPED_SCHEMA,
+    RECORDING_STOPPED_TOPIC,
+    McapWriter,
+)
 from services.recording.scene import WHEEL_SPEEDS_SCHEMA, WHEEL_SPEEDS_TOPIC, Scene
+from services.runtime.journal import ALWAYS_KEPT, MB, STOPPED_KEY, JournalEntry, JournalReader
 from services.runtime.journal import SUFFIX as JOURNAL_SUFFIX
-from services.runtime.journal import JournalEntry, JournalReader
 from services.runtime.logs import RateLimitedLog
 from services.runtime.session import has_match
 
@@ -264,20 +271,113 @@ def run_record(
     return 0
 
 
-def write_run_recording(journals: Path, output: Path, config: Config, fleet: Sequence[Config] = ()) -> list[Path]:
+@dataclass
+class RunRecording:
+    """What :func:`write_run_recording` wrote."""
+
+    parts: list[Path]
+    """The files, ``run.mcap`` first (more when ``record.split_*`` split it)."""
+    cut_short: list[Path]
+    """The journals whose publisher was killed (they lack their last samples)."""
+    stopped: dict[str, Any] | None
+    """Why the recording stopped before the run ended (a limit of ``[record]``), or None."""
+
+
+def write_run_recording(
+    journals: Path, output: Path, config: Config, fleet: Sequence[Config] = (), record: RecordConfig | None = None
+) -> RunRecording:
     """``output`` (``invent up``'s ``run.mcap``) from the journals (services/runtime/journal.py) in
     ``journals`` and below it (a fleet's robots have a folder each), merged in publication order a
-    frame at a time, with the scene, as :func:`run_record` would have recorded them; returns the
-    journals that were cut short (their publisher was killed)."""
+    frame at a time, with the scene, as :func:`run_record` would have recorded them, within
+    ``record``'s bounds: split into ``<stem>_1.mcap``, ... by ``split_size`` and ``split_duration``;
+    stopped (but for what says how the run ended, :data:`ALWAYS_KEPT`) at ``max_size``, or where the
+    first journal stopped (its limit, or a disk running low), which the last file then says on
+    :data:`RECORDING_STOPPED_TOPIC`."""
+    record = record or RecordConfig()
     readers = [JournalReader(path) for path in sorted(journals.rglob(f"*{JOURNAL_SUFFIX}"))]
-    writer = McapWriter(output)
+    writer = _SplitWriter(output, record)
+    stopped: dict[str, Any] | None = None
+    latest_stamp_ns: int | None = None
     try:
         builder = SceneBuilder(config, writer_sink(writer), fleet)
         for key, payload, published_ns in heapq.merge(*readers, key=_publication_time):
+            if stopped is None:
+                if key == STOPPED_KEY:
+                    stopped = json.loads(payload)
+                elif writer.full:
+                    stopped = {"reason": f"record.max_size: {record.max_size} MB written", "journal": ""}
+            if key == STOPPED_KEY or (stopped is not None and not key.endswith(ALWAYS_KEPT)):
+                continue
             builder.take(key, payload, published_ns)
+            if stopped is None:
+                latest_stamp_ns = writer.latest_stamp_ns
+        if stopped is not None:
+            stopped["stopped_at_s"] = None if latest_stamp_ns is None else latest_stamp_ns / NANOSECONDS_PER_SECOND
+            writer.write_json(RECORDING_STOPPED_TOPIC, stopped, RECORDING_STOPPED_SCHEMA, latest_stamp_ns or 0, 0)
     finally:
         writer.close()
-    return [reader.path for reader in readers if not reader.complete]
+    return RunRecording(writer.parts, [reader.path for reader in readers if not reader.complete], stopped)
+
+
+class _SplitWriter:
+    """An :class:`McapWriter` that goes on in a new file at ``record.split_size`` or every
+    ``record.split_duration`` of simulation time, and says when ``record.max_size`` is written
+    (sizes are of the messages, uncompressed: a file is smaller, by its chunks' compression)."""
+
+    def __init__(self, output: Path, record: RecordConfig) -> None:
+        self._output = output
+        self._split_bytes = None if record.split_size is None else record.split_size * MB
+        self._split_ns = (
+            None if record.split_duration is None else round(record.split_duration * NANOSECONDS_PER_SECOND)
+        )
+        self._max_bytes = None if record.max_size is None else record.max_size * MB
+        self._written_before = 0
+        self.parts = [output]
+        self._writer = McapWriter(output)
+        self._part_start_ns: int | None = None
+        self.latest_stamp_ns: int | None = None
+
+    @property
+    def messages(self) -> int:
+        return self._writer.messages
+
+    @property
+    def full(self) -> bool:
+        return self._max_bytes is not None and self._written_before + self._writer.message_bytes >= self._max_bytes
+
+    def _next_part(self, stamp_ns: int | None) -> None:
+        """Before a message stamped ``stamp_ns``: a new file if this one is full or its time is up."""
+        if stamp_ns is not None:
+            self.latest_stamp_ns = stamp_ns if self.latest_stamp_ns is None else max(self.latest_stamp_ns, stamp_ns)
+            if self._part_start_ns is None:
+                self._part_start_ns = stamp_ns
+        by_size = self._split_bytes is not None and self._writer.message_bytes >= self._split_bytes
+        by_time = (
+            self._split_ns is not None
+            and stamp_ns is not None
+            and self._part_start_ns is not None
+            and stamp_ns >= self._part_start_ns + self._split_ns
+        )
+        if by_size or by_time:
+            self._writer.close()
+            self._written_before += self._writer.message_bytes
+            part = self._output.with_name(f"{self._output.stem}_{len(self.parts)}{self._output.suffix}")
+            self.parts.append(part)
+            self._writer = McapWriter(part)
+            self._part_start_ns = stamp_ns
+
+    def write_sample(self, key: str, payload: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+        self._next_part(publish_time_ns)
+        self._writer.write_sample(key, payload, log_time_ns, publish_time_ns)
+
+    def write_json(self, topic: str, value: Any, schema: dict[str, Any], stamp_ns: int, log_time_ns: int) -> None:
+        self._writer.write_json(topic, value, schema, stamp_ns, log_time_ns)
+
+    def write_foxglove(self, topic: str, message: Any, stamp_ns: int, log_time_ns: int) -> None:
+        self._writer.write_foxglove(topic, message, stamp_ns, log_time_ns)
+
+    def close(self) -> None:
+        self._writer.close()
 
 
 def _publication_time(entry: JournalEntry) -> int:

@@ -221,6 +221,8 @@ def summary(report: dict[str, Any]) -> str:
             f"{report['wall_time_s']:.2f} s wall, {report['real_time_factor'] or 0:.2f}x real time, {report['steps']} steps"
         ),
     ]
+    if outcome := report.get("outcome"):
+        lines.append(f"outcome: {outcome['outcome']}" + (f" ({outcome['reason']})" if outcome["reason"] else ""))
     if final and start:
         lines.append(
             f"ground truth ends at ({final['x']:.3f}, {final['y']:.3f}, {math.degrees(final['theta']):.1f} deg), "

@@ -136,6 +136,7 @@ class PendingCall:
 class Ros2Bridge:
     finished = False
     """It serves until stopped."""
+    exit_code = 0
 
     def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
         self.node = node

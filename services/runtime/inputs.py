@@ -54,17 +54,19 @@ class Publisher:
         self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(ENCODING))
         self._journal = journal
 
-    def put(self, message: msgspec.Struct, attachment: bytes | None = None) -> None:
+    def put(self, message: msgspec.Struct, attachment: bytes | None = None, *, keep: bool = True) -> None:
+        """Publish ``message``; keep it in the journal too unless not ``keep`` (a control-path
+        sample of a step that is not observed, in a run recorded at the observed steps)."""
         payload = encode(message)
         self._publisher.put(payload, attachment=attachment)
-        if self._journal is not None:
-            self._journal.write(self.key, payload)
+        if self._journal is not None and keep:
+            self._journal.write(self.key, payload, stamp_ns=_stamp_ns(message))
 
     def record(self, message: msgspec.Struct) -> None:
         """Keep ``message`` in the journal (if any) without publishing it: an output computed at a
-        step that is not observed, for a recorded run (docs/protocol.md section 2.7)."""
+        step that is not observed, for a run recorded at every step (docs/protocol.md section 2.7)."""
         if self._journal is not None:
-            self._journal.write(self.key, encode(message))
+            self._journal.write(self.key, encode(message), stamp_ns=_stamp_ns(message))
 
     @property
     def matched(self) -> bool:
@@ -76,6 +78,12 @@ class Publisher:
 
     def undeclare(self) -> None:
         self._publisher.undeclare()
+
+
+def _stamp_ns(message: msgspec.Struct) -> int | None:
+    """A data message's stamp (every data key's message has its ``tm``), for the journal's limits."""
+    tm = getattr(message, "tm", None)
+    return None if tm is None else tm.to_nanoseconds()
 
 
 class LatchedPublisher:

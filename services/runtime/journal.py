@@ -9,13 +9,21 @@ msgpack array of ``[key, payload, publication time in Unix ns]``, one frame per
 :data:`BATCH_SAMPLES` samples, and a frame of length 0 at the end of a journal closed properly. A
 service killed with SIGKILL loses at most the batch it was filling; :class:`JournalReader` reads
 every whole frame of a journal without its end, and says it was cut short.
+
+A journal is bounded (:class:`JournalLimits`, from the robot description's ``[record]``): it stops
+keeping samples once its file reaches its share of ``record.max_size``, once a sample is stamped
+after ``record.max_duration``, or once its disk has less than ``record.min_free_disk`` free, and
+then writes a :data:`STOPPED_KEY` entry saying when and why. What ends a run (``up/run``, the
+drive's outcome) and what happens rarely (:data:`ALWAYS_KEPT`) it keeps to the end.
 """
 
 from __future__ import annotations
 
+import os
 import struct
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import msgspec
@@ -29,6 +37,21 @@ JournalEntry = tuple[str, bytes, int]
 """(key, payload, publication time in Unix ns)"""
 
 _BATCH = msgspec.msgpack.Decoder(list[JournalEntry])
+STOPPED_KEY = "@journal/stopped"
+"""The entry a journal that stops early writes: its payload JSON ``{"reason", "journal"}`` (its
+file's name), its time when."""
+ALWAYS_KEPT = ("/up/run", "/drive/outcome", "/drive/path", "/sim/world", "/motor/state", "/sim/bump")
+"""Keys (by suffix) a stopped journal still keeps: a few samples per run, what says how it ended."""
+MB = 1_000_000
+
+
+@dataclass(frozen=True)
+class JournalLimits:
+    """When a journal stops keeping samples (None: never for that reason)."""
+
+    max_bytes: int | None = None
+    max_stamp_ns: int | None = None
+    min_free_bytes: int = 0
 
 
 def journal_path(directory: Path, name: str) -> Path:
@@ -37,16 +60,31 @@ def journal_path(directory: Path, name: str) -> Path:
 
 
 class Journal:
-    """Appends the samples one process publishes to its journal file; :meth:`close` writes the rest."""
+    """Appends the samples one process publishes to its journal file, within its :class:`JournalLimits`;
+    :meth:`close` writes the rest."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, limits: JournalLimits | None = None, every_step: bool = False) -> None:
         self.path = path
+        self.limits = limits or JournalLimits()
+        self.every_step = every_step
+        """Whether the run records every simulation step (``record.rate``), not the observed ones."""
+        self.stopped: tuple[int, str] | None = None
+        """(Unix ns, reason) once the journal has stopped keeping samples."""
         self._file = path.open("wb")
+        self._written = 0
         self._batch: list[JournalEntry] = []
         self._encoder = msgspec.msgpack.Encoder()
+        self._check_disk()
 
-    def write(self, key: str, payload: bytes, time_ns: int | None = None) -> None:
-        """A sample of ``key`` published (or, for ``time_ns``, taken) now."""
+    def write(self, key: str, payload: bytes, time_ns: int | None = None, stamp_ns: int | None = None) -> None:
+        """A sample of ``key`` published (or, for ``time_ns``, taken) now, stamped ``stamp_ns`` in
+        simulation time (checked against ``max_stamp_ns`` when given)."""
+        if self.stopped is not None and not key.endswith(ALWAYS_KEPT):
+            return
+        limit = self.limits.max_stamp_ns
+        if limit is not None and stamp_ns is not None and stamp_ns > limit and not key.endswith(ALWAYS_KEPT):
+            self._stop(f"record.max_duration: nothing stamped after {limit / 1e9:.3f} s is recorded")
+            return
         self._batch.append((key, payload, time.time_ns() if time_ns is None else time_ns))
         if len(self._batch) >= BATCH_SAMPLES:
             self._write_batch()
@@ -55,7 +93,30 @@ class Journal:
         frame = self._encoder.encode(self._batch)
         self._file.write(_LENGTH.pack(len(frame)) + frame)
         self._file.flush()
+        self._written += _LENGTH.size + len(frame)
         self._batch.clear()
+        max_bytes = self.limits.max_bytes
+        if max_bytes is not None and self._written >= max_bytes:
+            self._stop(f"record.max_size: this journal reached its share, {max_bytes / MB:.1f} MB")
+        self._check_disk()
+
+    def _check_disk(self) -> None:
+        if self.limits.min_free_bytes <= 0 or self.stopped is not None:
+            return
+        disk = os.statvfs(self.path.parent)
+        free = disk.f_bavail * disk.f_frsize
+        if free < self.limits.min_free_bytes:
+            self._stop(
+                f"record.min_free_disk: {free / MB:.0f} MB free on the disk of {self.path.parent}, "
+                f"under {self.limits.min_free_bytes / MB:.0f} MB"
+            )
+
+    def _stop(self, reason: str) -> None:
+        """Keep nothing more but :data:`ALWAYS_KEPT`, and say so in the journal, in time order."""
+        if self.stopped is None:
+            self.stopped = (time.time_ns(), reason)
+            stop = {"reason": reason, "journal": self.path.name}
+            self._batch.append((STOPPED_KEY, msgspec.json.encode(stop), self.stopped[0]))
 
     def close(self) -> None:
         if self._file.closed:

@@ -103,9 +103,15 @@ class Node:
 
     @property
     def recording(self) -> bool:
-        """Whether the node keeps a journal of what it publishes (``invent up``'s recording): a
-        recorded run records its observed outputs at every step."""
+        """Whether the node keeps a journal of what it publishes (``invent up``'s recording)."""
         return self._journal is not None
+
+    @property
+    def recording_every_step(self) -> bool:
+        """Whether the run is recorded at every simulation step (``record.rate = "every_step"``):
+        the observed outputs are then computed and kept at every step, and the control path's
+        samples of every step kept too; else only the observed steps' are."""
+        return self._journal is not None and self._journal.every_step
 
     def set_status(self, status: Callable[[], dict[str, Any]]) -> None:
         self._status = status
@@ -175,6 +181,41 @@ class Node:
         self._inputs.append(node_input)
         return node_input
 
+    def subscribe_latched(self, key: str, message_type: type[MessageT], handler: Callable[[MessageT], None]) -> None:
+        """Every sample of a latched key (:meth:`latched_publisher`), as :attr:`Delivery.QUEUED`
+        hands them, and first the last message its publisher put before this node subscribed: it is
+        asked once the publisher's queryable is reachable, and handed over unless a sample came
+        first (a sample is never older than the reply)."""
+        sampled = False
+
+        def on_sample(message: MessageT) -> None:
+            nonlocal sampled
+            sampled = True
+            handler(message)
+
+        def on_reply(payload: bytes, _attachment: bytes | None) -> None:
+            if not sampled:
+                on_sample(decode(message_type, payload))
+
+        self.subscribe(key, message_type, on_sample, Delivery.QUEUED)
+        dispatch_reply = self._dispatch(key, on_reply, Delivery.QUEUED, count=False)
+        querier = self.session.declare_querier(key)
+        post = self.executor.post
+        asked = False
+
+        def take_reply(reply: zenoh.Reply) -> None:
+            if reply.ok is not None:
+                post(lambda payload: dispatch_reply(payload, None), reply.ok.payload.to_bytes())
+
+        def ask(matching: bool) -> None:
+            nonlocal asked
+            if matching and not asked:
+                asked = True
+                querier.get(take_reply)
+
+        self._declarations.append(querier)
+        self._declarations.append(querier.declare_matching_listener(lambda status: post(ask, status.matching)))
+
     def queryable(self, key: str, handler: _QueryHandler, *, mutates: bool = False) -> None:
         """Answer queries on ``key`` from the service thread.
 
@@ -217,14 +258,19 @@ class Node:
 
         self._declarations.append(self.session.declare_queryable(key, on_query))
 
-    def _dispatch(self, key: str, handle: Callable[[bytes, bytes | None], None], delivery: Delivery) -> Dispatch:
-        """Count and handle (decode included) a sample of ``key`` (``inputs`` in the status); bad
-        input and bugs are counted, never raised (:meth:`guard`)."""
-        taken = self._taken[key] = InputTaken(delivery.every_sample)
+    def _dispatch(
+        self, key: str, handle: Callable[[bytes, bytes | None], None], delivery: Delivery, *, count: bool = True
+    ) -> Dispatch:
+        """Count (``inputs`` in the status, unless not ``count``) and handle (decode included) a
+        sample of ``key``; bad input and bugs are counted, never raised (:meth:`guard`)."""
+        if count:
+            self._taken[key] = InputTaken(delivery.every_sample)
+        taken = self._taken.get(key, InputTaken(delivery.every_sample))
         failed = self._failed
 
         def dispatch(payload: bytes, attachment: bytes | None) -> None:
-            taken.samples += 1
+            if count:
+                taken.samples += 1
             try:
                 handle(payload, attachment)
             except Exception as error:  # noqa: BLE001 (bad input and bugs alike must not kill the service)
