@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-fast lint fuzz bench profile secrets clean
+.PHONY: run test test-fast lint fuzz bench soak stress profile secrets clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +32,12 @@ fuzz: $(STAMP)  ## 10^4 generated bad payloads per consumed key and queryable in
 
 bench: $(STAMP)  ## benchmarks/ -> benchmarks/results/latest.json, not committed (never part of `make test`)
 	$(BIN)/python -m benchmarks
+
+soak: $(STAMP)  ## the stack left running an hour (DURATION=3600): memory, open files, health -> benchmarks/results/soak.json
+	$(BIN)/python -m benchmarks.soak --duration $(or $(DURATION),3600)
+
+stress: $(STAMP)  ## `invent up --no-record` started and stopped 100 times in a row (STARTS=100): every start must succeed
+	$(BIN)/python -m benchmarks.stress_starts --starts $(or $(STARTS),100)
 
 profile: $(STAMP)  ## where each process of the lockstep loop spends its time (py-spy; ARGS=--composed for one process)
 	$(BIN)/python -m pip install --quiet py-spy

@@ -20,7 +20,6 @@ import json
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -36,7 +35,7 @@ from schemas.keys import Keys, Service
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config
 from services.motor.core import MotorCore
-from services.runtime.session import open_session, session_config
+from services.runtime.session import free_port, open_session, session_config
 from sim_bridge.latency import percentiles
 
 REPO = Path(__file__).resolve().parent.parent
@@ -109,12 +108,6 @@ def scenario_file(directory: Path) -> Path:
         f'name = "bench circle"\n\n[[segments]]\ntype = "constant"\nvx = {VX}\nw = {W}\nduration = {SCENARIO_SECONDS}\n'
     )
     return path
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
 
 
 def _sim_status(session: zenoh.Session) -> dict[str, Any] | None:

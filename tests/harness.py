@@ -10,7 +10,6 @@ import json
 import os
 import queue
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -24,7 +23,7 @@ import msgspec
 import zenoh
 
 from schemas.codec import decode
-from services.runtime.session import open_session, session_config
+from services.runtime.session import free_port, open_session, session_config
 
 REPO = Path(__file__).resolve().parent.parent
 T = TypeVar("T")
@@ -37,12 +36,6 @@ def pid_alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     return True
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
 
 
 def wait_until(predicate: Callable[[], T], timeout: float = 10.0, what: str = "condition") -> T:

@@ -24,7 +24,7 @@ from schemas.keys import Keys, all_robots_alive, schema_for_key
 from services.config import ConfigError
 from services.ros2.graph import BridgeGraph
 from services.runtime.discovery import payload_value, service_statuses
-from services.runtime.session import has_match
+from services.runtime.session import ROUTER_LISTENING, has_match
 from services.security import fleet_robots, write_fleet_profile, write_profile
 
 EXIT_NO_ANSWER = 1
@@ -52,7 +52,9 @@ def describe_sample(key: str, payload: bytes) -> dict[str, Any]:
 def run_router(session: zenoh.Session, listen: list[str], stop: threading.Event) -> int:
     """Serve as the zenoh router until SIGINT/SIGTERM."""
     print(
-        f"invent router {session.zid()} listening on {', '.join(listen)}; Ctrl-C stops it", file=sys.stderr, flush=True
+        f"invent router {session.zid()} {ROUTER_LISTENING} {', '.join(listen)}; Ctrl-C stops it",
+        file=sys.stderr,
+        flush=True,
     )
     while not stop.wait(0.2):
         pass

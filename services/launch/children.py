@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -32,6 +33,9 @@ def _die_with_parent() -> None:
     libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
+LINES_KEPT = 5
+
+
 class ChildDied(RuntimeError):
     """A service the run needs ended before the run did."""
 
@@ -51,6 +55,23 @@ class Child:
     name: str
     process: subprocess.Popen[str]
     pump: threading.Thread
+    said: list[str]
+    """Its last lines of output (at most :data:`LINES_KEPT`): what it said before it died."""
+    ready: threading.Event
+    """Set once it has printed the line it was started to wait for (:meth:`Supervisor.start`)."""
+
+    def wait_ready(self, timeout: float) -> None:
+        """Until it has said it is ready; ChildDied, with its last line, if it exits first or is
+        not ready within ``timeout``."""
+        deadline = time.monotonic() + timeout
+        while not self.ready.wait(0.02):
+            code = self.finished()
+            if code is not None:
+                self.pump.join(1.0)
+                last = self.said[-1].strip() if self.said else ""
+                raise ChildDied(f"{self.name} exited at start ({describe_exit(code)}){': ' + last if last else ''}")
+            if time.monotonic() > deadline:
+                raise ChildDied(f"{self.name} not ready within {timeout} s")
 
     def finished(self) -> int | None:
         return self.process.poll()
@@ -68,7 +89,9 @@ class Supervisor:
     def __init__(self) -> None:
         self.children: list[Child] = []
 
-    def start(self, name: str, argv: Sequence[str]) -> Child:
+    def start(self, name: str, argv: Sequence[str], ready_line: str | None = None) -> Child:
+        """Start ``invent <argv>`` as ``name``; with ``ready_line``, its :attr:`Child.ready` is set
+        once it prints a line containing it."""
         process = subprocess.Popen(
             [sys.executable, "-m", "services.cli", *argv],
             stdout=subprocess.PIPE,
@@ -78,18 +101,28 @@ class Supervisor:
             # prctl only, no Python objects: the hazard of preexec_fn with threads does not arise.
             preexec_fn=_die_with_parent if sys.platform == "linux" else None,  # noqa: PLW1509
         )
-        pump = threading.Thread(target=self._pump, args=(name, process), daemon=True)
+        said: list[str] = []
+        ready = threading.Event()
+        if ready_line is None:
+            ready.set()
+        pump = threading.Thread(target=self._pump, args=(name, process, said, ready, ready_line), daemon=True)
+        child = Child(name, process, pump, said, ready)
         pump.start()
-        child = Child(name, process, pump)
         self.children.append(child)
         say(f"started {name} (pid {process.pid}): invent {' '.join(argv)}")
         return child
 
-    def _pump(self, name: str, process: subprocess.Popen[str]) -> None:
+    def _pump(
+        self, name: str, process: subprocess.Popen[str], said: list[str], ready: threading.Event, ready_line: str | None
+    ) -> None:
         assert process.stdout is not None
         for line in process.stdout:
             sys.stdout.write(f"[{name:<{NAME_WIDTH}}] {line}")
             sys.stdout.flush()
+            said.append(line)
+            del said[:-LINES_KEPT]
+            if ready_line is not None and ready_line in line:
+                ready.set()
 
     def exited(self, exclude: str | None = None) -> tuple[str, str] | None:
         """(name, reason) of a child other than ``exclude`` that has exited, or None."""

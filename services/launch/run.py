@@ -26,7 +26,7 @@ from schemas.messages import ScenarioOutcome
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.launch.children import ChildDied, Interrupted, Launcher, Supervisor, describe_exit, say
 from services.launch.composition import Composition
-from services.runtime.session import open_session, session_config
+from services.runtime.session import ROUTER_LISTENING, open_session, session_config
 from services.security import Profile, Role
 
 EXIT_CHILD_DIED = 1
@@ -91,7 +91,10 @@ def launch_services(
     supervisor = Supervisor()
     try:
         if not args.connect:
-            supervisor.start("router", ["router", *access.router_flags(endpoint), "--log-level", args.log_level])
+            router_flags = ["router", *access.router_flags(endpoint), "--log-level", args.log_level]
+            # Nothing connects before the router listens: a router that cannot (its port taken)
+            # ends the run at once, saying why, before any service has started.
+            supervisor.start("router", router_flags, ready_line=ROUTER_LISTENING).wait_ready(STARTUP_TIMEOUT_S)
         with open_session(session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR))) as session:
             yield supervisor, session
     finally:

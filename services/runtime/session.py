@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import signal
+import socket
 import threading
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import zenoh
@@ -102,6 +105,10 @@ def has_match(entity: zenoh.Publisher | zenoh.Querier) -> bool:
     return bool(status.matching)
 
 
+ROUTER_LISTENING = "listening on"
+"""What ``invent router`` prints once its session is open, so listening (``invent up`` waits for it)."""
+
+
 class SessionFailed(RuntimeError):
     """A zenoh session could not be opened: the router is unreachable or refused the credentials."""
 
@@ -112,6 +119,12 @@ def open_session(config: zenoh.Config) -> Iterator[zenoh.Session]:
         session = zenoh.open(config)
     except zenoh.ZError as error:
         endpoints = json.loads(config.get_json("connect/endpoints"))
+        if "listener" in str(error):
+            listen = json.loads(config.get_json("listen/endpoints"))
+            raise SessionFailed(
+                f"cannot listen on {', '.join(map(str, listen)) if isinstance(listen, list) else listen}: "
+                f"{str(error).split(' at ')[0]} (another router or program has the port: --listen another)"
+            ) from None
         raise SessionFailed(
             f"cannot open a zenoh session connecting to {', '.join(map(str, endpoints)) or 'nothing'}: "
             f"{str(error).split(' at ')[0]} (is the router running, and are the credentials right?)"
@@ -143,3 +156,28 @@ def stop_on_signals() -> threading.Event:
     signal.signal(signal.SIGINT, handle)
     signal.signal(signal.SIGTERM, handle)
     return stop
+
+
+EPHEMERAL_PORTS = Path("/proc/sys/net/ipv4/ip_local_port_range")
+LOWEST_CHOSEN_PORT = 10_000
+
+
+def free_port() -> int:
+    """A TCP port free on loopback now, for a router to listen on (the tests', the benchmarks'),
+    taken below the kernel's ephemeral range: a port the kernel hands out itself (``bind`` to port
+    0, as every zenoh peer's loopback listener does, or a connection's source port) can be taken by
+    any session opened between this choice and the router's bind, which makes the router exit 1
+    ("address already in use"). Above the range only where it leaves no room below."""
+    try:
+        low = int(EPHEMERAL_PORTS.read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        low = LOWEST_CHOSEN_PORT
+    for _ in range(100):
+        port = random.randrange(LOWEST_CHOSEN_PORT, low) if low > LOWEST_CHOSEN_PORT + 1000 else 0
+        with socket.socket() as probe:
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return int(probe.getsockname()[1])
+    raise OSError("no free TCP port on 127.0.0.1")

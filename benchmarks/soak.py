@@ -1,0 +1,298 @@
+"""The soak: the stack left running, watched (``make soak``; never part of ``make test``).
+
+Two runs side by side for ``--duration`` seconds (default one hour), each with its own router:
+
+- ``invent up --loop --mode realtime --scenario square``: the long-running stack, recording nothing;
+- ``invent up --mode realtime --scenario <a circle lasting the soak>``: a recorded run, which ends
+  by itself (outcome ``completed``) and writes its ``run.mcap`` and report.
+
+Every ``--sample-every`` seconds it reads, for every process of both runs (each ``up`` and its
+children), the resident memory (``VmRSS``) and the open files (``/proc/<pid>/fd``), and the
+runs' health from the services' status replies (late and missing torques, internal errors), and
+the recorded run's journals' size. At the end: each process's memory growth per hour after the
+warm-up (a least-squares slope), its open files after the warm-up and at the end, the health,
+the recording's size per simulated hour, and whether every process exited cleanly.
+Writes ``benchmarks/results/soak.json``; figures in benchmarks/README.md, "Soak".
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from schemas.keys import Keys, Service
+from services.recording.report import loop_health
+from services.runtime.session import free_port, open_session, session_config
+
+RESULTS = Path(__file__).resolve().parent / "results" / "soak.json"
+KEYS = Keys()
+SERVICES = (Service.SIM, Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION, Service.DRIVE)
+END_TIMEOUT_S = 600.0
+"""How long the recorded run may take past the soak to end by itself and write its recording."""
+
+
+@dataclass
+class Watched:
+    """One ``invent up`` of the soak and what was sampled of it."""
+
+    name: str
+    process: subprocess.Popen[str]
+    endpoint: str
+    report_dir: Path | None = None
+    samples: list[dict[str, Any]] = field(default_factory=list)
+    health: dict[str, Any] | None = None
+
+    def processes(self) -> dict[str, int]:
+        """``up`` and its children, by name (the child's ``invent`` command)."""
+        found = {"up": self.process.pid}
+        for pid in _children(self.process.pid):
+            found[_command_name(pid)] = pid
+        return found
+
+
+def _children(parent: int) -> list[int]:
+    children = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == parent:
+            children.append(int(entry))
+    return children
+
+
+def _command_name(pid: int) -> str:
+    try:
+        words = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return str(pid)
+    after = [word.decode() for word in words if word]
+    for index, word in enumerate(after):
+        if word in {"services.cli", "invent"} and index + 1 < len(after):
+            return after[index + 1]
+    return after[-1] if after else str(pid)
+
+
+def _rss_mb(pid: int) -> float | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
+def _open_files(pid: int) -> int | None:
+    try:
+        return len(os.listdir(f"/proc/{pid}/fd"))
+    except OSError:
+        return None
+
+
+def _health(endpoint: str) -> dict[str, Any] | None:
+    """The loop's health from its services' status replies (as ``invent up`` reports it)."""
+    with open_session(session_config(connect=[endpoint])) as session:
+        statuses: dict[str, dict[str, Any] | None] = {}
+        for service in SERVICES:
+            statuses[str(service)] = None
+            for reply in session.get(KEYS.status(service), timeout=2.0):
+                if reply.ok is not None:
+                    statuses[str(service)] = json.loads(reply.ok.payload.to_bytes())
+                    break
+    sim = statuses.pop(str(Service.SIM))
+    if sim is None:
+        return None
+    health = loop_health(sim, statuses)
+    health["steps"] = sim.get("steps", 0)
+    health["sim_time_s"] = sim.get("sim_time_s", 0.0)
+    return health
+
+
+def _directory_mb(directory: Path) -> float:
+    return sum(path.stat().st_size for path in directory.rglob("*") if path.is_file()) / 1e6
+
+
+def _slope_per_hour(points: list[tuple[float, float]]) -> float:
+    """Least-squares slope of (seconds, MB), in MB per hour."""
+    if len(points) < 2:
+        return 0.0
+    mean_t = sum(t for t, _ in points) / len(points)
+    mean_v = sum(v for _, v in points) / len(points)
+    spread = sum((t - mean_t) ** 2 for t, _ in points)
+    if spread == 0:
+        return 0.0
+    return sum((t - mean_t) * (v - mean_v) for t, v in points) / spread * 3600
+
+
+def _start(name: str, *flags: str, report_dir: Path | None = None) -> Watched:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "up", *flags, "--listen", endpoint, "--log-level", "warning"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        start_new_session=True,
+    )
+    return Watched(name, process, endpoint, report_dir)
+
+
+def _sample(run: Watched, elapsed: float) -> None:
+    sample: dict[str, Any] = {"t_s": elapsed, "processes": {}}
+    for name, pid in run.processes().items():
+        sample["processes"][name] = {"rss_mb": _rss_mb(pid), "open_files": _open_files(pid)}
+    try:
+        run.health = _health(run.endpoint) or run.health
+    except Exception as error:  # noqa: BLE001 (a look that fails is reported, the soak goes on)
+        sample["health_error"] = str(error)
+    sample["health"] = run.health
+    if run.report_dir is not None and (run.report_dir / "journals").exists():
+        sample["journals_mb"] = _directory_mb(run.report_dir / "journals")
+    run.samples.append(sample)
+
+
+def _summary(run: Watched, warm_up_s: float) -> dict[str, Any]:
+    processes: dict[str, Any] = {}
+    names = {name for sample in run.samples for name in sample["processes"]}
+    for name in sorted(names):
+        series = [
+            (sample["t_s"], sample["processes"][name])
+            for sample in run.samples
+            if name in sample["processes"] and sample["processes"][name]["rss_mb"] is not None
+        ]
+        after = [(t, values) for t, values in series if t >= warm_up_s]
+        if not after:
+            continue
+        processes[name] = {
+            "rss_mb_after_warm_up": after[0][1]["rss_mb"],
+            "rss_mb_at_end": after[-1][1]["rss_mb"],
+            "rss_growth_mb_per_hour": _slope_per_hour([(t, values["rss_mb"]) for t, values in after]),
+            "open_files_after_warm_up": after[0][1]["open_files"],
+            "open_files_at_end": after[-1][1]["open_files"],
+        }
+    health = run.health or {}
+    internal = {name: counts["internal_errors"] for name, counts in health.get("services", {}).items()}
+    return {
+        "processes": processes,
+        "max_rss_growth_mb_per_hour": max((p["rss_growth_mb_per_hour"] for p in processes.values()), default=None),
+        "steps": health.get("steps"),
+        "sim_time_s": health.get("sim_time_s"),
+        "torques": health.get("torques"),
+        "internal_errors": internal,
+        "exit_code": run.process.returncode,
+    }
+
+
+def _stop(run: Watched, timeout: float) -> None:
+    if run.process.poll() is None:
+        run.process.send_signal(signal.SIGINT)
+    try:
+        run.process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(run.process.pid, signal.SIGKILL)
+        run.process.wait()
+
+
+def soak(duration_s: float, sample_every_s: float, warm_up_s: float, work: Path) -> dict[str, Any]:
+    scenario = work / "long_circle.toml"
+    scenario.write_text(
+        f'name = "soak circle"\n[[segments]]\ntype = "constant"\nvx = 0.25\nw = 0.5\nduration = {duration_s}\n'
+    )
+    looping = _start("loop", "--loop", "--mode", "realtime", "--scenario", "square")
+    recorded = _start(
+        "recorded",
+        "--mode",
+        "realtime",
+        "--scenario",
+        str(scenario),
+        "--report",
+        str(work / "recorded"),
+        report_dir=work / "recorded",
+    )
+    runs = (looping, recorded)
+    started = time.monotonic()
+    try:
+        next_sample = started
+        while (elapsed := time.monotonic() - started) < duration_s and recorded.process.poll() is None:
+            if looping.process.poll() is not None:
+                raise RuntimeError(f"the --loop run exited early ({looping.process.returncode})")
+            if time.monotonic() >= next_sample:
+                for run in runs:
+                    _sample(run, elapsed)
+                print(
+                    f"soak {elapsed:6.0f}/{duration_s:.0f} s | "
+                    + " | ".join(
+                        f"{run.name}: sim {((run.health or {}).get('sim_time_s') or 0):.0f} s, "
+                        f"rss {sum((p['rss_mb'] or 0) for p in run.samples[-1]['processes'].values()):.0f} MB"
+                        for run in runs
+                    ),
+                    flush=True,
+                )
+                next_sample += sample_every_s
+            time.sleep(0.5)
+        for run in runs:
+            _sample(run, time.monotonic() - started)
+        _stop(looping, 60)
+        recorded.process.wait(timeout=END_TIMEOUT_S)
+    finally:
+        for run in runs:
+            if run.process.poll() is None:
+                _stop(run, 60)
+    recording = work / "recorded" / "run.mcap"
+    report_path = work / "recorded" / "report.json"
+    report = json.loads(report_path.read_text()) if report_path.exists() else {}
+    sim_time_s = report.get("sim_time_s") or 0.0
+    size_mb = recording.stat().st_size / 1e6 if recording.exists() else None
+    leftovers = [pid for run in runs for pid in _children(run.process.pid)]
+    return {
+        "duration_s": duration_s,
+        "sample_every_s": sample_every_s,
+        "warm_up_s": warm_up_s,
+        "loop": _summary(looping, warm_up_s),
+        "recorded": {
+            **_summary(recorded, warm_up_s),
+            "outcome": report.get("outcome"),
+            "recording_mb": size_mb,
+            "recording_mb_per_simulated_hour": None if not (size_mb and sim_time_s) else size_mb / sim_time_s * 3600,
+            "journals_mb_peak": max((s.get("journals_mb", 0.0) for s in recorded.samples), default=0.0),
+            "report_health": report.get("health"),
+        },
+        "processes_left": leftovers,
+        "samples": {run.name: run.samples for run in runs},
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.soak", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--duration", type=float, default=3600.0, help="seconds (default 3600)")
+    parser.add_argument("--sample-every", type=float, default=10.0, help="seconds between samples (default 10)")
+    parser.add_argument("--warm-up", type=float, default=60.0, help="seconds before memory is compared (default 60)")
+    parser.add_argument("--output", type=Path, default=RESULTS, help=f"(default {RESULTS})")
+    args = parser.parse_args(argv)
+    if args.warm_up >= args.duration:
+        parser.error("--warm-up must be shorter than --duration")
+    with tempfile.TemporaryDirectory(prefix="invent-soak-") as work:
+        result = soak(args.duration, args.sample_every, args.warm_up, Path(work))
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(result, indent=2) + "\n")
+    brief = {key: value for key, value in result.items() if key != "samples"}
+    print(json.dumps(brief, indent=2))
+    internal = sum(sum(run["internal_errors"].values()) for run in (result["loop"], result["recorded"]))
+    healthy = internal == 0 and not result["processes_left"] and result["recorded"]["exit_code"] == 0
+    return 0 if healthy else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
