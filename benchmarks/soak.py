@@ -25,9 +25,12 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import zenoh
 
 from schemas.keys import Keys, Service
 from services.recording.report import loop_health
@@ -36,6 +39,8 @@ from services.runtime.session import free_port, open_session, session_config
 RESULTS = Path(__file__).resolve().parent / "results" / "soak.json"
 KEYS = Keys()
 SERVICES = (Service.SIM, Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION, Service.DRIVE)
+START_TIMEOUT_S = 60.0
+STATUS_TIMEOUT_S = 2.0
 END_TIMEOUT_S = 600.0
 """How long the recorded run may take past the soak to end by itself and write its recording."""
 
@@ -47,7 +52,11 @@ class Watched:
     name: str
     process: subprocess.Popen[str]
     endpoint: str
+    log: Path
     report_dir: Path | None = None
+    session: zenoh.Session | None = None
+    """The soak's own session in the run, opened once the run's router listens and kept: a
+    session's first queries may reach no queryable (declarations propagate asynchronously)."""
     samples: list[dict[str, Any]] = field(default_factory=list)
     health: dict[str, Any] | None = None
 
@@ -102,16 +111,15 @@ def _open_files(pid: int) -> int | None:
         return None
 
 
-def _health(endpoint: str) -> dict[str, Any] | None:
+def _health(session: zenoh.Session) -> dict[str, Any] | None:
     """The loop's health from its services' status replies (as ``invent up`` reports it)."""
-    with open_session(session_config(connect=[endpoint])) as session:
-        statuses: dict[str, dict[str, Any] | None] = {}
-        for service in SERVICES:
-            statuses[str(service)] = None
-            for reply in session.get(KEYS.status(service), timeout=2.0):
-                if reply.ok is not None:
-                    statuses[str(service)] = json.loads(reply.ok.payload.to_bytes())
-                    break
+    statuses: dict[str, dict[str, Any] | None] = {}
+    for service in SERVICES:
+        statuses[str(service)] = None
+        for reply in session.get(KEYS.status(service), timeout=STATUS_TIMEOUT_S):
+            if reply.ok is not None:
+                statuses[str(service)] = json.loads(reply.ok.payload.to_bytes())
+                break
     sim = statuses.pop(str(Service.SIM))
     if sim is None:
         return None
@@ -137,26 +145,42 @@ def _slope_per_hour(points: list[tuple[float, float]]) -> float:
     return sum((t - mean_t) * (v - mean_v) for t, v in points) / spread * 3600
 
 
-def _start(name: str, *flags: str, report_dir: Path | None = None) -> Watched:
+def _start(name: str, work: Path, *flags: str, report_dir: Path | None = None) -> Watched:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "up", *flags, "--listen", endpoint, "--log-level", "warning"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        text=True,
-        start_new_session=True,
+    log = work / f"{name}.log"
+    with log.open("w") as output:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "up", *flags, "--listen", endpoint, "--log-level", "warning"],
+            stdout=output,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
+    return Watched(name, process, endpoint, log, report_dir)
+
+
+def _join(run: Watched, stack: ExitStack) -> None:
+    """The soak's session in ``run``, once its services are alive."""
+    session = stack.enter_context(open_session(session_config(connect=[run.endpoint])))
+    deadline = time.monotonic() + START_TIMEOUT_S
+    alive: set[str] = set()
+    subscriber = session.liveliness().declare_subscriber(
+        KEYS.alive(Service.SIM), lambda sample: alive.add(str(sample.key_expr)), history=True
     )
-    return Watched(name, process, endpoint, report_dir)
+    while not alive:
+        if time.monotonic() > deadline or run.process.poll() is not None:
+            raise RuntimeError(f"the {run.name} run did not start: see {run.log}")
+        time.sleep(0.1)
+    subscriber.undeclare()
+    run.session = session
 
 
 def _sample(run: Watched, elapsed: float) -> None:
     sample: dict[str, Any] = {"t_s": elapsed, "processes": {}}
     for name, pid in run.processes().items():
         sample["processes"][name] = {"rss_mb": _rss_mb(pid), "open_files": _open_files(pid)}
-    try:
-        run.health = _health(run.endpoint) or run.health
-    except Exception as error:  # noqa: BLE001 (a look that fails is reported, the soak goes on)
-        sample["health_error"] = str(error)
+    if run.session is not None:
+        run.health = _health(run.session) or run.health
     sample["health"] = run.health
     if run.report_dir is not None and (run.report_dir / "journals").exists():
         sample["journals_mb"] = _directory_mb(run.report_dir / "journals")
@@ -210,9 +234,10 @@ def soak(duration_s: float, sample_every_s: float, warm_up_s: float, work: Path)
     scenario.write_text(
         f'name = "soak circle"\n[[segments]]\ntype = "constant"\nvx = 0.25\nw = 0.5\nduration = {duration_s}\n'
     )
-    looping = _start("loop", "--loop", "--mode", "realtime", "--scenario", "square")
+    looping = _start("loop", work, "--loop", "--mode", "realtime", "--scenario", "square")
     recorded = _start(
         "recorded",
+        work,
         "--mode",
         "realtime",
         "--scenario",
@@ -223,7 +248,10 @@ def soak(duration_s: float, sample_every_s: float, warm_up_s: float, work: Path)
     )
     runs = (looping, recorded)
     started = time.monotonic()
+    stack = ExitStack()
     try:
+        for run in runs:
+            _join(run, stack)
         next_sample = started
         while (elapsed := time.monotonic() - started) < duration_s and recorded.process.poll() is None:
             if looping.process.poll() is not None:
@@ -244,9 +272,11 @@ def soak(duration_s: float, sample_every_s: float, warm_up_s: float, work: Path)
             time.sleep(0.5)
         for run in runs:
             _sample(run, time.monotonic() - started)
+        stack.close()
         _stop(looping, 60)
         recorded.process.wait(timeout=END_TIMEOUT_S)
     finally:
+        stack.close()
         for run in runs:
             if run.process.poll() is None:
                 _stop(run, 60)
@@ -270,6 +300,8 @@ def soak(duration_s: float, sample_every_s: float, warm_up_s: float, work: Path)
             "report_health": report.get("health"),
         },
         "processes_left": leftovers,
+        "loop_end": looping.log.read_text().splitlines()[-8:],
+        "recorded_end": recorded.log.read_text().splitlines()[-14:],
         "samples": {run.name: run.samples for run in runs},
     }
 
@@ -285,6 +317,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--warm-up must be shorter than --duration")
     with tempfile.TemporaryDirectory(prefix="invent-soak-") as work:
         result = soak(args.duration, args.sample_every, args.warm_up, Path(work))
+    print(
+        "\n".join(
+            ["--- the --loop run's end:", *result["loop_end"], "--- the recorded run's end:", *result["recorded_end"]]
+        )
+    )
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(result, indent=2) + "\n")
     brief = {key: value for key, value in result.items() if key != "samples"}

@@ -125,7 +125,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     what.add_argument("--vx", type=finite_number, metavar="M/S", help="with --for: forward speed (default 0)")
     what.add_argument("--w", type=finite_number, metavar="RAD/S", help="with --for: turn rate (default 0)")
-    what.add_argument("--loop", action="store_true", help="start the scenario over when it ends, forever")
+    what.add_argument(
+        "--loop", action="store_true", help="start the scenario over when it ends, until a pass is given up"
+    )
     parser.add_argument(
         "--rate",
         type=float,
@@ -410,7 +412,9 @@ COMMAND = ServiceCommand(
     help="publish target velocities: a constant, a scenario or a waypoint path (sim time)",
     description="Publish drive/target_velocity at drive.rate per second of simulation time (clock: the "
     "stamps on sim/clock). Waypoint paths are followed (pure pursuit, turn-in-place at sharp "
-    "corners) on odometry/pose. Publishes zero velocity at the end and exits 0 (unless --loop). "
+    "corners) on odometry/pose. Publishes zero velocity at the end, then its outcome on drive/outcome, and "
+    "exits with it: 0 completed; 3 aborted (the motor stayed latched stopped for drive.give_up_after_stop); "
+    "4 timed out (a pass past its time limit). --loop ends only when a pass is given up. "
     "Examples: invent drive --vx 0.3 --w 0.1 --for 5; invent drive --twist 0.2 0.5 (until Ctrl-C); "
     "invent drive --scenario square; "
     'invent drive --waypoints "1,0 1,1 0,1 0,0". See docs/drive.md.',

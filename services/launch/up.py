@@ -294,8 +294,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--loop",
         action="store_true",
-        help="repeat the scenario until Ctrl-C (a long-running stack to watch and probe); records nothing, so "
-        "memory stays flat, and prints the run's health at the end",
+        help="repeat the scenario until Ctrl-C, or until a pass is given up (its outcome and exit status: "
+        "docs/drive.md, Outcomes); a long-running stack to watch and probe; records nothing, so memory stays "
+        "flat, and prints the run's health at the end",
     )
     parser.add_argument(
         "--secure",
