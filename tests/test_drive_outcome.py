@@ -122,3 +122,13 @@ def test_the_bump_that_latched_the_stop_is_named_not_a_later_touch_while_stopped
     rule.bump("box", int(3.763 * NS))  # pushed back against the box, stopped
     given_up = rule.check(int(3.872 * NS), 0)
     assert given_up is not None and given_up.reason.startswith("bumped into 'box' at t = 1.872 s")
+
+
+def test_a_stop_still_latched_after_a_simulator_restart_counts_from_the_new_time_base() -> None:
+    rule = GiveUpRule(PARAMS, limit_s=None)
+    rule.bump("box", 50 * NS)
+    rule.motor_state("stopped", 50 * NS, "bump")
+    rule.restart(0)  # a new simulator: its clock starts again at 0
+    assert rule.check(1 * NS, 0) is None, "not judged against the old time base"
+    given_up = rule.check(2 * NS, 0)
+    assert given_up is not None and given_up.reason.startswith("a bump:"), "the old contact is not named"

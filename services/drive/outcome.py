@@ -82,6 +82,13 @@ class GiveUpRule:
             self.stopped_by = stopped_by
             self._blame(self.last_bump)
 
+    def restart(self, now_ns: int) -> None:
+        """A new simulator's time base from ``now_ns``: a stop still latched counts from there (the
+        motor keeps its latch across a simulator restart), the old time base's bumps are forgotten."""
+        if self.stopped_since_ns is not None:
+            self.stopped_since_ns = now_ns
+        self.last_bump = self.stop_bump = None
+
     def bump(self, obstacle: str, stamp_ns: int) -> None:
         self.last_bump = (stamp_ns, obstacle)
         self._blame(self.last_bump)

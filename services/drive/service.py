@@ -279,6 +279,7 @@ class DriveService:
         self._pending_tick = None
         self.final_zeros = 0
         self.outcome = None
+        self.give_up.restart(now_ns)
         self.node.log.info(
             "simulation time went back to %.3f s (a new simulator): %r starts over",
             now_ns / NANOSECONDS_PER_SECOND,
