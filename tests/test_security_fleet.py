@@ -82,9 +82,12 @@ def test_each_robots_service_roles_get_exactly_the_single_robot_grants_on_their_
         RH1.motor_wheel_angles,
         RH1.motor_sim_pose_gui,
         RH1.motor_sim_pose_localization,
+        RH1.motor_state,
     }
     assert _granted(Identity(Role.MOTOR, "rh1"), Message.DECLARE_QUERYABLE) == (
-        {RH1.status(Service.MOTOR)} | _methods(RH1, MethodFamily.GUI) | _methods(RH1, MethodFamily.BUMP)
+        {RH1.status(Service.MOTOR), RH1.motor_state}
+        | _methods(RH1, MethodFamily.GUI)
+        | _methods(RH1, MethodFamily.BUMP)
     )
     ros2_calls = _granted(Identity(Role.ROS2, "rh1"), Message.QUERY) - {all_robots_status()}
     assert ros2_calls - {RH1.topic(topic) for topic in LATCHED_TOPICS} == {
