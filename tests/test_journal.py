@@ -9,7 +9,7 @@ from pathlib import Path
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.runtime.journal import BATCH_SAMPLES, STOPPED_KEY, Journal, JournalLimits, JournalReader
+from services.runtime.journal import BATCH_BYTES, BATCH_SAMPLES, STOPPED_KEY, Journal, JournalLimits, JournalReader
 
 KEY = "invent/rh0/sim/wheel_angles"
 
@@ -112,3 +112,15 @@ def test_a_journal_on_a_disk_with_less_free_than_its_minimum_keeps_nothing_and_s
     entries, complete = _read(tmp_path / "odometry.journal")
     assert complete and [entry[0] for entry in entries] == [STOPPED_KEY]
     assert b"record.min_free_disk" in entries[0][1]
+
+
+def test_large_samples_are_written_once_their_batch_holds_a_megabyte_not_4096_of_them(tmp_path):
+    path = tmp_path / "up.journal"
+    journal = Journal(path)
+    status = b"x" * 10_000  # a status reply with its histogram
+    for index in range(BATCH_BYTES // len(status) + 1):
+        journal.write(KEY, status, index)
+    assert path.stat().st_size > BATCH_BYTES, "written before the end: memory held stays near a megabyte"
+    journal.close()
+    entries, complete = _read(path)
+    assert complete and len(entries) == BATCH_BYTES // len(status) + 1

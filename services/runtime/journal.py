@@ -6,7 +6,7 @@ process, on both ends of the link: it nearly doubled the loop's CPU per step
 (benchmarks/README.md). A sample appended here, where it is published, costs a fraction of a
 microsecond. A journal is a file of frames, each a little-endian ``uint32`` length and then a
 msgpack array of ``[key, payload, publication time in Unix ns]``, one frame per
-:data:`BATCH_SAMPLES` samples, and a frame of length 0 at the end of a journal closed properly. A
+:data:`BATCH_SAMPLES` samples (or :data:`BATCH_BYTES` of payloads), and a frame of length 0 at the end of a journal closed properly. A
 service killed with SIGKILL loses at most the batch it was filling; :class:`JournalReader` reads
 every whole frame of a journal without its end, and says it was cut short.
 
@@ -31,6 +31,9 @@ import msgspec
 SUFFIX = ".journal"
 BATCH_SAMPLES = 4096
 """Samples written at once: about half a second of a service's output in lockstep."""
+BATCH_BYTES = 1 << 20
+"""Or fewer, once their payloads reach this: ``up``'s status replies (a few kB each, the sim's with
+its latency histogram) would otherwise hold tens of MB for minutes."""
 _LENGTH = struct.Struct("<I")
 
 JournalEntry = tuple[str, bytes, int]
@@ -73,6 +76,7 @@ class Journal:
         self._file = path.open("wb")
         self._written = 0
         self._batch: list[JournalEntry] = []
+        self._batch_bytes = 0
         self._encoder = msgspec.msgpack.Encoder()
         self._check_disk()
 
@@ -86,7 +90,8 @@ class Journal:
             self._stop(f"record.max_duration: nothing stamped after {limit / 1e9:.3f} s is recorded")
             return
         self._batch.append((key, payload, time.time_ns() if time_ns is None else time_ns))
-        if len(self._batch) >= BATCH_SAMPLES:
+        self._batch_bytes += len(payload)
+        if len(self._batch) >= BATCH_SAMPLES or self._batch_bytes >= BATCH_BYTES:
             self._write_batch()
 
     def _write_batch(self) -> None:
@@ -95,6 +100,7 @@ class Journal:
         self._file.flush()
         self._written += _LENGTH.size + len(frame)
         self._batch.clear()
+        self._batch_bytes = 0
         max_bytes = self.limits.max_bytes
         if max_bytes is not None and self._written >= max_bytes:
             self._stop(f"record.max_size: this journal reached its share, {max_bytes / MB:.1f} MB")
