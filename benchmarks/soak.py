@@ -34,7 +34,7 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from services.recording.report import loop_health
-from services.runtime.session import free_port, open_session, session_config
+from services.runtime.session import free_port, open_session, session_config, stop_on_signals
 
 RESULTS = Path(__file__).resolve().parent / "results" / "soak.json"
 KEYS = Keys()
@@ -247,13 +247,18 @@ def soak(duration_s: float, sample_every_s: float, warm_up_s: float, work: Path)
         report_dir=work / "recorded",
     )
     runs = (looping, recorded)
+    stop = stop_on_signals()  # Ctrl-C ends the soak early, with its figures so far
     started = time.monotonic()
     stack = ExitStack()
     try:
         for run in runs:
             _join(run, stack)
         next_sample = started
-        while (elapsed := time.monotonic() - started) < duration_s and recorded.process.poll() is None:
+        while (
+            (elapsed := time.monotonic() - started) < duration_s
+            and recorded.process.poll() is None
+            and not stop.is_set()
+        ):
             if looping.process.poll() is not None:
                 raise RuntimeError(f"the --loop run exited early ({looping.process.returncode})")
             if time.monotonic() >= next_sample:
@@ -274,6 +279,8 @@ def soak(duration_s: float, sample_every_s: float, warm_up_s: float, work: Path)
             _sample(run, time.monotonic() - started)
         stack.close()
         _stop(looping, 60)
+        if stop.is_set():
+            _stop(recorded, END_TIMEOUT_S)
         recorded.process.wait(timeout=END_TIMEOUT_S)
     finally:
         stack.close()
