@@ -154,6 +154,17 @@ def test_a_scenario_the_motor_is_too_slow_for_ends_timed_out_at_its_time_limit(t
     assert report["final"]["ground_truth"]["x"] < 0.15, "crawled at 1 cm/s, far short of the 2 m"
 
 
+def test_a_stop_latched_in_the_motor_state_file_aborts_the_scenario_naming_it(tmp_path):
+    """The motor publishes its restored stop before the drive starts: the drive asks for it."""
+    gains = {"p_gain_l": 5.0, "p_gain_r": 5.0, "d_gain_l": 2.0, "d_gain_r": 2.0}
+    (tmp_path / "motor-state.json").write_text(json.dumps({"stopped": True, "finished": False, "gains": gains}))
+    result = _up("--composed", "--scenario", "straight", "--report", str(tmp_path))
+    assert result.returncode == 3, result.stdout[-4000:]
+    outcome = json.loads((tmp_path / "report.json").read_text())["outcome"]
+    assert outcome["reason"].startswith("the stop latched in the motor's state file"), outcome
+    assert outcome["t_s"] == pytest.approx(2.0, abs=0.05), "given up 2 s into the run"
+
+
 def test_loop_ends_with_the_outcome_of_the_pass_that_gave_up(tmp_path):
     result = _up("--loop", "--composed", "--set", "sim.world=bump", "--scenario", "straight", cwd=tmp_path)
     assert result.returncode == 3, result.stdout[-4000:]
