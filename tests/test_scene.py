@@ -23,6 +23,7 @@ from services.recording.scene import (
     ROBOT_FRAME,
     SCENE_PERIOD_NS,
     SCENE_TOPIC,
+    TRAIL_POINTS,
     TRAIL_SPACING_M,
     TRANSFORMS_TOPIC,
     WHEEL_SPEEDS_TOPIC,
@@ -107,7 +108,8 @@ def test_the_scene_has_the_robot_the_obstacles_the_path_and_both_trails():
     )
     assert scene.add(Topic.SIM_WORLD, world) == []
     assert scene.add(Topic.DRIVE_PATH, PlannedPath(Time(0, 0), "square", [(0.0, 0.0), (1.0, 0.0)])) == []
-    for step in range(101):
+    steps = SCENE_PERIOD_NS // MS
+    for step in range(steps + 1):
         scene.add(Topic.ODOMETRY_POSE, _position(step * MS, step * 0.001, 0.0, 0.0))
         shown = dict(scene.add(Topic.SIM_BODY_POSE, _body_pose(step * MS, step * 0.001, 0.0, 0.0)))
     update = _decoded(shown[SCENE_TOPIC])
@@ -121,8 +123,32 @@ def test_the_scene_has_the_robot_the_obstacles_the_path_and_both_trails():
     truth, odometry = _entity(update, "trails").lines
     for trail in (truth, odometry):
         xs = [point.x for point in trail.points]
-        assert xs[0] == 0.0 and xs[-1] > 0.1 - 2 * TRAIL_SPACING_M, "the 10 cm driven"
+        assert xs[0] == 0.0 and xs[-1] > steps * 0.001 - 2 * TRAIL_SPACING_M, "the whole way driven"
         assert all(TRAIL_SPACING_M <= b - a < TRAIL_SPACING_M + 0.0011 for a, b in itertools.pairwise(xs)), xs
+
+
+def test_ten_minutes_of_driving_cost_the_scene_no_more_per_update_than_its_first_minutes():
+    """The trail keeps its newest TRAIL_POINTS points: every update carries the whole scene, so a
+    trail that grew with the run made a recording grow with the square of its length."""
+    scene = Scene(ROBOT, CONFIG.sim)
+    scene.add(
+        Topic.DRIVE_PATH, PlannedPath(Time(0, 0), "circle", [(math.cos(a / 10), math.sin(a / 10)) for a in range(63)])
+    )
+    sizes: list[tuple[float, int]] = []
+    speed, radius = 0.3, 1.0
+    duration_s = 600
+    for stamp_ns in range(0, duration_s * 1000 * MS, POSE_PERIOD_NS):
+        angle = speed * stamp_ns / 1e9 / radius
+        x, y = radius * math.cos(angle), radius * math.sin(angle)
+        scene.add(Topic.ODOMETRY_POSE, _position(stamp_ns, x, y, angle))
+        for topic, message in scene.add(Topic.SIM_BODY_POSE, _body_pose(stamp_ns, x, y, angle)):
+            if topic == SCENE_TOPIC:
+                sizes.append((stamp_ns / 1e9, len(message.encode())))
+    full_after_s = 2 * TRAIL_POINTS * TRAIL_SPACING_M / speed
+    steady = [size for t, size in sizes if t > full_after_s]
+    assert len(sizes) == duration_s * 1e9 / SCENE_PERIOD_NS
+    assert max(steady) - min(steady) < 0.02 * max(steady), "the scene stops growing once the trails are full"
+    assert max(size for _, size in sizes) < 40_000, "bytes per update"
 
 
 def test_estimates_are_poses_in_the_world_frame_odometry_at_most_every_pose_period():

@@ -12,7 +12,10 @@ opened in Foxglove shows the scene the live view showed:
 
 Poses and transforms are shown at most every :data:`POSE_PERIOD_NS` of simulation time, the
 scene every :data:`SCENE_PERIOD_NS` (the loop publishes at its step rate, kHz, which no viewer
-needs); a trail keeps a point every :data:`TRAIL_SPACING_M`, at most :data:`TRAIL_POINTS`.
+needs); a trail keeps a point every :data:`TRAIL_SPACING_M`, the newest :data:`TRAIL_POINTS`. Each
+scene update carries the whole scene (a viewer that seeks, or joins late, needs only the last one),
+so what bounds a recording's growth is the trail's length: the scene costs at most about 30 kB per
+update however long the run (benchmarks/README.md, "What recording costs").
 """
 
 from __future__ import annotations
@@ -62,9 +65,11 @@ SCENE_TOPIC = "/scene"
 WHEEL_SPEEDS_TOPIC = "/plot/wheel_speeds"
 
 POSE_PERIOD_NS = 20_000_000
-SCENE_PERIOD_NS = 100_000_000
-TRAIL_SPACING_M = 0.01
-TRAIL_POINTS = 20_000
+SCENE_PERIOD_NS = 500_000_000
+TRAIL_SPACING_M = 0.02
+TRAIL_POINTS = 500
+"""10 m of the newest path: a trail of 20,000 points resent at every update made an hour's
+recording grow with the square of its length (1 GB after six minutes of a circle)."""
 
 WHEEL_SPEEDS_SCHEMA: dict[str, Any] = {
     "type": "object",
