@@ -80,6 +80,11 @@ class Executor:
         self._waker_call = threading.Event()
         """Set by a post while the thread is blocked in a receive: the waker wakes it at once."""
 
+    @property
+    def queued(self) -> int:
+        """Events posted and not yet handled."""
+        return len(self._events)
+
     def post(self, handle: Callable[[Any], None], item: Any) -> None:
         """Queue ``handle(item)``; thread-safe, and cheap enough for a zenoh callback. Dropped
         (and counted) when :data:`EVENT_CAPACITY` events wait already."""

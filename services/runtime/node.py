@@ -163,10 +163,16 @@ class Node:
         if delivery is Delivery.QUEUED:
             post = self.executor.post
 
-            def dispatch_contents(sample: zenoh.Sample) -> None:
-                dispatch(*contents(sample))
+            def dispatch_contents(payload_and_attachment: tuple[bytes, bytes | None]) -> None:
+                dispatch(*payload_and_attachment)
 
-            self._declarations.append(self.session.declare_subscriber(key, lambda s: post(dispatch_contents, s)))
+            # The bytes are copied out here, in zenoh's thread: a queued zenoh sample would keep the
+            # whole receive batch it arrived in (about 50 kB, even for a 100-byte torque) until the
+            # service thread took it, and a sim that fell 200 samples behind held 10 MB that the
+            # allocator kept once freed (the sim's memory growing in the soak, benchmarks/README.md).
+            self._declarations.append(
+                self.session.declare_subscriber(key, lambda s: post(dispatch_contents, contents(s)))
+            )
             return None
         node_input: NodeInput
         if delivery is Delivery.EVERY:
