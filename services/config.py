@@ -333,6 +333,33 @@ class RecordConfig(_Section, frozen=True):
         return self.rate is RecordRate.EVERY_STEP
 
 
+class GcPolicy(StrEnum):
+    AUTOMATIC = "automatic"
+    FROZEN = "frozen"
+    IDLE = "idle"
+
+
+CpuId = Annotated[int, msgspec.Meta(ge=0)]
+
+
+class RtConfig(_Section, frozen=True):
+    """Real-time settings of the control path's processes (``--rt``: the sim, the motor, the router;
+    docs/realtime.md). Opt-in; what the system refuses is said in one line and skipped."""
+
+    enabled: bool = False
+    """SCHED_FIFO, locked memory, the CPUs and the collector below (``--rt`` sets it)."""
+    priority: Annotated[int, msgspec.Meta(ge=1, le=99)] = 50
+    """SCHED_FIFO priority, 1..99 (ros2_control's controller manager runs at 50)."""
+    lock_memory: bool = True
+    """``mlockall``: every page of the process kept in memory, now and later."""
+    cpus: tuple[CpuId, ...] = ()
+    """CPUs the process runs on (its threads too); empty: wherever the system likes."""
+    gc: GcPolicy = GcPolicy.FROZEN
+    """Python's garbage collector: ``automatic`` (as ever), ``frozen`` (what start-up made is frozen
+    and never scanned again), ``idle`` (frozen, and the young generation collected when the service
+    thread is about to wait; automatic collections only as a safety net)."""
+
+
 class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     robot: RobotConfig = msgspec.field(default_factory=RobotConfig)
     motor: MotorConfig = msgspec.field(default_factory=MotorConfig)
@@ -343,6 +370,7 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     input: InputConfig = msgspec.field(default_factory=InputConfig)
     ros2: Ros2Config = msgspec.field(default_factory=Ros2Config)
     record: RecordConfig = msgspec.field(default_factory=RecordConfig)
+    rt: RtConfig = msgspec.field(default_factory=RtConfig)
 
     def __post_init__(self) -> None:
         motor, ceiling = self.motor, self.input.max_gain

@@ -26,6 +26,7 @@ from services.config import Config, ConfigError, RecordConfig, load_config, pars
 from services.runtime.executor import Executor
 from services.runtime.journal import MB, Journal, JournalLimits, journal_path
 from services.runtime.node import Node
+from services.runtime.realtime import settle_garbage_collector
 
 
 def positive_seconds(text: str) -> float:
@@ -156,6 +157,8 @@ def overrides_from_args(command: ServiceCommand | None, args: argparse.Namespace
         path, value = parse_override(text)
         overrides[".".join(path)] = value
     overrides["robot.name"] = args.robot
+    if getattr(args, "rt", False):
+        overrides["rt.enabled"] = True
     if command is not None:
         overrides.update({key: value for key, value in command.overrides(args).items() if value is not None})
     return overrides
@@ -212,6 +215,7 @@ def run_service(
     command: ServiceCommand, session: zenoh.Session, config: Config, args: argparse.Namespace, stop: threading.Event
 ) -> int:
     node, service = start_service(command, session, config, args)
+    settle_garbage_collector(config.rt)
     try:
         if isinstance(service, ClockedService):
             return service.run(stop)

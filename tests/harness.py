@@ -136,13 +136,16 @@ class InventProcess:
 
     Its output waits in pipes the test reads when it wants to. A process that runs long and logs
     much needs ``drain=True``: threads then read both pipes as the lines come (a full pipe blocks
-    the service in its next log line) and :meth:`stop` returns what they read.
+    the service in its next log line) and :meth:`stop` returns what they read. ``wrapper``: a
+    command the process runs under (``setpriv ...`` to take rights away from it).
     """
 
-    def __init__(self, *args: str, env: dict[str, str] | None = None, drain: bool = False) -> None:
+    def __init__(
+        self, *args: str, env: dict[str, str] | None = None, drain: bool = False, wrapper: Sequence[str] = ()
+    ) -> None:
         self.args = args
         self.process = subprocess.Popen(
-            invent_command(*args),
+            [*wrapper, *invent_command(*args)],
             cwd=REPO,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,

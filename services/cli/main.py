@@ -14,7 +14,7 @@ import zenoh
 
 from schemas.keys import DEFAULT_ROBOT, Keys
 from services.cli import tools
-from services.config import ConfigError, RecordRate, load_config
+from services.config import ConfigError, RecordRate, load_config, parse_override
 from services.fleet.description import fleet_configs, load_fleet
 from services.launch import fleet, up
 from services.recording import record, replay, view
@@ -22,6 +22,7 @@ from services.recording.mcap_files import read_run, replay_schedule, write_run_r
 from services.recording.report import summary
 from services.ros2.graph import bridge_graph
 from services.runtime.logs import configure_logging
+from services.runtime.realtime import apply_realtime
 from services.runtime.session import (
     DEFAULT_ENDPOINT,
     LOOPBACK_LISTEN,
@@ -106,6 +107,19 @@ def _service_flags() -> argparse.ArgumentParser:
     return flags
 
 
+def _rt_flags() -> argparse.ArgumentParser:
+    flags = argparse.ArgumentParser(add_help=False)
+    group = flags.add_argument_group("real time")
+    group.add_argument(
+        "--rt",
+        action="store_true",
+        help="real-time settings (the [rt] table, e.g. --set rt.priority=70): SCHED_FIFO, locked memory, "
+        "the CPUs of rt.cpus, the garbage collector frozen after start-up; what the system refuses is said "
+        "in one line and skipped (docs/realtime.md)",
+    )
+    return flags
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="invent",
@@ -113,17 +127,23 @@ def build_parser() -> argparse.ArgumentParser:
         "localization, drive and a PyBullet simulator, each a service).",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    connection, service = _connection_flags(), _service_flags()
+    connection, service, rt = _connection_flags(), _service_flags(), _rt_flags()
 
     router = commands.add_parser(
         "router",
-        parents=[connection],
+        parents=[connection, rt],
         help="run a zenoh router in Python (no zenohd needed)",
         description=f"A zenoh router; services connect to it. Default listen: {DEFAULT_ENDPOINT}. "
         "--config FILE (or $ZENOH_CONFIG) takes a zenoh router configuration, such as the router.json5 of "
         "`invent secrets` (authentication and access control).",
     )
     router.add_argument("--config", dest="zenoh_config", metavar="FILE", help="zenoh router configuration file")
+    router.add_argument(
+        "--set",
+        metavar="rt.KEY=VALUE",
+        action="append",
+        help="a real-time setting of the robot description's [rt] table, e.g. --set rt.priority=70 (repeatable)",
+    )
     router.set_defaults(handler=_router)
 
     secrets_parser = commands.add_parser(
@@ -331,7 +351,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     up_parser = commands.add_parser(
         "up",
-        parents=[connection, service],
+        parents=[connection, service, rt],
         help="run the whole loop (router, sim, motor, odometry, localization, drive) and write a report",
         description="Start every service as its own process in this terminal, drive a scenario, then stop "
         "everything and write a run report (report.json, trajectory.png, wheel_speeds.png). "
@@ -343,7 +363,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     for command in service_commands():
         sub = commands.add_parser(
-            str(command.service), parents=[connection, service], help=command.help, description=command.description
+            str(command.service),
+            parents=[connection, service, rt],
+            help=command.help,
+            description=command.description,
         )
         command.add_arguments(sub)
         # invent up's own: where a service keeps what it publishes, for the run's recording, and how
@@ -361,6 +384,11 @@ def _session_config(args: argparse.Namespace, mode: str = "peer", timestamping: 
 
 
 def _router(args: argparse.Namespace) -> int:
+    overrides = {".".join(path): value for path, value in map(parse_override, args.set or ())}
+    not_rt = [key for key in overrides if not key.startswith("rt.")]
+    if not_rt:
+        raise ConfigError(f"invent router --set {', '.join(not_rt)}: a router takes only the [rt] settings")
+    apply_realtime(load_config(overrides={**overrides, "rt.enabled": args.rt or None}).rt, "invent router")
     config = _session_config(args, mode="router")
     stop = stop_on_signals()
     with open_session(config) as session:
@@ -469,6 +497,7 @@ def _up(args: argparse.Namespace) -> int:
 def _serve(args: argparse.Namespace) -> int:
     command: ServiceCommand = args.service_command
     config = config_from_args(command, args)
+    apply_realtime(config.rt, f"invent {command.service}")
     stop = stop_on_signals()
     with open_session(_session_config(args, timestamping=command.timestamped)) as session:
         return run_service(command, session, config, args, stop)

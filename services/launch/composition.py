@@ -20,6 +20,7 @@ import zenoh
 
 from services.runtime.executor import Executor
 from services.runtime.node import Node
+from services.runtime.realtime import settle_garbage_collector
 from services.service import ClockedService, RunningService, ServiceCommand, config_from_args, start_service
 
 log = logging.getLogger("invent.composed")
@@ -62,6 +63,8 @@ class Composition:
         node, service = start_service(command, self.session, config, args, self._shared)
         composed = ComposedService(name, node, service, None)
         if isinstance(service, ClockedService):
+            # The clocked service starts last: everything the composition needs is built.
+            settle_garbage_collector(config.rt)
             composed.thread = threading.Thread(target=self._run, args=(composed, service), name=name, daemon=True)
             composed.thread.start()
         self.services.append(composed)

@@ -49,6 +49,7 @@ from services.launch.run import (
     default_report_dir,
     launch_services,
     outcome_exit_code,
+    rt_flags,
     verdict,
 )
 from services.recording.mcap_files import read_run, robot_report
@@ -256,7 +257,7 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
 
             for robot in fleet.robots:
                 state = report_dir / robot.name / MOTOR_STATE_FILE
-                own = {Service.MOTOR: ["--state", str(state)]}
+                own = {Service.MOTOR: ["--state", str(state), *rt_flags(args)]}
                 for service in SERVICES_BEFORE_DRIVE:
                     flags = [*common, *role_flags(access, Role(service), robot.name), *robot_flags(robot)]
                     flags += journal(robot.name)
@@ -280,6 +281,7 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             run.run.wait_tokens(tokens)
             wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
             sim_flags = ["--fleet", args.fleet, "--mode", mode, "--until-drive-ends", "--wait-for", *wait_for]
+            sim_flags += rt_flags(args)
             launcher.start(
                 "sim",
                 ["sim", *common, *role_flags(access, Role.SIM), *(recorder.flags if recorder else []), *sim_flags],

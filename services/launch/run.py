@@ -26,8 +26,10 @@ from schemas.messages import ScenarioOutcome
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.launch.children import ChildDied, Interrupted, Launcher, Supervisor, describe_exit, say
 from services.launch.composition import Composition
+from services.runtime.realtime import apply_realtime
 from services.runtime.session import ROUTER_LISTENING, open_session, session_config
 from services.security import Profile, Role
+from services.service import config_from_args
 
 EXIT_CHILD_DIED = 1
 EXIT_DEGRADED = 1
@@ -43,6 +45,17 @@ RECORDING_FILE = "run.mcap"
 MOTOR_STATE_FILE = "motor-state.json"
 """The run's own motor state file (latches, gains), in the report directory: a run starts afresh."""
 SERVICES_BEFORE_DRIVE = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
+
+
+CONTROL_PATH = (Service.SIM, Service.MOTOR)
+"""The services ``--rt`` gives real-time settings to (with the router): every step's exchange
+runs through them (docs/realtime.md)."""
+
+
+def rt_flags(args: argparse.Namespace) -> list[str]:
+    """The flags that give a control-path child (the router, the sim, a motor) ``up``'s ``--rt``;
+    the ``rt.*`` overrides reach every child with the other ``--set``."""
+    return ["--rt"] if args.rt else []
 
 
 def default_report_dir() -> Path:
@@ -76,6 +89,8 @@ def launch_services(
     child (or the router at ``--connect``), or one composed process whose session is itself the
     router (so outside zenoh tools still see every key)."""
     if args.composed:
+        # One process runs the whole loop: it is the control path.
+        apply_realtime(config_from_args(None, args).rt, "invent up --composed")
         mode_config = (
             session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR), timestamping=args.ros2)
             if args.connect
@@ -91,7 +106,15 @@ def launch_services(
     supervisor = Supervisor()
     try:
         if not args.connect:
-            router_flags = ["router", *access.router_flags(endpoint), "--log-level", args.log_level]
+            rt_settings = [flag for text in args.set or () if text.startswith("rt.") for flag in ("--set", text)]
+            router_flags = [
+                "router",
+                *access.router_flags(endpoint),
+                "--log-level",
+                args.log_level,
+                *rt_flags(args),
+                *rt_settings,
+            ]
             # Nothing connects before the router listens: a router that cannot (its port taken)
             # ends the run at once, saying why, before any service has started.
             supervisor.start("router", router_flags, ready_line=ROUTER_LISTENING).wait_ready(STARTUP_TIMEOUT_S)

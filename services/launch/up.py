@@ -44,6 +44,7 @@ from services.launch.run import (
     default_report_dir,
     launch_services,
     outcome_exit_code,
+    rt_flags,
     verdict,
 )
 from services.recording import view
@@ -151,7 +152,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
                 live_view = ViewProcess([*common, *access.flags(Role.OBSERVER)], args.view)
                 closing.callback(live_view.close)
                 live_view.wait_serving(run)
-            own_flags = {Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE)]}
+            own_flags = {Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE), *rt_flags(args)]}
             before_drive = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if args.ros2 else ()))
             for service in before_drive:
                 flags = [*common, *access.flags(Role(service)), *journal_flags, *own_flags.get(service, [])]
@@ -174,7 +175,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
                 )
                 wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
                 sim_flags = ["--mode", mode, "--until-drive-ends", "--wait-for", *wait_for]
-            sim_flags += ["--gui"] if args.gui else []
+            sim_flags += [*(["--gui"] if args.gui else []), *rt_flags(args)]
             if args.teleop:
                 say("teleop: the robot follows ROS 2's /cmd_vel (Twist or TwistStamped) until Ctrl-C; see docs/ros2.md")
             launcher.start("sim", ["sim", *common, *access.flags(Role.SIM), *journal_flags, *sim_flags])

@@ -36,6 +36,7 @@ from services.runtime.inputs import (
 )
 from services.runtime.journal import Journal
 from services.runtime.logs import BadInputCounter, RateLimitedLog, log
+from services.runtime.realtime import status as realtime_status
 
 LIVELINESS_QUERY_TIMEOUT_S = 1.0
 """Upper bound on a start-up liveliness query (the router answers at once)."""
@@ -126,6 +127,7 @@ class Node:
             "bad_input": self.bad_inputs.as_dict(),
             "internal_errors": self.internal_errors,
             "dropped_events": self.executor.dropped_events,
+            "rt": realtime_status(),
         }
 
     def subscribe(

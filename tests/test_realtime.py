@@ -1,0 +1,111 @@
+"""Real-time settings (``--rt``, ``[rt]``; services/runtime/realtime.py): applied to real processes,
+read back from the kernel (/proc), and refused without a crash where the system refuses them."""
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from schemas.keys import Keys, Service
+from services.runtime.session import free_port
+from tests.harness import InventProcess, call, peer_session, run_invent, wait_alive
+
+KEYS = Keys("rh0")
+CAN_SCHEDULE_FIFO = os.geteuid() == 0
+WITHOUT_THE_RIGHTS = ["setpriv", "--bounding-set", "-sys_nice,-ipc_lock", "--inh-caps", "-sys_nice,-ipc_lock"]
+
+
+ZENOH_THREADS = ("rx-", "tx-", "net-", "acc-", "app-")
+
+
+def _control_threads(pid: int) -> list[int]:
+    """The main thread (the service's) and zenoh's, which receive and send every sample; numpy's
+    BLAS pool, started at import and never on the control path, is left as it is."""
+    threads = [int(tid) for tid in os.listdir(f"/proc/{pid}/task")]
+    return [
+        tid
+        for tid in threads
+        if tid == pid or Path(f"/proc/{pid}/task/{tid}/comm").read_text().startswith(ZENOH_THREADS)
+    ]
+
+
+def _locked_kb(pid: int) -> int:
+    line = next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines() if line.startswith("VmLck"))
+    return int(line.split()[1])
+
+
+@pytest.mark.skipif(not CAN_SCHEDULE_FIFO, reason="SCHED_FIFO and mlockall need root (or CAP_SYS_NICE, CAP_IPC_LOCK)")
+def test_a_motor_with_rt_runs_its_and_zenohs_threads_sched_fifo_locked_on_its_cpus_its_collector_as_told():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with (
+        InventProcess("router", "--listen", endpoint) as router,
+        peer_session(endpoint) as session,
+        InventProcess(
+            "motor", "--connect", endpoint, "--rt", "--set", "rt.priority=30", "--set", "rt.cpus=[0]",
+            "--set", 'rt.gc="idle"',
+        ) as motor,
+    ):  # fmt: skip
+        wait_alive(session, KEYS.alive(Service.MOTOR))
+        ok, status = call(session, KEYS.status(Service.MOTOR))
+        pid = motor.process.pid
+        threads = _control_threads(pid)
+        policies = {tid: os.sched_getscheduler(tid) for tid in threads}
+        priorities = {tid: os.sched_getparam(tid).sched_priority for tid in threads}
+        affinities = {tid: os.sched_getaffinity(tid) for tid in threads}
+        locked_kb = _locked_kb(pid)
+        code, _out, err = motor.stop()
+        router.stop()
+    assert ok and code == 0, err
+    assert len(threads) > 3, "zenoh's threads as well as the service's"
+    assert set(policies.values()) == {os.SCHED_FIFO}, policies
+    assert set(priorities.values()) == {30}, priorities
+    assert all(cpus == {0} for cpus in affinities.values()), affinities
+    assert locked_kb > 10_000, "mlockall: the whole process is locked in memory"
+    rt = status["rt"]
+    assert (rt["policy"], rt["priority"], rt["memory_locked"], rt["cpus"], rt["gc"], rt["refused"]) == (
+        "SCHED_FIFO", 30, True, [0], "idle", []
+    )  # fmt: skip
+    assert "real time: SCHED_FIFO priority 30, memory locked, CPUs [0]" in err
+
+
+@pytest.mark.skipif(shutil.which("setpriv") is None, reason="setpriv (util-linux) takes the rights away")
+def test_a_router_and_a_motor_refused_real_time_say_so_in_one_line_and_serve_without_it():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with (
+        InventProcess("router", "--listen", endpoint, "--rt", wrapper=WITHOUT_THE_RIGHTS) as router,
+        peer_session(endpoint) as session,
+        InventProcess("motor", "--connect", endpoint, "--rt", wrapper=WITHOUT_THE_RIGHTS) as motor,
+    ):
+        wait_alive(session, KEYS.alive(Service.MOTOR), timeout=30)
+        ok, status = call(session, KEYS.status(Service.MOTOR))
+        policy = os.sched_getscheduler(motor.process.pid)
+        motor_code, _out, motor_err = motor.stop()
+        router_code, _out, router_err = router.stop()
+    assert ok and motor_code == 0 and router_code == 0, motor_err + router_err
+    assert policy == os.SCHED_OTHER
+    assert status["rt"]["policy"] == "SCHED_OTHER" and status["rt"]["refused"], status["rt"]
+    for who, err in (("router", router_err), ("motor", motor_err)):
+        refusals = [line for line in err.splitlines() if "real-time settings refused" in line]
+        assert len(refusals) == 1, err
+        assert f"invent {who}" in refusals[0] and "SCHED_FIFO priority 50" in refusals[0], refusals
+        assert "docs/realtime.md" in refusals[0]
+
+
+@pytest.mark.parametrize(
+    ("command", "setting", "named"),
+    [
+        (("config",), "rt.priority=100", "rt.priority"),
+        (("config",), 'rt.gc="sometimes"', "rt.gc"),
+        (("motor", "--rt", "--connect", "tcp/127.0.0.1:9"), "rt.cpus=[4096]", "rt.cpus"),
+        (
+            ("router", "--rt", "--listen", "tcp/127.0.0.1:9"),
+            "motor.p_gain_l=3",
+            "a router takes only the [rt] settings",
+        ),
+    ],
+)
+def test_a_real_time_setting_out_of_range_exits_2_naming_it(command, setting, named):
+    result = run_invent(*command, "--set", setting)
+    assert result.returncode == 2, result.stderr
+    assert named in result.stderr
