@@ -9,9 +9,10 @@ ends; the return position error is the sim's ground truth minus the odometry's p
 the benchmark (``--runs`` each way) the corrections are applied to every service but the sim and
 the benchmark runs again: a pass. Another pass (up to ``--passes``) runs only while the correction
 the benchmark after the last gives would still change a multiplier by :data:`CONVERGED` or more
-(the paper's first-order formulas leave a few per cent of large errors: docs/odometry.md). The loop is deterministic in lockstep, so the runs of one direction
-of a benchmark end at the same place: the spread the paper averages over (the floor, the wheels'
-contact) is not simulated, only the systematic part UMBmark measures.
+(the paper's first-order formulas leave a few per cent of large errors: docs/odometry.md). The
+loop is deterministic in lockstep, so the runs of one direction of a benchmark end at the same
+place: the spread the paper averages over (the floor, the wheels' contact) is not simulated, only
+the systematic part UMBmark measures.
 
 ``--measured FILE`` evaluates return positions measured with a tape on the robot instead
 (``services/calibration/measured.py``): no simulator, one benchmark, the corrections.
@@ -109,7 +110,8 @@ EXIT_RUN_FAILED = 1
 
 
 class RunFailed(RuntimeError):
-    """A run did not drive its square to the end (the drive gave it up)."""
+    """A run did not drive its square to the end (the drive gave it up), or the runs' return
+    positions are beyond what the formulas take."""
 
 
 def say(text: str) -> None:
@@ -215,6 +217,9 @@ def _settings(args: argparse.Namespace) -> Settings:
                 f"--sim-set {key}: only the simulated body may differ from the description: " + ", ".join(SIM_BODY_KEYS)
             )
         sim_set[key] = value
+    output = Path(args.output) if args.output else None
+    if output is not None and not output.parent.is_dir():
+        raise ConfigError(f"-o {output}: no directory {output.parent} to write it in")
     overrides = overrides_from_args(None, args)
     description = read_description(args.config, overrides)
     config = config_from_description(description)
@@ -226,7 +231,7 @@ def _settings(args: argparse.Namespace) -> Settings:
         description=description,
         config=config,
         report_dir=Path(args.report) if args.report else default_report_dir(),
-        output=Path(args.output) if args.output else None,
+        output=output,
     )
 
 
@@ -234,20 +239,32 @@ def run_umbmark(args: argparse.Namespace, parser: argparse.ArgumentParser) -> in
     settings = _settings(args)
     start = Calibration.of(settings.config.odometry)
     if args.measured:
-        measured = read_measured(Path(args.measured))
-        if measured.side is not None and args.side is not None and measured.side != args.side:
-            raise ConfigError(f"--side {args.side:g} and the side of {args.measured} ({measured.side:g} m) differ")
-        side = measured.side or settings.side
-        try:
-            result = evaluate(
-                side, wheelbase(settings.config, start), measured.errors[Direction.CW], measured.errors[Direction.CCW]
-            )
-        except ValueError as error:
-            raise ConfigError(f"--measured {args.measured}: {error}") from None
-        benchmarks = [Benchmark("measured", start, result)]
-        say(_benchmark_line(benchmarks[0]))
-        inputs = {"source": "measured", "measured": str(args.measured), "side": side}
-        return _finish(settings, start, benchmarks, passes=1, inputs=inputs)
+        return _from_measured(args, settings, start)
+    return _in_simulation(args, parser, settings, start)
+
+
+def _from_measured(args: argparse.Namespace, settings: Settings, start: Calibration) -> int:
+    measured = read_measured(Path(args.measured))
+    if measured.side is not None and args.side is not None and measured.side != args.side:
+        raise ConfigError(f"--side {args.side:g} and the side of {args.measured} ({measured.side:g} m) differ")
+    side = measured.side or settings.side
+    try:
+        result = evaluate(
+            side, wheelbase(settings.config, start), measured.errors[Direction.CW], measured.errors[Direction.CCW]
+        )
+    except ValueError as error:
+        raise ConfigError(f"--measured {args.measured}: {error}") from None
+    benchmark = Benchmark("measured", start, result)
+    say(_benchmark_line(benchmark))
+    inputs = {"source": "measured", "measured": str(args.measured), "side": side}
+    return _finish(settings, side, start, [benchmark], passes=1, inputs=inputs)
+
+
+def _in_simulation(
+    args: argparse.Namespace, parser: argparse.ArgumentParser, settings: Settings, start: Calibration
+) -> int:
+    """The benchmark before, then passes: each applies the last benchmark's correction and runs the
+    benchmark again, until ``--passes`` or until the next correction would be below :data:`CONVERGED`."""
     _check_sim_config(args, settings)
     _make_report_dir(settings.report_dir)
     interrupted = stop_on_signals()
@@ -283,7 +300,7 @@ def run_umbmark(args: argparse.Namespace, parser: argparse.ArgumentParser) -> in
         "true_body": simulation.true_body(start),
         "scenarios": {str(direction): str(path) for direction, path in simulation.scenarios.items()},
     }
-    return _finish(settings, start, benchmarks, passes=passes, inputs=inputs, recording=recording)
+    return _finish(settings, settings.side, start, benchmarks, passes=passes, inputs=inputs, recording=recording)
 
 
 def _make_report_dir(path: Path) -> None:
@@ -311,6 +328,7 @@ def _check_sim_config(args: argparse.Namespace, settings: Settings) -> None:
 
 def _finish(
     settings: Settings,
+    side: float,
     start: Calibration,
     benchmarks: list[Benchmark],
     *,
@@ -322,7 +340,7 @@ def _finish(
     final = after.calibration if len(benchmarks) > 1 else start.then(before.result.correction)
     ed, eb = total(start, final)
     _make_report_dir(settings.report_dir)
-    figure = write_figure(settings.report_dir / FIGURE_FILE, settings.side, [_points_of(b) for b in benchmarks])
+    figure = write_figure(settings.report_dir / FIGURE_FILE, side, [_points_of(b) for b in benchmarks])
     files = {"report": str(settings.report_dir / REPORT_FILE), "figure": str(figure)}
     if recording is not None:
         files["recording"] = str(recording)
@@ -522,12 +540,15 @@ class Simulation:
             for direction in Direction
             for index in range(1, settings.runs + 1)
         )
-        result = evaluate(
-            settings.side,
-            wheelbase(settings.config, calibration),
-            [lap.error for lap in laps if lap.direction is Direction.CW],
-            [lap.error for lap in laps if lap.direction is Direction.CCW],
-        )
+        try:
+            result = evaluate(
+                settings.side,
+                wheelbase(settings.config, calibration),
+                [lap.error for lap in laps if lap.direction is Direction.CW],
+                [lap.error for lap in laps if lap.direction is Direction.CCW],
+            )
+        except ValueError as error:
+            raise RunFailed(f"{label}: UMBmark cannot take these runs: {error}") from None
         benchmark = Benchmark(label, calibration, result, laps)
         say(_benchmark_line(benchmark))
         return benchmark
