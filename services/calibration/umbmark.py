@@ -25,7 +25,7 @@ the mean of the two radii: UMBmark sees the ratio of the diameters, never their 
 start). Ed > 1 means the right wheel is the larger, so the odometry's right radius must grow:
 ``right_radius_scale`` ×= 2/(1/Ed + 1), ``left_radius_scale`` ×= 2/(Ed + 1), ``axle_scale`` ×= Eb.
 The paper writes the two wheel factors the other way round (c_L = 2/(1/Ed + 1), c_R = 2/(Ed + 1));
-with Ed = D_R/D_L as computed in this frame, that assignment doubles the curve instead of
+with Ed = D_R/D_L as computed in this frame, that assignment about doubles the curve instead of
 removing it (the tests drive both).
 """
 
@@ -45,9 +45,9 @@ DEFAULT_SIDE = 4.0
 DEFAULT_RUNS = 5
 """Runs in each direction: the paper's."""
 CONVERGED = 5e-4
-"""A correction whose multipliers all lie within this of 1 is not worth another pass: the
-benchmark's own floor in the simulator is about half of it (docs/odometry.md), and a pass that
-stops here leaves Ed and Eb within a fifth of errors as small as the issue's (a wheel 0.3 % off)."""
+"""A correction whose multipliers all lie within this of 1 is not worth another pass: two to
+four times the simulator's own floor (corrections of 1.4e-4 to 2.4e-4 with no error injected,
+docs/odometry.md)."""
 
 
 class Direction(StrEnum):

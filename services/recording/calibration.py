@@ -4,8 +4,8 @@
   counter-clockwise, with their centres of gravity, in millimetres in the frame of the start;
 - the runs' paths for Foxglove (``umbmark.mcap``): ``/umbmark/paths`` (``foxglove.SceneUpdate``,
   frame ``world``) holds the square and, per run, the ground truth and the odometry's path and the
-  point where the robot really stopped, one message per run at the simulated time the runs
-  add up to; ``/umbmark/runs`` (JSON) each run's end points and error.
+  point where the robot really stopped, one message per run, a second apart on the timeline;
+  ``/umbmark/runs`` (JSON) each run's end points and error.
 """
 
 from __future__ import annotations
