@@ -7,12 +7,14 @@ raises :class:`ConfigError` naming the field, and the CLI exits with code 2.
 
 from __future__ import annotations
 
+import copy
 import functools
+import json
 import math
 import tomllib
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Any, Literal, NamedTuple, TypeVar
 
 import msgspec
 
@@ -138,6 +140,26 @@ class OdometryConfig(_Section, frozen=True):
     """Calibration multiplier on the axle length (1.0 = no calibration)."""
     straight_step: StraightStep = "exact"
     """How the straight and rho_border branches integrate (see StraightStep)."""
+
+
+class CalibratedGeometry(NamedTuple):
+    """The lengths the odometry integrates with and the motor turns body velocities into wheel
+    speeds with: the robot's, times the calibration multipliers of ``[odometry]`` (as ROS 2's
+    diff_drive_controller applies its multipliers to both; docs/odometry.md, Calibration)."""
+
+    left_radius: float
+    """r_L: the configured radius times its calibration multiplier."""
+    right_radius: float
+    half_axle: float
+    """b = calibrated axle length / 2."""
+
+    @classmethod
+    def of(cls, robot: RobotConfig, odometry: OdometryConfig) -> CalibratedGeometry:
+        return cls(
+            robot.radius_of_left_wheel * odometry.left_radius_scale,
+            robot.radius_of_right_wheel * odometry.right_radius_scale,
+            robot.length_of_axle * odometry.axle_scale / 2.0,
+        )
 
 
 class SimMode(StrEnum):
@@ -378,6 +400,11 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
             if getattr(motor, name) > ceiling:
                 raise ValueError(f"`motor.{name}` = {getattr(motor, name)} is above `input.max_gain` = {ceiling}")
 
+    @property
+    def geometry(self) -> CalibratedGeometry:
+        """The robot's wheel radii and half axle with the calibration applied."""
+        return CalibratedGeometry.of(self.robot, self.odometry)
+
 
 SECTIONS: dict[str, type[msgspec.Struct]] = {
     name: msgspec.inspect.type_info(Config).fields[index].type.cls  # type: ignore[attr-defined]
@@ -463,6 +490,18 @@ def load_config(path: str | Path | None = None, overrides: dict[str, Any] | None
 
     Override values of None are skipped, so unset command-line flags keep the file's value.
     """
+    return config_from_description(read_description(path, overrides))
+
+
+def config_from_description(raw: dict[str, Any]) -> Config:
+    """The typed robot description of the tables ``raw`` (as :func:`read_description` gives them);
+    ConfigError naming the field. ``raw`` is not changed."""
+    return _build(copy.deepcopy(raw))
+
+
+def read_description(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The robot description's tables as written: the file (none: empty), then ``overrides``
+    (None values skipped), unchecked and without defaults: what :func:`description_toml` writes back."""
     raw: dict[str, Any] = {}
     if path is not None:
         try:
@@ -481,4 +520,29 @@ def load_config(path: str | Path | None = None, overrides: dict[str, Any] | None
             if not isinstance(table, dict):
                 raise ConfigError(f"`{dotted}`: `{section}` is not a table")
         table[field] = value
-    return _build(raw)
+    return raw
+
+
+def description_toml(raw: dict[str, Any]) -> str:
+    """TOML text of a robot description's tables (:func:`read_description`): its top-level values,
+    then one ``[section]`` per table, keys in their order; a None is written :data:`NONE`."""
+    scalars = {name: value for name, value in raw.items() if not isinstance(value, dict)}
+    lines = [f"{name} = {_toml_value(value)}" for name, value in scalars.items()]
+    for name, table in raw.items():
+        if isinstance(table, dict):
+            lines += ["", f"[{name}]", *(f"{key} = {_toml_value(value)}" for key, value in table.items())]
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def _toml_value(value: Any) -> str:
+    if value is None:
+        return json.dumps(NONE)
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)  # a float's repr reads back as the same float (TOML takes 1e-05 and 0.1)
+    if isinstance(value, str):
+        return json.dumps(value)  # a JSON string is a TOML basic string
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+    raise ConfigError(f"cannot write {value!r} ({type(value).__name__}) in a robot description")

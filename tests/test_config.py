@@ -6,7 +6,15 @@ from pathlib import Path
 
 import pytest
 
-from services.config import SEED_NAMES, Config, ConfigError, load_config, parse_override
+from services.config import (
+    SEED_NAMES,
+    Config,
+    ConfigError,
+    description_toml,
+    load_config,
+    parse_override,
+    read_description,
+)
 from tests.harness import run_invent
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -196,3 +204,25 @@ def test_a_motor_without_limits_commands_what_it_is_told():
     expected = ((2.5 - 4.0 * half_axle) / radius, (2.5 + 4.0 * half_axle) / radius)
     assert references[0] == pytest.approx(expected)
     assert abs(references[1][0]) < abs(expected[0]) and abs(references[1][1]) < abs(expected[1])
+
+
+def test_a_description_written_back_loads_as_the_one_read(tmp_path):
+    """What `invent calibrate umbmark -o` writes: the file and the overrides, as written, back as TOML."""
+    path = tmp_path / "robot.toml"
+    path.write_text(
+        '[robot]\nname = "rh3"\nlength_of_axle = 0.45\n\n[motor]\nmax_vx = "none"\n\n'
+        "[ros2]\npose_covariance = [0.1, 0.1, 0.1, 0.1, 0.1, 1e-05]\n"
+    )
+    overrides = {"odometry.axle_scale": 1.0123456789012345, "sim.world": "bump", "drive.give_up_after_stop": None}
+    description = read_description(path, overrides)
+    assert description["odometry"] == {
+        "axle_scale": 1.0123456789012345
+    } and "give_up_after_stop" not in description.get("drive", {})
+    written = tmp_path / "written.toml"
+    written.write_text(description_toml(description))
+    assert load_config(written) == load_config(path, overrides)
+    assert load_config(written).odometry.axle_scale == 1.0123456789012345
+    assert load_config(written).motor.max_vx is None and load_config(written).ros2.pose_covariance[5] == 1e-05
+    assert description_toml({"odometry": {"straight_step": "seed"}, "sim": {"brake_after": None}}) == (
+        '[odometry]\nstraight_step = "seed"\n\n[sim]\nbrake_after = "none"\n'
+    )

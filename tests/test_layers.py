@@ -43,6 +43,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.clock\.(sim_time|lockstep|observation)", CORE),
     (r"services\.planar", CORE),
     (r"services\.fleet\.(description|summary)", CORE),
+    (r"services\.calibration\.(umbmark|measured)", CORE),
     (r"sim_bridge\.(simulator|robot|world|geometry|latency|display)", CORE),
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph)", CORE),
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
@@ -51,7 +52,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
     (r"services\.(cli|launch|recording)(\..*)?", TOOL),
     (r"services\.security", TOOL),
-    (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet))", PACKAGE),
+    (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration))", PACKAGE),
 )
 
 PROJECT = re.compile(r"(schemas|services|sim_bridge)(\..*)?")

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from schemas.codec import BadInput
 from schemas.messages import PDGains
 from services.clock.sim_time import GAP_ADOPTION_SAMPLES
-from services.config import InputConfig, MotorConfig, RobotConfig, TargetAngleMode
+from services.config import CalibratedGeometry, InputConfig, MotorConfig, OdometryConfig, RobotConfig, TargetAngleMode
 from services.motor.core import MotorCore, MotorState, SimPoseConverter
 
 MS = 1_000_000
@@ -80,6 +80,20 @@ def test_different_left_and_right_radii_hand_computed():
     assert motor_core.dq_ref == pytest.approx((2.795, 3.6025))
     assert torques == pytest.approx([5 * 2.795 * 0.0005 + 2 * 2.795, 5 * 3.6025 * 0.0005 + 2 * 3.6025])
     assert torques == pytest.approx([5.5969875, 7.21400625])
+
+
+def test_the_calibrated_geometry_turns_commands_into_wheel_speeds():
+    """The odometry's calibration multipliers apply to the motor's conversion too (as
+    diff_drive_controller's do): a calibrated robot is commanded with the lengths it has."""
+    calibration = OdometryConfig(left_radius_scale=0.995, right_radius_scale=1.005, axle_scale=1.02)
+    robot = RobotConfig()
+    motor_core = MotorCore(robot, MotorConfig(**SEED_LAW), ANY_INPUT, CalibratedGeometry.of(robot, calibration))
+    motor_core.set_target(0.5, 1.0)
+    motor_core.step(0, [0.0, 0.0])
+    motor_core.step(1 * MS, [0.0, 0.0])
+    # b = 0.441 * 1.02 / 2 = 0.22491; dq_ref_L = (0.5 - 0.22491) / 0.0995, dq_ref_R = (0.5 + 0.22491) / 0.1005
+    assert motor_core.dq_ref == pytest.approx((2.764723618, 7.213034826))
+    assert motor_core.status()["geometry"]["half_axle"] == pytest.approx(0.22491)
 
 
 def test_non_default_wheel_ids_in_a_three_joint_vector():

@@ -416,6 +416,9 @@ def test_status_reports_locked_parameters_and_counters(link):
         "radius_of_left_wheel": CONFIG.robot.radius_of_left_wheel,
         "radius_of_right_wheel": 0.12,
         "length_of_axle": CONFIG.robot.length_of_axle,
+        "left_radius": CONFIG.robot.radius_of_left_wheel,
+        "right_radius": 0.12,
+        "half_axle": CONFIG.robot.length_of_axle / 2.0,
     }
     assert status["offsets"]["simulated_offset_y"] == 0.045795
     assert status["limits"] == {name: OVERRIDES[f"motor.{name}"] for name in ("max_vx", "max_ax", "max_w", "max_aw")}

@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
-from services.config import Config, InputConfig, load_config
-from services.odometry.core import Branch, CalibratedGeometry, Odometry, Step, wrap_angle
+from services.config import CalibratedGeometry, Config, InputConfig, load_config
+from services.odometry.core import Branch, Odometry, Step, wrap_angle
 from services.planar import Pose
 
 NS = 1_000_000_000

@@ -16,7 +16,7 @@ from schemas.keys import DEFAULT_ROBOT, Keys
 from services.cli import tools
 from services.config import ConfigError, RecordRate, load_config, parse_override
 from services.fleet.description import fleet_configs, load_fleet
-from services.launch import fleet, up
+from services.launch import calibrate, fleet, up
 from services.recording import record, replay, view
 from services.recording.mcap_files import read_run, replay_schedule, write_run_report
 from services.recording.report import summary
@@ -361,6 +361,30 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_arguments(up_parser)
     up_parser.set_defaults(handler=_up)
 
+    calibrate_parser = commands.add_parser(
+        "calibrate",
+        help="calibrate the odometry: UMBmark, in the simulator or from return positions measured by hand",
+        description="Calibrate the robot's odometry. The one method: umbmark (`invent calibrate umbmark --help`).",
+    )
+    methods = calibrate_parser.add_subparsers(dest="method", required=True, metavar="METHOD")
+    umbmark = methods.add_parser(
+        "umbmark",
+        parents=[service],
+        help="UMBmark: drive a square both ways on odometry alone, correct the wheel radii and the wheelbase",
+        description="UMBmark (Borenstein and Feng 1996): drive a square of side --side clockwise and "
+        "counter-clockwise --runs times each on odometry alone, take where the robot really stops, and compute the "
+        "systematic errors Ed (the ratio of the wheel diameters) and Eb (the wheelbase's) and the corrected "
+        "odometry.left_radius_scale, right_radius_scale and axle_scale (used by the odometry and by the motor's "
+        "wheel-speed conversion alike). In the simulator (the default) the loop runs composed in lockstep with no "
+        "localization, the simulated body changed by --sim-set only, and the benchmark runs again with the "
+        "corrections applied (E_max,syst before and after). --measured FILE takes return positions measured with a "
+        "tape on the real robot instead. Writes report.json, umbmark.png (the paper's figure) and umbmark.mcap (the "
+        "runs' paths, for Foxglove) into --report DIR, and with -o FILE the robot description with the corrections. "
+        "Exit 0 done, 1 a run failed, 2 bad arguments or configuration, 130 Ctrl-C. See docs/odometry.md.",
+    )
+    calibrate.add_arguments(umbmark)
+    umbmark.set_defaults(handler=_calibrate_umbmark)
+
     for command in service_commands():
         sub = commands.add_parser(
             str(command.service),
@@ -492,6 +516,10 @@ def _up(args: argparse.Namespace) -> int:
     if args.fleet:
         return fleet.run_fleet(args, build_parser())
     return up.run_up(args, config_from_args(None, args), build_parser())
+
+
+def _calibrate_umbmark(args: argparse.Namespace) -> int:
+    return calibrate.run_umbmark(args, build_parser())
 
 
 def _serve(args: argparse.Namespace) -> int:

@@ -24,7 +24,7 @@ from schemas.codec import BadInput
 from schemas.keys import BODY_POSE_LENGTH
 from schemas.messages import NANOSECONDS_PER_SECOND, PDGains
 from services.clock.sim_time import StampGap, check_stamp_near
-from services.config import InputConfig, MotorConfig, RobotConfig, TargetAngleMode
+from services.config import CalibratedGeometry, InputConfig, MotorConfig, OdometryConfig, RobotConfig, TargetAngleMode
 from services.planar import check_coordinates, wrap_angle
 
 """The two ``motor.target_angle`` modes."""
@@ -118,12 +118,23 @@ class MotorCore:
 
     After each :meth:`step`, ``cycle_state``, ``dq``, ``dq_ref`` and ``q_ref`` describe that
     cycle (None where the cycle computed no such value) for tracing.
+
+    ``geometry`` is what turns a body velocity into wheel speeds: the robot description's
+    calibrated lengths (``Config.geometry``, as the odometry integrates with); None, the robot's
+    own radii and axle, uncalibrated.
     """
 
-    def __init__(self, robot: RobotConfig, motor: MotorConfig, limits: InputConfig = InputConfig()) -> None:
+    def __init__(
+        self,
+        robot: RobotConfig,
+        motor: MotorConfig,
+        limits: InputConfig = InputConfig(),
+        geometry: CalibratedGeometry | None = None,
+    ) -> None:
         self.robot = robot
         self.motor = motor
         self.limits = limits
+        self.geometry = geometry or CalibratedGeometry.of(robot, OdometryConfig())
         self._horizon_ns = limits.stamp_horizon_ns
         self._gap = StampGap(limits.stamp_horizon_ns)
         # A target older than the command timeout would be timed out anyway.
@@ -138,8 +149,7 @@ class MotorCore:
         self._timeout_ns = round(motor.command_timeout * NANOSECONDS_PER_SECOND)
         self._left, self._right = robot.left_wheel_id, robot.right_wheel_id
         self._min_length = max(self._left, self._right) + 1
-        self._half_axle = robot.half_axle
-        self._radius_l, self._radius_r = robot.radius_of_left_wheel, robot.radius_of_right_wheel
+        self._radius_l, self._radius_r, self._half_axle = self.geometry
 
         self._stamp_ns: int | None = None
         self.q: tuple[float, float] = (0.0, 0.0)
@@ -428,6 +438,7 @@ class MotorCore:
                 "radius_of_left_wheel": robot.radius_of_left_wheel,
                 "radius_of_right_wheel": robot.radius_of_right_wheel,
                 "length_of_axle": robot.length_of_axle,
+                **self.geometry._asdict(),
             },
             "offsets": {
                 "simulated_offset_x": motor.simulated_offset_x,

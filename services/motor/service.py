@@ -86,7 +86,7 @@ class MotorService:
 
     def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
         self.node = node
-        self.core = MotorCore(config.robot, config.motor, config.input)
+        self.core = MotorCore(config.robot, config.motor, config.input, config.geometry)
         self.torques_published = 0
         # Lockstep: a wheel-angle sample waits for the drive's target it is owed (the sim took it).
         self.target_hold: Hold[HeldSample] = Hold(

@@ -40,10 +40,10 @@ from typing import NamedTuple
 from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.clock.sim_time import StampGap, check_stamp_near
-from services.config import InputConfig, OdometryConfig, RobotConfig
+from services.config import CalibratedGeometry, InputConfig, OdometryConfig, RobotConfig
 from services.planar import Pose, check_coordinates, wrap_angle
 
-__all__ = ["Branch", "CalibratedGeometry", "Odometry", "Pose", "Step", "wrap_angle"]
+__all__ = ["Branch", "Odometry", "Pose", "Step", "wrap_angle"]
 
 
 class Branch(StrEnum):
@@ -86,24 +86,6 @@ class Step(NamedTuple):
     @property
     def pose(self) -> Pose:
         return Pose(self.x, self.y, self.theta)
-
-
-class CalibratedGeometry(NamedTuple):
-    """The lengths the integration uses: the robot's, times the odometry's calibration."""
-
-    left_radius: float
-    """r_L: the configured radius times its calibration multiplier."""
-    right_radius: float
-    half_axle: float
-    """b = calibrated axle length / 2."""
-
-    @classmethod
-    def of(cls, robot: RobotConfig, odometry: OdometryConfig) -> CalibratedGeometry:
-        return cls(
-            robot.radius_of_left_wheel * odometry.left_radius_scale,
-            robot.radius_of_right_wheel * odometry.right_radius_scale,
-            robot.length_of_axle * odometry.axle_scale / 2.0,
-        )
 
 
 FIX_HISTORY_STEPS = 4096

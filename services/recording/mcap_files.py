@@ -328,7 +328,7 @@ def write_run_report(path: Path, report_dir: Path, config: Config) -> tuple[dict
     file holds no run (no ``up/run`` summary of ``config.robot.name``)."""
     report, recording = robot_report(path, read_run(path).messages, config)
     report_path = write_report(report, report_dir)
-    plots = write_plots(recording, report.get("planned_path"), config.robot, report_dir)
+    plots = write_plots(recording, report.get("planned_path"), config.geometry, report_dir)
     return report, report_path, plots
 
 

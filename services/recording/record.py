@@ -83,7 +83,10 @@ class SceneBuilder:
         """The scene of ``config``'s robot, or of every robot of ``fleet`` (each robot's description)."""
         self._sink = sink
         robots = tuple(fleet) or (config,)
-        self._scenes = {robot.robot.name: Scene(robot.robot, robot.sim, fleet=bool(fleet)) for robot in robots}
+        self._scenes = {
+            robot.robot.name: Scene(robot.robot, robot.sim, fleet=bool(fleet), geometry=robot.geometry)
+            for robot in robots
+        }
         self._not_shown = RateLimitedLog(log)
         self._topics = {
             Keys(robot.robot.name).topic(topic): (topic, self._scenes[robot.robot.name])

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from schemas.keys import Service
-from services.config import RobotConfig
+from services.config import CalibratedGeometry
 from services.drive.scenarios import distance_to_path
 from services.motor.core import SimPoseConverter
 from services.planar import Pose
@@ -55,14 +55,12 @@ def odometry_errors(recording: Recording) -> list[float]:
 
 
 def wheel_speeds(
-    recording: Recording, robot: RobotConfig
+    recording: Recording, geometry: CalibratedGeometry
 ) -> tuple[list[tuple[float, float, float]], list[tuple[float, float, float]]]:
-    """(commanded, measured) wheel speeds in rad/s as (t, left, right) series."""
-    b = robot.half_axle
-    commanded = [
-        (t, (vx - b * w) / robot.radius_of_left_wheel, (vx + b * w) / robot.radius_of_right_wheel)
-        for t, vx, w in recording.commands
-    ]
+    """(commanded, measured) wheel speeds in rad/s as (t, left, right) series; the commanded ones as
+    the motor turns the commands into wheel speeds, with the calibrated ``geometry``."""
+    left_radius, right_radius, b = geometry
+    commanded = [(t, (vx - b * w) / left_radius, (vx + b * w) / right_radius) for t, vx, w in recording.commands]
     measured = [
         (t1, (l1 - l0) / (t1 - t0), (r1 - r0) / (t1 - t0))
         for (t0, l0, r0), (t1, l1, r1) in zip(recording.wheel_angles, recording.wheel_angles[1:])
@@ -253,7 +251,7 @@ def _downsample(series: list[Any], limit: int = 4000) -> list[Any]:
 
 
 def write_plots(
-    recording: Recording, planned_path: list[Point] | None, robot: RobotConfig, directory: Path
+    recording: Recording, planned_path: list[Point] | None, geometry: CalibratedGeometry, directory: Path
 ) -> list[Path]:
     """``trajectory.png`` (ground truth, odometry, localization, planned path) and ``wheel_speeds.png``."""
     import matplotlib
@@ -287,7 +285,7 @@ def write_plots(
     figure.savefig(trajectory, dpi=110, bbox_inches="tight")
     plt.close(figure)
 
-    commanded, measured = wheel_speeds(recording, robot)
+    commanded, measured = wheel_speeds(recording, geometry)
     figure, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     for index, side in ((1, "left"), (2, "right")):
         panel = axes[index - 1]

@@ -52,7 +52,7 @@ from schemas.messages import (
     TimedPosition,
     TimedVelocity,
 )
-from services.config import RobotConfig, SimConfig
+from services.config import CalibratedGeometry, OdometryConfig, RobotConfig, SimConfig
 from services.recording.report import pose_from_body_pose
 from sim_bridge.geometry import robot_body
 
@@ -146,8 +146,13 @@ class Scene:
     ``<robot>/robot``, ``<robot>/planned_path``, ``<robot>/trails`` (``/tf`` and ``/scene`` are
     shared; the obstacles are the world's, one entity)."""
 
-    def __init__(self, robot: RobotConfig, sim: SimConfig, *, fleet: bool = False) -> None:
+    def __init__(
+        self, robot: RobotConfig, sim: SimConfig, *, fleet: bool = False, geometry: CalibratedGeometry | None = None
+    ) -> None:
+        """``geometry``: the calibrated lengths the motor turns commands into wheel speeds with
+        (``Config.geometry``); None, the robot's own."""
         self._robot = robot
+        self._geometry = geometry or CalibratedGeometry.of(robot, OdometryConfig())
         prefix = f"{robot.name}/" if fleet else ""
         self.frame = prefix + ROBOT_FRAME
         self._ids = {entity: prefix + entity for entity in ("robot", "planned_path", "trails")}
@@ -221,11 +226,8 @@ class Scene:
         return [(self.topics[LOCALIZATION_TOPIC], _pose_in_world(message))]
 
     def _target(self, message: TimedVelocity) -> None:
-        robot, b = self._robot, self._robot.half_axle
-        self._commanded = (
-            (message.vx - b * message.w) / robot.radius_of_left_wheel,
-            (message.vx + b * message.w) / robot.radius_of_right_wheel,
-        )
+        left_radius, right_radius, b = self._geometry
+        self._commanded = ((message.vx - b * message.w) / left_radius, (message.vx + b * message.w) / right_radius)
 
     def _wheel_angles(self, message: TimedDoubleSeq) -> list[tuple[str, Any]]:
         robot = self._robot
