@@ -24,6 +24,7 @@ from schemas.keys import Keys, Service, validate_robot_name
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import Config, ConfigError, RecordConfig, load_config, parse_override
 from services.runtime.executor import Executor
+from services.runtime.intraprocess import LocalBus
 from services.runtime.journal import MB, Journal, JournalLimits, journal_path
 from services.runtime.node import Node
 from services.runtime.realtime import settle_garbage_collector
@@ -175,12 +176,14 @@ def start_service(
     config: Config,
     args: argparse.Namespace,
     executor: Executor | None = None,
+    bus: LocalBus | None = None,
 ) -> tuple[Node, RunningService]:
     """Build ``command``'s service on ``session`` (opened by the caller, maybe shared), its node
     on ``executor`` (default: one of its own), keeping what it publishes in a journal in
-    ``args.journal`` if given (``invent up`` records its run so)."""
+    ``args.journal`` if given (``invent up`` records its run so); ``bus``: the process's
+    intra-process delivery, when services are composed (services/runtime/intraprocess.py)."""
     journal = _journal(args, command.service, config.record)
-    node = Node(session, Keys(config.robot.name), command.service, executor=executor, journal=journal)
+    node = Node(session, Keys(config.robot.name), command.service, executor=executor, journal=journal, bus=bus)
     try:
         return node, command.factory(node, config, args)
     except BaseException:

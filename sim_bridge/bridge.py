@@ -494,7 +494,14 @@ class SimService:
                 robot_node = (
                     node
                     if index == 0
-                    else Node(node.session, Keys(body.name), Service.SIM, executor=node.executor, journal=node.journal)
+                    else Node(
+                        node.session,
+                        Keys(body.name),
+                        Service.SIM,
+                        executor=node.executor,
+                        journal=node.journal,
+                        bus=node.bus,
+                    )
                 )
                 self.links.append(RobotLink(self, robot_node, body))
         except BaseException:

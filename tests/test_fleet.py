@@ -1,7 +1,8 @@
 """A fleet in one world, end to end: ``invent up --fleet``.
 
 Two robots drive the square each from its own start: both come home, and the run is the same bit
-for bit composed on a quiet machine and as separate processes beside two CPU burners. Two robots
+for bit composed on a quiet machine (over two processes: the simulator and one robot's services in
+``up``'s, the other robot's in a worker) and as separate processes beside two CPU burners. Two robots
 driven head-on meet: a bump for each naming the other, both motors latched stopped. In a secure
 fleet (every service with its own robot's credentials) a robot whose motor dies degrades only its
 own part of the report, and the other robot still reaches its goal.
@@ -100,7 +101,7 @@ def _home(report: dict) -> float:
 def squares(tmp_path_factory) -> dict[str, tuple[int, str, dict, dict[str, list[bytes]]]]:
     runs = {}
     quiet = tmp_path_factory.mktemp("quiet_composed")
-    code, output, report = _up(quiet, SQUARES, "--composed")
+    code, output, report = _up(quiet, SQUARES, "--composed", "--workers", "2")
     runs["quiet composed"] = (code, output, report, _samples(quiet / "report") if code == 0 else {})
     loaded = tmp_path_factory.mktemp("loaded_separate")
     with _burning_cpus(2):
@@ -110,6 +111,7 @@ def squares(tmp_path_factory) -> dict[str, tuple[int, str, dict, dict[str, list[
 
 
 def test_both_robots_drive_their_square_from_their_own_start_and_come_home(squares):
+    assert "started worker1" in squares["quiet composed"][1], "one robot's services in a worker process"
     for name, (code, output, report, _samples_of_run) in squares.items():
         assert code == 0, (name, output[-3000:])
         assert set(report["robots"]) == {"rh0", "rh1"} and report["degraded"] == [], (name, report["degraded"])

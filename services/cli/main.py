@@ -16,7 +16,7 @@ from schemas.keys import DEFAULT_ROBOT, Keys
 from services.cli import tools
 from services.config import ConfigError, RecordRate, load_config, parse_override
 from services.fleet.description import fleet_configs, load_fleet
-from services.launch import calibrate, fleet, up
+from services.launch import calibrate, fleet, up, worker
 from services.recording import record, replay, view
 from services.recording.mcap_files import read_run, replay_schedule, write_run_report
 from services.recording.report import summary
@@ -385,6 +385,19 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate.add_arguments(umbmark)
     umbmark.set_defaults(handler=_calibrate_umbmark)
 
+    worker_parser = commands.add_parser(
+        "worker",
+        parents=[connection],
+        help="(started by invent up --fleet --composed) compose the services it is sent on standard input",
+        description="A worker of a composed fleet (docs/fleet.md): reads one JSON array per line on standard "
+        'input, a service\'s name and the arguments `invent` takes (["rh1/motor", "motor", "--robot", "rh1"]), '
+        "starts each composed in this process and says so on standard output; stops on SIGINT or end of input.",
+    )
+    worker_parser.add_argument(
+        "--no-intra-process", action="store_true", help="the services' messages through the zenoh session"
+    )
+    worker_parser.set_defaults(handler=_worker)
+
     for command in service_commands():
         sub = commands.add_parser(
             str(command.service),
@@ -508,6 +521,12 @@ def _replay(args: argparse.Namespace) -> int:
 def _config(args: argparse.Namespace) -> int:
     print(json.dumps(msgspec.to_builtins(config_from_args(None, args)), indent=2))
     return 0
+
+
+def _worker(args: argparse.Namespace) -> int:
+    stop = stop_on_signals()
+    with open_session(_session_config(args)) as session:
+        return worker.run_worker(session, build_parser(), stop, intra_process=not args.no_intra_process)
 
 
 def _up(args: argparse.Namespace) -> int:

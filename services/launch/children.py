@@ -10,7 +10,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -89,11 +89,21 @@ class Supervisor:
     def __init__(self) -> None:
         self.children: list[Child] = []
 
-    def start(self, name: str, argv: Sequence[str], ready_line: str | None = None) -> Child:
+    def start(
+        self,
+        name: str,
+        argv: Sequence[str],
+        ready_line: str | None = None,
+        *,
+        on_line: Callable[[str], bool] | None = None,
+        stdin: bool = False,
+    ) -> Child:
         """Start ``invent <argv>`` as ``name``; with ``ready_line``, its :attr:`Child.ready` is set
-        once it prints a line containing it."""
+        once it prints a line containing it. ``on_line(line)`` sees each line first and returns
+        True for one it took (not printed); ``stdin``: the child's standard input is a pipe."""
         process = subprocess.Popen(
             [sys.executable, "-m", "services.cli", *argv],
+            stdin=subprocess.PIPE if stdin else None,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
@@ -105,7 +115,7 @@ class Supervisor:
         ready = threading.Event()
         if ready_line is None:
             ready.set()
-        pump = threading.Thread(target=self._pump, args=(name, process, said, ready, ready_line), daemon=True)
+        pump = threading.Thread(target=self._pump, args=(name, process, said, ready, ready_line, on_line), daemon=True)
         child = Child(name, process, pump, said, ready)
         pump.start()
         self.children.append(child)
@@ -113,10 +123,18 @@ class Supervisor:
         return child
 
     def _pump(
-        self, name: str, process: subprocess.Popen[str], said: list[str], ready: threading.Event, ready_line: str | None
+        self,
+        name: str,
+        process: subprocess.Popen[str],
+        said: list[str],
+        ready: threading.Event,
+        ready_line: str | None,
+        on_line: Callable[[str], bool] | None,
     ) -> None:
         assert process.stdout is not None
         for line in process.stdout:
+            if on_line is not None and on_line(line):
+                continue
             sys.stdout.write(f"[{name:<{NAME_WIDTH}}] {line}")
             sys.stdout.flush()
             said.append(line)

@@ -5,6 +5,9 @@ tools, without the network hop: every service's node is on one :class:`Executor`
 thread (its lockstep wait) handles all their events and inputs, so a step's exchange (wheel
 angles → motor → torque → sim) involves no thread switch, and no other thread competes for the
 GIL at every step (when one did, the loop ran at half the speed: benchmarks/README.md). The
+services hand each other their messages as they are, through a :class:`LocalBus` (intra-process
+delivery, as rclcpp's: no encoding, no zenoh), and zenoh carries a message only to a subscriber
+outside the process (``intra_process=False``: every message through the session, as before). The
 other services run no loop of their own; the drive's end shows in its ``finished``.
 """
 
@@ -13,12 +16,15 @@ from __future__ import annotations
 import argparse
 import logging
 import threading
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import zenoh
 
 from services.runtime.executor import Executor
+from services.runtime.intraprocess import LocalBus
 from services.runtime.node import Node
 from services.runtime.realtime import settle_garbage_collector
 from services.service import ClockedService, RunningService, ServiceCommand, config_from_args, start_service
@@ -48,11 +54,14 @@ class ComposedService:
 class Composition:
     """Builds and runs services on one shared session; the in-process twin of ``up.Supervisor``."""
 
-    def __init__(self, session: zenoh.Session, parser: argparse.ArgumentParser) -> None:
+    def __init__(self, session: zenoh.Session, parser: argparse.ArgumentParser, *, intra_process: bool = True) -> None:
         self.session = session
         self._parser = parser
         self._stop = threading.Event()
         self._shared = Executor()
+        self._bus = LocalBus() if intra_process else None
+        """The services hand each other their messages directly (services/runtime/intraprocess.py);
+        None: through the one session, as separate processes do."""
         self.services: list[ComposedService] = []
 
     def start(self, name: str, argv: Sequence[str]) -> ComposedService:
@@ -60,7 +69,7 @@ class Composition:
         args = self._parser.parse_args(list(argv))
         command: ServiceCommand = args.service_command
         config = config_from_args(command, args)
-        node, service = start_service(command, self.session, config, args, self._shared)
+        node, service = start_service(command, self.session, config, args, self._shared, self._bus)
         composed = ComposedService(name, node, service, None)
         if isinstance(service, ClockedService):
             # The clocked service starts last: everything the composition needs is built.
@@ -70,6 +79,17 @@ class Composition:
         self.services.append(composed)
         log.info("started %s in this process: invent %s", name, " ".join(argv))
         return composed
+
+    def post(self, handle: Callable[[Any], None], item: Any) -> None:
+        """Run ``handle(item)`` on the thread that handles the services' events (thread-safe)."""
+        self._shared.post(handle, item)
+
+    def spin(self, timeout: float) -> None:
+        """Handle the services' events and inputs on this thread for up to ``timeout`` seconds (a
+        composition whose services have no loop of their own: a fleet's worker)."""
+        deadline = time.monotonic() + timeout
+        while (remaining := deadline - time.monotonic()) > 0 and self._shared.spin_once(remaining):
+            pass
 
     def idle(self) -> None:
         """Until the sim's thread runs the shared executor, handle its events here: the services

@@ -19,6 +19,7 @@ robots, their bumps into each other), and ``<report dir>/<robot>/`` its plots.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from contextlib import ExitStack
 from pathlib import Path
@@ -52,6 +53,7 @@ from services.launch.run import (
     rt_flags,
     verdict,
 )
+from services.launch.worker import assign
 from services.recording.mcap_files import read_run, robot_report
 from services.recording.report import (
     degradation_line,
@@ -86,6 +88,8 @@ def check_fleet(args: argparse.Namespace) -> tuple[Fleet, dict[str, Config]]:
     wrong = [f"{flag} ({UNSUPPORTED[flag]})" for flag, value in given.items() if value]
     if wrong:
         raise ConfigError(f"--fleet with {', '.join(wrong)}")
+    if args.workers is not None and (args.workers < 1 or not args.composed):
+        raise ConfigError(f"--workers {args.workers}: a number of processes >= 1, with --composed")
     fleet = load_fleet(args.fleet)
     overrides = overrides_from_args(None, args)
     configs = fleet_configs(fleet, args.config, overrides)
@@ -232,7 +236,11 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     sim_started = False
     health: dict[str, dict[str, Any]] = {}
     try:
-        with launch_services(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
+        assignment = assign(fleet.names, args.workers or os.cpu_count() or 1) if args.composed else None
+        with (
+            launch_services(args, endpoint, parser, access, assignment) as (launcher, session),
+            ExitStack() as closing,
+        ):
             run = FleetRun(Run(launcher, session, Keys(fleet.names[0]), interrupted), fleet)
             outcomes = Outcomes(session, fleet.names)
             closing.callback(outcomes.close)

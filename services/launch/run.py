@@ -26,6 +26,7 @@ from schemas.messages import ScenarioOutcome
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.launch.children import ChildDied, Interrupted, Launcher, Supervisor, describe_exit, say
 from services.launch.composition import Composition
+from services.launch.worker import Workers
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import ROUTER_LISTENING, open_session, session_config
 from services.security import Profile, Role
@@ -83,11 +84,16 @@ class Access:
 
 @contextmanager
 def launch_services(
-    args: argparse.Namespace, endpoint: str, parser: argparse.ArgumentParser, access: Access
+    args: argparse.Namespace,
+    endpoint: str,
+    parser: argparse.ArgumentParser,
+    access: Access,
+    assignment: dict[str, int] | None = None,
 ) -> Iterator[tuple[Launcher, zenoh.Session]]:
     """The launcher and the session ``up`` watches through: separate processes around a router
     child (or the router at ``--connect``), or one composed process whose session is itself the
-    router (so outside zenoh tools still see every key)."""
+    router (so outside zenoh tools still see every key); a composed fleet's robots spread over
+    worker processes as ``assignment`` says (services/launch/worker.py)."""
     if args.composed:
         # One process runs the whole loop: it is the control path.
         apply_realtime(config_from_args(None, args).rt, "invent up --composed")
@@ -97,11 +103,16 @@ def launch_services(
             else session_config(listen=[endpoint], mode="router", timestamping=args.ros2)
         )
         with open_session(mode_config) as session:
-            composition = Composition(session, parser)
+            composition = Composition(session, parser, intra_process=not args.no_intra_process)
+            launcher: Launcher = composition
+            if assignment and max(assignment.values()) > 0:
+                worker_flags = ["--connect", endpoint, "--log-level", args.log_level]
+                worker_flags += ["--no-intra-process"] if args.no_intra_process else []
+                launcher = Workers(composition, assignment, worker_flags)
             try:
-                yield composition, session
+                yield launcher, session
             finally:
-                composition.stop()
+                launcher.stop()
         return
     supervisor = Supervisor()
     try:

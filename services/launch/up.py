@@ -107,6 +107,8 @@ def check_before_start(args: argparse.Namespace, config: Config) -> None:
     service that exits 2 would take the others down noisily and leave a run of nothing behind."""
     if args.gui:
         require_display()
+    if args.workers is not None:
+        raise ConfigError("--workers: it spreads a fleet's robots over processes (with --fleet --composed)")
     if args.view == 0:
         raise ConfigError("--view: the view's port must be fixed (1..65535), for the address to open in Foxglove")
     if args.teleop:
@@ -325,4 +327,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="run the services in this one process on one zenoh session (no network hop between them; "
         "the session is the router, so outside zenoh tools still see every key)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="with --fleet --composed: spread the robots' services over N processes, this one (with the "
+        "simulator) and N - 1 workers, each robot's services together (default: the machine's cores, at most "
+        "one process per robot; 1: every service in this process)",
+    )
+    parser.add_argument(
+        "--no-intra-process",
+        action="store_true",
+        help="with --composed: the services' messages go through the zenoh session, not handed over as they are "
+        "(intra-process delivery, the default: zenoh then carries a message only to subscribers outside the "
+        "process); for measuring and debugging",
     )

@@ -54,6 +54,10 @@ class Executor:
 
     def __init__(self) -> None:
         self._events: collections.deque[tuple[Callable[[Any], None], Any]] = collections.deque()
+        self.spinning_thread: int | None = None
+        """The thread that last began to handle events and inputs: a message a publisher of this
+        process offers on it waits in its input; from any other thread, it is posted
+        (services/runtime/intraprocess.py)."""
         self.dropped_events = 0
         """Events not queued because :data:`EVENT_CAPACITY` were waiting."""
         self._posted = threading.Lock()
@@ -147,6 +151,7 @@ class Executor:
         another input waits until the thread wakes: ``waiting_for`` names the input to wait in
         instead, when the service knows which sample it needs next. A sampled input named so is
         the only one that counts meanwhile: the others are not polled while the thread waits."""
+        self.spinning_thread = threading.get_ident()
         if self._take():
             return True
         if timeout == 0:

@@ -9,14 +9,16 @@ deadlock). Every queue is bounded.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from enum import StrEnum
-from typing import Any
+from typing import Any, NamedTuple
 
 import msgspec
 import zenoh
 
 from schemas.codec import ENCODING, encode
+from services.runtime.intraprocess import LocalBus, LocalSink
 from services.runtime.journal import Journal
 from services.runtime.session import has_match
 
@@ -45,22 +47,80 @@ class Delivery(StrEnum):
         return self in (Delivery.QUEUED, Delivery.EVERY)
 
 
+class _Matching(NamedTuple):
+    """What a matching listener's callback gets (as zenoh's ``MatchingStatus``)."""
+
+    matching: bool
+
+
+class _MatchingListener:
+    """A publisher's matching within the process and beyond it, as one listener."""
+
+    def __init__(self, publisher: Publisher, bus: LocalBus, callback: Callable[[_Matching], None]) -> None:
+        self._publisher, self._bus, self._callback = publisher, bus, callback
+        self._local = False
+        self._seen_remote = False
+        self.remote: Any = None
+        """zenoh's matching listener of the publisher (subscribers outside the process)."""
+        bus.watch(publisher.key, self._on_local)
+
+    def _on_local(self, matched: bool) -> None:
+        self._local = matched
+        self._callback(_Matching(matched or self._seen_remote))
+
+    def on_remote(self, status: zenoh.MatchingStatus) -> None:
+        self._seen_remote = status.matching
+        self._callback(_Matching(status.matching or self._local))
+
+    def undeclare(self) -> None:
+        self._bus.unwatch(self._publisher.key, self._on_local)
+        if self.remote is not None:
+            self.remote.undeclare()
+
+
 class Publisher:
     """A zenoh publisher of one message type, encoding with the project's codec; each message it
-    puts is also kept in ``journal``, if given (``invent up``'s recording)."""
+    puts is also kept in ``journal``, if given (``invent up``'s recording).
 
-    def __init__(self, session: zenoh.Session, key: str, journal: Journal | None = None) -> None:
+    With a ``bus`` (services composed in one process: services/runtime/intraprocess.py), a message
+    goes to the process's own inputs of the key as it is, and through zenoh (encoded) only while a
+    subscriber outside the process matches."""
+
+    def __init__(
+        self, session: zenoh.Session, key: str, journal: Journal | None = None, bus: LocalBus | None = None
+    ) -> None:
         self.key = key
-        self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(ENCODING))
         self._journal = journal
+        self._bus = bus
+        if bus is None:
+            self._local: list[LocalSink] | None = None
+            self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(ENCODING))
+            self._remote = True
+            return
+        self._local = bus.sinks(key)
+        self._publisher = session.declare_publisher(
+            key, encoding=zenoh.Encoding(ENCODING), allowed_destination=zenoh.Locality.REMOTE
+        )
+        self._remote_watch = self._publisher.declare_matching_listener(self._on_remote)
+        self._remote = has_match(self._publisher)
+
+    def _on_remote(self, status: zenoh.MatchingStatus) -> None:
+        self._remote = status.matching  # an attribute set in zenoh's thread, read by the service's
 
     def put(self, message: msgspec.Struct, attachment: bytes | None = None, *, keep: bool = True) -> None:
         """Publish ``message``; keep it in the journal too unless not ``keep`` (a control-path
         sample of a step that is not observed, in a run recorded at the observed steps)."""
+        local, journal = self._local, self._journal if keep else None
+        if local is not None:
+            for sink in local:
+                sink.offer(message, attachment)
+            if not self._remote and journal is None:
+                return
         payload = encode(message)
-        self._publisher.put(payload, attachment=attachment)
-        if self._journal is not None and keep:
-            self._journal.write(self.key, payload, stamp_ns=_stamp_ns(message))
+        if self._remote:
+            self._publisher.put(payload, attachment=attachment)
+        if journal is not None:
+            journal.write(self.key, payload, stamp_ns=_stamp_ns(message))
 
     def record(self, message: msgspec.Struct) -> None:
         """Keep ``message`` in the journal (if any) without publishing it: an output computed at a
@@ -69,14 +129,28 @@ class Publisher:
             self._journal.write(self.key, encode(message), stamp_ns=_stamp_ns(message))
 
     @property
-    def matched(self) -> bool:
-        """True once at least one subscriber matches this key."""
-        return has_match(self._publisher)
+    def remote_subscribers(self) -> bool:
+        """Whether a subscriber outside the process matches (always true of a publisher with no bus:
+        all its messages go through zenoh)."""
+        return self._remote
 
-    def declare_matching_listener(self, callback: Callable[[zenoh.MatchingStatus], None]) -> Any:
-        return self._publisher.declare_matching_listener(callback)
+    @property
+    def matched(self) -> bool:
+        """True once at least one subscriber matches this key (of this process's, with a bus)."""
+        return bool(self._local) or has_match(self._publisher)
+
+    def declare_matching_listener(self, callback: Callable[[Any], None]) -> Any:
+        """``callback(status)`` whenever ``status.matching`` (a subscriber matches) changes; with a
+        bus, a subscriber of this process counts as one outside it does. Call it in no zenoh callback."""
+        if self._bus is None:
+            return self._publisher.declare_matching_listener(callback)
+        listener = _MatchingListener(self, self._bus, callback)
+        listener.remote = self._publisher.declare_matching_listener(listener.on_remote)
+        return listener
 
     def undeclare(self) -> None:
+        if self._bus is not None:
+            self._remote_watch.undeclare()
         self._publisher.undeclare()
 
 
@@ -100,6 +174,8 @@ class LatchedPublisher:
 
 Dispatch = Callable[[bytes, "bytes | None"], None]
 """Decodes and handles one sample's payload and attachment (built by the node)."""
+DispatchMessage = Callable[[msgspec.Struct, "bytes | None"], None]
+"""Handles one message, as a publisher of the same process offered it, and its attachment."""
 
 CHANNEL_CAPACITY = 256
 """Samples a channel input holds; when full, the oldest is dropped (zenoh's ring channel), so a
@@ -133,11 +209,24 @@ class NodeInput:
     more than the work; benchmarks/README.md).
     """
 
-    def __init__(self, session: zenoh.Session, key: str, dispatch: Dispatch, capacity: int) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        dispatch: Dispatch,
+        capacity: int,
+        dispatch_message: DispatchMessage | None = None,
+    ) -> None:
         self.key = key
         self._session = session
         self._dispatch = dispatch
+        self._dispatch_message = dispatch_message
+        """Handles a message a publisher of this process offered as it is (services/runtime/intraprocess.py)."""
         self._subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+
+    def accept_local(self, message: msgspec.Struct, attachment: bytes | None) -> None:
+        """Keep a message a publisher of this process offered, for the next take (executor's thread)."""
+        raise NotImplementedError
 
     def receive(self) -> zenoh.Sample:
         """The next sample, waiting as long as it takes (a wake sample included)."""
@@ -161,11 +250,26 @@ class NodeInput:
 class ChannelInput(NodeInput):
     """An input whose every sample is handled, in order (up to its capacity): :attr:`Delivery.EVERY`."""
 
-    def __init__(self, session: zenoh.Session, key: str, dispatch: Dispatch, capacity: int = CHANNEL_CAPACITY) -> None:
-        super().__init__(session, key, dispatch, capacity)
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        dispatch: Dispatch,
+        capacity: int = CHANNEL_CAPACITY,
+        dispatch_message: DispatchMessage | None = None,
+    ) -> None:
+        super().__init__(session, key, dispatch, capacity, dispatch_message)
+        self._local: deque[tuple[msgspec.Struct, bytes | None]] = deque(maxlen=capacity)
+
+    def accept_local(self, message: msgspec.Struct, attachment: bytes | None) -> None:
+        self._local.append((message, attachment))
 
     def take(self) -> bool:
-        """Handle the next waiting sample, if any; True if one was handled."""
+        """Handle the next waiting message of this process, else sample, if any; True if one was handled."""
+        local = self._local
+        if local and self._dispatch_message is not None:
+            self._dispatch_message(*local.popleft())
+            return True
         while (sample := self._subscriber.try_recv()) is not None:
             payload, attachment = contents(sample)
             if attachment != _WAKE:
@@ -186,9 +290,15 @@ class LatestSample(NodeInput):
     never counted.)
     """
 
-    def __init__(self, session: zenoh.Session, key: str, dispatch: Dispatch) -> None:
-        super().__init__(session, key, dispatch, NEWEST_CAPACITY)
+    def __init__(
+        self, session: zenoh.Session, key: str, dispatch: Dispatch, dispatch_message: DispatchMessage | None = None
+    ) -> None:
+        super().__init__(session, key, dispatch, NEWEST_CAPACITY, dispatch_message)
         self._received: zenoh.Sample | None = None
+        self._local_newest: tuple[msgspec.Struct, bytes | None] | None = None
+
+    def accept_local(self, message: msgspec.Struct, attachment: bytes | None) -> None:
+        self._local_newest = (message, attachment)
 
     def put_back(self, sample: zenoh.Sample) -> None:
         """Keep ``sample``, which a blocking receive took out of the ring, for the next take: it
@@ -196,7 +306,12 @@ class LatestSample(NodeInput):
         self._received = sample
 
     def take(self) -> bool:
-        """Handle the newest sample that arrived since the last take, if any; True if one did."""
+        """Handle the newest message of this process offered since the last take, else the newest
+        sample that arrived, if any; True if one was handled."""
+        local, self._local_newest = self._local_newest, None
+        if local is not None and self._dispatch_message is not None:
+            self._dispatch_message(*local)
+            return True
         newest, self._received = self._received, None
         while (sample := self._subscriber.try_recv()) is not None:
             if not is_wake(sample):

@@ -27,6 +27,7 @@ from services.runtime.inputs import (
     ChannelInput,
     Delivery,
     Dispatch,
+    DispatchMessage,
     InputTaken,
     LatchedPublisher,
     LatestSample,
@@ -34,6 +35,7 @@ from services.runtime.inputs import (
     Publisher,
     contents,
 )
+from services.runtime.intraprocess import LocalBus, LocalSink
 from services.runtime.journal import Journal
 from services.runtime.logs import BadInputCounter, RateLimitedLog, log
 from services.runtime.realtime import status as realtime_status
@@ -41,6 +43,8 @@ from services.runtime.realtime import status as realtime_status
 LIVELINESS_QUERY_TIMEOUT_S = 1.0
 """Upper bound on a start-up liveliness query (the router answers at once)."""
 MessageT = TypeVar("MessageT", bound=msgspec.Struct)
+ContentT = TypeVar("ContentT")
+"""A sample's payload (bytes), or a message a publisher of this process offered as it is."""
 
 _QueryHandler = Callable[[bytes], Any]
 
@@ -74,8 +78,11 @@ class Node:
         status: Callable[[], dict[str, Any]] = dict,
         executor: Executor | None = None,
         journal: Journal | None = None,
+        bus: LocalBus | None = None,
     ) -> None:
         self.session = session
+        self.bus = bus
+        """The process's intra-process delivery, when its services are composed (services/runtime/intraprocess.py)."""
         self.keys = keys
         self.service = service
         self.log = log.getChild(str(service))
@@ -88,6 +95,7 @@ class Node:
         self.executor = executor or Executor()
         self._declarations: list[Any] = []
         self._inputs: list[NodeInput] = []
+        self._local_sinks: list[tuple[str, LocalSink]] = []
         self._publishers: list[Publisher] = []
         self._journal = journal
         self._taken: dict[str, InputTaken] = {}
@@ -146,13 +154,17 @@ class Node:
         BadInput. ``wakes``: the thread, idle, waits in this input's receive (an ``EVERY`` input
         that paces the service). Returns the input, for ``waiting_for`` (None for ``QUEUED``)."""
 
-        def handle(payload: bytes, attachment: bytes | None) -> None:
+        def handle_message(message: msgspec.Struct, attachment: bytes | None) -> None:
             if with_attachment:
-                handler(decode(message_type, payload), attachment)
+                handler(message, attachment)
             else:
-                handler(decode(message_type, payload))
+                handler(message)
 
-        return self._subscribe(key, self._dispatch(key, handle, delivery), delivery, wakes)
+        def handle(payload: bytes, attachment: bytes | None) -> None:
+            handle_message(decode(message_type, payload), attachment)
+
+        dispatch_message = self._dispatch(key, handle_message, delivery) if self.bus is not None else None
+        return self._subscribe(key, self._dispatch(key, handle, delivery), delivery, wakes, dispatch_message)
 
     def subscribe_bytes(
         self, key: str, handler: Callable[[bytes, bytes | None], None], delivery: Delivery, *, wakes: bool = False
@@ -161,9 +173,19 @@ class Node:
         ``handler(payload, attachment)`` decodes them itself, raising BadInput for bad ones."""
         return self._subscribe(key, self._dispatch(key, handler, delivery), delivery, wakes)
 
-    def _subscribe(self, key: str, dispatch: Dispatch, delivery: Delivery, wakes: bool) -> NodeInput | None:
+    def _subscribe(
+        self,
+        key: str,
+        dispatch: Dispatch,
+        delivery: Delivery,
+        wakes: bool,
+        dispatch_message: DispatchMessage | None = None,
+    ) -> NodeInput | None:
+        """``dispatch_message``: for the messages of this process's publishers (with a bus)."""
         if delivery is Delivery.QUEUED:
             post = self.executor.post
+            if dispatch_message is not None:
+                self._attach(key, lambda message, attachment: dispatch_message(message, attachment))
 
             def dispatch_contents(payload_and_attachment: tuple[bytes, bytes | None]) -> None:
                 dispatch(*payload_and_attachment)
@@ -178,16 +200,26 @@ class Node:
             return None
         node_input: NodeInput
         if delivery is Delivery.EVERY:
-            node_input = ChannelInput(self.session, key, dispatch)
+            node_input = ChannelInput(self.session, key, dispatch, dispatch_message=dispatch_message)
             self.executor.add_input(node_input, wakes)
         else:
-            node_input = LatestSample(self.session, key, dispatch)
+            node_input = LatestSample(self.session, key, dispatch, dispatch_message)
             if delivery is Delivery.SAMPLED:
                 self.executor.add_sampled(node_input)
             else:
                 self.executor.add_input(node_input, wakes)
         self._inputs.append(node_input)
+        if dispatch_message is not None:
+            self._attach(key, node_input.accept_local)
         return node_input
+
+    def _attach(self, key: str, accept: Callable[[msgspec.Struct, bytes | None], None]) -> None:
+        """Take the messages this process's publishers put on ``key`` as they are (with a bus):
+        ``accept`` runs on the executor's thread."""
+        assert self.bus is not None
+        sink = LocalSink(self.executor, accept)
+        self.bus.attach(key, sink)
+        self._local_sinks.append((key, sink))
 
     def subscribe_latched(self, key: str, message_type: type[MessageT], handler: Callable[[MessageT], None]) -> None:
         """Every sample of a latched key (:meth:`latched_publisher`), as :attr:`Delivery.QUEUED`
@@ -267,27 +299,26 @@ class Node:
         self._declarations.append(self.session.declare_queryable(key, on_query))
 
     def _dispatch(
-        self, key: str, handle: Callable[[bytes, bytes | None], None], delivery: Delivery, *, count: bool = True
-    ) -> Dispatch:
+        self, key: str, handle: Callable[[ContentT, bytes | None], None], delivery: Delivery, *, count: bool = True
+    ) -> Callable[[ContentT, bytes | None], None]:
         """Count (``inputs`` in the status, unless not ``count``) and handle (decode included) a
-        sample of ``key``; bad input and bugs are counted, never raised (:meth:`guard`)."""
-        if count:
-            self._taken[key] = InputTaken(delivery.every_sample)
-        taken = self._taken.get(key, InputTaken(delivery.every_sample))
+        sample of ``key`` (or a message of this process's publishers); bad input and bugs are
+        counted, never raised (:meth:`guard`)."""
+        taken = self._taken.setdefault(key, InputTaken(delivery.every_sample)) if count else None
         failed = self._failed
 
-        def dispatch(payload: bytes, attachment: bytes | None) -> None:
-            if count:
+        def dispatch(content: ContentT, attachment: bytes | None) -> None:
+            if taken is not None:
                 taken.samples += 1
             try:
-                handle(payload, attachment)
+                handle(content, attachment)
             except Exception as error:  # noqa: BLE001 (bad input and bugs alike must not kill the service)
                 failed(key, error)
 
         return dispatch
 
     def publisher(self, key: str) -> Publisher:
-        publisher = Publisher(self.session, key, self._journal)
+        publisher = Publisher(self.session, key, self._journal, self.bus)
         self._publishers.append(publisher)
         return publisher
 
@@ -391,6 +422,10 @@ class Node:
     def close(self) -> None:
         """Withdraw the liveliness token and undeclare everything (the session stays open); the
         journal of what it published, if it keeps one, is then complete."""
+        for key, sink in self._local_sinks:
+            assert self.bus is not None
+            self.bus.detach(key, sink)
+        self._local_sinks.clear()
         for node_input in self._inputs:
             self.executor.remove_input(node_input)
             node_input.undeclare()

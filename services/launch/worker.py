@@ -1,0 +1,192 @@
+"""A composed fleet on every core: its robots' services spread over worker processes.
+
+Services composed in one process (services/launch/composition.py) share one thread, so a composed
+fleet keeps one core busy whatever the machine has. With ``invent up --fleet FILE --composed
+--workers N``, ``up``'s own process runs the simulator (one world, as ever) and the robots given to
+it, and N - 1 worker processes (``invent worker``, a child each) run the others, each robot's
+services together in one worker, handing each other their messages directly (intra-process
+delivery). The simulator and a worker exchange a step's wheel angles and torques over zenoh; the
+lockstep protocol is the same, so the run is the same bit for bit however its robots are spread.
+
+A worker takes its services from ``up`` on its standard input, one JSON array per line
+(``[name, "motor", "--robot", ...]``: the name and the argv ``invent`` would take), starts each
+in its composition and says so on its standard output (:data:`WORKER_PREFIX` lines); it says too
+when a service ends by itself (a drive at the end of its scenario, with its exit code), and every
+service's exit code when it stops (SIGINT, or its standard input closed: ``up`` is gone).
+:class:`Workers` is ``up``'s side: a :class:`~services.launch.children.Launcher` that starts a
+robot's services where :func:`assign` put the robot.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import zenoh
+
+from services.launch.children import ChildDied, Supervisor, describe_exit
+from services.launch.composition import Composition
+from services.runtime.executor import STOP_POLL_S
+
+WORKER_PREFIX = "@worker "
+STARTED, FAILED, ENDED, STOPPED = "started", "failed", "ended", "stopped"
+START_TIMEOUT_S = 60.0
+
+
+def assign(robots: Sequence[str], workers: int) -> dict[str, int]:
+    """Which process runs each robot's services: 0 is ``up``'s own (it runs the simulator too),
+    1..workers-1 the worker processes. Robots are dealt in turn from the last process to the first,
+    so ``up``'s gets the fewest when they do not divide evenly."""
+    count = max(1, min(workers, len(robots)))
+    order = list(range(count - 1, -1, -1))
+    return {robot: order[index % count] for index, robot in enumerate(robots)}
+
+
+def _say(kind: str, *fields: Any) -> None:
+    print(WORKER_PREFIX + json.dumps([kind, *fields]), flush=True)
+
+
+def run_worker(
+    session: zenoh.Session, parser: argparse.ArgumentParser, stop: threading.Event, *, intra_process: bool = True
+) -> int:
+    """``invent worker``: compose the services ``up`` sends on standard input until stopped."""
+    composition = Composition(session, parser, intra_process=intra_process)
+
+    def start(request: list[str]) -> None:
+        name, *argv = request
+        try:
+            composition.start(name, argv)
+        except BaseException as error:  # noqa: BLE001 (reported to up, which ends the run saying why)
+            _say(FAILED, name, f"{type(error).__name__}: {error}")
+            return
+        _say(STARTED, name)
+
+    def read_requests() -> None:
+        for line in sys.stdin:
+            if line.strip():
+                composition.post(start, json.loads(line))
+        stop.set()  # up is gone, or done with us
+
+    threading.Thread(target=read_requests, name="invent-worker-requests", daemon=True).start()
+    reported: set[str] = set()
+    try:
+        while not stop.is_set():
+            composition.spin(STOP_POLL_S)
+            for name, (code, how) in composition.exits().items():
+                if name not in reported:
+                    reported.add(name)
+                    _say(ENDED, name, code, how)
+    finally:
+        _say(STOPPED, composition.stop())
+    return 0
+
+
+class _Worker:
+    """``up``'s view of one worker process: what it has started, what has ended, how it stopped."""
+
+    def __init__(self, index: int, supervisor: Supervisor, connection: Sequence[str]) -> None:
+        self.name = f"worker{index}"
+        self.started: dict[str, str | None] = {}
+        """Services asked for: None until the worker answers, then ``started`` or why it failed."""
+        self.ended: dict[str, tuple[int, str]] = {}
+        self.stopped: dict[str, int] | None = None
+        self._answered = threading.Condition()
+        self.child = supervisor.start(self.name, ["worker", *connection], on_line=self._on_line, stdin=True)
+
+    def _on_line(self, line: str) -> bool:
+        if not line.startswith(WORKER_PREFIX):
+            return False
+        kind, *fields = json.loads(line[len(WORKER_PREFIX) :])
+        with self._answered:
+            if kind == STARTED:
+                self.started[fields[0]] = STARTED
+            elif kind == FAILED:
+                self.started[fields[0]] = fields[1]
+            elif kind == ENDED:
+                self.ended[fields[0]] = (int(fields[1]), str(fields[2]))
+            elif kind == STOPPED:
+                self.stopped = {name: int(code) for name, code in fields[0].items()}
+            self._answered.notify_all()
+        return True
+
+    def start(self, name: str, argv: Sequence[str]) -> None:
+        stdin = self.child.process.stdin
+        assert stdin is not None
+        self.started[name] = None
+        stdin.write(json.dumps([name, *argv]) + "\n")
+        stdin.flush()
+        deadline = time.monotonic() + START_TIMEOUT_S
+        with self._answered:
+            while self.started[name] is None:
+                code = self.child.finished()
+                if code is not None:
+                    raise ChildDied(f"{self.name} exited while starting {name} ({describe_exit(code)})")
+                if time.monotonic() > deadline:
+                    raise ChildDied(f"{self.name} did not start {name} within {START_TIMEOUT_S} s")
+                self._answered.wait(0.05)
+        if self.started[name] != STARTED:
+            raise ChildDied(f"{name} could not start in {self.name}: {self.started[name]}")
+
+    def exits(self) -> dict[str, tuple[int, str]]:
+        code = self.child.finished()
+        if code is None or self.stopped is not None:
+            return dict(self.ended)
+        died = f"{self.name} {describe_exit(code)}"
+        return {name: self.ended.get(name, (1, died)) for name in self.started}
+
+    def close_requests(self) -> None:
+        stdin = self.child.process.stdin
+        if stdin is not None and not stdin.closed:
+            stdin.close()
+
+
+class Workers:
+    """A composed fleet's launcher: the simulator and the robots :func:`assign` gives process 0 in
+    this process's :class:`Composition`, the other robots' services in worker processes."""
+
+    def __init__(self, composition: Composition, assignment: dict[str, int], connection: Sequence[str]) -> None:
+        self.composition = composition
+        self.assignment = assignment
+        self._connection = list(connection)
+        self._supervisor = Supervisor()
+        self._workers: dict[int, _Worker] = {}
+
+    def start(self, name: str, argv: Sequence[str]) -> Any:
+        index = self.assignment.get(name.partition("/")[0], 0) if "/" in name else 0
+        if index == 0:
+            return self.composition.start(name, argv)
+        if index not in self._workers:
+            self._workers[index] = _Worker(index, self._supervisor, self._connection)
+        self._workers[index].start(name, argv)
+        return None
+
+    def exits(self) -> dict[str, tuple[int, str]]:
+        ended = self.composition.exits()
+        for worker in self._workers.values():
+            ended.update(worker.exits())
+        return ended
+
+    def exited(self, exclude: str | None = None) -> tuple[str, str] | None:
+        for name, (_code, how) in self.exits().items():
+            if name != exclude:
+                return name, how
+        return None
+
+    def idle(self) -> None:
+        self.composition.idle()
+
+    def stop(self) -> dict[str, int]:
+        codes = self.composition.stop()
+        for worker in self._workers.values():
+            worker.close_requests()
+        self._supervisor.stop()
+        for worker in self._workers.values():
+            stopped = worker.stopped or {}
+            for name in worker.started:
+                codes[name] = stopped.get(name, worker.ended.get(name, (1, ""))[0])
+        return codes
