@@ -54,6 +54,13 @@ WORLD = "empty"
 START_TIMEOUT_S = 180.0
 """Eight robots as separate processes are 33 Python processes starting on two cores."""
 STOP_TIMEOUT_S = 60.0
+MODES: dict[str, list[str]] = {
+    "separate": [],
+    "composed": [loop.COMPOSED_FLAG, "--workers", "1"],
+    "composed_workers": [loop.COMPOSED_FLAG],
+}
+"""``invent up --fleet`` flags of each mode: separate processes; composed in one process; composed
+with the robots spread over the machine's cores (``--workers``' default)."""
 COMPOSED_SIM_SHARE_NOTE = (
     "composed: every service of every robot runs in one process on the sim's thread (the sim's lockstep wait "
     "serves the shared executor), so the sim's own CPU is not separable by process or thread: null"
@@ -63,7 +70,7 @@ COMPOSED_SIM_SHARE_NOTE = (
 @dataclass(frozen=True)
 class FleetResult:
     robots: int
-    composed: bool
+    mode: str
     steps_per_s: float
     steps: int
     window_s: float
@@ -83,7 +90,7 @@ class FleetResult:
     def as_dict(self) -> dict[str, Any]:
         return {
             "robots": self.robots,
-            "mode": "composed" if self.composed else "separate",
+            "mode": self.mode,
             "steps_per_s": self.steps_per_s,
             "robot_steps_per_s": self.robot_steps_per_s,
             "cpu_us_per_robot_step": self.cpu_us_per_robot_step,
@@ -143,11 +150,11 @@ class FleetUpRun(loop.UpRun):
     the motors' state files land there), its output in a log file; watched and stopped as
     :class:`benchmarks.loop.UpRun` is."""
 
-    def __init__(self, count: int, composed: bool, directory: Path) -> None:
+    def __init__(self, count: int, mode: str, directory: Path) -> None:
         # Not UpRun.__init__: the same fields, for a fleet's argv and working directory.
 
         self.count = count
-        self.composed = composed
+        self.composed = mode != "separate"
         self.endpoint = f"tcp/127.0.0.1:{loop.free_port()}"
         self.log_path = directory / f"up-fleet-{count}-{time.monotonic_ns()}.log"
         argv = [
@@ -156,7 +163,7 @@ class FleetUpRun(loop.UpRun):
             "--listen", self.endpoint,
             loop.NO_RECORD_FLAG,
             "--log-level", "warning",
-            *([loop.COMPOSED_FLAG] if composed else []),
+            *MODES[mode],
         ]  # fmt: skip
         self._log = self.log_path.open("w")
         self.process = subprocess.Popen(argv, cwd=directory, stdout=self._log, stderr=subprocess.STDOUT)
@@ -196,11 +203,12 @@ def _late(statuses: Sequence[dict[str, Any] | None]) -> int:
     )
 
 
-def measure_fleet(count: int, composed: bool, warmup_s: float, window_s: float) -> FleetResult:
-    """Run ``invent up --fleet`` of ``count`` robots (``composed`` or not) and measure over ``window_s``."""
+def measure_fleet(count: int, mode: str, warmup_s: float, window_s: float) -> FleetResult:
+    """Run ``invent up --fleet`` of ``count`` robots in ``mode`` (:data:`MODES`) and measure over ``window_s``."""
     names = robot_names(count)
+    composed = mode != "separate"
     with tempfile.TemporaryDirectory(prefix="invent-bench-fleet-") as folder:
-        run = FleetUpRun(count, composed, Path(folder))
+        run = FleetUpRun(count, mode, Path(folder))
         try:
             with open_session(session_config(connect=[run.endpoint])) as session:
                 _wait_running(session, run, names[0])
@@ -227,7 +235,7 @@ def measure_fleet(count: int, composed: bool, warmup_s: float, window_s: float) 
     late = _late([last, *last_all]) - _late([first, *first_all])
     return FleetResult(
         robots=count,
-        composed=composed,
+        mode=mode,
         steps_per_s=steps / wall,
         steps=steps,
         window_s=wall,
@@ -240,7 +248,11 @@ def measure_fleet(count: int, composed: bool, warmup_s: float, window_s: float) 
 
 SPEED_TICKS = (100, 200, 500, 1_000, 2_000, 5_000, 10_000, 20_000, 50_000)
 COST_TICKS = (20, 50, 100, 200, 500, 1_000, 2_000)
-MODE_STYLES = {"separate": ("o-", "tab:blue"), "composed": ("s-", "tab:orange")}
+MODE_STYLES = {
+    "separate": ("o-", "tab:blue"),
+    "composed": ("s-", "tab:orange"),
+    "composed_workers": ("^-", "tab:green"),
+}
 
 
 def plot(fleet: dict[str, Any], path: Path, title: str = "") -> None:

@@ -53,6 +53,8 @@ KEYS = Keys()
 COMPOSED_FLAG = "--composed"
 NO_RECORD_FLAG = "--no-record"
 ROS2_FLAG = "--ros2"
+NO_INTRA_PROCESS_FLAG = "--no-intra-process"
+RT_FLAG = "--rt"
 
 
 @dataclass(frozen=True)
@@ -68,10 +70,13 @@ class LoopResult:
     cpu_us_per_step: float
     """CPU time (user + system) of every process of the loop over the window, per step: what the
     machine's load does not change, where ``steps_per_s`` moves with it."""
+    gc: dict[str, Any] | None = None
+    """The sim's garbage collections over the window (``status.rt``): per generation, and the longest pause."""
 
     def as_dict(self) -> dict[str, Any]:
         return {
             "steps_per_s": self.steps_per_s,
+            "gc": self.gc,
             "cpu_us_per_step": self.cpu_us_per_step,
             "real_time_factor": self.sim_seconds_per_s,
             "latency_us": self.latency_us,
@@ -166,15 +171,23 @@ class ServicesRun:
     (router, motor, odometry, localization, then the drive, then the sim waiting for them),
     without ``up``'s run recorder: the loop itself, nothing listening beside it."""
 
-    def __init__(self, flags: Sequence[str], directory: Path, env: Mapping[str, str] | None = None) -> None:
+    def __init__(
+        self,
+        flags: Sequence[str],
+        directory: Path,
+        env: Mapping[str, str] | None = None,
+        control_path_flags: Sequence[str] = (),
+    ) -> None:
+        """``control_path_flags``: for the router, the motor and the sim (as ``invent up --rt`` gives them ``--rt``)."""
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.log_path = directory / f"services-{time.monotonic_ns()}.log"
         self._log = self.log_path.open("w")
         self._directory = directory
         self._sim_flags = list(flags)
+        self._control = list(control_path_flags)
         self._env = {**os.environ, **(env or {})}
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
-        self._start("router", ["router", "--listen", self.endpoint])
+        self._start("router", ["router", "--listen", self.endpoint, *self._control])
 
     def _start(self, name: str, argv: Sequence[str]) -> None:
         self.processes[name] = subprocess.Popen(
@@ -188,13 +201,13 @@ class ServicesRun:
     def start_loop(self, session: zenoh.Session) -> None:
         connect = ["--connect", self.endpoint]
         for service in (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION):
-            self._start(str(service), [str(service), *connect])
+            self._start(str(service), [str(service), *connect, *(self._control if service == Service.MOTOR else [])])
         for service in (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION):
             _wait(lambda service=service: _alive(session, service), f"the {service}", self)
         self._start("drive", ["drive", *connect, "--scenario", str(scenario_file(self._directory))])
         _wait(lambda: _alive(session, Service.DRIVE), "the drive", self)
         wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
-        self._start("sim", ["sim", *connect, *self._sim_flags, "--wait-for", *wait_for])
+        self._start("sim", ["sim", *connect, *self._sim_flags, *self._control, "--wait-for", *wait_for])
 
     @property
     def pids(self) -> list[int]:
@@ -242,12 +255,17 @@ def measure_up(flags: Sequence[str], warmup_s: float, window_s: float) -> LoopRe
 
 
 def measure_services(
-    sim_flags: Sequence[str], warmup_s: float, window_s: float, env: Mapping[str, str] | None = None
+    sim_flags: Sequence[str],
+    warmup_s: float,
+    window_s: float,
+    env: Mapping[str, str] | None = None,
+    control_path_flags: Sequence[str] = (),
 ) -> LoopResult:
     """Start the services as separate processes (:class:`ServicesRun`, with ``env`` added to
-    their environment) and measure like :func:`measure_up`."""
+    their environment, ``control_path_flags`` to the router's, the motor's and the sim's flags) and
+    measure like :func:`measure_up`."""
     with tempfile.TemporaryDirectory(prefix="invent-bench-") as folder:
-        run = ServicesRun(sim_flags, Path(folder), env)
+        run = ServicesRun(sim_flags, Path(folder), env, control_path_flags)
         try:
             with open_session(session_config(connect=[run.endpoint])) as session:
                 run.start_loop(session)
@@ -304,7 +322,22 @@ def _measure(session: zenoh.Session, run: UpRun | ServicesRun, warmup_s: float, 
     wall = last_wall - first_wall
     counters = {name: last["counters"][name] - first["counters"][name] for name in last["counters"]}
     late_counter = "late_torques" if last["mode"] == "lockstep" else "realtime_late_steps"
+    first_rt, last_rt = first.get("rt") or {}, last.get("rt") or {}
+    gc = (
+        {
+            "policy": last_rt["gc"],
+            "collections": [b - a for a, b in zip(first_rt["gc_collections"], last_rt["gc_collections"], strict=True)],
+            "pause_us_per_step": (last_rt["gc_total_pause_us"] - first_rt["gc_total_pause_us"]) / steps
+            if steps
+            else None,
+            "max_pause_us_since_start": last_rt["gc_max_pause_us"],
+            "sched": f"{last_rt['policy']} {last_rt['priority']}",
+        }
+        if last_rt and first_rt
+        else None
+    )
     return LoopResult(
+        gc=gc,
         steps_per_s=steps / wall,
         sim_seconds_per_s=(last["sim_time_s"] - first["sim_time_s"]) / wall,
         latency_us=window_latency(first["torque_latency"], last["torque_latency"]),

@@ -52,10 +52,17 @@ TARGETS = {
     "realtime.latency_us.p99": 500.0,
     "codec.min_ratio": 5.0,
     "fleet.composed.4.steps_per_s": 1000.0,
+    "realtime.rt.late_vs_floor": 1.5,
+    "realtime.rt.p99_vs_floor": 1.5,
+    "fleet.workers_speedup.8": 1.5,
 }
 """The issues' "Must show": ratios are lower bounds, late fraction and latency upper bounds; the fleet's
 (issue 26): composed with 4 robots at least at real time (1,000 steps/s at the default 1 ms step)."""
-UPPER_BOUNDS = frozenset({"realtime.late_fraction", "realtime.latency_us.p99"})
+UPPER_BOUNDS = frozenset(
+    {"realtime.late_fraction", "realtime.latency_us.p99", "realtime.rt.late_vs_floor", "realtime.rt.p99_vs_floor"}
+)
+"""Issue 32's: realtime 1 kHz with ``--rt`` within 1.5x the paced floor's late fraction and p99; a composed
+fleet of 8 on every core (``--workers``, default) at 1.5x its robot-steps/s on one worker."""
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -174,6 +181,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
     up_not_recording: list[loop.LoopResult] = []
     low_latency: list[loop.LoopResult] = []
     together: list[loop.LoopResult] = []
+    together_no_intra: list[loop.LoopResult] = []
     together_recording: list[loop.LoopResult] = []
     up_ros2: list[loop.LoopResult] = []
     together_ros2: list[loop.LoopResult] = []
@@ -229,6 +237,15 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
                     failures,
                 )
             )
+            together_no_intra.append(
+                _timed(
+                    "composed, no intra-process delivery",
+                    lambda: loop.measure_up(
+                        [loop.COMPOSED_FLAG, loop.NO_RECORD_FLAG, loop.NO_INTRA_PROCESS_FLAG], args.warmup, args.window
+                    ),
+                    failures,
+                )
+            )
             together_recording.append(
                 _timed(
                     "composed, recording",
@@ -239,7 +256,17 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
     inprocess = [value for value in inprocess if value is not None]
     floors = [value for value in floors if value is not None]
     floor_rate = _median([value["round_trips_per_s"] for value in floors])
-    separate, with_up, up_not_recording, low_latency, together, together_recording, up_ros2, together_ros2 = (
+    (
+        separate,
+        with_up,
+        up_not_recording,
+        low_latency,
+        together,
+        together_no_intra,
+        together_recording,
+        up_ros2,
+        together_ros2,
+    ) = (
         [run for run in runs if run is not None]
         for runs in (
             separate,
@@ -247,6 +274,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
             up_not_recording,
             low_latency,
             together,
+            together_no_intra,
             together_recording,
             up_ros2,
             together_ros2,
@@ -273,6 +301,8 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         "composed_steps_per_s": shared["steps_per_s"] if shared else None,
         "composed_ratio": _ratio(shared["steps_per_s"], limit) if shared else None,
         "composed_latency_us": shared["latency_us"] if shared else None,
+        "composed_no_intra_process_steps_per_s": _median([run.steps_per_s for run in together_no_intra]),
+        "composed_no_intra_process_ratio": _ratio(_median([run.steps_per_s for run in together_no_intra]), limit),
         "composed_recording_steps_per_s": _median([run.steps_per_s for run in together_recording]),
         "up_ros2_steps_per_s": _median([run.steps_per_s for run in up_ros2]),
         "composed_ros2_steps_per_s": _median([run.steps_per_s for run in together_ros2]),
@@ -280,6 +310,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
             "up": _cpu_per_step(with_up),
             "up_not_recording": _cpu_per_step(up_not_recording),
             "composed": _cpu_per_step(together),
+            "composed_no_intra_process": _cpu_per_step(together_no_intra),
             "composed_recording": _cpu_per_step(together_recording),
             "up_ros2": _cpu_per_step(up_ros2),
             "composed_ros2": _cpu_per_step(together_ros2),
@@ -295,6 +326,7 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
             "up_not_recording": [run.as_dict() for run in up_not_recording],
             "lowlatency": [run.as_dict() for run in low_latency],
             "composed": [run.as_dict() for run in together],
+            "composed_no_intra_process": [run.as_dict() for run in together_no_intra],
             "composed_recording": [run.as_dict() for run in together_recording],
             "up_ros2": [run.as_dict() for run in up_ros2],
             "composed_ros2": [run.as_dict() for run in together_ros2],
@@ -306,9 +338,40 @@ REALTIME_HZ = 1000.0
 """The realtime runs' step rate (the sim's default: 1 ms steps at a realtime factor of 1)."""
 
 
+RT_VARIANTS = {
+    "rt": [loop.RT_FLAG],
+    "rt_gc_automatic": [loop.RT_FLAG, "--set", 'rt.gc="automatic"'],
+    "rt_gc_idle": [loop.RT_FLAG, "--set", 'rt.gc="idle"'],
+}
+"""The realtime runs with ``--rt`` on the control path (router, motor, sim), as ``invent up --rt``
+gives it: its default collector policy (frozen), and the two others, to measure what each does."""
+
+
+def _realtime_summary(runs: list[loop.LoopResult], floor_late: float | None, floor_p99: float | None) -> dict[str, Any]:
+    late = _median([run.late_fraction for run in runs])
+    p99 = _median([run.latency_us["p99"] for run in runs])
+    gc_runs = [run.gc for run in runs if run.gc]
+    return {
+        "late_fraction": late,
+        "missing_fraction": _median([run.missing_fraction for run in runs]),
+        "latency_us": {
+            quantile: _median([run.latency_us[quantile] for run in runs]) for quantile in ("p50", "p99", "max")
+        },
+        "late_vs_floor": _ratio(late, floor_late),
+        "p99_vs_floor": _ratio(p99, floor_p99),
+        "cpu_us_per_step": _cpu_per_step(runs),
+        "gc_pause_us_per_step": _median([entry["pause_us_per_step"] for entry in gc_runs]),
+        "gc_max_pause_us": _median([entry["max_pause_us_since_start"] for entry in gc_runs]),
+        "gc_collections_per_run": _median([sum(entry["collections"]) for entry in gc_runs]),
+        "sched": gc_runs[-1]["sched"] if gc_runs else None,
+        "runs": [run.as_dict() for run in runs],
+    }
+
+
 def run_realtime(args: argparse.Namespace, failures: list[str]) -> dict[str, Any]:
     runs: list[loop.LoopResult] = []
     floors: list[dict[str, float]] = []
+    variants: dict[str, list[loop.LoopResult]] = {name: [] for name in RT_VARIANTS}
     for repeat in range(args.repeats):
         print(f"realtime, 1 kHz, run {repeat + 1} of {args.repeats}", flush=True)
         floors.append(
@@ -325,8 +388,23 @@ def run_realtime(args: argparse.Namespace, failures: list[str]) -> dict[str, Any
         )
         if result is not None:
             runs.append(result)
+        for name, flags in RT_VARIANTS.items():
+            result = _timed(
+                f"separate processes, {' '.join(flags)}",
+                functools.partial(
+                    loop.measure_services, ["--mode", "realtime"], args.warmup, args.realtime_window, None, flags
+                ),
+                failures,
+            )
+            if result is not None:
+                variants[name].append(result)
     floors = [value for value in floors if value is not None]
+    floor_late = _median([value["longer_than_period_fraction"] for value in floors])
+    floor_p99 = _median([value["p99_us"] for value in floors])
     return {
+        **{name: _realtime_summary(results, floor_late, floor_p99) for name, results in variants.items()},
+        "late_vs_floor": _ratio(_median([run.late_fraction for run in runs]), floor_late),
+        "p99_vs_floor": _ratio(_median([run.latency_us["p99"] for run in runs]), floor_p99),
         "rate_hz": _median([run.steps_per_s for run in runs]),
         "floor_latency_us": {
             quantile: _median([value[f"{quantile}_us"] for value in floors]) for quantile in ("p50", "p99", "max")
@@ -343,7 +421,7 @@ def run_realtime(args: argparse.Namespace, failures: list[str]) -> dict[str, Any
     }
 
 
-FLEET_MODES = {"separate": False, "composed": True}
+FLEET_MODES = tuple(fleet_bench.MODES)
 FLEET_FIELDS = (
     "steps_per_s",
     "robot_steps_per_s",
@@ -357,17 +435,17 @@ FLEET_FIELDS = (
 def run_fleet(args: argparse.Namespace, composed: bool, failures: list[str]) -> dict[str, Any]:
     """``invent up --fleet --no-record`` of each size, separate and composed, runs interleaved; per
     mode and size (as a string: a JSON key) the medians of :data:`FLEET_FIELDS`."""
-    modes = {mode: flag for mode, flag in FLEET_MODES.items() if composed or not flag}
+    modes = [mode for mode in FLEET_MODES if composed or mode == "separate"]
     runs: dict[str, dict[str, list[dict[str, Any]]]] = {
         mode: {str(size): [] for size in args.fleet_sizes} for mode in modes
     }
     for repeat in range(args.repeats):
         print(f"fleet, run {repeat + 1} of {args.repeats}", flush=True)
         for size in args.fleet_sizes:
-            for mode, flag in modes.items():
+            for mode in modes:
                 result = _timed(
                     f"{size} robot{'s' * (size > 1)}, {mode}",
-                    functools.partial(fleet_bench.measure_fleet, size, flag, args.warmup, args.window),
+                    functools.partial(fleet_bench.measure_fleet, size, mode, args.warmup, args.window),
                     failures,
                 )
                 if result is not None:
@@ -379,9 +457,14 @@ def run_fleet(args: argparse.Namespace, composed: bool, failures: list[str]) -> 
         }
         for mode, by_size in runs.items()
     }
+    one, spread = medians.get("composed", {}), medians.get("composed_workers", {})
     return {
         "sizes": list(args.fleet_sizes),
         **medians,
+        "workers_speedup": {
+            size: _ratio(spread.get(size, {}).get("robot_steps_per_s"), one.get(size, {}).get("robot_steps_per_s"))
+            for size in one
+        },
         "load_average_at_end": [round(load, 2) for load in os.getloadavg()],
         "sim_share_note": fleet_bench.COMPOSED_SIM_SHARE_NOTE,
         "composed_note": None if composed else f"this checkout's `invent up` has no {loop.COMPOSED_FLAG}",
@@ -462,6 +545,14 @@ def _loop_rows(results: dict[str, Any]) -> list[tuple[str, str, str]]:
             f"ratio {_fmt(lockstep['composed_ratio'], 3)}",
         ),
         (
+            "lockstep, composed, no intra-process delivery (`--no-intra-process`)",
+            f"{_fmt(lockstep.get('composed_no_intra_process_steps_per_s'))} steps/s",
+            (
+                f"ratio {_fmt(lockstep.get('composed_no_intra_process_ratio'), 3)}; CPU "
+                f"{_fmt(cpu.get('composed_no_intra_process'))} vs {_fmt(cpu.get('composed'))} µs per step with it"
+            ),
+        ),
+        (
             "lockstep, composed, recording run.mcap (`invent up --composed`)",
             f"{_fmt(lockstep['composed_recording_steps_per_s'])} steps/s",
             _cost_line("recording", lockstep, cpu, "composed_recording", "composed"),
@@ -485,7 +576,10 @@ def _loop_rows(results: dict[str, Any]) -> list[tuple[str, str, str]]:
         (
             "realtime 1 kHz, separate processes",
             f"{_fmt(realtime['rate_hz'])} steps/s",
-            f"late {_fmt(_percent(realtime['late_fraction']), 2)} %",
+            (
+                f"late {_fmt(_percent(realtime['late_fraction']), 2)} % ({_fmt(realtime.get('late_vs_floor'), 2)}x the "
+                f"floor's), p99 {_fmt(realtime.get('p99_vs_floor'), 2)}x the floor's"
+            ),
         ),
         (
             "realtime torque latency",
@@ -498,6 +592,20 @@ def _loop_rows(results: dict[str, Any]) -> list[tuple[str, str, str]]:
             f"longer than 1 ms: {_fmt(_percent(realtime['floor_late_fraction']), 2)} %",
         ),
     ]
+    for name, flags in RT_VARIANTS.items():
+        variant = realtime.get(name)
+        if variant is None:
+            continue
+        rows.append(
+            (
+                f"realtime 1 kHz, separate, `{' '.join(flags)}` on the control path ({variant['sched']})",
+                f"late {_fmt(_percent(variant['late_fraction']), 2)} %, p99 {_fmt(variant['latency_us']['p99'])} µs",
+                (
+                    f"{_fmt(variant['late_vs_floor'], 2)}x / {_fmt(variant['p99_vs_floor'], 2)}x the floor's; collector "
+                    f"{_fmt(variant['gc_pause_us_per_step'], 2)} µs per step, longest pause {_fmt(variant['gc_max_pause_us'])} µs"
+                ),
+            )
+        )
     return rows
 
 
@@ -512,11 +620,18 @@ def fleet_table(fleet: dict[str, Any]) -> str:
             entry = fleet.get(mode, {}).get(str(size))
             if entry is None:
                 continue
-            share = "n/a (one thread)" if mode == "composed" else f"{_fmt(_percent(entry['sim_share']))} %"
+            share = "n/a (composed)" if mode != "separate" else f"{_fmt(_percent(entry['sim_share']))} %"
             lines.append(
                 f"| {size} | {mode} | {_fmt(entry['steps_per_s'])} | {_fmt(entry['robot_steps_per_s'])} | "
                 f"{_fmt(entry['cpu_us_per_robot_step'])} | {share} | {_fmt(entry['cpu_cores'], 2)} |"
             )
+    speedups = fleet.get("workers_speedup") or {}
+    if speedups:
+        lines += [
+            "",
+            "Composed on every core (`--workers`, default) against one process (`--workers 1`), robot-steps/s: "
+            + ", ".join(f"N = {size}: {_fmt(ratio, 2)}x" for size, ratio in speedups.items()),
+        ]
     return "\n".join(lines)
 
 

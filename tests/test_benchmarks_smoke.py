@@ -1,6 +1,7 @@
 """``python -m benchmarks --quick`` runs every section and writes the result fields (no speed asserted)."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -23,6 +24,8 @@ NUMBERS = (
     "lockstep.composed_steps_per_s",
     "lockstep.composed_ratio",
     "lockstep.composed_recording_steps_per_s",
+    "lockstep.composed_no_intra_process_steps_per_s",
+    "lockstep.cpu_us_per_step.composed_no_intra_process",
     "lockstep.up_ros2_steps_per_s",
     "lockstep.composed_ros2_steps_per_s",
     "lockstep.cpu_us_per_step.up_ros2",
@@ -39,10 +42,16 @@ NUMBERS = (
     "realtime.latency_us.p99",
     "realtime.floor_latency_us.p99",
     "realtime.floor_late_fraction",
+    *(
+        f"realtime.{variant}.{field}"
+        for variant in ("rt", "rt_gc_automatic", "rt_gc_idle")
+        for field in ("late_fraction", "latency_us.p99", "p99_vs_floor", "cpu_us_per_step")
+    ),
+    "fleet.workers_speedup.2",
     "machine.cores",
     *(
         f"fleet.{mode}.2.{field}"
-        for mode in ("separate", "composed")
+        for mode in ("separate", "composed", "composed_workers")
         for field in ("steps_per_s", "robot_steps_per_s", "cpu_us_per_robot_step", "late_fraction")
     ),
     "fleet.separate.2.sim_share",
@@ -85,7 +94,11 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
         "realtime.latency_us.p99",
         "codec.min_ratio",
         "fleet.composed.4.steps_per_s",
+        "realtime.rt.late_vs_floor",
+        "realtime.rt.p99_vs_floor",
+        "fleet.workers_speedup.8",
     }
+    assert results["realtime"]["rt"]["sched"] == ("SCHED_FIFO 50" if os.geteuid() == 0 else "SCHED_OTHER 0")
     assert results["fleet"]["sizes"] == [2]
     assert results["fleet"]["composed"]["2"]["sim_share"] is None  # one thread: not separable
     assert "| robots | mode | steps/s |" in result.stdout
