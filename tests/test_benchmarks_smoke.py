@@ -46,6 +46,17 @@ NUMBERS = (
         for field in ("steps_per_s", "robot_steps_per_s", "cpu_us_per_robot_step", "late_fraction")
     ),
     "fleet.separate.2.sim_share",
+    *(
+        f"ros2_fleet.1.{field}"
+        for field in (
+            "steps_per_s",
+            "steps_per_s_without",
+            "cpu_us_per_robot_step",
+            "cpu_us_per_robot_step_without",
+            "bridge_cpu_ms_per_robot_per_sim_s",
+            "bridge_rss_mb_per_robot",
+        )
+    ),
 )
 MESSAGE_TYPES = ("Time", "TimedDoubleSeq", "TimedVelocity", "TimedPosition", "BumpEvent", "PDGains", "NoArguments")
 
@@ -89,6 +100,7 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
     assert results["fleet"]["sizes"] == [2]
     assert results["fleet"]["composed"]["2"]["sim_share"] is None  # one thread: not separable
     assert "| robots | mode | steps/s |" in result.stdout
+    assert "| robots | steps/s without → with |" in result.stdout
     assert "| lockstep, separate processes |" in result.stdout and f"wrote {out}" in result.stdout
 
 

@@ -29,7 +29,18 @@ from rosbags.rosbag2 import Reader
 
 from schemas.keys import Keys, Service
 from tests import ros_client
-from tests.harness import REPO, call, free_port, invent_command, peer_session, run_invent, wait_alive, wait_until
+from tests.harness import (
+    REPO,
+    InventProcess,
+    call,
+    free_port,
+    invent_command,
+    peer_session,
+    run_invent,
+    running_router,
+    wait_alive,
+    wait_until,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -298,3 +309,27 @@ def test_invent_record_ros2_records_the_fleets_graph_into_a_bag(fleet):
             ).iter_decoded_messages():
                 decoded += 1
     assert decoded == sum(counts.values())
+
+
+def test_invent_ros2_fleet_runs_a_node_per_robot_on_one_session_each_with_ids_of_its_own(tmp_path):
+    """``invent ros2 --fleet FILE``: one process, one session, a node per robot in its namespace,
+    their nodes' and entities' ids drawn from one counter (rmw_zenoh's graph keys a node by its
+    session and id), ``/clock`` from the first robot's only."""
+    (tmp_path / "fleet.toml").write_text(FLEET)
+    with running_router() as endpoint, peer_session(endpoint) as session:
+        with InventProcess("ros2", "--fleet", str(tmp_path / "fleet.toml"), "--connect", endpoint) as bridges:
+            per_node = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES) + 1
+            tokens = wait_until(
+                lambda: (found := _tokens(session)) and len(found) == 2 * per_node + 1 and found, 30.0, "the tokens"
+            )
+            code, _out, err = bridges.stop()
+        assert code == 0, err
+    assert len({chunks[2] for chunks in tokens}) == 1, "one session"
+    nodes = {chunks[7]: int(chunks[3]) for chunks in tokens if chunks[5] == "NN"}
+    assert set(nodes) == {_mangled(namespace) for namespace in NAMESPACES.values()}
+    ids = [int(chunks[4]) for chunks in tokens]
+    assert sorted(ids) == list(range(len(tokens))), "one counter: every node and entity an id of its own"
+    for chunks in tokens:
+        assert int(chunks[3]) == nodes[chunks[7]], "each entity names its own node's id"
+    clocks = [chunks[7] for chunks in tokens if chunks[5] == "MP" and chunks[9] == _mangled(CLOCK[0])]
+    assert clocks == [_mangled(NAMESPACES["rh0"])]

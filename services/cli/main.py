@@ -570,6 +570,8 @@ def _config(args: argparse.Namespace) -> int:
 def _up(args: argparse.Namespace) -> int:
     if args.record_full_rate:  # for every service of the run, as the robot description's [record]
         args.set = [*(args.set or []), f"record.rate={RecordRate.EVERY_STEP}"]
+    if args.tf:  # for every robot's bridge, as the robot description's [ros2]
+        args.set = [*(args.set or []), f"ros2.tf={args.tf}"]
     if args.fleet:
         return fleet.run_fleet(args, build_parser())
     return up.run_up(args, config_from_args(None, args), build_parser())

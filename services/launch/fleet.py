@@ -239,8 +239,8 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     robot_services = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if args.ros2 else ()))
     # each robot's services and drive, the sim, up
     journals = len(fleet.robots) * (len(robot_services) + 1) + 2
-    recorder = None if args.no_record or args.teleop else RunRecorder(report_dir, first.record, journals)
     bag = BagRecording(report_dir, first.record, len(fleet.robots), first.ros2.distro) if args.record_ros2 else None
+    recorder = None if args.no_record or args.teleop else RunRecorder(report_dir, first.record, journals)
     sim_started = False
     health: dict[str, dict[str, Any]] = {}
     try:
@@ -279,25 +279,25 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                     launcher.start(f"{robot.name}/{service}", [str(service), *flags, *own.get(service, [])])
             # Until the sim starts, any service that ends ends the run, as in a one-robot run.
             run.run.wait_tokens([Keys(name).alive(service) for name in fleet.names for service in robot_services])
-            if args.teleop:
+            driven = () if args.teleop else fleet.robots
+            for robot in driven:
+                flags = [*common, *role_flags(access, Role.DRIVE, robot.name), *robot_flags(robot)]
+                flags += journal(robot.name)
+                launcher.start(f"{robot.name}/drive", ["drive", *flags, "--scenario", _scenario(robot, args)])
+            tokens = []
+            for name in (robot.name for robot in driven):
+                keys, config = Keys(name), configs[name]
+                tokens += [
+                    keys.alive(Service.DRIVE),
+                    keys.ticks(Service.DRIVE, config.drive.rate),
+                    keys.ticks(Service.LOCALIZATION, config.localization.rate),
+                ]
+            run.run.wait_tokens(tokens)
+            wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
+            sim_flags = ["--fleet", args.fleet, "--mode", mode, "--until-drive-ends", "--wait-for", *wait_for]
+            if args.teleop:  # no drive: the sim steps on until Ctrl-C, waiting for each robot's torque only
                 sim_flags = ["--fleet", args.fleet, "--mode", mode, "--wait-for", str(Service.MOTOR)]
                 say("teleop: each robot follows ROS 2's /<namespace>/cmd_vel until Ctrl-C; see docs/ros2.md")
-            else:
-                for robot in fleet.robots:
-                    flags = [*common, *role_flags(access, Role.DRIVE, robot.name), *robot_flags(robot)]
-                    flags += journal(robot.name)
-                    launcher.start(f"{robot.name}/drive", ["drive", *flags, "--scenario", _scenario(robot, args)])
-                tokens = []
-                for name in fleet.names:
-                    keys, config = Keys(name), configs[name]
-                    tokens += [
-                        keys.alive(Service.DRIVE),
-                        keys.ticks(Service.DRIVE, config.drive.rate),
-                        keys.ticks(Service.LOCALIZATION, config.localization.rate),
-                    ]
-                run.run.wait_tokens(tokens)
-                wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
-                sim_flags = ["--fleet", args.fleet, "--mode", mode, "--until-drive-ends", "--wait-for", *wait_for]
             launcher.start(
                 "sim",
                 ["sim", *common, *role_flags(access, Role.SIM), *(recorder.flags if recorder else []), *sim_flags],

@@ -25,7 +25,7 @@ from threading import Event, Thread
 
 import zenoh
 
-from services.config import Config, ConfigError, RecordConfig, SimMode
+from services.config import Config, ConfigError, RecordConfig, SimMode, TfLayout
 from services.fleet.description import Fleet, bridge_configs
 from services.launch.children import say
 from services.recording.rosbag import write_bag_from_journals
@@ -42,7 +42,15 @@ BAG_JOURNALS_DIRECTORY = "bag-journals"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``invent up``'s flag of the run's bag."""
+    """``invent up``'s flags of the bridges' TF and of the run's bag."""
+    parser.add_argument(
+        "--tf",
+        choices=list(TfLayout),
+        help="with --ros2 and a namespace (every robot of a fleet has one): namespaced (default), each robot's "
+        "TF on /<NS>/tf and /<NS>/tf_static, frames as named (Nav2's multi-robot bringup); prefixed, every robot "
+        "on the shared /tf and /tf_static, frames <NS>/odom, <NS>/base_link, ... under map, for one RViz (the "
+        "same as --set ros2.tf=...; docs/ros2.md, A fleet)",
+    )
     parser.add_argument(
         "--record-ros2",
         action="store_true",
@@ -138,6 +146,10 @@ class BagRecording:
         self.directory = report_dir / BAG_JOURNALS_DIRECTORY
         if self.path.exists():
             raise ConfigError(f"--record-ros2: {self.path} exists (a bag is written into a new directory)")
+        self._made = [
+            directory for directory in (self.directory, report_dir, *report_dir.parents) if not directory.exists()
+        ]
+        """The directories this makes, deepest first: a run that never starts removes them again."""
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
         except OSError as error:
@@ -147,14 +159,22 @@ class BagRecording:
 
     def finish(self, started: bool) -> None:
         """At the run's end, however it ended: the bag (once every bridge has stopped), or, for a
-        run that never started, nothing; the journals are removed either way."""
+        run that never started, nothing (and no directory it made, unless something else is in it);
+        the journals are removed either way."""
         try:
-            if started:
-                say(f"writing the ROS 2 bag {self.path} from what the bridges published")
-                result = write_bag_from_journals(self.directory, self.path, self.record, self.distro)
-                if result.stopped is not None:
-                    say(f"the ROS 2 bag stopped before the run did ({result.stopped['reason']}); the robot went on")
-                counts = ", ".join(f"{topic} {count}" for topic, count in sorted(result.counts.items()))
-                say(f"ROS 2 bag: {self.path} ({result.messages} messages in {len(result.files)} file(s): {counts})")
+            if not started:
+                shutil.rmtree(self.directory, ignore_errors=True)
+                for directory in self._made[1:]:
+                    try:
+                        directory.rmdir()
+                    except OSError:  # not empty: the run's secrets, its run.mcap, or someone else's files
+                        break
+                return
+            say(f"writing the ROS 2 bag {self.path} from what the bridges published")
+            result = write_bag_from_journals(self.directory, self.path, self.record, self.distro)
+            if result.stopped is not None:
+                say(f"the ROS 2 bag stopped before the run did ({result.stopped['reason']}); the robot went on")
+            counts = ", ".join(f"{topic} {count}" for topic, count in sorted(result.counts.items()))
+            say(f"ROS 2 bag: {self.path} ({result.messages} messages in {len(result.files)} file(s): {counts})")
         finally:
             shutil.rmtree(self.directory, ignore_errors=True)

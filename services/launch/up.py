@@ -131,9 +131,9 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     recording = not (args.no_record or args.loop or args.teleop)
     # the journals: the services', the drive's, the sim's and up's own
     journals = len(SERVICES_BEFORE_DRIVE) + args.ros2 + 3
+    bag = BagRecording(report_dir, config.record, 1, config.ros2.distro) if args.record_ros2 else None
     recorder = RunRecorder(report_dir, config.record, journals) if recording else None
     journal_flags = recorder.flags if recorder else []
-    bag = BagRecording(report_dir, config.record, 1, config.ros2.distro) if args.record_ros2 else None
     sim_started = False
     try:
         with launch_services(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:

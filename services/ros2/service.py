@@ -190,17 +190,19 @@ class Ros2Bridge:
         rates = {settings.publish_rate, *((settings.clock_rate,) if bridge.publishes_clock else ())}
         for rate_hz in sorted(rates):
             node.observe(rate_hz)
+        # The newest of each, taken when the clock wakes the thread: sampled inputs would have the
+        # thread poll them every millisecond while it waits in the clock's channel.
         node.subscribe(
             node.keys.odometry_pose,
             TimedPosition,
             sim.stamped(node.keys.odometry_pose, outputs.take_localized, awaited=lambda: False),
-            Delivery.SAMPLED,
+            Delivery.NEWEST,
         )
         node.subscribe(
             node.keys.motor_torque,
             TimedDoubleSeq,
             sim.stamped(node.keys.motor_torque, outputs.take_torque, awaited=lambda: False),
-            Delivery.SAMPLED,
+            Delivery.NEWEST,
         )
         self.cmd_vel_keys: dict[str, str] = {}
         for entity in graph.SUBSCRIPTIONS:
