@@ -1,10 +1,10 @@
 """ROS 2 bags of a run, read by readers written elsewhere: rosbags' rosbag2 ``Reader`` and the
-``mcap-ros2-support`` decoder (the one Foxglove's Python tooling uses) on the same files.
+``mcap-ros2-support`` decoder (the mcap project's ROS 2 decoder) on the same files.
 
 One short lockstep run of a two-robot fleet, ``invent up --fleet FILE --ros2 --record-ros2
 --composed`` (each robot the straight scenario), writes ``run.mcap`` and the bag of what the bridges
 published; ``invent export --ros2 run.mcap --fleet FILE`` turns the same ``run.mcap`` into a second
-bag. Each bag has the fleet's topics and ROS's types and hashes, every message decodes, ``/clock``
+bag. Both split by ``record.split_duration``, as an unattended run's would. Each bag has the fleet's topics and ROS's types and hashes, every message decodes, ``/clock``
 is monotonic, each topic's messages are exactly the run's simulation steps on its rate's grid (so
 the counts match the rates), and each message's timestamp is the simulation time it carries.
 """
@@ -59,6 +59,8 @@ CLOCK_PERIOD_NS = 10_000_000
 STATE_PERIOD_NS = 20_000_000
 """ros2.clock_rate (100) and ros2.publish_rate (50) per simulated second, the defaults."""
 BAGS = ("recorded", "exported")
+SPLIT = ("--set", "record.split_duration=3")
+"""The straight line takes 7.4 simulated seconds: each bag is three files, as an unattended run's would be."""
 
 
 @dataclass
@@ -77,7 +79,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
     report = directory / "report"
     up = start_up(
         "--fleet", str(fleet), "--ros2", "--record-ros2", "--composed", "--report", str(report),
-        "--listen", f"tcp/127.0.0.1:{free_port()}",
+        "--listen", f"tcp/127.0.0.1:{free_port()}", *SPLIT,
     )  # fmt: skip
     try:
         output, _ = up.communicate(timeout=300)
@@ -86,7 +88,9 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
         output, _ = up.communicate()
     assert up.returncode == 0, output[-3000:]
     exported = directory / "exported"
-    result = run_invent("export", "--ros2", str(report / "run.mcap"), "-o", str(exported), "--fleet", str(fleet))
+    result = run_invent(
+        "export", "--ros2", str(report / "run.mcap"), "-o", str(exported), "--fleet", str(fleet), *SPLIT
+    )
     assert result.returncode == 0, result.stderr
     messages = read_run(report / "run.mcap").messages
     steps = {
@@ -124,7 +128,10 @@ def test_the_bag_has_the_fleets_topics_with_ros_types_hashes_and_qos_in_its_meta
     path = run.bags[bag]
     metadata = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert metadata["version"] == 8 and metadata["storage_identifier"] == "mcap"
-    assert metadata["relative_file_paths"] == [f"{path.name}_0.mcap"] and (path / f"{path.name}_0.mcap").is_file()
+    files = [f"{path.name}_{index}.mcap" for index in range(3)]
+    assert metadata["relative_file_paths"] == files and all((path / file).is_file() for file in files)
+    starts = [file["starting_time"]["nanoseconds_since_epoch"] for file in metadata["files"]]
+    assert starts[1] - starts[0] >= 3e9 and starts[2] - starts[1] >= 3e9, "a file per 3 simulated seconds"
     topics = {
         entry["topic_metadata"]["name"]: entry["topic_metadata"] for entry in metadata["topics_with_message_count"]
     }

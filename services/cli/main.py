@@ -15,7 +15,7 @@ import zenoh
 
 from schemas.keys import DEFAULT_ROBOT, Keys, Service
 from services.cli import tools
-from services.config import Config, ConfigError, RecordRate, load_config
+from services.config import Config, ConfigError, RecordRate, TfLayout, load_config
 from services.fleet.description import fleet_configs, load_fleet
 from services.launch import fleet, ros2_run, up
 from services.recording import record, replay, ros2_record, rosbag, view
@@ -186,6 +186,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NS",
         help="the ROS namespace of the ROS 2 bridge the ros2 role is granted (default none; the domain is "
         "$ROS_DOMAIN_ID, default 0); the ros_node role may do anything in that domain",
+    )
+    secrets_parser.add_argument(
+        "--ros-tf",
+        choices=list(TfLayout),
+        help="the TF layout of the bridges the ros2 roles are granted (ros2.tf; default namespaced: each robot's "
+        "tf in its namespace; prefixed: every robot's bridge may put on the shared /tf and /tf_static)",
     )
     secrets_parser.set_defaults(handler=_secrets, log_level="info")
 
@@ -436,7 +442,7 @@ def _secrets(args: argparse.Namespace) -> int:
         tls_names=args.tls_name,
         seen_as=Path(args.seen_as) if args.seen_as else None,
         router_base=args.router_base,
-        ros=bridge_graph(load_config(overrides={"ros2.namespace": args.ros_namespace})),
+        ros=bridge_graph(load_config(overrides={"ros2.namespace": args.ros_namespace, "ros2.tf": args.ros_tf})),
         robots=args.robots,
     )
 
