@@ -75,7 +75,7 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
         cwd=REPO,
         capture_output=True,
         text=True,
-        timeout=240,
+        timeout=300,  # every section quick, ros2_fleet's two fleet runs among them, on a loaded 2-core machine
         check=False,
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]

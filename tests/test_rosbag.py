@@ -21,6 +21,7 @@ from rosbags.rosbag2 import Reader
 
 from schemas.codec import BadInput
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+from services.cli.main import main
 from services.config import Config, RecordConfig, load_config
 from services.recording.ros2_record import GraphRecorder
 from services.recording.rosbag import (
@@ -37,7 +38,7 @@ from services.ros2.outputs import RosOutputs
 from services.runtime.journal import STOPPED_KEY, Journal, journal_path
 from services.runtime.session import free_port, open_session, session_config
 from tests import ros_client
-from tests.harness import run_invent, wait_until
+from tests.harness import wait_until
 
 MS = 1_000_000
 CLOCK_BYTES = len(interfaces.serialize(core.clock(0)))
@@ -275,6 +276,7 @@ def test_the_live_recorder_keeps_bad_input_on_a_bridges_key_out_of_the_bag(tmp_p
         (("export", "--ros2", "no/such/run.mcap", "-o", "bag"), "no/such/run.mcap: no such file"),
     ],
 )
-def test_ros2_flags_that_cannot_work_exit_2_naming_them(argv, named):
-    result = run_invent(*argv)
-    assert result.returncode == 2 and named in result.stderr, result.stderr
+def test_ros2_flags_that_cannot_work_exit_2_naming_them(argv, named, capsys):
+    """In this process: each is refused before any session or process starts."""
+    assert main(list(argv)) == 2
+    assert named in capsys.readouterr().err
