@@ -182,6 +182,13 @@ def _figure(entry: dict[str, Any], key: str, digits: int = 0) -> str:
     return "n/a" if value is None else f"{value:,.{digits}f}"
 
 
+def _compared(entry: dict[str, Any], key: str, cost: str, sign: str) -> str:
+    """``without → with (cost %)``, or the figure with the bridges alone when there is no run without."""
+    if entry.get(f"{key}_without") is None:
+        return _figure(entry, key)
+    return f"{_figure(entry, f'{key}_without')} → {_figure(entry, key)} ({sign}{_figure(entry, cost, 1)} %)"
+
+
 def table(section: dict[str, Any]) -> str:
     """The section as the Markdown table of benchmarks/README.md."""
     lines = [
@@ -190,22 +197,24 @@ def table(section: dict[str, Any]) -> str:
     ]
     for size, entry in section.items():
         lines.append(
-            f"| {size} | {_figure(entry, 'steps_per_s_without')} → {_figure(entry, 'steps_per_s')} "
-            f"({_figure(entry, 'speed_cost_percent', 1)} %) | {_figure(entry, 'cpu_us_per_robot_step_without')} → "
-            f"{_figure(entry, 'cpu_us_per_robot_step')} (+{_figure(entry, 'cpu_cost_percent', 1)} %) | "
-            f"{_figure(entry, 'bridge_cpu_ms_per_robot_per_sim_s', 1)} ms per simulated s | "
-            f"{_figure(entry, 'bridge_rss_mb_per_robot')} MB |"
+            f"| {size} | {_compared(entry, 'steps_per_s', 'speed_cost_percent', '')} "
+            f"| {_compared(entry, 'cpu_us_per_robot_step', 'cpu_cost_percent', '+')} "
+            f"| {_figure(entry, 'bridge_cpu_ms_per_robot_per_sim_s', 1)} ms per simulated s "
+            f"| {_figure(entry, 'bridge_rss_mb_per_robot')} MB |"
         )
     return "\n".join(lines)
 
 
-def run_section(repeats: int, warmup_s: float, window_s: float, sizes: tuple[int, ...], failures: list[str]) -> dict:
+def run_section(
+    repeats: int, warmup_s: float, window_s: float, sizes: tuple[int, ...], failures: list[str], quick: bool = False
+) -> dict:
     """Every size with and without the bridges, ``repeats`` times, interleaved; a run that fails is
-    named in ``failures`` and left out of the medians."""
+    named in ``failures`` and left out of the medians. ``quick`` (``--quick``: that everything runs):
+    only the runs with the bridges, the others being the ``fleet`` section's runs."""
     runs: dict[int, dict[bool, list[BridgeRun]]] = {size: {True: [], False: []} for size in sizes}
     for repeat in range(repeats):
         for size in sizes:
-            for ros2 in (False, True):
+            for ros2 in (True,) if quick else (False, True):
                 what = (
                     f"ros2 fleet, run {repeat + 1} of {repeats}: {size} robots, {'with' if ros2 else 'without'} bridges"
                 )
@@ -223,7 +232,7 @@ def main() -> int:
     quick = "--quick" in sys.argv[1:]
     failures: list[str] = []
     repeats, warmup, window = (1, 0.5, 1.0) if quick else (3, 1.0, 4.0)
-    section = run_section(repeats, warmup, window, QUICK_SIZES if quick else SIZES, failures)
+    section = run_section(repeats, warmup, window, QUICK_SIZES if quick else SIZES, failures, quick)
     print(json.dumps(section, indent=2))
     print(table(section))
     for failure in failures:

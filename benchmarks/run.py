@@ -573,7 +573,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         results["fleet"] = run_fleet(args, composed, failures)
     if "ros2_fleet" in sections:
         sizes = ros2_fleet.QUICK_SIZES if args.quick else ros2_fleet.SIZES
-        results["ros2_fleet"] = ros2_fleet.run_section(args.repeats, args.warmup, args.window, sizes, failures)
+        results["ros2_fleet"] = ros2_fleet.run_section(
+            args.repeats, args.warmup, args.window, sizes, failures, args.quick
+        )
     results["targets"] = check_targets({**results, "codec": {"min_ratio": results.get("codec_min_ratio")}})
     results["settings"] = {
         key: getattr(args, key)
