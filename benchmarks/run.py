@@ -19,6 +19,9 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
 - ``fleet``: how the loop scales with the robots of one world (``invent up --fleet --no-record``,
   N = 1, 2, 4, 8, separate and composed): steps/s, CPU per robot-step, the sim's share of the CPU
   (``benchmarks/fleet.py``).
+- ``ros2_fleet``: what the ROS 2 bridge of each robot of a fleet costs (``invent up --fleet --no-record``
+  with and without ``--ros2``, N = 1, 2, 4): the bridges' CPU per robot per simulated second and memory
+  per robot, the loop's steps/s and CPU per robot-step with and without (``benchmarks/ros2_fleet.py``).
 - ``machine``: where it ran.
 
 Loop figures are medians over ``--repeats`` runs (lockstep runs interleaved with the in-process
@@ -39,7 +42,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmarks import codec, floor, loop, machine
+from benchmarks import codec, floor, loop, machine, ros2_fleet
 from benchmarks import fleet as fleet_bench
 from services.runtime.session import LOW_LATENCY_VARIABLE
 
@@ -98,8 +101,9 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-SECTIONS = ("loop", "codec", "fleet")
-"""``loop``: the ``lockstep`` and ``realtime`` sections; ``fleet``: benchmarks/fleet.py."""
+SECTIONS = ("loop", "codec", "fleet", "ros2_fleet")
+"""``loop``: the ``lockstep`` and ``realtime`` sections; ``fleet``: benchmarks/fleet.py; ``ros2_fleet``:
+the ROS 2 bridge of each robot of a fleet, benchmarks/ros2_fleet.py."""
 FLEET_SIZES = (1, 2, 4, 8)
 QUICK_FLEET_SIZES = (2,)
 
@@ -652,6 +656,8 @@ def table(results: dict[str, Any]) -> str:
     lines += [""] if rows else []
     if "fleet" in results:
         lines += [fleet_table(results["fleet"]), ""]
+    if "ros2_fleet" in results:
+        lines += [ros2_fleet.table(results["ros2_fleet"]), ""]
     lines.append(
         f"Machine: {machine_info['cores']} cores ({machine_info['cpu']}), Python {machine_info['python']}, "
         f"zenoh {machine_info['zenoh']}, pybullet {machine_info['pybullet']}, msgspec {machine_info['msgspec']}; "
@@ -680,6 +686,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         results["codec_min_ratio"] = min(entry["ratio"] for entry in results["codec"].values())
     if "fleet" in sections:
         results["fleet"] = run_fleet(args, composed, failures)
+    if "ros2_fleet" in sections:
+        sizes = ros2_fleet.QUICK_SIZES if args.quick else ros2_fleet.SIZES
+        results["ros2_fleet"] = ros2_fleet.run_section(
+            args.repeats, args.warmup, args.window, sizes, failures, args.quick
+        )
     results["targets"] = check_targets({**results, "codec": {"min_ratio": results.get("codec_min_ratio")}})
     results["settings"] = {
         key: getattr(args, key)

@@ -11,6 +11,7 @@ import copy
 import functools
 import json
 import math
+import re
 import tomllib
 from enum import StrEnum
 from pathlib import Path
@@ -270,13 +271,32 @@ Covariance = tuple[NonNegative, NonNegative, NonNegative, NonNegative, NonNegati
 FrameId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_/]*$")]
 
 
+NAMESPACE = re.compile(r"^(/?[A-Za-z][A-Za-z0-9_]*)*/?$")
+"""A ROS namespace: "" (none), or names of letters, digits and underscores, each starting with a
+letter, joined by ``/`` (a leading or trailing ``/`` is the same namespace)."""
+
+
+class TfLayout(StrEnum):
+    """Where a namespaced ROS 2 bridge publishes its transforms (``ros2.tf``, docs/ros2.md)."""
+
+    NAMESPACED = "namespaced"
+    PREFIXED = "prefixed"
+
+
 class Ros2Config(_Section, frozen=True):
     """``invent ros2``: the robot as ROS 2 sees it over rmw_zenoh (docs/ros2.md)."""
 
-    namespace: Annotated[str, msgspec.Meta(pattern=r"^(/?[A-Za-z][A-Za-z0-9_]*)*/?$")] = ""
+    namespace: Annotated[str, msgspec.Meta(pattern=NAMESPACE.pattern)] = ""
     """ROS namespace of the bridge's node, topics and services (``--namespace``): "" = none, or
     names of letters, digits and underscores (each starting with a letter) joined by ``/``."""
     node_name: Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z][A-Za-z0-9_]*$")] = "invent_bridge"
+    tf: TfLayout = TfLayout.NAMESPACED
+    """How a bridge in a namespace publishes TF (with no namespace both are ``/tf`` and ``/tf_static``,
+    frames as named): ``namespaced`` on ``<ns>/tf`` and ``<ns>/tf_static`` with the frames as named,
+    as Nav2's multi-robot bringup has it; ``prefixed`` on the shared ``/tf`` and ``/tf_static`` with
+    the robot's frames prefixed ``<ns>/`` (``map`` stays the world's), for one RViz showing every robot."""
+    publish_clock: bool = True
+    """Whether this bridge publishes ``/clock``: one per ROS domain should (in a fleet, the first robot's)."""
     distro: Literal["jazzy", "kilted", "rolling", "humble"] = "jazzy"
     """The ROS 2 release of the nodes to talk to: Humble's rmw_zenoh has no type hashes and writes
     ``TypeHashNotSupported`` in their place in keys and tokens; the others the RIHS01 hash."""

@@ -46,7 +46,7 @@ from schemas.keys import (
     validate_robot_name,
 )
 from services.config import Config
-from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, SUBSCRIPTIONS, BridgeGraph, bridge_graph
+from services.ros2.graph import MOTOR_SERVICES, SUBSCRIPTIONS, BridgeGraph, bridge_graph
 from services.ros2.wire import ADMIN_SPACE
 
 ROUTER_CONFIG = "router.json5"
@@ -134,12 +134,13 @@ def fleet_identities(robots: Sequence[str]) -> tuple[Identity, ...]:
     )
 
 
-def robot_bridge(ros: BridgeGraph, robot: str) -> BridgeGraph:
-    """The ROS 2 bridge of ``robot`` in a fleet, by default: ``ros``'s domain and node name, in the
-    namespace ``<ros.namespace>/<robot>`` (``/rh1/odom``, ``/rh1/cmd_vel``, ``/rh1/motor/stop``), so
-    that no two robots' bridges are granted the same topics (``/tf``, ``/tf_static`` and ``/clock``
-    are global in ROS: every bridge of the domain may publish them)."""
-    return dataclasses.replace(ros, namespace=f"{ros.namespace}/{robot}")
+def robot_bridge(ros: BridgeGraph, robot: str, publishes_clock: bool = True) -> BridgeGraph:
+    """The ROS 2 bridge of ``robot`` in a fleet, by default: ``ros``'s domain, node name and TF
+    layout, in the namespace ``<ros.namespace>/<robot>`` (``/rh1/odom``, ``/rh1/tf``, ``/rh1/cmd_vel``,
+    ``/rh1/motor/stop``), so that no two robots' bridges are granted the same topics; ``/clock``, one
+    for the world, only if ``publishes_clock`` (the fleet's first robot's bridge publishes it). With
+    ``ros.tf_shared`` every bridge of the domain may publish on the shared ``/tf`` and ``/tf_static``."""
+    return dataclasses.replace(ros, namespace=f"{ros.namespace}/{robot}", publishes_clock=publishes_clock)
 
 
 class Message(StrEnum):
@@ -198,8 +199,8 @@ def _ros_grants(role: Role, keys: Keys, ros: BridgeGraph) -> list[Grant]:
             Message.LIVELINESS_QUERY,
         )
         return [Grant(everything, Flow.INGRESS, domain), Grant(everything, Flow.EGRESS, domain)]
-    published = tuple(ros.key(entity) for entity in PUBLICATIONS.values())
-    latched = tuple(ros.key(entity) for entity in PUBLICATIONS.values() if entity.qos.transient_local)
+    published = tuple(ros.key(entity) for entity in ros.publications.values())
+    latched = tuple(ros.key(entity) for entity in ros.publications.values() if entity.qos.transient_local)
     advanced = tuple(f"{key}/@adv/**" for key in latched)
     subscribed = tuple(ros.key(entity) for entity in SUBSCRIPTIONS)
     served = tuple(ros.key(entity) for entity in MOTOR_SERVICES.values())
@@ -486,11 +487,15 @@ def write_fleet_profile(
     (``sim``, ``ros_node``, ``operator``, ``observer``) and, for each robot, ``<robot>-<role>`` for
     each of :data:`PER_ROBOT_ROLES` (``rh1-motor``); each has its client file ``<user>.json5``
     beside ``router.json5`` (:meth:`Profile.client_config`). Robot ``r``'s ROS 2 bridge is granted
-    ``bridges[r]``, by default :func:`robot_bridge` of ``ros`` (namespace ``/<r>``); ``ros_node``
-    the domains of them all. ValueError for a bad fleet (:func:`fleet_robots`) or endpoint.
+    ``bridges[r]``, by default :func:`robot_bridge` of ``ros`` (namespace ``/<r>``; ``/clock`` for the
+    first robot's only); ``ros_node`` the domains of them all. ValueError for a bad fleet
+    (:func:`fleet_robots`) or endpoint.
     """
     fleet = fleet_robots(robots)
-    graphs = {robot: (bridges or {}).get(robot) or robot_bridge(ros, robot) for robot in fleet}
+    graphs = {
+        robot: (bridges or {}).get(robot) or robot_bridge(ros, robot, publishes_clock=index == 0)
+        for index, robot in enumerate(fleet)
+    }
     credentials = {identity: Credentials(identity.user, _fresh_password()) for identity in fleet_identities(fleet)}
     return _write_profile(
         directory,

@@ -55,6 +55,15 @@ NUMBERS = (
         for field in ("steps_per_s", "robot_steps_per_s", "cpu_us_per_robot_step", "late_fraction")
     ),
     "fleet.separate.2.sim_share",
+    *(
+        f"ros2_fleet.1.{field}"
+        for field in (
+            "steps_per_s",
+            "cpu_us_per_robot_step",
+            "bridge_cpu_ms_per_robot_per_sim_s",
+            "bridge_rss_mb_per_robot",
+        )
+    ),
 )
 MESSAGE_TYPES = ("Time", "TimedDoubleSeq", "TimedVelocity", "TimedPosition", "BumpEvent", "PDGains", "NoArguments")
 
@@ -73,7 +82,7 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
         cwd=REPO,
         capture_output=True,
         text=True,
-        timeout=240,
+        timeout=270,  # every section quick, ros2_fleet's fleet run among them, on a loaded 2-core machine
         check=False,
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
@@ -102,6 +111,7 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
     assert results["fleet"]["sizes"] == [2]
     assert results["fleet"]["composed"]["2"]["sim_share"] is None  # one thread: not separable
     assert "| robots | mode | steps/s |" in result.stdout
+    assert "| robots | steps/s without → with |" in result.stdout
     assert "| lockstep, separate processes |" in result.stdout and f"wrote {out}" in result.stdout
 
 

@@ -13,7 +13,15 @@ from hypothesis import strategies as st
 from services.config import ConfigError
 from services.drive.scenarios import BUILTIN_SCENARIOS, ConstantSegment, is_builtin, load_scenario, placed
 from services.fleet import description
-from services.fleet.description import load_fleet, parse_fleet, robot_config, robot_flags, robot_overrides
+from services.fleet.description import (
+    bridge_configs,
+    bridge_flags,
+    load_fleet,
+    parse_fleet,
+    robot_config,
+    robot_flags,
+    robot_overrides,
+)
 from services.fleet.summary import bumps_between, closest_approach
 from services.planar import Pose
 
@@ -58,6 +66,10 @@ def test_nested_overrides_are_the_dotted_ones():
         ('[[robots]]\nname = "rh0"\nstart = { x = nan }', "start.x"),
         ('world = 3\n[[robots]]\nname = "rh0"', "world"),
         ("[[robots", "fleet file"),
+        ('[[robots]]\nname = "rh0"\n[[robots]]\nname = "rh1"\nnamespace = "rh0"', "`robots[1].namespace`: ROS"),
+        ('[[robots]]\nname = "rh0"\nnamespace = "1st"', "`robots[0].namespace`: '1st' is not a ROS namespace"),
+        ('[[robots]]\nname = "rh0"\nset = { "ros2.namespace" = "a" }', "`robots[0].set`: 'ros2.namespace'"),
+        ('[[robots]]\nname = "rh0"\nset = { "ros2.publish_clock" = true }', "'ros2.publish_clock' is the fleet's"),
     ],
 )
 def test_a_wrong_fleet_file_is_a_configuration_error_naming_the_field(text, names):
@@ -81,6 +93,23 @@ def test_a_robots_services_are_started_with_its_name_overrides_and_start():
     sets = dict(flag.split("=", 1) for flag in flags[3::2])
     assert sets["motor.p_gain_l"] == "6.0" and sets["odometry.initial_y"] == "3.0"
     assert len(sets) == len(robot_overrides(robot)) - 1  # all but the name, which is --robot
+
+
+def test_each_robots_bridge_is_in_its_namespace_and_only_the_first_publishes_clock():
+    fleet = parse_fleet(ISSUE_EXAMPLE)
+    configs = bridge_configs(fleet, None, {"ros2.namespace": "ignored", "ros2.tf": "prefixed"})
+    assert {name: config.ros2.namespace for name, config in configs.items()} == {"rh0": "/rh0", "rh1": "/robot1"}
+    assert {name: config.ros2.publish_clock for name, config in configs.items()} == {"rh0": True, "rh1": False}
+    assert configs["rh1"].ros2.tf == "prefixed" and configs["rh1"].motor.p_gain_l == 6.0
+    assert bridge_flags(fleet, fleet.robot("rh1")) == [
+        "--set",
+        'ros2.namespace="/robot1"',
+        "--set",
+        "ros2.publish_clock=false",
+    ]
+    unnamed = parse_fleet('[[robots]]\nname = "robot-1"')
+    with pytest.raises(ConfigError, match="fleet robot 'robot-1': its name is not a ROS namespace.*`namespace`"):
+        bridge_configs(unnamed, None, {})
 
 
 poses = st.builds(

@@ -45,7 +45,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.fleet\.(description|summary)", CORE),
     (r"services\.calibration\.(umbmark|measured)", CORE),
     (r"sim_bridge\.(simulator|robot|world|geometry|latency|display)", CORE),
-    (r"services\.ros2\.(core|wire|interfaces|urdf|graph)", CORE),
+    (r"services\.ros2\.(core|wire|interfaces|urdf|graph|outputs)", CORE),
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
     (r"sim_bridge\.bridge", SHELL),
     (r"services\.service", SHELL_SUPPORT),

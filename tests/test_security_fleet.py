@@ -5,6 +5,7 @@ the methods of another robot; the fleet's sim and operator reach every robot."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import queue
 import stat
@@ -41,7 +42,8 @@ from tests.harness import free_port, run_invent, wait_until
 
 ROBOTS = ("rh0", "rh1")
 RH0, RH1 = Keys("rh0"), Keys("rh1")
-BRIDGES = {robot: robot_bridge(DEFAULT_ROS, robot) for robot in ROBOTS}
+BRIDGES = {robot: robot_bridge(DEFAULT_ROS, robot, publishes_clock=robot == ROBOTS[0]) for robot in ROBOTS}
+"""As write_fleet_profile grants them by default: each robot in its namespace, /clock the first robot's."""
 
 
 def _granted(identity: Identity, message: Message, flow: Flow = Flow.INGRESS) -> set[str]:
@@ -104,6 +106,20 @@ def test_each_robots_bridge_is_granted_its_own_ros_namespace_and_not_the_others(
     assert stop["rh1"] in _granted(Identity(Role.ROS2, "rh1"), Message.DECLARE_QUERYABLE)
     assert stop["rh0"] not in _granted(Identity(Role.ROS2, "rh1"), Message.DECLARE_QUERYABLE)
     assert _granted(Identity(Role.ROS_NODE), Message.PUT) == {"0/**", "0/**/@adv/**", "@ros2_lv/0/**"}
+
+
+def test_each_robots_bridge_is_granted_its_namespaces_tf_and_only_the_first_robots_bridge_clock():
+    tf = {robot: BRIDGES[robot].key(BRIDGES[robot].publications["tf"]) for robot in ROBOTS}
+    assert tf["rh0"].startswith("0/rh0/tf/") and tf["rh1"].startswith("0/rh1/tf/")
+    clock = DEFAULT_ROS.key(PUBLICATIONS["clock"])
+    puts = {robot: _granted(Identity(Role.ROS2, robot), Message.PUT) for robot in ROBOTS}
+    assert tf["rh0"] in puts["rh0"] and tf["rh0"] not in puts["rh1"] and tf["rh1"] in puts["rh1"]
+    assert clock in puts["rh0"] and clock not in puts["rh1"], "/clock, one for the world: the first robot's bridge"
+    shared = {robot: dataclasses.replace(BRIDGES[robot], tf_shared=True) for robot in ROBOTS}
+    shared_tf = DEFAULT_ROS.key(dataclasses.replace(PUBLICATIONS["tf"], name="/tf"))
+    assert all(shared_tf in _granted_in(Identity(Role.ROS2, robot), shared, Message.PUT) for robot in ROBOTS), (
+        "with frame prefixes every bridge publishes on the shared /tf"
+    )
 
 
 def test_the_fleet_sim_puts_serves_and_calls_the_sim_keys_and_bump_methods_of_every_robot():
@@ -244,9 +260,14 @@ def test_run_secrets_with_robots_writes_a_fleet_profile_and_lists_every_user(tmp
 
 
 @contextmanager
-def _fleet_router(tmp_path: Path) -> Iterator[tuple[Profile, Callable[[Identity], zenoh.Session]]]:
-    """A router from a fresh two-robot profile, and a function that opens a client session as an identity."""
-    profile = write_fleet_profile(tmp_path / "secrets", ROBOTS, endpoint=f"tcp/127.0.0.1:{free_port()}")
+def _fleet_router(
+    tmp_path: Path, bridges: dict[str, BridgeGraph] | None = None
+) -> Iterator[tuple[Profile, Callable[[Identity], zenoh.Session]]]:
+    """A router from a fresh two-robot profile (its bridges ``bridges``, default each robot's name as
+    its namespace), and a function that opens a client session as an identity."""
+    profile = write_fleet_profile(
+        tmp_path / "secrets", ROBOTS, endpoint=f"tcp/127.0.0.1:{free_port()}", bridges=bridges
+    )
     with ExitStack() as stack:
         stack.enter_context(zenoh.open(zenoh.Config.from_file(str(profile.router_config))))
 
@@ -295,6 +316,43 @@ def test_router_lets_one_robots_credentials_put_only_on_that_robots_keys(tmp_pat
     assert {key for key, user in delivered if user == "sim"} == {
         keys.topic(topic) for keys in (RH0, RH1) for topic in Topic if topic.startswith("sim/")
     }
+
+
+def test_router_lets_each_robots_bridge_put_only_its_own_robots_ros_topics(tmp_path):
+    """Each robot's bridge credentials put on every ROS topic of both bridges (``/clock`` included),
+    its own last: once a ROS node (``ros_node``) has every own topic's sample of both, nothing else
+    came, so each bridge reached exactly its namespace's topics, and only rh0's bridge ``/clock``."""
+    bridges = {"rh0": robot_bridge(DEFAULT_ROS, "rh0"), "rh1": robot_bridge(DEFAULT_ROS, "robot1", False)}
+    with _fleet_router(tmp_path, bridges) as (_profile, open_as):
+        keys = {robot: {bridge.key(e) for e in bridge.publications.values()} for robot, bridge in bridges.items()}
+        every_key = set().union(*keys.values())
+        witness = open_as(Identity(Role.ROS_NODE))
+        received: queue.Queue[tuple[str, str]] = queue.Queue()
+        for key in every_key:
+            witness.declare_subscriber(key, lambda s: received.put((str(s.key_expr), s.payload.to_string())))
+        sessions = {robot: open_as(Identity(Role.ROS2, robot)) for robot in ROBOTS}
+        publishers = {
+            robot: {key: session.declare_publisher(key) for key in sorted(every_key, key=lambda k: k in keys[robot])}
+            for robot, session in sessions.items()
+        }
+        wait_until(
+            lambda: all(publishers[r][k].matching_status.matching for r in ROBOTS for k in keys[r]), 20, "matching"
+        )
+        for robot, own in publishers.items():
+            for publisher in own.values():  # the other robot's topics first, its own last
+                publisher.put(f"{robot}-ros2")
+        expected = {(key, f"{robot}-ros2") for robot in ROBOTS for key in keys[robot]}
+        delivered: set[tuple[str, str]] = set()
+
+        def all_own_delivered() -> bool:
+            while not received.empty():
+                delivered.add(received.get())
+            return expected <= delivered
+
+        wait_until(all_own_delivered, 10, "each bridge's own topics")
+    assert delivered == expected
+    assert any(key.startswith("0/clock/") for key, user in delivered if user == "rh0-ros2")
+    assert not any(key.startswith("0/clock/") for key, user in delivered if user == "rh1-ros2")
 
 
 def test_router_lets_one_robots_credentials_neither_call_nor_serve_another_robots_motor_methods(tmp_path):

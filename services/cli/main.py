@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import datetime
 import importlib
 import json
 import sys
@@ -12,12 +13,12 @@ from pathlib import Path
 import msgspec
 import zenoh
 
-from schemas.keys import DEFAULT_ROBOT, Keys
+from schemas.keys import DEFAULT_ROBOT, Keys, Service
 from services.cli import tools
-from services.config import ConfigError, RecordRate, load_config, parse_override
+from services.config import Config, ConfigError, RecordRate, TfLayout, load_config, parse_override
 from services.fleet.description import fleet_configs, load_fleet
-from services.launch import calibrate, fleet, up, worker
-from services.recording import record, replay, view
+from services.launch import calibrate, fleet, ros2_run, up, worker
+from services.recording import record, replay, ros2_record, rosbag, view
 from services.recording.mcap_files import read_run, replay_schedule, write_run_report
 from services.recording.report import summary
 from services.ros2.graph import bridge_graph
@@ -206,6 +207,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="the ROS namespace of the ROS 2 bridge the ros2 role is granted (default none; the domain is "
         "$ROS_DOMAIN_ID, default 0); the ros_node role may do anything in that domain",
     )
+    secrets_parser.add_argument(
+        "--ros-tf",
+        choices=list(TfLayout),
+        help="the TF layout of the bridges the ros2 roles are granted (ros2.tf; default namespaced: each robot's "
+        "tf in its namespace; prefixed: every robot's bridge may put on the shared /tf and /tf_static)",
+    )
     secrets_parser.set_defaults(handler=_secrets, log_level="info")
 
     echo = commands.add_parser(
@@ -267,10 +274,52 @@ def build_parser() -> argparse.ArgumentParser:
         "keyexprs", metavar="KEYEXPR", nargs="*", help="zenoh key expressions (default invent/<robot>/**)"
     )
     record.add_argument(
-        "--output", "-o", metavar="FILE.mcap", default="invent.mcap", help="file to write (default invent.mcap)"
+        "--output",
+        "-o",
+        metavar="PATH",
+        help="file to write (default invent.mcap); with --ros2, the bag's new directory (default "
+        "rosbag2_<date>-<time>, as `ros2 bag record` names one)",
     )
     record.add_argument("--duration", type=positive_seconds, metavar="S", help="stop after S seconds of wall time")
+    record.add_argument(
+        "--ros2",
+        action="store_true",
+        help="record the ROS 2 graph instead: every topic the robot's ROS 2 bridge publishes (of each robot with "
+        "--fleet), as rmw_zenoh carries it, into a rosbag2 bag with MCAP storage (metadata.yaml, CDR, ros2msg "
+        "schemas, ROS's type names and hashes), each message at the simulation time it carries, /clock included; "
+        "the bounds of [record] apply (split_size, split_duration, max_size, max_duration, min_free_disk). "
+        "`ros2 bag info DIR`, `ros2 bag play DIR --clock` (docs/ros2.md, Bags)",
+    )
+    record.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="with --ros2: the bridges of every robot of this fleet file, in their namespaces",
+    )
     record.set_defaults(handler=_record)
+
+    export = commands.add_parser(
+        "export",
+        parents=[service],
+        help="turn a recording of a run (run.mcap) into a ROS 2 bag",
+        description="Replay a recording of `invent up` (its run.mcap, and the files it was split into) through the "
+        "ROS 2 bridge's own mapping (services/ros2/outputs.py) and write what the bridge would have published, "
+        "/clock, odom, tf, tf_static, joint_states and robot_description of each robot, into a rosbag2 bag with "
+        "MCAP storage, each message at the simulation time it carries. The messages come at the recording's "
+        "observed steps: a run with --ros2 has the bridge's rates. --robot, --config and --set (or --fleet) must "
+        "match the run's; the [record] bounds apply to the bag.",
+    )
+    export.add_argument("recording", metavar="RUN.mcap", help="the recording, e.g. runs/<timestamp>/run.mcap")
+    export.add_argument(
+        "--ros2", action="store_true", required=True, help="the format: a rosbag2 bag (MCAP storage), ROS 2 CDR"
+    )
+    export.add_argument("--output", "-o", metavar="DIR", required=True, help="the bag's new directory")
+    export.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="the fleet file of the run: each robot in its namespace, /clock from the first (needed for a "
+        "recording of several robots)",
+    )
+    export.set_defaults(handler=_export, log_level="info")
 
     view_parser = commands.add_parser(
         "view",
@@ -458,24 +507,90 @@ def _secrets(args: argparse.Namespace) -> int:
         tls_names=args.tls_name,
         seen_as=Path(args.seen_as) if args.seen_as else None,
         router_base=args.router_base,
-        ros=bridge_graph(load_config(overrides={"ros2.namespace": args.ros_namespace})),
+        ros=bridge_graph(load_config(overrides={"ros2.namespace": args.ros_namespace, "ros2.tf": args.ros_tf})),
         robots=args.robots,
     )
 
 
 def _record(args: argparse.Namespace) -> int:
     config = config_from_args(None, args)
+    if args.ros2:
+        return _record_ros2(args, config)
+    if args.fleet:
+        raise ConfigError("--fleet: it is an option of --ros2 (the bridges of a fleet)")
     stop = stop_on_signals()
     with open_session(_session_config(args)) as session:
         return record.run_record(
             session,
             Keys(config.robot.name),
             args.keyexprs,
-            Path(args.output),
+            Path(args.output or "invent.mcap"),
             config,
             stop,
             duration_s=args.duration,
         )
+
+
+def _record_ros2(args: argparse.Namespace, config: Config) -> int:
+    if args.keyexprs:
+        raise ConfigError(f"--ros2 with {' '.join(args.keyexprs)}: a bag records the bridges' topics, not zenoh keys")
+    configs = list(ros2_run.fleet_bridges(load_fleet(args.fleet), args).values()) if args.fleet else [config]
+    bridges = [bridge_graph(robot) for robot in configs]
+    output = Path(args.output or datetime.datetime.now().strftime("rosbag2_%Y_%m_%d-%H_%M_%S"))
+    if output.exists():
+        raise ConfigError(f"--output {output}: it exists (a bag is written into a new directory)")
+    stop = stop_on_signals()
+    with open_session(_session_config(args)) as session:
+        result = ros2_record.run_record_ros2(
+            session,
+            bridges,
+            output,
+            config.record,
+            config.ros2.distro,
+            config.input.stamp_horizon_ns,
+            stop,
+            duration_s=args.duration,
+        )
+    _say_bag(result)
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    path = Path(args.recording)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such file")
+    output = Path(args.output)
+    if output.exists():
+        raise ConfigError(f"--output {output}: it exists (a bag is written into a new directory)")
+    if args.fleet:
+        configs = list(ros2_run.fleet_bridges(load_fleet(args.fleet), args).values())
+    else:
+        recorded = rosbag.robots_in(read_run(path).messages)
+        if len(recorded) > 1:
+            raise ConfigError(
+                f"{path} holds the robots {', '.join(recorded)}: give the run's --fleet FILE (their namespaces "
+                "and descriptions)"
+            )
+        if args.robot is None and recorded:
+            args.robot = recorded[0]
+        configs = [config_from_args(None, args)]
+    result, refused = rosbag.export_run(
+        path,
+        output,
+        [rosbag.ExportedRobot(config, bridge_graph(config)) for config in configs],
+        configs[0].record,
+    )
+    for key, count in sorted(refused.items()):
+        print(f"{count} recorded samples of {key} were bad input, not exported", file=sys.stderr)
+    _say_bag(result)
+    return 0
+
+
+def _say_bag(result: rosbag.BagResult) -> None:
+    counts = ", ".join(f"{topic} {count}" for topic, count in sorted(result.counts.items()))
+    print(f"{result.path}: {result.messages} messages in {len(result.files)} file(s): {counts}")
+    if result.stopped is not None:
+        print(f"the bag stopped early: {result.stopped['reason']}")
 
 
 def _view(args: argparse.Namespace) -> int:
@@ -532,6 +647,8 @@ def _worker(args: argparse.Namespace) -> int:
 def _up(args: argparse.Namespace) -> int:
     if args.record_full_rate:  # for every service of the run, as the robot description's [record]
         args.set = [*(args.set or []), f"record.rate={RecordRate.EVERY_STEP}"]
+    if args.tf:  # for every robot's bridge, as the robot description's [ros2]
+        args.set = [*(args.set or []), f"ros2.tf={args.tf}"]
     if args.fleet:
         return fleet.run_fleet(args, build_parser())
     return up.run_up(args, config_from_args(None, args), build_parser())
@@ -543,11 +660,25 @@ def _calibrate_umbmark(args: argparse.Namespace) -> int:
 
 def _serve(args: argparse.Namespace) -> int:
     command: ServiceCommand = args.service_command
+    if command.service is Service.ROS2 and args.fleet:
+        return _serve_fleet(command, args)
     config = config_from_args(command, args)
     apply_realtime(config.rt, f"invent {command.service}")
     stop = stop_on_signals()
     with open_session(_session_config(args, timestamping=command.timestamped)) as session:
         return run_service(command, session, config, args, stop)
+
+
+def _serve_fleet(command: ServiceCommand, args: argparse.Namespace) -> int:
+    """``invent ros2 --fleet FILE``: a bridge per robot, each in its namespace, in this process."""
+    given = {"--robot": args.robot, "--namespace": args.namespace}
+    wrong = [flag for flag, value in given.items() if value]
+    if wrong:
+        raise ConfigError(f"--fleet with {', '.join(wrong)}: each robot's name and namespace are the fleet file's")
+    configs = ros2_run.fleet_bridges(load_fleet(args.fleet), args, command)
+    stop = stop_on_signals()
+    with open_session(_session_config(args, timestamping=command.timestamped)) as session:
+        return ros2_run.serve_bridges(command, session, configs, args, stop)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -10,6 +10,7 @@ scenario = "square"                  # built-in or file; a built-in runs from th
 name = "rh1"
 start = { x = 0.0, y = 3.0, theta = 0.0 }
 scenario = "square"
+namespace = "robot1"                 # its ROS 2 namespace (default: its name)
 set = { "motor.p_gain_l" = 6.0 }     # optional per-robot overrides of the robot description
 ```
 
@@ -17,7 +18,9 @@ Loading is strict, as for the robot description and world files: an unknown key,
 duplicate or invalid robot name, an override that does not fit the robot description raises
 :class:`~services.config.ConfigError` naming the field, so the command exits with code 2. The world
 is one for all: a robot's overrides may not touch ``sim.*`` (one simulator steps them all) or
-``robot.name``. Pure: no zenoh, no PyBullet.
+``robot.name``. In ROS 2 (``--ros2``) each robot's bridge is in its own namespace, ``namespace``
+(default its name; no two alike), and the first robot's bridge publishes ``/clock``, one for the
+world (:func:`bridge_overrides`): neither is a robot's ``set``. Pure: no zenoh, no PyBullet.
 """
 
 from __future__ import annotations
@@ -30,10 +33,15 @@ from typing import Any
 import msgspec
 
 from schemas.keys import validate_robot_name
-from services.config import Config, ConfigError, convert_toml, load_config
+from services.config import NAMESPACE, Config, ConfigError, convert_toml, load_config
 
 FLEET_WIDE_SECTION = "sim"
 """The section a robot may not override: its parameters are the one simulator's."""
+BRIDGE_KEYS = {
+    "ros2.namespace": "its ROS 2 namespace is the robot's `namespace` (default its name)",
+    "ros2.publish_clock": "the first robot's bridge publishes /clock, one for the world",
+}
+"""What the fleet sets for each robot's ROS 2 bridge, never a robot's ``set``."""
 
 
 class Start(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -54,6 +62,8 @@ class FleetRobot(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_onl
     start: Start = msgspec.field(default_factory=Start)
     scenario: str | None = None
     """A built-in scenario or a scenario file; None: the drive's default."""
+    namespace: str | None = None
+    """Its ROS 2 namespace (``rh1``: ``/rh1/odom``, ``/rh1/cmd_vel``); None: its name."""
     set: dict[str, Any] = msgspec.field(default_factory=dict)
     """Overrides of the robot description, ``"section.key" = value`` (nested tables are flattened)."""
 
@@ -69,6 +79,17 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
 
     def robot(self, name: str) -> FleetRobot:
         return next(robot for robot in self.robots if robot.name == name)
+
+    @property
+    def clock_robot(self) -> str:
+        """The robot whose ROS 2 bridge publishes ``/clock`` (one for the world): the first."""
+        return self.robots[0].name
+
+
+def ros_namespace(robot: FleetRobot) -> str:
+    """``robot``'s ROS 2 namespace as ROS writes it: ``/<namespace>``, by default ``/<name>``."""
+    name = robot.name if robot.namespace is None else robot.namespace
+    return "/" + name.strip("/")
 
 
 def _flatten(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -87,6 +108,7 @@ def _check(fleet: Fleet, source: str) -> Fleet:
     if not fleet.robots:
         raise ConfigError(f"fleet file {source}: `robots`: a fleet needs at least one robot")
     seen: set[str] = set()
+    namespaces: set[str] = set()
     robots = []
     for index, robot in enumerate(fleet.robots):
         field = f"fleet file {source}: `robots[{index}]"
@@ -97,8 +119,19 @@ def _check(fleet: Fleet, source: str) -> Fleet:
         if robot.name in seen:
             raise ConfigError(f"{field}.name`: robot name {robot.name!r} is used twice")
         seen.add(robot.name)
+        if robot.namespace is not None and not NAMESPACE.fullmatch(robot.namespace):
+            raise ConfigError(
+                f"{field}.namespace`: {robot.namespace!r} is not a ROS namespace (names of letters, digits and "
+                "underscores, each starting with a letter, joined by /)"
+            )
+        namespace = ros_namespace(robot)
+        if namespace in namespaces:
+            raise ConfigError(f"{field}.namespace`: ROS namespace {namespace!r} is used twice")
+        namespaces.add(namespace)
         overrides = _flatten(robot.set)
         for key in overrides:
+            if key in BRIDGE_KEYS:
+                raise ConfigError(f"{field}.set`: {key!r} is the fleet's: {BRIDGE_KEYS[key]}")
             section = key.split(".", 1)[0]
             if section == FLEET_WIDE_SECTION or key == "robot.name":
                 raise ConfigError(
@@ -134,6 +167,35 @@ def robot_overrides(robot: FleetRobot) -> dict[str, Any]:
         "odometry.initial_x": robot.start.x,
         "odometry.initial_y": robot.start.y,
         "odometry.initial_theta": robot.start.theta,
+    }
+
+
+def bridge_overrides(fleet: Fleet, robot: FleetRobot) -> dict[str, Any]:
+    """What ``robot``'s ROS 2 bridge is started with beside :func:`robot_overrides`: its namespace,
+    and whether it publishes ``/clock`` (only the :attr:`Fleet.clock_robot`'s does)."""
+    return {"ros2.namespace": ros_namespace(robot), "ros2.publish_clock": robot.name == fleet.clock_robot}
+
+
+def bridge_flags(fleet: Fleet, robot: FleetRobot) -> list[str]:
+    """What ``robot``'s ROS 2 bridge is started with after :func:`robot_flags`: :func:`bridge_overrides`."""
+    flags = []
+    for key, value in bridge_overrides(fleet, robot).items():
+        flags += ["--set", f"{key}={_toml(value)}"]
+    return flags
+
+
+def bridge_configs(fleet: Fleet, config_path: str | Path | None, overrides: dict[str, Any]) -> dict[str, Config]:
+    """Every robot's description as its ROS 2 bridge has it (:func:`bridge_overrides`), by name;
+    ConfigError for a robot whose name cannot be its namespace and that has no ``namespace``."""
+    for robot in fleet.robots:
+        if robot.namespace is None and not NAMESPACE.fullmatch(robot.name):
+            raise ConfigError(
+                f"fleet robot {robot.name!r}: its name is not a ROS namespace (letters, digits and underscores, "
+                "starting with a letter): give it a `namespace` in the fleet file"
+            )
+    return {
+        robot.name: robot_config(robot, config_path, {**overrides, **bridge_overrides(fleet, robot)})
+        for robot in fleet.robots
     }
 
 

@@ -29,13 +29,14 @@ from schemas.codec import decode
 from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, RunSummary, Time
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
-from services.config import Config, ConfigError
+from services.config import Config, ConfigError, SimMode
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.scenarios import load_scenario
-from services.fleet.description import Fleet, FleetRobot, fleet_configs, load_fleet, robot_flags
+from services.fleet.description import Fleet, FleetRobot, bridge_flags, fleet_configs, load_fleet, robot_flags
 from services.fleet.summary import bumps_between, closest_approach
 from services.launch.children import ChildDied, Interrupted, say
 from services.launch.recorder import RunRecorder
+from services.launch.ros2_run import BagRecording, check_ros2_flags, fleet_bridge_graphs, fleet_bridges
 from services.launch.run import (
     EXIT_CHILD_DIED,
     EXIT_INTERRUPTED,
@@ -73,8 +74,6 @@ PROGRESS_INTERVAL_S = 1.0
 LOOK_INTERVAL_S = 0.05
 UNSUPPORTED = {
     "--robot": "the robots are the fleet file's",
-    "--ros2": "the ROS 2 bridge serves one robot",
-    "--teleop": "teleop drives one robot over ROS 2",
     "--loop": "a fleet runs each robot's scenario once",
     "--gui": "the PyBullet window is not offered for a fleet yet",
     "--connect": "a fleet run starts its own router",
@@ -90,10 +89,13 @@ def check_fleet(args: argparse.Namespace) -> tuple[Fleet, dict[str, Config]]:
         raise ConfigError(f"--fleet with {', '.join(wrong)}")
     if args.workers is not None and (args.workers < 1 or not args.composed):
         raise ConfigError(f"--workers {args.workers}: a number of processes >= 1, with --composed")
+    check_ros2_flags(args)
     fleet = load_fleet(args.fleet)
     overrides = overrides_from_args(None, args)
     configs = fleet_configs(fleet, args.config, overrides)
-    for robot in fleet.robots:
+    if args.ros2:
+        fleet_bridges(fleet, args)
+    for robot in fleet.robots if not args.teleop else ():
         try:
             load_scenario(_scenario(robot, args))
         except ConfigError as error:
@@ -116,7 +118,12 @@ def fleet_access(args: argparse.Namespace, fleet: Fleet, report_dir: Path) -> Ac
         )
     listen = args.listen or [DEFAULT_ENDPOINT]
     profile = write_fleet_profile(
-        report_dir / SECRETS_DIRECTORY, fleet.names, endpoint=listen[0], router_listen=listen, tls=args.tls
+        report_dir / SECRETS_DIRECTORY,
+        fleet.names,
+        endpoint=listen[0],
+        router_listen=listen,
+        tls=args.tls,
+        bridges=fleet_bridge_graphs(fleet, args),
     )
     say(f"secure: a user per robot and service, credentials in {profile.directory}/")
     return Access(profile, None)
@@ -198,14 +205,17 @@ class FleetRun:
                 return False
         return True
 
-    def supervise(self, started: float) -> dict[str, Any] | None:
+    def supervise(self, started: float, until_interrupted: bool = False) -> dict[str, Any] | None:
         """Until the sim holds at the last robot's last command (or every robot is done, some having
-        lost a service); progress every second. The sim's last status (of the first robot: the
-        world's part is the same for every robot)."""
+        lost a service), or, ``until_interrupted`` (``--teleop``: no scenario), until Ctrl-C; progress
+        every second. The sim's last status (of the first robot: the world's part is the same for
+        every robot)."""
         first = Keys(self.fleet.robots[0].name)
         sim_status: dict[str, Any] | None = None
         next_progress = time.monotonic()
         while True:
+            if until_interrupted and self.run.interrupted.is_set():
+                return self.status(first, Service.SIM) or sim_status
             self.look()
             if time.monotonic() >= next_progress:
                 for name in self.fleet.names:
@@ -229,10 +239,13 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     endpoint = access.profile.endpoint if access.profile else (args.listen or [DEFAULT_ENDPOINT])[0]
     common = _common_flags(args, endpoint)
     first = configs[fleet.robots[0].name]
-    mode = args.mode or first.sim.mode
+    mode = SimMode.REALTIME if args.teleop else args.mode or first.sim.mode
     interrupted = stop_on_signals()
-    journals = len(fleet.robots) * (len(SERVICES_BEFORE_DRIVE) + 1) + 2  # each robot's services, the sim, up
-    recorder = None if args.no_record else RunRecorder(report_dir, first.record, journals)
+    robot_services = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if args.ros2 else ()))
+    # each robot's services and drive, the sim, up
+    journals = len(fleet.robots) * (len(robot_services) + 1) + 2
+    bag = BagRecording(report_dir, first.record, len(fleet.robots), first.ros2.distro) if args.record_ros2 else None
+    recorder = None if args.no_record or args.teleop else RunRecorder(report_dir, first.record, journals)
     sim_started = False
     health: dict[str, dict[str, Any]] = {}
     try:
@@ -265,21 +278,23 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
 
             for robot in fleet.robots:
                 state = report_dir / robot.name / MOTOR_STATE_FILE
-                own = {Service.MOTOR: ["--state", str(state), *rt_flags(args)]}
-                for service in SERVICES_BEFORE_DRIVE:
+                own = {
+                    Service.MOTOR: ["--state", str(state), *rt_flags(args)],
+                    Service.ROS2: [*bridge_flags(fleet, robot), *(bag.flags if bag else [])],
+                }
+                for service in robot_services:
                     flags = [*common, *role_flags(access, Role(service), robot.name), *robot_flags(robot)]
                     flags += journal(robot.name)
                     launcher.start(f"{robot.name}/{service}", [str(service), *flags, *own.get(service, [])])
             # Until the sim starts, any service that ends ends the run, as in a one-robot run.
-            run.run.wait_tokens(
-                [Keys(name).alive(service) for name in fleet.names for service in SERVICES_BEFORE_DRIVE]
-            )
-            for robot in fleet.robots:
+            run.run.wait_tokens([Keys(name).alive(service) for name in fleet.names for service in robot_services])
+            driven = () if args.teleop else fleet.robots
+            for robot in driven:
                 flags = [*common, *role_flags(access, Role.DRIVE, robot.name), *robot_flags(robot)]
                 flags += journal(robot.name)
                 launcher.start(f"{robot.name}/drive", ["drive", *flags, "--scenario", _scenario(robot, args)])
             tokens = []
-            for name in fleet.names:
+            for name in (robot.name for robot in driven):
                 keys, config = Keys(name), configs[name]
                 tokens += [
                     keys.alive(Service.DRIVE),
@@ -289,6 +304,9 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             run.run.wait_tokens(tokens)
             wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
             sim_flags = ["--fleet", args.fleet, "--mode", mode, "--until-drive-ends", "--wait-for", *wait_for]
+            if args.teleop:  # no drive: the sim steps on until Ctrl-C, waiting for each robot's torque only
+                sim_flags = ["--fleet", args.fleet, "--mode", mode, "--wait-for", str(Service.MOTOR)]
+                say("teleop: each robot follows ROS 2's /<namespace>/cmd_vel until Ctrl-C; see docs/ros2.md")
             sim_flags += rt_flags(args)
             launcher.start(
                 "sim",
@@ -297,7 +315,7 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             sim_started = True
             started = time.monotonic()
             say(f"fleet of {len(fleet.robots)}: {', '.join(fleet.names)}; {mode} mode")
-            sim_status = run.supervise(started)
+            sim_status = run.supervise(started, until_interrupted=args.teleop)
             wall_time_s = time.monotonic() - started
             for name in fleet.names:
                 keys = Keys(name)
@@ -338,12 +356,15 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     finally:
         if recorder:
             recorder.finish(sim_started, report_dir / RECORDING_FILE, first, tuple(configs.values()))
+        if bag:
+            bag.finish(sim_started)
     outcome_code = outcome_exit_code(list(run.outcomes.values()))
     if recorder is None:
         degraded = [f"{name}: {reason}" for name in fleet.names for reason in _degradations(health[name])]
         for line in [*outcome_lines, *map(degradation_line, degraded)]:
             print(line, flush=True)
-        return verdict(args, degraded, "done; no recording, no report (--no-record)", outcome_code)
+        why = "--teleop" if args.teleop else "--no-record"
+        return verdict(args, degraded, f"done; no recording, no report ({why})", outcome_code)
     report = fleet_report(report_dir, fleet, configs)
     for name, robot in report["robots"].items():
         print(f"--- {name} ---\n{summary(robot)}", flush=True)

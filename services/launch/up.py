@@ -28,8 +28,10 @@ from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, Time
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config, ConfigError, SimMode
 from services.drive.scenarios import load_scenario
+from services.launch import ros2_run
 from services.launch.children import ChildDied, Interrupted, say
 from services.launch.recorder import RunRecorder
+from services.launch.ros2_run import BagRecording, check_ros2_flags
 from services.launch.run import (
     EXIT_CHILD_DIED,
     EXIT_INTERRUPTED,
@@ -111,15 +113,8 @@ def check_before_start(args: argparse.Namespace, config: Config) -> None:
         raise ConfigError("--workers: it spreads a fleet's robots over processes (with --fleet --composed)")
     if args.view == 0:
         raise ConfigError("--view: the view's port must be fixed (1..65535), for the address to open in Foxglove")
-    if args.teleop:
-        given = {"--ros2": not args.ros2, "--mode lockstep": args.mode == SimMode.LOCKSTEP, "--loop": args.loop}
-        wrong = [flag for flag, conflicting in given.items() if conflicting]
-        if wrong:
-            raise ConfigError(
-                f"--teleop ({', '.join(wrong)}): it runs the loop in realtime with no scenario, the robot following "
-                "ROS 2's /cmd_vel through the bridge, so it needs --ros2 and takes neither --mode lockstep nor --loop"
-            )
-    else:
+    check_ros2_flags(args)
+    if not args.teleop:
         load_scenario(args.scenario)
     load_world(config.sim.world)
     if args.ros2:
@@ -139,6 +134,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     recording = not (args.no_record or args.loop or args.teleop)
     # the journals: the services', the drive's, the sim's and up's own
     journals = len(SERVICES_BEFORE_DRIVE) + args.ros2 + 3
+    bag = BagRecording(report_dir, config.record, 1, config.ros2.distro) if args.record_ros2 else None
     recorder = RunRecorder(report_dir, config.record, journals) if recording else None
     journal_flags = recorder.flags if recorder else []
     sim_started = False
@@ -154,7 +150,10 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
                 live_view = ViewProcess([*common, *access.flags(Role.OBSERVER)], args.view)
                 closing.callback(live_view.close)
                 live_view.wait_serving(run)
-            own_flags = {Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE), *rt_flags(args)]}
+            own_flags = {
+                Service.MOTOR: ["--state", str(report_dir / MOTOR_STATE_FILE), *rt_flags(args)],
+                Service.ROS2: bag.flags if bag else [],
+            }
             before_drive = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if args.ros2 else ()))
             for service in before_drive:
                 flags = [*common, *access.flags(Role(service)), *journal_flags, *own_flags.get(service, [])]
@@ -221,6 +220,8 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     finally:
         if recorder:
             recorder.finish(sim_started, report_dir / RECORDING_FILE, config)
+        if bag:
+            bag.finish(sim_started)
     if not recorder:
         degraded = degradations(health)
         lines = [*([outcome_line] if outcome_line else []), *health_lines(health), *map(degradation_line, degraded)]
@@ -314,13 +315,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ros2",
         action="store_true",
         help="start `invent ros2` beside the loop: the robot in the ROS 2 graph over rmw_zenoh (/odom, /tf, "
-        "/joint_states, /clock, /robot_description, /cmd_vel, the motor's Trigger services; docs/ros2.md)",
+        "/joint_states, /clock, /robot_description, /cmd_vel, the motor's Trigger services; docs/ros2.md); with "
+        "--fleet, one bridge per robot, each in its namespace (/rh0/odom, /rh0/cmd_vel, ...), /clock once",
     )
+    ros2_run.add_arguments(parser)
     parser.add_argument(
         "--teleop",
         action="store_true",
-        help="with --ros2: no scenario; the loop runs in realtime, the robot following /cmd_vel from ROS 2 "
-        "(teleop_twist_keyboard, Nav2) until Ctrl-C; records nothing, prints the run's health at the end",
+        help="with --ros2: no scenario; the loop runs in realtime, the robot (with --fleet, each robot) following "
+        "/cmd_vel from ROS 2 (teleop_twist_keyboard, Nav2) until Ctrl-C; records nothing, prints the run's health "
+        "at the end",
     )
     parser.add_argument(
         "--composed",

@@ -165,13 +165,14 @@ def _covariance(diagonal: tuple[float, ...]) -> np.ndarray:
     return np.diag(np.array(diagonal, dtype=np.float64)).reshape(36)
 
 
-def odometry_message(stamp_ns: int, odometry: ContinuousOdometry, settings: Ros2Config) -> Any:
-    """nav_msgs/Odometry: the continuous pose in ``odom``, the body twist in ``base_link``."""
+def odometry_message(stamp_ns: int, odometry: ContinuousOdometry, settings: Ros2Config, prefix: str = "") -> Any:
+    """nav_msgs/Odometry: the continuous pose in ``odom``, the body twist in ``base_link`` (both
+    frames with ``prefix`` on a shared ``/tf``)."""
     pose = odometry.pose
     v, omega = odometry.velocity
     return interfaces.message_class(interfaces.ODOMETRY)(
-        header=_header(stamp_ns, settings.odom_frame),
-        child_frame_id=settings.base_frame,
+        header=_header(stamp_ns, prefix + settings.odom_frame),
+        child_frame_id=prefix + settings.base_frame,
         pose=interfaces.message_class("geometry_msgs/msg/PoseWithCovariance")(
             pose=interfaces.message_class("geometry_msgs/msg/Pose")(
                 position=_vector(pose.x, pose.y, 0.0, kind="Point"), orientation=_yaw(pose.theta)
@@ -185,20 +186,29 @@ def odometry_message(stamp_ns: int, odometry: ContinuousOdometry, settings: Ros2
     )
 
 
-def wheel_transforms(stamp_ns: int, base_frame: str, body: RobotBody, angles: tuple[float, float]) -> list[Any]:
-    """``base_link -> <wheel>``: each wheel turned about +y by its angle."""
+def wheel_transforms(
+    stamp_ns: int, base_frame: str, body: RobotBody, angles: tuple[float, float], prefix: str = ""
+) -> list[Any]:
+    """``base_link -> <wheel>``: each wheel turned about +y by its angle (its link's name after ``prefix``)."""
     return [
         transform(
-            stamp_ns, base_frame, wheel.link, 0.0, wheel.y, 0.0, _quaternion(y=math.sin(a / 2.0), w=math.cos(a / 2.0))
+            stamp_ns,
+            base_frame,
+            prefix + wheel.link,
+            0.0,
+            wheel.y,
+            0.0,
+            _quaternion(y=math.sin(a / 2.0), w=math.cos(a / 2.0)),
         )
         for wheel, a in zip(body.wheels, angles, strict=True)
     ]
 
 
-def static_transforms(stamp_ns: int, base_frame: str, body: RobotBody) -> list[Any]:
-    """``base_link -> <caster>``: what never moves (``/tf_static``)."""
+def static_transforms(stamp_ns: int, base_frame: str, body: RobotBody, prefix: str = "") -> list[Any]:
+    """``base_link -> <caster>``: what never moves (``/tf_static``; each link's name after ``prefix``)."""
     return [
-        transform(stamp_ns, base_frame, caster.link, caster.x, 0.0, caster.z, _quaternion()) for caster in body.casters
+        transform(stamp_ns, base_frame, prefix + caster.link, caster.x, 0.0, caster.z, _quaternion())
+        for caster in body.casters
     ]
 
 
@@ -216,6 +226,21 @@ def joint_state(stamp_ns: int, body: RobotBody, wheels: WheelSample, efforts: tu
 def _array(values: tuple[float, ...]) -> np.ndarray:
     """A ``float64[]`` field: rosbags takes numpy arrays for sequences of numbers."""
     return np.array(values, dtype=np.float64)
+
+
+def stamp_of(message: Any) -> int | None:
+    """The simulation time a message the bridge publishes carries, in ns: a ``/clock``'s time, a
+    header's stamp, the newest of a TFMessage's transforms; None for one without (the URDF)."""
+    if message.__msgtype__ == interfaces.CLOCK:
+        return _nanoseconds(message.clock)
+    if message.__msgtype__ == interfaces.TF_MESSAGE:
+        return max((_nanoseconds(t.header.stamp) for t in message.transforms), default=None)
+    header = getattr(message, "header", None)
+    return None if header is None else _nanoseconds(header.stamp)
+
+
+def _nanoseconds(time: Any) -> int:
+    return int(time.sec) * NANOSECONDS_PER_SECOND + int(time.nanosec)
 
 
 MAX_TWIST_PAYLOAD = 4096

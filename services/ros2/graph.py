@@ -6,12 +6,13 @@ declares exactly these (services/ros2/service.py), and the secure profile grants
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 from schemas.keys import Method
-from services.config import Config, ConfigError
+from services.config import Config, ConfigError, TfLayout
 from services.ros2 import interfaces, wire
 
 DOMAIN_VARIABLE = "ROS_DOMAIN_ID"
@@ -22,7 +23,7 @@ MAX_DOMAIN = 232
 @dataclass(frozen=True)
 class Entity:
     name: str
-    """Relative to the namespace, or absolute (``/tf``, ``/clock``: global by ROS convention)."""
+    """Relative to the namespace, or absolute (``/clock``: one for the world, global by ROS convention)."""
     interface: str
     qos: wire.Qos
 
@@ -30,11 +31,15 @@ class Entity:
 PUBLICATIONS: dict[str, Entity] = {
     "clock": Entity("/clock", interfaces.CLOCK, wire.CLOCK),
     "odom": Entity("odom", interfaces.ODOMETRY, wire.SYSTEM_DEFAULT),
-    "tf": Entity("/tf", interfaces.TF_MESSAGE, wire.TF),
-    "tf_static": Entity("/tf_static", interfaces.TF_MESSAGE, wire.LATCHED),
+    "tf": Entity("tf", interfaces.TF_MESSAGE, wire.TF),
+    "tf_static": Entity("tf_static", interfaces.TF_MESSAGE, wire.LATCHED),
     "joint_states": Entity("joint_states", interfaces.JOINT_STATE, wire.SYSTEM_DEFAULT),
     "robot_description": Entity("robot_description", interfaces.STRING, wire.LATCHED),
 }
+"""Every topic a bridge may publish, by its short name; :attr:`BridgeGraph.publications` are one bridge's."""
+TF_TOPICS = ("tf", "tf_static")
+"""In the bridge's namespace by default (Nav2's multi-robot layout); on the shared ``/tf`` and
+``/tf_static`` with ``ros2.tf = "prefixed"``."""
 SUBSCRIPTIONS = (
     Entity("cmd_vel", interfaces.TWIST, wire.SYSTEM_DEFAULT),
     Entity("cmd_vel", interfaces.TWIST_STAMPED, wire.SYSTEM_DEFAULT),
@@ -56,6 +61,27 @@ class BridgeGraph:
     node_name: str
     type_hashes: bool = True
     """False for Humble, whose rmw_zenoh writes ``TypeHashNotSupported`` in place of the hash."""
+    tf_shared: bool = False
+    """``ros2.tf = "prefixed"``: TF on the shared ``/tf`` and ``/tf_static`` (else in the namespace)."""
+    publishes_clock: bool = True
+
+    @property
+    def publications(self) -> dict[str, Entity]:
+        """What this bridge publishes: :data:`PUBLICATIONS`, its TF topics where ``ros2.tf`` puts
+        them, and ``/clock`` only if it publishes it."""
+        entities = {}
+        for topic, entity in PUBLICATIONS.items():
+            if topic == "clock" and not self.publishes_clock:
+                continue
+            shared = topic in TF_TOPICS and self.tf_shared
+            entities[topic] = dataclasses.replace(entity, name=f"/{entity.name}") if shared else entity
+        return entities
+
+    @property
+    def frame_prefix(self) -> str:
+        """What the robot's frames are prefixed with: ``rh0/`` on a shared ``/tf``, else nothing."""
+        stripped = self.namespace.strip("/")
+        return f"{stripped}/" if self.tf_shared and stripped else ""
 
     def name(self, entity: Entity) -> str:
         return wire.full_name(self.namespace, entity.name)
@@ -91,4 +117,6 @@ def bridge_graph(config: Config, environ: Mapping[str, str] = os.environ) -> Bri
         wire.absolute_namespace(settings.namespace),
         settings.node_name,
         type_hashes=settings.distro != "humble",
+        tf_shared=settings.tf is TfLayout.PREFIXED,
+        publishes_clock=settings.publish_clock,
     )

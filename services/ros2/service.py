@@ -3,10 +3,12 @@ wire format (services/ros2/wire.py) with no ROS installation. docs/ros2.md is th
 
 One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
 
-- publishers: ``/clock`` (the simulation time, at ``ros2.clock_rate`` per simulated second),
-  ``odom`` and ``/tf`` (``map -> odom -> base_link`` and the wheels) and ``joint_states`` (at
-  ``ros2.publish_rate``), and, latched (transient-local, zenoh-ext advanced publishers with a
-  cache), ``/tf_static`` (the casters) and ``robot_description`` (the URDF);
+- publishers: ``/clock`` (the simulation time, at ``ros2.clock_rate`` per simulated second; unless
+  ``ros2.publish_clock`` is off: one bridge of a fleet publishes it), ``odom`` and ``tf``
+  (``map -> odom -> base_link`` and the wheels) and ``joint_states`` (at ``ros2.publish_rate``),
+  and, latched (transient-local, zenoh-ext advanced publishers with a cache), ``tf_static`` (the
+  casters) and ``robot_description`` (the URDF); ``tf`` and ``tf_static`` in the namespace, or on
+  the shared ``/tf`` and ``/tf_static`` with prefixed frames (``ros2.tf``, services/ros2/graph.py);
 - subscriptions: ``cmd_vel`` as geometry_msgs/Twist and as TwistStamped (diff_drive_controller's
   since Jazzy), each forwarded as ``drive/target_velocity`` stamped with the newest simulation time
   (at most ``ros2.cmd_vel_rate`` per simulated second, the newest kept between two), so the motor's
@@ -14,13 +16,15 @@ One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
 - services ``motor/stop``, ``motor/clear``, ``motor/start``, ``motor/finish`` (std_srvs/Trigger),
   each calling the Motor method of that name (``motor/gui/<method>``, as an operator would).
 
-Its inputs from the loop are sampled (the newest of each, never a backlog): ``sim/clock`` (the
-clock, the wheels, and the continuous odometry, services/ros2/core.py), ``odometry/pose``
-(``map``) and ``motor/torque`` (the wheels' efforts). ``sim/clock`` comes at the simulator's
-observed steps: the bridge holds an observer token for ``ros2.clock_rate`` and one for
-``ros2.publish_rate`` (docs/protocol.md section 2.7), so each of its ticks is one of them. Bad input (a sample without rmw_zenoh's
-attachment, malformed CDR, a twist not finite or implausible) is counted under its ROS key and
-dropped; nothing from ROS reaches the motor unchecked.
+Its inputs from the loop: every sample of ``sim/clock`` (the clock, the wheels, and the continuous
+odometry: each observed step, so no tick is skipped), the newest of ``odometry/pose`` (``map``) and
+of ``motor/torque`` (the wheels' efforts); what they become is the pure :class:`~services.ros2.outputs.RosOutputs`,
+which ``invent export --ros2`` replays a recording through. ``sim/clock`` comes at the simulator's
+observed steps: the bridge holds an observer token for each of its rates (docs/protocol.md section
+2.7), so each of its ticks is one of them. Bad input (a sample without rmw_zenoh's attachment,
+malformed CDR, a twist not finite or implausible) is counted under its ROS key and dropped;
+nothing from ROS reaches the motor unchecked. Several bridges may share one session (a composed
+fleet): their nodes' and entities' ids come from one counter per session, as in one ROS context.
 """
 
 from __future__ import annotations
@@ -28,8 +32,10 @@ from __future__ import annotations
 import argparse
 import itertools
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -39,16 +45,14 @@ import zenoh.ext
 from schemas.codec import BadInput
 from schemas.keys import Method, MethodFamily, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
-from services.clock.sim_time import PeriodicSchedule, StampClock
 from services.clock.sim_watch import SimulatorWatch
-from services.config import Config
-from services.planar import Pose
+from services.config import Config, ConfigError, TfLayout
 from services.ros2 import core, graph, interfaces, wire
-from services.ros2.urdf import robot_urdf
+from services.ros2.outputs import Outgoing, RosOutputs
 from services.runtime.inputs import Delivery
+from services.runtime.journal import Journal, journal_path
 from services.runtime.node import Node, Wait
-from services.service import ServiceCommand
-from sim_bridge.geometry import robot_body
+from services.service import ServiceCommand, journal_limits
 
 SERVICE_CALL_TIMEOUT_S = 2.0
 """How long a service call waits for the motor's answer before it answers ``success: false``."""
@@ -60,15 +64,27 @@ SPORADIC_HEARTBEAT_S = 1.0
 """rmw_zenoh's heartbeat period for a reliable transient-local publisher's sample-miss detection."""
 
 
+_CONTEXT_IDS: dict[str, Iterator[int]] = {}
+"""rmw_zenoh's id counter of a context, per zenoh session (by its id): the bridges composed on one
+session (a fleet's, ``invent ros2 --fleet``) draw their nodes' and entities' ids from one counter,
+as the nodes of one rclcpp context do, so no two nodes of a session share an id."""
+
+
+def context_ids(session: zenoh.Session) -> Iterator[int]:
+    return _CONTEXT_IDS.setdefault(str(session.zid()), itertools.count())
+
+
 class GraphTokens:
-    """This process's node in the ROS graph: its liveliness token, and one token per entity, each
-    with an id of its own counted from the node's."""
+    """This bridge's node in the ROS graph: its liveliness token, and one token per entity, each
+    with an id of its own, drawn after the node's from its session's counter."""
 
     def __init__(self, session: zenoh.Session, bridge: graph.BridgeGraph) -> None:
         self.session = session
         self.bridge = bridge
-        self.identity = wire.NodeIdentity(bridge.domain, str(session.zid()), bridge.namespace, bridge.node_name)
-        self._ids = itertools.count(self.identity.node_id + 1)
+        self._ids = context_ids(session)
+        self.identity = wire.NodeIdentity(
+            bridge.domain, str(session.zid()), bridge.namespace, bridge.node_name, node_id=next(self._ids)
+        )
         self._tokens: list[Any] = [session.liveliness().declare_token(self.identity.token())]
 
     def declare(self, kind: wire.EntityKind, entity: graph.Entity) -> str:
@@ -89,11 +105,13 @@ class RosPublisher:
     """One ROS topic's publisher: CDR payloads, each with its attachment (sequence from 1, one GID).
     A transient-local one is a zenoh-ext advanced publisher with a cache of ``depth`` samples,
     publisher detection and (reliable) sample-miss detection, as rmw_zenoh declares it, so a late
-    subscriber gets the last message."""
+    subscriber gets the last message. Each message is also kept in ``journal``, if given, with its
+    simulation time (``invent up --record-ros2``'s bag is made of those)."""
 
-    def __init__(self, tokens: GraphTokens, entity: graph.Entity) -> None:
+    def __init__(self, tokens: GraphTokens, entity: graph.Entity, journal: Journal | None = None) -> None:
         self.name = tokens.bridge.name(entity)
         self.key = tokens.bridge.key(entity)
+        self._journal = journal
         self.sequence = wire.Sequence(wire.gid_of(tokens.declare(wire.EntityKind.PUBLISHER, entity)))
         qos = entity.qos
         self._publisher: Any
@@ -116,8 +134,12 @@ class RosPublisher:
     def published(self) -> int:
         return self.sequence.last
 
-    def put(self, message: Any) -> None:
-        self._publisher.put(interfaces.serialize(message), attachment=self.sequence.next(time.time_ns()))
+    def put(self, message: Any, stamp_ns: int) -> None:
+        """Publish ``message``, which carries the simulation time ``stamp_ns``."""
+        payload = interfaces.serialize(message)
+        self._publisher.put(payload, attachment=self.sequence.next(time.time_ns()))
+        if self._journal is not None:
+            self._journal.write(self.key, payload, time_ns=stamp_ns, stamp_ns=stamp_ns)
 
     def undeclare(self) -> None:
         self._publisher.undeclare()
@@ -142,19 +164,16 @@ class Ros2Bridge:
         self.node = node
         self.config = config
         self.settings = settings = config.ros2
-        self.body = robot_body(config.robot, config.sim)
         self.graph = bridge = graph.bridge_graph(config)
+        self.outputs = outputs = RosOutputs(config, bridge)
         self.tokens = tokens = GraphTokens(node.session, bridge)
-        self.publishers = {name: RosPublisher(tokens, entity) for name, entity in graph.PUBLICATIONS.items()}
+        self.bag_journal = _bag_journal(args, config)
+        self.publishers = {
+            name: RosPublisher(tokens, entity, self.bag_journal) for name, entity in bridge.publications.items()
+        }
         self.target = node.publisher(node.keys.drive_target_velocity)
-        self.clock = StampClock(config.input.stamp_horizon_ns)
+        self.clock = outputs.clock
         self.sim = sim = SimulatorWatch(node, self.clock.restart)
-        self.odometry = core.ContinuousOdometry(config)
-        self.map_to_odom: tuple[int, Pose] | None = None
-        """(stamp of the localized pose it comes from, ``map -> odom``)."""
-        self.efforts: tuple[float, float] | None = None
-        self._schedules: tuple[PeriodicSchedule, PeriodicSchedule] | None = None
-        self._wheel_ids = (config.robot.left_wheel_id, config.robot.right_wheel_id)
         self._min_forward_ns = round(NANOSECONDS_PER_SECOND / settings.cmd_vel_rate)
         self._pending_twist: tuple[float, float] | None = None
         self._last_forward_ns: int | None = None
@@ -163,22 +182,27 @@ class Ros2Bridge:
         self._pending_calls: dict[int, PendingCall] = {}
         self._call_ids = itertools.count(1)
 
+        # Every sample, not the newest: sim/clock comes only at the observed steps, and one taken
+        # late is a /clock tick skipped and an /odom off its grid (and missing from the bag).
         self._clock_input = node.subscribe(
-            node.keys.sim_clock, TimedDoubleSeq, sim.clock(self._on_wheels), Delivery.SAMPLED
+            node.keys.sim_clock, TimedDoubleSeq, sim.clock(self._on_wheels), Delivery.EVERY
         )
-        for rate_hz in sorted({settings.clock_rate, settings.publish_rate}):
+        rates = {settings.publish_rate, *((settings.clock_rate,) if bridge.publishes_clock else ())}
+        for rate_hz in sorted(rates):
             node.observe(rate_hz)
+        # The newest of each, taken when the clock wakes the thread: sampled inputs would have the
+        # thread poll them every millisecond while it waits in the clock's channel.
         node.subscribe(
             node.keys.odometry_pose,
             TimedPosition,
-            sim.stamped(node.keys.odometry_pose, self._on_localized, awaited=lambda: False),
-            Delivery.SAMPLED,
+            sim.stamped(node.keys.odometry_pose, outputs.take_localized, awaited=lambda: False),
+            Delivery.NEWEST,
         )
         node.subscribe(
             node.keys.motor_torque,
             TimedDoubleSeq,
-            sim.stamped(node.keys.motor_torque, self._on_torque, awaited=lambda: False),
-            Delivery.SAMPLED,
+            sim.stamped(node.keys.motor_torque, outputs.take_torque, awaited=lambda: False),
+            Delivery.NEWEST,
         )
         self.cmd_vel_keys: dict[str, str] = {}
         for entity in graph.SUBSCRIPTIONS:
@@ -197,7 +221,7 @@ class Ros2Bridge:
             self._motor_methods[method] = node.session.declare_querier(
                 node.keys.method(MethodFamily.GUI, method), timeout=SERVICE_CALL_TIMEOUT_S
             )
-        self._publish_latched()
+        self._publish(outputs.latched())
         node.wait_with(lambda: Wait(self._clock_input))
         node.set_status(self.status)
         node.log.info(
@@ -208,66 +232,22 @@ class Ros2Bridge:
             ", ".join(publisher.name for publisher in self.publishers.values()),
         )
 
-    def _publish_latched(self) -> None:
-        base = self.settings.base_frame
-        self.publishers["tf_static"].put(core.tf_message(core.static_transforms(0, base, self.body)))
-        urdf = robot_urdf(self.config.robot.name, base, self.body)
-        self.publishers["robot_description"].put(core.string(urdf))
+    def _publish(self, outgoing: list[Outgoing]) -> None:
+        for message in outgoing:
+            self.publishers[message.topic].put(message.message, message.stamp_ns)
 
     # -- the loop's side ------------------------------------------------------------------------
 
     def _on_wheels(self, message: TimedDoubleSeq) -> None:
-        now_ns = message.tm.to_nanoseconds()
-        if self.clock.advance(now_ns):
-            self._restart(now_ns)
-        wheels = self.odometry.take(message)
-        if self._schedules is None:
-            # On the simulator's grid (anchored at 0), whose observed steps the observer tokens ask for.
-            self._schedules = (
-                PeriodicSchedule(self.settings.clock_rate, 0),
-                PeriodicSchedule(self.settings.publish_rate, 0),
+        taken = self.outputs.take_wheels(message)
+        if taken.restarted:
+            self._last_forward_ns = None
+            self.node.log.info(
+                "simulation time went back to %.3f s (a new simulator): odom starts again",
+                message.tm.to_nanoseconds() / NANOSECONDS_PER_SECOND,
             )
-        clock_schedule, publish_schedule = self._schedules
-        if clock_schedule.due(now_ns):
-            self.publishers["clock"].put(core.clock(now_ns))
-        if publish_schedule.due(now_ns):
-            self._publish_state(now_ns, wheels)
+        self._publish(taken.outgoing)
         self._forward_twist()
-
-    def _publish_state(self, now_ns: int, wheels: core.WheelSample) -> None:
-        settings = self.settings
-        transforms = [
-            core.planar_transform(now_ns, settings.odom_frame, settings.base_frame, self.odometry.pose),
-            *core.wheel_transforms(now_ns, settings.base_frame, self.body, wheels.angles),
-        ]
-        if self.map_to_odom is not None:
-            stamp_ns, correction = self.map_to_odom
-            transforms.append(core.planar_transform(stamp_ns, settings.map_frame, settings.odom_frame, correction))
-        self.publishers["odom"].put(core.odometry_message(now_ns, self.odometry, settings))
-        self.publishers["tf"].put(core.tf_message(transforms))
-        self.publishers["joint_states"].put(core.joint_state(now_ns, self.body, wheels, self.efforts))
-
-    def _on_localized(self, message: TimedPosition) -> None:
-        correction = core.map_to_odom(message, self.odometry)
-        if correction is not None:
-            self.map_to_odom = (message.tm.to_nanoseconds(), correction)
-
-    def _on_torque(self, message: TimedDoubleSeq) -> None:
-        left, right = self._wheel_ids
-        if len(message.data) <= max(left, right):
-            raise BadInput(f"{len(message.data)} torques, wheel ids {left} and {right}")
-        self.efforts = (message.data[left], message.data[right])
-
-    def _restart(self, now_ns: int) -> None:
-        """A new simulator, whose clock started again: ``odom`` starts again at the origin."""
-        self.odometry.restart()
-        self._schedules = None
-        self.map_to_odom = None
-        self.efforts = None
-        self._last_forward_ns = None
-        self.node.log.info(
-            "simulation time went back to %.3f s (a new simulator): odom starts again", now_ns / NANOSECONDS_PER_SECOND
-        )
 
     # -- ROS's side -----------------------------------------------------------------------------
 
@@ -364,7 +344,7 @@ class Ros2Bridge:
             "published": {publisher.name: publisher.published for publisher in self.publishers.values()},
             "cmd_vel": dict(self.cmd_vel),
             "service_calls": {**self.calls, "waiting": len(self._pending_calls)},
-            "odom": self.odometry.pose._asdict(),
+            "odom": self.outputs.odometry.pose._asdict(),
         }
 
     def close(self) -> None:
@@ -374,6 +354,22 @@ class Ros2Bridge:
         for entity in (*self._queryables, *self._motor_methods.values(), *self.publishers.values()):
             entity.undeclare()
         self.tokens.close()
+        if self.bag_journal is not None:
+            self.bag_journal.close()
+
+
+def _bag_journal(args: argparse.Namespace, config: Config) -> Journal | None:
+    """``--bag-journal DIR`` (``invent up --record-ros2``): where the bridge keeps what it publishes,
+    ``<DIR>/<robot>.journal``, within its share of ``[record]``'s bounds, for the run's bag."""
+    directory = getattr(args, "bag_journal", None)
+    if directory is None:
+        return None
+    try:
+        return Journal(
+            journal_path(Path(directory), config.robot.name), journal_limits(config.record, args.bag_journal_share)
+        )
+    except OSError as error:
+        raise ConfigError(f"--bag-journal {directory}: {error.strerror}") from None
 
 
 def _reply_text(reply: zenoh.Reply) -> tuple[bool, str]:
@@ -393,20 +389,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NS",
         help="ROS namespace of the node, its topics and services (ros2.namespace; default none), e.g. rh0",
     )
+    parser.add_argument(
+        "--tf",
+        choices=list(TfLayout),
+        help="where a namespaced bridge publishes TF (ros2.tf; default namespaced): namespaced, on <NS>/tf and "
+        "<NS>/tf_static with frames as named (Nav2's multi-robot bringup); prefixed, on the shared /tf and "
+        "/tf_static with frames <NS>/odom, <NS>/base_link, ... under the world's map (one RViz for every robot)",
+    )
+    parser.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="bridge every robot of this fleet file, each its own ROS node in its namespace (the file's namespace, "
+        "default its name): /<NS>/odom, /<NS>/tf, /<NS>/cmd_vel, /<NS>/motor/stop, ...; /clock once, from the first "
+        "robot's bridge (docs/ros2.md, A fleet)",
+    )
+    # invent up --record-ros2's: where the bridge keeps what it publishes for the run's bag, and how
+    # many bridges of the run share record.max_size
+    parser.add_argument("--bag-journal", metavar="DIR", help=argparse.SUPPRESS)
+    parser.add_argument("--bag-journal-share", type=int, default=1, help=argparse.SUPPRESS)
 
 
 def overrides(args: argparse.Namespace) -> dict[str, Any]:
-    return {"ros2.namespace": args.namespace}
+    return {"ros2.namespace": args.namespace, "ros2.tf": args.tf}
 
 
 COMMAND = ServiceCommand(
     service=Service.ROS2,
-    help="bridge the robot to ROS 2 over rmw_zenoh: /odom, /tf, /joint_states, /clock, /cmd_vel, Trigger services",
+    help="bridge the robot (or a fleet) to ROS 2 over rmw_zenoh: odom, tf, joint_states, /clock, cmd_vel, "
+    "Trigger services",
     description=f"The robot as one ROS 2 node on this zenoh network, in rmw_zenoh's wire format (no ROS install "
-    f"needed on this side): /clock, odom, /tf, /tf_static, joint_states, robot_description out; cmd_vel "
+    f"needed on this side): /clock, odom, tf, tf_static, joint_states, robot_description out; cmd_vel "
     f"(Twist or TwistStamped) in, as drive/target_velocity stamped with simulation time; motor/stop, "
-    f"motor/clear, motor/start, motor/finish as std_srvs/srv/Trigger services. Domain: ${graph.DOMAIN_VARIABLE} "
-    f"(default 0). Frames, rates and covariances: [ros2] in the robot description. See docs/ros2.md.",
+    f"motor/clear, motor/start, motor/finish as std_srvs/srv/Trigger services. With --fleet FILE, one such node "
+    f"per robot of the fleet, each in its own namespace. Domain: ${graph.DOMAIN_VARIABLE} (default 0). Frames, "
+    f"rates and covariances: [ros2] in the robot description. See docs/ros2.md.",
     add_arguments=add_arguments,
     overrides=overrides,
     factory=Ros2Bridge,

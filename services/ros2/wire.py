@@ -131,6 +131,23 @@ def data_key(domain: int, name: str, interface: str, type_hash: str) -> str:
     return f"{domain}/{name.strip('/')}/{dds_type_name(interface)}/{type_hash}"
 
 
+def interface_of_dds_type(dds_type: str) -> str:
+    """``nav_msgs::msg::dds_::Odometry_`` -> ``nav_msgs/msg/Odometry``; BadInput for another layout."""
+    chunks = dds_type.split("::")
+    if len(chunks) != 4 or chunks[1] not in ("msg", "srv") or chunks[2] != "dds_" or not chunks[3].endswith("_"):
+        raise BadInput(f"{dds_type!r} is not a type as rmw_zenoh names one")
+    return f"{chunks[0]}/{chunks[1]}/{chunks[3][:-1]}"
+
+
+def parse_data_key(key: str) -> tuple[int, str, str, str]:
+    """(domain, absolute name, interface, type hash) of a topic's data key (:func:`data_key`);
+    BadInput for a key of another layout."""
+    chunks = key.split("/")
+    if len(chunks) < 4 or not chunks[0].isdigit():
+        raise BadInput(f"{key!r} is not an rmw_zenoh data key (<domain>/<name>/<type>/<hash>)")
+    return int(chunks[0]), "/" + "/".join(chunks[1:-2]), interface_of_dds_type(chunks[-2]), chunks[-1]
+
+
 @dataclass(frozen=True)
 class NodeIdentity:
     """One node of the ROS graph, as its tokens name it."""

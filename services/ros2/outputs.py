@@ -1,0 +1,134 @@
+"""What the bridge publishes, from what the loop publishes (pure, no zenoh): the one mapping that the
+bridge (services/ros2/service.py) and ``invent export --ros2`` (services/recording/rosbag.py) share,
+so a bag exported from a run's ``run.mcap`` holds the messages the bridge would have published.
+
+Each wheel-angle sample of ``sim/clock`` is integrated into the continuous odometry
+(:class:`~services.ros2.core.ContinuousOdometry`), and on the grids of ``ros2.clock_rate`` and
+``ros2.publish_rate`` (simulation time anchored at 0, as the simulator's observed steps are) it
+yields ``/clock``, and ``odom``, ``tf`` and ``joint_states``, each stamped with the sample's time;
+``odometry/pose`` moves ``map -> odom``, ``motor/torque`` the wheels' efforts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from schemas.codec import BadInput
+from schemas.messages import TimedDoubleSeq, TimedPosition
+from services.clock.sim_time import PeriodicSchedule, StampClock
+from services.config import Config
+from services.planar import Pose
+from services.ros2 import core
+from services.ros2.graph import BridgeGraph
+from services.ros2.urdf import robot_urdf
+from sim_bridge.geometry import robot_body
+
+
+@dataclass(frozen=True)
+class Outgoing:
+    """One message the bridge publishes."""
+
+    topic: str
+    """Its short name, a key of :attr:`BridgeGraph.publications` (``odom``, ``tf``, ...)."""
+    message: Any
+    stamp_ns: int
+    """The simulation time it carries (a bag's timestamp for it)."""
+
+
+@dataclass(frozen=True)
+class WheelsTaken:
+    """What a ``sim/clock`` sample gave: whether it started a new time base (a new simulator), and
+    the messages due at its time."""
+
+    restarted: bool
+    outgoing: list[Outgoing]
+
+
+class RosOutputs:
+    """The bridge's messages of one robot (``config``), as the bridge ``graph`` names and frames them."""
+
+    def __init__(self, config: Config, graph: BridgeGraph) -> None:
+        self.config = config
+        self.settings = config.ros2
+        self.topics = frozenset(graph.publications)
+        self.prefix = graph.frame_prefix
+        """Of the robot's frames (``odom``, ``base_link``, wheels, casters) on a shared ``/tf``."""
+        self.body = robot_body(config.robot, config.sim)
+        self.clock = StampClock(config.input.stamp_horizon_ns)
+        self.odometry = core.ContinuousOdometry(config)
+        self.map_to_odom: tuple[int, Pose] | None = None
+        """(stamp of the localized pose it comes from, ``map -> odom``)."""
+        self.efforts: tuple[float, float] | None = None
+        self._schedules: tuple[PeriodicSchedule, PeriodicSchedule] | None = None
+        self._wheel_ids = (config.robot.left_wheel_id, config.robot.right_wheel_id)
+
+    @property
+    def base_frame(self) -> str:
+        return self.prefix + self.settings.base_frame
+
+    def latched(self, stamp_ns: int = 0) -> list[Outgoing]:
+        """What is published once, for late subscribers too: ``tf_static`` (the casters) and
+        ``robot_description`` (the URDF, its links named as in the body, unprefixed: RViz's
+        RobotModel and robot_state_publisher add a TF prefix themselves)."""
+        static = core.tf_message(core.static_transforms(stamp_ns, self.base_frame, self.body, self.prefix))
+        urdf = robot_urdf(self.config.robot.name, self.settings.base_frame, self.body)
+        return [Outgoing("tf_static", static, stamp_ns), Outgoing("robot_description", core.string(urdf), stamp_ns)]
+
+    def take_wheels(self, message: TimedDoubleSeq) -> WheelsTaken:
+        """A ``sim/clock`` sample: integrate its wheel angles, and what is due at its time. BadInput
+        (nothing published) for a stamp the clock refuses or angles the odometry refuses."""
+        now_ns = message.tm.to_nanoseconds()
+        restarted = self.clock.advance(now_ns)
+        if restarted:
+            self._restart()
+        wheels = self.odometry.take(message)
+        if self._schedules is None:
+            # On the simulator's grid (anchored at 0), whose observed steps the observer tokens ask for.
+            self._schedules = (
+                PeriodicSchedule(self.settings.clock_rate, 0),
+                PeriodicSchedule(self.settings.publish_rate, 0),
+            )
+        clock_schedule, publish_schedule = self._schedules
+        outgoing = []
+        if "clock" in self.topics and clock_schedule.due(now_ns):
+            outgoing.append(Outgoing("clock", core.clock(now_ns), now_ns))
+        if publish_schedule.due(now_ns):
+            outgoing += self._state(now_ns, wheels)
+        return WheelsTaken(restarted, outgoing)
+
+    def _state(self, now_ns: int, wheels: core.WheelSample) -> list[Outgoing]:
+        settings, prefix = self.settings, self.prefix
+        odom_frame = prefix + settings.odom_frame
+        transforms = [
+            core.planar_transform(now_ns, odom_frame, self.base_frame, self.odometry.pose),
+            *core.wheel_transforms(now_ns, self.base_frame, self.body, wheels.angles, prefix),
+        ]
+        if self.map_to_odom is not None:
+            stamp_ns, correction = self.map_to_odom
+            transforms.append(core.planar_transform(stamp_ns, settings.map_frame, odom_frame, correction))
+        return [
+            Outgoing("odom", core.odometry_message(now_ns, self.odometry, settings, prefix), now_ns),
+            Outgoing("tf", core.tf_message(transforms), now_ns),
+            Outgoing("joint_states", core.joint_state(now_ns, self.body, wheels, self.efforts), now_ns),
+        ]
+
+    def take_localized(self, message: TimedPosition) -> None:
+        """An ``odometry/pose``: ``map -> odom`` at its stamp (kept until the next)."""
+        correction = core.map_to_odom(message, self.odometry)
+        if correction is not None:
+            self.map_to_odom = (message.tm.to_nanoseconds(), correction)
+
+    def take_torque(self, message: TimedDoubleSeq) -> None:
+        """A ``motor/torque``: the wheels' efforts of ``joint_states``."""
+        left, right = self._wheel_ids
+        if len(message.data) <= max(left, right):
+            raise BadInput(f"{len(message.data)} torques, wheel ids {left} and {right}")
+        self.efforts = (message.data[left], message.data[right])
+
+    def _restart(self) -> None:
+        """A new simulator, whose clock started again: ``odom`` starts again at the origin."""
+        self.odometry.restart()
+        self._schedules = None
+        self.map_to_odom = None
+        self.efforts = None
