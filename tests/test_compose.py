@@ -59,6 +59,20 @@ def test_every_service_is_a_client_with_only_its_own_roles_credentials():
         assert config_from_args(getattr(args, "service_command", None), args).robot.name == "rh0"
 
 
+def test_the_sim_and_the_motor_run_with_rt_and_their_containers_grant_what_it_needs():
+    parser = build_parser()
+    for name, spec in _services().items():
+        args = parser.parse_args(spec["command"])
+        control_path = name in (str(Service.SIM), str(Service.MOTOR))
+        assert getattr(args, "rt", False) is control_path, name
+        assert config_from_args(getattr(args, "service_command", None), args).rt.enabled is control_path, name
+        if control_path:
+            assert set(spec["cap_add"]) == {"SYS_NICE", "IPC_LOCK"}, name
+            assert spec["ulimits"] == {"rtprio": 99, "memlock": -1}, name
+        else:
+            assert "cap_add" not in spec and "ulimits" not in spec, name
+
+
 def test_the_live_view_listens_in_its_container_and_is_published_to_this_host_only():
     view = _compose()["services"]["view"]
     args = build_parser().parse_args(view["command"])

@@ -5,7 +5,9 @@ The layout of docs/deploy.md, "Running a fleet": the ``sim`` host runs ``invent 
 ``invent sim --fleet FILE --mode realtime``; each robot computer (``rh0``, ``rh1``) runs its own
 ``invent router --connect`` the sim server's, and that robot's motor, odometry, localization and
 drive, each ``--connect`` to its own host's router, with :func:`services.fleet.description.robot_flags`
-(its name, start pose and overrides from the fleet file, as ``invent up --fleet`` passes them).
+(its name, start pose and overrides from the fleet file, as ``invent up --fleet`` passes them):
+rh0's as four processes, rh1's composed in one (``invent worker --fleet FILE --robots rh1``, one
+process per robot computer for its robots).
 Realtime, as a deployment across a network runs: lockstep would make every step wait for the
 torques of a robot whose link is down.
 
@@ -39,6 +41,8 @@ from tests.netns import Event, HostProcess, Network, RemoteSession, Stream, netn
 pytestmark = pytest.mark.slow
 
 ROBOTS = ("rh0", "rh1")
+ONE_PROCESS = "rh1"
+"""The robot computer whose services run composed in one ``invent worker`` process."""
 SPEED = 0.2
 """m/s: each robot's one constant segment, forward, for longer than the test runs."""
 SCENARIO = f'[[segments]]\ntype = "constant"\nvx = {SPEED}\nw = 0.0\nduration = 120.0\n'
@@ -158,6 +162,10 @@ def _fleet_across_hosts(tmp_path: Path, overrides: str) -> Iterator[FleetHosts]:
         odometry = observer.subscribe("invent/*/odometry/pose")
         targets = observer.subscribe("invent/*/drive/target_velocity")
         for robot in fleet.robots:
+            if robot.name == ONE_PROCESS:
+                fleet_flags = ["--fleet", str(fleet_file), "--robots", robot.name]
+                invent(robot.name, "worker", "worker", "--connect", DEFAULT_ENDPOINT, *fleet_flags)
+                continue
             flags = ["--connect", DEFAULT_ENDPOINT, *robot_flags(robot)]
             # the motor's own state file: a stop latched in another run would otherwise persist
             state = ["--state", str(tmp_path / f"{robot.name}-motor.json")]
@@ -288,7 +296,8 @@ def _ride_out_a_cut(hosts: FleetHosts) -> None:
         figures = _driving(hosts, ROBOTS, restored, RECOVERY_S)
     except AssertionError as error:
         assert hosts.dead() == {}, {name: hosts.processes[name].stderr for name in hosts.dead()}
-        said = "".join(line for name in ("rh1/motor", "rh1/drive") for line in hosts.processes[name].stderr_lines[-2:])
+        rh1 = [name for name in hosts.processes if name.startswith("rh1/") and name != "rh1/router"]
+        said = "".join(line for name in rh1 for line in hosts.processes[name].stderr_lines[-4:])
         raise NotRecovered(f"{error}; the last lines of rh1's motor and drive:\n{said}") from None
     print(f"rh1 under control {figures['rh1']['back'] - restored:.3f} s after the cable was back: {figures}")
     _check_driving(figures, 0.01)  # measured < 0.2 mm: odometry integrates the jump in wheel angles

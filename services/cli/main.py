@@ -443,6 +443,15 @@ def build_parser() -> argparse.ArgumentParser:
         "starts each composed in this process and says so on standard output; stops on SIGINT or end of input.",
     )
     worker_parser.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="run the services (motor, odometry, localization, drive) of --robots of this fleet file, as "
+        "invent up --fleet starts them: one process on a robot computer for its robots (docs/deploy.md)",
+    )
+    worker_parser.add_argument(
+        "--robots", metavar="R1,R2,...", help="with --fleet: the robots whose services this process runs"
+    )
+    worker_parser.add_argument(
         "--no-intra-process", action="store_true", help="the services' messages through the zenoh session"
     )
     worker_parser.set_defaults(handler=_worker)
@@ -639,9 +648,24 @@ def _config(args: argparse.Namespace) -> int:
 
 
 def _worker(args: argparse.Namespace) -> int:
+    requests: list[list[str]] = []
+    if bool(args.fleet) != bool(args.robots):
+        raise ConfigError("invent worker: --fleet and --robots go together (or neither: up sends the services)")
+    if args.fleet:
+        fleet_file = load_fleet(args.fleet)
+        names = [name.strip() for name in args.robots.split(",") if name.strip()]
+        unknown = [name for name in names if name not in fleet_file.names]
+        if unknown or not names:
+            raise ConfigError(f"--robots {args.robots}: not robots of {args.fleet} ({', '.join(fleet_file.names)})")
+        connection = [flag for endpoint in args.connect for flag in ("--connect", endpoint)]
+        if args.zenoh_config:
+            connection += ["--zenoh-config", args.zenoh_config]
+        requests = worker.robot_requests(fleet_file, names, [*connection, "--log-level", args.log_level])
     stop = stop_on_signals()
     with open_session(_session_config(args)) as session:
-        return worker.run_worker(session, build_parser(), stop, intra_process=not args.no_intra_process)
+        return worker.run_worker(
+            session, build_parser(), stop, intra_process=not args.no_intra_process, requests=requests
+        )
 
 
 def _up(args: argparse.Namespace) -> int:

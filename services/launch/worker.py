@@ -8,7 +8,10 @@ services together in one worker, handing each other their messages directly (int
 delivery). The simulator and a worker exchange a step's wheel angles and torques over zenoh; the
 lockstep protocol is the same, so the run is the same bit for bit however its robots are spread.
 
-A worker takes its services from ``up`` on its standard input, one JSON array per line
+On a machine of its own, ``invent worker --fleet FILE --robots R1,R2`` runs the services of those
+robots of the fleet file composed in one process, as ``up`` would start them: one process per robot
+computer for its robots (docs/deploy.md). Started by ``up``, a worker takes its services on its
+standard input instead, one JSON array per line
 (``[name, "motor", "--robot", ...]``: the name and the argv ``invent`` would take), starts each
 in its composition and says so on its standard output (:data:`WORKER_PREFIX` lines); it says too
 when a service ends by itself (a drive at the end of its scenario, with its exit code), and every
@@ -29,6 +32,8 @@ from typing import Any
 
 import zenoh
 
+from schemas.keys import Service
+from services.fleet.description import Fleet, robot_flags
 from services.launch.children import ChildDied, Supervisor, describe_exit
 from services.launch.composition import Composition
 from services.runtime.executor import STOP_POLL_S
@@ -51,10 +56,32 @@ def _say(kind: str, *fields: Any) -> None:
     print(WORKER_PREFIX + json.dumps([kind, *fields]), flush=True)
 
 
+ROBOT_SERVICES = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION, Service.DRIVE)
+
+
+def robot_requests(fleet: Fleet, robots: Sequence[str], connection: Sequence[str]) -> list[list[str]]:
+    """The services of ``robots`` (names in ``fleet``) as ``invent up --fleet`` starts them, as
+    requests (``[name, *argv]``): a robot computer's one process for its robots (docs/deploy.md)."""
+    requests = []
+    for name in robots:
+        robot = fleet.robot(name)
+        scenario = ["--scenario", robot.scenario] if robot.scenario else []
+        for service in ROBOT_SERVICES:
+            own = scenario if service is Service.DRIVE else []
+            requests.append([f"{name}/{service}", str(service), *connection, *robot_flags(robot), *own])
+    return requests
+
+
 def run_worker(
-    session: zenoh.Session, parser: argparse.ArgumentParser, stop: threading.Event, *, intra_process: bool = True
+    session: zenoh.Session,
+    parser: argparse.ArgumentParser,
+    stop: threading.Event,
+    *,
+    intra_process: bool = True,
+    requests: Sequence[list[str]] = (),
 ) -> int:
-    """``invent worker``: compose the services ``up`` sends on standard input until stopped."""
+    """``invent worker``: compose ``requests``, then the services ``up`` sends on standard input
+    (none given), until stopped."""
     composition = Composition(session, parser, intra_process=intra_process)
 
     def start(request: list[str]) -> None:
@@ -72,7 +99,10 @@ def run_worker(
                 composition.post(start, json.loads(line))
         stop.set()  # up is gone, or done with us
 
-    threading.Thread(target=read_requests, name="invent-worker-requests", daemon=True).start()
+    for request in requests:
+        start(request)
+    if not requests:
+        threading.Thread(target=read_requests, name="invent-worker-requests", daemon=True).start()
     reported: set[str] = set()
     try:
         while not stop.is_set():
