@@ -10,7 +10,7 @@ Every ``--sample-every`` seconds it reads, for every process of both runs (each 
 children), the resident memory (``VmRSS``) and the open files (``/proc/<pid>/fd``), and the
 runs' health from the services' status replies (late and missing torques, internal errors), and
 the recorded run's journals' size. At the end: each process's memory growth per hour after the
-warm-up (a least-squares slope), its open files after the warm-up and at the end, the health,
+warm-up (a least-squares slope; for a service, of its C allocations in use too: ``status.memory``), its open files after the warm-up and at the end, the health,
 the recording's size per simulated hour, and whether every process exited cleanly.
 Writes ``benchmarks/results/soak.json``; figures in benchmarks/README.md, "Soak".
 """
@@ -111,8 +111,10 @@ def _open_files(pid: int) -> int | None:
         return None
 
 
-def _health(session: zenoh.Session) -> dict[str, Any] | None:
-    """The loop's health from its services' status replies (as ``invent up`` reports it)."""
+def _health(session: zenoh.Session) -> tuple[dict[str, Any] | None, dict[str, float]]:
+    """The loop's health from its services' status replies (as ``invent up`` reports it), and each
+    service's C allocations in use (MB, ``status.memory``: what its resident size would be without
+    the allocator's high-water mark)."""
     statuses: dict[str, dict[str, Any] | None] = {}
     for service in SERVICES:
         statuses[str(service)] = None
@@ -120,13 +122,18 @@ def _health(session: zenoh.Session) -> dict[str, Any] | None:
             if reply.ok is not None:
                 statuses[str(service)] = json.loads(reply.ok.payload.to_bytes())
                 break
+    in_use = {
+        name: status["memory"]["in_use_mb"]
+        for name, status in statuses.items()
+        if status is not None and (status.get("memory") or {}).get("in_use_mb") is not None
+    }
     sim = statuses.pop(str(Service.SIM))
     if sim is None:
-        return None
+        return None, in_use
     health = loop_health(sim, statuses)
     health["steps"] = sim.get("steps", 0)
     health["sim_time_s"] = sim.get("sim_time_s", 0.0)
-    return health
+    return health, in_use
 
 
 def _directory_mb(directory: Path) -> float:
@@ -180,7 +187,9 @@ def _sample(run: Watched, elapsed: float) -> None:
     for name, pid in run.processes().items():
         sample["processes"][name] = {"rss_mb": _rss_mb(pid), "open_files": _open_files(pid)}
     if run.session is not None:
-        run.health = _health(run.session) or run.health
+        health, in_use = _health(run.session)
+        run.health = health or run.health
+        sample["allocated_mb"] = in_use
     sample["health"] = run.health
     if run.report_dir is not None and (run.report_dir / "journals").exists():
         sample["journals_mb"] = _directory_mb(run.report_dir / "journals")
@@ -206,6 +215,15 @@ def _summary(run: Watched, warm_up_s: float) -> dict[str, Any]:
             "open_files_after_warm_up": after[0][1]["open_files"],
             "open_files_at_end": after[-1][1]["open_files"],
         }
+    for name, entry in processes.items():
+        allocated = [
+            (sample["t_s"], sample["allocated_mb"][name])
+            for sample in run.samples
+            if sample["t_s"] >= warm_up_s and name in sample.get("allocated_mb", {})
+        ]
+        if allocated:
+            entry["allocated_mb_at_end"] = allocated[-1][1]
+            entry["allocated_growth_mb_per_hour"] = _slope_per_hour(allocated)
     health = run.health or {}
     internal = {name: counts["internal_errors"] for name, counts in health.get("services", {}).items()}
     return {

@@ -19,6 +19,7 @@ from typing import Any
 import zenoh
 
 from services.runtime.inputs import LatestSample, NodeInput, is_wake
+from services.runtime.memory import trim_when_due
 from services.runtime.realtime import collect_when_idle
 
 STOP_POLL_S = 0.1
@@ -201,6 +202,7 @@ class Executor:
         process may then wait that long (in a composition, the one executor with both, channel
         samples come from its own thread)."""
         collect_when_idle()
+        trim_when_due()
         if self._sampled and waiting_for not in self._sampled:
             remaining = SAMPLING_POLL_S if remaining is None else min(remaining, SAMPLING_POLL_S)
         blocking_in = waiting_for if waiting_for is not None else (self._waking[0] if self._waking else None)

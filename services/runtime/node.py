@@ -38,6 +38,7 @@ from services.runtime.inputs import (
 from services.runtime.intraprocess import LocalBus, LocalSink
 from services.runtime.journal import Journal
 from services.runtime.logs import BadInputCounter, RateLimitedLog, log
+from services.runtime.memory import status as memory_status
 from services.runtime.realtime import status as realtime_status
 
 LIVELINESS_QUERY_TIMEOUT_S = 1.0
@@ -136,6 +137,7 @@ class Node:
             "internal_errors": self.internal_errors,
             "dropped_events": self.executor.dropped_events,
             "rt": realtime_status(),
+            "memory": memory_status(),
         }
 
     def subscribe(
