@@ -65,6 +65,13 @@ class Executor:
         """Held while the thread has seen every event; a post releases it to wake the thread."""
         self._posted.acquire()
         self._inputs: list[NodeInput] = []
+        self._ready: collections.deque[NodeInput] = collections.deque(maxlen=EVENT_CAPACITY)
+        """Inputs a publisher of this process has just handed a message to (intra-process delivery,
+        services/runtime/intraprocess.py), in the order it did: taken without looking at every
+        input. Bounded: an input whose entry was pushed out is still found by the scan."""
+        self._next_scan = 0.0
+        """When the inputs are scanned for what came through zenoh even though messages of this
+        process wait (monotonic seconds): at most every ``SAMPLING_POLL_S`` while busy."""
         self._waking: list[NodeInput] = []
         """The inputs declared to wake the thread; it waits in the first (unless told otherwise)."""
         self._sampled: list[LatestSample] = []
@@ -112,6 +119,7 @@ class Executor:
         idle thread waits in its receive (in the first such input, when several services share this
         executor)."""
         self._inputs.append(channel_input)
+        channel_input.ready = self._ready
         if wakes:
             self._waking.append(channel_input)
         self._start_waker()
@@ -124,6 +132,10 @@ class Executor:
         for inputs in (self._inputs, self._waking):
             if removed in inputs:
                 inputs.remove(removed)
+        for _ in range(len(self._ready)):
+            waiting = self._ready.popleft()
+            if waiting is not removed:
+                self._ready.append(waiting)
         if isinstance(removed, LatestSample) and removed in self._sampled:
             self._sampled.remove(removed)
         if self._received is not None and self._received[0] is removed:
@@ -180,6 +192,12 @@ class Executor:
             receiving_input, sample = received
             receiving_input.handle(sample)
             return True
+        ready = self._ready
+        if ready and time.monotonic() < self._next_scan:
+            while ready:
+                if ready.popleft().take_local():
+                    return True
+        self._next_scan = time.monotonic() + SAMPLING_POLL_S
         for channel_input in self._inputs:
             if channel_input.take():
                 return True

@@ -9,6 +9,7 @@ deadlock). Every queue is bounded.
 
 from __future__ import annotations
 
+import collections
 from collections import deque
 from collections.abc import Callable
 from enum import StrEnum
@@ -223,9 +224,16 @@ class NodeInput:
         self._dispatch_message = dispatch_message
         """Handles a message a publisher of this process offered as it is (services/runtime/intraprocess.py)."""
         self._subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+        self.ready: collections.deque[NodeInput] | None = None
+        """Its executor's queue of inputs with a message of this process to take (set by the
+        executor; None for a sampled input, which the executor looks at at its own pace)."""
 
     def accept_local(self, message: msgspec.Struct, attachment: bytes | None) -> None:
         """Keep a message a publisher of this process offered, for the next take (executor's thread)."""
+        raise NotImplementedError
+
+    def take_local(self) -> bool:
+        """Handle a message of this process if one waits; True if one was handled."""
         raise NotImplementedError
 
     def receive(self) -> zenoh.Sample:
@@ -263,12 +271,19 @@ class ChannelInput(NodeInput):
 
     def accept_local(self, message: msgspec.Struct, attachment: bytes | None) -> None:
         self._local.append((message, attachment))
+        if self.ready is not None:
+            self.ready.append(self)
 
-    def take(self) -> bool:
-        """Handle the next waiting message of this process, else sample, if any; True if one was handled."""
+    def take_local(self) -> bool:
         local = self._local
         if local and self._dispatch_message is not None:
             self._dispatch_message(*local.popleft())
+            return True
+        return False
+
+    def take(self) -> bool:
+        """Handle the next waiting message of this process, else sample, if any; True if one was handled."""
+        if self.take_local():
             return True
         while (sample := self._subscriber.try_recv()) is not None:
             payload, attachment = contents(sample)
@@ -298,7 +313,16 @@ class LatestSample(NodeInput):
         self._local_newest: tuple[msgspec.Struct, bytes | None] | None = None
 
     def accept_local(self, message: msgspec.Struct, attachment: bytes | None) -> None:
+        if self._local_newest is None and self.ready is not None:
+            self.ready.append(self)
         self._local_newest = (message, attachment)
+
+    def take_local(self) -> bool:
+        local, self._local_newest = self._local_newest, None
+        if local is not None and self._dispatch_message is not None:
+            self._dispatch_message(*local)
+            return True
+        return False
 
     def put_back(self, sample: zenoh.Sample) -> None:
         """Keep ``sample``, which a blocking receive took out of the ring, for the next take: it
@@ -308,9 +332,7 @@ class LatestSample(NodeInput):
     def take(self) -> bool:
         """Handle the newest message of this process offered since the last take, else the newest
         sample that arrived, if any; True if one was handled."""
-        local, self._local_newest = self._local_newest, None
-        if local is not None and self._dispatch_message is not None:
-            self._dispatch_message(*local)
+        if self.take_local():
             return True
         newest, self._received = self._received, None
         while (sample := self._subscriber.try_recv()) is not None:

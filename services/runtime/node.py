@@ -187,7 +187,10 @@ class Node:
         if delivery is Delivery.QUEUED:
             post = self.executor.post
             if dispatch_message is not None:
-                self._attach(key, lambda message, attachment: dispatch_message(message, attachment))
+                # posted, in arrival order with the queries and events, as a sample from zenoh is
+                self._attach(
+                    key, lambda message, attachment: post(lambda item: dispatch_message(*item), (message, attachment))
+                )
 
             def dispatch_contents(payload_and_attachment: tuple[bytes, bytes | None]) -> None:
                 dispatch(*payload_and_attachment)
