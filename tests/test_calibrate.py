@@ -15,6 +15,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 
 from services.calibration.umbmark import CONVERGED
@@ -268,6 +269,10 @@ def test_the_runs_are_reported_as_they_go_and_left_for_foxglove(calibrations):
         messages = [(channel.topic, message) for _, channel, message in make_reader(file).iter_messages()]
     topics = [topic for topic, _ in messages]
     assert topics.count(PATHS_TOPIC) == 1 + len(runs) and topics.count(RUNS_TOPIC) == len(runs)
+    scenes = [SceneUpdate.FromString(message.data) for topic, message in messages if topic == PATHS_TOPIC][1:]
+    for scene in scenes:
+        truth, odometry = scene.entities[0].lines
+        assert len(truth.points) > 10 and len(odometry.points) > 10, "each run's path, ground truth and odometry"
     ends = [json.loads(message.data)["truth_end"] for topic, message in messages if topic == RUNS_TOPIC]
     assert ends == [run["truth_end"] for run in runs]
     assert Path(report["inputs"]["scenarios"]["cw"]).read_text().count("[[segments]]") == 2

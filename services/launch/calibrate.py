@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import zenoh
 
 from schemas.codec import BadInput, decode
@@ -69,6 +70,7 @@ from services.launch.composition import Composition
 from services.launch.run import EXIT_CHILD_DIED, EXIT_INTERRUPTED, Outcomes, Run, default_report_dir
 from services.recording.calibration import PathPoint, RunPaths, write_figure, write_paths_recording
 from services.recording.report import degradations, loop_health
+from services.runtime.intraprocess import LocalBus, Tap
 from services.runtime.session import free_port, open_session, session_config, stop_on_signals
 from services.service import finite_number, overrides_from_args
 
@@ -442,6 +444,8 @@ class _PathWatch:
 
     session: zenoh.Session
     keys: Keys
+    bus: LocalBus | None
+    """The composition's intra-process delivery: its services' poses come from it, not the session."""
     truth: deque[PathPoint] = field(default_factory=lambda: deque(maxlen=PATH_POINTS))
     odometry: deque[PathPoint] = field(default_factory=lambda: deque(maxlen=PATH_POINTS))
 
@@ -450,25 +454,40 @@ class _PathWatch:
             self.session.declare_subscriber(self.keys.topic(Topic.SIM_BODY_POSE), self._on_body_pose),
             self.session.declare_subscriber(self.keys.topic(Topic.ODOMETRY_POSE), self._on_odometry_pose),
         ]
+        self._taps = [
+            (self.keys.topic(Topic.SIM_BODY_POSE), Tap(self._body_pose)),
+            (self.keys.topic(Topic.ODOMETRY_POSE), Tap(self._odometry_pose)),
+        ]
+        if self.bus is not None:
+            for key, tap in self._taps:
+                self.bus.attach(key, tap)
 
     def _on_body_pose(self, sample: zenoh.Sample) -> None:
         try:
-            data = decode(TimedDoubleSeq, sample.payload.to_bytes()).data
+            self._body_pose(decode(TimedDoubleSeq, sample.payload.to_bytes()))
         except BadInput:
             return
-        if len(data) >= 2:
-            _add(self.truth, data[0], data[1])
+
+    def _body_pose(self, message: msgspec.Struct) -> None:
+        if isinstance(message, TimedDoubleSeq) and len(message.data) >= 2:
+            _add(self.truth, message.data[0], message.data[1])
 
     def _on_odometry_pose(self, sample: zenoh.Sample) -> None:
         try:
-            pose = decode(TimedPosition, sample.payload.to_bytes())
+            self._odometry_pose(decode(TimedPosition, sample.payload.to_bytes()))
         except BadInput:
             return
-        _add(self.odometry, pose.x, pose.y)
+
+    def _odometry_pose(self, message: msgspec.Struct) -> None:
+        if isinstance(message, TimedPosition):
+            _add(self.odometry, message.x, message.y)
 
     def close(self) -> None:
         for subscriber in self._subscribers:
             subscriber.undeclare()
+        if self.bus is not None:
+            for key, tap in self._taps:
+                self.bus.detach(key, tap)
 
 
 def _add(path: deque[PathPoint], x: float, y: float) -> None:
@@ -562,9 +581,9 @@ class Simulation:
         listen = self._listen or f"tcp/127.0.0.1:{free_port()}"
         started = time.monotonic()
         with open_session(session_config(listen=[listen], mode="router")) as session:
-            paths = _PathWatch(session, self._keys)
-            outcomes = Outcomes(session, [self._keys.robot])
             composition = Composition(session, self._parser)
+            paths = _PathWatch(session, self._keys, composition.bus)
+            outcomes = Outcomes(session, [self._keys.robot], composition.bus)
             try:
                 run = Run(composition, session, self._keys, self._interrupted)
                 for service in (Service.MOTOR, Service.ODOMETRY):

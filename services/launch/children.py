@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from schemas.keys import Service
+from services.runtime.intraprocess import LocalBus
 
 STOP_TIMEOUT_S = 10.0
 """How long a child has to stop after SIGINT before it is killed."""
@@ -85,6 +86,8 @@ class Child:
 
 class Supervisor:
     """The children of one ``invent up`` run, their prefixed output, and their orderly stop."""
+
+    bus: LocalBus | None = None
 
     def __init__(self) -> None:
         self.children: list[Child] = []
@@ -178,6 +181,10 @@ class Supervisor:
 
 class Launcher(Protocol):
     """How a run starts its services: as processes (:class:`Supervisor`) or composed in this process."""
+
+    bus: LocalBus | None
+    """The intra-process delivery of the services composed in this process, if any: what watches
+    their keys here taps it (services/runtime/intraprocess.py)."""
 
     def start(self, name: str, argv: Sequence[str]) -> Any: ...
 

@@ -59,7 +59,7 @@ class Composition:
         self._parser = parser
         self._stop = threading.Event()
         self._shared = Executor()
-        self._bus = LocalBus() if intra_process else None
+        self.bus = LocalBus() if intra_process else None
         """The services hand each other their messages directly (services/runtime/intraprocess.py);
         None: through the one session, as separate processes do."""
         self.services: list[ComposedService] = []
@@ -69,7 +69,7 @@ class Composition:
         args = self._parser.parse_args(list(argv))
         command: ServiceCommand = args.service_command
         config = config_from_args(command, args)
-        node, service = start_service(command, self.session, config, args, self._shared, self._bus)
+        node, service = start_service(command, self.session, config, args, self._shared, self.bus)
         composed = ComposedService(name, node, service, None)
         if isinstance(service, ClockedService):
             # The clocked service starts last: everything the composition needs is built.

@@ -255,7 +255,7 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             ExitStack() as closing,
         ):
             run = FleetRun(Run(launcher, session, Keys(fleet.names[0]), interrupted), fleet)
-            outcomes = Outcomes(session, fleet.names)
+            outcomes = Outcomes(session, fleet.names, launcher.bus)
             closing.callback(outcomes.close)
             if args.view is not None:
                 live_view = ViewProcess(

@@ -18,6 +18,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import zenoh
 
 from schemas.codec import BadInput, decode
@@ -27,6 +28,7 @@ from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.launch.children import ChildDied, Interrupted, Launcher, Supervisor, describe_exit, say
 from services.launch.composition import Composition
 from services.launch.worker import Workers
+from services.runtime.intraprocess import LocalBus, Tap
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import ROUTER_LISTENING, open_session, session_config
 from services.security import Profile, Role
@@ -235,19 +237,30 @@ class Run:
 
 class Outcomes:
     """Each robot's scenario outcome as its drive publishes it on ``drive/outcome`` with its last
-    command (the reason; the drive's exit code says the outcome even if this sample is lost)."""
+    command (the reason; the drive's exit code says the outcome even if this sample is lost): from
+    zenoh, and from the ``bus`` of the services composed in this process (their messages do not
+    come back through its own session)."""
 
-    def __init__(self, session: zenoh.Session, robots: Sequence[str]) -> None:
+    def __init__(self, session: zenoh.Session, robots: Sequence[str], bus: LocalBus | None = None) -> None:
         self.of: dict[str, ScenarioOutcome] = {}
         self._subscribers = [
             session.declare_subscriber(Keys(robot).drive_outcome, partial(self._take, robot)) for robot in robots
         ]
+        self._bus = bus
+        self._taps = [(Keys(robot).drive_outcome, Tap(partial(self._take_message, robot))) for robot in robots]
+        if bus is not None:
+            for key, tap in self._taps:
+                bus.attach(key, tap)
 
     def _take(self, robot: str, sample: zenoh.Sample) -> None:
         try:
             self.of[robot] = decode(ScenarioOutcome, sample.payload.to_bytes())
         except BadInput:  # not the drive's: its exit code still tells how its scenario ended
             pass
+
+    def _take_message(self, robot: str, message: msgspec.Struct) -> None:
+        if isinstance(message, ScenarioOutcome):
+            self.of[robot] = message
 
     def line(self, robot: str, outcome: Outcome) -> str:
         """``outcome: aborted (bumped into 'box' ...)``, the reason when the drive's sample came."""
@@ -258,6 +271,9 @@ class Outcomes:
     def close(self) -> None:
         for subscriber in self._subscribers:
             subscriber.undeclare()
+        if self._bus is not None:
+            for key, tap in self._taps:
+                self._bus.detach(key, tap)
 
 
 def outcome_exit_code(outcomes: Sequence[Outcome | None]) -> int:

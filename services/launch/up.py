@@ -141,7 +141,7 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
     try:
         with launch_services(args, endpoint, parser, access) as (launcher, session), ExitStack() as closing:
             run = Run(launcher, session, keys, interrupted)
-            outcomes = Outcomes(session, [keys.robot])
+            outcomes = Outcomes(session, [keys.robot], launcher.bus)
             closing.callback(outcomes.close)
             summary_publisher = Publisher(session, keys.run_summary, recorder.journal if recorder else None)
             if recorder:

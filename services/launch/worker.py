@@ -181,6 +181,7 @@ class Workers:
 
     def __init__(self, composition: Composition, assignment: dict[str, int], connection: Sequence[str]) -> None:
         self.composition = composition
+        self.bus = composition.bus
         self.assignment = assignment
         self._connection = list(connection)
         self._supervisor = Supervisor()

@@ -19,7 +19,7 @@ import msgspec
 import zenoh
 
 from schemas.codec import ENCODING, encode
-from services.runtime.intraprocess import LocalBus, LocalSink
+from services.runtime.intraprocess import LocalBus, LocalSink, Tap
 from services.runtime.journal import Journal
 from services.runtime.session import has_match
 
@@ -94,7 +94,7 @@ class Publisher:
         self._journal = journal
         self._bus = bus
         if bus is None:
-            self._local: list[LocalSink] | None = None
+            self._local: list[LocalSink | Tap] | None = None
             self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(ENCODING))
             self._remote = True
             return

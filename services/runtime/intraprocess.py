@@ -9,7 +9,9 @@ one matches). Messages are frozen msgspec structs, so sharing one among consumer
 A :class:`LocalBus` is the process's table of those inputs, by key; a composition makes one and
 gives it to every node on its shared executor (services/launch/composition.py). A node's input
 registers a :class:`LocalSink` on its key; a :class:`~services.runtime.inputs.Publisher` of the
-bus offers each message to the sinks of its key, in the order they registered.
+bus offers each message to the sinks of its key, in the order they registered. What watches a key
+in the process without being a node (``up``'s outcomes) registers a :class:`Tap`: a subscriber
+of the process's own session would not see these messages, which zenoh carries only out of it.
 
 Offered on the executor's own thread (every composed service runs there), a message waits in the
 input until the thread takes it, as a sample in a ring channel would; offered from another thread,
@@ -55,24 +57,36 @@ class LocalSink:
         self._accept(*item)
 
 
+class Tap:
+    """A sink that hands each message to ``handler(message)`` at once, on the publishing thread:
+    for what watches a key in this process without being a service (``up``'s outcomes, a tool's
+    paths). ``handler`` must be quick and must not call zenoh."""
+
+    def __init__(self, handler: Callable[[msgspec.Struct], None]) -> None:
+        self._handler = handler
+
+    def offer(self, message: msgspec.Struct, attachment: bytes | None) -> None:
+        self._handler(message)
+
+
 class LocalBus:
     """The inputs of one process's nodes, by key: what its publishers hand messages to directly."""
 
     def __init__(self) -> None:
-        self._sinks: dict[str, list[LocalSink]] = {}
+        self._sinks: dict[str, list[LocalSink | Tap]] = {}
         self._watchers: dict[str, list[Callable[[bool], None]]] = {}
 
-    def sinks(self, key: str) -> list[LocalSink]:
+    def sinks(self, key: str) -> list[LocalSink | Tap]:
         """The sinks of ``key``: the list itself, which later subscriptions join (a publisher keeps it)."""
         return self._sinks.setdefault(key, [])
 
-    def attach(self, key: str, sink: LocalSink) -> None:
+    def attach(self, key: str, sink: LocalSink | Tap) -> None:
         sinks = self.sinks(key)
         sinks.append(sink)
         if len(sinks) == 1:
             self._tell(key, True)
 
-    def detach(self, key: str, sink: LocalSink) -> None:
+    def detach(self, key: str, sink: LocalSink | Tap) -> None:
         sinks = self.sinks(key)
         if sink in sinks:
             sinks.remove(sink)
