@@ -89,9 +89,10 @@ class MotorService:
         self.core = MotorCore(config.robot, config.motor, config.input, config.geometry)
         self.torques_published = 0
         # Lockstep: a wheel-angle sample waits for the drive's target it is owed (the sim took it).
+        wheel_angles_key = node.keys.sim_wheel_angles
         self.target_hold: Hold[HeldSample] = Hold(
             Topic.DRIVE_TARGET_VELOCITY,
-            lambda held: node.guard(node.keys.sim_wheel_angles, self._control, *held),
+            lambda held: node.guard(wheel_angles_key, self._control, *held),
             capacity=1,
         )
         self.sim = SimulatorWatch(node, ClockRestart(config.input.stamp_horizon_ns))

@@ -50,9 +50,10 @@ class OdometryService:
         self.branches = dict.fromkeys(Branch, 0)
         self.last_tm: Time | None = None
         # Lockstep: a wheel-angle sample waits for the localization's fix it is owed (the sim took it).
+        wheel_angles_key = node.keys.motor_wheel_angles
         self.fix_hold: Hold[HeldSample] = Hold(
             Topic.LOCALIZATION_POSE,
-            lambda held: node.guard(node.keys.motor_wheel_angles, self._integrate, *held),
+            lambda held: node.guard(wheel_angles_key, self._integrate, *held),
             capacity=FIX_HISTORY_STEPS,
         )
         self._trace = TraceFile.from_flag(args.trace)

@@ -138,7 +138,9 @@ class Publisher:
     @property
     def matched(self) -> bool:
         """True once at least one subscriber matches this key (of this process's, with a bus)."""
-        return bool(self._local) or has_match(self._publisher)
+        if self._bus is not None:
+            return bool(self._local) or self._remote
+        return has_match(self._publisher)
 
     def declare_matching_listener(self, callback: Callable[[Any], None]) -> Any:
         """``callback(status)`` whenever ``status.matching`` (a subscriber matches) changes; with a
