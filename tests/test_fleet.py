@@ -198,3 +198,38 @@ def test_a_secure_fleet_whose_robots_motor_dies_degrades_only_that_robot_and_the
     assert math.hypot(end["x"] - 2.0, end["y"]) < HOME_M, f"rh0 reached the end of its straight: {end}"
     assert report["robots"]["rh1"]["degraded"][0] == "motor ended early (killed by SIGKILL)"
     assert report["degraded"][0] == "rh1: motor ended early (killed by SIGKILL)"
+
+
+def test_a_composed_fleet_whose_worker_dies_degrades_only_its_robot_and_the_other_drives_on(tmp_path):
+    """``--composed --workers 2``: rh0's services run in the worker process (services/launch/worker.py,
+    ``assign``), rh1's beside the simulator in ``up``'s; the worker is then SIGKILLed."""
+    fleet_file = tmp_path / "fleet.toml"
+    fleet_file.write_text(STRAIGHTS)
+    report_dir = tmp_path / "report"
+    process = start_up(
+        "--fleet", str(fleet_file), "--report", str(report_dir), "--listen", f"tcp/127.0.0.1:{free_port()}",
+        "--composed", "--workers", "2",
+    )  # fmt: skip
+    output: list[str] = []
+    reader = threading.Thread(target=lambda: output.extend(process.stdout), daemon=True)
+    reader.start()
+    try:
+        wait_until(lambda: re.search(r"sim +[1-9]\.\d\d s", "".join(output)), 120, "the fleet 1 s into its run")
+        worker = re.search(r"started worker1 \(pid (\d+)\)", "".join(output))
+        assert worker, "".join(output)[-2000:]
+        subprocess.run(["kill", "-KILL", worker.group(1)], check=True)
+        process.wait(timeout=180)
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+            process.wait(timeout=30)
+    reader.join(5)
+    log = "".join(output)
+    assert process.returncode == 0, log[-3000:]
+    assert "rh0: motor ended (worker1 killed by SIGKILL): only rh0 degrades" in log, log[-3000:]
+    report = json.loads((report_dir / "report.json").read_text())
+    rh1 = report["robots"]["rh1"]
+    assert rh1["degraded"] == [] and rh1["outcome"]["outcome"] == "completed", rh1
+    end = rh1["final"]["ground_truth"]
+    assert math.hypot(end["x"] - 2.0, end["y"] - 3.0) < HOME_M, f"rh1 reached the end of its straight: {end}"
+    assert report["robots"]["rh0"]["degraded"][0].startswith("motor ended early (worker1 killed by SIGKILL)")
