@@ -150,13 +150,13 @@ class FleetUpRun(loop.UpRun):
     the motors' state files land there), its output in a log file; watched and stopped as
     :class:`benchmarks.loop.UpRun` is."""
 
-    def __init__(self, count: int, mode: str, directory: Path) -> None:
+    def __init__(self, count: int, mode: str, directory: Path, extra_flags: Sequence[str] = ()) -> None:
         # Not UpRun.__init__: the same fields, for a fleet's argv and working directory.
 
         self.count = count
         self.composed = mode != "separate"
         self.endpoint = f"tcp/127.0.0.1:{loop.free_port()}"
-        self.log_path = directory / f"up-fleet-{count}-{time.monotonic_ns()}.log"
+        self.log_path = directory / f"up-fleet-{mode}-{count}-{time.monotonic_ns()}.log"
         argv = [
             sys.executable, "-m", "services.cli", "up",
             "--fleet", str(fleet_file(directory, count)),
@@ -164,6 +164,7 @@ class FleetUpRun(loop.UpRun):
             loop.NO_RECORD_FLAG,
             "--log-level", "warning",
             *MODES[mode],
+            *extra_flags,
         ]  # fmt: skip
         self._log = self.log_path.open("w")
         self.process = subprocess.Popen(argv, cwd=directory, stdout=self._log, stderr=subprocess.STDOUT)

@@ -23,7 +23,6 @@ Compared with the run without bridges of the same size (medians of the repeats):
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 import tempfile
 import time
@@ -58,21 +57,7 @@ class BridgeFleetRun(fleet_bench.FleetUpRun):
     """``invent up --fleet`` of ``count`` robots, separate processes, with ``--ros2`` or without."""
 
     def __init__(self, count: int, ros2: bool, directory: Path) -> None:
-        # Not FleetUpRun.__init__: its argv, and --ros2.
-        self.count = count
-        self.composed = False
-        self.endpoint = f"tcp/127.0.0.1:{loop.free_port()}"
-        self.log_path = directory / f"up-fleet-ros2-{count}-{time.monotonic_ns()}.log"
-        argv = [
-            sys.executable, "-m", "services.cli", "up",
-            "--fleet", str(fleet_bench.fleet_file(directory, count)),
-            "--listen", self.endpoint,
-            loop.NO_RECORD_FLAG,
-            "--log-level", "warning",
-            *([loop.ROS2_FLAG] if ros2 else []),
-        ]  # fmt: skip
-        self._log = self.log_path.open("w")
-        self.process = subprocess.Popen(argv, cwd=directory, stdout=self._log, stderr=subprocess.STDOUT)
+        super().__init__(count, "separate", directory, [loop.ROS2_FLAG] if ros2 else [])
 
     def bridge_pids(self) -> list[int]:
         """The bridge children (``python -m services.cli ros2 ...``)."""

@@ -161,37 +161,42 @@ def test_robots_that_meet_head_on_bump_each_other_stay_stopped_and_both_abort_by
     assert report["fleet"]["closest_approach"]["distance_m"] == pytest.approx(body, abs=0.02), "bodies touching"
 
 
-def test_a_secure_fleet_whose_robots_motor_dies_degrades_only_that_robot_and_the_other_drives_on(tmp_path):
-    """With --secure, every service runs with its own robot's credentials (the run proves them
-    enough); rh1's motor is then SIGKILLed."""
+def _kill_mid_run(tmp_path: Path, child: str, *flags: str) -> tuple[int, str, dict]:
+    """``invent up --fleet`` of :data:`STRAIGHTS` with ``flags``; SIGKILL its child ``child`` (as
+    ``up`` names it when it starts it) one second into the run; the exit code, the output, the report."""
     fleet_file = tmp_path / "fleet.toml"
     fleet_file.write_text(STRAIGHTS)
     report_dir = tmp_path / "report"
     process = start_up(
-        "--fleet", str(fleet_file), "--report", str(report_dir), "--listen", f"tcp/127.0.0.1:{free_port()}",
-        "--secure",
+        "--fleet", str(fleet_file), "--report", str(report_dir), "--listen", f"tcp/127.0.0.1:{free_port()}", *flags
     )  # fmt: skip
     output: list[str] = []
     reader = threading.Thread(target=lambda: output.extend(process.stdout), daemon=True)
     reader.start()
     try:
         wait_until(lambda: re.search(r"sim +[1-9]\.\d\d s", "".join(output)), 120, "the fleet 1 s into its run")
-        motor = re.search(r"started rh1/motor \(pid (\d+)\)", "".join(output))
-        assert motor, "".join(output)[-2000:]
-        subprocess.run(["kill", "-KILL", motor.group(1)], check=True)
+        started = re.search(rf"started {re.escape(child)} \(pid (\d+)\)", "".join(output))
+        assert started, "".join(output)[-2000:]
+        subprocess.run(["kill", "-KILL", started.group(1)], check=True)
         process.wait(timeout=180)
     finally:
         if process.poll() is None:
             process.send_signal(signal.SIGINT)
             process.wait(timeout=30)
     reader.join(5)
-    log = "".join(output)
-    assert process.returncode == 0, log[-3000:]
-    secrets = report_dir / "secrets"
+    report_file = report_dir / "report.json"
+    return process.returncode, "".join(output), json.loads(report_file.read_text()) if report_file.exists() else {}
+
+
+def test_a_secure_fleet_whose_robots_motor_dies_degrades_only_that_robot_and_the_other_drives_on(tmp_path):
+    """With --secure, every service runs with its own robot's credentials (the run proves them
+    enough); rh1's motor is then SIGKILLed."""
+    code, log, report = _kill_mid_run(tmp_path, "rh1/motor", "--secure")
+    assert code == 0, log[-3000:]
+    secrets = tmp_path / "report" / "secrets"
     assert (secrets / "rh1-motor.json5").is_file() and not (secrets / "motor.json5").exists()
     assert f"--zenoh-config {secrets / 'rh1-motor.json5'}" in log, "rh1's motor ran with rh1's credentials"
     assert "rh1: motor ended (killed by SIGKILL): only rh1 degrades" in log
-    report = json.loads((report_dir / "report.json").read_text())
     rh0 = report["robots"]["rh0"]
     assert rh0["degraded"] == [] and rh0["path_error"]["max_m"] < 0.10, rh0
     end = rh0["final"]["ground_truth"]
@@ -203,31 +208,9 @@ def test_a_secure_fleet_whose_robots_motor_dies_degrades_only_that_robot_and_the
 def test_a_composed_fleet_whose_worker_dies_degrades_only_its_robot_and_the_other_drives_on(tmp_path):
     """``--composed --workers 2``: rh0's services run in the worker process (services/launch/worker.py,
     ``assign``), rh1's beside the simulator in ``up``'s; the worker is then SIGKILLed."""
-    fleet_file = tmp_path / "fleet.toml"
-    fleet_file.write_text(STRAIGHTS)
-    report_dir = tmp_path / "report"
-    process = start_up(
-        "--fleet", str(fleet_file), "--report", str(report_dir), "--listen", f"tcp/127.0.0.1:{free_port()}",
-        "--composed", "--workers", "2",
-    )  # fmt: skip
-    output: list[str] = []
-    reader = threading.Thread(target=lambda: output.extend(process.stdout), daemon=True)
-    reader.start()
-    try:
-        wait_until(lambda: re.search(r"sim +[1-9]\.\d\d s", "".join(output)), 120, "the fleet 1 s into its run")
-        worker = re.search(r"started worker1 \(pid (\d+)\)", "".join(output))
-        assert worker, "".join(output)[-2000:]
-        subprocess.run(["kill", "-KILL", worker.group(1)], check=True)
-        process.wait(timeout=180)
-    finally:
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-            process.wait(timeout=30)
-    reader.join(5)
-    log = "".join(output)
-    assert process.returncode == 0, log[-3000:]
+    code, log, report = _kill_mid_run(tmp_path, "worker1", "--composed", "--workers", "2")
+    assert code == 0, log[-3000:]
     assert "rh0: motor ended (worker1 killed by SIGKILL): only rh0 degrades" in log, log[-3000:]
-    report = json.loads((report_dir / "report.json").read_text())
     rh1 = report["robots"]["rh1"]
     assert rh1["degraded"] == [] and rh1["outcome"]["outcome"] == "completed", rh1
     end = rh1["final"]["ground_truth"]
