@@ -57,10 +57,10 @@ STOP_TIMEOUT_S = 60.0
 MODES: dict[str, list[str]] = {
     "separate": [],
     "composed": [loop.COMPOSED_FLAG, "--workers", "1"],
-    "composed_workers": [loop.COMPOSED_FLAG],
+    "composed_workers": [loop.COMPOSED_FLAG, "--workers", str(os.cpu_count() or 1)],
 }
-"""``invent up --fleet`` flags of each mode: separate processes; composed in one process; composed
-with the robots spread over the machine's cores (``--workers``' default)."""
+"""``invent up --fleet`` flags of each mode: separate processes; composed in one process (the
+default); composed with the robots spread over as many processes as the machine has cores."""
 COMPOSED_SIM_SHARE_NOTE = (
     "composed: every service of every robot runs in one process on the sim's thread (the sim's lockstep wait "
     "serves the shared executor), so the sim's own CPU is not separable by process or thread: null"

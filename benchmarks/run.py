@@ -65,7 +65,7 @@ UPPER_BOUNDS = frozenset(
     {"realtime.late_fraction", "realtime.latency_us.p99", "realtime.rt.late_vs_floor", "realtime.rt.p99_vs_floor"}
 )
 """Issue 32's: realtime 1 kHz with ``--rt`` within 1.5x the paced floor's late fraction and p99; a composed
-fleet of 8 on every core (``--workers``, default) at 1.5x its robot-steps/s on one worker."""
+fleet of 8 over one process per core (``--workers``) at 1.5x its robot-steps/s in one process."""
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -633,7 +633,7 @@ def fleet_table(fleet: dict[str, Any]) -> str:
     if speedups:
         lines += [
             "",
-            "Composed on every core (`--workers`, default) against one process (`--workers 1`), robot-steps/s: "
+            "Composed over one process per core (`--workers` the cores) against one process (`--workers 1`, the default), robot-steps/s: "
             + ", ".join(f"N = {size}: {_fmt(ratio, 2)}x" for size, ratio in speedups.items()),
         ]
     return "\n".join(lines)

@@ -19,7 +19,6 @@ robots, their bumps into each other), and ``<report dir>/<robot>/`` its plots.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from contextlib import ExitStack
 from pathlib import Path
@@ -249,7 +248,7 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     sim_started = False
     health: dict[str, dict[str, Any]] = {}
     try:
-        assignment = assign(fleet.names, args.workers or os.cpu_count() or 1) if args.composed else None
+        assignment = assign(fleet.names, args.workers or 1) if args.composed else None
         with (
             launch_services(args, endpoint, parser, access, assignment) as (launcher, session),
             ExitStack() as closing,

@@ -1,4 +1,4 @@
-"""A composed fleet on every core: its robots' services spread over worker processes.
+"""A composed fleet over several processes: its robots' services spread over worker processes.
 
 Services composed in one process (services/launch/composition.py) share one thread, so a composed
 fleet keeps one core busy whatever the machine has. With ``invent up --fleet FILE --composed
@@ -7,6 +7,9 @@ it, and N - 1 worker processes (``invent worker``, a child each) run the others,
 services together in one worker, handing each other their messages directly (intra-process
 delivery). The simulator and a worker exchange a step's wheel angles and torques over zenoh; the
 lockstep protocol is the same, so the run is the same bit for bit however its robots are spread.
+On two cores one process measured faster (every step then pays a round trip between processes,
+longer than the control it moves off the simulator's core: docs/fleet.md), so ``up``'s default
+is one.
 
 On a machine of its own, ``invent worker --fleet FILE --robots R1,R2`` runs the services of those
 robots of the fleet file composed in one process, as ``up`` would start them: one process per robot

@@ -224,7 +224,7 @@ class Executor:
         if self._sampled and waiting_for not in self._sampled:
             remaining = SAMPLING_POLL_S if remaining is None else min(remaining, SAMPLING_POLL_S)
         blocking_in = waiting_for if waiting_for is not None else (self._waking[0] if self._waking else None)
-        if blocking_in is None or (remaining is not None and remaining < WAKE_PERIOD_S):
+        if blocking_in is None or not blocking_in.blocks or (remaining is not None and remaining < WAKE_PERIOD_S):
             self._posted.acquire(True, -1 if remaining is None else remaining)
             return
         self._blocked_in = blocking_in

@@ -219,13 +219,19 @@ class NodeInput:
         dispatch: Dispatch,
         capacity: int,
         dispatch_message: DispatchMessage | None = None,
+        on_sample: Callable[[zenoh.Sample], None] | None = None,
     ) -> None:
+        """``on_sample``: a callback that takes each sample from zenoh instead of a ring channel."""
         self.key = key
         self._session = session
         self._dispatch = dispatch
         self._dispatch_message = dispatch_message
         """Handles a message a publisher of this process offered as it is (services/runtime/intraprocess.py)."""
-        self._subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+        self._subscriber: zenoh.Subscriber[Any] = session.declare_subscriber(
+            key, on_sample if on_sample is not None else zenoh.handlers.RingChannel(capacity)
+        )
+        self.blocks = True
+        """Whether the executor's thread may wait in :meth:`receive` (its samples wait in a ring channel)."""
         self.ready: collections.deque[NodeInput] | None = None
         """Its executor's queue of inputs with a message of this process to take (set by the
         executor; None for a sampled input, which the executor looks at at its own pace)."""
@@ -267,9 +273,26 @@ class ChannelInput(NodeInput):
         dispatch: Dispatch,
         capacity: int = CHANNEL_CAPACITY,
         dispatch_message: DispatchMessage | None = None,
+        post: Callable[[Callable[[Any], None], Any], None] | None = None,
     ) -> None:
-        super().__init__(session, key, dispatch, capacity, dispatch_message)
+        """``post``: with a bus (services composed in one process), the samples from outside the
+        process are posted to the executor as they come, their bytes copied out, and the thread never
+        waits in this input's receive: several inputs of a composition are paced by other processes
+        (a fleet's worker: every robot's wheel angles, from the simulator), and a thread can wait
+        in only one receive, while a posted sample wakes it whichever input it is for."""
+        on_sample = None
+        if post is not None:
+
+            def on_sample(sample: zenoh.Sample) -> None:
+                if not is_wake(sample):
+                    post(self._dispatch_posted, contents(sample))
+
+        super().__init__(session, key, dispatch, capacity, dispatch_message, on_sample)
         self._local: deque[tuple[msgspec.Struct, bytes | None]] = deque(maxlen=capacity)
+        self.blocks = post is None
+
+    def _dispatch_posted(self, payload_and_attachment: tuple[bytes, bytes | None]) -> None:
+        self._dispatch(*payload_and_attachment)
 
     def accept_local(self, message: msgspec.Struct, attachment: bytes | None) -> None:
         self._local.append((message, attachment))
@@ -287,6 +310,8 @@ class ChannelInput(NodeInput):
         """Handle the next waiting message of this process, else sample, if any; True if one was handled."""
         if self.take_local():
             return True
+        if not self.blocks:
+            return False
         while (sample := self._subscriber.try_recv()) is not None:
             payload, attachment = contents(sample)
             if attachment != _WAKE:

@@ -205,7 +205,8 @@ class Node:
             return None
         node_input: NodeInput
         if delivery is Delivery.EVERY:
-            node_input = ChannelInput(self.session, key, dispatch, dispatch_message=dispatch_message)
+            post_remote = self.executor.post if self.bus is not None else None
+            node_input = ChannelInput(self.session, key, dispatch, dispatch_message=dispatch_message, post=post_remote)
             self.executor.add_input(node_input, wakes)
         else:
             node_input = LatestSample(self.session, key, dispatch, dispatch_message)
