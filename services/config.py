@@ -384,6 +384,13 @@ class GcPolicy(StrEnum):
 CpuId = Annotated[int, msgspec.Meta(ge=0)]
 
 
+class CpuChoice(StrEnum):
+    LAST = "last"
+    """The last CPU the process may use: every process of the control path on that same one."""
+    ANY = "any"
+    """Wherever the system likes."""
+
+
 class RtConfig(_Section, frozen=True):
     """Real-time settings of the control path's processes (``--rt``: the sim, the motor, the router;
     docs/realtime.md). Opt-in; what the system refuses is said in one line and skipped."""
@@ -394,8 +401,10 @@ class RtConfig(_Section, frozen=True):
     """SCHED_FIFO priority, 1..99 (ros2_control's controller manager runs at 50)."""
     lock_memory: bool = True
     """``mlockall``: every page of the process kept in memory, now and later."""
-    cpus: tuple[CpuId, ...] = ()
-    """CPUs the process runs on (its threads too); empty: wherever the system likes."""
+    cpus: tuple[CpuId, ...] | CpuChoice = CpuChoice.LAST
+    """CPUs the process runs on (its threads too): a list, ``"last"`` (the last CPU it may use, so
+    that the control path's processes share one core and hand each step over without waking
+    another: measured the best here, docs/realtime.md) or ``"any"`` (wherever the system likes)."""
     gc: GcPolicy = GcPolicy.FROZEN
     """Python's garbage collector: ``automatic`` (as ever), ``frozen`` (what start-up made is frozen
     and never scanned again), ``idle`` (frozen, and the young generation collected when the service

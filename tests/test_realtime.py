@@ -8,6 +8,8 @@ from pathlib import Path
 import pytest
 
 from schemas.keys import Keys, Service
+from services.config import ConfigError, CpuChoice
+from services.runtime.realtime import chosen_cpus
 from services.runtime.session import free_port
 from tests.harness import InventProcess, call, peer_session, run_invent, wait_alive
 
@@ -69,6 +71,75 @@ def test_a_motor_with_rt_runs_its_and_zenohs_threads_sched_fifo_locked_on_its_cp
     assert "real time: SCHED_FIFO priority 30, memory locked, CPUs [0]" in err
 
 
+@pytest.mark.skipif(not CAN_SCHEDULE_FIFO, reason="SCHED_FIFO and mlockall need root (or CAP_SYS_NICE, CAP_IPC_LOCK)")
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to choose")
+def test_the_control_path_with_rt_shares_the_last_cpu_by_default():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    last = max(os.sched_getaffinity(0))
+    with (
+        InventProcess("router", "--listen", endpoint, "--rt") as router,
+        peer_session(endpoint) as session,
+        InventProcess("motor", "--connect", endpoint, "--rt") as motor,
+    ):
+        wait_alive(session, KEYS.alive(Service.MOTOR))
+        ok, status = call(session, KEYS.status(Service.MOTOR))
+        affinities = {
+            (name, tid): os.sched_getaffinity(tid)
+            for name, process in (("router", router), ("motor", motor))
+            for tid in _control_threads(process.process.pid)
+        }
+        motor.stop()
+        router.stop()
+    assert ok and status["rt"]["cpus"] == [last], status["rt"]
+    assert set(map(frozenset, affinities.values())) == {frozenset({last})}, affinities
+
+
+@pytest.mark.skipif(not CAN_SCHEDULE_FIFO, reason="SCHED_FIFO and mlockall need root (or CAP_SYS_NICE, CAP_IPC_LOCK)")
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to choose")
+def test_a_composed_loop_with_rt_holds_its_loop_thread_to_the_last_cpu_and_still_answers_from_outside(tmp_path):
+    """A composed lockstep loop never blocks: any other thread on its core at its priority (zenoh's,
+    zenoh-python's callback threads) would never run, and no query from outside would be answered."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    circle = tmp_path / "circle.toml"
+    circle.write_text('name = "circle"\n\n[[segments]]\ntype = "constant"\nvx = 0.2\nw = 0.5\nduration = 100000.0\n')
+    last = max(os.sched_getaffinity(0))
+    with (
+        InventProcess(
+            "up", "--composed", "--rt", "--no-record", "--scenario", str(circle), "--listen", endpoint, drain=True
+        ) as up,
+        peer_session(endpoint) as session,
+    ):
+        wait_alive(session, KEYS.alive(Service.DRIVE), timeout=30)
+        answers = [call(session, KEYS.status(Service.SIM)) for _ in range(3)]
+        pid = up.process.pid
+        held = [int(tid) for tid in os.listdir(f"/proc/{pid}/task") if os.sched_getaffinity(int(tid)) == {last}]
+        up.stop()
+    assert all(ok for ok, _status in answers), answers
+    statuses = [status for _ok, status in answers]
+    assert statuses[-1]["steps"] > statuses[0]["steps"], "the loop runs while it answers"
+    assert statuses[-1]["rt"]["cpus"] == [last] and statuses[-1]["rt"]["policy"] == "SCHED_FIFO", statuses[-1]["rt"]
+    assert len(held) == 1 and held[0] != pid, f"only the loop's thread (not up's main thread) is held to CPU {last}"
+
+
+@pytest.mark.parametrize(
+    ("cpus", "available", "chosen"),
+    [
+        (CpuChoice.LAST, {0, 1, 2, 3}, [3]),
+        (CpuChoice.LAST, {2, 5}, [5]),
+        (CpuChoice.LAST, {1}, []),
+        (CpuChoice.ANY, {0, 1}, []),
+        ((1, 0), {0, 1, 2}, [0, 1]),
+    ],
+)
+def test_rt_cpus_chooses_the_last_cpu_any_or_the_ones_named(cpus, available, chosen):
+    assert chosen_cpus(cpus, available) == chosen
+
+
+def test_rt_cpus_naming_a_cpu_the_process_may_not_use_is_a_configuration_error():
+    with pytest.raises(ConfigError, match=r"`rt.cpus`: CPU \[2\] not among this process's CPUs \[0, 1\]"):
+        chosen_cpus((1, 2), {0, 1})
+
+
 @pytest.mark.skipif(shutil.which("setpriv") is None, reason="setpriv (util-linux) takes the rights away")
 def test_a_router_and_a_motor_refused_real_time_say_so_in_one_line_and_serve_without_it():
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -97,6 +168,7 @@ def test_a_router_and_a_motor_refused_real_time_say_so_in_one_line_and_serve_wit
     [
         (("config",), "rt.priority=100", "rt.priority"),
         (("config",), 'rt.gc="sometimes"', "rt.gc"),
+        (("config",), 'rt.cpus="sometimes"', "rt.cpus"),
         (("motor", "--rt", "--connect", "tcp/127.0.0.1:9"), "rt.cpus=[4096]", "rt.cpus"),
         (
             ("router", "--rt", "--listen", "tcp/127.0.0.1:9"),

@@ -23,10 +23,11 @@ from typing import Any
 
 import zenoh
 
+from services.config import RtConfig
 from services.runtime.executor import Executor
 from services.runtime.intraprocess import LocalBus
 from services.runtime.node import Node
-from services.runtime.realtime import settle_garbage_collector
+from services.runtime.realtime import pin_loop_thread, settle_garbage_collector
 from services.service import ClockedService, RunningService, ServiceCommand, config_from_args, start_service
 
 log = logging.getLogger("invent.composed")
@@ -74,7 +75,9 @@ class Composition:
         if isinstance(service, ClockedService):
             # The clocked service starts last: everything the composition needs is built.
             settle_garbage_collector(config.rt)
-            composed.thread = threading.Thread(target=self._run, args=(composed, service), name=name, daemon=True)
+            composed.thread = threading.Thread(
+                target=self._run, args=(composed, service, config.rt), name=name, daemon=True
+            )
             composed.thread.start()
         self.services.append(composed)
         log.info("started %s in this process: invent %s", name, " ".join(argv))
@@ -98,7 +101,8 @@ class Composition:
             while self._shared.spin_once(0):
                 pass
 
-    def _run(self, composed: ComposedService, service: ClockedService) -> None:
+    def _run(self, composed: ComposedService, service: ClockedService, rt: RtConfig) -> None:
+        pin_loop_thread(rt, f"invent up --composed: {composed.name}")
         try:
             composed.exit_code = service.run(self._stop)
         except BaseException as error:  # reported by check(), like a child process that died

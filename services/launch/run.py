@@ -98,7 +98,7 @@ def launch_services(
     worker processes as ``assignment`` says (services/launch/worker.py)."""
     if args.composed:
         # One process runs the whole loop: it is the control path.
-        apply_realtime(config_from_args(None, args).rt, "invent up --composed")
+        apply_realtime(config_from_args(None, args).rt, "invent up --composed", composed=True)
         mode_config = (
             session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR), timestamping=args.ros2)
             if args.connect
