@@ -115,7 +115,7 @@ def scenario_file(directory: Path) -> Path:
     return path
 
 
-def _sim_status(session: zenoh.Session) -> dict[str, Any] | None:
+def sim_status(session: zenoh.Session) -> dict[str, Any] | None:
     for reply in session.get(KEYS.status(Service.SIM), timeout=STATUS_TIMEOUT_S):
         if reply.ok is not None:
             return json.loads(reply.ok.payload.to_bytes())
@@ -308,13 +308,18 @@ def cpu_seconds(roots: Sequence[int]) -> float:
     return total
 
 
-def _measure(session: zenoh.Session, run: UpRun | ServicesRun, warmup_s: float, window_s: float) -> LoopResult:
+def wait_until_running(session: zenoh.Session, run: UpRun | ServicesRun) -> None:
+    """Until the drive is alive and the sim steps (or ``run`` failed: RuntimeError)."""
     _wait(lambda: _alive(session, Service.DRIVE), "the drive", run)
-    _wait(lambda: (_sim_status(session) or {}).get("state") == "running", "the sim running", run)
+    _wait(lambda: (sim_status(session) or {}).get("state") == "running", "the sim running", run)
+
+
+def _measure(session: zenoh.Session, run: UpRun | ServicesRun, warmup_s: float, window_s: float) -> LoopResult:
+    wait_until_running(session, run)
     time.sleep(warmup_s)
-    first, first_wall, first_cpu = _sim_status(session), time.monotonic(), cpu_seconds(run.pids)
+    first, first_wall, first_cpu = sim_status(session), time.monotonic(), cpu_seconds(run.pids)
     time.sleep(window_s)
-    last, last_wall, last_cpu = _sim_status(session), time.monotonic(), cpu_seconds(run.pids)
+    last, last_wall, last_cpu = sim_status(session), time.monotonic(), cpu_seconds(run.pids)
     run.check()
     if first is None or last is None:
         raise RuntimeError("the sim did not answer its status")
@@ -332,6 +337,7 @@ def _measure(session: zenoh.Session, run: UpRun | ServicesRun, warmup_s: float, 
             else None,
             "max_pause_us_since_start": last_rt["gc_max_pause_us"],
             "sched": f"{last_rt['policy']} {last_rt['priority']}",
+            "cpus": last_rt["cpus"],
         }
         if last_rt and first_rt
         else None

@@ -118,14 +118,14 @@ def main(argv: list[str] | None = None) -> int:
                 time.sleep(args.warmup)
                 for name, process in processes.items():
                     before, threads_before, started = (
-                        loop._sim_status(session),
+                        loop.sim_status(session),
                         thread_cpu(process.pid),
                         time.monotonic(),
                     )
                     _profile(process.pid, args.seconds, args.rate, directory / f"{name}.txt").wait(args.seconds + 60)
                     wall, after, threads_after = (
                         time.monotonic() - started,
-                        loop._sim_status(session),
+                        loop.sim_status(session),
                         thread_cpu(process.pid),
                     )
                     steps = (after or {}).get("steps", 0) - (before or {}).get("steps", 0)

@@ -181,10 +181,12 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
     inprocess: list[float] = []
     floors: list[dict[str, float]] = []
     separate: list[loop.LoopResult] = []
+    separate_rt: list[loop.LoopResult] = []
     with_up: list[loop.LoopResult] = []
     up_not_recording: list[loop.LoopResult] = []
     low_latency: list[loop.LoopResult] = []
     together: list[loop.LoopResult] = []
+    together_rt: list[loop.LoopResult] = []
     together_no_intra: list[loop.LoopResult] = []
     together_recording: list[loop.LoopResult] = []
     up_ros2: list[loop.LoopResult] = []
@@ -201,6 +203,13 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         )
         separate.append(
             _timed("separate processes", lambda: loop.measure_services([], args.warmup, args.window), failures)
+        )
+        separate_rt.append(
+            _timed(
+                "separate, --rt on the control path",
+                lambda: loop.measure_services([], args.warmup, args.window, None, [loop.RT_FLAG]),
+                failures,
+            )
         )
         low_latency.append(
             _timed(
@@ -241,6 +250,15 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
                     failures,
                 )
             )
+            together_rt.append(
+                _timed(
+                    "composed, --rt",
+                    lambda: loop.measure_up(
+                        [loop.COMPOSED_FLAG, loop.NO_RECORD_FLAG, loop.RT_FLAG], args.warmup, args.window
+                    ),
+                    failures,
+                )
+            )
             together_no_intra.append(
                 _timed(
                     "composed, no intra-process delivery",
@@ -262,10 +280,12 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
     floor_rate = _median([value["round_trips_per_s"] for value in floors])
     (
         separate,
+        separate_rt,
         with_up,
         up_not_recording,
         low_latency,
         together,
+        together_rt,
         together_no_intra,
         together_recording,
         up_ros2,
@@ -274,10 +294,12 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         [run for run in runs if run is not None]
         for runs in (
             separate,
+            separate_rt,
             with_up,
             up_not_recording,
             low_latency,
             together,
+            together_rt,
             together_no_intra,
             together_recording,
             up_ros2,
@@ -297,6 +319,9 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         },
         "latency_us": alone["latency_us"],
         "late_fraction": alone["late_fraction"],
+        "rt_steps_per_s": _median([run.steps_per_s for run in separate_rt]),
+        "rt_floor_ratio": _ratio(_median([run.steps_per_s for run in separate_rt]), floor_rate),
+        "rt_latency_us": _loop_summary(separate_rt)["latency_us"] if separate_rt else None,
         "up_steps_per_s": _median([run.steps_per_s for run in with_up]),
         "up_not_recording_steps_per_s": _median([run.steps_per_s for run in up_not_recording]),
         "lowlatency_steps_per_s": _median([run.steps_per_s for run in low_latency]),
@@ -305,15 +330,20 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
         "composed_steps_per_s": shared["steps_per_s"] if shared else None,
         "composed_ratio": _ratio(shared["steps_per_s"], limit) if shared else None,
         "composed_latency_us": shared["latency_us"] if shared else None,
+        "composed_rt_steps_per_s": _median([run.steps_per_s for run in together_rt]),
+        "composed_rt_ratio": _ratio(_median([run.steps_per_s for run in together_rt]), limit),
         "composed_no_intra_process_steps_per_s": _median([run.steps_per_s for run in together_no_intra]),
         "composed_no_intra_process_ratio": _ratio(_median([run.steps_per_s for run in together_no_intra]), limit),
         "composed_recording_steps_per_s": _median([run.steps_per_s for run in together_recording]),
         "up_ros2_steps_per_s": _median([run.steps_per_s for run in up_ros2]),
         "composed_ros2_steps_per_s": _median([run.steps_per_s for run in together_ros2]),
         "cpu_us_per_step": {
+            "separate": _cpu_per_step(separate),
+            "rt": _cpu_per_step(separate_rt),
             "up": _cpu_per_step(with_up),
             "up_not_recording": _cpu_per_step(up_not_recording),
             "composed": _cpu_per_step(together),
+            "composed_rt": _cpu_per_step(together_rt),
             "composed_no_intra_process": _cpu_per_step(together_no_intra),
             "composed_recording": _cpu_per_step(together_recording),
             "up_ros2": _cpu_per_step(up_ros2),
@@ -326,10 +356,12 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
             "inprocess_steps_per_s": inprocess,
             "floor": floors,
             "separate": [run.as_dict() for run in separate],
+            "rt": [run.as_dict() for run in separate_rt],
             "up": [run.as_dict() for run in with_up],
             "up_not_recording": [run.as_dict() for run in up_not_recording],
             "lowlatency": [run.as_dict() for run in low_latency],
             "composed": [run.as_dict() for run in together],
+            "composed_rt": [run.as_dict() for run in together_rt],
             "composed_no_intra_process": [run.as_dict() for run in together_no_intra],
             "composed_recording": [run.as_dict() for run in together_recording],
             "up_ros2": [run.as_dict() for run in up_ros2],
@@ -344,11 +376,13 @@ REALTIME_HZ = 1000.0
 
 RT_VARIANTS = {
     "rt": [loop.RT_FLAG],
+    "rt_any_cpu": [loop.RT_FLAG, "--set", 'rt.cpus="any"'],
     "rt_gc_automatic": [loop.RT_FLAG, "--set", 'rt.gc="automatic"'],
     "rt_gc_idle": [loop.RT_FLAG, "--set", 'rt.gc="idle"'],
 }
 """The realtime runs with ``--rt`` on the control path (router, motor, sim), as ``invent up --rt``
-gives it: its default collector policy (frozen), and the two others, to measure what each does."""
+gives it: its defaults (the control path on the last CPU, the collector frozen), the CPUs left to the
+system, and the two other collector policies, to measure what each does."""
 
 
 def _realtime_summary(runs: list[loop.LoopResult], floor_late: float | None, floor_p99: float | None) -> dict[str, Any]:
@@ -368,6 +402,7 @@ def _realtime_summary(runs: list[loop.LoopResult], floor_late: float | None, flo
         "gc_max_pause_us": _median([entry["max_pause_us_since_start"] for entry in gc_runs]),
         "gc_collections_per_run": _median([sum(entry["collections"]) for entry in gc_runs]),
         "sched": gc_runs[-1]["sched"] if gc_runs else None,
+        "cpus": gc_runs[-1].get("cpus") if gc_runs else None,
         "runs": [run.as_dict() for run in runs],
     }
 
@@ -524,6 +559,14 @@ def _loop_rows(results: dict[str, Any]) -> list[tuple[str, str, str]]:
             f"ratio {_fmt(lockstep['ratio'], 3)}",
         ),
         (
+            "lockstep, separate, `--rt` on the control path (router, motor, sim)",
+            f"{_fmt(lockstep.get('rt_steps_per_s'))} steps/s",
+            (
+                f"floor ratio {_fmt(lockstep.get('rt_floor_ratio'), 3)}; CPU {_fmt(cpu.get('rt'))} vs "
+                f"{_fmt(cpu.get('separate'))} µs per step without"
+            ),
+        ),
+        (
             "floor: bare zenoh ping-pong between two processes",
             f"{_fmt(lockstep['floor_round_trips_per_s'])} round trips/s",
             f"p50 {_fmt(lockstep['floor_latency_us']['p50'])} µs; separate loop / floor = {_fmt(lockstep['floor_ratio'], 3)}",
@@ -547,6 +590,11 @@ def _loop_rows(results: dict[str, Any]) -> list[tuple[str, str, str]]:
             "lockstep, composed (`invent up --composed --no-record`)",
             f"{_fmt(lockstep['composed_steps_per_s'])} steps/s",
             f"ratio {_fmt(lockstep['composed_ratio'], 3)}",
+        ),
+        (
+            "lockstep, composed, `--rt`",
+            f"{_fmt(lockstep.get('composed_rt_steps_per_s'))} steps/s",
+            f"ratio {_fmt(lockstep.get('composed_rt_ratio'), 3)}",
         ),
         (
             "lockstep, composed, no intra-process delivery (`--no-intra-process`)",
@@ -602,11 +650,15 @@ def _loop_rows(results: dict[str, Any]) -> list[tuple[str, str, str]]:
             continue
         rows.append(
             (
-                f"realtime 1 kHz, separate, `{' '.join(flags)}` on the control path ({variant['sched']})",
+                (
+                    f"realtime 1 kHz, separate, `{' '.join(flags)}` on the control path ({variant['sched']}, "
+                    f"CPUs {variant.get('cpus') or 'any'})"
+                ),
                 f"late {_fmt(_percent(variant['late_fraction']), 2)} %, p99 {_fmt(variant['latency_us']['p99'])} µs",
                 (
                     f"{_fmt(variant['late_vs_floor'], 2)}x / {_fmt(variant['p99_vs_floor'], 2)}x the floor's; collector "
-                    f"{_fmt(variant['gc_pause_us_per_step'], 2)} µs per step, longest pause {_fmt(variant['gc_max_pause_us'])} µs"
+                    f"{_fmt(variant['gc_collections_per_run'])} collections and {_fmt(variant['gc_pause_us_per_step'], 2)} µs "
+                    f"per step in the window, longest pause since start-up {_fmt(variant['gc_max_pause_us'])} µs"
                 ),
             )
         )

@@ -7,6 +7,7 @@ import sys
 
 import pytest
 
+from benchmarks import lateness
 from benchmarks.run import RESULTS
 from tests.harness import REPO
 
@@ -25,6 +26,11 @@ NUMBERS = (
     "lockstep.composed_ratio",
     "lockstep.composed_recording_steps_per_s",
     "lockstep.composed_no_intra_process_steps_per_s",
+    "lockstep.rt_steps_per_s",
+    "lockstep.rt_floor_ratio",
+    "lockstep.cpu_us_per_step.rt",
+    "lockstep.composed_rt_steps_per_s",
+    "lockstep.composed_rt_ratio",
     "lockstep.cpu_us_per_step.composed_no_intra_process",
     "lockstep.up_ros2_steps_per_s",
     "lockstep.composed_ros2_steps_per_s",
@@ -44,7 +50,7 @@ NUMBERS = (
     "realtime.floor_late_fraction",
     *(
         f"realtime.{variant}.{field}"
-        for variant in ("rt", "rt_gc_automatic", "rt_gc_idle")
+        for variant in ("rt", "rt_any_cpu", "rt_gc_automatic", "rt_gc_idle")
         for field in ("late_fraction", "latency_us.p99", "p99_vs_floor", "cpu_us_per_step")
     ),
     "fleet.workers_speedup.2",
@@ -122,3 +128,20 @@ def test_the_default_results_file_is_not_tracked_so_a_bench_leaves_a_clone_clean
         ["git", "ls-files", "--error-unmatch", str(relative)], cwd=REPO, capture_output=True, check=False
     )
     assert tracked.returncode != 0, f"{relative} is tracked"
+
+
+@pytest.mark.parametrize(
+    ("late", "share"),
+    [((0, 0, 9, 0, 1), 0.9), ((2, 2, 2, 2, 2), 0.2)],
+    ids=["a burst", "evenly"],
+)
+def test_the_lateness_summary_tells_a_burst_from_late_steps_spread_evenly(late, share):
+    intervals = [{"late": count, "steps": 200, "steal_ms": 5.0 if count else 1.0} for count in late]
+    result = lateness.summary(intervals)
+    assert result["late_steps"] == sum(late)
+    assert result["late_fraction"] == sum(late) / 1000
+    assert result["intervals_with_late_steps"] == sum(1 for count in late if count)
+    assert result["late_share_in_worst_5_percent_of_intervals"] == pytest.approx(share)
+    assert result["most_late_in_one_interval"] == max(late)
+    assert result["steal_ms_per_interval_with_late_steps"] == 5.0
+    assert result["steal_ms_per_interval_without"] == (1.0 if 0 in late else None)
