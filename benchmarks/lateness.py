@@ -1,6 +1,6 @@
 """Where a realtime run's late steps come from: when they happen, and what the machine did then.
 
-``python -m benchmarks.lateness [--seconds S] [--interval S] [--rt]`` runs the loop's services as
+``python -m benchmarks.lateness [--seconds S] [--interval S] [--rt [--any-cpu]]`` runs the loop's services as
 separate processes (as ``make bench``'s realtime runs do), the sim in realtime at 1 kHz, and
 every ``--interval`` reads the sim's counters (``realtime_late_steps``, ``steps``) and the
 machine's CPU time stolen by the hypervisor (``steal`` in ``/proc/stat``). It prints how the late
@@ -83,9 +83,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=30.0, metavar="S", help="wall seconds sampled")
     parser.add_argument("--interval", type=float, default=0.2, metavar="S", help="wall seconds between looks")
     parser.add_argument("--rt", action="store_true", help="--rt on the control path (router, motor, sim)")
+    parser.add_argument(
+        "--any-cpu", action="store_true", help='with --rt: rt.cpus = "any" (the CPUs left to the system)'
+    )
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="invent-lateness-") as folder:
-        run = loop.ServicesRun(["--mode", "realtime"], Path(folder), None, [loop.RT_FLAG] if args.rt else [])
+        control_path = [loop.RT_FLAG, *(["--set", 'rt.cpus="any"'] if args.any_cpu else [])] if args.rt else []
+        run = loop.ServicesRun(["--mode", "realtime"], Path(folder), None, control_path)
         try:
             with open_session(session_config(connect=[run.endpoint])) as session:
                 run.start_loop(session)
@@ -95,7 +99,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                 run.check()
         finally:
             run.stop()
-    print(json.dumps({"rt": args.rt, "interval_s": args.interval, **summary(intervals)}, indent=2))
+    print(
+        json.dumps(
+            {"rt": args.rt, "any_cpu": args.any_cpu, "interval_s": args.interval, **summary(intervals)}, indent=2
+        )
+    )
     return 0
 
 
