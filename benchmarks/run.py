@@ -152,6 +152,12 @@ def _cpu_per_step(runs: list[loop.LoopResult]) -> float | None:
     return _median([run.cpu_us_per_step for run in runs])
 
 
+def _keep(runs: list[loop.LoopResult], result: loop.LoopResult | None) -> None:
+    """Add ``result`` to ``runs`` unless the run failed (None: listed under ``failures``)."""
+    if result is not None:
+        runs.append(result)
+
+
 def _timed(what: str, action: Callable[[], Any], failures: list[str]) -> Any:
     """``action()``, timed on the console; None (and the reason in ``failures``) if a run failed."""
     started = time.monotonic()
@@ -201,111 +207,94 @@ def run_lockstep(args: argparse.Namespace, composed: bool, failures: list[str]) 
                 failures,
             )
         )
-        separate.append(
-            _timed("separate processes", lambda: loop.measure_services([], args.warmup, args.window), failures)
+        _keep(
+            separate,
+            _timed("separate processes", lambda: loop.measure_services([], args.warmup, args.window), failures),
         )
-        separate_rt.append(
+        _keep(
+            separate_rt,
             _timed(
                 "separate, --rt on the control path",
                 lambda: loop.measure_services([], args.warmup, args.window, None, [loop.RT_FLAG]),
                 failures,
-            )
+            ),
         )
-        low_latency.append(
+        _keep(
+            low_latency,
             _timed(
                 "separate, low-latency transport",
                 lambda: loop.measure_services([], args.warmup, args.window, {LOW_LATENCY_VARIABLE: "1"}),
                 failures,
-            )
+            ),
         )
-        with_up.append(_timed("invent up (recording)", lambda: loop.measure_up([], args.warmup, args.window), failures))
-        up_not_recording.append(
+        _keep(with_up, _timed("invent up (recording)", lambda: loop.measure_up([], args.warmup, args.window), failures))
+        _keep(
+            up_not_recording,
             _timed(
                 "invent up --no-record",
                 lambda: loop.measure_up([loop.NO_RECORD_FLAG], args.warmup, args.window),
                 failures,
-            )
+            ),
         )
-        up_ros2.append(
+        _keep(
+            up_ros2,
             _timed(
                 "invent up --no-record --ros2",
                 lambda: loop.measure_up([loop.NO_RECORD_FLAG, loop.ROS2_FLAG], args.warmup, args.window),
                 failures,
-            )
+            ),
         )
         if composed:
-            together_ros2.append(
+            _keep(
+                together_ros2,
                 _timed(
                     "composed, --ros2",
                     lambda: loop.measure_up(
                         [loop.COMPOSED_FLAG, loop.NO_RECORD_FLAG, loop.ROS2_FLAG], args.warmup, args.window
                     ),
                     failures,
-                )
+                ),
             )
-            together.append(
+            _keep(
+                together,
                 _timed(
                     "composed",
                     lambda: loop.measure_up([loop.COMPOSED_FLAG, loop.NO_RECORD_FLAG], args.warmup, args.window),
                     failures,
-                )
+                ),
             )
-            together_rt.append(
+            _keep(
+                together_rt,
                 _timed(
                     "composed, --rt",
                     lambda: loop.measure_up(
                         [loop.COMPOSED_FLAG, loop.NO_RECORD_FLAG, loop.RT_FLAG], args.warmup, args.window
                     ),
                     failures,
-                )
+                ),
             )
-            together_no_intra.append(
+            _keep(
+                together_no_intra,
                 _timed(
                     "composed, no intra-process delivery",
                     lambda: loop.measure_up(
                         [loop.COMPOSED_FLAG, loop.NO_RECORD_FLAG, loop.NO_INTRA_PROCESS_FLAG], args.warmup, args.window
                     ),
                     failures,
-                )
+                ),
             )
-            together_recording.append(
+            _keep(
+                together_recording,
                 _timed(
                     "composed, recording",
                     lambda: loop.measure_up([loop.COMPOSED_FLAG], args.warmup, args.window),
                     failures,
-                )
+                ),
             )
     inprocess = [value for value in inprocess if value is not None]
     floors = [value for value in floors if value is not None]
     floor_rate = _median([value["round_trips_per_s"] for value in floors])
-    (
-        separate,
-        separate_rt,
-        with_up,
-        up_not_recording,
-        low_latency,
-        together,
-        together_rt,
-        together_no_intra,
-        together_recording,
-        up_ros2,
-        together_ros2,
-    ) = (
-        [run for run in runs if run is not None]
-        for runs in (
-            separate,
-            separate_rt,
-            with_up,
-            up_not_recording,
-            low_latency,
-            together,
-            together_rt,
-            together_no_intra,
-            together_recording,
-            up_ros2,
-            together_ros2,
-        )
-    )
+
     limit = _median(inprocess)
     alone, shared = _loop_summary(separate), _loop_summary(together) if together else None
     return {
