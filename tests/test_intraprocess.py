@@ -7,9 +7,10 @@ import threading
 import pytest
 
 from schemas import Keys, Service, Time, TimedDoubleSeq
+from schemas.codec import encode
 from services.runtime.executor import Executor
 from services.runtime.inputs import Delivery
-from services.runtime.intraprocess import LocalBus
+from services.runtime.intraprocess import LocalBus, Watch
 from services.runtime.node import Node
 from tests.harness import Collector, peer_session, wait_until
 
@@ -91,3 +92,27 @@ def test_a_message_offered_from_another_thread_wakes_the_service_thread(composed
     assert motor.spin_once(5.0), "woken by the post, long before the wait is over"
     motor.drain()
     assert taken == [sent]
+
+
+def test_a_watch_sees_its_key_from_the_composed_services_and_from_outside_and_skips_what_does_not_decode(
+    endpoint, session, composed
+):
+    sim, _motor = composed
+    seen = []
+    watch = Watch(session, KEYS.sim_wheel_angles, TimedDoubleSeq, seen.append, sim.bus)
+    try:
+        local = _angles(1)
+        sim.publisher(KEYS.sim_wheel_angles).put(local)
+        assert seen == [local] and seen[0] is local, "tapped on the publishing thread, as it is"
+        with peer_session(endpoint) as outside:
+            publisher = outside.declare_publisher(KEYS.sim_wheel_angles)
+            wait_until(lambda: publisher.matching_status.matching, 5.0)
+            publisher.put(b"not a message")
+            publisher.put(encode(_angles(2)))
+            wait_until(lambda: len(seen) == 2, 5.0)
+            publisher.undeclare()
+        assert seen[1] == _angles(2)
+    finally:
+        watch.close()
+    sim.publisher(KEYS.sim_wheel_angles).put(_angles(3))
+    assert len(seen) == 2, "closed: the tap is off the bus"

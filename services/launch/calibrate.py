@@ -36,10 +36,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import zenoh
 
-from schemas.codec import BadInput, decode
 from schemas.keys import Keys, Service, Topic
 from schemas.messages import TimedDoubleSeq, TimedPosition
 from services.calibration.measured import read_measured
@@ -70,7 +68,7 @@ from services.launch.composition import Composition
 from services.launch.run import EXIT_CHILD_DIED, EXIT_INTERRUPTED, Outcomes, Run, default_report_dir
 from services.recording.calibration import PathPoint, RunPaths, write_figure, write_paths_recording
 from services.recording.report import degradations, loop_health
-from services.runtime.intraprocess import LocalBus, Tap
+from services.runtime.intraprocess import LocalBus, Watch
 from services.runtime.session import free_port, open_session, session_config, stop_on_signals
 from services.service import finite_number, overrides_from_args
 
@@ -450,44 +448,21 @@ class _PathWatch:
     odometry: deque[PathPoint] = field(default_factory=lambda: deque(maxlen=PATH_POINTS))
 
     def __post_init__(self) -> None:
-        self._subscribers = [
-            self.session.declare_subscriber(self.keys.topic(Topic.SIM_BODY_POSE), self._on_body_pose),
-            self.session.declare_subscriber(self.keys.topic(Topic.ODOMETRY_POSE), self._on_odometry_pose),
+        self._watches: list[Watch[Any]] = [
+            Watch(self.session, self.keys.topic(Topic.SIM_BODY_POSE), TimedDoubleSeq, self._body_pose, self.bus),
+            Watch(self.session, self.keys.topic(Topic.ODOMETRY_POSE), TimedPosition, self._odometry_pose, self.bus),
         ]
-        self._taps = [
-            (self.keys.topic(Topic.SIM_BODY_POSE), Tap(self._body_pose)),
-            (self.keys.topic(Topic.ODOMETRY_POSE), Tap(self._odometry_pose)),
-        ]
-        if self.bus is not None:
-            for key, tap in self._taps:
-                self.bus.attach(key, tap)
 
-    def _on_body_pose(self, sample: zenoh.Sample) -> None:
-        try:
-            self._body_pose(decode(TimedDoubleSeq, sample.payload.to_bytes()))
-        except BadInput:
-            return
+    def _body_pose(self, pose: TimedDoubleSeq) -> None:
+        if len(pose.data) >= 2:
+            _add(self.truth, pose.data[0], pose.data[1])
 
-    def _body_pose(self, message: msgspec.Struct) -> None:
-        if isinstance(message, TimedDoubleSeq) and len(message.data) >= 2:
-            _add(self.truth, message.data[0], message.data[1])
-
-    def _on_odometry_pose(self, sample: zenoh.Sample) -> None:
-        try:
-            self._odometry_pose(decode(TimedPosition, sample.payload.to_bytes()))
-        except BadInput:
-            return
-
-    def _odometry_pose(self, message: msgspec.Struct) -> None:
-        if isinstance(message, TimedPosition):
-            _add(self.odometry, message.x, message.y)
+    def _odometry_pose(self, pose: TimedPosition) -> None:
+        _add(self.odometry, pose.x, pose.y)
 
     def close(self) -> None:
-        for subscriber in self._subscribers:
-            subscriber.undeclare()
-        if self.bus is not None:
-            for key, tap in self._taps:
-                self.bus.detach(key, tap)
+        for watch in self._watches:
+            watch.close()
 
 
 def _add(path: deque[PathPoint], x: float, y: float) -> None:

@@ -18,17 +18,15 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import zenoh
 
-from schemas.codec import BadInput, decode
 from schemas.keys import Keys, Service
 from schemas.messages import ScenarioOutcome
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.launch.children import ChildDied, Interrupted, Launcher, Supervisor, describe_exit, say
 from services.launch.composition import Composition
 from services.launch.worker import Workers
-from services.runtime.intraprocess import LocalBus, Tap
+from services.runtime.intraprocess import LocalBus, Watch
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import ROUTER_LISTENING, open_session, session_config
 from services.security import Profile, Role
@@ -243,24 +241,10 @@ class Outcomes:
 
     def __init__(self, session: zenoh.Session, robots: Sequence[str], bus: LocalBus | None = None) -> None:
         self.of: dict[str, ScenarioOutcome] = {}
-        self._subscribers = [
-            session.declare_subscriber(Keys(robot).drive_outcome, partial(self._take, robot)) for robot in robots
+        self._watches = [
+            Watch(session, Keys(robot).drive_outcome, ScenarioOutcome, partial(self.of.__setitem__, robot), bus)
+            for robot in robots
         ]
-        self._bus = bus
-        self._taps = [(Keys(robot).drive_outcome, Tap(partial(self._take_message, robot))) for robot in robots]
-        if bus is not None:
-            for key, tap in self._taps:
-                bus.attach(key, tap)
-
-    def _take(self, robot: str, sample: zenoh.Sample) -> None:
-        try:
-            self.of[robot] = decode(ScenarioOutcome, sample.payload.to_bytes())
-        except BadInput:  # not the drive's: its exit code still tells how its scenario ended
-            pass
-
-    def _take_message(self, robot: str, message: msgspec.Struct) -> None:
-        if isinstance(message, ScenarioOutcome):
-            self.of[robot] = message
 
     def line(self, robot: str, outcome: Outcome) -> str:
         """``outcome: aborted (bumped into 'box' ...)``, the reason when the drive's sample came."""
@@ -269,11 +253,8 @@ class Outcomes:
         return f"outcome: {outcome}" + (f" ({reason})" if reason else "")
 
     def close(self) -> None:
-        for subscriber in self._subscribers:
-            subscriber.undeclare()
-        if self._bus is not None:
-            for key, tap in self._taps:
-                self._bus.detach(key, tap)
+        for watch in self._watches:
+            watch.close()
 
 
 def outcome_exit_code(outcomes: Sequence[Outcome | None]) -> int:

@@ -10,8 +10,9 @@ A :class:`LocalBus` is the process's table of those inputs, by key; a compositio
 gives it to every node on its shared executor (services/launch/composition.py). A node's input
 registers a :class:`LocalSink` on its key; a :class:`~services.runtime.inputs.Publisher` of the
 bus offers each message to the sinks of its key, in the order they registered. What watches a key
-in the process without being a node (``up``'s outcomes) registers a :class:`Tap`: a subscriber
-of the process's own session would not see these messages, which zenoh carries only out of it.
+in the process without being a node (``up``'s outcomes, the calibration's paths) is a
+:class:`Watch`: a subscriber of the process's own session would not see these messages, which
+zenoh carries only out of it, so it also registers a :class:`Tap` on the bus.
 
 Offered on the executor's own thread (every composed service runs there), a message waits in the
 input until the thread takes it, as a sample in a ring channel would; offered from another thread,
@@ -22,9 +23,12 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 import msgspec
+import zenoh
+
+from schemas.codec import BadInput, decode
 
 Offer = Callable[[msgspec.Struct, "bytes | None"], None]
 """Hands one message and its attachment to an input."""
@@ -108,3 +112,44 @@ class LocalBus:
     def _tell(self, key: str, matched: bool) -> None:
         for on_change in list(self._watchers.get(key, ())):
             on_change(matched)
+
+
+Message = TypeVar("Message", bound=msgspec.Struct)
+
+
+class Watch(Generic[Message]):
+    """``handler(message)`` for each ``message_type`` published on ``key``: from zenoh (decoded; what
+    does not decode is not the publisher's and is skipped) and, with a ``bus``, from the services
+    composed in this process (tapped). ``handler`` runs in a zenoh callback or on the publishing
+    thread: it must be quick and must not call zenoh."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        message_type: type[Message],
+        handler: Callable[[Message], None],
+        bus: LocalBus | None = None,
+    ) -> None:
+        self._type, self._handler = message_type, handler
+        self._key, self._bus = key, bus
+        self._subscriber = session.declare_subscriber(key, self._on_sample)
+        self._tap = Tap(self._on_message)
+        if bus is not None:
+            bus.attach(key, self._tap)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            message = decode(self._type, sample.payload.to_bytes())
+        except BadInput:
+            return
+        self._handler(message)
+
+    def _on_message(self, message: msgspec.Struct) -> None:
+        if isinstance(message, self._type):
+            self._handler(message)
+
+    def close(self) -> None:
+        self._subscriber.undeclare()
+        if self._bus is not None:
+            self._bus.detach(self._key, self._tap)
