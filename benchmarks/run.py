@@ -409,23 +409,25 @@ def run_realtime(args: argparse.Namespace, failures: list[str]) -> dict[str, Any
                 failures,
             )
         )
-        result = _timed(
-            "separate processes",
-            lambda: loop.measure_services(["--mode", "realtime"], args.warmup, args.realtime_window),
-            failures,
-        )
-        if result is not None:
-            runs.append(result)
-        for name, flags in RT_VARIANTS.items():
-            result = _timed(
-                f"separate processes, {' '.join(flags)}",
-                functools.partial(
-                    loop.measure_services, ["--mode", "realtime"], args.warmup, args.realtime_window, None, flags
-                ),
+        _keep(
+            runs,
+            _timed(
+                "separate processes",
+                lambda: loop.measure_services(["--mode", "realtime"], args.warmup, args.realtime_window),
                 failures,
+            ),
+        )
+        for name, flags in RT_VARIANTS.items():
+            _keep(
+                variants[name],
+                _timed(
+                    f"separate processes, {' '.join(flags)}",
+                    functools.partial(
+                        loop.measure_services, ["--mode", "realtime"], args.warmup, args.realtime_window, None, flags
+                    ),
+                    failures,
+                ),
             )
-            if result is not None:
-                variants[name].append(result)
     floors = [value for value in floors if value is not None]
     floor_late = _median([value["longer_than_period_fraction"] for value in floors])
     floor_p99 = _median([value["p99_us"] for value in floors])
