@@ -554,10 +554,10 @@ class SimService:
     def _lockstep_torque(self, link: RobotLink, tm_ns: int, stop: threading.Event, final: bool) -> None:
         """Wait for ``link``'s torque for ``tm_ns``; a torque that does not come counts as late or
         missing, but for the ``final`` state's, which is never applied."""
-        node = self.node
         if link.motor_alive:
             silent = link.motor_silent
             deadline = time.monotonic() + (self._silent_wait_s if silent else self.parameters.lockstep_timeout)
+            spin_once = self.node.executor.spin_once  # the node's own, one call less at every step
             while not link.answered and link.motor_alive and not stop.is_set():
                 remaining = deadline - time.monotonic()
                 if remaining <= 0.0:
@@ -566,9 +566,9 @@ class SimService:
                     elif not final:
                         link.counters["missing_torques"] += 1
                     break
-                node.spin_once(min(remaining, STOP_POLL_S), link.torque_input)
+                spin_once(min(remaining, STOP_POLL_S), link.torque_input)
         else:
-            node.drain()
+            self.node.drain()
             if not (link.answered or final):
                 link.counters["missing_torques"] += 1
 
@@ -593,7 +593,12 @@ class SimService:
                 node.spin_once(min(remaining, STOP_POLL_S), link.outputs[missing[0]])
 
     def _ended(self) -> bool:
-        return self.until_drive_ends and all(link.drive_ended for link in self.links)
+        if not self.until_drive_ends:
+            return False
+        for link in self.links:  # a loop, not all() over a generator: this runs at every step
+            if not link.drive_ended:
+                return False
+        return True
 
     def _run_lockstep(self, stop: threading.Event) -> None:
         while not stop.is_set():

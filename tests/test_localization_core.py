@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import statistics
 import threading
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -273,6 +274,22 @@ def test_schedule_due_returns_at_once_for_any_stamp(rate, start, now) -> None:
     assert due is True
     assert schedule.next_ns > start + now
     assert schedule.index == 1 or schedule._tick_ns(schedule.index - 1) <= start + now
+
+
+@given(
+    rate=st.floats(min_value=1e-3, max_value=1e9, allow_nan=False, allow_infinity=False),
+    start=st.integers(min_value=0, max_value=10**12),
+    index=st.integers(min_value=0, max_value=10**15),
+)
+def test_a_tick_is_the_exact_rational_grid_rounded_as_round_does(rate, start, index) -> None:
+    period = Fraction(S) / Fraction(rate)
+    assert PeriodicSchedule(rate, start)._tick_ns(index) == start + round(index * period)
+
+
+def test_a_tick_exactly_half_way_rounds_to_even() -> None:
+    schedule = PeriodicSchedule(8e8, 0)  # a period of 1.25 ns: every other tick falls on a half
+    assert [schedule._tick_ns(k) for k in range(7)] == [0, 1, 2, 4, 5, 6, 8]
+    assert [schedule._tick_ns(k) for k in range(7)] == [round(k * Fraction(5, 4)) for k in range(7)]
 
 
 def test_a_stamp_on_a_tick_that_rounds_down_onto_it_takes_that_tick() -> None:

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import collections
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
@@ -133,11 +134,23 @@ class Hold(Generic[SampleT]):
     beyond, the oldest is taken all the same. The motor holds one (a second sample means the
     simulator gave up waiting for the first's torque and stepped on); odometry holds many, since
     the motor answers the simulator, and so more samples come, whether odometry is waiting or not.
+
+    A sample taken at once, in :meth:`offer` (every sample, while nothing is owed), is handed to
+    ``take`` directly: what it raises reaches the caller, whose input handler counts it. A held
+    sample is taken later, by :meth:`took` or behind others, through ``guard(take, sample)`` (the
+    node's: it counts what ``take`` raises), so one bad sample never keeps back those after it.
     """
 
-    def __init__(self, output: Topic, take: Callable[[SampleT], None], capacity: int) -> None:
+    def __init__(
+        self,
+        output: Topic,
+        take: Callable[[SampleT], None],
+        capacity: int,
+        guard: Callable[[Callable[[SampleT], None], SampleT], None] | None = None,
+    ) -> None:
         self.output = output
         self._take = take
+        self._take_released = take if guard is None else functools.partial(guard, take)
         self._capacity = capacity
         self.taken_ns: int | None = None
         """The stamp of the newest output taken."""
@@ -179,7 +192,7 @@ class Hold(Generic[SampleT]):
             if not overflow and self._owes(held[0][1]):
                 return
             self.overflows += overflow
-            self._take(held.popleft()[0])
+            self._take_released(held.popleft()[0])
 
     def _owes(self, owed: dict[str, int] | None) -> bool:
         needed = None if owed is None else owed.get(self.output)
@@ -206,6 +219,9 @@ class TickBarrier:
     def __init__(self) -> None:
         self._participants: dict[Service, _Participant] = {}
         self._awaited: dict[Service, int] = {}
+        self._next_tick_ns: float = -1
+        """No participant has a tick before this stamp: :meth:`ticks` answers the steps between at
+        once (it runs at every step, ticks come every few dozen). -1 when a schedule has changed."""
 
     def announce(self, service: Service, rate_hz: float, *, from_start: bool) -> None:
         """A participant's token appeared: ``from_start`` (before the first step) it is waited for
@@ -215,6 +231,7 @@ class TickBarrier:
             return
         schedule = PeriodicSchedule(rate_hz, 0) if from_start else None
         self._participants[service] = _Participant(rate_hz, schedule)
+        self._next_tick_ns = -1
 
     def withdraw(self, service: Service) -> bool:
         """Its token went (it ended or died): never waited for again. True if it was known."""
@@ -235,16 +252,24 @@ class TickBarrier:
         if participant.schedule is None:
             participant.schedule = PeriodicSchedule(participant.rate_hz, 0)
             participant.schedule.due(stamp_ns)
+            self._next_tick_ns = -1
         participant.final = participant.final or final
 
     def ticks(self, now_ns: int) -> list[Service]:
         """The participants with a tick at ``now_ns`` (call once per step, steps in order)."""
+        if now_ns < self._next_tick_ns:
+            return []
         due = []
+        next_tick_ns = math.inf
         for service, participant in self._participants.items():
             schedule = participant.schedule
-            if schedule is not None and not participant.final and schedule.due(now_ns):
+            if schedule is None or participant.final:
+                continue
+            if schedule.due(now_ns):
                 self._awaited[service] = now_ns
                 due.append(service)
+            next_tick_ns = min(next_tick_ns, schedule.next_ns)
+        self._next_tick_ns = next_tick_ns
         return due
 
     def missing(self) -> list[Service]:
@@ -264,6 +289,7 @@ class TickBarrier:
         participant = self._participants.get(service)
         if participant is not None:
             participant.schedule = None
+            self._next_tick_ns = -1
 
     def announced(self, service: Service) -> bool:
         return service in self._participants

@@ -20,6 +20,8 @@ observed is the same on every run, and the samples a lockstep run computes do no
 
 from __future__ import annotations
 
+import math
+
 from services.clock.sim_time import PeriodicSchedule
 
 
@@ -32,6 +34,9 @@ class ObservedSteps:
         self.every = every
         self._schedules: dict[str, PeriodicSchedule] = {}
         """Per token key, the ticks of its rate after the present."""
+        self._next_tick_ns: float = -1
+        """No schedule has a tick before this stamp: :meth:`observed` answers the steps between
+        without asking them (it runs at every step). -1 when the schedules have changed."""
         self.count = 0
         """Observed steps so far."""
 
@@ -45,16 +50,22 @@ class ObservedSteps:
         schedule = self._schedules[token] = PeriodicSchedule(rate_hz, 0)
         if now_ns is not None:
             schedule.due(now_ns)  # the tick the present took, or a late one: on the grid from the next
+        self._next_tick_ns = -1
 
     def remove(self, token: str) -> None:
         self._schedules.pop(token, None)
+        self._next_tick_ns = -1
 
     def observed(self, step_index: int, now_ns: int) -> bool:
         """Whether the step ``step_index``, at ``now_ns``, is observed. Every schedule is asked, so
         each moves past the present even when an earlier one already said yes."""
         due = step_index % self.every == 0
-        for schedule in self._schedules.values():
-            due = schedule.due(now_ns) or due
+        if now_ns >= self._next_tick_ns:
+            next_tick_ns = math.inf
+            for schedule in self._schedules.values():
+                due = schedule.due(now_ns) or due
+                next_tick_ns = min(next_tick_ns, schedule.next_ns)
+            self._next_tick_ns = next_tick_ns
         self.count += due
         return due
 

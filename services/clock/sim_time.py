@@ -171,7 +171,9 @@ class PeriodicSchedule:
     The grid is anchored at ``start_ns`` (no drift from rounding), and a tick is taken by the
     first stamp at or after it. After a gap longer than a period the missed ticks are skipped:
     one stamp takes at most one tick. The period is the exact rational value of 1e9/rate, and
-    :meth:`due` finds the tick in integer arithmetic: it returns at once for any stamp.
+    :meth:`due` finds the tick in integer arithmetic: it returns at once for any stamp. (Integer,
+    not ``Fraction``, arithmetic: the simulator asks several schedules at every step, and a
+    ``Fraction`` product and its rounding cost microseconds.)
     """
 
     def __init__(self, rate_hz: float, start_ns: int) -> None:
@@ -179,21 +181,26 @@ class PeriodicSchedule:
             raise ValueError(f"rate must be finite and > 0, got {rate_hz}")
         self.rate_hz = rate_hz
         self.start_ns = start_ns
-        self._period_ns = Fraction(NANOSECONDS_PER_SECOND) / Fraction(rate_hz)
+        period_ns = Fraction(NANOSECONDS_PER_SECOND) / Fraction(rate_hz)
+        self._period_numerator, self._period_denominator = period_ns.numerator, period_ns.denominator
         self.index = 0
         """The index k of the next tick."""
         self.next_ns = start_ns
         """The stamp of the next tick (kept, not computed: :meth:`due` runs at every step)."""
 
     def _tick_ns(self, index: int) -> int:
-        return self.start_ns + round(index * self._period_ns)
+        """``start_ns + round(index·period)``, rounding half to even as ``round`` does."""
+        whole, remainder = divmod(index * self._period_numerator, self._period_denominator)
+        twice = 2 * remainder
+        if twice > self._period_denominator or (twice == self._period_denominator and whole % 2 == 1):
+            whole += 1
+        return self.start_ns + whole
 
     def due(self, now_ns: int) -> bool:
         """True when ``now_ns`` takes a tick; the schedule then moves past ``now_ns``."""
         if now_ns < self.next_ns:
             return False
-        period = self._period_ns
-        last_passed = (now_ns - self.start_ns) * period.denominator // period.numerator
+        last_passed = (now_ns - self.start_ns) * self._period_denominator // self._period_numerator
         # rounding moves a tick by half a nanosecond at most: the floor is off by one at most either way
         if self._tick_ns(last_passed) > now_ns:
             last_passed -= 1

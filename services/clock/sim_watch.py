@@ -20,12 +20,12 @@ from typing import Any, Protocol
 
 from schemas.keys import Service
 from schemas.messages import NANOSECONDS_PER_SECOND, TimedDoubleSeq
-from services.clock.lockstep import Hold, decode_owed
+from services.clock.lockstep import Hold, StepMark, decode_mark
 from services.clock.sim_time import ClockRestart
 from services.runtime.node import Node
 
-HeldSample = tuple[TimedDoubleSeq, bytes | None]
-"""A wheel-angle sample and its lockstep attachment, as a :class:`Hold` keeps it."""
+HeldSample = tuple[TimedDoubleSeq, bytes | None, StepMark | None]
+"""A wheel-angle sample, its attachment and the mark decoded from it, as a :class:`Hold` keeps it."""
 
 
 class TimeBase(Protocol):
@@ -90,14 +90,18 @@ class SimulatorWatch:
         Whether a sample starts a new time base is decided when it arrives, not when it is taken:
         in lockstep it may be held, and the new run's first target or fix must not be judged by the
         old time base meanwhile. A new time base drops the held samples; the INFO line says what is
-        ``kept``. (Not wrapped in :meth:`clock`: a hold hands its samples on through
-        ``Node.guard``, so nothing after the decision raises, and the per-step path stays one call.)"""
+        ``kept``. The inputs that waited for the decision are handled right after, even when the
+        sample taken at once proves bad input (it reaches the input's handler, which counts it).
+        This runs at every step, so it checks before it calls: a decision only while one is
+        pending, the waiting inputs only if there are any."""
         log = self._node.log
+        restart, waiting = self.restart, self._waiting
 
         def handle(sample: TimedDoubleSeq, attachment: bytes | None) -> None:
             stamp_ns = sample.tm.to_nanoseconds()
-            owed = decode_owed(attachment, stamp_ns)
-            if self.restart.decide(stamp_ns, time_base.time_ns):
+            mark = decode_mark(attachment, stamp_ns)
+            owed = None if mark is None else mark.owed
+            if restart.deciding and restart.decide(stamp_ns, time_base.time_ns):
                 hold.forget()
                 time_base.restart_time_base()
                 log.info(
@@ -105,8 +109,11 @@ class SimulatorWatch:
                     stamp_ns / NANOSECONDS_PER_SECOND,
                     kept,
                 )
-            hold.offer((sample, attachment), owed)
-            self._take_waiting()
+            try:
+                hold.offer((sample, attachment, mark), owed)
+            finally:
+                if waiting:
+                    self._take_waiting()
 
         return handle
 

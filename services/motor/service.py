@@ -89,11 +89,11 @@ class MotorService:
         self.core = MotorCore(config.robot, config.motor, config.input, config.geometry)
         self.torques_published = 0
         # Lockstep: a wheel-angle sample waits for the drive's target it is owed (the sim took it).
-        wheel_angles_key = node.keys.sim_wheel_angles
         self.target_hold: Hold[HeldSample] = Hold(
             Topic.DRIVE_TARGET_VELOCITY,
-            lambda held: node.guard(wheel_angles_key, self._control, *held),
+            self._control,
             capacity=1,
+            guard=partial(node.guard, node.keys.sim_wheel_angles),
         )
         self.sim = SimulatorWatch(node, ClockRestart(config.input.stamp_horizon_ns))
         self._timeouts_logged = 0
@@ -178,14 +178,14 @@ class MotorService:
         )
         return {"from": str(path), **msgspec.to_builtins(saved)}
 
-    def _control(self, angles: TimedDoubleSeq, attachment: bytes | None) -> None:
+    def _control(self, held: HeldSample) -> None:
+        angles, attachment, mark = held
         tm = angles.tm
         core = self.core
-        stamp_ns = tm.to_nanoseconds()
-        torques = core.step(stamp_ns, angles.data)
+        torques = core.step(tm.to_nanoseconds(), angles.data)
         # A run recorded at the observed steps keeps the control path's samples of those only.
         node = self.node
-        keep = node.recording and (node.recording_every_step or observed(decode_mark(attachment, stamp_ns)))
+        keep = node.recording and (node.recording_every_step or observed(mark))
         self._torque.put(TimedDoubleSeq(tm, torques), keep=keep)
         self._wheel_angles.put(angles, attachment, keep=keep)
         self.torques_published += 1

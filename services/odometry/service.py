@@ -13,13 +13,14 @@ clock starts again at 0; a reconnected one's goes on, and costs nothing): servic
 from __future__ import annotations
 
 import argparse
+from functools import partial
 from typing import Any
 
 import msgspec
 
 from schemas.keys import Service, Topic
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
-from services.clock.lockstep import Hold, decode_mark, observed
+from services.clock.lockstep import Hold, observed
 from services.clock.sim_time import ClockRestart
 from services.clock.sim_watch import HeldSample, SimulatorWatch
 from services.config import Config
@@ -50,11 +51,11 @@ class OdometryService:
         self.branches = dict.fromkeys(Branch, 0)
         self.last_tm: Time | None = None
         # Lockstep: a wheel-angle sample waits for the localization's fix it is owed (the sim took it).
-        wheel_angles_key = node.keys.motor_wheel_angles
         self.fix_hold: Hold[HeldSample] = Hold(
             Topic.LOCALIZATION_POSE,
-            lambda held: node.guard(wheel_angles_key, self._integrate, *held),
+            self._integrate,
             capacity=FIX_HISTORY_STEPS,
+            guard=partial(node.guard, node.keys.motor_wheel_angles),
         )
         self._trace = TraceFile.from_flag(args.trace)
         self._pose = node.publisher(node.keys.odometry_pose)
@@ -76,15 +77,15 @@ class OdometryService:
         )
         node.set_status(self.status)
 
-    def _integrate(self, sample: TimedDoubleSeq, attachment: bytes | None) -> None:
-        stamp_ns = sample.tm.to_nanoseconds()
-        step = self.odometry.step(stamp_ns, sample.data)
+    def _integrate(self, held: HeldSample) -> None:
+        sample, _attachment, mark = held
+        step = self.odometry.step(sample.tm.to_nanoseconds(), sample.data)
         self.samples += 1
         self.branches[step.branch] += 1
         self.last_tm = sample.tm
         if self._trace is not None:
             self._trace.write({"tm": sample.tm, **step._asdict(), "localization_resets": self.localization_resets})
-        if self.node.recording_every_step or observed(decode_mark(attachment, stamp_ns)):
+        if self.node.recording_every_step or observed(mark):
             self._pose.put(TimedPosition(tm=sample.tm, id=[], x=step.x, y=step.y, theta=step.theta, error=[]))
 
     def _on_localized_pose(self, pose: TimedPosition) -> None:

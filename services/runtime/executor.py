@@ -179,7 +179,9 @@ class Executor:
                 return True
 
     def _take(self) -> bool:
-        if self._sampled and time.monotonic() >= self._next_sampling and self._take_sampled():
+        # One look at the clock serves both polls: a take runs several times per lockstep step.
+        now = time.monotonic()
+        if self._sampled and now >= self._next_sampling and self._take_sampled():
             return True
         events = self._events
         if events:
@@ -193,11 +195,11 @@ class Executor:
             receiving_input.handle(sample)
             return True
         ready = self._ready
-        if ready and time.monotonic() < self._next_scan:
+        if ready and now < self._next_scan:
             while ready:
                 if ready.popleft().take_local():
                     return True
-        self._next_scan = time.monotonic() + SAMPLING_POLL_S
+        self._next_scan = now + SAMPLING_POLL_S
         for channel_input in self._inputs:
             if channel_input.take():
                 return True

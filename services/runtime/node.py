@@ -99,6 +99,13 @@ class Node:
         self._local_sinks: list[tuple[str, LocalSink]] = []
         self._publishers: list[Publisher] = []
         self._journal = journal
+        # Attributes, not properties: the control path asks at every step, and the journal is the node's for life.
+        self.recording = journal is not None
+        """Whether the node keeps a journal of what it publishes (``invent up``'s recording)."""
+        self.recording_every_step = journal is not None and journal.every_step
+        """Whether the run is recorded at every simulation step (``record.rate = "every_step"``):
+        the observed outputs are then computed and kept at every step, and the control path's
+        samples of every step kept too; else only the observed steps' are."""
         self._taken: dict[str, InputTaken] = {}
         self._started = time.monotonic()
         self._next_wait: Callable[[], Wait] = _no_wait
@@ -110,18 +117,6 @@ class Node:
         """The journal of what the node publishes, if it keeps one: another node of the same
         process (the fleet simulator's, one per robot) may write to it too."""
         return self._journal
-
-    @property
-    def recording(self) -> bool:
-        """Whether the node keeps a journal of what it publishes (``invent up``'s recording)."""
-        return self._journal is not None
-
-    @property
-    def recording_every_step(self) -> bool:
-        """Whether the run is recorded at every simulation step (``record.rate = "every_step"``):
-        the observed outputs are then computed and kept at every step, and the control path's
-        samples of every step kept too; else only the observed steps' are."""
-        return self._journal is not None and self._journal.every_step
 
     def set_status(self, status: Callable[[], dict[str, Any]]) -> None:
         self._status = status
@@ -156,11 +151,11 @@ class Node:
         BadInput. ``wakes``: the thread, idle, waits in this input's receive (an ``EVERY`` input
         that paces the service). Returns the input, for ``waiting_for`` (None for ``QUEUED``)."""
 
-        def handle_message(message: msgspec.Struct, attachment: bytes | None) -> None:
-            if with_attachment:
-                handler(message, attachment)
-            else:
-                handler(message)
+        def handle_without_attachment(message: msgspec.Struct, _attachment: bytes | None) -> None:
+            handler(message)
+
+        # A handler that takes the attachment is called as it is: one call less on the control path.
+        handle_message = handler if with_attachment else handle_without_attachment
 
         def handle(payload: bytes, attachment: bytes | None) -> None:
             handle_message(decode(message_type, payload), attachment)
