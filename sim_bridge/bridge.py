@@ -158,7 +158,9 @@ class RobotLink:
         # interrupt.
         lockstep = self.service.mode == SimMode.LOCKSTEP
         delivery = Delivery.EVERY if lockstep else Delivery.QUEUED
-        self.torque_input = node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, delivery, wakes=lockstep)
+        self.torque_input = node.subscribe(
+            keys.motor_torque, TimedDoubleSeq, self._on_torque, delivery, wakes=lockstep, with_attachment=True
+        )
         for service, message_type in ((Service.DRIVE, TimedVelocity), (Service.LOCALIZATION, TimedPosition)):
             self.outputs[service] = node.subscribe(
                 keys.topic(OUTPUTS[service]),
@@ -275,7 +277,8 @@ class RobotLink:
             self.counters["bump_stop_errors"] += 1
             self.node.log.warning("%smotor/bump/stop answered with an error: %s", self.service.prefix(self), reason)
 
-    def _on_torque(self, torque: TimedDoubleSeq) -> None:
+    def _on_torque(self, torque: TimedDoubleSeq, _attachment: bytes | None) -> None:
+        # Taken with its (unused) attachment: the input then calls this directly, at every step.
         body = self.body
         if len(torque.data) != body.wheel_count:
             raise BadInput(f"{len(torque.data)} torques, expected {body.wheel_count} (one per wheel id)")

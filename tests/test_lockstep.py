@@ -182,6 +182,35 @@ def test_a_hold_forgets_its_samples_and_stamps_for_a_new_time_base():
     assert taken == []
 
 
+def test_a_sample_taken_at_once_raises_to_the_caller_and_released_ones_go_through_the_guard():
+    """The caller's input handler counts what the direct take raises; a release takes every
+    sample through the guard, so a bad one never keeps back those after it."""
+    taken: list[int] = []
+    guarded: list[tuple[int, str]] = []
+
+    def take(sample: int) -> None:
+        if sample < 0:
+            raise BadInput(f"sample {sample}")
+        taken.append(sample)
+
+    def guard(action, sample: int) -> None:
+        try:
+            action(sample)
+        except BadInput as error:
+            guarded.append((sample, str(error)))
+
+    hold = Hold(Topic.LOCALIZATION_POSE, take, 10, guard=guard)
+    with pytest.raises(BadInput, match="sample -1"):
+        hold.offer(-1, None)
+    owed = {"localization/pose": 1000}
+    hold.offer(1, owed)
+    hold.offer(-2, owed)
+    hold.offer(3, owed)
+    hold.took(1000)
+    assert taken == [1, 3]
+    assert guarded == [(-2, "sample -2")]
+
+
 @given(st.lists(st.tuples(st.booleans(), st.integers(0, 3)), max_size=40))
 def test_samples_are_taken_in_order_each_once(events):
     """Whatever interleaving of samples and outputs, nothing is lost, doubled or reordered."""

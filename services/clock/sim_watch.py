@@ -24,8 +24,9 @@ from services.clock.lockstep import Hold, StepMark, decode_mark
 from services.clock.sim_time import ClockRestart
 from services.runtime.node import Node
 
-HeldSample = tuple[TimedDoubleSeq, bytes | None, StepMark | None]
-"""A wheel-angle sample, its attachment and the mark decoded from it, as a :class:`Hold` keeps it."""
+HeldSample = tuple[TimedDoubleSeq, bytes | None, StepMark | None, int]
+"""A wheel-angle sample, its attachment, the mark decoded from it and its stamp in ns, as a
+:class:`Hold` keeps it (a plain tuple: one is made at every step)."""
 
 
 class TimeBase(Protocol):
@@ -110,7 +111,7 @@ class SimulatorWatch:
                     kept,
                 )
             try:
-                hold.offer((sample, attachment, mark), owed)
+                hold.offer((sample, attachment, mark, stamp_ns), owed)
             finally:
                 if waiting:
                     self._take_waiting()

@@ -179,10 +179,10 @@ class MotorService:
         return {"from": str(path), **msgspec.to_builtins(saved)}
 
     def _control(self, held: HeldSample) -> None:
-        angles, attachment, mark = held
+        angles, attachment, mark, stamp_ns = held
         tm = angles.tm
         core = self.core
-        torques = core.step(tm.to_nanoseconds(), angles.data)
+        torques = core.step(stamp_ns, angles.data)
         # A run recorded at the observed steps keeps the control path's samples of those only.
         node = self.node
         keep = node.recording and (node.recording_every_step or observed(mark))

@@ -78,8 +78,8 @@ class OdometryService:
         node.set_status(self.status)
 
     def _integrate(self, held: HeldSample) -> None:
-        sample, _attachment, mark = held
-        step = self.odometry.step(sample.tm.to_nanoseconds(), sample.data)
+        sample, _attachment, mark, stamp_ns = held
+        step = self.odometry.step(stamp_ns, sample.data)
         self.samples += 1
         self.branches[step.branch] += 1
         self.last_tm = sample.tm
