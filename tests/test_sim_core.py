@@ -6,6 +6,7 @@ import math
 from collections.abc import Callable, Iterator
 
 import numpy as np
+import pybullet as p
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -256,3 +257,126 @@ def test_a_braked_robot_comes_to_rest_and_torques_release_the_brakes(sim: Simula
     assert robot.braking and robot.applied_torques == [0.0, 0.0]
     drive(sim, constant(2.0, 2.0), 500)
     assert not robot.braking and sim.body_pose()[0] > stopped + 0.05, "torques drive it again"
+
+
+class PairwiseContacts:
+    """The straightforward contact check, the reference: ``getContactPoints`` for each (robot,
+    obstacle) pair then each pair of robots, a pair's first touching point when it has not touched
+    for ``sim.bump_release``, a contact between two robots once for each."""
+
+    def __init__(self, sim: Simulator) -> None:
+        self.sim = sim
+        robots = sim.robots
+        self.pairs = [
+            (index, robot.body, obstacle, name, None)
+            for index, robot in enumerate(robots)
+            for obstacle, name in sim._obstacles
+        ] + [
+            (index, robot.body, robots[other].body, robots[other].name, other)
+            for index, robot in enumerate(robots)
+            for other in range(index + 1, len(robots))
+        ]
+        self.last_touch: dict[int, int] = {}
+        self.release_steps = round(sim.sim_config.bump_release / sim.sim_config.step)
+
+    def began(self) -> list[Contact]:
+        sim, began = self.sim, []
+        for pair_index, (robot, body, other, name, other_robot) in enumerate(self.pairs):
+            points = p.getContactPoints(bodyA=body, bodyB=other, physicsClientId=sim.client)
+            # A point: [5] its position on body A, [6] on body B, [8] the distance (> 0: not yet touching).
+            touching = [point for point in points if point[8] <= 0.0]
+            if not touching:
+                continue
+            last = self.last_touch.get(pair_index)
+            if last is None or sim.step_index - last > self.release_steps:
+                began.append(Contact(robot, name, *touching[0][6]))
+                if other_robot is not None:
+                    began.append(Contact(other_robot, sim.robots[robot].name, *touching[0][5]))
+            self.last_touch[pair_index] = sim.step_index
+        return began
+
+
+CROWDED_WORLD = """
+[[boxes]]
+name = "wall"
+x = 1.0
+y = 0.0
+size = [0.2, 1.0, 0.5]
+
+[[boxes]]
+name = "crate"
+x = 1.0
+y = -3.0
+size = [0.2, 0.4, 0.3]
+mass = 2.0
+
+[[cylinders]]
+name = "post"
+x = 1.6
+y = -3.0
+radius = 0.1
+height = 0.5
+
+[[boxes]]
+name = "curb"
+x = 1.0
+y = 6.0
+size = [0.2, 1.0, 0.04]
+
+[[boxes]]
+name = "mat"
+x = 0.0
+y = 9.0
+size = [1.0, 1.0, 0.01]
+"""
+
+
+def placed(name: str, x: float, y: float, theta: float = 0.0) -> Placement:
+    return Placement(name, RobotConfig(name=name), InitialPose(x=x, y=y, theta=theta))
+
+
+def forward_back_forward(k: int) -> list[float]:
+    """Into what is ahead, back off, into it again turning (a second bump, elsewhere on the body)."""
+    return [2.0, 2.0] if k < 1500 else [-3.0, -3.0] if k < 1800 else [3.0, 2.6]
+
+
+@pytest.mark.parametrize(
+    ("world", "fleet", "one_query", "bumps"),
+    [
+        # r0 into a fixed box, r1 and r2 head-on, r3 pushing a crate into a post (their contact is no bump),
+        # r4 over a curb (Bullet names the curb first in their points), r5 starting on a mat (wheels and
+        # casters on it: several points begin at once): more pairs than robots, so the simulator asks
+        # for the world's contact points in one query.
+        (
+            CROWDED_WORLD,
+            (
+                placed("r0", 0.0, 0.0),
+                placed("r1", 0.0, 3.0),
+                placed("r2", 1.4, 3.0, math.pi),
+                placed("r3", 0.0, -3.0),
+                placed("r4", 0.0, 6.0),
+                placed("r5", 0.0, 9.0),
+            ),
+            True,
+            [(0, "wall"), (1, "r2"), (2, "r1"), (3, "crate"), (4, "curb"), (5, "mat")],
+        ),
+        # Two robots head-on on the empty floor: one pair, asked for by itself.
+        ("", (placed("r0", 0.0, 0.0), placed("r1", 1.4, 0.0, math.pi)), False, [(0, "r1"), (1, "r0")]),
+    ],
+    ids=["one-query", "pair-by-pair"],
+)
+def test_the_contacts_of_each_step_are_those_of_the_pairwise_check(
+    world: str, fleet: tuple[Placement, ...], one_query: bool, bumps: list[tuple[int, str]]
+):
+    with Simulator(RobotConfig(), SimConfig(), parse_world(world), fleet=fleet) as sim:
+        assert sim._one_query is one_query
+        reference = PairwiseContacts(sim)
+        began: list[Contact] = []
+        for step in range(3000):
+            for robot in sim.robots:
+                robot.set_torques(forward_back_forward(step))
+            contacts = list(sim.step())
+            assert contacts == reference.began(), f"step {sim.step_index}"
+            began.extend(contacts)
+    touched = [(contact.robot, contact.obstacle) for contact in began]
+    assert sorted(set(touched)) == bumps and len(touched) > len(bumps), "every pair touched, some twice"
