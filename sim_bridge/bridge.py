@@ -284,7 +284,7 @@ class RobotLink:
             raise BadInput(f"{len(torque.data)} torques, expected {body.wheel_count} (one per wheel id)")
         tm_ns = torque.tm.to_nanoseconds()
         self.latency.answered(tm_ns, time.perf_counter_ns())
-        if self.service.mode == SimMode.LOCKSTEP:
+        if self.service.lockstep:
             if self.motor_silent:
                 self.set_motor_silent(False)
             if tm_ns != self.awaited_ns or self.answered:
@@ -309,7 +309,7 @@ class RobotLink:
         body = self.body
         observed = self.observation.observed(step_index, tm_ns) or final
         mark = self.marks[observed]
-        angles = TimedDoubleSeq(tm=tm, data=body.wheel_angles())
+        angles = TimedDoubleSeq(tm, body.wheel_angles())
         self.latency.published(tm_ns, time.perf_counter_ns())
         self.angles_publisher.put(angles, mark, keep=observed or every_step)
         if observed or every_step:
@@ -339,6 +339,10 @@ class RobotLink:
         self.bump_publisher.put(BumpEvent(tm=tm, obstacle=contact.obstacle, x=contact.x, y=contact.y, z=contact.z))
         self.counters["bump_stop_calls"] += 1
         self._bump_stop.get(self._on_bump_stop_reply, payload=_BUMP_STOP_PAYLOAD)
+
+    def torque_settled(self) -> bool:
+        """The wait for this step's torque is over: it came, or the motor has gone."""
+        return self.answered or not self.motor_alive
 
     def begin_torque_wait(self, tm_ns: int) -> None:
         self.awaited_ns, self.answered = tm_ns, False
@@ -459,6 +463,8 @@ class SimService:
         self.node = node
         self.parameters = config.sim
         self.mode = config.sim.mode
+        self.lockstep = self.mode == SimMode.LOCKSTEP
+        """The mode, as the per-step code asks it (an enum comparison costs more than the attribute)."""
         self.duration: float | None = args.duration
         self.until_drive_ends: bool = args.until_drive_ends
         self.wait_for: list[Service] = args.wait_for or []
@@ -560,16 +566,17 @@ class SimService:
         if link.motor_alive:
             silent = link.motor_silent
             deadline = time.monotonic() + (self._silent_wait_s if silent else self.parameters.lockstep_timeout)
-            spin_once = self.node.executor.spin_once  # the node's own, one call less at every step
-            while not link.answered and link.motor_alive and not stop.is_set():
+            spin_until = self.node.executor.spin_until  # the step's messages in one call, not one each
+            settled = link.torque_settled
+            while not (settled() or stop.is_set()):
                 remaining = deadline - time.monotonic()
                 if remaining <= 0.0:
                     if not silent:
                         link.late(tm_ns)
                     elif not final:
                         link.counters["missing_torques"] += 1
-                    break
-                spin_once(min(remaining, STOP_POLL_S), link.torque_input)
+                    return
+                spin_until(settled, min(remaining, STOP_POLL_S), link.torque_input)
         else:
             self.node.drain()
             if not (link.answered or final):

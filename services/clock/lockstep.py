@@ -162,9 +162,12 @@ class Hold(Generic[SampleT]):
 
     def offer(self, sample: SampleT, owed: dict[str, int] | None) -> None:
         """Take ``sample`` now, or hold it while it (or a sample before it) is owed an output."""
-        if not self._held and not self._owes(owed):
-            self._take(sample)
-            return
+        if not self._held:
+            # _owes, inline: this runs for every sample, and nearly every one owes nothing.
+            needed = None if owed is None else owed.get(self.output)
+            if needed is None or (self.taken_ns is not None and self.taken_ns >= needed):
+                self._take(sample)
+                return
         self._held.append((sample, owed))
         if self._owes(owed):
             self.holds += 1

@@ -20,11 +20,18 @@ def _seconds(nanoseconds: float) -> str:
 
 def _next_stamp_refusal(stamp_ns: int, last_ns: int, horizon_ns: int) -> str | None:
     """Why ``stamp_ns`` cannot follow ``last_ns`` on a stream's own time base; None if it can."""
+    return None if _follows(stamp_ns, last_ns, horizon_ns) else _refusal(stamp_ns, last_ns, horizon_ns)
+
+
+def _follows(stamp_ns: int, last_ns: int, horizon_ns: int) -> bool:
+    return 0 < stamp_ns - last_ns <= horizon_ns
+
+
+def _refusal(stamp_ns: int, last_ns: int, horizon_ns: int) -> str:
+    """Why ``stamp_ns``, which does not follow ``last_ns``, is refused."""
     if stamp_ns <= last_ns:
         return f"dt = {_seconds(stamp_ns - last_ns)} <= 0"
-    if stamp_ns - last_ns > horizon_ns:
-        return f"stamp jumps {_seconds(stamp_ns - last_ns)} ahead of the time base (horizon {_seconds(horizon_ns)})"
-    return None
+    return f"stamp jumps {_seconds(stamp_ns - last_ns)} ahead of the time base (horizon {_seconds(horizon_ns)})"
 
 
 def check_next_stamp(stamp_ns: int, last_ns: int, horizon_ns: int) -> None:
@@ -63,8 +70,7 @@ class StampGap:
         """False for a stamp the time base takes as usual; True for the stamp that takes the stream
         back after a gap (the caller takes it, with no Δt across the gap if it needs one); raises
         BadInput for the others, as :func:`check_next_stamp` does."""
-        refusal = _next_stamp_refusal(stamp_ns, last_ns, self.horizon_ns)
-        if refusal is None:
+        if 0 < stamp_ns - last_ns <= self.horizon_ns:  # _follows, inline: this runs at every step
             self._run = 0
             return False
         if stamp_ns > last_ns:
@@ -75,7 +81,7 @@ class StampGap:
                 self._run = 0
                 self.gaps += 1
                 return True
-        raise BadInput(refusal)
+        raise BadInput(_refusal(stamp_ns, last_ns, self.horizon_ns))
 
 
 def check_stamp_near(stamp_ns: int, reference_ns: int, horizon_ns: int, history_ns: float, what: str) -> None:

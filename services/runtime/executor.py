@@ -178,6 +178,26 @@ class Executor:
             if self._take():
                 return True
 
+    def spin_until(self, done: Callable[[], bool], timeout: float, waiting_for: NodeInput | None = None) -> bool:
+        """Handle events and samples (as :meth:`spin_once` does, one at a time) until ``done()``:
+        True then; False once ``timeout`` seconds have passed without it.
+
+        For a wait that several messages of the same process end, as the simulator's for its
+        torque (the motor's wheel angles, then the torque): one call, not a ``spin_once`` and its
+        caller's checks for each message."""
+        self.spinning_thread = threading.get_ident()
+        deadline = time.monotonic() + timeout
+        while not done():
+            if self._take():
+                if time.monotonic() < deadline:
+                    continue
+                return done()
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            self._wait(remaining, waiting_for)
+        return True
+
     def _take(self) -> bool:
         # One look at the clock serves both polls: a take runs several times per lockstep step.
         now = time.monotonic()
