@@ -247,6 +247,58 @@ def measure_fleet(count: int, mode: str, warmup_s: float, window_s: float) -> Fl
     )
 
 
+def world_step_us(count: int, seconds: float) -> float:
+    """µs of one world step of ``count`` robots that only the simulator's process can do, timed in
+    place with no zenoh: reading every robot's wheel angles, setting its torques, applying them,
+    ``stepSimulation`` and the contact check (:meth:`~sim_bridge.simulator.Simulator.step`), the
+    same fleet file's robots driving the benchmark's circle with the motor's PD law. The motors'
+    laws run too (the torques must be real ones) but are not counted: they are per robot, and what
+    spreading the robots over processes could move off the sim's core.
+
+    PyBullet holds the GIL and one world is one PyBullet client, so this part of every step stays
+    on one core however the robots' services are spread: with ``cores`` cores a world step can take
+    no less than it plus the rest divided by ``cores`` (:func:`spread_bound`)."""
+    from services.config import Config
+    from services.motor.core import MotorCore
+    from sim_bridge.simulator import Placement, Simulator
+    from sim_bridge.world import InitialPose, load_world
+
+    config = Config()
+    placements = [
+        Placement(name, config.robot, InitialPose(x=0.0, y=ROBOT_SPACING_M * index, theta=0.0))
+        for index, name in enumerate(robot_names(count))
+    ]
+    cores = [MotorCore(config.robot, config.motor) for _ in placements]
+    for core in cores:
+        core.set_target(loop.VX, loop.W)
+    clock = time.perf_counter_ns
+    world_ns = steps = 0
+    with Simulator(config.robot, config.sim, load_world(WORLD), fleet=placements) as sim:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            for _ in range(loop.CLOCK_CHECK_STEPS // count):
+                started = clock()
+                angles = [robot.wheel_angles() for robot in sim.robots]
+                read = clock()
+                torques = [core.step(sim.time_ns, wheel) for core, wheel in zip(cores, angles)]
+                laws = clock()
+                for robot, torque in zip(sim.robots, torques):
+                    robot.set_torques(torque)
+                sim.step()
+                world_ns += (read - started) + (clock() - laws)
+                steps += 1
+    return world_ns / steps / 1e3
+
+
+def spread_bound(world_step_wall_us: float, serial_us: float, cores: int) -> float:
+    """The most robot-steps/s spreading a fleet over ``cores`` cores could gain against one
+    process whose world step takes ``world_step_wall_us``, if everything but ``serial_us`` (the
+    sim's own work, :func:`world_step_us`) were shared perfectly and cost nothing to hand over
+    (Amdahl's law): a bound, the real gain is below it."""
+    rest = max(world_step_wall_us - serial_us, 0.0)
+    return world_step_wall_us / (serial_us + rest / cores)
+
+
 SPEED_TICKS = (100, 200, 500, 1_000, 2_000, 5_000, 10_000, 20_000, 50_000)
 COST_TICKS = (20, 50, 100, 200, 500, 1_000, 2_000)
 MODE_STYLES = {

@@ -469,9 +469,17 @@ def run_fleet(args: argparse.Namespace, composed: bool, failures: list[str]) -> 
     runs: dict[str, dict[str, list[dict[str, Any]]]] = {
         mode: {str(size): [] for size in args.fleet_sizes} for mode in modes
     }
+    world: dict[str, list[float]] = {str(size): [] for size in args.fleet_sizes}
     for repeat in range(args.repeats):
         print(f"fleet, run {repeat + 1} of {args.repeats}", flush=True)
         for size in args.fleet_sizes:
+            world_us = _timed(
+                f"{size} robot{'s' * (size > 1)}, the world's own work in place",
+                functools.partial(fleet_bench.world_step_us, size, args.inprocess),
+                failures,
+            )
+            if world_us is not None:
+                world[str(size)].append(world_us)
             for mode in modes:
                 result = _timed(
                     f"{size} robot{'s' * (size > 1)}, {mode}",
@@ -488,6 +496,8 @@ def run_fleet(args: argparse.Namespace, composed: bool, failures: list[str]) -> 
         for mode, by_size in runs.items()
     }
     one, spread = medians.get("composed", {}), medians.get("composed_workers", {})
+    world_us = {size: _median(values) for size, values in world.items()}
+    cores = os.cpu_count() or 1
     return {
         "sizes": list(args.fleet_sizes),
         **medians,
@@ -495,6 +505,17 @@ def run_fleet(args: argparse.Namespace, composed: bool, failures: list[str]) -> 
             size: _ratio(spread.get(size, {}).get("robot_steps_per_s"), one.get(size, {}).get("robot_steps_per_s"))
             for size in one
         },
+        "world_us_per_step": world_us,
+        "spread_bound": {
+            size: fleet_bench.spread_bound(1e6 / entry["steps_per_s"], world_us[size], cores)
+            for size, entry in one.items()
+            if entry.get("steps_per_s") and world_us.get(size) is not None
+        },
+        "spread_bound_note": (
+            f"the most --workers {cores} could gain over one process if everything but the world's own work "
+            "(world_us_per_step: PyBullet, which holds the GIL, for every robot) were shared perfectly over "
+            f"{cores} cores and cost nothing to hand over (Amdahl's law, from the composed run's world step)"
+        ),
         "load_average_at_end": [round(load, 2) for load in os.getloadavg()],
         "sim_share_note": fleet_bench.COMPOSED_SIM_SHARE_NOTE,
         "composed_note": None if composed else f"this checkout's `invent up` has no {loop.COMPOSED_FLAG}",
@@ -678,6 +699,18 @@ def fleet_table(fleet: dict[str, Any]) -> str:
             "",
             "Composed over one process per core (`--workers` the cores) against one process (`--workers 1`, the default), robot-steps/s: "
             + ", ".join(f"N = {size}: {_fmt(ratio, 2)}x" for size, ratio in speedups.items()),
+        ]
+    bounds = fleet.get("spread_bound") or {}
+    if bounds:
+        world = fleet.get("world_us_per_step") or {}
+        lines += [
+            "",
+            "The world's own work per step (PyBullet for every robot, timed in place), and the most spreading could "
+            "gain with it on one core and the rest shared for free: "
+            + ", ".join(
+                f"N = {size}: {_fmt(world.get(size), 1)} µs, at most {_fmt(bound, 2)}x"
+                for size, bound in bounds.items()
+            ),
         ]
     return "\n".join(lines)
 

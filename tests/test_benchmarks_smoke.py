@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from benchmarks import lateness
+from benchmarks import fleet, lateness
 from benchmarks.run import RESULTS
 from tests.harness import REPO
 
@@ -54,6 +54,8 @@ NUMBERS = (
         for field in ("late_fraction", "latency_us.p99", "p99_vs_floor", "cpu_us_per_step")
     ),
     "fleet.workers_speedup.2",
+    "fleet.world_us_per_step.2",
+    "fleet.spread_bound.2",
     "machine.cores",
     *(
         f"fleet.{mode}.2.{field}"
@@ -119,6 +121,13 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
     assert "| robots | mode | steps/s |" in result.stdout
     assert "| robots | steps/s without → with |" in result.stdout
     assert "| lockstep, separate processes |" in result.stdout and f"wrote {out}" in result.stdout
+
+
+def test_the_spread_bound_is_amdahls_law_of_the_worlds_own_work():
+    assert fleet.spread_bound(300.0, 100.0, 2) == pytest.approx(300.0 / 200.0)
+    assert fleet.spread_bound(300.0, 0.0, 2) == pytest.approx(2.0), "nothing serial: every core counts"
+    assert fleet.spread_bound(300.0, 300.0, 8) == pytest.approx(1.0), "all serial: no core helps"
+    assert fleet.spread_bound(80.0, 100.0, 2) == pytest.approx(0.8), "timed above the wall step: never above 1"
 
 
 def test_the_default_results_file_is_not_tracked_so_a_bench_leaves_a_clone_clean():
