@@ -568,15 +568,18 @@ class SimService:
             deadline = time.monotonic() + (self._silent_wait_s if silent else self.parameters.lockstep_timeout)
             spin_until = self.node.executor.spin_until  # the step's messages in one call, not one each
             settled = link.torque_settled
-            while not (settled() or stop.is_set()):
+            while True:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0.0:
+                    if settled():
+                        return
                     if not silent:
                         link.late(tm_ns)
                     elif not final:
                         link.counters["missing_torques"] += 1
                     return
-                spin_until(settled, min(remaining, STOP_POLL_S), link.torque_input)
+                if spin_until(settled, min(remaining, STOP_POLL_S), link.torque_input) or stop.is_set():
+                    return
         else:
             self.node.drain()
             if not (link.answered or final):
@@ -584,10 +587,13 @@ class SimService:
 
     def _lockstep_ticks(self, tm_ns: int, stop: threading.Event) -> None:
         """Wait for the outputs of the participants with a tick at ``tm_ns`` (or give up on them)."""
-        node = self.node
-        due = [link for link in self.links if link.barrier.ticks(tm_ns)]
+        due = []
+        for link in self.links:  # a loop, not a comprehension: this runs at every step
+            if link.barrier.ticks(tm_ns):
+                due.append(link)
         if not due:
             return
+        node = self.node
         deadline = time.monotonic() + self.parameters.lockstep_timeout
         for link in due:
             if link.motor_lost:

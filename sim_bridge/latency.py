@@ -10,7 +10,6 @@ percentiles of just the steps in between (benchmarks/loop.py does).
 from __future__ import annotations
 
 import math
-from array import array
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -48,9 +47,11 @@ class TorqueLatency:
 
     def __init__(self, step_ns: int) -> None:
         self._step_ns = step_ns
-        self._sent_step = array("q", [-1]) * STEPS_IN_FLIGHT
-        self._sent_at = array("q", [0]) * STEPS_IN_FLIGHT
-        self._bins = array("q", [0]) * BINS
+        # Lists, not arrays, and comparisons, not min()/max(): this runs twice per step, and the
+        # arrays' boxing and the builtins' calls cost twice the time (583 against 253 ns a step).
+        self._sent_step = [-1] * STEPS_IN_FLIGHT
+        self._sent_at = [0] * STEPS_IN_FLIGHT
+        self._bins = [0] * BINS
         self.samples = 0
         self.max_ns = 0
 
@@ -68,9 +69,11 @@ class TorqueLatency:
             return
         self._sent_step[slot] = -1
         latency = now_ns - self._sent_at[slot]
-        self._bins[min(latency // BIN_NS, BINS - 1)] += 1
+        index = latency // BIN_NS
+        self._bins[index if index < BINS else BINS - 1] += 1
         self.samples += 1
-        self.max_ns = max(self.max_ns, latency)
+        if latency > self.max_ns:  # noqa: PLR1730 (a comparison, not a max() call: see __init__)
+            self.max_ns = latency
 
     def histogram(self) -> dict[int, int]:
         """The non-empty bins: ``{index: count}``, bin i holding latencies in [i, i + 1) x BIN_NS."""
