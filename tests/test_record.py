@@ -3,6 +3,7 @@
 import signal
 
 import pytest
+import zenoh
 from mcap.reader import make_reader
 
 from schemas.codec import encode
@@ -25,7 +26,11 @@ def _record_and_publish(tmp_path, count: int, stop_signal: signal.Signals):
     with running_router() as endpoint, peer_session(endpoint) as session:
         recorder = InventProcess("record", "--connect", endpoint, "--robot", KEYS.robot, "--output", str(output))
         try:
-            publisher = session.declare_publisher(KEYS.sim_wheel_angles)
+            # BLOCK, not zenoh's default DROP: a flood of samples on a loaded machine must not lose
+            # some in transport, or what the recorder wrote would not be a prefix of what was sent.
+            publisher = session.declare_publisher(
+                KEYS.sim_wheel_angles, congestion_control=zenoh.CongestionControl.BLOCK
+            )
             wait_until(lambda: publisher.matching_status.matching, 30, "the recorder to subscribe")
             for index in range(count):
                 publisher.put(_sample(index))
