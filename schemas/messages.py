@@ -59,10 +59,7 @@ class TimedDoubleSeq(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     data: DoubleSeq
 
     def __post_init__(self) -> None:
-        # _require_finite's loop, inline: two of these are made (or decoded) at every step.
-        for value in self.data:
-            if not math.isfinite(value):
-                raise ValueError(f"non-finite number {value!r}")
+        _require_finite(*self.data)
 
 
 class TimedVelocity(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -20,11 +20,7 @@ def _seconds(nanoseconds: float) -> str:
 
 def _next_stamp_refusal(stamp_ns: int, last_ns: int, horizon_ns: int) -> str | None:
     """Why ``stamp_ns`` cannot follow ``last_ns`` on a stream's own time base; None if it can."""
-    return None if _follows(stamp_ns, last_ns, horizon_ns) else _refusal(stamp_ns, last_ns, horizon_ns)
-
-
-def _follows(stamp_ns: int, last_ns: int, horizon_ns: int) -> bool:
-    return 0 < stamp_ns - last_ns <= horizon_ns
+    return None if 0 < stamp_ns - last_ns <= horizon_ns else _refusal(stamp_ns, last_ns, horizon_ns)
 
 
 def _refusal(stamp_ns: int, last_ns: int, horizon_ns: int) -> str:
@@ -70,7 +66,7 @@ class StampGap:
         """False for a stamp the time base takes as usual; True for the stamp that takes the stream
         back after a gap (the caller takes it, with no Δt across the gap if it needs one); raises
         BadInput for the others, as :func:`check_next_stamp` does."""
-        if 0 < stamp_ns - last_ns <= self.horizon_ns:  # _follows, inline: this runs at every step
+        if 0 < stamp_ns - last_ns <= self.horizon_ns:  # no refusal to word: the case at every step
             self._run = 0
             return False
         if stamp_ns > last_ns:
