@@ -1,5 +1,6 @@
 """compose.yaml: a zenohd router with access control plus one client container per service, each
-a valid invent invocation with its own role's credentials, and the script that makes them."""
+a valid invent invocation with its own role's credentials, the script that makes them, and the
+profiles that let exactly one commander (the drive's scenario, or ROS 2's /cmd_vel) drive the robot."""
 
 import json
 import os
@@ -10,9 +11,9 @@ from pathlib import Path
 import yaml
 import zenoh
 
-from schemas.keys import Service
+from schemas.keys import Keys, Service
 from services.cli.main import build_parser
-from services.security import DICTIONARY, ROUTER_CONFIG, Role
+from services.security import DICTIONARY, ROUTER_CONFIG, Message, Role, grants
 from services.service import config_from_args
 from tests.harness import REPO
 
@@ -83,6 +84,54 @@ def test_the_drive_loops_the_square_scenario():
     command = _compose()["services"]["drive"]["command"]
     args = build_parser().parse_args(command)
     assert args.scenario.name == "square" and args.loop
+
+
+def _default_profiles() -> set[str]:
+    """The profiles `docker compose up` runs with no --profile: COMPOSE_PROFILES of the .env file
+    beside compose.yaml (a --profile flag replaces them)."""
+    settings = dict(
+        line.split("=", 1) for line in (REPO / ".env").read_text().splitlines() if line and not line.startswith("#")
+    )
+    return set(settings["COMPOSE_PROFILES"].split(","))
+
+
+def _running(profiles: set[str]) -> set[str]:
+    """The services compose starts with these profiles: those without profiles, and those of one of them."""
+    return {name for name, spec in _compose()["services"].items() if set(spec.get("profiles", profiles)) & profiles}
+
+
+def _commanders() -> set[str]:
+    """The containers whose role may put the robot's target velocity (the motor takes the newest)."""
+    target = Keys("rh0").drive_target_velocity
+    return {
+        name
+        for name, role in ROLES.items()
+        if any(Message.PUT in grant.messages and target in grant.key_exprs for grant in grants(role, Keys("rh0")))
+    }
+
+
+def test_the_drive_and_the_ros2_bridge_are_the_commanders():
+    assert _commanders() == {str(Service.DRIVE), str(Service.ROS2)}
+
+
+def test_the_default_profile_runs_the_drives_scenario_and_no_ros2_bridge():
+    assert _default_profiles() == {"scenario"}
+    running = _running(_default_profiles())
+    assert running == set(_compose()["services"]) - {str(Service.ROS2)}
+    assert running & _commanders() == {str(Service.DRIVE)}
+
+
+def test_the_ros2_profile_runs_the_bridge_and_no_drive_so_the_robot_follows_cmd_vel():
+    running = _running({"ros2"})
+    assert running == set(_compose()["services"]) - {str(Service.DRIVE)}
+    assert running & _commanders() == {str(Service.ROS2)}
+
+
+def test_every_profile_has_exactly_one_commander():
+    profiles = {profile for spec in _compose()["services"].values() for profile in spec.get("profiles", [])}
+    assert profiles == {"scenario", "ros2"}
+    for profile in profiles:
+        assert len(_running({profile}) & _commanders()) == 1, profile
 
 
 def test_make_secrets_writes_the_files_compose_mounts(tmp_path):
