@@ -15,7 +15,8 @@ from schemas.codec import BadInput
 from schemas.messages import PDGains
 from services.clock.sim_time import GAP_ADOPTION_SAMPLES
 from services.config import CalibratedGeometry, InputConfig, MotorConfig, OdometryConfig, RobotConfig, TargetAngleMode
-from services.motor.core import MotorCore, MotorState, SimPoseConverter
+from services.motor.core import MotorCore, MotorState
+from services.motor.sim_pose import SimPoseConverter
 
 MS = 1_000_000
 """One millisecond in nanoseconds."""

@@ -4,7 +4,9 @@
 the angle difference, target wheel speeds from the commanded body velocity, a target angle
 (mode ``seed`` or ``integrated``), and a PD law per wheel. It also holds the Motor
 interface's state machine (``idle``, ``running``, ``finished``, ``stopped``), the command
-timeout, the optional velocity and acceleration limits, and the body-pose conversion.
+timeout, and the bounds on its input; the velocity and acceleration limits are a
+:class:`~services.motor.speed_limiter.SpeedLimiter` per speed, the body pose's conversion a
+:class:`~services.motor.sim_pose.SimPoseConverter`.
 
 Per-sample work is a handful of float operations on locals: a benchmark runs this at
 thousands of samples per second, so there is no numpy and no allocation beyond the torque list.
@@ -14,20 +16,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
 import msgspec
 
 from schemas.codec import BadInput
-from schemas.keys import BODY_POSE_LENGTH
 from schemas.messages import NANOSECONDS_PER_SECOND, PDGains
 from services.clock.sim_time import StampGap, check_stamp_near
 from services.config import CalibratedGeometry, InputConfig, MotorConfig, OdometryConfig, RobotConfig, TargetAngleMode
-from services.planar import check_coordinates, wrap_angle
-
-"""The two ``motor.target_angle`` modes."""
+from services.motor.sim_pose import SimPoseConverter
+from services.motor.speed_limiter import SpeedLimiter
+from services.planar import check_coordinates
 
 
 class MotorState(StrEnum):
@@ -41,35 +41,6 @@ class MotorState(StrEnum):
     """After ``stop``, latched until ``clear``: torque control towards zero velocity (braking)."""
 
 
-class SimPoseConverter:
-    """``sim/body_pose`` (x, y, z, 3x3 rotation row-major) -> [X, Y, Z, theta] of the axle centre.
-
-    docs/protocol.md section 4 with atan2 (correction 2): theta_o = atan2(-A12, A11); the offset
-    (offset_x, offset_y) is the axle centre in the model frame, turned by theta_o.
-    """
-
-    def __init__(self, offset_x: float = 0.0, offset_y: float = 0.0, offset_angle: float = 0.0) -> None:
-        self.offset_x, self.offset_y, self.offset_angle = offset_x, offset_y, offset_angle
-        self._length = math.hypot(offset_x, offset_y)
-        self._direction = math.atan2(offset_y, offset_x)
-
-    @classmethod
-    def from_config(cls, motor: MotorConfig) -> SimPoseConverter:
-        return cls(motor.simulated_offset_x, motor.simulated_offset_y, motor.simulated_offset_angle)
-
-    def __call__(self, data: Sequence[float]) -> list[float]:
-        if len(data) != BODY_POSE_LENGTH:
-            raise BadInput(f"body pose has {len(data)} values, expected {BODY_POSE_LENGTH}")
-        theta_o = math.atan2(-data[4], data[3])
-        bearing = theta_o + self._direction
-        return [
-            data[0] + self._length * math.cos(bearing),
-            data[1] + self._length * math.sin(bearing),
-            data[2],
-            wrap_angle(theta_o + self.offset_angle),
-        ]
-
-
 def check_target_velocity(vx: float, w: float, robot: RobotConfig, limits: InputConfig) -> None:
     """BadInput for a body velocity implying a wheel speed beyond ``input.max_wheel_speed`` (the
     robot's kinematics: ω_L,R = (vx ∓ b·w) / r_L,R). One within it but beyond the motor's velocity
@@ -81,30 +52,6 @@ def check_target_velocity(vx: float, w: float, robot: RobotConfig, limits: Input
             f"target (vx {vx:g} m/s, w {w:g} rad/s) implies wheel speeds {wheel_speeds[0]:g}, "
             f"{wheel_speeds[1]:g} rad/s, beyond input.max_wheel_speed = {limits.max_wheel_speed:g} rad/s"
         )
-
-
-@dataclass(frozen=True)
-class SpeedLimiter:
-    """Velocity and acceleration limits on one commanded speed, as in ROS 2's diff_drive_controller.
-
-    The acceleration limit is applied first, then the velocity limit (SpeedLimiter::limit's order).
-    None disables a limit.
-    """
-
-    max_velocity: float | None = None
-    max_acceleration: float | None = None
-
-    @property
-    def enabled(self) -> bool:
-        return self.max_velocity is not None or self.max_acceleration is not None
-
-    def limit(self, value: float, previous: float, dt: float) -> float:
-        if self.max_acceleration is not None:
-            step = self.max_acceleration * dt
-            value = min(max(value, previous - step), previous + step)
-        if self.max_velocity is not None:
-            value = min(max(value, -self.max_velocity), self.max_velocity)
-        return value
 
 
 class MotorCore:

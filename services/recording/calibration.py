@@ -15,23 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from foxglove.messages import (
-    Color,
-    LinePrimitive,
-    Point3,
-    Pose,
-    Quaternion,
-    SceneEntity,
-    SceneUpdate,
-    SpherePrimitive,
-    Timestamp,
-    Vector3,
-)
+from foxglove.messages import Color, SceneEntity, SceneUpdate, SpherePrimitive, Timestamp, Vector3
 
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.calibration.umbmark import Direction, Umbmark, square
 from services.recording.mcap_files import McapWriter
-from services.recording.scene import WORLD_FRAME
+from services.recording.scene import WORLD_FRAME, foxglove_pose, ground_line
 
 PathPoint = tuple[float, float]
 PATHS_TOPIC = "/umbmark/paths"
@@ -54,7 +43,6 @@ _COLOURS = ("#d62728", "#2ca02c", "#1f77b4", "#9467bd")
 _SQUARE = Color(r=0.5, g=0.5, b=0.5, a=1.0)
 _ODOMETRY = Color(r=0.2, g=0.2, b=0.2, a=0.6)
 _MARKERS = {Direction.CW: "o", Direction.CCW: "s"}
-_UPRIGHT = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 
 
 @dataclass(frozen=True)
@@ -138,7 +126,7 @@ def write_paths_recording(path: Path, side: float, benchmarks: Sequence[tuple[st
                 timestamp=Timestamp(0, 0),
                 frame_id=WORLD_FRAME,
                 id=f"square/{direction}",
-                lines=[_line([(0.0, 0.0), *square(side, direction)], _SQUARE, 0.01)],
+                lines=[ground_line([(0.0, 0.0), *square(side, direction)], _SQUARE, 0.01)],
             )
             for direction in Direction
         ]
@@ -153,10 +141,10 @@ def write_paths_recording(path: Path, side: float, benchmarks: Sequence[tuple[st
                 timestamp=timestamp,
                 frame_id=WORLD_FRAME,
                 id=f"{label}/{run.name}",
-                lines=[_line(run.truth, colour, 0.02), _line(run.odometry, _ODOMETRY, 0.01)],
+                lines=[ground_line(run.truth, colour, 0.02), ground_line(run.odometry, _ODOMETRY, 0.01)],
                 spheres=[
                     SpherePrimitive(
-                        pose=Pose(position=Vector3(x=x, y=y, z=0.02), orientation=_UPRIGHT),
+                        pose=foxglove_pose(x, y, 0.02),
                         size=Vector3(x=0.05, y=0.05, z=0.05),
                         color=colour,
                     )
@@ -179,12 +167,3 @@ def write_paths_recording(path: Path, side: float, benchmarks: Sequence[tuple[st
     finally:
         writer.close()
     return path
-
-
-def _line(points: Sequence[PathPoint], colour: Color, thickness: float) -> LinePrimitive:
-    return LinePrimitive(
-        pose=Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=_UPRIGHT),
-        thickness=thickness,
-        points=[Point3(x=x, y=y, z=0.01) for x, y in points],
-        color=colour,
-    )

@@ -247,6 +247,24 @@ def writer_sink(writer: SceneWriter) -> Sink:
     return Sink(writer.write_sample, shown)
 
 
+def take_until_stopped(
+    spin_once: Callable[[float], bool],
+    stop: threading.Event,
+    duration_s: float | None = None,
+    ended: Callable[[], bool] = lambda: False,
+) -> bool:
+    """A recorder's loop: ``spin_once(budget_s)`` takes what waits (False: samples still waited at
+    the end of the budget), every :data:`TAKE_PERIOD_S` or at once while behind, until ``stop``,
+    ``duration_s`` of wall time or ``ended()`` (the recording's own bound); then what still waits,
+    within :data:`FINAL_TAKE_BUDGET_S`. False when samples still waited at the end (they are not
+    recorded)."""
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    while not stop.is_set() and (deadline is None or time.monotonic() < deadline) and not ended():
+        if spin_once(TAKE_BUDGET_S):
+            stop.wait(TAKE_PERIOD_S)
+    return spin_once(FINAL_TAKE_BUDGET_S)
+
+
 def run_record(
     session: zenoh.Session,
     keys: Keys,
@@ -260,12 +278,8 @@ def run_record(
     writer = McapWriter(output)
     observer = Observer(session, keys, key_exprs or [keys.everything], config, writer_sink(writer))
     log.info("recording %s into %s", ", ".join(key_exprs or [keys.everything]), output)
-    deadline = None if duration_s is None else time.monotonic() + duration_s
     try:
-        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-            if observer.spin_once():
-                stop.wait(TAKE_PERIOD_S)
-        if not observer.spin_once(FINAL_TAKE_BUDGET_S):
+        if not take_until_stopped(observer.spin_once, stop, duration_s):
             log.warning("stopped behind the loop: the samples still waiting at the end are not in %s", output)
     finally:
         observer.close()

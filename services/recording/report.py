@@ -15,7 +15,7 @@ from typing import Any
 from schemas.keys import Service
 from services.config import CalibratedGeometry
 from services.drive.scenarios import distance_to_path
-from services.motor.core import SimPoseConverter
+from services.motor.sim_pose import SimPoseConverter
 from services.planar import Pose
 
 Point = tuple[float, float]

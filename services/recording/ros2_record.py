@@ -29,7 +29,7 @@ import zenoh.ext
 from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import RecordConfig
-from services.recording.record import FINAL_TAKE_BUDGET_S, SAMPLE_CAPACITY, TAKE_BUDGET_S, TAKE_PERIOD_S
+from services.recording.record import SAMPLE_CAPACITY, TAKE_BUDGET_S, take_until_stopped
 from services.recording.rosbag import BagResult, BagTopic, BagWriter, bag_topic
 from services.ros2 import core, interfaces, wire
 from services.ros2.graph import BridgeGraph
@@ -138,12 +138,8 @@ def run_record_ros2(
     recorder = GraphRecorder(session, bridges, writer, horizon_ns)
     names = sorted({bridge.name(entity) for bridge in bridges for entity in bridge.publications.values()})
     log.info("recording %s into the bag %s", ", ".join(names), output)
-    deadline = None if duration_s is None else time.monotonic() + duration_s
     try:
-        while not stop.is_set() and (deadline is None or time.monotonic() < deadline) and writer.stopped is None:
-            if recorder.spin_once():
-                stop.wait(TAKE_PERIOD_S)
-        if not recorder.spin_once(FINAL_TAKE_BUDGET_S):
+        if not take_until_stopped(recorder.spin_once, stop, duration_s, lambda: writer.stopped is not None):
             log.warning("stopped behind the bridges: the samples still waiting at the end are not in %s", output)
     finally:
         recorder.close()

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Iterable
 from typing import Any
 
 from foxglove.messages import (
@@ -116,8 +117,18 @@ def rotation_quaternion(m: list[float]) -> tuple[float, float, float, float]:
     return (m02 + m20) / s, (m12 + m21) / s, 0.25 * s, (m10 - m01) / s
 
 
-def _pose(x: float, y: float, z: float, orientation: Quaternion = _UPRIGHT) -> Pose:
+def foxglove_pose(x: float, y: float, z: float, orientation: Quaternion = _UPRIGHT) -> Pose:
     return Pose(position=Vector3(x=x, y=y, z=z), orientation=orientation)
+
+
+def ground_line(points: Iterable[tuple[float, float]], color: Color, thickness: float) -> LinePrimitive:
+    """A path drawn on the ground of its frame, through ``points`` (x, y), 1 cm up."""
+    return LinePrimitive(
+        pose=foxglove_pose(0.0, 0.0, 0.0),
+        thickness=thickness,
+        points=[Point3(x=x, y=y, z=0.01) for x, y in points],
+        color=color,
+    )
 
 
 class _Trail:
@@ -131,12 +142,7 @@ class _Trail:
             self.points.append((x, y))
 
     def line(self, color: Color) -> LinePrimitive:
-        return LinePrimitive(
-            pose=_pose(0.0, 0.0, 0.0),
-            thickness=0.02,
-            points=[Point3(x=x, y=y, z=0.01) for x, y in self.points],
-            color=color,
-        )
+        return ground_line(self.points, color, 0.02)
 
 
 class Scene:
@@ -253,7 +259,7 @@ class Scene:
     def _world(self, message: SimWorld) -> None:
         self._cubes = [
             CubePrimitive(
-                pose=_pose(o.x, o.y, o.size[2] / 2.0, yaw_quaternion(o.yaw)),
+                pose=foxglove_pose(o.x, o.y, o.size[2] / 2.0, yaw_quaternion(o.yaw)),
                 size=Vector3(x=o.size[0], y=o.size[1], z=o.size[2]),
                 color=_OBSTACLE,
             )
@@ -262,7 +268,7 @@ class Scene:
         ]
         self._cylinders = [
             CylinderPrimitive(
-                pose=_pose(o.x, o.y, o.size[2] / 2.0),
+                pose=foxglove_pose(o.x, o.y, o.size[2] / 2.0),
                 size=Vector3(x=o.size[0], y=o.size[1], z=o.size[2]),
                 bottom_scale=1.0,
                 top_scale=1.0,
@@ -287,7 +293,7 @@ class Scene:
                 timestamp=stamp,
                 frame_id=WORLD_FRAME,
                 id=self._ids["planned_path"],
-                lines=[LinePrimitive(pose=_pose(0.0, 0.0, 0.0), thickness=0.01, points=path, color=_PATH)]
+                lines=[LinePrimitive(pose=foxglove_pose(0.0, 0.0, 0.0), thickness=0.01, points=path, color=_PATH)]
                 if path
                 else [],
             ),
@@ -305,7 +311,7 @@ def _pose_in_world(message: TimedPosition) -> PoseInFrame:
     return PoseInFrame(
         timestamp=timestamp(message.tm),
         frame_id=WORLD_FRAME,
-        pose=_pose(message.x, message.y, 0.0, yaw_quaternion(message.theta)),
+        pose=foxglove_pose(message.x, message.y, 0.0, yaw_quaternion(message.theta)),
     )
 
 
@@ -315,7 +321,7 @@ def _robot_entity(robot: RobotConfig, sim: SimConfig) -> dict[str, Any]:
     body_diameter = 2.0 * shape.body_radius
     wheels = [
         CylinderPrimitive(
-            pose=_pose(0.0, wheel.y, 0.0, _WHEEL_AXIS_ALONG_Y),
+            pose=foxglove_pose(0.0, wheel.y, 0.0, _WHEEL_AXIS_ALONG_Y),
             size=Vector3(x=2.0 * wheel.radius, y=2.0 * wheel.radius, z=wheel.width),
             bottom_scale=1.0,
             top_scale=1.0,
@@ -324,7 +330,7 @@ def _robot_entity(robot: RobotConfig, sim: SimConfig) -> dict[str, Any]:
         for wheel in shape.wheels
     ]
     body = CylinderPrimitive(
-        pose=_pose(0.0, 0.0, shape.body_height / 2.0),
+        pose=foxglove_pose(0.0, 0.0, shape.body_height / 2.0),
         size=Vector3(x=body_diameter, y=body_diameter, z=shape.body_height),
         bottom_scale=1.0,
         top_scale=1.0,
@@ -332,7 +338,7 @@ def _robot_entity(robot: RobotConfig, sim: SimConfig) -> dict[str, Any]:
     )
     casters = [
         SpherePrimitive(
-            pose=_pose(caster.x, 0.0, caster.z),
+            pose=foxglove_pose(caster.x, 0.0, caster.z),
             size=Vector3(x=2 * caster.radius, y=2 * caster.radius, z=2 * caster.radius),
             color=_WHEEL,
         )
