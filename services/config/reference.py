@@ -30,8 +30,9 @@ MARKER = (
 )
 INTRODUCTION = (
     "Generated from the section types (`services/config/sections.py`, `run_sections.py`): each "
-    "field's type, bounds, default and unit from its type, its meaning from the docstring under it. "
-    'An optional parameter takes `"none"` to turn it off.'
+    "field's type, bounds, default and unit from its type, its meaning from the docstring under it; "
+    "`python -m services.config.reference` rewrites it, and `tests/test_configuration_reference.py` "
+    'fails while it and the types differ. An optional parameter takes `"none"` to turn it off.'
 )
 PAGE = Path(__file__).resolve().parents[2] / "docs" / "configuration.md"
 """The page the reference is rendered into (of the source tree this module is in)."""
