@@ -5,8 +5,10 @@
 - ``runtime/``: the runtime every service stands on (session, inputs, executor, node);
 - ``recording/``: recording, reports, replay and the live view;
 - ``cli/``: the ``invent`` command, the launcher (``up``, composition) and the zenoh tools;
-- ``config.py`` (the robot description), ``service.py`` (what a service command is),
-  ``planar.py`` (planar geometry), ``security.py`` (roles, access control, credentials).
+- ``config/``: the robot description (its sections, loading, the parameter reference);
+- ``security/``: the secure profile (roles, access control, credentials, TLS);
+- ``errors.py`` (the project's exceptions), ``service.py`` (what a service command is),
+  ``planar.py`` (planar geometry).
 
 The simulator bridge is the top-level package ``sim_bridge``.
 """

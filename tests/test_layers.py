@@ -19,8 +19,9 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("schemas", "services", "sim_bridge")
 
-SCHEMAS, CONFIG, RUNTIME, CORE, SHELL, SHELL_SUPPORT, TOOL, PACKAGE = (
+SCHEMAS, ERRORS, CONFIG, RUNTIME, CORE, SHELL, SHELL_SUPPORT, TOOL, PACKAGE = (
     "schemas",
+    "errors",
     "config",
     "runtime",
     "core",
@@ -35,7 +36,8 @@ COMMAND_LINE = "services.cli"
 LAYERS: tuple[tuple[str, str], ...] = (
     # (module pattern, layer); the first pattern that matches a module's whole name places it
     (r"schemas(\..*)?", SCHEMAS),
-    (r"services\.config", CONFIG),
+    (r"services\.errors", ERRORS),
+    (r"services\.config(\..*)?", CONFIG),
     (r"services\.runtime(\..*)?", RUNTIME),
     (r"services\.(motor|odometry|localization)\.core", CORE),
     (r"services\.motor\.state", CORE),
@@ -52,7 +54,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.service", SHELL_SUPPORT),
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
     (r"services\.(cli|launch|recording)(\..*)?", TOOL),
-    (r"services\.security", TOOL),
+    (r"services\.security(\..*)?", TOOL),
     (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration))", PACKAGE),
 )
 
@@ -92,9 +94,11 @@ def _broken_rule(module: str, layer: str, imported: str, imported_layer: str | N
         return "nothing imports the command line (services/cli/) but itself"
     if layer == SCHEMAS and project and imported_layer != SCHEMAS:
         return "the schemas import only msgspec and the standard library"
-    if layer == CONFIG and project and imported_layer != SCHEMAS:
-        return "the configuration imports only the schemas"
-    if layer == RUNTIME and project and imported_layer not in (SCHEMAS, CONFIG, RUNTIME):
+    if layer == ERRORS and project:
+        return "the project's exceptions import nothing of the project"
+    if layer == CONFIG and project and imported_layer not in (SCHEMAS, ERRORS, CONFIG):
+        return "the configuration imports only the schemas and the project's exceptions"
+    if layer == RUNTIME and project and imported_layer not in (SCHEMAS, ERRORS, CONFIG, RUNTIME):
         return "the runtime imports no service, core or tool"
     if layer == CORE:
         if _is(imported, "zenoh"):
@@ -188,12 +192,13 @@ def _imports(path: Path, module: str) -> Iterator[str]:
             if node.level:
                 anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
                 base = ".".join([*anchor, *([base] if base else [])])
-            yield base
             # `from services.recording import record`: the submodule is what is imported
-            for alias in node.names:
-                submodule = f"{base}.{alias.name}"
-                if _exists(submodule):
-                    yield submodule
+            submodules = [f"{base}.{alias.name}" for alias in node.names if _exists(f"{base}.{alias.name}")]
+            # A module taking siblings through its own package (`from services.config import sections` in
+            # services/config/description.py) imports them, not the package, whose import is under way.
+            if not (module.startswith(f"{base}.") and len(submodules) == len(node.names)):
+                yield base
+            yield from submodules
 
 
 def _exists(module: str) -> bool:
@@ -212,6 +217,13 @@ def project_imports() -> dict[str, set[str]]:
 
 def test_the_code_keeps_the_import_rules():
     assert violations(project_imports()) == []
+
+
+def test_a_module_taking_its_siblings_through_its_package_does_not_import_the_package():
+    package = ROOT / "services" / "config"
+    imports = set(_imports(package / "description.py", "services.config.description"))
+    assert {"services.config.sections", "services.config.run_sections"} <= imports
+    assert "services.config" not in imports
 
 
 def test_every_module_of_the_project_has_a_layer():
@@ -264,7 +276,7 @@ def test_each_service_room_holds_its_shell_and_its_core():
 
 def test_the_services_top_level_holds_subpackages_and_a_handful_of_shared_modules():
     modules = sorted(path.name for path in (ROOT / "services").glob("*.py"))
-    assert modules == ["__init__.py", "config.py", "planar.py", "security.py", "service.py"]
+    assert modules == ["__init__.py", "errors.py", "planar.py", "service.py"]
 
 
 @pytest.mark.parametrize(
@@ -288,6 +300,12 @@ def test_the_services_top_level_holds_subpackages_and_a_handful_of_shared_module
         ("services.launch.up", "services.cli.main", "nothing imports the command line (services/cli/) but itself"),
         ("services.runtime.node", "services.motor.core", "the runtime imports no service, core or tool"),
         ("schemas.keys", "services.config", "the schemas import only msgspec and the standard library"),
+        ("services.errors", "schemas.keys", "the project's exceptions import nothing of the project"),
+        (
+            "services.config.sections",
+            "services.runtime.node",
+            "the configuration imports only the schemas and the project's exceptions",
+        ),
     ],
 )
 def test_a_broken_rule_is_found(module: str, imported: str, rule: str):
@@ -300,6 +318,8 @@ def test_allowed_edges_are_not_flagged():
         "services.motor.service": {"services.motor.core", "services.runtime.node", "services.clock.sim_watch", "zenoh"},
         "services.recording.report": {"services.motor.core", "services.drive.scenarios"},
         "sim_bridge.simulator": {"pybullet", "sim_bridge.robot", "services.config"},
+        "services.config.loading": {"services.config.description", "services.errors", "schemas.keys"},
+        "services.runtime.session": {"services.errors", "services.config"},
     }
     assert violations(allowed) == []
 

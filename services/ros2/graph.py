@@ -1,7 +1,7 @@
 """What the bridge is in the ROS graph (pure, no zenoh): its topics, subscriptions and services, with
 their interfaces and QoS, and the keys they travel on for a domain and namespace. The bridge
 declares exactly these (services/ros2/service.py), and the secure profile grants exactly these
-(services/security.py).
+(services/security/grants.py).
 """
 
 from __future__ import annotations

@@ -1,0 +1,87 @@
+"""The robot description: one TOML file, a shared ``[robot]`` table and one table per service.
+
+Its rooms: :mod:`~services.config.fields` (bounds, units, the base section, ``"none"``),
+:mod:`~services.config.sections` and :mod:`~services.config.run_sections` (the section types, every
+default), :mod:`~services.config.description` (the whole description), :mod:`~services.config.loading`
+(the file and ``--set``, strictly), :mod:`~services.config.writing` (back to TOML) and
+:mod:`~services.config.reference` (the parameter reference of docs/configuration.md). The names
+below are what the rest of the project imports, from ``services.config``.
+"""
+
+from services.config.description import SECTIONS, SEED_NAMES, Config
+from services.config.fields import NONE, NonNegative, Positive, WheelId, optional_fields
+from services.config.loading import (
+    config_from_description,
+    convert_toml,
+    load_config,
+    parse_override,
+    read_description,
+)
+from services.config.run_sections import (
+    NAMESPACE,
+    Covariance,
+    CpuChoice,
+    CpuId,
+    FrameId,
+    GcPolicy,
+    RecordConfig,
+    RecordRate,
+    Ros2Config,
+    RtConfig,
+    TfLayout,
+)
+from services.config.sections import (
+    CalibratedGeometry,
+    DriveConfig,
+    InputConfig,
+    LocalizationConfig,
+    MotorConfig,
+    OdometryConfig,
+    RobotConfig,
+    SimConfig,
+    SimMode,
+    StraightStep,
+    TargetAngleMode,
+)
+from services.config.writing import description_toml
+from services.errors import ConfigError
+
+__all__ = [
+    "NAMESPACE",
+    "NONE",
+    "SECTIONS",
+    "SEED_NAMES",
+    "CalibratedGeometry",
+    "Config",
+    "ConfigError",
+    "Covariance",
+    "CpuChoice",
+    "CpuId",
+    "DriveConfig",
+    "FrameId",
+    "GcPolicy",
+    "InputConfig",
+    "LocalizationConfig",
+    "MotorConfig",
+    "NonNegative",
+    "OdometryConfig",
+    "Positive",
+    "RecordConfig",
+    "RecordRate",
+    "RobotConfig",
+    "Ros2Config",
+    "RtConfig",
+    "SimConfig",
+    "SimMode",
+    "StraightStep",
+    "TargetAngleMode",
+    "TfLayout",
+    "WheelId",
+    "config_from_description",
+    "convert_toml",
+    "description_toml",
+    "load_config",
+    "optional_fields",
+    "parse_override",
+    "read_description",
+]

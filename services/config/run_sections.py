@@ -1,0 +1,150 @@
+"""The sections of the robot description around the loop: how ROS 2 sees the robot, what a run
+records, and the real-time settings of the control path's processes."""
+
+from __future__ import annotations
+
+import math
+import re
+from enum import StrEnum
+from typing import Annotated, Literal
+
+import msgspec
+
+from services.config.fields import (
+    MEGABYTES,
+    PER_SIMULATED_SECOND,
+    SIMULATED_SECONDS,
+    NonNegative,
+    Positive,
+    Section,
+)
+
+Covariance = tuple[NonNegative, NonNegative, NonNegative, NonNegative, NonNegative, NonNegative]
+"""The diagonal of a 6x6 covariance (x, y, z, roll, pitch, yaw), as diff_drive_controller takes it."""
+FrameId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_/]*$")]
+
+
+NAMESPACE = re.compile(r"^(/?[A-Za-z][A-Za-z0-9_]*)*/?$")
+"""A ROS namespace: "" (none), or names of letters, digits and underscores, each starting with a
+letter, joined by ``/`` (a leading or trailing ``/`` is the same namespace)."""
+
+
+class TfLayout(StrEnum):
+    """Where a namespaced ROS 2 bridge publishes its transforms (``ros2.tf``, docs/ros2.md)."""
+
+    NAMESPACED = "namespaced"
+    PREFIXED = "prefixed"
+
+
+class Ros2Config(Section, frozen=True):
+    """``invent ros2``: the robot as ROS 2 sees it over rmw_zenoh (docs/ros2.md)."""
+
+    namespace: Annotated[str, msgspec.Meta(pattern=NAMESPACE.pattern)] = ""
+    """ROS namespace of the bridge's node, topics and services (``--namespace``): "" = none, or
+    names of letters, digits and underscores (each starting with a letter) joined by ``/``."""
+    node_name: Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z][A-Za-z0-9_]*$")] = "invent_bridge"
+    """Name of the bridge's node in the ROS graph (in ``namespace``)."""
+    tf: TfLayout = TfLayout.NAMESPACED
+    """How a bridge in a namespace publishes TF (with no namespace both are ``/tf`` and ``/tf_static``,
+    frames as named): ``namespaced`` on ``<ns>/tf`` and ``<ns>/tf_static`` with the frames as named,
+    as Nav2's multi-robot bringup has it; ``prefixed`` on the shared ``/tf`` and ``/tf_static`` with
+    the robot's frames prefixed ``<ns>/`` (``map`` stays the world's), for one RViz showing every robot."""
+    publish_clock: bool = True
+    """Whether this bridge publishes ``/clock``: one per ROS domain should (in a fleet, the first robot's)."""
+    distro: Literal["jazzy", "kilted", "rolling", "humble"] = "jazzy"
+    """The ROS 2 release of the nodes to talk to: Humble's rmw_zenoh has no type hashes and writes
+    ``TypeHashNotSupported`` in their place in keys and tokens; the others the RIHS01 hash."""
+    map_frame: FrameId = "map"
+    """The world's fixed frame: the parent of ``odom_frame`` in the ``map -> odom`` transform the
+    bridge derives from ``odometry/pose``."""
+    odom_frame: FrameId = "odom"
+    """The odometry's frame: ``/odom``'s frame and the parent of ``base_frame`` in TF."""
+    base_frame: FrameId = "base_link"
+    """The robot's root frame (the axle centre, as the sim's body pose); the URDF's root link."""
+    publish_rate: Annotated[Positive, PER_SIMULATED_SECOND] = 50.0
+    """``/odom``, ``/tf`` and ``/joint_states`` per second of simulation time (diff_drive_controller's
+    ``publish_rate``)."""
+    clock_rate: Annotated[Positive, PER_SIMULATED_SECOND] = 100.0
+    """``/clock`` messages per second of simulation time: the resolution of ROS time with ``use_sim_time``."""
+    cmd_vel_rate: Annotated[Positive, PER_SIMULATED_SECOND] = 50.0
+    """The most ``/cmd_vel`` messages forwarded as target velocities per second of simulation time;
+    between two, only the newest is kept (a flood is coalesced and counted)."""
+    pose_covariance: Covariance = (0.001, 0.001, 0.001, 0.001, 0.001, 0.01)
+    """``/odom`` pose covariance diagonal (diff_drive_controller's default)."""
+    twist_covariance: Covariance = (0.001, 0.001, 0.001, 0.001, 0.001, 0.01)
+    """``/odom`` twist covariance diagonal (diff_drive_controller's default)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("pose_covariance", "twist_covariance"):
+            if not all(math.isfinite(value) for value in getattr(self, name)):
+                raise ValueError(f"`{name}` must be finite")
+
+
+class RecordRate(StrEnum):
+    """How much of a run is recorded (``record.rate``)."""
+
+    OBSERVED = "observed"
+    EVERY_STEP = "every_step"
+
+
+class RecordConfig(Section, frozen=True):
+    """What ``invent up`` records (its ``run.mcap``, and the journals the services keep meanwhile:
+    README.md, "Rates and bounds")."""
+
+    rate: RecordRate = RecordRate.OBSERVED
+    """``observed``: every key at the observed steps (``sim.observe_every``), as the loop publishes
+    them, what the report, plots and views need; ``every_step``: the control path and the poses at
+    every simulation step too, for debugging the loop (about ten times the size)."""
+    max_size: Annotated[Positive, MEGABYTES] | None = 1024.0
+    """The recording stops here (the run goes on), the journals of the run sharing it."""
+    max_duration: Annotated[Positive, SIMULATED_SECONDS] | None = None
+    """Nothing stamped later is recorded."""
+    split_size: Annotated[Positive, MEGABYTES] | None = None
+    """A new file of the recording (``run_1.mcap``, ...) once a file has this much."""
+    split_duration: Annotated[Positive, SIMULATED_SECONDS] | None = None
+    """Simulation time each file of the recording covers."""
+    min_free_disk: Annotated[NonNegative, MEGABYTES] = 256.0
+    """The recording stops when less than this is free on its disk (the run goes on)."""
+
+    @property
+    def every_step(self) -> bool:
+        return self.rate is RecordRate.EVERY_STEP
+
+
+class GcPolicy(StrEnum):
+    """What Python's garbage collector does in a real-time process (``rt.gc``)."""
+
+    AUTOMATIC = "automatic"
+    FROZEN = "frozen"
+    IDLE = "idle"
+
+
+CpuId = Annotated[int, msgspec.Meta(ge=0)]
+
+
+class CpuChoice(StrEnum):
+    LAST = "last"
+    """The last CPU the process may use: every process of the control path on that same one."""
+    ANY = "any"
+    """Wherever the system likes."""
+
+
+class RtConfig(Section, frozen=True):
+    """Real-time settings of the control path's processes (``--rt``: the sim, the motor, the router;
+    docs/realtime.md). Opt-in; what the system refuses is said in one line and skipped."""
+
+    enabled: bool = False
+    """SCHED_FIFO, locked memory, the CPUs and the collector below (``--rt`` sets it)."""
+    priority: Annotated[int, msgspec.Meta(ge=1, le=99)] = 50
+    """SCHED_FIFO priority (ros2_control's controller manager runs at 50)."""
+    lock_memory: bool = True
+    """``mlockall``: every page of the process kept in memory, now and later."""
+    cpus: tuple[CpuId, ...] | CpuChoice = CpuChoice.LAST
+    """CPUs the process runs on (its threads too): a list, ``"last"`` (the last CPU it may use, so
+    that the control path's processes share one core and hand each step over without waking
+    another: measured the best here, docs/realtime.md) or ``"any"`` (wherever the system likes)."""
+    gc: GcPolicy = GcPolicy.FROZEN
+    """Python's garbage collector: ``automatic`` (as ever), ``frozen`` (what start-up made is frozen
+    and never scanned again), ``idle`` (frozen, and the young generation collected when the service
+    thread is about to wait; automatic collections only as a safety net)."""

@@ -1,0 +1,93 @@
+"""The secure profile: zenoh's usrpwd authentication and access control, by role, TLS optional.
+
+``invent secrets DIR`` and ``invent up --secure`` write one profile: fresh credentials for every
+:class:`Role` (stdlib ``secrets``), the router's configuration (its user dictionary and
+``access_control``, default deny) and one complete zenoh client configuration per role, so any
+zenoh program opens a session as that role with ``zenoh.Config.from_file``. Every session of a
+secure deployment is a **client**: zenoh applies access control on the router's transports only,
+and peers talking directly would bypass it.
+
+What each role may do is :func:`grants`; the rules are built from :class:`~schemas.keys.Keys`,
+so they name exactly the keys the services use. Reading (subscribing, liveliness, queries on
+``status`` and the latched keys) is open to every authenticated role; every put and every Motor
+method query that no grant names is denied, and a session without valid credentials is refused
+at connection.
+
+A **fleet** (several robots in one world, :func:`write_fleet_profile`) has one user per robot for
+each of :data:`PER_ROBOT_ROLES` (``rh1-motor``: the motor of ``rh1``, granted exactly what the
+motor role is granted on ``rh1`` and nothing on any other robot) and one user for the whole fleet
+for each of :data:`FLEET_ROLES` (``sim``: one simulator steps every robot; ``operator``,
+``observer``, ``ros_node``), granted what that role may on every robot of the fleet.
+
+Its rooms: :mod:`~services.security.roles` (who), :mod:`~services.security.grants` (what each may
+do: the access-control rules), :mod:`~services.security.profile` (the files) and
+:mod:`~services.security.tls` (the certificates). The names below are what the rest of the project
+imports, from ``services.security``.
+"""
+
+from services.security.grants import (
+    DEFAULT_ROS,
+    Flow,
+    Grant,
+    Message,
+    access_control,
+    fleet_access_control,
+    fleet_grants,
+    grants,
+    robot_bridge,
+)
+from services.security.profile import (
+    CLIENT_CONNECT_TIMEOUT_MS,
+    DICTIONARY,
+    PASSWORD_BYTES,
+    ROUTER_CONFIG,
+    Credentials,
+    Deployment,
+    Profile,
+    fresh_credentials,
+    write_fleet_profile,
+    write_profile,
+)
+from services.security.roles import FLEET_ROLES, PER_ROBOT_ROLES, Identity, Role, fleet_identities, fleet_robots
+from services.security.tls import (
+    CA_CERTIFICATE,
+    CERTIFICATE_DAYS,
+    ROUTER_CERTIFICATE,
+    ROUTER_KEY,
+    TLS_DIRECTORY,
+    TLS_NAMES,
+)
+
+__all__ = [
+    "CA_CERTIFICATE",
+    "CERTIFICATE_DAYS",
+    "CLIENT_CONNECT_TIMEOUT_MS",
+    "DEFAULT_ROS",
+    "DICTIONARY",
+    "FLEET_ROLES",
+    "PASSWORD_BYTES",
+    "PER_ROBOT_ROLES",
+    "ROUTER_CERTIFICATE",
+    "ROUTER_CONFIG",
+    "ROUTER_KEY",
+    "TLS_DIRECTORY",
+    "TLS_NAMES",
+    "Credentials",
+    "Deployment",
+    "Flow",
+    "Grant",
+    "Identity",
+    "Message",
+    "Profile",
+    "Role",
+    "access_control",
+    "fleet_access_control",
+    "fleet_grants",
+    "fleet_identities",
+    "fleet_robots",
+    "fresh_credentials",
+    "grants",
+    "robot_bridge",
+    "write_fleet_profile",
+    "write_profile",
+]

@@ -1,0 +1,253 @@
+"""What each role may do: the access-control rules of a secure deployment, built from the key space.
+
+:func:`grants` gives a role's rules on one robot, :func:`fleet_grants` an identity's in a fleet;
+:func:`access_control` and :func:`fleet_access_control` turn them into the router's
+``access_control`` section (default deny). The rules name exactly the keys the services use
+(:class:`~schemas.keys.Keys`, and for the ROS roles the ROS graph of :mod:`services.ros2.graph`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any
+
+from schemas.keys import LATCHED_TOPICS, ROOT, Keys, Method, MethodFamily, Service, Topic, all_robots_status
+from services.config import Config
+from services.ros2.graph import MOTOR_SERVICES, SUBSCRIPTIONS, BridgeGraph, bridge_graph
+from services.ros2.wire import ADMIN_SPACE
+from services.security.roles import FLEET_ROLES, Identity, Role
+
+DEFAULT_ROS = bridge_graph(Config(), environ={})
+"""The ROS graph the ROS roles are granted by default: domain 0, the bridge's default namespace and node."""
+
+
+def robot_bridge(ros: BridgeGraph, robot: str, publishes_clock: bool = True) -> BridgeGraph:
+    """The ROS 2 bridge of ``robot`` in a fleet, by default: ``ros``'s domain, node name and TF
+    layout, in the namespace ``<ros.namespace>/<robot>`` (``/rh1/odom``, ``/rh1/tf``, ``/rh1/cmd_vel``,
+    ``/rh1/motor/stop``), so that no two robots' bridges are granted the same topics; ``/clock``, one
+    for the world, only if ``publishes_clock`` (the fleet's first robot's bridge publishes it). With
+    ``ros.tf_shared`` every bridge of the domain may publish on the shared ``/tf`` and ``/tf_static``."""
+    return dataclasses.replace(ros, namespace=f"{ros.namespace}/{robot}", publishes_clock=publishes_clock)
+
+
+class Message(StrEnum):
+    """Zenoh's access-control message types."""
+
+    PUT = "put"
+    DECLARE_SUBSCRIBER = "declare_subscriber"
+    DECLARE_QUERYABLE = "declare_queryable"
+    QUERY = "query"
+    REPLY = "reply"
+    LIVELINESS_TOKEN = "liveliness_token"
+    DECLARE_LIVELINESS_SUBSCRIBER = "declare_liveliness_subscriber"
+    LIVELINESS_QUERY = "liveliness_query"
+
+
+class Flow(StrEnum):
+    """Seen from the router: ``ingress`` is what a session sends, ``egress`` what it is sent."""
+
+    INGRESS = "ingress"
+    EGRESS = "egress"
+
+
+@dataclass(frozen=True)
+class Grant:
+    """One allow rule: these messages, in this flow, on these key expressions."""
+
+    messages: tuple[Message, ...]
+    flow: Flow
+    key_exprs: tuple[str, ...]
+
+
+def _published_by(service: Service, keys: Keys) -> tuple[str, ...]:
+    """The data keys a service publishes: those under its own name (``sim/...`` for the sim)."""
+    return tuple(keys.topic(topic) for topic in Topic if topic.startswith(f"{service}/"))
+
+
+def _methods(keys: Keys, family: MethodFamily) -> tuple[str, ...]:
+    return tuple(keys.method(family, method) for method in Method)
+
+
+def _ros_grants(role: Role, keys: Keys, ros: BridgeGraph) -> list[Grant]:
+    """The ROS side of the bridge (``ros2``) or of a ROS node (``ros_node``): rmw_zenoh's keys of
+    domain ``ros.domain``, the graph's tokens, and a zenoh-ext advanced publisher's own keys
+    (``<key>/@adv/...``: its cache's queryable, its detection token, its heartbeats)."""
+    # ``**`` does not match a verbatim chunk (``@adv``): an advanced publisher's keys are named apart.
+    domain = (f"{ros.domain}/**", f"{ros.domain}/**/@adv/**", f"{ADMIN_SPACE}/{ros.domain}/**")
+    if role is Role.ROS_NODE:
+        everything = (
+            Message.PUT,
+            Message.DECLARE_SUBSCRIBER,
+            Message.DECLARE_QUERYABLE,
+            Message.QUERY,
+            Message.REPLY,
+            Message.LIVELINESS_TOKEN,
+            Message.DECLARE_LIVELINESS_SUBSCRIBER,
+            Message.LIVELINESS_QUERY,
+        )
+        return [Grant(everything, Flow.INGRESS, domain), Grant(everything, Flow.EGRESS, domain)]
+    published = tuple(ros.key(entity) for entity in ros.publications.values())
+    latched = tuple(ros.key(entity) for entity in ros.publications.values() if entity.qos.transient_local)
+    advanced = tuple(f"{key}/@adv/**" for key in latched)
+    subscribed = tuple(ros.key(entity) for entity in SUBSCRIPTIONS)
+    served = tuple(ros.key(entity) for entity in MOTOR_SERVICES.values())
+    return [
+        Grant((Message.PUT,), Flow.INGRESS, (*published, *advanced, keys.drive_target_velocity)),
+        Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (*served, *advanced)),
+        # a latched topic's cache answers a late subscriber with the samples, on the topic's own key
+        Grant((Message.REPLY,), Flow.INGRESS, latched),
+        Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (*ros.node_tokens, *advanced)),
+        Grant((Message.DECLARE_SUBSCRIBER,), Flow.INGRESS, subscribed),
+        Grant((Message.PUT,), Flow.EGRESS, subscribed),
+        # a ROS node subscribing a topic of the bridge: the bridge's publisher matches it
+        Grant((Message.DECLARE_SUBSCRIBER,), Flow.EGRESS, published),
+        Grant((Message.QUERY,), Flow.EGRESS, (*served, *advanced)),
+        Grant((Message.QUERY,), Flow.INGRESS, tuple(keys.method(MethodFamily.GUI, m) for m in MOTOR_SERVICES)),
+    ]
+
+
+def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant]:
+    """Everything ``role`` may do on robot ``keys.robot`` (and, for the ROS roles, in the ROS domain
+    and namespace of ``ros``); the router denies anything else."""
+    everything = (f"{ROOT}/**",)
+    reading = [
+        Grant(
+            (Message.DECLARE_SUBSCRIBER, Message.DECLARE_LIVELINESS_SUBSCRIBER, Message.LIVELINESS_QUERY),
+            Flow.INGRESS,
+            everything,
+        ),
+        # What a reader is sent: samples, replies, tokens, and the declarations that tell a
+        # publisher or querier that someone matches.
+        Grant(
+            (
+                Message.PUT,
+                Message.REPLY,
+                Message.LIVELINESS_TOKEN,
+                Message.DECLARE_SUBSCRIBER,
+                Message.DECLARE_QUERYABLE,
+            ),
+            Flow.EGRESS,
+            everything,
+        ),
+        # Zenoh's rules match keys they include: this one lets a `get` on invent/*/*/status through;
+        # the latched keys answer what was last published on them (a viewer started mid-run).
+        Grant((Message.QUERY,), Flow.INGRESS, (all_robots_status(), *(keys.topic(t) for t in LATCHED_TOPICS))),
+    ]
+    if role is Role.OBSERVER:
+        # `invent view` answers its own status; the queries on it are delivered, also as
+        # invent/*/*/status (a rule lets through the key expressions it includes).
+        return [
+            *reading,
+            Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (keys.view_status,)),
+            Grant((Message.QUERY,), Flow.EGRESS, (all_robots_status(),)),
+        ]
+    if role in (Role.ROS2, Role.ROS_NODE):
+        own_status = [
+            Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (keys.status(Service.ROS2),)),
+            # as for every service: a query on invent/*/*/status must be let through to it whole
+            Grant((Message.QUERY,), Flow.EGRESS, everything),
+        ]
+        own_token = [
+            Grant(
+                (Message.LIVELINESS_TOKEN,),
+                Flow.INGRESS,
+                (keys.alive(Service.ROS2), keys.observes_at_any_rate(Service.ROS2)),
+            )
+        ]
+        service_own = [*own_status, *own_token] if role is Role.ROS2 else []
+        return [*reading, *service_own, *_ros_grants(role, keys, ros)]
+    if role is Role.OPERATOR:
+        return [
+            *reading,
+            Grant((Message.PUT,), Flow.INGRESS, (keys.drive_target_velocity, keys.run_summary)),
+            Grant((Message.QUERY,), Flow.INGRESS, _methods(keys, MethodFamily.GUI)),
+        ]
+    service = Service(role.value)
+    served = (keys.status(service),) + tuple(
+        keys.topic(topic) for topic in LATCHED_TOPICS if topic.startswith(f"{service}/")
+    )
+    if service is Service.MOTOR:
+        served += _methods(keys, MethodFamily.GUI) + _methods(keys, MethodFamily.BUMP)
+    own = [
+        Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (keys.alive(service), keys.ticks_at_any_rate(service))),
+        Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, served),
+        # Queries reach a queryable only if the querier was let in; this lets them be delivered.
+        Grant((Message.QUERY,), Flow.EGRESS, everything),
+        Grant((Message.PUT,), Flow.INGRESS, _published_by(service, keys)),
+    ]
+    if service is Service.SIM:
+        own.append(Grant((Message.QUERY,), Flow.INGRESS, _methods(keys, MethodFamily.BUMP)))
+    return [*reading, *own]
+
+
+def fleet_grants(identity: Identity, robots: Sequence[str], bridges: Mapping[str, BridgeGraph]) -> list[Grant]:
+    """Everything ``identity`` may do in the fleet of ``robots``, whose ROS 2 bridges are
+    ``bridges[robot]``: a per-robot role exactly what :func:`grants` gives its role on its own robot,
+    nothing on any other; a fleet-wide role what :func:`grants` gives it on each robot of the fleet,
+    merged (one rule per message set and flow, on the union of their key expressions)."""
+    if (identity.robot is None) != (identity.role in FLEET_ROLES):
+        raise ValueError(f"role {identity.role} is {'fleet-wide' if identity.role in FLEET_ROLES else 'per robot'}")
+    if identity.robot is not None:
+        if identity.robot not in robots:
+            raise ValueError(f"robot {identity.robot!r} is not in the fleet {', '.join(robots)}")
+        return grants(identity.role, Keys(identity.robot), bridges[identity.robot])
+    return _merged(grant for robot in robots for grant in grants(identity.role, Keys(robot), bridges[robot]))
+
+
+def _merged(many: Iterable[Grant]) -> list[Grant]:
+    """``many`` as one grant per (messages, flow), in first-seen order, each on the union of the key
+    expressions, each once."""
+    merged: dict[tuple[tuple[Message, ...], Flow], dict[str, None]] = {}
+    for grant in many:
+        merged.setdefault((grant.messages, grant.flow), {}).update(dict.fromkeys(grant.key_exprs))
+    return [Grant(messages, flow, tuple(key_exprs)) for (messages, flow), key_exprs in merged.items()]
+
+
+def access_control(users: dict[Role, str], keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> dict[str, Any]:
+    """The router's ``access_control`` section: one subject per role (by username), its grants."""
+    return _access_control((str(role), user, grants(role, keys, ros)) for role, user in users.items())
+
+
+def fleet_access_control(
+    users: Mapping[Identity, str], robots: Sequence[str], bridges: Mapping[str, BridgeGraph]
+) -> dict[str, Any]:
+    """The router's ``access_control`` section for a fleet: one subject per identity (by username),
+    its :func:`fleet_grants`."""
+    return _access_control(
+        (identity.user, user, fleet_grants(identity, robots, bridges)) for identity, user in users.items()
+    )
+
+
+def _access_control(entries: Iterable[tuple[str, str, list[Grant]]]) -> dict[str, Any]:
+    """Default deny; for each (name, username, grants): subject ``role-<name>``, rules
+    ``<name>-<n>``, policy ``policy-<name>``."""
+    rules: list[dict[str, Any]] = []
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    for role, user, granted in entries:
+        subject = f"role-{role}"
+        subjects.append({"id": subject, "usernames": [user]})
+        ids = []
+        for number, grant in enumerate(granted):
+            rule_id = f"{role}-{number}"
+            ids.append(rule_id)
+            rules.append(
+                {
+                    "id": rule_id,
+                    "permission": "allow",
+                    "flows": [grant.flow.value],
+                    "messages": [message.value for message in grant.messages],
+                    "key_exprs": list(grant.key_exprs),
+                }
+            )
+        policies.append({"id": f"policy-{role}", "rules": ids, "subjects": [subject]})
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
