@@ -90,7 +90,7 @@ class RecordRate(StrEnum):
 
 class RecordConfig(Section, frozen=True):
     """What ``invent up`` records (its ``run.mcap``, and the journals the services keep meanwhile:
-    README.md, "Rates and bounds")."""
+    docs/recording.md, "Rates and bounds")."""
 
     rate: RecordRate = RecordRate.OBSERVED
     """``observed``: every key at the observed steps (``sim.observe_every``), as the loop publishes

@@ -9,7 +9,7 @@ type name or hash is typed here. A message's timestamp is the simulation time it
 bag's time is the simulation's and ``ros2 bag play --clock`` replays on it; ``/clock`` is in the
 bag too.
 
-:class:`BagWriter` keeps the bounds of ``[record]`` (README, "Rates and bounds"), as ``run.mcap``
+:class:`BagWriter` keeps the bounds of ``[record]`` (docs/recording.md, "Rates and bounds"), as ``run.mcap``
 does: a new file at ``split_size`` MB or every ``split_duration`` simulated seconds; the bag stops
 (the robot never does) at ``max_size`` MB, after ``max_duration`` simulated seconds, or when its
 disk has less than ``min_free_disk`` MB free, and ``metadata.yaml`` says why in its ``custom_data``.
