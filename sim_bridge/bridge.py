@@ -93,9 +93,9 @@ class SimService:
                 )
         self.sim = Simulator(config.robot, config.sim, self.world, gui=args.gui, fleet=placements)
         self.run_status = RunStatus(
-            self.sim,
-            config.sim,
-            self.progress,
+            sim=self.sim,
+            parameters=config.sim,
+            progress=self.progress,
             world_file=self.world_file,
             duration=self.duration,
             fleet=None if self.fleet is None else [body.name for body in self.sim.robots],
@@ -130,11 +130,11 @@ class SimService:
             self.close()
             raise
         self.loop = Loop(
-            self.sim,
-            node,
-            self.links,
-            config.sim,
-            self.progress,
+            sim=self.sim,
+            node=node,
+            links=self.links,
+            parameters=config.sim,
+            progress=self.progress,
             end_step=math.inf
             if args.duration is None
             else round(args.duration * NANOSECONDS_PER_SECOND / self.sim.step_ns),

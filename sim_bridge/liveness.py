@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 from schemas.keys import Service, parse_observes_key, parse_ticks_key
 from schemas.messages import NANOSECONDS_PER_SECOND, TimedPosition, TimedVelocity
@@ -19,72 +20,58 @@ from sim_bridge.progress import RunProgress
 from sim_bridge.torque_policy import TorquePolicy
 
 
+@dataclass(kw_only=True)
 class Liveness:
     """One robot's motor control, lockstep participants and observers as they come and go."""
 
-    def __init__(
-        self,
-        *,
-        barrier: TickBarrier,
-        observation: ObservedSteps,
-        torque: TorquePolicy,
-        owed_changed: Callable[[], None],
-        progress: RunProgress,
-        counters: dict[str, int],
-        parameters: SimConfig,
-        log: logging.Logger,
-        warn: RateLimitedLog,
-        prefix: str,
-    ) -> None:
-        self._barrier = barrier
-        self._observation = observation
-        self._torque = torque
-        self._owed_changed = owed_changed
-        """Re-encodes the marks of the wheel angles: what the barrier owes has changed."""
-        self._progress = progress
-        self._counters = counters
-        self._parameters = parameters
-        self._lockstep = torque.lockstep
-        self._log = log
-        self._warn = warn
-        self._prefix = prefix
-        self.motor_lost = False
-        """Its motor control was alive and has gone: until one is back, nothing its participants
-        command can move the robot, so the world does not wait at their ticks (in a fleet, the
-        other robots go on at their pace)."""
-        self.drive_ended = False
-        """The drive's last target (its scenario ended) has arrived, or the drive has gone: its token
-        and its last target travel separately, and the token may come first."""
+    barrier: TickBarrier
+    observation: ObservedSteps
+    torque: TorquePolicy
+    owed_changed: Callable[[], None]
+    """Re-encodes the marks of the wheel angles: what the barrier owes has changed."""
+    progress: RunProgress
+    counters: dict[str, int]
+    parameters: SimConfig
+    log: logging.Logger
+    warn: RateLimitedLog
+    prefix: str
+    motor_lost: bool = field(default=False, init=False)
+    """Its motor control was alive and has gone: until one is back, nothing its participants
+    command can move the robot, so the world does not wait at their ticks (in a fleet, the
+    other robots go on at their pace)."""
+    drive_ended: bool = field(default=False, init=False)
+    """The drive's last target (its scenario ended) has arrived, or the drive has gone: its token
+    and its last target travel separately, and the token may come first."""
 
     def set_motor_alive(self, alive: bool) -> None:
-        torque = self._torque
+        torque = self.torque
         if alive == torque.motor_alive:
             return
         self.motor_lost = torque.motor_alive and not alive
         torque.set_motor_alive(alive)
         if alive:
-            effect = "steps wait for its torques" if self._lockstep else "applying its torques"
+            effect = "steps wait for its torques" if self.torque.lockstep else "applying its torques"
         else:
-            effect = "stepping on with zero torque" if self._lockstep else "zero torque"
-        self._log.info("%smotor control %s: %s", self._prefix, "alive" if alive else "gone", effect)
+            effect = "stepping on with zero torque" if self.torque.lockstep else "zero torque"
+        self.log.info("%smotor control %s: %s", self.prefix, "alive" if alive else "gone", effect)
 
     def participant_changed(self, key: str, alive: bool) -> None:
         parsed = parse_ticks_key(key)
         if parsed is None or parsed[0] not in OUTPUTS:
             return
         service, rate_hz = parsed
-        lockstep, prefix = self._lockstep, self._prefix
+        lockstep, prefix = self.torque.lockstep, self.prefix
         if alive:
-            self._observation.add(key, rate_hz, self._progress.present())
-            self._barrier.announce(service, rate_hz, from_start=not self._progress.started)
+            self.observation.add(key, rate_hz, self.progress.present())
+            self.barrier.announce(service, rate_hz, from_start=not self.progress.started)
             if lockstep:
-                self._log.info("%s%s ticks at %g Hz: steps at its ticks wait for its output", prefix, service, rate_hz)
+                self.log.info("%s%s ticks at %g Hz: steps at its ticks wait for its output", prefix, service, rate_hz)
             return
-        self._observation.remove(key)
-        if self._barrier.withdraw(service):
-            self._owed_changed()
+        self.observation.remove(key)
+        if self.barrier.withdraw(service):
+            self.owed_changed()
             if lockstep:
-                self._log.info("%s%s gone: its ticks are not waited for", prefix, service)
+                self.log.info("%s%s gone: its ticks are not waited for", prefix, service)
             if service is Service.DRIVE:
                 self.drive_ended = True
 
@@ -94,28 +81,28 @@ class Liveness:
             return
         service, rate_hz = parsed
         if alive:
-            self._observation.add(key, rate_hz, self._progress.present())
-            self._log.info("%s%s observes at %g Hz: those steps are observed too", self._prefix, service, rate_hz)
+            self.observation.add(key, rate_hz, self.progress.present())
+            self.log.info("%s%s observes at %g Hz: those steps are observed too", self.prefix, service, rate_hz)
         else:
-            self._observation.remove(key)
+            self.observation.remove(key)
 
     def on_output(self, service: Service, message: TimedVelocity | TimedPosition, attachment: bytes | None) -> None:
         final = attachment == FINAL
-        self._barrier.took(service, message.tm.to_nanoseconds(), self._progress.published_ns, final=final)
-        self._owed_changed()
+        self.barrier.took(service, message.tm.to_nanoseconds(), self.progress.published_ns, final=final)
+        self.owed_changed()
         if final and service is Service.DRIVE and not self.drive_ended:
             self.drive_ended = True
-            self._log.info("%sthe drive's scenario ended at t = %.3f s", self._prefix, message.tm.to_seconds())
+            self.log.info("%sthe drive's scenario ended at t = %.3f s", self.prefix, message.tm.to_seconds())
 
     def tick_timed_out(self, service: Service, tm_ns: int) -> None:
-        self._barrier.gave_up(service)
-        self._counters["tick_timeouts"] += 1
-        self._warn(
+        self.barrier.gave_up(service)
+        self.counters["tick_timeouts"] += 1
+        self.warn(
             f"tick_timeout_{service}",
             logging.WARNING,
             "%sno %s for t = %.3f s within %.3f s: stepping on; waiting for it again once it outputs",
-            self._prefix,
+            self.prefix,
             OUTPUTS[service],
             tm_ns / NANOSECONDS_PER_SECOND,
-            self._parameters.lockstep_timeout,
+            self.parameters.lockstep_timeout,
         )

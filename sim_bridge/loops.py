@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from schemas.messages import NANOSECONDS_PER_SECOND, Time
@@ -14,6 +15,7 @@ from services.config import SimConfig
 from services.runtime.executor import STOP_POLL_S
 from services.runtime.node import Node
 from sim_bridge.link import RobotLink
+from sim_bridge.liveness import Liveness
 from sim_bridge.progress import RunProgress
 
 if TYPE_CHECKING:
@@ -23,36 +25,29 @@ MAX_REALTIME_LAG_S = 0.1
 """Realtime mode: a loop this far behind the wall clock restarts its schedule instead of bursting."""
 
 
+@dataclass(kw_only=True)
 class Loop:
     """Steps the world: each step publishes every robot's state, sets its torques, and steps."""
 
-    def __init__(
-        self,
-        sim: Simulator,
-        node: Node,
-        links: list[RobotLink],
-        parameters: SimConfig,
-        progress: RunProgress,
-        *,
-        end_step: float,
-        until_drive_ends: bool,
-    ) -> None:
-        self.sim = sim
-        self.node = node
-        self.links = links
-        self._parameters = parameters
-        self._progress = progress
-        self._end_step = end_step
-        """The step of a finite run's last state (``--duration``); infinity for an endless run."""
-        self._until_drive_ends = until_drive_ends
-        self._liveness = [link.liveness for link in links]
-        """Each link's, read at every step (``--until-drive-ends``) without going through the link."""
+    sim: Simulator
+    node: Node
+    links: list[RobotLink]
+    parameters: SimConfig
+    progress: RunProgress
+    end_step: float
+    """The step of a finite run's last state (``--duration``); infinity for an endless run."""
+    until_drive_ends: bool
+    liveness: list[Liveness] = field(init=False)
+    """Each link's, read at every step (``--until-drive-ends``) without going through the link."""
+
+    def __post_init__(self) -> None:
+        self.liveness = [link.liveness for link in self.links]
 
     def _publish_state(self, final: bool) -> int:
         sim = self.sim
         tm_ns = sim.time_ns
         tm = Time.from_nanoseconds(tm_ns)
-        self._progress.published_ns = tm_ns
+        self.progress.published_ns = tm_ns
         every_step = self.node.recording_every_step
         for link in self.links:
             link.publish_state(sim.step_index, tm_ns, tm, every_step, final)
@@ -61,13 +56,13 @@ class Loop:
     def final(self) -> bool:
         """Whether the state about to be published is a finite run's last (``--duration``): it is
         published, observed, and answered as any step's, then the run ends without stepping."""
-        return self.sim.step_index >= self._end_step
+        return self.sim.step_index >= self.end_step
 
     def ended(self) -> bool:
         """``--until-drive-ends``: every robot's drive has ended its scenario."""
-        if not self._until_drive_ends:
+        if not self.until_drive_ends:
             return False
-        for liveness in self._liveness:  # a loop, not all() over a generator: this runs at every step
+        for liveness in self.liveness:  # a loop, not all() over a generator: this runs at every step
             if not liveness.drive_ended:
                 return False
         return True
@@ -138,7 +133,7 @@ class Loop:
         if not due:
             return
         node = self.node
-        deadline = time.monotonic() + self._parameters.lockstep_timeout
+        deadline = time.monotonic() + self.parameters.lockstep_timeout
         for link in due:
             if link.liveness.motor_lost:
                 for service in link.barrier.missing():
@@ -156,7 +151,7 @@ class Loop:
 
     def run_realtime(self, stop: threading.Event) -> None:
         sim, node, links = self.sim, self.node, self.links
-        period = sim.step_ns / NANOSECONDS_PER_SECOND / self._parameters.realtime_factor
+        period = sim.step_ns / NANOSECONDS_PER_SECOND / self.parameters.realtime_factor
         origin, origin_step = time.monotonic(), sim.step_index
         while not stop.is_set():
             final = self.final()

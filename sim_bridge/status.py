@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -34,28 +35,19 @@ def late_fraction(counters: dict[str, int], steps: int, lockstep: bool) -> float
     return late / steps if steps else 0.0
 
 
+@dataclass(kw_only=True)
 class RunStatus:
     """The run as a whole: when its steps began and ended, how fast they went, what it simulates."""
 
-    def __init__(
-        self,
-        sim: Simulator,
-        parameters: SimConfig,
-        progress: RunProgress,
-        *,
-        world_file: Path,
-        duration: float | None,
-        fleet: list[str] | None,
-    ) -> None:
-        self._sim = sim
-        self._parameters = parameters
-        self._progress = progress
-        self._world_file = world_file
-        self._duration = duration
-        self._fleet = fleet
-        """The robots' names in a fleet sim; None for one robot."""
-        self.started_at: float | None = None
-        self.stopped_at: float | None = None
+    sim: Simulator
+    parameters: SimConfig
+    progress: RunProgress
+    world_file: Path
+    duration: float | None
+    fleet: list[str] | None
+    """The robots' names in a fleet sim; None for one robot."""
+    started_at: float | None = None
+    stopped_at: float | None = None
 
     def elapsed(self) -> float:
         if self.started_at is None:
@@ -64,28 +56,28 @@ class RunStatus:
 
     def steps_per_second(self) -> float:
         elapsed = self.elapsed()
-        return self._sim.step_index / elapsed if elapsed > 0.0 else 0.0
+        return self.sim.step_index / elapsed if elapsed > 0.0 else 0.0
 
     def summary(self, robots: Sequence[str]) -> str:
         """The run's line: steps, times, and each robot's summary (:func:`robot_summary`)."""
-        sim = self._sim
+        sim = self.sim
         head = (
             f"{sim.step_index} steps, {sim.time_ns / NANOSECONDS_PER_SECOND:.3f} s simulated "
             f"in {self.elapsed():.3f} s ({self.steps_per_second():.0f} steps/s)"
         )
-        if self._fleet is None:
+        if self.fleet is None:
             return f"{head}; {robots[0]}"
-        return head + "".join(f"; {name}: {robot}" for name, robot in zip(self._fleet, robots, strict=True))
+        return head + "".join(f"; {name}: {robot}" for name, robot in zip(self.fleet, robots, strict=True))
 
     def world_status(self, finished: bool) -> dict[str, Any]:
         """The part of every robot's ``sim/status`` that is the world's."""
-        sim, parameters = self._sim, self._parameters
+        sim, parameters = self.sim, self.parameters
         simulated = sim.time_ns / NANOSECONDS_PER_SECOND
         elapsed = self.elapsed()
         status: dict[str, Any] = {
-            "state": "finished" if finished else ("running" if self._progress.started else "starting"),
+            "state": "finished" if finished else ("running" if self.progress.started else "starting"),
             "mode": parameters.mode,
-            "world": str(self._world_file),
+            "world": str(self.world_file),
             "sim_time_s": simulated,
             "steps": sim.step_index,
             "steps_per_second": self.steps_per_second(),
@@ -93,7 +85,7 @@ class RunStatus:
             "parameters": {
                 "step": parameters.step,
                 "observe_every": parameters.observe_every,
-                "duration": self._duration,
+                "duration": self.duration,
                 "lockstep_timeout": parameters.lockstep_timeout,
                 "lockstep_max_late": parameters.lockstep_max_late,
                 "realtime_factor": parameters.realtime_factor,
@@ -102,6 +94,6 @@ class RunStatus:
                 "max_wheel_torque": parameters.max_wheel_torque,
             },
         }
-        if self._fleet is not None:
-            status["fleet"] = list(self._fleet)
+        if self.fleet is not None:
+            status["fleet"] = list(self.fleet)
         return status
