@@ -1,8 +1,22 @@
 """The PyBullet simulator bridge (docs/protocol.md section 6): ``invent sim``.
 
+The core (no zenoh):
+
 - :mod:`sim_bridge.world`: world files (ground, obstacles, the robot's initial pose).
-- :mod:`sim_bridge.robot`: the diff-drive robot model built from the robot description.
-- :mod:`sim_bridge.simulator`: the zenoh-free stepping core (torques in, wheel angles, body
-  pose and bump contacts out).
-- :mod:`sim_bridge.bridge`: the service, lockstep and realtime modes over zenoh.
+- :mod:`sim_bridge.robot`: the diff-drive robot model built from the robot's body
+  (:mod:`services.body.geometry`).
+- :mod:`sim_bridge.simulator`: the stepping core (torques in, wheel angles, body pose and bump
+  contacts out).
+- :mod:`sim_bridge.torque_policy`: which torque a step applies when torques come late, not at all,
+  or too old.
+- :mod:`sim_bridge.latency`, :mod:`sim_bridge.progress`, :mod:`sim_bridge.status`: the torque
+  latency, how far the run is, what the status and the summary say.
+
+The service (the shell, over zenoh):
+
+- :mod:`sim_bridge.bridge`: ``SimService`` and its flags, lockstep and realtime modes.
+- :mod:`sim_bridge.link`: one robot's keys, publishers, inputs and status; :mod:`sim_bridge.liveness`:
+  who is there for it.
+- :mod:`sim_bridge.loops`: the lockstep and realtime loops; :mod:`sim_bridge.handshakes`: before
+  the first step.
 """

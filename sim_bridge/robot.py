@@ -1,4 +1,4 @@
-"""The diff-drive robot as a PyBullet multibody, built from :func:`sim_bridge.geometry.robot_body`
+"""The diff-drive robot as a PyBullet multibody, built from :func:`services.body.geometry.robot_body`
 (the frames, proportions and masses are there, shared with the Foxglove scene and the URDF).
 
 - The base's centre of mass is on the axle centre, so PyBullet's base pose *is* the axle-centre
@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import pybullet as p
 
+from services.body.geometry import robot_body
 from services.config import RobotConfig, SimConfig
-from sim_bridge.geometry import robot_body
 from sim_bridge.world import InitialPose
 
 _WHEEL_ORIENTATION = p.getQuaternionFromEuler((math.pi / 2.0, 0.0, 0.0))

@@ -1,8 +1,9 @@
 """The import rules of docs/architecture.md section 1, read from the code's own imports (``ast``, no
 import runs): a core never imports zenoh, the runtime, a shell or a tool; no shell imports another;
 the runtime imports no service; the schemas import nothing of the project above them; nothing but
-the command line imports the command line; no modules import each other (a circle); no room holds
-a tool beside a core or a shell. Every module
+the command line imports the command line; only the launcher and the command line import the
+simulator bridge (``sim_bridge/``); no modules import each other (a circle); no room holds a tool
+beside a core or a shell. Every module
 of ``schemas/``, ``services/`` and ``sim_bridge/`` has a layer here, so a new one must be placed
 before the suite passes. Plain and fast: no zenoh session.
 """
@@ -32,6 +33,10 @@ SCHEMAS, ERRORS, CONFIG, RUNTIME, CORE, SHELL, SHELL_SUPPORT, TOOL, PACKAGE = (
 )
 COMMAND_LINE = "services.cli"
 """The ``invent`` command line: it sits on top, so nothing but itself imports it."""
+SIM_BRIDGE = "sim_bridge"
+SIM_BRIDGE_IMPORTERS = ("services.launch", COMMAND_LINE)
+"""The only rooms outside ``sim_bridge/`` that import it: the launcher starts the simulator, the
+command line lists its flags. Whatever else needs the robot's body takes it from ``services.body``."""
 
 LAYERS: tuple[tuple[str, str], ...] = (
     # (module pattern, layer); the first pattern that matches a module's whole name places it
@@ -47,15 +52,16 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.planar", CORE),
     (r"services\.fleet\.(description|summary)", CORE),
     (r"services\.calibration\.(umbmark|measured)", CORE),
-    (r"sim_bridge\.(simulator|robot|world|geometry|latency|display)", CORE),
+    (r"services\.body\.geometry", CORE),
+    (r"sim_bridge\.(simulator|robot|world|latency|display|torque_policy|progress|status)", CORE),
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph|outputs)", CORE),
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
-    (r"sim_bridge\.bridge", SHELL),
+    (r"sim_bridge\.(bridge|link|liveness|loops|handshakes)", SHELL),
     (r"services\.service", SHELL_SUPPORT),
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
     (r"services\.(cli|launch|recording)(\..*)?", TOOL),
     (r"services\.security(\..*)?", TOOL),
-    (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration))", PACKAGE),
+    (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration|body))", PACKAGE),
 )
 
 PROJECT = re.compile(r"(schemas|services|sim_bridge)(\..*)?")
@@ -88,10 +94,21 @@ def violations(imports: Mapping[str, set[str]]) -> list[str]:
     return found
 
 
+def _room(module: str) -> str:
+    """The package a module sits in: the modules of one service's shell share it (``sim_bridge/``)."""
+    return module.rpartition(".")[0]
+
+
 def _broken_rule(module: str, layer: str, imported: str, imported_layer: str | None) -> str | None:
     project = PROJECT.fullmatch(imported) is not None
     if _is(imported, COMMAND_LINE) and not _is(module, COMMAND_LINE):
         return "nothing imports the command line (services/cli/) but itself"
+    if (
+        _is(imported, SIM_BRIDGE)
+        and not _is(module, SIM_BRIDGE)
+        and not any(_is(module, importer) for importer in SIM_BRIDGE_IMPORTERS)
+    ):
+        return "only the launcher (services/launch/) and the command line import the simulator bridge (sim_bridge/)"
     if layer == SCHEMAS and project and imported_layer != SCHEMAS:
         return "the schemas import only msgspec and the standard library"
     if layer == ERRORS and project:
@@ -110,7 +127,7 @@ def _broken_rule(module: str, layer: str, imported: str, imported_layer: str | N
         if imported_layer == TOOL:
             return "a core never imports a tool"
     if layer in (SHELL, SHELL_SUPPORT):
-        if imported_layer == SHELL and imported != module:
+        if imported_layer == SHELL and _room(imported) != _room(module):
             return "no shell imports another"
         if imported_layer == TOOL:
             return "a shell never imports a tool"
@@ -306,6 +323,16 @@ def test_the_services_top_level_holds_subpackages_and_a_handful_of_shared_module
             "services.runtime.node",
             "the configuration imports only the schemas and the project's exceptions",
         ),
+        (
+            "services.recording.scene",
+            "sim_bridge.robot",
+            "only the launcher (services/launch/) and the command line import the simulator bridge (sim_bridge/)",
+        ),
+        (
+            "services.ros2.service",
+            "sim_bridge.bridge",
+            "only the launcher (services/launch/) and the command line import the simulator bridge (sim_bridge/)",
+        ),
     ],
 )
 def test_a_broken_rule_is_found(module: str, imported: str, rule: str):
@@ -320,6 +347,12 @@ def test_allowed_edges_are_not_flagged():
         "sim_bridge.simulator": {"pybullet", "sim_bridge.robot", "services.config"},
         "services.config.loading": {"services.config.description", "services.errors", "schemas.keys"},
         "services.runtime.session": {"services.errors", "services.config"},
+        "sim_bridge.robot": {"services.body.geometry"},
+        "services.recording.scene": {"services.body.geometry"},
+        "services.launch.up": {"sim_bridge.world", "sim_bridge.display"},
+        "services.cli.main": {"sim_bridge.bridge"},
+        "sim_bridge.bridge": {"sim_bridge.link", "sim_bridge.loops", "sim_bridge.handshakes"},
+        "sim_bridge.link": {"sim_bridge.torque_policy", "sim_bridge.liveness", "zenoh"},
     }
     assert violations(allowed) == []
 

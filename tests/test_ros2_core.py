@@ -13,12 +13,12 @@ from hypothesis import strategies as st
 
 from schemas.codec import BadInput
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+from services.body.geometry import robot_body
 from services.config import Config, load_config
 from services.odometry.core import Odometry
 from services.planar import Pose
 from services.ros2 import core, interfaces
 from services.ros2.urdf import robot_urdf
-from sim_bridge.geometry import robot_body
 from sim_bridge.robot import build_robot
 from sim_bridge.world import InitialPose
 

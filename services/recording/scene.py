@@ -53,9 +53,9 @@ from schemas.messages import (
     TimedPosition,
     TimedVelocity,
 )
+from services.body.geometry import robot_body
 from services.config import CalibratedGeometry, OdometryConfig, RobotConfig, SimConfig
 from services.recording.report import pose_from_body_pose
-from sim_bridge.geometry import robot_body
 
 WORLD_FRAME = "world"
 ROBOT_FRAME = "base_link"

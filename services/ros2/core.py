@@ -23,12 +23,12 @@ import numpy as np
 
 from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND, TimedDoubleSeq, TimedPosition
+from services.body.geometry import RobotBody
 from services.config import Config, Ros2Config
 from services.motor.core import check_target_velocity
 from services.odometry.core import Odometry
 from services.planar import Pose, wrap_angle
 from services.ros2 import interfaces
-from sim_bridge.geometry import RobotBody
 
 POSE_HISTORY = 4096
 """Poses of the continuous odometry kept, by stamp, to meet a localized pose of the same stamp."""

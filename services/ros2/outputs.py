@@ -16,13 +16,13 @@ from typing import Any
 
 from schemas.codec import BadInput
 from schemas.messages import TimedDoubleSeq, TimedPosition
+from services.body.geometry import robot_body
 from services.clock.sim_time import PeriodicSchedule, StampClock
 from services.config import Config
 from services.planar import Pose
 from services.ros2 import core
 from services.ros2.graph import BridgeGraph
 from services.ros2.urdf import robot_urdf
-from sim_bridge.geometry import robot_body
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The robot's URDF, generated from the body the simulator builds (:func:`sim_bridge.geometry.robot_body`):
+"""The robot's URDF, generated from the body the simulator builds (:func:`services.body.geometry.robot_body`):
 one source, so RViz's RobotModel shows what PyBullet simulates. Published on ``/robot_description``.
 
 The root link is ``ros2.base_frame`` on the axle centre; the wheels are continuous joints about
@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from xml.etree import ElementTree
 
-from sim_bridge.geometry import RobotBody
+from services.body.geometry import RobotBody
 
 _BODY_COLOUR = "0.85 0.85 0.9 1"
 _WHEEL_COLOUR = "0.15 0.15 0.15 1"

@@ -1,0 +1,288 @@
+"""One robot of the sim bridge's world as the bridge serves it (:class:`RobotLink`): its node's
+publishers, inputs, liveliness watches and ``motor/bump/stop`` querier, what each step publishes
+(its wheel angles, marked; its body pose and clock at the observed steps), its bumps and its status.
+Who is there is :mod:`sim_bridge.liveness`'s; which torque a step applies, :mod:`sim_bridge.torque_policy`'s."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from functools import partial
+from typing import TYPE_CHECKING, Any
+
+import zenoh
+
+from schemas.codec import encode
+from schemas.keys import Method, MethodFamily, Service
+from schemas.messages import (
+    NANOSECONDS_PER_SECOND,
+    BumpEvent,
+    NoArguments,
+    Time,
+    TimedDoubleSeq,
+    TimedPosition,
+    TimedVelocity,
+)
+from services.clock.lockstep import OUTPUTS, TickBarrier, encode_mark
+from services.clock.observation import ObservedSteps
+from services.config import SimConfig, SimMode
+from services.runtime.inputs import Delivery, NodeInput
+from services.runtime.logs import RateLimitedLog
+from services.runtime.node import Node
+from sim_bridge.latency import TorqueLatency
+from sim_bridge.liveness import Liveness
+from sim_bridge.progress import RunProgress
+from sim_bridge.status import late_fraction, planar_pose, robot_summary
+from sim_bridge.torque_policy import TorquePolicy
+
+if TYPE_CHECKING:
+    from sim_bridge.simulator import Contact, SimulatedRobot
+
+BUMP_STOP_TIMEOUT_S = 1.0
+"""How long a ``motor/bump/stop`` call stays open for its reply."""
+_BUMP_STOP_PAYLOAD = encode(NoArguments())
+
+COUNTERS = (
+    "torques_applied",
+    "late_torques",
+    "missing_torques",
+    "stale_torques",
+    "bumps",
+    "bump_stop_calls",
+    "bump_stop_acks",
+    "bump_stop_errors",
+    "realtime_resyncs",
+    "realtime_late_steps",
+    "tick_timeouts",
+    "braked_steps",
+)
+"""The counters of ``sim/status`` (docs/sim.md explains each)."""
+
+
+class TorqueLog:
+    """The log lines of one robot's torque policy (:class:`~sim_bridge.torque_policy.TorqueEvents`)."""
+
+    def __init__(self, log: logging.Logger, warn: RateLimitedLog, parameters: SimConfig, prefix: str) -> None:
+        self._log, self._warn, self._parameters, self._prefix = log, warn, parameters, prefix
+
+    def late(self, tm_ns: int) -> None:
+        self._warn(
+            "late_torque",
+            logging.WARNING,
+            "%sno motor/torque for t = %.3f s within %.3f s: zero torque",
+            self._prefix,
+            tm_ns / NANOSECONDS_PER_SECOND,
+            self._parameters.lockstep_timeout,
+        )
+
+    def silent(self) -> None:
+        self._log.warning(
+            "%smotor control alive but silent for %d steps: stepping at real-time pace until it answers",
+            self._prefix,
+            self._parameters.lockstep_max_late,
+        )
+
+    def answering(self) -> None:
+        self._log.info("%smotor control answers again: steps wait for its torques", self._prefix)
+
+    def braking(self) -> None:
+        self._log.warning(
+            "%sno torque for %g s: braking the wheels until one comes", self._prefix, self._parameters.brake_after
+        )
+
+
+class RobotLink:
+    """One robot of the world as the bridge serves it: its node (keys, liveliness token, status),
+    publishers and inputs, its lockstep barrier and observed steps, its counters and torque
+    latency, its torque policy and who is there for it. A one-robot sim has one link, on the
+    service's own node; a fleet sim one per robot, their nodes on the same executor, so the loop's
+    one thread serves them all."""
+
+    def __init__(
+        self,
+        node: Node,
+        body: SimulatedRobot,
+        parameters: SimConfig,
+        *,
+        step_ns: int,
+        progress: RunProgress,
+        prefix: str,
+        world_status: Callable[[], dict[str, Any]],
+    ) -> None:
+        self.node = node
+        self.body = body
+        self.name = body.name
+        self.prefix = prefix
+        """What a log line about this robot starts with: its name, in a fleet."""
+        self._world_status = world_status
+        """The part of the status that is the world's (:meth:`~sim_bridge.status.RunStatus.world_status`)."""
+        self._lockstep = parameters.mode == SimMode.LOCKSTEP
+        self.barrier = TickBarrier()
+        self.outputs: dict[Service, NodeInput | None] = {}
+        """Lockstep: the participants' output channels, to wait in at their ticks."""
+        self.observation = ObservedSteps(parameters.observe_every)
+        self.marks = (b"", b"")
+        """The attachment of a step's wheel angles, (not observed, observed): what the barrier owes
+        (in lockstep) and whether the step is observed. Encoded when they change, not at every step."""
+        self.owed_changed()
+        self.counters = dict.fromkeys(COUNTERS, 0)
+        self.clock: tuple[TimedDoubleSeq, bytes] | None = None
+        """(wheel angles, mark) of an observed step published, while its ``sim/clock`` waits."""
+        self.latency = TorqueLatency(step_ns)
+        warn = RateLimitedLog(node.log)
+        self.torque = TorquePolicy(
+            body,
+            parameters,
+            step_ns,
+            progress=progress,
+            counters=self.counters,
+            latency=self.latency,
+            events=TorqueLog(node.log, warn, parameters, prefix),
+            now_ns=time.perf_counter_ns,
+        )
+        self.liveness = Liveness(
+            barrier=self.barrier,
+            observation=self.observation,
+            torque=self.torque,
+            owed_changed=self.owed_changed,
+            progress=progress,
+            counters=self.counters,
+            parameters=parameters,
+            log=node.log,
+            warn=warn,
+            prefix=prefix,
+        )
+        self._declare()
+
+    def _declare(self) -> None:
+        node, keys, liveness = self.node, self.node.keys, self.liveness
+        self.pose_publisher = node.publisher(keys.sim_body_pose)
+        self.angles_publisher = node.publisher(keys.sim_wheel_angles)
+        self.clock_publisher = node.publisher(keys.sim_clock)
+        self.bump_publisher = node.publisher(keys.sim_bump)
+        self.world_publisher = node.latched_publisher(keys.sim_world)
+        # Lockstep waits in the torque channel's receive itself, and in a participant's output
+        # channel at its ticks; realtime waits for its step's deadline, which a posted torque must
+        # interrupt.
+        lockstep = self._lockstep
+        delivery = Delivery.EVERY if lockstep else Delivery.QUEUED
+        self.torque_input = node.subscribe(
+            keys.motor_torque, TimedDoubleSeq, self.torque.on_torque, delivery, wakes=lockstep, with_attachment=True
+        )
+        for service, message_type in ((Service.DRIVE, TimedVelocity), (Service.LOCALIZATION, TimedPosition)):
+            self.outputs[service] = node.subscribe(
+                keys.topic(OUTPUTS[service]),
+                message_type,
+                partial(liveness.on_output, service),
+                delivery,
+                with_attachment=True,
+            )
+        self._ticks_watch = node.session.liveliness().declare_subscriber(
+            keys.every_ticks, self._on_ticks_token, history=True
+        )
+        self._observers_watch = node.session.liveliness().declare_subscriber(
+            keys.every_observes, self._on_observes_token, history=True
+        )
+        self._bump_stop = node.session.declare_querier(
+            keys.method(MethodFamily.BUMP, Method.STOP), timeout=BUMP_STOP_TIMEOUT_S
+        )
+        node.watch(Service.MOTOR, liveness.set_motor_alive)
+        node.set_status(self.status)
+
+    # --- zenoh callbacks: they only hand over to the service thread ---
+
+    def _on_ticks_token(self, sample: zenoh.Sample) -> None:
+        self.node.post(
+            partial(self.liveness.participant_changed, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+        )
+
+    def _on_observes_token(self, sample: zenoh.Sample) -> None:
+        self.node.post(
+            partial(self.liveness.observer_changed, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+        )
+
+    def _on_bump_stop_reply(self, reply: zenoh.Reply) -> None:
+        result = reply.result
+        ok = isinstance(result, zenoh.Sample)
+        reason = "" if ok else result.payload.to_string()
+        self.node.post(partial(self._record_bump_stop_reply, ok, reason))
+
+    # --- service thread ---
+
+    def _record_bump_stop_reply(self, ok: bool, reason: str) -> None:
+        if ok:
+            self.counters["bump_stop_acks"] += 1
+        else:
+            self.counters["bump_stop_errors"] += 1
+            self.node.log.warning("%smotor/bump/stop answered with an error: %s", self.prefix, reason)
+
+    def publish_state(self, step_index: int, tm_ns: int, tm: Time, every_step: bool, final: bool) -> None:
+        """Publish this step's wheel angles, then its body pose if it is observed (or the run is
+        recorded at ``every_step``): the motor converts the pose once it has answered the wheel
+        angles, in the same wake. The step's clock waits for :meth:`publish_clock`. The ``final``
+        state of a finite run is observed, whatever the step."""
+        body = self.body
+        observed = self.observation.observed(step_index, tm_ns) or final
+        mark = self.marks[observed]
+        angles = TimedDoubleSeq(tm, body.wheel_angles())
+        self.latency.published(tm_ns, time.perf_counter_ns())
+        self.angles_publisher.put(angles, mark, keep=observed or every_step)
+        if observed or every_step:
+            self.pose_publisher.put(TimedDoubleSeq(tm=tm, data=body.body_pose()), mark)
+        if observed:
+            self.clock = (angles, mark)
+
+    def publish_clock(self) -> None:
+        """Publish this step's ``sim/clock`` if it is observed, once the step's torque is in or its
+        wait is over: the drive's command (and the ROS 2 bridge's messages) are then computed while
+        the simulator steps, not while the motor computes the torque."""
+        pending, self.clock = self.clock, None
+        if pending is not None:
+            self.clock_publisher.put(*pending)
+
+    def bump(self, contact: Contact, tm: Time) -> None:
+        self.counters["bumps"] += 1
+        self.node.log.info(
+            "%sbump: began touching %r at (%.3f, %.3f, %.3f), t = %.3f s; calling motor/bump/stop",
+            self.prefix,
+            contact.obstacle,
+            contact.x,
+            contact.y,
+            contact.z,
+            tm.to_seconds(),
+        )
+        self.bump_publisher.put(BumpEvent(tm=tm, obstacle=contact.obstacle, x=contact.x, y=contact.y, z=contact.z))
+        self.counters["bump_stop_calls"] += 1
+        self._bump_stop.get(self._on_bump_stop_reply, payload=_BUMP_STOP_PAYLOAD)
+
+    def owed_changed(self) -> None:
+        owed = self.barrier.owed() if self._lockstep else None
+        self.marks = (encode_mark(owed, observed=False), encode_mark(owed, observed=True))
+
+    def summary(self) -> str:
+        return robot_summary(self.counters, planar_pose(self.body.body_pose()))
+
+    def status(self) -> dict[str, Any]:
+        status = self._world_status()
+        torque = self.torque
+        status.update(
+            motor_alive=torque.motor_alive,
+            motor_silent=torque.silent,
+            torques=list(self.body.applied_torques),
+            pose=planar_pose(self.body.body_pose()),
+            counters=dict(self.counters),
+            torque_latency=self.latency.summary(),
+            late_fraction=late_fraction(self.counters, status["steps"], self._lockstep),
+            lockstep_participants=self.barrier.status(),
+            observed_steps=self.observation.count,
+            observed_rates=self.observation.rates(),
+            drive_ended=self.liveness.drive_ended,
+            braking=self.body.braking,
+        )
+        return status
+
+    def close(self) -> None:
+        self._ticks_watch.undeclare()
+        self._observers_watch.undeclare()
+        self._bump_stop.undeclare()

@@ -1,0 +1,108 @@
+"""Who is there for one robot of the sim bridge, from their liveliness tokens and outputs: its
+motor control (``motor/alive``), the lockstep participants (``<service>/ticks/<rate>``) whose ticks
+the steps wait at, the observers (``<service>/observes/<rate>``) whose steps are observed too, and
+the drive's end. The link's zenoh callbacks hand each change over to the service thread, which
+calls these."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from schemas.keys import Service, parse_observes_key, parse_ticks_key
+from schemas.messages import NANOSECONDS_PER_SECOND, TimedPosition, TimedVelocity
+from services.clock.lockstep import FINAL, OUTPUTS, TickBarrier
+from services.clock.observation import ObservedSteps
+from services.config import SimConfig
+from services.runtime.logs import RateLimitedLog
+from sim_bridge.progress import RunProgress
+from sim_bridge.torque_policy import TorquePolicy
+
+
+@dataclass(kw_only=True)
+class Liveness:
+    """One robot's motor control, lockstep participants and observers as they come and go."""
+
+    barrier: TickBarrier
+    observation: ObservedSteps
+    torque: TorquePolicy
+    owed_changed: Callable[[], None]
+    """Re-encodes the marks of the wheel angles: what the barrier owes has changed."""
+    progress: RunProgress
+    counters: dict[str, int]
+    parameters: SimConfig
+    log: logging.Logger
+    warn: RateLimitedLog
+    prefix: str
+    motor_lost: bool = field(default=False, init=False)
+    """Its motor control was alive and has gone: until one is back, nothing its participants
+    command can move the robot, so the world does not wait at their ticks (in a fleet, the
+    other robots go on at their pace)."""
+    drive_ended: bool = field(default=False, init=False)
+    """The drive's last target (its scenario ended) has arrived, or the drive has gone: its token
+    and its last target travel separately, and the token may come first."""
+
+    def set_motor_alive(self, alive: bool) -> None:
+        torque = self.torque
+        if alive == torque.motor_alive:
+            return
+        self.motor_lost = torque.motor_alive and not alive
+        torque.set_motor_alive(alive)
+        if alive:
+            effect = "steps wait for its torques" if self.torque.lockstep else "applying its torques"
+        else:
+            effect = "stepping on with zero torque" if self.torque.lockstep else "zero torque"
+        self.log.info("%smotor control %s: %s", self.prefix, "alive" if alive else "gone", effect)
+
+    def participant_changed(self, key: str, alive: bool) -> None:
+        parsed = parse_ticks_key(key)
+        if parsed is None or parsed[0] not in OUTPUTS:
+            return
+        service, rate_hz = parsed
+        lockstep, prefix = self.torque.lockstep, self.prefix
+        if alive:
+            self.observation.add(key, rate_hz, self.progress.present())
+            self.barrier.announce(service, rate_hz, from_start=not self.progress.started)
+            if lockstep:
+                self.log.info("%s%s ticks at %g Hz: steps at its ticks wait for its output", prefix, service, rate_hz)
+            return
+        self.observation.remove(key)
+        if self.barrier.withdraw(service):
+            self.owed_changed()
+            if lockstep:
+                self.log.info("%s%s gone: its ticks are not waited for", prefix, service)
+            if service is Service.DRIVE:
+                self.drive_ended = True
+
+    def observer_changed(self, key: str, alive: bool) -> None:
+        parsed = parse_observes_key(key)
+        if parsed is None:
+            return
+        service, rate_hz = parsed
+        if alive:
+            self.observation.add(key, rate_hz, self.progress.present())
+            self.log.info("%s%s observes at %g Hz: those steps are observed too", self.prefix, service, rate_hz)
+        else:
+            self.observation.remove(key)
+
+    def on_output(self, service: Service, message: TimedVelocity | TimedPosition, attachment: bytes | None) -> None:
+        final = attachment == FINAL
+        self.barrier.took(service, message.tm.to_nanoseconds(), self.progress.published_ns, final=final)
+        self.owed_changed()
+        if final and service is Service.DRIVE and not self.drive_ended:
+            self.drive_ended = True
+            self.log.info("%sthe drive's scenario ended at t = %.3f s", self.prefix, message.tm.to_seconds())
+
+    def tick_timed_out(self, service: Service, tm_ns: int) -> None:
+        self.barrier.gave_up(service)
+        self.counters["tick_timeouts"] += 1
+        self.warn(
+            f"tick_timeout_{service}",
+            logging.WARNING,
+            "%sno %s for t = %.3f s within %.3f s: stepping on; waiting for it again once it outputs",
+            self.prefix,
+            OUTPUTS[service],
+            tm_ns / NANOSECONDS_PER_SECOND,
+            self.parameters.lockstep_timeout,
+        )

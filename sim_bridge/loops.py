@@ -1,0 +1,178 @@
+"""The sim bridge's two loops over every robot link (the mode's rules: :mod:`sim_bridge.bridge`):
+lockstep, each step waiting for its torques and at the participants' ticks for their outputs;
+realtime, steps paced to the wall clock. Their steps run at thousands a second: the per-step
+code takes its attributes once and calls as little as it can (benchmarks/README.md)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from schemas.messages import NANOSECONDS_PER_SECOND, Time
+from services.config import SimConfig
+from services.runtime.executor import STOP_POLL_S
+from services.runtime.node import Node
+from sim_bridge.link import RobotLink
+from sim_bridge.liveness import Liveness
+from sim_bridge.progress import RunProgress
+
+if TYPE_CHECKING:
+    from sim_bridge.simulator import Simulator
+
+MAX_REALTIME_LAG_S = 0.1
+"""Realtime mode: a loop this far behind the wall clock restarts its schedule instead of bursting."""
+
+
+@dataclass(kw_only=True)
+class Loop:
+    """Steps the world: each step publishes every robot's state, sets its torques, and steps."""
+
+    sim: Simulator
+    node: Node
+    links: list[RobotLink]
+    parameters: SimConfig
+    progress: RunProgress
+    end_step: float
+    """The step of a finite run's last state (``--duration``); infinity for an endless run."""
+    until_drive_ends: bool
+    liveness: list[Liveness] = field(init=False)
+    """Each link's, read at every step (``--until-drive-ends``) without going through the link."""
+
+    def __post_init__(self) -> None:
+        self.liveness = [link.liveness for link in self.links]
+
+    def _publish_state(self, final: bool) -> int:
+        sim = self.sim
+        tm_ns = sim.time_ns
+        tm = Time.from_nanoseconds(tm_ns)
+        self.progress.published_ns = tm_ns
+        every_step = self.node.recording_every_step
+        for link in self.links:
+            link.publish_state(sim.step_index, tm_ns, tm, every_step, final)
+        return tm_ns
+
+    def final(self) -> bool:
+        """Whether the state about to be published is a finite run's last (``--duration``): it is
+        published, observed, and answered as any step's, then the run ends without stepping."""
+        return self.sim.step_index >= self.end_step
+
+    def ended(self) -> bool:
+        """``--until-drive-ends``: every robot's drive has ended its scenario."""
+        if not self.until_drive_ends:
+            return False
+        for liveness in self.liveness:  # a loop, not all() over a generator: this runs at every step
+            if not liveness.drive_ended:
+                return False
+        return True
+
+    def _publish_clocks(self) -> None:
+        for link in self.links:
+            link.publish_clock()
+
+    def _step(self) -> None:
+        contacts = self.sim.step()
+        if contacts:
+            tm = Time.from_nanoseconds(self.sim.time_ns)
+            for contact in contacts:
+                self.links[contact.robot].bump(contact, tm)
+
+    # --- lockstep ---
+
+    def run_lockstep(self, stop: threading.Event) -> None:
+        while not stop.is_set():
+            final = self.final()
+            tm_ns = self._publish_state(final)
+            self._lockstep_torques(tm_ns, stop, final)
+            self._publish_clocks()
+            self._lockstep_ticks(tm_ns, stop)
+            if final or self.ended():
+                return
+            self._step()
+
+    def _lockstep_torques(self, tm_ns: int, stop: threading.Event, final: bool) -> None:
+        """Set this step's torque of every robot: its motor's answer for ``tm_ns``, or zero."""
+        links = self.links
+        for link in links:
+            link.torque.begin_wait(tm_ns)
+        for link in links:
+            self._lockstep_torque(link, tm_ns, stop, final)
+        step_index = self.sim.step_index
+        for link in links:
+            link.torque.end_wait(step_index, final)
+
+    def _lockstep_torque(self, link: RobotLink, tm_ns: int, stop: threading.Event, final: bool) -> None:
+        """Wait for ``link``'s torque for ``tm_ns``; a torque that does not come counts as late or
+        missing, but for the ``final`` state's, which is never applied."""
+        torque = link.torque
+        if torque.motor_alive:
+            silent = torque.silent
+            deadline = time.monotonic() + torque.wait_s
+            spin_until = self.node.executor.spin_until  # the step's messages in one call, not one each
+            settled = torque.settled
+            while True:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    if not settled():
+                        torque.wait_ran_out(tm_ns, silent, final)
+                    return
+                if spin_until(settled, min(remaining, STOP_POLL_S), link.torque_input) or stop.is_set():
+                    return
+        else:
+            self.node.drain()
+            if not (torque.answered or final):
+                link.counters["missing_torques"] += 1
+
+    def _lockstep_ticks(self, tm_ns: int, stop: threading.Event) -> None:
+        """Wait for the outputs of the participants with a tick at ``tm_ns`` (or give up on them)."""
+        due = []
+        for link in self.links:  # a loop, not a comprehension: this runs at every step
+            if link.barrier.ticks(tm_ns):
+                due.append(link)
+        if not due:
+            return
+        node = self.node
+        deadline = time.monotonic() + self.parameters.lockstep_timeout
+        for link in due:
+            if link.liveness.motor_lost:
+                for service in link.barrier.missing():
+                    link.barrier.gave_up(service)
+                continue
+            while (missing := link.barrier.missing()) and not stop.is_set():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    for service in missing:
+                        link.liveness.tick_timed_out(service, tm_ns)
+                    break
+                node.spin_once(min(remaining, STOP_POLL_S), link.outputs[missing[0]])
+
+    # --- realtime ---
+
+    def run_realtime(self, stop: threading.Event) -> None:
+        sim, node, links = self.sim, self.node, self.links
+        period = sim.step_ns / NANOSECONDS_PER_SECOND / self.parameters.realtime_factor
+        origin, origin_step = time.monotonic(), sim.step_index
+        while not stop.is_set():
+            final = self.final()
+            tm_ns = self._publish_state(final)
+            deadline = origin + (sim.step_index + 1 - origin_step) * period
+            while (remaining := deadline - time.monotonic()) > 0.0:
+                node.spin_once(min(remaining, STOP_POLL_S))
+                for link in links:
+                    if link.torque.newest_ns == tm_ns:
+                        link.publish_clock()
+            self._publish_clocks()
+            if final:
+                return
+            if -remaining > MAX_REALTIME_LAG_S:
+                for link in links:
+                    link.counters["realtime_resyncs"] += 1
+                origin, origin_step = time.monotonic(), sim.step_index + 1
+            node.drain()
+            step_index = sim.step_index
+            for link in links:
+                link.torque.realtime(tm_ns, step_index)
+            if self.ended():
+                return
+            self._step()

@@ -1,0 +1,99 @@
+"""What the sim bridge reports: the world's part of every robot's ``sim/status`` (docs/sim.md), each
+robot's planar pose and late fraction, and the summary line a run ends with. Pure: no zenoh."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from schemas.messages import NANOSECONDS_PER_SECOND
+from services.config import SimConfig
+from sim_bridge.progress import RunProgress
+
+if TYPE_CHECKING:
+    from sim_bridge.simulator import Simulator
+
+
+def planar_pose(body_pose: Sequence[float]) -> dict[str, float]:
+    """x, y and heading of ``sim/body_pose``'s axle centre (x, y, z, rotation row-major)."""
+    x, y, _z, r00, _r01, _r02, r10 = body_pose[:7]
+    return {"x": x, "y": y, "theta": math.atan2(r10, r00)}
+
+
+def robot_summary(counters: dict[str, int], pose: dict[str, float]) -> str:
+    listed = ", ".join(f"{name} {count}" for name, count in counters.items())
+    return f"{listed}; pose x {pose['x']:.4f} m, y {pose['y']:.4f} m, theta {pose['theta']:.4f} rad"
+
+
+def late_fraction(counters: dict[str, int], steps: int, lockstep: bool) -> float:
+    """Steps whose torque came late: past the timeout (lockstep), after the step (realtime)."""
+    late = counters["late_torques" if lockstep else "realtime_late_steps"]
+    return late / steps if steps else 0.0
+
+
+@dataclass(kw_only=True)
+class RunStatus:
+    """The run as a whole: when its steps began and ended, how fast they went, what it simulates."""
+
+    sim: Simulator
+    parameters: SimConfig
+    progress: RunProgress
+    world_file: Path
+    duration: float | None
+    fleet: list[str] | None
+    """The robots' names in a fleet sim; None for one robot."""
+    started_at: float | None = None
+    stopped_at: float | None = None
+
+    def elapsed(self) -> float:
+        if self.started_at is None:
+            return 0.0
+        return (self.stopped_at if self.stopped_at is not None else time.monotonic()) - self.started_at
+
+    def steps_per_second(self) -> float:
+        elapsed = self.elapsed()
+        return self.sim.step_index / elapsed if elapsed > 0.0 else 0.0
+
+    def summary(self, robots: Sequence[str]) -> str:
+        """The run's line: steps, times, and each robot's summary (:func:`robot_summary`)."""
+        sim = self.sim
+        head = (
+            f"{sim.step_index} steps, {sim.time_ns / NANOSECONDS_PER_SECOND:.3f} s simulated "
+            f"in {self.elapsed():.3f} s ({self.steps_per_second():.0f} steps/s)"
+        )
+        if self.fleet is None:
+            return f"{head}; {robots[0]}"
+        return head + "".join(f"; {name}: {robot}" for name, robot in zip(self.fleet, robots, strict=True))
+
+    def world_status(self, finished: bool) -> dict[str, Any]:
+        """The part of every robot's ``sim/status`` that is the world's."""
+        sim, parameters = self.sim, self.parameters
+        simulated = sim.time_ns / NANOSECONDS_PER_SECOND
+        elapsed = self.elapsed()
+        status: dict[str, Any] = {
+            "state": "finished" if finished else ("running" if self.progress.started else "starting"),
+            "mode": parameters.mode,
+            "world": str(self.world_file),
+            "sim_time_s": simulated,
+            "steps": sim.step_index,
+            "steps_per_second": self.steps_per_second(),
+            "realtime_factor_achieved": simulated / elapsed if elapsed > 0.0 else 0.0,
+            "parameters": {
+                "step": parameters.step,
+                "observe_every": parameters.observe_every,
+                "duration": self.duration,
+                "lockstep_timeout": parameters.lockstep_timeout,
+                "lockstep_max_late": parameters.lockstep_max_late,
+                "realtime_factor": parameters.realtime_factor,
+                "torque_max_age": parameters.torque_max_age,
+                "brake_after": parameters.brake_after,
+                "max_wheel_torque": parameters.max_wheel_torque,
+            },
+        }
+        if self.fleet is not None:
+            status["fleet"] = list(self.fleet)
+        return status

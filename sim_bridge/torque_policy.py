@@ -1,0 +1,231 @@
+"""The torque policy of the sim bridge: which torque a robot's step applies when torques come late,
+not at all, or too old (docs/sim.md). Pure: no zenoh, no runtime, no PyBullet. The bridge's link
+hands it each ``motor/torque`` (:meth:`TorquePolicy.on_torque`, the input's own callback) and its
+loop asks it at each step; it applies its choice to the robot's :class:`Wheels` and tells its
+:class:`TorqueEvents` what the log should say.
+
+- **lockstep**: a step waits for the torque whose ``tm`` is its own (:meth:`~TorquePolicy.begin_wait`);
+  a torque with any other ``tm``, or a second one, is stale (counted, ignored). The wait happens
+  only while a motor control is alive. An answer later than ``sim.lockstep_timeout`` is late:
+  zero torque; after ``sim.lockstep_max_late`` late answers in a row the motor control counts as
+  silent, and each step then waits only one real-time period (``sim.step / sim.realtime_factor``)
+  until a torque from it arrives again. The ``final`` state of a finite run takes its torque
+  without applying it.
+- **realtime**: each step applies the newest torque, or none when the newest is older than
+  ``sim.torque_max_age``; a torque stamped after the latest step published is from the future
+  (bad input). A step whose own torque has not arrived when it is stepped counts as late.
+- **no torque**: zero torque, or the brakes once there has been none for ``sim.brake_after``
+  (the motor control gone, silent, or cut off by a link down).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Protocol
+
+from schemas.codec import BadInput
+from schemas.messages import NANOSECONDS_PER_SECOND, TimedDoubleSeq
+from services.config import SimConfig, SimMode
+from sim_bridge.latency import TorqueLatency
+from sim_bridge.progress import RunProgress
+
+TORQUE_COUNTERS = (
+    "torques_applied",
+    "late_torques",
+    "missing_torques",
+    "stale_torques",
+    "realtime_late_steps",
+    "braked_steps",
+)
+"""The counters of ``sim/status`` the policy counts (docs/sim.md explains each)."""
+
+
+class Wheels(Protocol):
+    """A robot's wheels as the policy drives them (:class:`sim_bridge.simulator.SimulatedRobot`)."""
+
+    wheel_count: int
+    braking: bool
+
+    def set_torques(self, torques: Sequence[float]) -> None: ...
+
+    def set_zero_torques(self) -> None: ...
+
+    def brake(self) -> None: ...
+
+
+class TorqueEvents(Protocol):
+    """What the policy has the log say (the bridge's link words each line)."""
+
+    def late(self, tm_ns: int) -> None:
+        """No torque for the step at ``tm_ns`` within ``sim.lockstep_timeout``: zero torque."""
+        ...
+
+    def silent(self) -> None:
+        """The motor control counts as silent: steps at real-time pace until it answers."""
+        ...
+
+    def answering(self) -> None:
+        """The silent motor control answers again."""
+        ...
+
+    def braking(self) -> None:
+        """The wheels begin to brake: no torque for ``sim.brake_after``."""
+        ...
+
+
+def brake_steps(brake_after: float | None, step_ns: int) -> int | None:
+    """Steps without a torque after which the wheels are braked (``sim.brake_after``); None: never."""
+    return None if brake_after is None else max(1, round(brake_after * NANOSECONDS_PER_SECOND / step_ns))
+
+
+class TorquePolicy:
+    """One robot's torque state: the lockstep wait for its step's torque, the newest torque
+    (realtime), the late answers in a row and the silence they lead to, the last step a torque
+    was applied at (for the brakes)."""
+
+    def __init__(
+        self,
+        wheels: Wheels,
+        sim: SimConfig,
+        step_ns: int,
+        *,
+        progress: RunProgress,
+        counters: dict[str, int],
+        latency: TorqueLatency,
+        events: TorqueEvents,
+        now_ns: Callable[[], int],
+    ) -> None:
+        self._wheels = wheels
+        self._progress = progress
+        self._counters = counters
+        """Holds (at least) :data:`TORQUE_COUNTERS`: the link's status counters."""
+        self._latency = latency
+        self._events = events
+        self._now_ns = now_ns
+        """The clock of the torque latency (``time.perf_counter_ns``)."""
+        self.lockstep = sim.mode == SimMode.LOCKSTEP
+        """The mode, as the per-step code asks it (an enum comparison costs more than the attribute)."""
+        self.timeout_s = sim.lockstep_timeout
+        self.silent_wait_s = sim.step / sim.realtime_factor
+        """Lockstep, the motor control silent: one real-time period per step."""
+        self.wait_s = self.timeout_s
+        """How long this step waits for its torque: :attr:`timeout_s`, or :attr:`silent_wait_s` while silent."""
+        self.max_late = sim.lockstep_max_late
+        self.max_age_ns = round(sim.torque_max_age * NANOSECONDS_PER_SECOND)
+        self.brake_steps = brake_steps(sim.brake_after, step_ns)
+        self.motor_alive = False
+        self.silent = False
+        """Alive but not answering: lockstep steps at real-time pace until its next torque."""
+        self.late_in_a_row = 0
+        self.awaited_ns = -1
+        self.answered = False
+        self.newest_torque: Sequence[float] | None = None
+        self.newest_ns = -1
+        self.torque_step = 0
+        """The step at which a torque of the motor control was last applied (or the run began)."""
+
+    def on_torque(self, torque: TimedDoubleSeq, _attachment: bytes | None) -> None:
+        # Taken with its (unused) attachment: the input then calls this directly, at every step.
+        wheels = self._wheels
+        if len(torque.data) != wheels.wheel_count:
+            raise BadInput(f"{len(torque.data)} torques, expected {wheels.wheel_count} (one per wheel id)")
+        tm_ns = torque.tm.to_nanoseconds()
+        self._latency.answered(tm_ns, self._now_ns())
+        if self.lockstep:
+            if self.silent:
+                self._set_silent(False)
+            if tm_ns != self.awaited_ns or self.answered:
+                self._counters["stale_torques"] += 1
+                return
+            wheels.set_torques(torque.data)
+            self.answered = True
+        elif tm_ns > self._progress.published_ns:
+            published_ns = self._progress.published_ns
+            raise BadInput(
+                f"torque stamped t = {tm_ns / NANOSECONDS_PER_SECOND:.6f} s, after the latest step "
+                f"(t = {published_ns / NANOSECONDS_PER_SECOND:.6f} s): from the future"
+            )
+        elif tm_ns > self.newest_ns:
+            self.newest_torque, self.newest_ns = torque.data, tm_ns
+
+    def set_motor_alive(self, alive: bool) -> None:
+        """A motor control came or went: either way it is not silent (yet)."""
+        self.motor_alive = alive
+        self._set_silent(False)
+
+    def _set_silent(self, silent: bool) -> None:
+        self.late_in_a_row = 0
+        if silent == self.silent:
+            return
+        self.silent = silent
+        self.wait_s = self.silent_wait_s if silent else self.timeout_s
+        if silent:
+            self._events.silent()
+        elif self.motor_alive:
+            self._events.answering()
+
+    # --- lockstep ---
+
+    def begin_wait(self, tm_ns: int) -> None:
+        self.awaited_ns, self.answered = tm_ns, False
+
+    def settled(self) -> bool:
+        """The wait for this step's torque is over: it came, or the motor has gone."""
+        return self.answered or not self.motor_alive
+
+    def wait_ran_out(self, tm_ns: int, silent: bool, final: bool) -> None:
+        """The wait for the step at ``tm_ns`` ran out unsettled: a late answer if the motor control
+        was answering (``silent`` as the wait began), a missing one if it was silent (but for the
+        ``final`` state's, which is never applied)."""
+        if not silent:
+            self._late(tm_ns)
+        elif not final:
+            self._counters["missing_torques"] += 1
+
+    def _late(self, tm_ns: int) -> None:
+        self._counters["late_torques"] += 1
+        self._events.late(tm_ns)
+        self.late_in_a_row += 1
+        if self.late_in_a_row >= self.max_late:
+            self._set_silent(True)
+
+    def end_wait(self, step_index: int, final: bool) -> None:
+        """After the wait for this step's torque: count it, or apply zero torque (or brake). The
+        ``final`` state's torque is taken, never applied: the run ends there."""
+        self.awaited_ns = -1
+        if final:
+            return
+        if self.answered:
+            self.late_in_a_row = 0
+            self._counters["torques_applied"] += 1
+            self.torque_step = step_index
+        else:
+            self._no_torque(step_index)
+
+    # --- realtime ---
+
+    def realtime(self, tm_ns: int, step_index: int) -> None:
+        """Set the torque of the step at ``tm_ns``: the newest, unless it is older than ``sim.torque_max_age``."""
+        if self.newest_ns != tm_ns:
+            self._counters["realtime_late_steps"] += 1
+        newest = self.newest_torque
+        if newest is not None and 0 <= tm_ns - self.newest_ns <= self.max_age_ns:
+            self._wheels.set_torques(newest)
+            self._counters["torques_applied"] += 1
+            self.torque_step = step_index
+        else:
+            self._no_torque(step_index)
+            self._counters["missing_torques"] += 1
+
+    # --- both ---
+
+    def _no_torque(self, step_index: int) -> None:
+        """No torque for this step: zero torque, or the brakes once there has been none for
+        ``sim.brake_after`` (the motor control gone, silent, or cut off by a link down)."""
+        if self.brake_steps is not None and step_index - self.torque_step >= self.brake_steps:
+            if not self._wheels.braking:
+                self._events.braking()
+            self._wheels.brake()
+            self._counters["braked_steps"] += 1
+        else:
+            self._wheels.set_zero_torques()
