@@ -48,20 +48,19 @@ def build_robot(client: int, robot: RobotConfig, sim: SimConfig, pose: InitialPo
     """Create the robot in ``client`` standing on the floor at ``pose``; its wheel motors are disabled."""
     shape = robot_body(robot, sim)
 
+    # the body is one cylinder standing on its base: PyBullet takes its collision and its visual
+    # shape apart, and names the length and the frame differently in each
+    body_frame = (0.0, 0.0, shape.body_height / 2.0)
+    body_cylinder = {"radius": shape.body_radius, "physicsClientId": client}
     body_shape = p.createCollisionShape(
-        p.GEOM_CYLINDER,
-        radius=shape.body_radius,
-        height=shape.body_height,
-        collisionFramePosition=(0.0, 0.0, shape.body_height / 2.0),
-        physicsClientId=client,
+        p.GEOM_CYLINDER, height=shape.body_height, collisionFramePosition=body_frame, **body_cylinder
     )
     body_visual = p.createVisualShape(
         p.GEOM_CYLINDER,
-        radius=shape.body_radius,
         length=shape.body_height,
-        visualFramePosition=(0.0, 0.0, shape.body_height / 2.0),
+        visualFramePosition=body_frame,
         rgbaColor=_BODY_COLOUR,
-        physicsClientId=client,
+        **body_cylinder,
     )
 
     def wheel_shapes(radius: float, width: float) -> tuple[int, int]:

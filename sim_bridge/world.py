@@ -51,12 +51,17 @@ class InitialPose(_Table, frozen=True):
     theta: float = 0.0
 
 
-class Box(_Table, frozen=True):
-    """A box standing on the floor, centred on (x, y), turned by ``yaw`` about z."""
+class _Standing(_Table, frozen=True):
+    """An obstacle standing on the floor, centred on (x, y), named once in its world."""
 
     name: Name
     x: float
     y: float
+
+
+class Box(_Standing, frozen=True):
+    """A box standing on the floor, centred on (x, y), turned by ``yaw`` about z."""
+
     size: tuple[Positive, Positive, Positive]
     """Full lengths along the box's own x, y and z, in m."""
     yaw: float = 0.0
@@ -64,12 +69,9 @@ class Box(_Table, frozen=True):
     """kg; 0 = fixed in place."""
 
 
-class Cylinder(_Table, frozen=True):
+class Cylinder(_Standing, frozen=True):
     """An upright cylinder standing on the floor, centred on (x, y)."""
 
-    name: Name
-    x: float
-    y: float
     radius: Positive
     height: Positive
     mass: NonNegative = 0.0
