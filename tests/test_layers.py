@@ -43,7 +43,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.clock\.(sim_time|lockstep|observation)", CORE),
     (r"services\.planar", CORE),
     (r"services\.fleet\.(description|summary)", CORE),
-    (r"services\.calibration\.(umbmark|measured)", CORE),
+    (r"services\.calibration\.(umbmark|measured|benchmark|settings)", CORE),
     (r"sim_bridge\.(simulator|robot|world|geometry|latency|display)", CORE),
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph|outputs)", CORE),
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
@@ -52,6 +52,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
     (r"services\.(cli|launch|recording)(\..*)?", TOOL),
     (r"services\.security", TOOL),
+    (r"services\.(errors|exits)", CONFIG),
     (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration))", PACKAGE),
 )
 
@@ -263,7 +264,7 @@ def test_each_service_room_holds_its_shell_and_its_core():
 
 def test_the_services_top_level_holds_subpackages_and_a_handful_of_shared_modules():
     modules = sorted(path.name for path in (ROOT / "services").glob("*.py"))
-    assert modules == ["__init__.py", "config.py", "planar.py", "security.py", "service.py"]
+    assert modules == ["__init__.py", "config.py", "errors.py", "exits.py", "planar.py", "security.py", "service.py"]
 
 
 @pytest.mark.parametrize(

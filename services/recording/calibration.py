@@ -11,7 +11,6 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,11 +28,11 @@ from foxglove.messages import (
 )
 
 from schemas.messages import NANOSECONDS_PER_SECOND
+from services.calibration.benchmark import PathPoint, RunPaths
 from services.calibration.umbmark import Direction, Umbmark, square
 from services.recording.mcap_files import McapWriter
 from services.recording.scene import WORLD_FRAME
 
-PathPoint = tuple[float, float]
 PATHS_TOPIC = "/umbmark/paths"
 RUNS_TOPIC = "/umbmark/runs"
 RUNS_SCHEMA: dict[str, Any] = {
@@ -55,19 +54,6 @@ _SQUARE = Color(r=0.5, g=0.5, b=0.5, a=1.0)
 _ODOMETRY = Color(r=0.2, g=0.2, b=0.2, a=0.6)
 _MARKERS = {Direction.CW: "o", Direction.CCW: "s"}
 _UPRIGHT = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
-
-
-@dataclass(frozen=True)
-class RunPaths:
-    """One run's paths in the world frame (m), as the sim and the odometry traced them, and where
-    each says the run ended."""
-
-    name: str
-    direction: Direction
-    truth: tuple[PathPoint, ...]
-    odometry: tuple[PathPoint, ...]
-    truth_end: PathPoint
-    odometry_end: PathPoint
 
 
 def _colour(index: int) -> str:
