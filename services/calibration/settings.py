@@ -28,6 +28,9 @@ DEFAULT_PASSES = 2
 
 @dataclass(frozen=True)
 class UmbmarkSettings:
+    """Every flag of ``invent calibrate umbmark``, checked and with its default, and the robot
+    description they give."""
+
     side: float
     """m: the square's (``--side``, else :data:`services.calibration.umbmark.DEFAULT_SIDE`)."""
     side_given: bool
