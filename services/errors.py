@@ -10,3 +10,8 @@ from __future__ import annotations
 class ConfigError(ValueError):
     """An invalid configuration file, value or override (the robot description, a world, a
     scenario, a fleet, a flag); the message names the field, and the command exits with code 2."""
+
+
+class RunFailed(RuntimeError):
+    """A run did not drive its square to the end (the drive gave it up), or the runs' return
+    positions are beyond what the formulas take."""

@@ -9,6 +9,7 @@ with no error. The three calibrations run at once, each its own process, and the
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import subprocess
@@ -18,10 +19,13 @@ import pytest
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 
-from services.calibration.umbmark import CONVERGED
+from services.calibration.benchmark import Benchmark, Conclusion
+from services.calibration.umbmark import CONVERGED, Calibration, evaluate
+from services.cli.calibrate import positive_int, positive_length
 from services.cli.main import main
-from services.config import load_config
+from services.config import ConfigError, load_config
 from services.recording.calibration import PATHS_TOPIC, RUNS_TOPIC
+from services.recording.calibration_report import benchmark_line, summary, write_description
 from tests.harness import REPO, invent_command
 
 WORKED_TOML = """\
@@ -168,6 +172,63 @@ def test_bad_numbers_are_refused_by_the_parser(capsys, flags):
         main(["calibrate", "umbmark", *flags])
     assert exited.value.code == 2
     assert flags[0] in capsys.readouterr().err
+
+
+def test_the_numbers_flags_take_are_checked_naming_the_text():
+    assert positive_length("4") == 4.0 and positive_int("5") == 5
+    for parse, text, reason in [
+        (positive_length, "0", "'0' must be a positive length in metres"),
+        (positive_length, "nan", "'nan' is not finite"),
+        (positive_int, "0", "'0' must be at least 1"),
+        (positive_int, "1.5", "'1.5' is not a whole number"),
+    ]:
+        with pytest.raises(argparse.ArgumentTypeError, match=reason):
+            parse(text)
+
+
+FIRST_PASS = Conclusion(
+    final=Calibration(1.000002, 0.999998, 1.000241), ed=0.999996, eb=1.000241, e_before=0.0051, e_after=0.00063
+)
+
+
+def test_the_summary_says_the_estimate_the_corrections_and_what_was_written():
+    files = {"report": "r/report.json", "figure": "r/umbmark.png"}
+    corrections = "odometry.left_radius_scale = 1.000002, odometry.right_radius_scale = 0.999998, "
+    assert summary(FIRST_PASS, 1, files) == [
+        "estimated: Ed = D_R/D_L = 0.999996, Eb = b_actual/b_nominal = 1.000241 (1 pass)",
+        f"corrections: {corrections}odometry.axle_scale = 1.000241",
+        "E_max,syst 5.1 mm before, 0.6 mm after: 8.1x smaller",
+        "written: r/report.json, r/umbmark.png",
+    ]
+    measured = Conclusion(final=Calibration(), ed=1.0, eb=1.0, e_before=0.141421, e_after=None)
+    lines = summary(measured, 2, files)
+    assert lines[0].endswith("(2 passes)")
+    assert lines[2] == "E_max,syst 141.4 mm (measure again with the corrections applied)"
+    nothing_left = Conclusion(final=Calibration(), ed=1.0, eb=1.0, e_before=0.005, e_after=0.0)
+    assert summary(nothing_left, 1, files)[2] == "E_max,syst 5.0 mm before, 0.0 mm after: infx smaller"
+
+
+def test_a_benchmarks_line_gives_its_centres_of_gravity_and_errors():
+    result = evaluate(4.0, 0.441, [(-0.1, -0.1)], [(0.03, -0.03)])
+    assert benchmark_line(Benchmark("measured", Calibration(), result)) == (
+        "measured: centres of gravity cw (-100.0, -100.0) mm, ccw (+30.0, -30.0) mm; E_max,syst 141.4 mm; "
+        f"alpha {result.alpha:+.6f} rad, beta {result.beta:+.6f} rad; Ed {result.ed:.6f}, Eb {result.eb:.6f}"
+    )
+
+
+def test_the_calibrated_description_keeps_the_given_one_and_says_where_it_comes_from(tmp_path: Path):
+    output = tmp_path / "calibrated.toml"
+    assert write_description(output, {"robot": {"name": "rh7"}}, FIRST_PASS) == output
+    lines = output.read_text().splitlines()
+    header = "# The robot description with the odometry calibrated by UMBmark (invent calibrate umbmark): "
+    assert lines[:2] == [
+        f"{header}Ed 0.999996, Eb 1.000241;",
+        "# E_max,syst 5.1 mm before, 0.6 mm after. Run the robot with --config FILE.",
+    ]
+    written = load_config(output)
+    assert written.robot.name == "rh7" and written.odometry.axle_scale == 1.000241
+    with pytest.raises(ConfigError, match="-o .*: Is a directory"):
+        write_description(tmp_path, {}, FIRST_PASS)
 
 
 SIDE = "1.0"

@@ -41,7 +41,7 @@ command line lists its flags. Whatever else needs the robot's body takes it from
 LAYERS: tuple[tuple[str, str], ...] = (
     # (module pattern, layer); the first pattern that matches a module's whole name places it
     (r"schemas(\..*)?", SCHEMAS),
-    (r"services\.errors", ERRORS),
+    (r"services\.(errors|exits)", ERRORS),
     (r"services\.config(\..*)?", CONFIG),
     (r"services\.runtime(\..*)?", RUNTIME),
     (r"services\.(motor|odometry|localization)\.core", CORE),
@@ -51,7 +51,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.clock\.(sim_time|lockstep|observation)", CORE),
     (r"services\.planar", CORE),
     (r"services\.fleet\.(description|summary)", CORE),
-    (r"services\.calibration\.(umbmark|measured)", CORE),
+    (r"services\.calibration\.(umbmark|measured|benchmark|settings)", CORE),
     (r"services\.body\.geometry", CORE),
     (r"sim_bridge\.(simulator|robot|world|latency|display|torque_policy|progress|status)", CORE),
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph|outputs)", CORE),
@@ -293,7 +293,7 @@ def test_each_service_room_holds_its_shell_and_its_core():
 
 def test_the_services_top_level_holds_subpackages_and_a_handful_of_shared_modules():
     modules = sorted(path.name for path in (ROOT / "services").glob("*.py"))
-    assert modules == ["__init__.py", "errors.py", "planar.py", "service.py"]
+    assert modules == ["__init__.py", "errors.py", "exits.py", "planar.py", "service.py"]
 
 
 @pytest.mark.parametrize(

@@ -14,10 +14,10 @@ import msgspec
 import zenoh
 
 from schemas.keys import DEFAULT_ROBOT, Keys, Service
-from services.cli import tools
+from services.cli import calibrate, tools
 from services.config import Config, ConfigError, RecordRate, TfLayout, load_config, parse_override
 from services.fleet.description import fleet_configs, load_fleet
-from services.launch import calibrate, fleet, ros2_run, up, worker
+from services.launch import fleet, ros2_run, up, worker
 from services.recording import record, replay, ros2_record, rosbag, view
 from services.recording.mcap_files import read_run, replay_schedule, write_run_report
 from services.recording.report import summary
@@ -679,7 +679,7 @@ def _up(args: argparse.Namespace) -> int:
 
 
 def _calibrate_umbmark(args: argparse.Namespace) -> int:
-    return calibrate.run_umbmark(args, build_parser())
+    return calibrate.run(args, build_parser())
 
 
 def _serve(args: argparse.Namespace) -> int:

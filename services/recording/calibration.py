@@ -11,18 +11,17 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from foxglove.messages import Color, SceneEntity, SceneUpdate, SpherePrimitive, Timestamp, Vector3
 
 from schemas.messages import NANOSECONDS_PER_SECOND
+from services.calibration.benchmark import RunPaths
 from services.calibration.umbmark import Direction, Umbmark, square
 from services.recording.mcap_files import McapWriter
 from services.recording.scene import WORLD_FRAME, foxglove_pose, ground_line
 
-PathPoint = tuple[float, float]
 PATHS_TOPIC = "/umbmark/paths"
 RUNS_TOPIC = "/umbmark/runs"
 RUNS_SCHEMA: dict[str, Any] = {
@@ -43,19 +42,6 @@ _COLOURS = ("#d62728", "#2ca02c", "#1f77b4", "#9467bd")
 _SQUARE = Color(r=0.5, g=0.5, b=0.5, a=1.0)
 _ODOMETRY = Color(r=0.2, g=0.2, b=0.2, a=0.6)
 _MARKERS = {Direction.CW: "o", Direction.CCW: "s"}
-
-
-@dataclass(frozen=True)
-class RunPaths:
-    """One run's paths in the world frame (m), as the sim and the odometry traced them, and where
-    each says the run ended."""
-
-    name: str
-    direction: Direction
-    truth: tuple[PathPoint, ...]
-    odometry: tuple[PathPoint, ...]
-    truth_end: PathPoint
-    odometry_end: PathPoint
 
 
 def _colour(index: int) -> str:

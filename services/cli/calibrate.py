@@ -1,0 +1,156 @@
+"""``invent calibrate umbmark``'s flags, and its run: the flags turned into typed settings
+(``services/calibration/settings.py``) here, at the edge, then ``services/launch/calibrate.py``."""
+
+from __future__ import annotations
+
+import argparse
+import functools
+from pathlib import Path
+
+from services.calibration.settings import DEFAULT_PASSES, SIM_BODY_KEYS, UmbmarkSettings
+from services.calibration.umbmark import CONVERGED, DEFAULT_RUNS, DEFAULT_SIDE
+from services.config import ConfigError, config_from_description, parse_override, read_description
+from services.launch.calibrate import run_umbmark
+from services.launch.composition import Composition
+from services.launch.run import default_report_dir
+from services.recording.calibration_report import FIGURE_FILE, RECORDING_FILE, REPORT_FILE
+from services.service import finite_number, overrides_from_args
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--side",
+        type=positive_length,
+        metavar="M",
+        help=f"the square's side in metres (default {DEFAULT_SIDE:g}, the paper's; with --measured, the file's if it "
+        "gives one)",
+    )
+    parser.add_argument(
+        "--runs",
+        type=positive_int,
+        metavar="N",
+        help=f"runs in each direction per benchmark (default {DEFAULT_RUNS}, the paper's); in lockstep the runs of "
+        "one direction end at the same place",
+    )
+    parser.add_argument(
+        "--passes",
+        type=positive_int,
+        metavar="N",
+        help=f"at most N corrections (default {DEFAULT_PASSES}), each followed by the benchmark with it applied; a "
+        f"further one only while the correction that benchmark gives would change a multiplier by {CONVERGED * 100:g} %% "
+        "or more (the paper's first-order formulas leave a few per cent of large errors)",
+    )
+    parser.add_argument(
+        "--sim-set",
+        metavar="KEY=VALUE",
+        action="append",
+        help="the simulated body differs from the description by this (repeatable), e.g. "
+        "--sim-set robot.radius_of_right_wheel=0.1005 --sim-set robot.length_of_axle=0.45: the 'true' robot; "
+        "every other service keeps the description. Keys: " + ", ".join(SIM_BODY_KEYS),
+    )
+    parser.add_argument(
+        "--measured",
+        metavar="FILE",
+        help="no simulator: the return positions measured by hand on the robot, a TOML or CSV file "
+        "(docs/odometry.md, Measuring by hand)",
+    )
+    parser.add_argument(
+        "-o",
+        "--output",
+        metavar="FILE",
+        help="write the robot description given (--config, --set) with the corrected odometry.*_scale: run the "
+        "robot with --config FILE",
+    )
+    parser.add_argument(
+        "--report",
+        metavar="DIR",
+        help=f"where {REPORT_FILE}, {FIGURE_FILE} (the paper's figure) and {RECORDING_FILE} (the runs' paths, "
+        "for Foxglove) go (default runs/<timestamp>/)",
+    )
+    parser.add_argument(
+        "--listen",
+        metavar="EP",
+        help="where each run's session (a router, as invent up --composed's) listens, e.g. to watch a run with "
+        "invent view --connect EP (default a free port on 127.0.0.1)",
+    )
+    parser.add_argument(
+        "--log-level",
+        default="warning",
+        choices=["debug", "info", "warning", "error"],
+        help="the services' log level (default warning: the calibration's own lines only)",
+    )
+
+
+def positive_length(text: str) -> float:
+    """argparse type of a length flag: a finite number of metres > 0."""
+    value = finite_number(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive length in metres")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """argparse type of a count flag: a whole number >= 1."""
+    value = whole_number(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be at least 1")
+    return value
+
+
+def whole_number(text: str) -> int:
+    """argparse type of an int flag, as :func:`finite_number` is of a float one."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+
+
+def settings_from_args(args: argparse.Namespace) -> UmbmarkSettings:
+    """The flags as typed settings; ConfigError naming the flag (or the description's field) that
+    cannot be taken."""
+    if args.measured:
+        given = [
+            flag
+            for flag, value in (("--runs", args.runs), ("--passes", args.passes), ("--sim-set", args.sim_set))
+            if value
+        ]
+        if given:
+            raise ConfigError(f"{', '.join(given)}: --measured computes from a file, with no simulator to run")
+    sim_set = {}
+    for text in args.sim_set or ():
+        try:
+            path, value = parse_override(text)
+        except ConfigError:
+            raise ConfigError(f"--sim-set {text!r} must be KEY=VALUE") from None
+        key = ".".join(path)
+        if key not in SIM_BODY_KEYS:
+            raise ConfigError(
+                f"--sim-set {key}: only the simulated body may differ from the description: " + ", ".join(SIM_BODY_KEYS)
+            )
+        sim_set[key] = value
+    output = Path(args.output) if args.output else None
+    if output is not None and not output.parent.is_dir():
+        raise ConfigError(f"-o {output}: no directory {output.parent} to write it in")
+    description = read_description(args.config, overrides_from_args(None, args))
+    return UmbmarkSettings(
+        side=args.side or DEFAULT_SIDE,
+        side_given=args.side is not None,
+        runs=args.runs or DEFAULT_RUNS,
+        passes=args.passes or DEFAULT_PASSES,
+        sim_set=sim_set,
+        measured=Path(args.measured) if args.measured else None,
+        description=description,
+        config=config_from_description(description),
+        report_dir=Path(args.report) if args.report else default_report_dir(),
+        output=output,
+        config_file=Path(args.config) if args.config else None,
+        robot=args.robot,
+        sets=tuple(args.set or ()),
+        log_level=args.log_level,
+        listen=args.listen,
+    )
+
+
+def run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """``invent calibrate umbmark``: ``parser`` (``invent``'s) builds each simulated run's services."""
+    return run_umbmark(settings_from_args(args), functools.partial(Composition, parser=parser))
