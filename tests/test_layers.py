@@ -19,7 +19,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("schemas", "services", "sim_bridge")
 
-SCHEMAS, CONFIG, RUNTIME, CORE, SHELL, SHELL_SUPPORT, TOOL, PACKAGE = (
+BASE, SCHEMAS, CONFIG, RUNTIME, CORE, SHELL, SHELL_SUPPORT, TOOL, PACKAGE = (
+    "base",
     "schemas",
     "config",
     "runtime",
@@ -35,6 +36,7 @@ COMMAND_LINE = "services.cli"
 LAYERS: tuple[tuple[str, str], ...] = (
     # (module pattern, layer); the first pattern that matches a module's whole name places it
     (r"schemas(\..*)?", SCHEMAS),
+    (r"services\.(errors|exits)", BASE),
     (r"services\.config", CONFIG),
     (r"services\.runtime(\..*)?", RUNTIME),
     (r"services\.(motor|odometry|localization)\.core", CORE),
@@ -87,6 +89,10 @@ def violations(imports: Mapping[str, set[str]]) -> list[str]:
 
 def _broken_rule(module: str, layer: str, imported: str, imported_layer: str | None) -> str | None:
     project = PROJECT.fullmatch(imported) is not None
+    if layer == BASE and project:
+        return "the exit statuses and the exceptions import nothing of the project"
+    if imported_layer == BASE:
+        return None  # anything may import them
     if _is(imported, COMMAND_LINE) and not _is(module, COMMAND_LINE):
         return "nothing imports the command line (services/cli/) but itself"
     if layer == SCHEMAS and project and imported_layer != SCHEMAS:
@@ -263,7 +269,15 @@ def test_each_service_room_holds_its_shell_and_its_core():
 
 def test_the_services_top_level_holds_subpackages_and_a_handful_of_shared_modules():
     modules = sorted(path.name for path in (ROOT / "services").glob("*.py"))
-    assert modules == ["__init__.py", "config.py", "planar.py", "security.py", "service.py"]
+    assert modules == [
+        "__init__.py",
+        "config.py",
+        "errors.py",
+        "exits.py",
+        "planar.py",
+        "security.py",
+        "service.py",
+    ]
 
 
 @pytest.mark.parametrize(
@@ -287,6 +301,8 @@ def test_the_services_top_level_holds_subpackages_and_a_handful_of_shared_module
         ("services.launch.up", "services.cli.main", "nothing imports the command line (services/cli/) but itself"),
         ("services.runtime.node", "services.motor.core", "the runtime imports no service, core or tool"),
         ("schemas.keys", "services.config", "the schemas import only msgspec and the standard library"),
+        ("services.exits", "services.config", "the exit statuses and the exceptions import nothing of the project"),
+        ("services.errors", "schemas.codec", "the exit statuses and the exceptions import nothing of the project"),
     ],
 )
 def test_a_broken_rule_is_found(module: str, imported: str, rule: str):
@@ -299,6 +315,10 @@ def test_allowed_edges_are_not_flagged():
         "services.motor.service": {"services.motor.core", "services.runtime.node", "services.clock.sim_watch", "zenoh"},
         "services.recording.report": {"services.motor.core", "services.drive.scenarios"},
         "sim_bridge.simulator": {"pybullet", "sim_bridge.robot", "services.config"},
+        "services.drive.outcome": {"services.exits"},
+        "services.runtime.session": {"services.errors"},
+        "schemas.keys": {"services.errors"},
+        "services.exits": {"enum"},
     }
     assert violations(allowed) == []
 

@@ -16,6 +16,8 @@ import zenoh
 from schemas.keys import DEFAULT_ROBOT, Keys, Service
 from services.cli import tools
 from services.config import Config, ConfigError, RecordRate, TfLayout, load_config, parse_override
+from services.errors import SessionFailed
+from services.exits import ExitStatus
 from services.fleet.description import fleet_configs, load_fleet
 from services.launch import calibrate, fleet, ros2_run, up, worker
 from services.recording import record, replay, ros2_record, rosbag, view
@@ -28,7 +30,6 @@ from services.runtime.session import (
     DEFAULT_ENDPOINT,
     LOOPBACK_LISTEN,
     ZENOH_CONFIG_VARIABLE,
-    SessionFailed,
     open_session,
     session_config,
     stop_on_signals,
@@ -43,9 +44,6 @@ from services.service import (
     robot_name,
     run_service,
 )
-
-EXIT_CONFIG = 2
-EXIT_NO_SESSION = 1
 
 SERVICE_MODULES = (
     "sim_bridge.bridge",
@@ -712,7 +710,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.handler(args)
     except ConfigError as error:
         print(f"invent {args.command}: invalid configuration: {error}", file=sys.stderr)
-        return EXIT_CONFIG
+        return ExitStatus.CONFIG
     except SessionFailed as error:
         print(f"invent {args.command}: {error}", file=sys.stderr)
-        return EXIT_NO_SESSION
+        return ExitStatus.FAILURE

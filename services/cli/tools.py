@@ -22,12 +22,11 @@ import zenoh
 from schemas.codec import ENCODING, BadMessage, decode
 from schemas.keys import Keys, all_robots_alive, schema_for_key
 from services.config import ConfigError
+from services.exits import ExitStatus
 from services.ros2.graph import BridgeGraph
 from services.runtime.discovery import payload_value, service_statuses
 from services.runtime.session import ROUTER_LISTENING, has_match
 from services.security import fleet_robots, write_fleet_profile, write_profile
-
-EXIT_NO_ANSWER = 1
 
 
 def _print_json(value: Any, stream=sys.stdout) -> None:
@@ -58,7 +57,7 @@ def run_router(session: zenoh.Session, listen: list[str], stop: threading.Event)
     )
     while not stop.wait(0.2):
         pass
-    return 0
+    return ExitStatus.OK
 
 
 def run_secrets(
@@ -103,7 +102,7 @@ def run_secrets(
     for identity in profile.identities:
         path = profile.client_config(identity.role, identity.robot)
         print(f"  {identity.user + ':':<{width}} --zenoh-config {path}", file=sys.stderr)
-    return 0
+    return ExitStatus.OK
 
 
 def robot_names(text: str) -> tuple[str, ...]:
@@ -140,7 +139,7 @@ def run_echo(session: zenoh.Session, key_expr: str, count: int | None, stop: thr
                 continue
             _print_json(describe_sample(key, payload))
             printed += 1
-    return 0
+    return ExitStatus.OK
 
 
 def _wait_for_match(querier: zenoh.Querier, timeout: float) -> bool:
@@ -184,8 +183,8 @@ def run_call(session: zenoh.Session, key: str, payload: str | None, timeout: flo
                 failed = True
         if not replies and not failed:
             print(f"invent call: {_no_answer(session, key, matched, timeout)}", file=sys.stderr)
-            return EXIT_NO_ANSWER
-        return EXIT_NO_ANSWER if failed else 0
+            return ExitStatus.FAILURE
+        return ExitStatus.FAILURE if failed else ExitStatus.OK
     finally:
         querier.undeclare()
 
@@ -196,7 +195,7 @@ def run_status(session: zenoh.Session, robot: str | None, timeout: float) -> int
     statuses = service_statuses(session, key_expr, timeout)
     if not statuses:
         print(f"invent status: no service alive on {key_expr}", file=sys.stderr)
-        return EXIT_NO_ANSWER
+        return ExitStatus.FAILURE
     for robot_name, service, status in statuses:
         _print_json({"robot": robot_name, "service": str(service), "alive": True, "status": status})
-    return 0
+    return ExitStatus.OK

@@ -63,7 +63,7 @@ from services.config import (
     read_description,
 )
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
-from services.launch.children import ChildDied, Interrupted
+from services.errors import ChildDied, Interrupted
 from services.launch.composition import Composition
 from services.launch.run import EXIT_CHILD_DIED, EXIT_INTERRUPTED, Outcomes, Run, default_report_dir
 from services.recording.calibration import PathPoint, RunPaths, write_figure, write_paths_recording

@@ -31,14 +31,14 @@ from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config, ConfigError, SimMode
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.scenarios import load_scenario
+from services.errors import ChildDied, Interrupted
+from services.exits import ExitStatus
 from services.fleet.description import Fleet, FleetRobot, bridge_flags, fleet_configs, load_fleet, robot_flags
 from services.fleet.summary import bumps_between, closest_approach
-from services.launch.children import ChildDied, Interrupted, say
+from services.launch.children import say
 from services.launch.recorder import RunRecorder
 from services.launch.ros2_run import BagRecording, check_ros2_flags, fleet_bridge_graphs, fleet_bridges
 from services.launch.run import (
-    EXIT_CHILD_DIED,
-    EXIT_INTERRUPTED,
     MOTOR_STATE_FILE,
     RECORDING_FILE,
     SECRETS_DIRECTORY,
@@ -348,10 +348,10 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             outcome_lines = [f"{name}: {outcomes.line(name, outcome)}" for name, outcome in run.outcomes.items()]
     except ChildDied as error:
         say(f"{error}; stopped everything")
-        return EXIT_CHILD_DIED
+        return ExitStatus.FAILURE
     except Interrupted:
         say("interrupted; stopped everything")
-        return EXIT_INTERRUPTED
+        return ExitStatus.INTERRUPTED
     finally:
         if recorder:
             recorder.finish(sim_started, report_dir / RECORDING_FILE, first, tuple(configs.values()))

@@ -26,6 +26,7 @@ from threading import Event, Thread
 import zenoh
 
 from services.config import Config, ConfigError, RecordConfig, SimMode, TfLayout
+from services.exits import ExitStatus
 from services.fleet.description import Fleet, bridge_configs
 from services.launch.children import say
 from services.recording.rosbag import write_bag_from_journals
@@ -131,7 +132,7 @@ def serve_bridges(
         for node, service in reversed(running):
             service.close()
             node.close()
-    return 1 if failed else 0
+    return ExitStatus.FAILURE if failed else ExitStatus.OK
 
 
 class BagRecording:

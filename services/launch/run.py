@@ -23,7 +23,9 @@ import zenoh
 from schemas.keys import Keys, Service
 from schemas.messages import ScenarioOutcome
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
-from services.launch.children import ChildDied, Interrupted, Launcher, Supervisor, describe_exit, say
+from services.errors import ChildDied, Interrupted
+from services.exits import ExitStatus
+from services.launch.children import Launcher, Supervisor, describe_exit, say
 from services.launch.composition import Composition
 from services.launch.worker import Workers
 from services.runtime.intraprocess import LocalBus, Watch
@@ -32,11 +34,10 @@ from services.runtime.session import ROUTER_LISTENING, open_session, session_con
 from services.security import Profile, Role
 from services.service import config_from_args
 
-EXIT_CHILD_DIED = 1
-EXIT_DEGRADED = 1
-EXIT_INTERRUPTED = 130
-"""With the outcomes' codes (services/drive/outcome.py: 0 completed, 3 aborted, 4 timed out), the
-exit statuses of ``invent up`` (docs/protocol.md section 8.5)."""
+EXIT_CHILD_DIED = ExitStatus.FAILURE
+EXIT_INTERRUPTED = ExitStatus.INTERRUPTED
+"""The names services/launch/calibrate.py imports, until the lead merges h6-calib's version of it
+(every other module says :class:`~services.exits.ExitStatus`)."""
 STARTUP_TIMEOUT_S = 60.0
 END_TIMEOUT_S = 10.0
 """How long the sim may take to hold at the drive's last command once the drive has ended."""
@@ -263,7 +264,7 @@ def outcome_exit_code(outcomes: Sequence[Outcome | None]) -> int:
     for worst in (Outcome.ABORTED, Outcome.TIMED_OUT):
         if worst in outcomes:
             return worst.exit_code
-    return 0
+    return ExitStatus.OK
 
 
 class ViewProcess:
@@ -302,9 +303,10 @@ def verdict(args: argparse.Namespace, degraded: list[str], done: str, outcome_co
         say(f"the scenario was given up: exit {outcome_code}")
         return outcome_code
     if degraded and args.strict:
-        say(f"--strict: the run degraded ({len(degraded)} reason{'s' * (len(degraded) > 1)}): exit {EXIT_DEGRADED}")
-        return EXIT_DEGRADED
-    return 0
+        status = ExitStatus.FAILURE
+        say(f"--strict: the run degraded ({len(degraded)} reason{'s' * (len(degraded) > 1)}): exit {status}")
+        return status
+    return ExitStatus.OK
 
 
 def _progress(sim_status: dict[str, Any], wall_s: float) -> None:

@@ -28,13 +28,13 @@ from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, Time
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config, ConfigError, SimMode
 from services.drive.scenarios import load_scenario
+from services.errors import ChildDied, Interrupted
+from services.exits import ExitStatus
 from services.launch import ros2_run
-from services.launch.children import ChildDied, Interrupted, say
+from services.launch.children import say
 from services.launch.recorder import RunRecorder
 from services.launch.ros2_run import BagRecording, check_ros2_flags
 from services.launch.run import (
-    EXIT_CHILD_DIED,
-    EXIT_INTERRUPTED,
     MOTOR_STATE_FILE,
     RECORDING_FILE,
     SECRETS_DIRECTORY,
@@ -213,10 +213,10 @@ def run_up(args: argparse.Namespace, config: Config, parser: argparse.ArgumentPa
             outcome_line = None if outcome is None else outcomes.line(keys.robot, outcome)
     except ChildDied as error:
         say(f"{error}; stopped everything")
-        return EXIT_CHILD_DIED
+        return ExitStatus.FAILURE
     except Interrupted:
         say("interrupted; stopped everything")
-        return EXIT_INTERRUPTED
+        return ExitStatus.INTERRUPTED
     finally:
         if recorder:
             recorder.finish(sim_started, report_dir / RECORDING_FILE, config)

@@ -36,8 +36,9 @@ from typing import Any
 import zenoh
 
 from schemas.keys import Service
+from services.errors import ChildDied
 from services.fleet.description import Fleet, robot_flags
-from services.launch.children import ChildDied, Supervisor, describe_exit
+from services.launch.children import Supervisor, describe_exit
 from services.launch.composition import Composition
 from services.runtime.executor import STOP_POLL_S
 
