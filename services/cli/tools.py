@@ -6,7 +6,6 @@ to ``jq`` or read by tests, and errors as one line on stderr.
 
 from __future__ import annotations
 
-import argparse
 import json
 import queue
 import sys
@@ -26,7 +25,7 @@ from services.exits import ExitStatus
 from services.ros2.graph import BridgeGraph
 from services.runtime.discovery import payload_value, service_statuses
 from services.runtime.session import ROUTER_LISTENING, has_match
-from services.security import fleet_robots, write_fleet_profile, write_profile
+from services.security import write_fleet_profile, write_profile
 
 
 def _print_json(value: Any, stream=sys.stdout) -> None:
@@ -103,15 +102,6 @@ def run_secrets(
         path = profile.client_config(identity.role, identity.robot)
         print(f"  {identity.user + ':':<{width}} --zenoh-config {path}", file=sys.stderr)
     return ExitStatus.OK
-
-
-def robot_names(text: str) -> tuple[str, ...]:
-    """``--robots rh0,rh1``: a fleet's robot names, comma-separated (an argparse ``type``: a bad or
-    repeated name is a usage error, exit 2, naming the flag)."""
-    try:
-        return fleet_robots(name.strip() for name in text.split(","))
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def _router_plugins(path: str) -> dict[str, Any]:

@@ -53,6 +53,7 @@ from services.calibration.umbmark import (
     return_error,
     square,
 )
+from services.cli.flags import finite_number, overrides_from_args
 from services.config import (
     NONE,
     Config,
@@ -70,7 +71,6 @@ from services.recording.calibration import PathPoint, RunPaths, write_figure, wr
 from services.recording.report import degradations, loop_health
 from services.runtime.intraprocess import LocalBus, Watch
 from services.runtime.session import free_port, open_session, session_config, stop_on_signals
-from services.service import finite_number, overrides_from_args
 
 SIM_BODY_KEYS = (
     "robot.radius_of_left_wheel",

@@ -1,12 +1,12 @@
 """What every run of ``invent up`` shares, for one robot (``services/launch/up.py``) and a fleet
-(``services/launch/fleet.py``) alike: where its files go, how its sessions are configured
-(:class:`Access`), how its services are launched (:func:`launch_services`), how it watches them
-(:class:`Run`), its live view, and how it ends: each robot's scenario outcome (:class:`Outcomes`)
-and the run's exit status (:func:`verdict`)."""
+(``services/launch/fleet.py``) alike: where its files go, the flags its children are given
+(:func:`child_flags`), how its sessions are configured (:class:`Access`, :func:`secure_listen`),
+how its services are launched (:func:`launch_services`), how it watches them (:class:`Run`), its
+live view, and how it ends: each robot's scenario outcome (:class:`Outcomes`) and the run's exit
+status (:func:`verdict`)."""
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import threading
@@ -22,17 +22,19 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from schemas.messages import ScenarioOutcome
+from services.config import ConfigError
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.errors import ChildDied, Interrupted
 from services.exits import ExitStatus
 from services.launch.children import Launcher, Supervisor, describe_exit, say
 from services.launch.composition import Composition
+from services.launch.plan import UpPlan
 from services.launch.worker import Workers
 from services.runtime.intraprocess import LocalBus, Watch
 from services.runtime.realtime import apply_realtime
-from services.runtime.session import ROUTER_LISTENING, open_session, session_config
+from services.runtime.session import DEFAULT_ENDPOINT, ROUTER_LISTENING, open_session, session_config
 from services.security import Profile, Role
-from services.service import config_from_args
+from services.service import ServiceParse
 
 EXIT_CHILD_DIED = ExitStatus.FAILURE
 EXIT_INTERRUPTED = ExitStatus.INTERRUPTED
@@ -54,10 +56,39 @@ CONTROL_PATH = (Service.SIM, Service.MOTOR)
 runs through them (docs/realtime.md)."""
 
 
-def rt_flags(args: argparse.Namespace) -> list[str]:
+def rt_flags(plan: UpPlan) -> list[str]:
     """The flags that give a control-path child (the router, the sim, a motor) ``up``'s ``--rt``;
     the ``rt.*`` overrides reach every child with the other ``--set``."""
-    return ["--rt"] if args.rt else []
+    return ["--rt"] if plan.description.rt else []
+
+
+def child_flags(plan: UpPlan, endpoint: str) -> list[str]:
+    """What every service of the run is given: where to connect, the log level, the robot description."""
+    description = plan.description
+    common = ["--connect", endpoint, "--log-level", plan.connection.log_level]
+    if description.robot:
+        common += ["--robot", description.robot]
+    if description.config:
+        common += ["--config", description.config]
+    for override in description.settings:
+        common += ["--set", override]
+    return common
+
+
+def secure_listen(plan: UpPlan) -> list[str] | None:
+    """With ``--secure``, where the run's own router listens (its profile's endpoints); None without."""
+    if plan.tls and not plan.secure:
+        raise ConfigError("--tls: it is an option of --secure (use both)")
+    if not plan.secure:
+        return None
+    return list(plan.connection.listen) or [DEFAULT_ENDPOINT]
+
+
+def run_endpoint(plan: UpPlan, access: Access) -> str:
+    """Where the run's services connect: its secure router, else ``--connect``, else its own router's ``--listen``."""
+    if access.profile:
+        return access.profile.endpoint
+    return (plan.connection.connect or plan.connection.listen or (DEFAULT_ENDPOINT,))[0]
 
 
 def default_report_dir() -> Path:
@@ -85,9 +116,9 @@ class Access:
 
 @contextmanager
 def launch_services(
-    args: argparse.Namespace,
+    plan: UpPlan,
     endpoint: str,
-    parser: argparse.ArgumentParser,
+    parse: ServiceParse,
     access: Access,
     assignment: dict[str, int] | None = None,
 ) -> Iterator[tuple[Launcher, zenoh.Session]]:
@@ -95,20 +126,21 @@ def launch_services(
     child (or the router at ``--connect``), or one composed process whose session is itself the
     router (so outside zenoh tools still see every key); a composed fleet's robots spread over
     worker processes as ``assignment`` says (services/launch/worker.py)."""
-    if args.composed:
+    connection = plan.connection
+    if plan.composed:
         # One process runs the whole loop: it is the control path.
-        apply_realtime(config_from_args(None, args).rt, "invent up --composed", composed=True)
+        apply_realtime(plan.description.load().rt, "invent up --composed", composed=True)
         mode_config = (
-            session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR), timestamping=args.ros2)
-            if args.connect
-            else session_config(listen=[endpoint], mode="router", timestamping=args.ros2)
+            session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR), timestamping=plan.ros2)
+            if connection.connect
+            else session_config(listen=[endpoint], mode="router", timestamping=plan.ros2)
         )
         with open_session(mode_config) as session:
-            composition = Composition(session, parser, intra_process=not args.no_intra_process)
+            composition = Composition(session, parse, intra_process=plan.intra_process)
             launcher: Launcher = composition
             if assignment and max(assignment.values()) > 0:
-                worker_flags = ["--connect", endpoint, "--log-level", args.log_level]
-                worker_flags += ["--no-intra-process"] if args.no_intra_process else []
+                worker_flags = ["--connect", endpoint, "--log-level", connection.log_level]
+                worker_flags += [] if plan.intra_process else ["--no-intra-process"]
                 launcher = Workers(composition, assignment, worker_flags)
             try:
                 yield launcher, session
@@ -117,14 +149,15 @@ def launch_services(
         return
     supervisor = Supervisor()
     try:
-        if not args.connect:
-            rt_settings = [flag for text in args.set or () if text.startswith("rt.") for flag in ("--set", text)]
+        if not connection.connect:
+            settings = plan.description.settings
+            rt_settings = [flag for text in settings if text.startswith("rt.") for flag in ("--set", text)]
             router_flags = [
                 "router",
                 *access.router_flags(endpoint),
                 "--log-level",
-                args.log_level,
-                *rt_flags(args),
+                connection.log_level,
+                *rt_flags(plan),
                 *rt_settings,
             ]
             # Nothing connects before the router listens: a router that cannot (its port taken)
@@ -295,14 +328,14 @@ class ViewProcess:
             say(f"view did not exit cleanly ({describe_exit(code)})")
 
 
-def verdict(args: argparse.Namespace, degraded: list[str], done: str, outcome_code: int = 0) -> int:
+def verdict(strict: bool, degraded: list[str], done: str, outcome_code: int = 0) -> int:
     """Say what was written; a scenario given up exits with its outcome's code, else under
     ``--strict`` a degraded run exits 1."""
     say(done)
     if outcome_code:
         say(f"the scenario was given up: exit {outcome_code}")
         return outcome_code
-    if degraded and args.strict:
+    if degraded and strict:
         status = ExitStatus.FAILURE
         say(f"--strict: the run degraded ({len(degraded)} reason{'s' * (len(degraded) > 1)}): exit {status}")
         return status
