@@ -13,7 +13,7 @@ class ExitStatus(enum.IntEnum):
     """It could not: no zenoh session, nothing answered a call, a service of the run died, a replay's
     consumer stalled, a view could not listen, a ``--strict`` run degraded."""
     CONFIG = 2
-    """Bad arguments or configuration, refused before anything ran (argparse's usage errors too)."""
+    """Bad arguments or configuration, refused before anything ran (a usage error of the command line too)."""
     ABORTED = 3
     """A drive's scenario given up: the motor stayed latched stopped (services/drive/outcome.py)."""
     TIMED_OUT = 4

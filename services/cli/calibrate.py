@@ -4,21 +4,17 @@ from __future__ import annotations
 
 import argparse
 
-from services.cli.flags import Commands, Parents
+from services.cli.flags import description_flags
 from services.cli.services import service_plan
+from services.cli.subcommand import Subcommand
 from services.launch import calibrate
 
 
-def add_parser(commands: Commands, parents: Parents) -> None:
-    calibrate_parser = commands.add_parser(
-        "calibrate",
-        help="calibrate the odometry: UMBmark, in the simulator or from return positions measured by hand",
-        description="Calibrate the robot's odometry. The one method: umbmark (`invent calibrate umbmark --help`).",
-    )
-    methods = calibrate_parser.add_subparsers(dest="method", required=True, metavar="METHOD")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    methods = parser.add_subparsers(dest="method", required=True, metavar="METHOD")
     umbmark = methods.add_parser(
         "umbmark",
-        parents=[parents.description],
+        parents=[description_flags()],
         help="UMBmark: drive a square both ways on odometry alone, correct the wheel radii and the wheelbase",
         description="UMBmark (Borenstein and Feng 1996): drive a square of side --side clockwise and "
         "counter-clockwise --runs times each on odometry alone, take where the robot really stops, and compute the "
@@ -39,3 +35,13 @@ def run(args: argparse.Namespace) -> int:
     # services/launch/calibrate.py still names what it hands its composition an ArgumentParser;
     # h6-calib's version of it, which the lead merges, takes the service parse it is now.
     return calibrate.run_umbmark(args, service_plan)  # type: ignore[arg-type]
+
+
+SUBCOMMAND = Subcommand(
+    name="calibrate",
+    help="calibrate the odometry: UMBmark, in the simulator or from return positions measured by hand",
+    description="Calibrate the robot's odometry. The one method: umbmark (`invent calibrate umbmark --help`).",
+    groups=(),
+    add_arguments=add_arguments,
+    run=run,
+)

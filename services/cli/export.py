@@ -6,7 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from services.cli.flags import Commands, Parents, config_from_args, overrides_from_args
+from services.cli.flags import config_from_args, overrides_from_args
+from services.cli.subcommand import Subcommand
 from services.config import ConfigError
 from services.fleet.description import load_fleet
 from services.launch import ros2_run
@@ -15,30 +16,18 @@ from services.recording.mcap_files import read_run
 from services.ros2.graph import bridge_graph
 
 
-def add_parser(commands: Commands, parents: Parents) -> None:
-    export = commands.add_parser(
-        "export",
-        parents=[parents.description],
-        help="turn a recording of a run (run.mcap) into a ROS 2 bag",
-        description="Replay a recording of `invent up` (its run.mcap, and the files it was split into) through the "
-        "ROS 2 bridge's own mapping (services/ros2/outputs.py) and write what the bridge would have published, "
-        "/clock, odom, tf, tf_static, joint_states and robot_description of each robot, into a rosbag2 bag with "
-        "MCAP storage, each message at the simulation time it carries. The messages come at the recording's "
-        "observed steps: a run with --ros2 has the bridge's rates. --robot, --config and --set (or --fleet) must "
-        "match the run's; the [record] bounds apply to the bag.",
-    )
-    export.add_argument("recording", metavar="RUN.mcap", help="the recording, e.g. runs/<timestamp>/run.mcap")
-    export.add_argument(
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", metavar="RUN.mcap", help="the recording, e.g. runs/<timestamp>/run.mcap")
+    parser.add_argument(
         "--ros2", action="store_true", required=True, help="the format: a rosbag2 bag (MCAP storage), ROS 2 CDR"
     )
-    export.add_argument("--output", "-o", metavar="DIR", required=True, help="the bag's new directory")
-    export.add_argument(
+    parser.add_argument("--output", "-o", metavar="DIR", required=True, help="the bag's new directory")
+    parser.add_argument(
         "--fleet",
         metavar="FILE",
         help="the fleet file of the run: each robot in its namespace, /clock from the first (needed for a "
         "recording of several robots)",
     )
-    export.set_defaults(handler=run, log_level="info")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,3 +68,18 @@ def say_bag(result: rosbag.BagResult) -> None:
     print(f"{result.path}: {result.messages} messages in {len(result.files)} file(s): {counts}")
     if result.stopped is not None:
         print(f"the bag stopped early: {result.stopped['reason']}")
+
+
+SUBCOMMAND = Subcommand(
+    name="export",
+    help="turn a recording of a run (run.mcap) into a ROS 2 bag",
+    description="Replay a recording of `invent up` (its run.mcap, and the files it was split into) through the "
+    "ROS 2 bridge's own mapping (services/ros2/outputs.py) and write what the bridge would have published, "
+    "/clock, odom, tf, tf_static, joint_states and robot_description of each robot, into a rosbag2 bag with "
+    "MCAP storage, each message at the simulation time it carries. The messages come at the recording's "
+    "observed steps: a run with --ros2 has the bridge's rates. --robot, --config and --set (or --fleet) must "
+    "match the run's; the [record] bounds apply to the bag.",
+    groups=("description",),
+    add_arguments=add_arguments,
+    run=run,
+)

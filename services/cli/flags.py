@@ -32,9 +32,14 @@ class OwnFlags(Protocol):
         ...
 
 
-def connection_flags() -> argparse.ArgumentParser:
+def _flag_group(title: str) -> tuple[argparse.ArgumentParser, argparse._ArgumentGroup]:
+    """A parent parser (for a subcommand's ``parents``) holding one titled group of flags."""
     flags = argparse.ArgumentParser(add_help=False)
-    group = flags.add_argument_group("zenoh connection")
+    return flags, flags.add_argument_group(title)
+
+
+def connection_flags() -> argparse.ArgumentParser:
+    flags, group = _flag_group("zenoh connection")
     group.add_argument(
         "--connect",
         metavar="EP",
@@ -63,8 +68,7 @@ def connection_flags() -> argparse.ArgumentParser:
 
 
 def description_flags() -> argparse.ArgumentParser:
-    flags = argparse.ArgumentParser(add_help=False)
-    group = flags.add_argument_group("robot description")
+    flags, group = _flag_group("robot description")
     group.add_argument(
         "--robot", metavar="NAME", help=f"robot name, the key prefix invent/NAME/ (default {DEFAULT_ROBOT})"
     )
@@ -79,8 +83,7 @@ def description_flags() -> argparse.ArgumentParser:
 
 
 def rt_flags() -> argparse.ArgumentParser:
-    flags = argparse.ArgumentParser(add_help=False)
-    group = flags.add_argument_group("real time")
+    flags, group = _flag_group("real time")
     group.add_argument(
         "--rt",
         action="store_true",

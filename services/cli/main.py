@@ -28,13 +28,32 @@ from services.cli import (
     worker,
 )
 from services.cli.flags import Parents
+from services.cli.subcommand import Subcommand
 from services.config import ConfigError
 from services.errors import SessionFailed
 from services.exits import ExitStatus
 from services.runtime.logs import configure_logging
 
-SUBCOMMANDS = (router, secrets, echo, call, status, config, record, export, view, report, replay, up, calibrate, worker)
-"""The modules of the subcommands that are not services, each adding its parser, in ``invent --help``'s order."""
+SUBCOMMANDS: tuple[Subcommand, ...] = tuple(
+    module.SUBCOMMAND
+    for module in (
+        router,
+        secrets,
+        echo,
+        call,
+        status,
+        config,
+        record,
+        export,
+        view,
+        report,
+        replay,
+        up,
+        calibrate,
+        worker,
+    )
+)
+"""The subcommands that are not services, in ``invent --help``'s order, each in its own module."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,14 +65,21 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     parents = Parents()
     for subcommand in SUBCOMMANDS:
-        subcommand.add_parser(commands, parents)
+        sub = commands.add_parser(
+            subcommand.name,
+            parents=[getattr(parents, group) for group in subcommand.groups],
+            help=subcommand.help,
+            description=subcommand.description,
+        )
+        subcommand.add_arguments(sub)
+        sub.set_defaults(handler=subcommand.run)
     services.add_parsers(commands, parents)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    configure_logging(args.log_level)
+    configure_logging(getattr(args, "log_level", "info"))  # a subcommand without the connection flags logs at info
     try:
         return args.handler(args)
     except ConfigError as error:

@@ -9,13 +9,12 @@ from pathlib import Path
 from schemas.keys import Keys
 from services.cli.export import say_bag
 from services.cli.flags import (
-    Commands,
-    Parents,
     config_from_args,
     overrides_from_args,
     positive_seconds,
     session_from_args,
 )
+from services.cli.subcommand import Subcommand
 from services.config import Config, ConfigError
 from services.fleet.description import load_fleet
 from services.launch import ros2_run
@@ -24,31 +23,19 @@ from services.ros2.graph import bridge_graph
 from services.runtime.session import open_session, stop_on_signals
 
 
-def add_parser(commands: Commands, parents: Parents) -> None:
-    record_parser = commands.add_parser(
-        "record",
-        parents=[parents.connection, parents.description],
-        help="record keys into an MCAP file (open it in Foxglove, read it with the mcap CLI)",
-        description="Record every sample of KEYEXPR (default invent/<robot>/**) into an MCAP file: one channel "
-        "per key, JSON messages with their JSON schema, log_time the receive time, publish_time the message's "
-        "tm; beside them the robot's Foxglove scene (transforms, poses, robot, obstacles, path, trails, wheel "
-        "speeds) and the services' status every 0.5 s. Ctrl-C, SIGTERM or --duration end it with a valid, "
-        "indexed file; a recorder killed with SIGKILL loses at most its last chunk (about 0.2 s of the loop).",
-    )
-    record_parser.add_argument(
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
         "keyexprs", metavar="KEYEXPR", nargs="*", help="zenoh key expressions (default invent/<robot>/**)"
     )
-    record_parser.add_argument(
+    parser.add_argument(
         "--output",
         "-o",
         metavar="PATH",
         help="file to write (default invent.mcap); with --ros2, the bag's new directory (default "
         "rosbag2_<date>-<time>, as `ros2 bag record` names one)",
     )
-    record_parser.add_argument(
-        "--duration", type=positive_seconds, metavar="S", help="stop after S seconds of wall time"
-    )
-    record_parser.add_argument(
+    parser.add_argument("--duration", type=positive_seconds, metavar="S", help="stop after S seconds of wall time")
+    parser.add_argument(
         "--ros2",
         action="store_true",
         help="record the ROS 2 graph instead: every topic the robot's ROS 2 bridge publishes (of each robot with "
@@ -57,12 +44,11 @@ def add_parser(commands: Commands, parents: Parents) -> None:
         "the bounds of [record] apply (split_size, split_duration, max_size, max_duration, min_free_disk). "
         "`ros2 bag info DIR`, `ros2 bag play DIR --clock` (docs/ros2.md, Bags)",
     )
-    record_parser.add_argument(
+    parser.add_argument(
         "--fleet",
         metavar="FILE",
         help="with --ros2: the bridges of every robot of this fleet file, in their namespaces",
     )
-    record_parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -110,3 +96,17 @@ def _run_ros2(args: argparse.Namespace, config: Config) -> int:
         )
     say_bag(result)
     return 0
+
+
+SUBCOMMAND = Subcommand(
+    name="record",
+    help="record keys into an MCAP file (open it in Foxglove, read it with the mcap CLI)",
+    description="Record every sample of KEYEXPR (default invent/<robot>/**) into an MCAP file: one channel "
+    "per key, JSON messages with their JSON schema, log_time the receive time, publish_time the message's "
+    "tm; beside them the robot's Foxglove scene (transforms, poses, robot, obstacles, path, trails, wheel "
+    "speeds) and the services' status every 0.5 s. Ctrl-C, SIGTERM or --duration end it with a valid, "
+    "indexed file; a recorder killed with SIGKILL loses at most its last chunk (about 0.2 s of the loop).",
+    groups=("connection", "description"),
+    add_arguments=add_arguments,
+    run=run,
+)

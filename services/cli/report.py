@@ -5,24 +5,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from services.cli.flags import Commands, Parents, config_from_args
+from services.cli.flags import config_from_args
+from services.cli.subcommand import Subcommand
 from services.config import ConfigError
 from services.recording.mcap_files import write_run_report
 from services.recording.report import summary
 
 
-def add_parser(commands: Commands, parents: Parents) -> None:
-    report_parser = commands.add_parser(
-        "report",
-        parents=[parents.description],
-        help="rebuild report.json and the plots from the recording of a run (run.mcap)",
-        description="Read a recording of `invent up` (its run.mcap) and write report.json, trajectory.png and "
-        "wheel_speeds.png, as `invent up` does at the end of a run, into --output-dir (default: the "
-        "recording's directory). --robot and --config must match the run's.",
-    )
-    report_parser.add_argument("recording", metavar="FILE.mcap", help="the recording, e.g. runs/<timestamp>/run.mcap")
-    report_parser.add_argument("--output-dir", metavar="DIR", help="where to write (default: beside the recording)")
-    report_parser.set_defaults(handler=run, log_level="info")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", metavar="FILE.mcap", help="the recording, e.g. runs/<timestamp>/run.mcap")
+    parser.add_argument("--output-dir", metavar="DIR", help="where to write (default: beside the recording)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,3 +27,15 @@ def run(args: argparse.Namespace) -> int:
     print(summary(report))
     print(f"report: {report_path}; plots: {', '.join(str(p) for p in plots)}")
     return 0
+
+
+SUBCOMMAND = Subcommand(
+    name="report",
+    help="rebuild report.json and the plots from the recording of a run (run.mcap)",
+    description="Read a recording of `invent up` (its run.mcap) and write report.json, trajectory.png and "
+    "wheel_speeds.png, as `invent up` does at the end of a run, into --output-dir (default: the "
+    "recording's directory). --robot and --config must match the run's.",
+    groups=("description",),
+    add_arguments=add_arguments,
+    run=run,
+)

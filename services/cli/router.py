@@ -6,29 +6,21 @@ import argparse
 import json
 
 from services.cli import tools
-from services.cli.flags import Commands, Parents, session_from_args
+from services.cli.flags import session_from_args
+from services.cli.subcommand import Subcommand
 from services.config import ConfigError, load_config, parse_override
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import DEFAULT_ENDPOINT, open_session, stop_on_signals
 
 
-def add_parser(commands: Commands, parents: Parents) -> None:
-    router = commands.add_parser(
-        "router",
-        parents=[parents.connection, parents.rt],
-        help="run a zenoh router in Python (no zenohd needed)",
-        description=f"A zenoh router; services connect to it. Default listen: {DEFAULT_ENDPOINT}. "
-        "--config FILE (or $ZENOH_CONFIG) takes a zenoh router configuration, such as the router.json5 of "
-        "`invent secrets` (authentication and access control).",
-    )
-    router.add_argument("--config", dest="zenoh_config", metavar="FILE", help="zenoh router configuration file")
-    router.add_argument(
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", dest="zenoh_config", metavar="FILE", help="zenoh router configuration file")
+    parser.add_argument(
         "--set",
         metavar="rt.KEY=VALUE",
         action="append",
         help="a real-time setting of the robot description's [rt] table, e.g. --set rt.priority=70 (repeatable)",
     )
-    router.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,3 +33,15 @@ def run(args: argparse.Namespace) -> int:
     stop = stop_on_signals()
     with open_session(config) as session:
         return tools.run_router(session, json.loads(config.get_json("listen/endpoints")), stop)
+
+
+SUBCOMMAND = Subcommand(
+    name="router",
+    help="run a zenoh router in Python (no zenohd needed)",
+    description=f"A zenoh router; services connect to it. Default listen: {DEFAULT_ENDPOINT}. "
+    "--config FILE (or $ZENOH_CONFIG) takes a zenoh router configuration, such as the router.json5 of "
+    "`invent secrets` (authentication and access control).",
+    groups=("connection", "rt"),
+    add_arguments=add_arguments,
+    run=run,
+)

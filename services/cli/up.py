@@ -7,8 +7,9 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from services.cli.flags import Commands, Parents, connection_from_args, description_from_args, port_number
+from services.cli.flags import connection_from_args, description_from_args, port_number
 from services.cli.services import service_plan
+from services.cli.subcommand import Subcommand
 from services.config import RecordRate, SimMode, TfLayout
 from services.launch.plan import UpPlan
 from services.launch.ros2_run import BAG_DIRECTORY
@@ -16,20 +17,6 @@ from services.launch.run import RECORDING_FILE, SECRETS_DIRECTORY
 from services.launch.up import run_up
 from services.recording import view
 from services.runtime.session import DEFAULT_ENDPOINT
-
-
-def add_parser(commands: Commands, parents: Parents) -> None:
-    up_parser = commands.add_parser(
-        "up",
-        parents=[parents.connection, parents.description, parents.rt],
-        help="run the whole loop (router, sim, motor, odometry, localization, drive) and write a report",
-        description="Start every service as its own process in this terminal, drive a scenario, then stop "
-        "everything and write a run report (report.json, trajectory.png, wheel_speeds.png). "
-        f"--listen sets where its router listens (default {DEFAULT_ENDPOINT}); --connect joins an existing router "
-        "instead. Ctrl-C stops everything.",
-    )
-    add_arguments(up_parser)
-    up_parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -185,3 +172,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(intra-process delivery, the default: zenoh then carries a message only to subscribers outside the "
         "process); for measuring and debugging",
     )
+
+
+SUBCOMMAND = Subcommand(
+    name="up",
+    help="run the whole loop (router, sim, motor, odometry, localization, drive) and write a report",
+    description="Start every service as its own process in this terminal, drive a scenario, then stop "
+    "everything and write a run report (report.json, trajectory.png, wheel_speeds.png). "
+    f"--listen sets where its router listens (default {DEFAULT_ENDPOINT}); --connect joins an existing router "
+    "instead. Ctrl-C stops everything.",
+    groups=("connection", "description", "rt"),
+    add_arguments=add_arguments,
+    run=run,
+)

@@ -4,36 +4,28 @@ from __future__ import annotations
 
 import argparse
 
-from services.cli.flags import Commands, Parents, session_from_args
+from services.cli.flags import session_from_args
 from services.cli.services import service_plan
+from services.cli.subcommand import Subcommand
 from services.config import ConfigError
 from services.fleet.description import load_fleet
 from services.launch import worker
 from services.runtime.session import open_session, stop_on_signals
 
 
-def add_parser(commands: Commands, parents: Parents) -> None:
-    worker_parser = commands.add_parser(
-        "worker",
-        parents=[parents.connection],
-        help="(started by invent up --fleet --composed) compose the services it is sent on standard input",
-        description="A worker of a composed fleet (docs/fleet.md): reads one JSON array per line on standard "
-        'input, a service\'s name and the arguments `invent` takes (["rh1/motor", "motor", "--robot", "rh1"]), '
-        "starts each composed in this process and says so on standard output; stops on SIGINT or end of input.",
-    )
-    worker_parser.add_argument(
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
         "--fleet",
         metavar="FILE",
         help="run the services (motor, odometry, localization, drive) of --robots of this fleet file, as "
         "invent up --fleet starts them: one process on a robot computer for its robots (docs/deploy.md)",
     )
-    worker_parser.add_argument(
+    parser.add_argument(
         "--robots", metavar="R1,R2,...", help="with --fleet: the robots whose services this process runs"
     )
-    worker_parser.add_argument(
+    parser.add_argument(
         "--no-intra-process", action="store_true", help="the services' messages through the zenoh session"
     )
-    worker_parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -55,3 +47,15 @@ def run(args: argparse.Namespace) -> int:
         return worker.run_worker(
             session, service_plan, stop, intra_process=not args.no_intra_process, requests=requests
         )
+
+
+SUBCOMMAND = Subcommand(
+    name="worker",
+    help="(started by invent up --fleet --composed) compose the services it is sent on standard input",
+    description="A worker of a composed fleet (docs/fleet.md): reads one JSON array per line on standard "
+    'input, a service\'s name and the arguments `invent` takes (["rh1/motor", "motor", "--robot", "rh1"]), '
+    "starts each composed in this process and says so on standard output; stops on SIGINT or end of input.",
+    groups=("connection",),
+    add_arguments=add_arguments,
+    run=run,
+)

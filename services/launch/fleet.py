@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import time
 from contextlib import ExitStack
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +32,6 @@ from services.config import Config, ConfigError, SimMode
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.scenarios import load_scenario
 from services.errors import ChildDied, Interrupted
-from services.exits import ExitStatus
 from services.fleet.description import Fleet, FleetRobot, bridge_flags, fleet_configs, load_fleet, robot_flags
 from services.fleet.summary import bumps_between, closest_approach
 from services.launch.children import say
@@ -47,13 +47,12 @@ from services.launch.run import (
     Outcomes,
     Run,
     ViewProcess,
-    child_flags,
-    default_report_dir,
+    ended_early,
     launch_services,
     outcome_exit_code,
     rt_flags,
-    run_endpoint,
     secure_listen,
+    start,
     verdict,
 )
 from services.launch.worker import assign
@@ -67,7 +66,6 @@ from services.recording.report import (
     write_report,
 )
 from services.runtime.inputs import Publisher
-from services.runtime.session import stop_on_signals
 from services.security import Role, write_fleet_profile
 from services.service import ServiceParse
 from sim_bridge.world import load_world
@@ -231,13 +229,10 @@ class FleetRun:
 def run_fleet(plan: UpPlan, fleet_file: str, parse: ServiceParse) -> int:
     """``invent up --fleet FILE``: services/launch/up.py's :func:`~services.launch.up.run_up` comes here."""
     fleet, configs = check_fleet(plan, fleet_file)
-    report_dir = plan.report or default_report_dir()
-    access = fleet_access(plan, fleet, report_dir)
-    endpoint = run_endpoint(plan, access)
-    common = child_flags(plan, endpoint)
+    begun = start(plan, partial(fleet_access, plan, fleet))
+    report_dir, access, endpoint, common = begun.report_dir, begun.access, begun.endpoint, begun.common
     first = configs[fleet.robots[0].name]
     mode = SimMode.REALTIME if plan.teleop else plan.mode or first.sim.mode
-    interrupted = stop_on_signals()
     robot_services = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if plan.ros2 else ()))
     # each robot's services and drive, the sim, up
     journals = len(fleet.robots) * (len(robot_services) + 1) + 2
@@ -251,7 +246,7 @@ def run_fleet(plan: UpPlan, fleet_file: str, parse: ServiceParse) -> int:
             launch_services(plan, endpoint, parse, access, assignment) as (launcher, session),
             ExitStack() as closing,
         ):
-            run = FleetRun(Run(launcher, session, Keys(fleet.names[0]), interrupted), fleet)
+            run = FleetRun(Run(launcher, session, Keys(fleet.names[0]), begun.interrupted), fleet)
             outcomes = Outcomes(session, fleet.names, launcher.bus)
             closing.callback(outcomes.close)
             if plan.view is not None:
@@ -344,12 +339,8 @@ def run_fleet(plan: UpPlan, fleet_file: str, parse: ServiceParse) -> int:
             if unclean:
                 say(f"services that did not exit cleanly: {unclean}")
             outcome_lines = [f"{name}: {outcomes.line(name, outcome)}" for name, outcome in run.outcomes.items()]
-    except ChildDied as error:
-        say(f"{error}; stopped everything")
-        return ExitStatus.FAILURE
-    except Interrupted:
-        say("interrupted; stopped everything")
-        return ExitStatus.INTERRUPTED
+    except (ChildDied, Interrupted) as error:
+        return ended_early(error)
     finally:
         if recorder:
             recorder.finish(sim_started, report_dir / RECORDING_FILE, first, tuple(configs.values()))

@@ -32,7 +32,7 @@ from services.launch.plan import UpPlan
 from services.launch.worker import Workers
 from services.runtime.intraprocess import LocalBus, Watch
 from services.runtime.realtime import apply_realtime
-from services.runtime.session import DEFAULT_ENDPOINT, ROUTER_LISTENING, open_session, session_config
+from services.runtime.session import DEFAULT_ENDPOINT, ROUTER_LISTENING, open_session, session_config, stop_on_signals
 from services.security import Profile, Role
 from services.service import ServiceParse
 
@@ -82,6 +82,36 @@ def secure_listen(plan: UpPlan) -> list[str] | None:
     if not plan.secure:
         return None
     return list(plan.connection.listen) or [DEFAULT_ENDPOINT]
+
+
+@dataclass(frozen=True)
+class Start:
+    """What a run has settled before it launches anything: where its files go, how its sessions
+    are configured, where its services connect and the flags every one is given, and Ctrl-C."""
+
+    report_dir: Path
+    access: Access
+    endpoint: str
+    common: list[str]
+    interrupted: threading.Event
+
+
+def start(plan: UpPlan, access: Callable[[Path], Access]) -> Start:
+    """The run's :class:`Start`; ``access`` makes its :class:`Access` for its report directory
+    (with ``--secure`` it writes the profile there, before anything starts)."""
+    report_dir = plan.report or default_report_dir()
+    made = access(report_dir)
+    endpoint = run_endpoint(plan, made)
+    return Start(report_dir, made, endpoint, child_flags(plan, endpoint), stop_on_signals())
+
+
+def ended_early(error: ChildDied | Interrupted) -> int:
+    """Say why a run ended before its end (everything is stopped by then) and its exit status."""
+    if isinstance(error, Interrupted):
+        say("interrupted; stopped everything")
+        return ExitStatus.INTERRUPTED
+    say(f"{error}; stopped everything")
+    return ExitStatus.FAILURE
 
 
 def run_endpoint(plan: UpPlan, access: Access) -> str:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import time
 from contextlib import ExitStack
+from functools import partial
 from pathlib import Path
 
 from schemas.keys import Keys, Service
@@ -31,7 +32,6 @@ from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config, ConfigError, SimMode
 from services.drive.scenarios import load_scenario
 from services.errors import ChildDied, Interrupted
-from services.exits import ExitStatus
 from services.launch.children import say
 from services.launch.fleet import run_fleet
 from services.launch.plan import UpPlan
@@ -46,20 +46,18 @@ from services.launch.run import (
     Outcomes,
     Run,
     ViewProcess,
-    child_flags,
-    default_report_dir,
+    ended_early,
     launch_services,
     outcome_exit_code,
     rt_flags,
-    run_endpoint,
     secure_listen,
+    start,
     verdict,
 )
 from services.recording.mcap_files import write_run_report
 from services.recording.report import degradation_line, degradations, health_lines, loop_health, summary
 from services.ros2.graph import bridge_graph
 from services.runtime.inputs import Publisher
-from services.runtime.session import stop_on_signals
 from services.security import Role, write_profile
 from services.service import ServiceParse
 from sim_bridge.display import require_display
@@ -121,13 +119,10 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     config = plan.description.load()
     check_before_start(plan, config)
     keys = Keys(config.robot.name)
-    report_dir = plan.report or default_report_dir()
-    access = _access(plan, config, report_dir)
-    endpoint = run_endpoint(plan, access)
-    common = child_flags(plan, endpoint)
+    begun = start(plan, partial(_access, plan, config))
+    report_dir, access, endpoint, common = begun.report_dir, begun.access, begun.endpoint, begun.common
     mode = SimMode.REALTIME if plan.teleop else plan.mode or config.sim.mode
     scenario = TELEOP if plan.teleop else plan.scenario
-    interrupted = stop_on_signals()
     recording = not (plan.no_record or plan.loop or plan.teleop)
     # the journals: the services', the drive's, the sim's and up's own
     journals = len(SERVICES_BEFORE_DRIVE) + plan.ros2 + 3
@@ -137,7 +132,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     sim_started = False
     try:
         with launch_services(plan, endpoint, parse, access) as (launcher, session), ExitStack() as closing:
-            run = Run(launcher, session, keys, interrupted)
+            run = Run(launcher, session, keys, begun.interrupted)
             outcomes = Outcomes(session, [keys.robot], launcher.bus)
             closing.callback(outcomes.close)
             summary_publisher = Publisher(session, keys.run_summary, recorder.journal if recorder else None)
@@ -208,12 +203,8 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
             if unclean:
                 say(f"services that did not exit cleanly: {unclean}")
             outcome_line = None if outcome is None else outcomes.line(keys.robot, outcome)
-    except ChildDied as error:
-        say(f"{error}; stopped everything")
-        return ExitStatus.FAILURE
-    except Interrupted:
-        say("interrupted; stopped everything")
-        return ExitStatus.INTERRUPTED
+    except (ChildDied, Interrupted) as error:
+        return ended_early(error)
     finally:
         if recorder:
             recorder.finish(sim_started, report_dir / RECORDING_FILE, config)
