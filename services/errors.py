@@ -1,8 +1,6 @@
-"""The project's exceptions, in one place.
-
-``schemas.codec.BadInput`` (a malformed or implausible sample) stays with the wire contract it
-guards. This module imports nothing of the project, so that every layer may import it.
-"""
+"""The project's own exceptions, in one place (``schemas.codec.BadInput``, a malformed or
+implausible sample, stays with the wire contract it guards). Imports nothing of the project:
+anything may import it."""
 
 from __future__ import annotations
 
@@ -12,6 +10,22 @@ class ConfigError(ValueError):
     scenario, a fleet, a flag); the message names the field, and the command exits with code 2."""
 
 
+class SessionFailed(RuntimeError):
+    """A zenoh session could not be opened: the router is unreachable or refused the credentials."""
+
+
+class ChildDied(RuntimeError):
+    """A service the run needs ended before the run did."""
+
+
+class Interrupted(RuntimeError):
+    """Ctrl-C (SIGINT or SIGTERM) while the run lasted."""
+
+
+class ConsumerStalled(RuntimeError):
+    """A service taking every sample of a replayed key took none for too long: the replay gives up."""
+
+
 class RunFailed(RuntimeError):
-    """A run did not drive its square to the end (the drive gave it up), or the runs' return
-    positions are beyond what the formulas take."""
+    """A calibration run did not drive its square to the end (the drive gave it up), or the runs'
+    return positions are beyond what the formulas take."""

@@ -1,4 +1,5 @@
-"""The exit statuses of ``invent`` and every service it runs: one name for each number."""
+"""The exit statuses of every ``invent`` command, in one place (docs/protocol.md section 8.5 lists
+those of ``invent up`` and ``invent drive``). Imports nothing of the project: anything may import it."""
 
 from __future__ import annotations
 
@@ -7,14 +8,16 @@ import enum
 
 class ExitStatus(enum.IntEnum):
     OK = 0
-    """Done: the command did what it was asked."""
+    """Done: the command did what it was asked (a drive's scenario ``completed``)."""
     FAILURE = 1
-    """A run failed: a service died or a run did not complete."""
+    """It could not: no zenoh session, nothing answered a call, a service of the run died, a replay's
+    consumer stalled, a view could not listen, a ``--strict`` run degraded, a calibration run did not complete."""
     CONFIG = 2
-    """Bad arguments or configuration, refused before anything ran."""
+    """Bad arguments or configuration, refused before anything ran (a usage error of the command line too)."""
     ABORTED = 3
-    """The drive gave its scenario up before the end (its outcome ``aborted``)."""
+    """A drive's scenario given up: the motor stayed latched stopped (services/drive/outcome.py)."""
     TIMED_OUT = 4
-    """The drive's scenario ran past its time limit (its outcome ``timed_out``)."""
+    """A drive's scenario given up: a pass outlasted its time limit (services/drive/outcome.py)."""
     INTERRUPTED = 130
-    """Interrupted (Ctrl-C): 128 + SIGINT's number, as a shell reports it."""
+    """Ctrl-C (SIGINT) or SIGTERM ended a run of ``invent up`` or ``invent calibrate`` before it ended by itself
+    (128 + SIGINT)."""

@@ -1,79 +1,34 @@
-"""What a service subcommand is, and how one runs: alone (its own session) or composed.
+"""What a service is to whatever runs it, and how one runs: alone (its own session) or composed.
 
-A service module defines one :class:`ServiceCommand`. ``invent <service>`` loads the robot
-description (``--config`` file, then ``--set`` overrides, then the service's own flags),
-opens a zenoh session, builds the service around a :class:`~services.runtime.node.Node` and runs it
-until SIGINT/SIGTERM or until it finishes by itself. :func:`start_service` builds one on an
-existing session instead, so several services can share one process and one session.
+A service module defines one :class:`ServiceCommand` (its factory) and a frozen dataclass of its
+own options beside it. The command line (services/cli/) turns ``invent <service>``'s flags into a
+:class:`ServicePlan`: the command, the robot description (``--config`` file, then ``--set``
+overrides, then the service's own flags), the service's options and where it journals.
+:func:`run_service` opens nothing: it builds the service around a
+:class:`~services.runtime.node.Node` on the session it is given and runs it until stopped or
+until it finishes by itself. :func:`start_service` builds one on an existing session, so several
+services can share one process and one session.
 """
 
 from __future__ import annotations
 
-import argparse
-import math
 import threading
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
 
 import msgspec
 import zenoh
 
-from schemas.keys import Keys, Service, validate_robot_name
+from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND
-from services.config import Config, ConfigError, RecordConfig, load_config, parse_override
+from services.config import Config, ConfigError, RecordConfig
 from services.runtime.executor import Executor
 from services.runtime.intraprocess import LocalBus
 from services.runtime.journal import MB, Journal, JournalLimits, journal_path
 from services.runtime.node import Node
 from services.runtime.realtime import settle_garbage_collector
-
-
-def positive_seconds(text: str) -> float:
-    """argparse type of a duration flag: a finite number of seconds > 0."""
-    value = finite_number(text)
-    if value <= 0.0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number of seconds")
-    return value
-
-
-def non_negative_float(text: str) -> float:
-    """argparse type of a flag that is a finite number >= 0."""
-    value = finite_number(text)
-    if value < 0.0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a number >= 0")
-    return value
-
-
-def port_number(text: str) -> int:
-    """argparse type of a TCP port to serve on: 0..65535 (0: any free port)."""
-    try:
-        port = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
-    if not 0 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a port number, 0..65535")
-    return port
-
-
-def robot_name(text: str) -> str:
-    """argparse type of a robot name (one key chunk)."""
-    try:
-        return validate_robot_name(text)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
-
-
-def finite_number(text: str) -> float:
-    """argparse type of a float flag that must be finite (argparse's float takes nan and inf)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"{text!r} is not finite")
-    return value
 
 
 class TraceFile:
@@ -128,77 +83,79 @@ class ClockedService(RunningService, Protocol):
         ...
 
 
-ServiceFactory = Callable[[Node, Config, argparse.Namespace], RunningService]
+OptionsT = TypeVar("OptionsT")
 
 
 @dataclass(frozen=True)
-class ServiceCommand:
+class ServiceCommand(Generic[OptionsT]):
+    """A service as whatever runs it sees it: what it is, and how it is built from the robot
+    description and its own options (a frozen dataclass beside its factory)."""
+
     service: Service
-    help: str
-    description: str
-    add_arguments: Callable[[argparse.ArgumentParser], None]
-    """Adds the service's own flags to its subcommand."""
-    overrides: Callable[[argparse.Namespace], dict[str, Any]]
-    """Maps the service's flags to config keys ({"motor.target_angle": args.target_angle}); None = unset."""
-    factory: ServiceFactory
+    factory: Callable[[Node, Config, OptionsT], RunningService]
     timestamped: bool = False
     """Its session stamps what it publishes (zenoh's ``timestamping``): a zenoh-ext advanced
     publisher with a cache, which the ROS 2 bridge's latched topics are, needs it."""
 
 
-def no_overrides(_args: argparse.Namespace) -> dict[str, Any]:
-    return {}
+@dataclass(frozen=True)
+class NoOptions:
+    """The options of a service that has none of its own (the robot description says everything)."""
 
 
-def overrides_from_args(command: ServiceCommand | None, args: argparse.Namespace) -> dict[str, Any]:
-    """What ``args`` sets over the robot description file: ``--set``, then ``--robot`` and
-    ``command``'s flags."""
-    overrides: dict[str, Any] = {}
-    for text in args.set or ():
-        path, value = parse_override(text)
-        overrides[".".join(path)] = value
-    overrides["robot.name"] = args.robot
-    if getattr(args, "rt", False):
-        overrides["rt.enabled"] = True
-    if command is not None:
-        overrides.update({key: value for key, value in command.overrides(args).items() if value is not None})
-    return overrides
+@dataclass(frozen=True)
+class Journaling:
+    """What every service may be given (``invent up`` records its run so): the directory of the
+    journal it keeps what it publishes in, and how many journals of the run share ``record.max_size``."""
+
+    directory: Path | None = None
+    share: int = 1
 
 
-def config_from_args(command: ServiceCommand | None, args: argparse.Namespace) -> Config:
-    """The robot description for ``args``: file, then ``--set``, then ``--robot`` and ``command``'s flags."""
-    return load_config(args.config, overrides_from_args(command, args))
+@dataclass(frozen=True)
+class ServicePlan:
+    """One service to start: its command, its robot description, its own options and its journal."""
+
+    command: ServiceCommand[Any]
+    config: Config
+    options: Any
+    """The service's own options, of the type its factory takes."""
+    journaling: Journaling = field(default_factory=Journaling)
+
+
+ServiceParse = Callable[[Sequence[str]], ServicePlan]
+"""What ``invent <service> ...``'s arguments (``["motor", "--robot", "rh1"]``) make: a composition
+starts services from such arguments (services/launch/composition.py); the command line provides it."""
 
 
 def start_service(
-    command: ServiceCommand,
+    plan: ServicePlan,
     session: zenoh.Session,
-    config: Config,
-    args: argparse.Namespace,
     executor: Executor | None = None,
     bus: LocalBus | None = None,
 ) -> tuple[Node, RunningService]:
-    """Build ``command``'s service on ``session`` (opened by the caller, maybe shared), its node
-    on ``executor`` (default: one of its own), keeping what it publishes in a journal in
-    ``args.journal`` if given (``invent up`` records its run so); ``bus``: the process's
-    intra-process delivery, when services are composed (services/runtime/intraprocess.py)."""
-    journal = _journal(args, command.service, config.record)
+    """Build ``plan``'s service on ``session`` (opened by the caller, maybe shared), its node on
+    ``executor`` (default: one of its own), keeping what it publishes in a journal in
+    ``plan.journaling.directory`` if given (``invent up`` records its run so); ``bus``: the
+    process's intra-process delivery, when services are composed (services/runtime/intraprocess.py)."""
+    command, config = plan.command, plan.config
+    journal = _journal(plan.journaling, command.service, config.record)
     node = Node(session, Keys(config.robot.name), command.service, executor=executor, journal=journal, bus=bus)
     try:
-        return node, command.factory(node, config, args)
+        return node, command.factory(node, config, plan.options)
     except BaseException:
         node.close()
         raise
 
 
-def _journal(args: argparse.Namespace, service: Service, record: RecordConfig) -> Journal | None:
-    directory = getattr(args, "journal", None)
+def _journal(journaling: Journaling, service: Service, record: RecordConfig) -> Journal | None:
+    directory = journaling.directory
     if directory is None:
         return None
     try:
         return Journal(
-            journal_path(Path(directory), str(service)),
-            journal_limits(record, getattr(args, "journal_share", 1)),
+            journal_path(directory, str(service)),
+            journal_limits(record, journaling.share),
             every_step=record.every_step,
         )
     except OSError as error:
@@ -214,11 +171,9 @@ def journal_limits(record: RecordConfig, share: int) -> JournalLimits:
     )
 
 
-def run_service(
-    command: ServiceCommand, session: zenoh.Session, config: Config, args: argparse.Namespace, stop: threading.Event
-) -> int:
-    node, service = start_service(command, session, config, args)
-    settle_garbage_collector(config.rt)
+def run_service(plan: ServicePlan, session: zenoh.Session, stop: threading.Event) -> int:
+    node, service = start_service(plan, session)
+    settle_garbage_collector(plan.config.rt)
     try:
         if isinstance(service, ClockedService):
             return service.run(stop)

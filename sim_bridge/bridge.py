@@ -31,7 +31,7 @@ their ``tm`` received) as percentiles over the most recent steps (:mod:`sim_brid
 When the robot begins touching an obstacle it publishes ``sim/bump`` and calls
 ``motor/bump/stop`` without waiting for the answer (the reply is only counted).
 
-The service's rooms: this module (``SimService``: the world, its links, the run; the flags),
+The service's rooms: this module (``SimService``: the world, its links, the run; ``SimOptions``),
 :mod:`sim_bridge.link` (one robot's keys, publishers and inputs), :mod:`sim_bridge.liveness`
 (who is there), :mod:`sim_bridge.torque_policy` (which torque a step applies; pure),
 :mod:`sim_bridge.loops` (the lockstep and realtime loops), :mod:`sim_bridge.handshakes` (before the
@@ -40,20 +40,19 @@ first step), :mod:`sim_bridge.status` (status and summary; pure).
 
 from __future__ import annotations
 
-import argparse
 import math
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, SimWorld, Time
-from services.config import Config, SimConfig, SimMode
-from services.fleet.description import load_fleet, robot_config
+from services.config import Config, RobotConfig, SimMode
+from services.fleet.description import Fleet
 from services.runtime.node import Node
-from services.service import ServiceCommand, overrides_from_args, positive_seconds
+from services.service import ServiceCommand
 from sim_bridge.handshakes import (
-    START_HANDSHAKE_TIMEOUT_S,
     await_motor_subscriptions,
     await_participants,
     await_services,
@@ -62,16 +61,33 @@ from sim_bridge.link import RobotLink
 from sim_bridge.loops import Loop
 from sim_bridge.progress import RunProgress
 from sim_bridge.status import RunStatus
-from sim_bridge.world import DEFAULT_WORLD, InitialPose, builtin_worlds, obstacles, read_world, resolve_world
+from sim_bridge.world import InitialPose, obstacles, read_world, resolve_world
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    """``invent sim``'s own options beside the robot description."""
+
+    duration: float | None = None
+    """Simulate this many seconds, then exit 0 (None: until stopped)."""
+    until_drive_ends: bool = False
+    """Hold at the drive's last target, answering status, until stopped (``invent up``'s)."""
+    wait_for: tuple[Service, ...] = ()
+    """The services to wait for before the first step."""
+    gui: bool = False
+    fleet: Fleet | None = None
+    """Every robot of this fleet in one world, each robot's keys under its name."""
+    fleet_robots: tuple[RobotConfig, ...] = ()
+    """With ``fleet``: each robot's description, in the fleet's order."""
 
 
 class SimService:
-    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+    def __init__(self, node: Node, config: Config, options: SimOptions) -> None:
         self.node = node
         self.parameters = config.sim
         self.mode = config.sim.mode
-        self.duration: float | None = args.duration
-        self.wait_for: list[Service] = args.wait_for or []
+        self.duration: float | None = options.duration
+        self.wait_for: list[Service] = list(options.wait_for)
         self.finished = False
         self.exit_code = 0
         self.progress = RunProgress()
@@ -79,19 +95,17 @@ class SimService:
         # and importing PyBullet prints its build banner.
         from sim_bridge.simulator import Placement, Simulator
 
-        self.fleet = load_fleet(args.fleet) if args.fleet else None
+        self.fleet = options.fleet
         self.world_file = resolve_world(config.sim.world)
         self.world = read_world(self.world_file)
         placements: list[Placement] = []
         if self.fleet is not None:
-            overrides = overrides_from_args(COMMAND, args)
-            for robot in self.fleet.robots:
+            for robot, description in zip(self.fleet.robots, options.fleet_robots, strict=True):
                 start = robot.start
-                description = robot_config(robot, args.config, overrides).robot
                 placements.append(
                     Placement(robot.name, description, InitialPose(x=start.x, y=start.y, theta=start.theta))
                 )
-        self.sim = Simulator(config.robot, config.sim, self.world, gui=args.gui, fleet=placements)
+        self.sim = Simulator(config.robot, config.sim, self.world, gui=options.gui, fleet=placements)
         self.run_status = RunStatus(
             sim=self.sim,
             parameters=config.sim,
@@ -136,9 +150,9 @@ class SimService:
             parameters=config.sim,
             progress=self.progress,
             end_step=math.inf
-            if args.duration is None
-            else round(args.duration * NANOSECONDS_PER_SECOND / self.sim.step_ns),
-            until_drive_ends=args.until_drive_ends,
+            if options.duration is None
+            else round(options.duration * NANOSECONDS_PER_SECOND / self.sim.step_ns),
+            until_drive_ends=options.until_drive_ends,
         )
 
     def run(self, stop: threading.Event) -> int:
@@ -192,70 +206,4 @@ class SimService:
         self.sim.close()
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    defaults = SimConfig()
-    group = parser.add_argument_group("simulation")
-    group.add_argument("--mode", choices=list(SimMode), help=f"(default {defaults.mode})")
-    group.add_argument(
-        "--step", type=positive_seconds, metavar="S", help=f"simulated seconds per step (default {defaults.step:g})"
-    )
-    group.add_argument("--duration", type=positive_seconds, metavar="S", help="simulate S seconds, then exit 0")
-    group.add_argument(
-        "--wait-for",
-        nargs="+",
-        type=Service,
-        choices=[service for service in Service if service is not Service.SIM],
-        metavar="SERVICE",
-        help=f"before the first step, wait (at most {START_HANDSHAKE_TIMEOUT_S:g} s) until these services are there "
-        "(motor: alive; drive, localization: holding their lockstep token), so a lockstep run starts the same way "
-        "every time (invent up uses it)",
-    )
-    group.add_argument(
-        "--until-drive-ends",
-        action="store_true",
-        help="stop stepping at the drive's last target (the end of its scenario) and hold there, answering "
-        "status, until stopped: a lockstep run then ends at the same step every time (invent up uses it)",
-    )
-    group.add_argument(
-        "--realtime-factor",
-        type=positive_seconds,
-        metavar="F",
-        help=f"realtime mode: simulated seconds per wall second (default {defaults.realtime_factor:g})",
-    )
-    group.add_argument(
-        "--world",
-        metavar="FILE",
-        help=f"world TOML file, or a built-in world ({', '.join(builtin_worlds())}); default: {DEFAULT_WORLD}",
-    )
-    group.add_argument("--gui", action="store_true", help="open a PyBullet window (needs a display)")
-    group.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="simulate every robot of this fleet file in one world, each robot's keys under its name "
-        "(docs/fleet.md); its world is the fleet's unless --world is given; --robot is then the fleet's",
-    )
-
-
-def overrides(args: argparse.Namespace) -> dict[str, Any]:
-    fleet = load_fleet(args.fleet) if args.fleet else None
-    return {
-        "sim.mode": args.mode,
-        "sim.step": args.step,
-        "sim.realtime_factor": args.realtime_factor,
-        "sim.world": args.world or (fleet.world if fleet else None),
-        "robot.name": fleet.robots[0].name if fleet else None,
-    }
-
-
-COMMAND = ServiceCommand(
-    service=Service.SIM,
-    help="the PyBullet simulator: wheel angles and body pose out, wheel torques in",
-    description="Plays OpenHRP3 and its controller bridge with PyBullet: each step publishes sim/wheel_angles and "
-    "sim/body_pose stamped with simulation time, applies the motor/torque answer and steps. Lockstep (default) "
-    "waits for the torque of each step while a motor control is alive; realtime paces steps to the wall clock. "
-    "A contact with an obstacle publishes sim/bump and calls motor/bump/stop. Parameters: [robot] geometry and "
-    "[sim] in the robot description; worlds are TOML files (docs/sim.md).",
-    add_arguments=add_arguments,
-    overrides=overrides,
-    factory=SimService,
-)
+COMMAND = ServiceCommand(service=Service.SIM, factory=SimService)

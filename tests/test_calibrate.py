@@ -21,7 +21,7 @@ from mcap.reader import make_reader
 
 from services.calibration.benchmark import Benchmark, Conclusion
 from services.calibration.umbmark import CONVERGED, Calibration, evaluate
-from services.cli.calibrate import positive_int, positive_length
+from services.cli.flags import positive_int, positive_length
 from services.cli.main import main
 from services.config import ConfigError, load_config
 from services.recording.calibration import PATHS_TOPIC, RUNS_TOPIC

@@ -12,9 +12,9 @@ import yaml
 import zenoh
 
 from schemas.keys import Keys, Service
+from services.cli.flags import config_from_args
 from services.cli.main import build_parser
 from services.security import DICTIONARY, ROUTER_CONFIG, Message, Role, grants
-from services.service import config_from_args
 from tests.harness import REPO
 
 SECRETS_DIR = "./docker/secure/secrets"
@@ -57,7 +57,7 @@ def test_every_service_is_a_client_with_only_its_own_roles_credentials():
         assert spec["secrets"] == [{"source": str(role), "target": Path(ROLE_FILE_IN_CONTAINER).name}], name
         assert declared[str(role)] == {"file": f"{SECRETS_DIR}/{role}.json5"}, name
         assert spec.get("volumes", []) == (["motor-state:/state"] if name == "motor" else []), name
-        assert config_from_args(getattr(args, "service_command", None), args).robot.name == "rh0"
+        assert config_from_args(getattr(args, "service_cli", None), args).robot.name == "rh0"
 
 
 def test_the_sim_and_the_motor_run_with_rt_and_their_containers_grant_what_it_needs():
@@ -66,7 +66,7 @@ def test_the_sim_and_the_motor_run_with_rt_and_their_containers_grant_what_it_ne
         args = parser.parse_args(spec["command"])
         control_path = name in (str(Service.SIM), str(Service.MOTOR))
         assert getattr(args, "rt", False) is control_path, name
-        assert config_from_args(getattr(args, "service_command", None), args).rt.enabled is control_path, name
+        assert config_from_args(getattr(args, "service_cli", None), args).rt.enabled is control_path, name
         if control_path:
             assert set(spec["cap_add"]) == {"SYS_NICE", "IPC_LOCK"}, name
         else:

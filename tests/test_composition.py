@@ -3,7 +3,7 @@
 import threading
 
 from schemas import Keys, Service
-from services.cli.main import build_parser
+from services.cli.services import service_plan
 from services.launch.composition import Composition
 from tests.harness import call, wait_until
 
@@ -18,7 +18,7 @@ def _status(session, service: Service) -> dict:
 
 
 def test_every_service_runs_on_the_sims_thread_and_the_drive_finishes_without_one(session):
-    composition = Composition(session, build_parser())
+    composition = Composition(session, service_plan)
     threads_before = set(threading.enumerate())
     try:
         for service in ("motor", "odometry", "localization", "sim"):

@@ -133,13 +133,13 @@ def test_cli_exits_2_on_an_invalid_file(tmp_path):
 
 
 def test_an_unset_service_flag_keeps_the_set_override():
+    from services.cli.flags import config_from_args
     from services.cli.main import build_parser
-    from services.service import config_from_args
 
     args = build_parser().parse_args(["motor", "--set", "motor.command_timeout=2.5"])
-    assert config_from_args(args.service_command, args).motor.command_timeout == 2.5
+    assert config_from_args(args.service_cli, args).motor.command_timeout == 2.5
     args = build_parser().parse_args(["motor", "--set", "motor.command_timeout=2.5", "--command-timeout", "1"])
-    assert config_from_args(args.service_command, args).motor.command_timeout == 1.0
+    assert config_from_args(args.service_cli, args).motor.command_timeout == 1.0
 
 
 OPTIONAL_FIELDS = (

@@ -20,9 +20,9 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("schemas", "services", "sim_bridge")
 
-SCHEMAS, ERRORS, CONFIG, RUNTIME, CORE, SHELL, SHELL_SUPPORT, TOOL, PACKAGE = (
+BASE, SCHEMAS, CONFIG, RUNTIME, CORE, SHELL, SHELL_SUPPORT, TOOL, PACKAGE = (
+    "base",
     "schemas",
-    "errors",
     "config",
     "runtime",
     "core",
@@ -41,7 +41,7 @@ command line lists its flags. Whatever else needs the robot's body takes it from
 LAYERS: tuple[tuple[str, str], ...] = (
     # (module pattern, layer); the first pattern that matches a module's whole name places it
     (r"schemas(\..*)?", SCHEMAS),
-    (r"services\.(errors|exits)", ERRORS),
+    (r"services\.(errors|exits)", BASE),
     (r"services\.config(\..*)?", CONFIG),
     (r"services\.runtime(\..*)?", RUNTIME),
     (r"services\.(motor|odometry|localization)\.core", CORE),
@@ -101,6 +101,10 @@ def _room(module: str) -> str:
 
 def _broken_rule(module: str, layer: str, imported: str, imported_layer: str | None) -> str | None:
     project = PROJECT.fullmatch(imported) is not None
+    if layer == BASE and project:
+        return "the exit statuses and the exceptions import nothing of the project"
+    if imported_layer == BASE:
+        return None  # anything may import them
     if _is(imported, COMMAND_LINE) and not _is(module, COMMAND_LINE):
         return "nothing imports the command line (services/cli/) but itself"
     if (
@@ -111,11 +115,9 @@ def _broken_rule(module: str, layer: str, imported: str, imported_layer: str | N
         return "only the launcher (services/launch/) and the command line import the simulator bridge (sim_bridge/)"
     if layer == SCHEMAS and project and imported_layer != SCHEMAS:
         return "the schemas import only msgspec and the standard library"
-    if layer == ERRORS and project:
-        return "the project's exceptions import nothing of the project"
-    if layer == CONFIG and project and imported_layer not in (SCHEMAS, ERRORS, CONFIG):
+    if layer == CONFIG and project and imported_layer not in (SCHEMAS, CONFIG):
         return "the configuration imports only the schemas and the project's exceptions"
-    if layer == RUNTIME and project and imported_layer not in (SCHEMAS, ERRORS, CONFIG, RUNTIME):
+    if layer == RUNTIME and project and imported_layer not in (SCHEMAS, CONFIG, RUNTIME):
         return "the runtime imports no service, core or tool"
     if layer == CORE:
         if _is(imported, "zenoh"):
@@ -317,7 +319,8 @@ def test_the_services_top_level_holds_subpackages_and_a_handful_of_shared_module
         ("services.launch.up", "services.cli.main", "nothing imports the command line (services/cli/) but itself"),
         ("services.runtime.node", "services.motor.core", "the runtime imports no service, core or tool"),
         ("schemas.keys", "services.config", "the schemas import only msgspec and the standard library"),
-        ("services.errors", "schemas.keys", "the project's exceptions import nothing of the project"),
+        ("services.exits", "services.config", "the exit statuses and the exceptions import nothing of the project"),
+        ("services.errors", "schemas.codec", "the exit statuses and the exceptions import nothing of the project"),
         (
             "services.config.sections",
             "services.runtime.node",
@@ -353,6 +356,9 @@ def test_allowed_edges_are_not_flagged():
         "services.cli.main": {"sim_bridge.bridge"},
         "sim_bridge.bridge": {"sim_bridge.link", "sim_bridge.loops", "sim_bridge.handshakes"},
         "sim_bridge.link": {"sim_bridge.torque_policy", "sim_bridge.liveness", "zenoh"},
+        "services.drive.outcome": {"services.exits"},
+        "schemas.keys": {"services.errors"},
+        "services.exits": {"enum"},
     }
     assert violations(allowed) == []
 

@@ -17,7 +17,8 @@ import pytest
 import zenoh
 
 from schemas.keys import LATCHED_TOPICS, Keys, Method, MethodFamily, Service, Topic, all_robots_status
-from services.cli.tools import robot_names, run_secrets
+from services.cli.flags import robot_names
+from services.cli.tools import run_secrets
 from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, BridgeGraph
 from services.security import (
     DEFAULT_ROS,

@@ -36,6 +36,7 @@ from schemas.codec import decode
 from schemas.keys import Keys, Service, Topic, schema_for_key
 from schemas.messages import Time, TimedDoubleSeq
 from services.config import Config
+from services.exits import ExitStatus
 from services.recording.scene import (
     LOCALIZATION_TOPIC,
     ODOMETRY_TOPIC,
@@ -46,7 +47,7 @@ from services.recording.scene import (
     WHEEL_SPEEDS_TOPIC,
     WORLD_FRAME,
 )
-from services.recording.view import EXIT_NO_SERVER, FoxgloveChannels, run_view
+from services.recording.view import FoxgloveChannels, run_view
 from tests.harness import REPO, call, free_port, invent_command, peer_session, running_router, wait_until
 
 pytestmark = pytest.mark.slow
@@ -326,7 +327,7 @@ def test_a_port_taken_is_an_error_not_a_hang(session) -> None:
         code = run_view(session, KEYS, Config(), threading.Event(), "127.0.0.1", port)
     finally:
         taken.stop()
-    assert code == EXIT_NO_SERVER
+    assert code == ExitStatus.FAILURE
 
 
 def test_a_view_behind_a_flood_stops_at_once_on_sigint() -> None:

@@ -9,15 +9,38 @@ from pathlib import Path
 
 from services.calibration.settings import DEFAULT_PASSES, SIM_BODY_KEYS, UmbmarkSettings
 from services.calibration.umbmark import CONVERGED, DEFAULT_RUNS, DEFAULT_SIDE
+from services.cli.flags import description_flags, overrides_from_args, positive_int, positive_length
+from services.cli.services import service_plan
+from services.cli.subcommand import Subcommand
 from services.config import ConfigError, config_from_description, parse_override, read_description
 from services.launch.calibrate import run_umbmark
 from services.launch.composition import Composition
 from services.launch.run import default_report_dir
 from services.recording.calibration_report import FIGURE_FILE, RECORDING_FILE, REPORT_FILE
-from services.service import finite_number, overrides_from_args
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    methods = parser.add_subparsers(dest="method", required=True, metavar="METHOD")
+    umbmark = methods.add_parser(
+        "umbmark",
+        parents=[description_flags()],
+        help="UMBmark: drive a square both ways on odometry alone, correct the wheel radii and the wheelbase",
+        description="UMBmark (Borenstein and Feng 1996): drive a square of side --side clockwise and "
+        "counter-clockwise --runs times each on odometry alone, take where the robot really stops, and compute the "
+        "systematic errors Ed (the ratio of the wheel diameters) and Eb (the wheelbase's) and the corrected "
+        "odometry.left_radius_scale, right_radius_scale and axle_scale (used by the odometry and by the motor's "
+        "wheel-speed conversion alike). In the simulator (the default) the loop runs composed in lockstep with no "
+        "localization, the simulated body changed by --sim-set only, and the benchmark runs again with the "
+        "corrections applied (E_max,syst before and after). --measured FILE takes return positions measured with a "
+        "tape on the real robot instead. Writes report.json, umbmark.png (the paper's figure) and umbmark.mcap (the "
+        "runs' paths, for Foxglove) into --report DIR, and with -o FILE the robot description with the corrections. "
+        "Exit 0 done, 1 a run failed, 2 bad arguments or configuration, 130 Ctrl-C. See docs/odometry.md.",
+    )
+    umbmark_arguments(umbmark)
+    umbmark.set_defaults(handler=run)
+
+
+def umbmark_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--side",
         type=positive_length,
@@ -81,30 +104,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def positive_length(text: str) -> float:
-    """argparse type of a length flag: a finite number of metres > 0."""
-    value = finite_number(text)
-    if value <= 0.0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive length in metres")
-    return value
-
-
-def positive_int(text: str) -> int:
-    """argparse type of a count flag: a whole number >= 1."""
-    value = whole_number(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be at least 1")
-    return value
-
-
-def whole_number(text: str) -> int:
-    """argparse type of an int flag, as :func:`finite_number` is of a float one."""
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-
-
 def settings_from_args(args: argparse.Namespace) -> UmbmarkSettings:
     """The flags as typed settings; ConfigError naming the flag (or the description's field) that
     cannot be taken."""
@@ -151,6 +150,16 @@ def settings_from_args(args: argparse.Namespace) -> UmbmarkSettings:
     )
 
 
-def run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    """``invent calibrate umbmark``: ``parser`` (``invent``'s) builds each simulated run's services."""
-    return run_umbmark(settings_from_args(args), functools.partial(Composition, parser=parser))
+def run(args: argparse.Namespace) -> int:
+    """``invent calibrate umbmark``: each simulated run's services are parsed as ``invent <service>``'s."""
+    return run_umbmark(settings_from_args(args), functools.partial(Composition, parse=service_plan))
+
+
+SUBCOMMAND = Subcommand(
+    name="calibrate",
+    help="calibrate the odometry: UMBmark, in the simulator or from return positions measured by hand",
+    description="Calibrate the robot's odometry. The one method: umbmark (`invent calibrate umbmark --help`).",
+    groups=(),
+    add_arguments=add_arguments,
+    run=run,
+)

@@ -6,7 +6,6 @@ to ``jq`` or read by tests, and errors as one line on stderr.
 
 from __future__ import annotations
 
-import argparse
 import json
 import queue
 import sys
@@ -22,12 +21,11 @@ import zenoh
 from schemas.codec import ENCODING, BadMessage, decode
 from schemas.keys import Keys, all_robots_alive, schema_for_key
 from services.config import ConfigError
+from services.exits import ExitStatus
 from services.ros2.graph import BridgeGraph
 from services.runtime.discovery import payload_value, service_statuses
 from services.runtime.session import ROUTER_LISTENING, has_match
-from services.security import fleet_robots, write_fleet_profile, write_profile
-
-EXIT_NO_ANSWER = 1
+from services.security import write_fleet_profile, write_profile
 
 
 def _print_json(value: Any, stream=sys.stdout) -> None:
@@ -58,7 +56,7 @@ def run_router(session: zenoh.Session, listen: list[str], stop: threading.Event)
     )
     while not stop.wait(0.2):
         pass
-    return 0
+    return ExitStatus.OK
 
 
 def run_secrets(
@@ -103,16 +101,7 @@ def run_secrets(
     for identity in profile.identities:
         path = profile.client_config(identity.role, identity.robot)
         print(f"  {identity.user + ':':<{width}} --zenoh-config {path}", file=sys.stderr)
-    return 0
-
-
-def robot_names(text: str) -> tuple[str, ...]:
-    """``--robots rh0,rh1``: a fleet's robot names, comma-separated (an argparse ``type``: a bad or
-    repeated name is a usage error, exit 2, naming the flag)."""
-    try:
-        return fleet_robots(name.strip() for name in text.split(","))
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
+    return ExitStatus.OK
 
 
 def _router_plugins(path: str) -> dict[str, Any]:
@@ -140,7 +129,7 @@ def run_echo(session: zenoh.Session, key_expr: str, count: int | None, stop: thr
                 continue
             _print_json(describe_sample(key, payload))
             printed += 1
-    return 0
+    return ExitStatus.OK
 
 
 def _wait_for_match(querier: zenoh.Querier, timeout: float) -> bool:
@@ -184,8 +173,8 @@ def run_call(session: zenoh.Session, key: str, payload: str | None, timeout: flo
                 failed = True
         if not replies and not failed:
             print(f"invent call: {_no_answer(session, key, matched, timeout)}", file=sys.stderr)
-            return EXIT_NO_ANSWER
-        return EXIT_NO_ANSWER if failed else 0
+            return ExitStatus.FAILURE
+        return ExitStatus.FAILURE if failed else ExitStatus.OK
     finally:
         querier.undeclare()
 
@@ -196,7 +185,7 @@ def run_status(session: zenoh.Session, robot: str | None, timeout: float) -> int
     statuses = service_statuses(session, key_expr, timeout)
     if not statuses:
         print(f"invent status: no service alive on {key_expr}", file=sys.stderr)
-        return EXIT_NO_ANSWER
+        return ExitStatus.FAILURE
     for robot_name, service, status in statuses:
         _print_json({"robot": robot_name, "service": str(service), "alive": True, "status": status})
-    return 0
+    return ExitStatus.OK

@@ -21,6 +21,7 @@ from enum import StrEnum
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import DriveConfig
 from services.drive.scenarios import Scenario, planned_duration
+from services.exits import ExitStatus
 from services.planar import Pose
 
 
@@ -34,9 +35,13 @@ class Outcome(StrEnum):
         return EXIT_CODES[self]
 
 
-EXIT_CODES = {Outcome.COMPLETED: 0, Outcome.ABORTED: 3, Outcome.TIMED_OUT: 4}
+EXIT_CODES: dict[Outcome, int] = {
+    Outcome.COMPLETED: ExitStatus.OK,
+    Outcome.ABORTED: ExitStatus.ABORTED,
+    Outcome.TIMED_OUT: ExitStatus.TIMED_OUT,
+}
 """The exit code of ``invent drive`` and of ``invent up`` for each outcome (docs/protocol.md section 8.5)."""
-OUTCOME_OF_EXIT_CODE = {code: outcome for outcome, code in EXIT_CODES.items()}
+OUTCOME_OF_EXIT_CODE: dict[int, Outcome] = {code: outcome for outcome, code in EXIT_CODES.items()}
 
 
 def time_limit(scenario: Scenario, start: Pose, params: DriveConfig) -> float | None:

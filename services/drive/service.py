@@ -30,9 +30,9 @@ scenario over from its first stamp: a new simulator is a new run, the robot back
 
 from __future__ import annotations
 
-import argparse
 import math
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import msgspec
@@ -52,26 +52,14 @@ from schemas.messages import (
 from services.clock.lockstep import FINAL, decode_owed
 from services.clock.sim_time import PeriodicSchedule, StampClock, check_stamp_near
 from services.clock.sim_watch import SimulatorWatch
-from services.config import Config, ConfigError, DriveConfig
+from services.config import Config
 from services.drive.outcome import GiveUp, GiveUpRule, Outcome, time_limit
 from services.drive.path_following import STOPPED
-from services.drive.scenarios import (
-    BUILTIN_SCENARIOS,
-    ConstantSegment,
-    Scenario,
-    ScenarioRunner,
-    WaypointSegment,
-    describe,
-    is_builtin,
-    load_scenario,
-    parse_waypoints,
-    placed,
-    planned_path,
-)
+from services.drive.scenarios import Scenario, ScenarioRunner, describe, is_builtin, placed, planned_path
 from services.planar import Pose, check_coordinates
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node, Wait
-from services.service import ServiceCommand, finite_number, positive_seconds
+from services.service import ServiceCommand
 
 FINAL_ZERO_TICKS = 3
 """Ticks on which the final zero velocity is published before the drive exits."""
@@ -79,89 +67,22 @@ TWIST_PASS_S = 1.0
 """``--twist``: the constant segment played over and over (its path is this much of the arc ahead)."""
 
 
-def _argument(parse):
-    """An argparse ``type`` from a parser raising ConfigError: argparse then exits 2 with the reason."""
+@dataclass(frozen=True)
+class DriveOptions:
+    """What ``invent drive`` drives: ``mode`` (``constant``, ``twist``, ``scenario`` or
+    ``waypoints``, as its status says), the scenario, and whether it starts over when it ends."""
 
-    def convert(text: str):
-        try:
-            return parse(text)
-        except ConfigError as error:
-            raise argparse.ArgumentTypeError(str(error)) from None
-
-    convert.__name__ = parse.__name__
-    return convert
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    what = parser.add_argument_group("what to drive (exactly one of --for, --twist, --scenario, --waypoints)")
-    mode = what.add_mutually_exclusive_group(required=True)
-    mode.add_argument(
-        "--for",
-        dest="duration",
-        type=positive_seconds,
-        metavar="S",
-        help="constant velocity (--vx, --w) for S seconds of simulation time",
-    )
-    mode.add_argument(
-        "--twist",
-        nargs=2,
-        type=finite_number,
-        metavar=("VX", "W"),
-        help="hold the velocity VX m/s, W rad/s until Ctrl-C: a target by hand, stamped with simulation time "
-        "(the motor refuses a target stamped otherwise, e.g. 0.0, once the simulation is past "
-        "motor.command_timeout)",
-    )
-    mode.add_argument(
-        "--scenario",
-        type=_argument(load_scenario),
-        metavar="NAME|FILE",
-        help=f"a built-in scenario ({', '.join(BUILTIN_SCENARIOS)}) or a scenario TOML file (docs/drive.md)",
-    )
-    mode.add_argument(
-        "--waypoints",
-        type=_argument(parse_waypoints),
-        metavar='"X,Y X,Y ..."',
-        help='follow a path through these points (world frame, m), e.g. "1,0 1,1 0,1 0,0"',
-    )
-    what.add_argument("--vx", type=finite_number, metavar="M/S", help="with --for: forward speed (default 0)")
-    what.add_argument("--w", type=finite_number, metavar="RAD/S", help="with --for: turn rate (default 0)")
-    what.add_argument(
-        "--loop", action="store_true", help="start the scenario over when it ends, until a pass is given up"
-    )
-    parser.add_argument(
-        "--rate",
-        type=float,
-        metavar="HZ",
-        help=f"commands per second of simulation time (drive.rate, default {DriveConfig().rate:g})",
-    )
-
-
-def overrides(args: argparse.Namespace) -> dict[str, Any]:
-    return {"drive.rate": args.rate}
-
-
-def scenario_from_args(args: argparse.Namespace) -> tuple[str, Scenario, bool]:
-    """(mode, scenario, loop) for the flags: ``constant``, ``twist``, ``scenario`` or ``waypoints``."""
-    if args.duration is None and (args.vx is not None or args.w is not None):
-        raise ConfigError("--vx and --w go with --for (a constant velocity for a duration); --twist VX W holds one")
-    if args.twist is not None:
-        vx, w = args.twist
-        return "twist", Scenario(name="twist", segments=[ConstantSegment(vx=vx, w=w, duration=TWIST_PASS_S)]), True
-    loop = args.loop
-    if args.scenario is not None:
-        return "scenario", args.scenario, loop
-    if args.waypoints is not None:
-        return "waypoints", Scenario(name="waypoints", segments=[WaypointSegment(waypoints=args.waypoints)]), loop
-    segment = ConstantSegment(vx=args.vx or 0.0, w=args.w or 0.0, duration=args.duration)
-    return "constant", Scenario(name="constant", segments=[segment]), loop
+    mode: str
+    scenario: Scenario
+    loop: bool = False
 
 
 class DriveService:
-    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+    def __init__(self, node: Node, config: Config, options: DriveOptions) -> None:
         self.node = node
         self.rate_hz = config.drive.rate
         self.pose_timeout_ns = round(config.drive.pose_timeout * NANOSECONDS_PER_SECOND)
-        self.mode, scenario, loop = scenario_from_args(args)
+        self.mode, scenario, loop = options.mode, options.scenario, options.loop
         odometry = config.odometry
         start = Pose(odometry.initial_x, odometry.initial_y, odometry.initial_theta)
         # A built-in scenario runs from where the robot starts, as the odometry does.
@@ -408,18 +329,4 @@ class DriveService:
         """Nothing beyond the node to release."""
 
 
-COMMAND = ServiceCommand(
-    service=Service.DRIVE,
-    help="publish target velocities: a constant, a scenario or a waypoint path (sim time)",
-    description="Publish drive/target_velocity at drive.rate per second of simulation time (clock: the "
-    "stamps on sim/clock). Waypoint paths are followed (pure pursuit, turn-in-place at sharp "
-    "corners) on odometry/pose. Publishes zero velocity at the end, then its outcome on drive/outcome, and "
-    "exits with it: 0 completed; 3 aborted (the motor stayed latched stopped for drive.give_up_after_stop); "
-    "4 timed out (a pass past its time limit). --loop ends only when a pass is given up. "
-    "Examples: invent drive --vx 0.3 --w 0.1 --for 5; invent drive --twist 0.2 0.5 (until Ctrl-C); "
-    "invent drive --scenario square; "
-    'invent drive --waypoints "1,0 1,1 0,1 0,0". See docs/drive.md.',
-    add_arguments=add_arguments,
-    overrides=overrides,
-    factory=DriveService,
-)
+COMMAND = ServiceCommand(service=Service.DRIVE, factory=DriveService)

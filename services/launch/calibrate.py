@@ -33,9 +33,8 @@ from services.calibration.measured import read_measured
 from services.calibration.settings import UmbmarkSettings
 from services.calibration.umbmark import CONVERGED, Calibration, Direction, Umbmark, evaluate
 from services.config import ConfigError
-from services.errors import RunFailed
+from services.errors import ChildDied, Interrupted, RunFailed
 from services.exits import ExitStatus
-from services.launch.children import ChildDied, Interrupted
 from services.launch.umbmark_runs import Composer, Simulation, check_sim_config, say
 from services.recording.calibration import write_figure, write_paths_recording
 from services.recording.calibration_report import (

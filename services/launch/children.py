@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from schemas.keys import Service
+from services.errors import ChildDied
 from services.runtime.intraprocess import LocalBus
 
 STOP_TIMEOUT_S = 10.0
@@ -35,14 +36,6 @@ def _die_with_parent() -> None:
 
 
 LINES_KEPT = 5
-
-
-class ChildDied(RuntimeError):
-    """A service the run needs ended before the run did."""
-
-
-class Interrupted(RuntimeError):
-    """Ctrl-C (SIGINT or SIGTERM) while the run lasted."""
 
 
 def describe_exit(code: int) -> str:

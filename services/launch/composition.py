@@ -13,7 +13,6 @@ other services run no loop of their own; the drive's end shows in its ``finished
 
 from __future__ import annotations
 
-import argparse
 import logging
 import threading
 import time
@@ -28,7 +27,7 @@ from services.runtime.executor import Executor
 from services.runtime.intraprocess import LocalBus
 from services.runtime.node import Node
 from services.runtime.realtime import pin_loop_thread, settle_garbage_collector
-from services.service import ClockedService, RunningService, ServiceCommand, config_from_args, start_service
+from services.service import ClockedService, RunningService, ServiceParse, start_service
 
 log = logging.getLogger("invent.composed")
 
@@ -55,9 +54,11 @@ class ComposedService:
 class Composition:
     """Builds and runs services on one shared session; the in-process twin of ``up.Supervisor``."""
 
-    def __init__(self, session: zenoh.Session, parser: argparse.ArgumentParser, *, intra_process: bool = True) -> None:
+    def __init__(self, session: zenoh.Session, parse: ServiceParse, *, intra_process: bool = True) -> None:
+        """``parse`` turns ``invent <service>``'s arguments into the service to start (the command
+        line's :func:`services.cli.services.service_plan`)."""
         self.session = session
-        self._parser = parser
+        self._parse = parse
         self._stop = threading.Event()
         self._shared = Executor()
         self.bus = LocalBus() if intra_process else None
@@ -67,10 +68,9 @@ class Composition:
 
     def start(self, name: str, argv: Sequence[str]) -> ComposedService:
         """Build the service ``invent <argv>`` would run, here, and start its loop if it has one."""
-        args = self._parser.parse_args(list(argv))
-        command: ServiceCommand = args.service_command
-        config = config_from_args(command, args)
-        node, service = start_service(command, self.session, config, args, self._shared, self.bus)
+        plan = self._parse(argv)
+        config = plan.config
+        node, service = start_service(plan, self.session, self._shared, self.bus)
         composed = ComposedService(name, node, service, None)
         if isinstance(service, ClockedService):
             # The clocked service starts last: everything the composition needs is built.

@@ -18,9 +18,9 @@ robots, their bumps into each other), and ``<report dir>/<robot>/`` its plots.
 
 from __future__ import annotations
 
-import argparse
 import time
 from contextlib import ExitStack
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -31,14 +31,14 @@ from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config, ConfigError, SimMode
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.scenarios import load_scenario
+from services.errors import ChildDied, Interrupted
 from services.fleet.description import Fleet, FleetRobot, bridge_flags, fleet_configs, load_fleet, robot_flags
 from services.fleet.summary import bumps_between, closest_approach
-from services.launch.children import ChildDied, Interrupted, say
+from services.launch.children import say
+from services.launch.plan import UpPlan
 from services.launch.recorder import RunRecorder
 from services.launch.ros2_run import BagRecording, check_ros2_flags, fleet_bridge_graphs, fleet_bridges
 from services.launch.run import (
-    EXIT_CHILD_DIED,
-    EXIT_INTERRUPTED,
     MOTOR_STATE_FILE,
     RECORDING_FILE,
     SECRETS_DIRECTORY,
@@ -47,10 +47,12 @@ from services.launch.run import (
     Outcomes,
     Run,
     ViewProcess,
-    default_report_dir,
+    ended_early,
     launch_services,
     outcome_exit_code,
     rt_flags,
+    secure_listen,
+    start,
     verdict,
 )
 from services.launch.worker import assign
@@ -64,9 +66,8 @@ from services.recording.report import (
     write_report,
 )
 from services.runtime.inputs import Publisher
-from services.runtime.session import DEFAULT_ENDPOINT, stop_on_signals
 from services.security import Role, write_fleet_profile
-from services.service import overrides_from_args
+from services.service import ServiceParse
 from sim_bridge.world import load_world
 
 PROGRESS_INTERVAL_S = 1.0
@@ -79,50 +80,53 @@ UNSUPPORTED = {
 }
 
 
-def check_fleet(args: argparse.Namespace) -> tuple[Fleet, dict[str, Config]]:
-    """The fleet and each robot's description; ConfigError (exit 2) for anything a child would
-    refuse once started, before any starts."""
-    given = {flag: getattr(args, flag.removeprefix("--"), None) for flag in UNSUPPORTED}
+def check_fleet(plan: UpPlan, path: str) -> tuple[Fleet, dict[str, Config]]:
+    """The fleet of the file at ``path`` and each robot's description; ConfigError (exit 2) for
+    anything a child would refuse once started, before any starts."""
+    given = {
+        "--robot": plan.description.robot,
+        "--loop": plan.loop,
+        "--gui": plan.gui,
+        "--connect": plan.connection.connect,
+    }
     wrong = [f"{flag} ({UNSUPPORTED[flag]})" for flag, value in given.items() if value]
     if wrong:
         raise ConfigError(f"--fleet with {', '.join(wrong)}")
-    if args.workers is not None and (args.workers < 1 or not args.composed):
-        raise ConfigError(f"--workers {args.workers}: a number of processes >= 1, with --composed")
-    check_ros2_flags(args)
-    fleet = load_fleet(args.fleet)
-    overrides = overrides_from_args(None, args)
-    configs = fleet_configs(fleet, args.config, overrides)
-    if args.ros2:
-        fleet_bridges(fleet, args)
-    for robot in fleet.robots if not args.teleop else ():
+    if plan.workers is not None and (plan.workers < 1 or not plan.composed):
+        raise ConfigError(f"--workers {plan.workers}: a number of processes >= 1, with --composed")
+    check_ros2_flags(plan)
+    fleet = load_fleet(path)
+    description = plan.description
+    configs = fleet_configs(fleet, description.config, description.overrides())
+    if plan.ros2:
+        fleet_bridges(fleet, description.config, description.overrides())
+    for robot in fleet.robots if not plan.teleop else ():
         try:
-            load_scenario(_scenario(robot, args))
+            load_scenario(_scenario(robot, plan))
         except ConfigError as error:
             raise ConfigError(f"fleet robot {robot.name!r}: {error}") from None
     load_world(fleet.world or configs[fleet.robots[0].name].sim.world)
     return fleet, configs
 
 
-def fleet_access(args: argparse.Namespace, fleet: Fleet, report_dir: Path) -> Access:
+def fleet_access(plan: UpPlan, fleet: Fleet, report_dir: Path) -> Access:
     """The run's :class:`Access`; with ``--secure`` a fresh fleet profile (services/security.py): a
     user per robot and service, each allowed only its own robot's keys, written before anything starts."""
-    if args.tls and not args.secure:
-        raise ConfigError("--tls: it is an option of --secure (use both)")
-    if not args.secure:
-        return Access(None, args.zenoh_config)
-    if args.composed or args.zenoh_config:
+    listen = secure_listen(plan)
+    if listen is None:
+        return Access(None, plan.connection.zenoh_config)
+    if plan.composed or plan.connection.zenoh_config:
         raise ConfigError(
             "--secure with --composed or --zenoh-config: a secure fleet starts its own router and runs every "
             "service as a client of it, each with its robot's and role's credentials"
         )
-    listen = args.listen or [DEFAULT_ENDPOINT]
     profile = write_fleet_profile(
         report_dir / SECRETS_DIRECTORY,
         fleet.names,
         endpoint=listen[0],
         router_listen=listen,
-        tls=args.tls,
-        bridges=fleet_bridge_graphs(fleet, args),
+        tls=plan.tls,
+        bridges=fleet_bridge_graphs(fleet, plan.description.config, plan.description.overrides()),
     )
     say(f"secure: a user per robot and service, credentials in {profile.directory}/")
     return Access(profile, None)
@@ -135,18 +139,9 @@ def role_flags(access: Access, role: Role, robot: str | None = None) -> list[str
     return ["--zenoh-config", str(access.profile.client_config(role, robot))]
 
 
-def _scenario(robot: FleetRobot, args: argparse.Namespace) -> str:
+def _scenario(robot: FleetRobot, plan: UpPlan) -> str:
     """A robot's scenario: its own, else ``--scenario``."""
-    return robot.scenario or args.scenario
-
-
-def _common_flags(args: argparse.Namespace, endpoint: str) -> list[str]:
-    common = ["--connect", endpoint, "--log-level", args.log_level]
-    if args.config:
-        common += ["--config", args.config]
-    for override in args.set or ():
-        common += ["--set", override]
-    return common
+    return robot.scenario or plan.scenario
 
 
 class FleetRun:
@@ -231,35 +226,33 @@ class FleetRun:
             time.sleep(LOOK_INTERVAL_S)
 
 
-def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    fleet, configs = check_fleet(args)
-    report_dir = Path(args.report) if args.report else default_report_dir()
-    access = fleet_access(args, fleet, report_dir)
-    endpoint = access.profile.endpoint if access.profile else (args.listen or [DEFAULT_ENDPOINT])[0]
-    common = _common_flags(args, endpoint)
+def run_fleet(plan: UpPlan, fleet_file: str, parse: ServiceParse) -> int:
+    """``invent up --fleet FILE``: services/launch/up.py's :func:`~services.launch.up.run_up` comes here."""
+    fleet, configs = check_fleet(plan, fleet_file)
+    begun = start(plan, partial(fleet_access, plan, fleet))
+    report_dir, access, endpoint, common = begun.report_dir, begun.access, begun.endpoint, begun.common
     first = configs[fleet.robots[0].name]
-    mode = SimMode.REALTIME if args.teleop else args.mode or first.sim.mode
-    interrupted = stop_on_signals()
-    robot_services = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if args.ros2 else ()))
+    mode = SimMode.REALTIME if plan.teleop else plan.mode or first.sim.mode
+    robot_services = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if plan.ros2 else ()))
     # each robot's services and drive, the sim, up
     journals = len(fleet.robots) * (len(robot_services) + 1) + 2
-    bag = BagRecording(report_dir, first.record, len(fleet.robots), first.ros2.distro) if args.record_ros2 else None
-    recorder = None if args.no_record or args.teleop else RunRecorder(report_dir, first.record, journals)
+    bag = BagRecording(report_dir, first.record, len(fleet.robots), first.ros2.distro) if plan.record_ros2 else None
+    recorder = None if plan.no_record or plan.teleop else RunRecorder(report_dir, first.record, journals)
     sim_started = False
     health: dict[str, dict[str, Any]] = {}
     try:
-        assignment = assign(fleet.names, args.workers or 1) if args.composed else None
+        assignment = assign(fleet.names, plan.workers or 1) if plan.composed else None
         with (
-            launch_services(args, endpoint, parser, access, assignment) as (launcher, session),
+            launch_services(plan, endpoint, parse, access, assignment) as (launcher, session),
             ExitStack() as closing,
         ):
-            run = FleetRun(Run(launcher, session, Keys(fleet.names[0]), interrupted), fleet)
+            run = FleetRun(Run(launcher, session, Keys(fleet.names[0]), begun.interrupted), fleet)
             outcomes = Outcomes(session, fleet.names, launcher.bus)
             closing.callback(outcomes.close)
-            if args.view is not None:
+            if plan.view is not None:
                 live_view = ViewProcess(
-                    [*common, *role_flags(access, Role.OBSERVER), "--robot", fleet.names[0], "--fleet", args.fleet],
-                    args.view,
+                    [*common, *role_flags(access, Role.OBSERVER), "--robot", fleet.names[0], "--fleet", fleet_file],
+                    plan.view,
                 )
                 closing.callback(live_view.close)
                 live_view.wait_serving(run.run)
@@ -278,7 +271,7 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             for robot in fleet.robots:
                 state = report_dir / robot.name / MOTOR_STATE_FILE
                 own = {
-                    Service.MOTOR: ["--state", str(state), *rt_flags(args)],
+                    Service.MOTOR: ["--state", str(state), *rt_flags(plan)],
                     Service.ROS2: [*bridge_flags(fleet, robot), *(bag.flags if bag else [])],
                 }
                 for service in robot_services:
@@ -287,11 +280,11 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                     launcher.start(f"{robot.name}/{service}", [str(service), *flags, *own.get(service, [])])
             # Until the sim starts, any service that ends ends the run, as in a one-robot run.
             run.run.wait_tokens([Keys(name).alive(service) for name in fleet.names for service in robot_services])
-            driven = () if args.teleop else fleet.robots
+            driven = () if plan.teleop else fleet.robots
             for robot in driven:
                 flags = [*common, *role_flags(access, Role.DRIVE, robot.name), *robot_flags(robot)]
                 flags += journal(robot.name)
-                launcher.start(f"{robot.name}/drive", ["drive", *flags, "--scenario", _scenario(robot, args)])
+                launcher.start(f"{robot.name}/drive", ["drive", *flags, "--scenario", _scenario(robot, plan)])
             tokens = []
             for name in (robot.name for robot in driven):
                 keys, config = Keys(name), configs[name]
@@ -302,11 +295,11 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                 ]
             run.run.wait_tokens(tokens)
             wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
-            sim_flags = ["--fleet", args.fleet, "--mode", mode, "--until-drive-ends", "--wait-for", *wait_for]
-            if args.teleop:  # no drive: the sim steps on until Ctrl-C, waiting for each robot's torque only
-                sim_flags = ["--fleet", args.fleet, "--mode", mode, "--wait-for", str(Service.MOTOR)]
+            sim_flags = ["--fleet", fleet_file, "--mode", mode, "--until-drive-ends", "--wait-for", *wait_for]
+            if plan.teleop:  # no drive: the sim steps on until Ctrl-C, waiting for each robot's torque only
+                sim_flags = ["--fleet", fleet_file, "--mode", mode, "--wait-for", str(Service.MOTOR)]
                 say("teleop: each robot follows ROS 2's /<namespace>/cmd_vel until Ctrl-C; see docs/ros2.md")
-            sim_flags += rt_flags(args)
+            sim_flags += rt_flags(plan)
             launcher.start(
                 "sim",
                 ["sim", *common, *role_flags(access, Role.SIM), *(recorder.flags if recorder else []), *sim_flags],
@@ -314,7 +307,7 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             sim_started = True
             started = time.monotonic()
             say(f"fleet of {len(fleet.robots)}: {', '.join(fleet.names)}; {mode} mode")
-            sim_status = run.supervise(started, until_interrupted=args.teleop)
+            sim_status = run.supervise(started, until_interrupted=plan.teleop)
             wall_time_s = time.monotonic() - started
             for name in fleet.names:
                 keys = Keys(name)
@@ -332,9 +325,9 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                             tm=Time.from_nanoseconds(
                                 round((robot_sim or {}).get("sim_time_s", 0.0) * NANOSECONDS_PER_SECOND)
                             ),
-                            scenario=_scenario(fleet.robot(name), args),
+                            scenario=_scenario(fleet.robot(name), plan),
                             mode=mode,
-                            composed=args.composed,
+                            composed=plan.composed,
                             wall_time_s=wall_time_s,
                             steps=int(robot_sim["steps"]) if robot_sim else 0,
                             health=health[name],
@@ -346,12 +339,8 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             if unclean:
                 say(f"services that did not exit cleanly: {unclean}")
             outcome_lines = [f"{name}: {outcomes.line(name, outcome)}" for name, outcome in run.outcomes.items()]
-    except ChildDied as error:
-        say(f"{error}; stopped everything")
-        return EXIT_CHILD_DIED
-    except Interrupted:
-        say("interrupted; stopped everything")
-        return EXIT_INTERRUPTED
+    except (ChildDied, Interrupted) as error:
+        return ended_early(error)
     finally:
         if recorder:
             recorder.finish(sim_started, report_dir / RECORDING_FILE, first, tuple(configs.values()))
@@ -362,14 +351,14 @@ def run_fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         degraded = [f"{name}: {reason}" for name in fleet.names for reason in _degradations(health[name])]
         for line in [*outcome_lines, *map(degradation_line, degraded)]:
             print(line, flush=True)
-        why = "--teleop" if args.teleop else "--no-record"
-        return verdict(args, degraded, f"done; no recording, no report ({why})", outcome_code)
+        why = "--teleop" if plan.teleop else "--no-record"
+        return verdict(plan.strict, degraded, f"done; no recording, no report ({why})", outcome_code)
     report = fleet_report(report_dir, fleet, configs)
     for name, robot in report["robots"].items():
         print(f"--- {name} ---\n{summary(robot)}", flush=True)
     print(fleet_summary_line(report["fleet"]), flush=True)
     return verdict(
-        args, report["degraded"], f"recording: {report_dir / RECORDING_FILE}; report: {report_dir}", outcome_code
+        plan.strict, report["degraded"], f"recording: {report_dir / RECORDING_FILE}; report: {report_dir}", outcome_code
     )
 
 

@@ -17,21 +17,24 @@ zenoh's delivery of every ROS message to it.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import shutil
+from collections.abc import Mapping
 from pathlib import Path
 from threading import Event, Thread
+from typing import Any
 
 import zenoh
 
-from services.config import Config, ConfigError, RecordConfig, SimMode, TfLayout
+from services.config import Config, ConfigError, RecordConfig, SimMode
+from services.exits import ExitStatus
 from services.fleet.description import Fleet, bridge_configs
 from services.launch.children import say
+from services.launch.plan import UpPlan
 from services.recording.rosbag import write_bag_from_journals
 from services.ros2.graph import BridgeGraph, bridge_graph
 from services.runtime.node import Node
-from services.service import RunningService, ServiceCommand, overrides_from_args, start_service
+from services.service import RunningService, ServicePlan, start_service
 
 log = logging.getLogger("invent.ros2")
 
@@ -41,41 +44,22 @@ BAG_JOURNALS_DIRECTORY = "bag-journals"
 """Where the bridges keep what they publish while the run lasts (made into the bag at its end)."""
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``invent up``'s flags of the bridges' TF and of the run's bag."""
-    parser.add_argument(
-        "--tf",
-        choices=list(TfLayout),
-        help="with --ros2 and a namespace (every robot of a fleet has one): namespaced (default), each robot's "
-        "TF on /<NS>/tf and /<NS>/tf_static, frames as named (Nav2's multi-robot bringup); prefixed, every robot "
-        "on the shared /tf and /tf_static, frames <NS>/odom, <NS>/base_link, ... under map, for one RViz (the "
-        "same as --set ros2.tf=...; docs/ros2.md, A fleet)",
-    )
-    parser.add_argument(
-        "--record-ros2",
-        action="store_true",
-        help=f"with --ros2: also record what the ROS 2 bridges publish into a rosbag2 bag (MCAP storage) beside "
-        f"run.mcap, <report dir>/{BAG_DIRECTORY}/, stamped in simulation time, /clock included, within the bounds "
-        "of [record] (`ros2 bag info`, `ros2 bag play --clock`, Foxglove: docs/ros2.md, Bags)",
-    )
-
-
-def check_ros2_flags(args: argparse.Namespace) -> None:
+def check_ros2_flags(plan: UpPlan) -> None:
     """ConfigError (exit 2) for ``--teleop`` or ``--record-ros2`` where they cannot work, before anything starts."""
-    if args.teleop:
-        given = {"--ros2": not args.ros2, "--mode lockstep": args.mode == SimMode.LOCKSTEP, "--loop": args.loop}
+    if plan.teleop:
+        given = {"--ros2": not plan.ros2, "--mode lockstep": plan.mode == SimMode.LOCKSTEP, "--loop": plan.loop}
         wrong = [flag for flag, conflicting in given.items() if conflicting]
         if wrong:
             raise ConfigError(
                 f"--teleop ({', '.join(wrong)}): it runs the loop in realtime with no scenario, the robots following "
                 "ROS 2's /cmd_vel through the bridge, so it needs --ros2 and takes neither --mode lockstep nor --loop"
             )
-    if args.record_ros2:
+    if plan.record_ros2:
         given = {
-            "without --ros2": not args.ros2,
-            "with --no-record": args.no_record,
-            "with --loop": args.loop,
-            "with --teleop": args.teleop,
+            "without --ros2": not plan.ros2,
+            "with --no-record": plan.no_record,
+            "with --loop": plan.loop,
+            "with --teleop": plan.teleop,
         }
         wrong = [flag for flag, conflicting in given.items() if conflicting]
         if wrong:
@@ -85,26 +69,25 @@ def check_ros2_flags(args: argparse.Namespace) -> None:
             )
 
 
-def fleet_bridges(fleet: Fleet, args: argparse.Namespace, command: ServiceCommand | None = None) -> dict[str, Config]:
+def fleet_bridges(fleet: Fleet, config_path: str | None, overrides: dict[str, Any]) -> dict[str, Config]:
     """Each robot's description as its bridge runs with it (its namespace, ``/clock`` from the
-    first; ``command``'s flags, ``invent ros2``'s, over the rest), checked (ConfigError names the
+    first; ``overrides``, the command line's, over the rest), checked (ConfigError names the
     robot and field; ``$ROS_DOMAIN_ID`` too)."""
-    configs = bridge_configs(fleet, args.config, overrides_from_args(command, args))
+    configs = bridge_configs(fleet, config_path, overrides)
     for config in configs.values():
         bridge_graph(config)
     return configs
 
 
-def fleet_bridge_graphs(fleet: Fleet, args: argparse.Namespace) -> dict[str, BridgeGraph]:
+def fleet_bridge_graphs(fleet: Fleet, config_path: str | None, overrides: dict[str, Any]) -> dict[str, BridgeGraph]:
     """What each robot's bridge is in the ROS graph: what its credentials grant (``--secure``)."""
-    return {name: bridge_graph(config) for name, config in fleet_bridges(fleet, args).items()}
+    return {name: bridge_graph(config) for name, config in fleet_bridges(fleet, config_path, overrides).items()}
 
 
-def serve_bridges(
-    command: ServiceCommand, session: zenoh.Session, configs: dict[str, Config], args: argparse.Namespace, stop: Event
-) -> int:
-    """``invent ros2 --fleet FILE``: a bridge per robot (``configs``, :func:`fleet_bridges`) on one
-    session, each on its own thread (a node and executor of its own), until ``stop``; 1 if one failed."""
+def serve_bridges(session: zenoh.Session, plans: Mapping[str, ServicePlan], stop: Event) -> int:
+    """``invent ros2 --fleet FILE``: a bridge per robot (``plans``, each robot's description from
+    :func:`fleet_bridges`) on one session, each on its own thread (a node and executor of its own),
+    until ``stop``; 1 if one failed."""
     running: list[tuple[Node, RunningService]] = []
     failed: list[str] = []
 
@@ -118,8 +101,8 @@ def serve_bridges(
 
     threads = []
     try:
-        for name, config in configs.items():
-            node, service = start_service(command, session, config, args)
+        for name, plan in plans.items():
+            node, service = start_service(plan, session)
             running.append((node, service))
             threads.append(Thread(target=serve, args=(name, node, service), name=f"ros2-{name}", daemon=True))
         for thread in threads:
@@ -131,7 +114,7 @@ def serve_bridges(
         for node, service in reversed(running):
             service.close()
             node.close()
-    return 1 if failed else 0
+    return ExitStatus.FAILURE if failed else ExitStatus.OK
 
 
 class BagRecording:

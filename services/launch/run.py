@@ -1,12 +1,12 @@
 """What every run of ``invent up`` shares, for one robot (``services/launch/up.py``) and a fleet
-(``services/launch/fleet.py``) alike: where its files go, how its sessions are configured
-(:class:`Access`), how its services are launched (:func:`launch_services`), how it watches them
-(:class:`Run`), its live view, and how it ends: each robot's scenario outcome (:class:`Outcomes`)
-and the run's exit status (:func:`verdict`)."""
+(``services/launch/fleet.py``) alike: where its files go, the flags its children are given
+(:func:`child_flags`), how its sessions are configured (:class:`Access`, :func:`secure_listen`),
+how its services are launched (:func:`launch_services`), how it watches them (:class:`Run`), its
+live view, and how it ends: each robot's scenario outcome (:class:`Outcomes`) and the run's exit
+status (:func:`verdict`)."""
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import threading
@@ -22,21 +22,20 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from schemas.messages import ScenarioOutcome
+from services.config import ConfigError
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
-from services.launch.children import ChildDied, Interrupted, Launcher, Supervisor, describe_exit, say
+from services.errors import ChildDied, Interrupted
+from services.exits import ExitStatus
+from services.launch.children import Launcher, Supervisor, describe_exit, say
 from services.launch.composition import Composition
+from services.launch.plan import UpPlan
 from services.launch.worker import Workers
 from services.runtime.intraprocess import LocalBus, Watch
 from services.runtime.realtime import apply_realtime
-from services.runtime.session import ROUTER_LISTENING, open_session, session_config
+from services.runtime.session import DEFAULT_ENDPOINT, ROUTER_LISTENING, open_session, session_config, stop_on_signals
 from services.security import Profile, Role
-from services.service import config_from_args
+from services.service import ServiceParse
 
-EXIT_CHILD_DIED = 1
-EXIT_DEGRADED = 1
-EXIT_INTERRUPTED = 130
-"""With the outcomes' codes (services/drive/outcome.py: 0 completed, 3 aborted, 4 timed out), the
-exit statuses of ``invent up`` (docs/protocol.md section 8.5)."""
 STARTUP_TIMEOUT_S = 60.0
 END_TIMEOUT_S = 10.0
 """How long the sim may take to hold at the drive's last command once the drive has ended."""
@@ -53,10 +52,69 @@ CONTROL_PATH = (Service.SIM, Service.MOTOR)
 runs through them (docs/realtime.md)."""
 
 
-def rt_flags(args: argparse.Namespace) -> list[str]:
+def rt_flags(plan: UpPlan) -> list[str]:
     """The flags that give a control-path child (the router, the sim, a motor) ``up``'s ``--rt``;
     the ``rt.*`` overrides reach every child with the other ``--set``."""
-    return ["--rt"] if args.rt else []
+    return ["--rt"] if plan.description.rt else []
+
+
+def child_flags(plan: UpPlan, endpoint: str) -> list[str]:
+    """What every service of the run is given: where to connect, the log level, the robot description."""
+    description = plan.description
+    common = ["--connect", endpoint, "--log-level", plan.connection.log_level]
+    if description.robot:
+        common += ["--robot", description.robot]
+    if description.config:
+        common += ["--config", description.config]
+    for override in description.settings:
+        common += ["--set", override]
+    return common
+
+
+def secure_listen(plan: UpPlan) -> list[str] | None:
+    """With ``--secure``, where the run's own router listens (its profile's endpoints); None without."""
+    if plan.tls and not plan.secure:
+        raise ConfigError("--tls: it is an option of --secure (use both)")
+    if not plan.secure:
+        return None
+    return list(plan.connection.listen) or [DEFAULT_ENDPOINT]
+
+
+@dataclass(frozen=True)
+class Start:
+    """What a run has settled before it launches anything: where its files go, how its sessions
+    are configured, where its services connect and the flags every one is given, and Ctrl-C."""
+
+    report_dir: Path
+    access: Access
+    endpoint: str
+    common: list[str]
+    interrupted: threading.Event
+
+
+def start(plan: UpPlan, access: Callable[[Path], Access]) -> Start:
+    """The run's :class:`Start`; ``access`` makes its :class:`Access` for its report directory
+    (with ``--secure`` it writes the profile there, before anything starts)."""
+    report_dir = plan.report or default_report_dir()
+    made = access(report_dir)
+    endpoint = run_endpoint(plan, made)
+    return Start(report_dir, made, endpoint, child_flags(plan, endpoint), stop_on_signals())
+
+
+def ended_early(error: ChildDied | Interrupted) -> int:
+    """Say why a run ended before its end (everything is stopped by then) and its exit status."""
+    if isinstance(error, Interrupted):
+        say("interrupted; stopped everything")
+        return ExitStatus.INTERRUPTED
+    say(f"{error}; stopped everything")
+    return ExitStatus.FAILURE
+
+
+def run_endpoint(plan: UpPlan, access: Access) -> str:
+    """Where the run's services connect: its secure router, else ``--connect``, else its own router's ``--listen``."""
+    if access.profile:
+        return access.profile.endpoint
+    return (plan.connection.connect or plan.connection.listen or (DEFAULT_ENDPOINT,))[0]
 
 
 def default_report_dir() -> Path:
@@ -84,9 +142,9 @@ class Access:
 
 @contextmanager
 def launch_services(
-    args: argparse.Namespace,
+    plan: UpPlan,
     endpoint: str,
-    parser: argparse.ArgumentParser,
+    parse: ServiceParse,
     access: Access,
     assignment: dict[str, int] | None = None,
 ) -> Iterator[tuple[Launcher, zenoh.Session]]:
@@ -94,20 +152,21 @@ def launch_services(
     child (or the router at ``--connect``), or one composed process whose session is itself the
     router (so outside zenoh tools still see every key); a composed fleet's robots spread over
     worker processes as ``assignment`` says (services/launch/worker.py)."""
-    if args.composed:
+    connection = plan.connection
+    if plan.composed:
         # One process runs the whole loop: it is the control path.
-        apply_realtime(config_from_args(None, args).rt, "invent up --composed", composed=True)
+        apply_realtime(plan.description.load().rt, "invent up --composed", composed=True)
         mode_config = (
-            session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR), timestamping=args.ros2)
-            if args.connect
-            else session_config(listen=[endpoint], mode="router", timestamping=args.ros2)
+            session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR), timestamping=plan.ros2)
+            if connection.connect
+            else session_config(listen=[endpoint], mode="router", timestamping=plan.ros2)
         )
         with open_session(mode_config) as session:
-            composition = Composition(session, parser, intra_process=not args.no_intra_process)
+            composition = Composition(session, parse, intra_process=plan.intra_process)
             launcher: Launcher = composition
             if assignment and max(assignment.values()) > 0:
-                worker_flags = ["--connect", endpoint, "--log-level", args.log_level]
-                worker_flags += ["--no-intra-process"] if args.no_intra_process else []
+                worker_flags = ["--connect", endpoint, "--log-level", connection.log_level]
+                worker_flags += [] if plan.intra_process else ["--no-intra-process"]
                 launcher = Workers(composition, assignment, worker_flags)
             try:
                 yield launcher, session
@@ -116,14 +175,15 @@ def launch_services(
         return
     supervisor = Supervisor()
     try:
-        if not args.connect:
-            rt_settings = [flag for text in args.set or () if text.startswith("rt.") for flag in ("--set", text)]
+        if not connection.connect:
+            settings = plan.description.settings
+            rt_settings = [flag for text in settings if text.startswith("rt.") for flag in ("--set", text)]
             router_flags = [
                 "router",
                 *access.router_flags(endpoint),
                 "--log-level",
-                args.log_level,
-                *rt_flags(args),
+                connection.log_level,
+                *rt_flags(plan),
                 *rt_settings,
             ]
             # Nothing connects before the router listens: a router that cannot (its port taken)
@@ -263,7 +323,7 @@ def outcome_exit_code(outcomes: Sequence[Outcome | None]) -> int:
     for worst in (Outcome.ABORTED, Outcome.TIMED_OUT):
         if worst in outcomes:
             return worst.exit_code
-    return 0
+    return ExitStatus.OK
 
 
 class ViewProcess:
@@ -294,17 +354,18 @@ class ViewProcess:
             say(f"view did not exit cleanly ({describe_exit(code)})")
 
 
-def verdict(args: argparse.Namespace, degraded: list[str], done: str, outcome_code: int = 0) -> int:
+def verdict(strict: bool, degraded: list[str], done: str, outcome_code: int = 0) -> int:
     """Say what was written; a scenario given up exits with its outcome's code, else under
     ``--strict`` a degraded run exits 1."""
     say(done)
     if outcome_code:
         say(f"the scenario was given up: exit {outcome_code}")
         return outcome_code
-    if degraded and args.strict:
-        say(f"--strict: the run degraded ({len(degraded)} reason{'s' * (len(degraded) > 1)}): exit {EXIT_DEGRADED}")
-        return EXIT_DEGRADED
-    return 0
+    if degraded and strict:
+        status = ExitStatus.FAILURE
+        say(f"--strict: the run degraded ({len(degraded)} reason{'s' * (len(degraded) > 1)}): exit {status}")
+        return status
+    return ExitStatus.OK
 
 
 def _progress(sim_status: dict[str, Any], wall_s: float) -> None:

@@ -53,7 +53,7 @@ PATH_POINTS = 20_000
 """A run's paths keep a point every :data:`PATH_SPACING_M`, at most this many each."""
 
 Composer = Callable[[zenoh.Session], Composition]
-"""Builds a run's composition on its session (services/cli/ binds the parser of the services' flags)."""
+"""Builds a run's composition on its session (services/cli/ binds how a service's arguments are parsed)."""
 
 
 def say(text: str) -> None:

@@ -25,7 +25,6 @@ robot's services where :func:`assign` put the robot.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import threading
@@ -36,10 +35,12 @@ from typing import Any
 import zenoh
 
 from schemas.keys import Service
+from services.errors import ChildDied
 from services.fleet.description import Fleet, robot_flags
-from services.launch.children import ChildDied, Supervisor, describe_exit
+from services.launch.children import Supervisor, describe_exit
 from services.launch.composition import Composition
 from services.runtime.executor import STOP_POLL_S
+from services.service import ServiceParse
 
 WORKER_PREFIX = "@worker "
 STARTED, FAILED, ENDED, STOPPED = "started", "failed", "ended", "stopped"
@@ -77,7 +78,7 @@ def robot_requests(fleet: Fleet, robots: Sequence[str], connection: Sequence[str
 
 def run_worker(
     session: zenoh.Session,
-    parser: argparse.ArgumentParser,
+    parse: ServiceParse,
     stop: threading.Event,
     *,
     intra_process: bool = True,
@@ -85,7 +86,7 @@ def run_worker(
 ) -> int:
     """``invent worker``: compose ``requests``, then the services ``up`` sends on standard input
     (none given), until stopped."""
-    composition = Composition(session, parser, intra_process=intra_process)
+    composition = Composition(session, parse, intra_process=intra_process)
 
     def start(request: list[str]) -> None:
         name, *argv = request

@@ -17,57 +17,16 @@ never polls.
 
 from __future__ import annotations
 
-import argparse
 from typing import Any
 
 from schemas.keys import Service
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition
 from services.clock.sim_watch import SimulatorWatch
-from services.config import Config, LocalizationConfig
+from services.config import Config
 from services.localization.core import Fix, Localizer, resolve_seed
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node, Wait
-from services.service import ServiceCommand
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    defaults = LocalizationConfig()
-    group = parser.add_argument_group("localization (each flag overrides its localization.* config key)")
-    group.add_argument(
-        "--rate", type=float, metavar="HZ", help=f"fixes per second of simulation time (default {defaults.rate:g})"
-    )
-    group.add_argument(
-        "--noise",
-        type=float,
-        nargs=3,
-        metavar=("SX", "SY", "STHETA"),
-        help="standard deviations of the Gaussian noise on x, y (m) and theta (rad) "
-        f"(default {defaults.noise_x:g} {defaults.noise_y:g} {defaults.noise_theta:g})",
-    )
-    group.add_argument("--seed", type=int, metavar="N", help="random seed of the noise (default: from the OS)")
-    group.add_argument(
-        "--initial",
-        type=float,
-        nargs=3,
-        metavar=("X", "Y", "THETA"),
-        help="initial pose published before the first fix "
-        f"(default {defaults.initial_x:g} {defaults.initial_y:g} {defaults.initial_theta:g})",
-    )
-
-
-def overrides(args: argparse.Namespace) -> dict[str, Any]:
-    noise = args.noise or (None, None, None)
-    initial = args.initial or (None, None, None)
-    return {
-        "localization.rate": args.rate,
-        "localization.noise_x": noise[0],
-        "localization.noise_y": noise[1],
-        "localization.noise_theta": noise[2],
-        "localization.seed": args.seed,
-        "localization.initial_x": initial[0],
-        "localization.initial_y": initial[1],
-        "localization.initial_theta": initial[2],
-    }
+from services.service import NoOptions, ServiceCommand
 
 
 def _pose_dict(fix: Fix | None) -> dict[str, Any] | None:
@@ -81,7 +40,7 @@ class LocalizationService:
     """It serves until stopped."""
     exit_code = 0
 
-    def __init__(self, node: Node, config: Config, _args: argparse.Namespace) -> None:
+    def __init__(self, node: Node, config: Config, _options: NoOptions) -> None:
         self.node = node
         self.config = config.localization
         self.seed = resolve_seed(self.config.seed)
@@ -146,13 +105,4 @@ class LocalizationService:
         """Nothing beyond the node to release."""
 
 
-COMMAND = ServiceCommand(
-    service=Service.LOCALIZATION,
-    help="the localization stub: initial pose, then noisy fixes of the simulated pose (sim time)",
-    description="Publish localization/pose: the initial pose (localization.initial_*), then every "
-    "1/rate seconds of simulation time the latest motor/sim_pose/localization plus Gaussian noise "
-    "(localization.noise_*, seeded by localization.seed). See docs/localization.md.",
-    add_arguments=add_arguments,
-    overrides=overrides,
-    factory=LocalizationService,
-)
+COMMAND = ServiceCommand(service=Service.LOCALIZATION, factory=LocalizationService)

@@ -17,9 +17,9 @@ See docs/motor.md.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import typing
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -41,16 +41,9 @@ from schemas.messages import (
 from services.clock.lockstep import Hold, decode_mark, observed
 from services.clock.sim_time import ClockRestart
 from services.clock.sim_watch import HeldSample, SimulatorWatch
-from services.config import Config, TargetAngleMode
+from services.config import Config
 from services.motor.core import MotorCore
-from services.motor.state import (
-    STATE_DIRECTORY,
-    STATE_FILE,
-    STATE_HOME_VARIABLE,
-    SavedState,
-    StateFile,
-    default_state_path,
-)
+from services.motor.state import SavedState, StateFile, default_state_path
 from services.runtime.inputs import Delivery
 from services.runtime.logs import RateLimitedLog
 from services.runtime.node import Node, Wait
@@ -79,12 +72,23 @@ class TraceRecord(msgspec.Struct, frozen=True):
     torque: list[float]
 
 
+@dataclass(frozen=True)
+class MotorOptions:
+    """``invent motor``'s own options beside the robot description."""
+
+    trace: str | None = None
+    """``--trace FILE``: one JSON line per control cycle (:class:`TraceRecord`)."""
+    state: Path | None = None
+    """``--state FILE``: where the latches and the gains set at run time are kept across restarts
+    (None: services/motor/state.py's default for the robot)."""
+
+
 class MotorService:
     finished = False
     """It serves until stopped."""
     exit_code = 0
 
-    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+    def __init__(self, node: Node, config: Config, options: MotorOptions) -> None:
         self.node = node
         self.core = MotorCore(config.robot, config.motor, config.input, config.geometry)
         self.torques_published = 0
@@ -99,8 +103,8 @@ class MotorService:
         self._timeouts_logged = 0
         self._nonfinite_logged = 0
         self._warn = RateLimitedLog(node.log)
-        self._trace = TraceFile.from_flag(args.trace)
-        self._state_file = StateFile(Path(args.state) if args.state else default_state_path(config.robot.name))
+        self._trace = TraceFile.from_flag(options.trace)
+        self._state_file = StateFile(options.state or default_state_path(config.robot.name))
         self.stopped_by: StopCause = ""
         """Who latched the emergency stop (``motor/state``'s ``stopped_by``)."""
         self.restored = self._restore()
@@ -324,45 +328,4 @@ def _decode_arguments(method: Method, payload: bytes) -> msgspec.Struct:
         raise BadInput(f"{method}: {error}") from None
 
 
-def _add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--state",
-        metavar="FILE",
-        help="where the emergency-stop and finish latches and the gains set at run time are kept across "
-        f"restarts (default ${STATE_HOME_VARIABLE}/{STATE_DIRECTORY}/<robot>/{STATE_FILE}, "
-        f"${STATE_HOME_VARIABLE} defaulting to ~/.local/state)",
-    )
-    parser.add_argument(
-        "--trace", metavar="FILE", help="write one JSON line per control cycle (inputs, targets, torques, state)"
-    )
-    parser.add_argument(
-        "--target-angle",
-        choices=list(TargetAngleMode),
-        help="how the target wheel angle is formed (sets motor.target_angle; see docs/motor.md)",
-    )
-    parser.add_argument(
-        "--command-timeout",
-        type=float,
-        metavar="S",
-        help="seconds of wheel-angle time without a target velocity before braking; 0 disables "
-        "(sets motor.command_timeout)",
-    )
-
-
-def _overrides(args: argparse.Namespace) -> dict[str, Any]:
-    """Only the flags given: an unset flag must not mask the same key set with --set."""
-    flags = {"motor.target_angle": args.target_angle, "motor.command_timeout": args.command_timeout}
-    return {key: value for key, value in flags.items() if value is not None}
-
-
-COMMAND = ServiceCommand(
-    service=Service.MOTOR,
-    help="PD wheel-torque control from a target velocity (MotorControlRTC)",
-    description="MotorControl: answers every sim/wheel_angles sample with one motor/torque (PD control "
-    "towards drive/target_velocity) and passes the angles on to odometry; turns sim/body_pose into "
-    "motor/sim_pose/*; serves the Motor interface on motor/gui/<method> and motor/bump/<method> "
-    "(set_pd_gain, start, finish, clear, stop). See docs/motor.md.",
-    add_arguments=_add_arguments,
-    overrides=_overrides,
-    factory=MotorService,
-)
+COMMAND = ServiceCommand(service=Service.MOTOR, factory=MotorService)

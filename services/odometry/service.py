@@ -12,7 +12,7 @@ clock starts again at 0; a reconnected one's goes on, and costs nothing): servic
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
@@ -28,11 +28,19 @@ from services.odometry.core import FIX_HISTORY_STEPS, Branch, Odometry
 from services.planar import Pose
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
-from services.service import ServiceCommand, TraceFile, no_overrides
+from services.service import ServiceCommand, TraceFile
 
 STATE_IDLE = "idle"
 """No wheel angles seen yet: the pose is the starting (or localized) pose."""
 STATE_RUNNING = "running"
+
+
+@dataclass(frozen=True)
+class OdometryOptions:
+    """``invent odometry``'s own options beside the robot description."""
+
+    trace: str | None = None
+    """``--trace FILE``: one JSON line per accepted wheel-angle sample (docs/odometry.md)."""
 
 
 class OdometryService:
@@ -40,7 +48,7 @@ class OdometryService:
     """It serves until stopped."""
     exit_code = 0
 
-    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+    def __init__(self, node: Node, config: Config, options: OdometryOptions) -> None:
         self.node = node
         odometry = config.odometry
         start = Pose(odometry.initial_x, odometry.initial_y, odometry.initial_theta)
@@ -57,7 +65,7 @@ class OdometryService:
             capacity=FIX_HISTORY_STEPS,
             guard=partial(node.guard, node.keys.motor_wheel_angles),
         )
-        self._trace = TraceFile.from_flag(args.trace)
+        self._trace = TraceFile.from_flag(options.trace)
         self._pose = node.publisher(node.keys.odometry_pose)
         node.subscribe(
             node.keys.motor_wheel_angles,
@@ -127,21 +135,4 @@ class OdometryService:
             self._trace.close()
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--trace",
-        metavar="FILE",
-        help="write one JSON line per wheel-angle sample (inputs, branch taken, pose) to FILE",
-    )
-
-
-COMMAND = ServiceCommand(
-    service=Service.ODOMETRY,
-    help="dead-reckoned pose from wheel angles, reset by localized poses",
-    description="The OdometryRTC port: integrates motor/wheel_angles into odometry/pose (one pose per "
-    "observed step, stamped with the sample's tm); every localization/pose overwrites the pose the next step "
-    "starts from. Parameters: [robot] geometry and [odometry] in the robot description.",
-    add_arguments=add_arguments,
-    overrides=no_overrides,
-    factory=OdometryService,
-)
+COMMAND = ServiceCommand(service=Service.ODOMETRY, factory=OdometryService)

@@ -25,6 +25,8 @@ from schemas.codec import ENCODING
 from schemas.keys import Keys, Topic
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import ConfigError
+from services.errors import ConsumerStalled
+from services.exits import ExitStatus
 from services.recording.mcap_files import Replayed
 from services.runtime.discovery import service_statuses
 from services.runtime.inputs import CHANNEL_CAPACITY
@@ -38,10 +40,6 @@ CONSUMER_TIMEOUT_S = 10.0
 """How long a consumer may take nothing of what waits for it before the replay gives up (exit 1)."""
 DISCOVERY_TIMEOUT_S = 2.0
 STATUS_POLL_S = 0.001
-
-
-class ConsumerStalled(RuntimeError):
-    pass
 
 
 @dataclass
@@ -168,7 +166,7 @@ def run_replay(session: zenoh.Session, schedule: list[Replayed], keys: Keys, rat
         consumers.wait_taken(stop)
     except ConsumerStalled as stalled:
         log.error("replay stopped: %s", stalled)
-        return 1
+        return ExitStatus.FAILURE
     finally:
         consumers.close()
         for publisher in publishers.values():

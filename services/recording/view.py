@@ -38,6 +38,7 @@ import zenoh
 from schemas.codec import ENCODING
 from schemas.keys import VIEW, Keys
 from services.config import Config
+from services.exits import ExitStatus
 from services.recording.mcap_files import JSON, JSON_SCHEMA, key_json_schema
 from services.recording.record import TAKE_PERIOD_S, Observer, writer_sink
 
@@ -47,7 +48,6 @@ DEFAULT_HOST = "127.0.0.1"
 """Loopback, where every service listens unless told: ``--host 0.0.0.0`` serves other machines (a container)."""
 DEFAULT_PORT = 8765
 """Foxglove's default port for a Foxglove WebSocket connection."""
-EXIT_NO_SERVER = 1
 """``run_view``'s exit code when the server cannot listen (the port is taken, no such address)."""
 
 
@@ -143,7 +143,7 @@ def run_view(
     fleet: Sequence[Config] = (),
 ) -> int:
     """Serve the robot of ``keys`` (or every robot of ``fleet``: their descriptions) on
-    ws://``host``:``port`` (port 0: any free port) until ``stop``; :data:`EXIT_NO_SERVER` when the
+    ws://``host``:``port`` (port 0: any free port) until ``stop``; ``ExitStatus.FAILURE`` when the
     server cannot listen there."""
     context = foxglove.Context()
     channels = FoxgloveChannels(context)
@@ -151,7 +151,7 @@ def run_view(
         server = foxglove.start_server(name=f"invent {keys.robot}", host=host, port=port, context=context)
     except RuntimeError as error:  # foxglove-sdk's FoxgloveError: the address is taken, or no such host
         log.error("cannot serve on %s:%d: %s", host, port, error)
-        return EXIT_NO_SERVER
+        return ExitStatus.FAILURE
     url = f"ws://{host}:{server.port}"
     started = time.monotonic()
     observer: Observer | None = None

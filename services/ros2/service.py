@@ -29,7 +29,6 @@ fleet): their nodes' and entities' ids come from one counter per session, as in 
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import time
 from collections.abc import Iterator
@@ -46,7 +45,7 @@ from schemas.codec import BadInput
 from schemas.keys import Method, MethodFamily, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
 from services.clock.sim_watch import SimulatorWatch
-from services.config import Config, ConfigError, TfLayout
+from services.config import Config, ConfigError
 from services.ros2 import core, graph, interfaces, wire
 from services.ros2.outputs import Outgoing, RosOutputs
 from services.runtime.inputs import Delivery
@@ -155,19 +154,29 @@ class PendingCall:
     method: Method
 
 
+@dataclass(frozen=True)
+class Ros2Options:
+    """``invent ros2``'s own options beside the robot description: with ``invent up --record-ros2``,
+    where the bridge keeps what it publishes for the run's bag, and how many bridges of the run
+    share ``record.max_size``."""
+
+    bag_journal: Path | None = None
+    bag_journal_share: int = 1
+
+
 class Ros2Bridge:
     finished = False
     """It serves until stopped."""
     exit_code = 0
 
-    def __init__(self, node: Node, config: Config, args: argparse.Namespace) -> None:
+    def __init__(self, node: Node, config: Config, options: Ros2Options) -> None:
         self.node = node
         self.config = config
         self.settings = settings = config.ros2
         self.graph = bridge = graph.bridge_graph(config)
         self.outputs = outputs = RosOutputs(config, bridge)
         self.tokens = tokens = GraphTokens(node.session, bridge)
-        self.bag_journal = _bag_journal(args, config)
+        self.bag_journal = _bag_journal(options, config)
         self.publishers = {
             name: RosPublisher(tokens, entity, self.bag_journal) for name, entity in bridge.publications.items()
         }
@@ -358,15 +367,15 @@ class Ros2Bridge:
             self.bag_journal.close()
 
 
-def _bag_journal(args: argparse.Namespace, config: Config) -> Journal | None:
+def _bag_journal(options: Ros2Options, config: Config) -> Journal | None:
     """``--bag-journal DIR`` (``invent up --record-ros2``): where the bridge keeps what it publishes,
     ``<DIR>/<robot>.journal``, within its share of ``[record]``'s bounds, for the run's bag."""
-    directory = getattr(args, "bag_journal", None)
+    directory = options.bag_journal
     if directory is None:
         return None
     try:
         return Journal(
-            journal_path(Path(directory), config.robot.name), journal_limits(config.record, args.bag_journal_share)
+            journal_path(directory, config.robot.name), journal_limits(config.record, options.bag_journal_share)
         )
     except OSError as error:
         raise ConfigError(f"--bag-journal {directory}: {error.strerror}") from None
@@ -383,48 +392,4 @@ def _reply_text(reply: zenoh.Reply) -> tuple[bool, str]:
     return True, f"motor state: {state}"
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--namespace",
-        metavar="NS",
-        help="ROS namespace of the node, its topics and services (ros2.namespace; default none), e.g. rh0",
-    )
-    parser.add_argument(
-        "--tf",
-        choices=list(TfLayout),
-        help="where a namespaced bridge publishes TF (ros2.tf; default namespaced): namespaced, on <NS>/tf and "
-        "<NS>/tf_static with frames as named (Nav2's multi-robot bringup); prefixed, on the shared /tf and "
-        "/tf_static with frames <NS>/odom, <NS>/base_link, ... under the world's map (one RViz for every robot)",
-    )
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="bridge every robot of this fleet file, each its own ROS node in its namespace (the file's namespace, "
-        "default its name): /<NS>/odom, /<NS>/tf, /<NS>/cmd_vel, /<NS>/motor/stop, ...; /clock once, from the first "
-        "robot's bridge (docs/ros2.md, A fleet)",
-    )
-    # invent up --record-ros2's: where the bridge keeps what it publishes for the run's bag, and how
-    # many bridges of the run share record.max_size
-    parser.add_argument("--bag-journal", metavar="DIR", help=argparse.SUPPRESS)
-    parser.add_argument("--bag-journal-share", type=int, default=1, help=argparse.SUPPRESS)
-
-
-def overrides(args: argparse.Namespace) -> dict[str, Any]:
-    return {"ros2.namespace": args.namespace, "ros2.tf": args.tf}
-
-
-COMMAND = ServiceCommand(
-    service=Service.ROS2,
-    help="bridge the robot (or a fleet) to ROS 2 over rmw_zenoh: odom, tf, joint_states, /clock, cmd_vel, "
-    "Trigger services",
-    description=f"The robot as one ROS 2 node on this zenoh network, in rmw_zenoh's wire format (no ROS install "
-    f"needed on this side): /clock, odom, tf, tf_static, joint_states, robot_description out; cmd_vel "
-    f"(Twist or TwistStamped) in, as drive/target_velocity stamped with simulation time; motor/stop, "
-    f"motor/clear, motor/start, motor/finish as std_srvs/srv/Trigger services. With --fleet FILE, one such node "
-    f"per robot of the fleet, each in its own namespace. Domain: ${graph.DOMAIN_VARIABLE} (default 0). Frames, "
-    f"rates and covariances: [ros2] in the robot description. See docs/ros2.md.",
-    add_arguments=add_arguments,
-    overrides=overrides,
-    factory=Ros2Bridge,
-    timestamped=True,
-)
+COMMAND = ServiceCommand(service=Service.ROS2, factory=Ros2Bridge, timestamped=True)

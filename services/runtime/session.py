@@ -16,6 +16,7 @@ from typing import Any
 import zenoh
 
 from services.config import ConfigError
+from services.errors import SessionFailed
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where services connect and ``invent router`` listens by default (rmw_zenoh's convention)."""
@@ -107,10 +108,6 @@ def has_match(entity: zenoh.Publisher | zenoh.Querier) -> bool:
 
 ROUTER_LISTENING = "listening on"
 """What ``invent router`` prints once its session is open, so listening (``invent up`` waits for it)."""
-
-
-class SessionFailed(RuntimeError):
-    """A zenoh session could not be opened: the router is unreachable or refused the credentials."""
 
 
 @contextmanager

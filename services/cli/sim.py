@@ -1,0 +1,100 @@
+"""``invent sim``: its flags, and the simulator's options and config keys they make."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from schemas.keys import Service
+from services.cli.flags import overrides_from_args, positive_seconds
+from services.cli.serve import ServiceCli
+from services.config import RobotConfig, SimConfig, SimMode
+from services.fleet.description import load_fleet, robot_config
+from sim_bridge.bridge import COMMAND, SimOptions
+from sim_bridge.handshakes import START_HANDSHAKE_TIMEOUT_S
+from sim_bridge.world import DEFAULT_WORLD, builtin_worlds
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    defaults = SimConfig()
+    group = parser.add_argument_group("simulation")
+    group.add_argument("--mode", choices=list(SimMode), help=f"(default {defaults.mode})")
+    group.add_argument(
+        "--step", type=positive_seconds, metavar="S", help=f"simulated seconds per step (default {defaults.step:g})"
+    )
+    group.add_argument("--duration", type=positive_seconds, metavar="S", help="simulate S seconds, then exit 0")
+    group.add_argument(
+        "--wait-for",
+        nargs="+",
+        type=Service,
+        choices=[service for service in Service if service is not Service.SIM],
+        metavar="SERVICE",
+        help=f"before the first step, wait (at most {START_HANDSHAKE_TIMEOUT_S:g} s) until these services are there "
+        "(motor: alive; drive, localization: holding their lockstep token), so a lockstep run starts the same way "
+        "every time (invent up uses it)",
+    )
+    group.add_argument(
+        "--until-drive-ends",
+        action="store_true",
+        help="stop stepping at the drive's last target (the end of its scenario) and hold there, answering "
+        "status, until stopped: a lockstep run then ends at the same step every time (invent up uses it)",
+    )
+    group.add_argument(
+        "--realtime-factor",
+        type=positive_seconds,
+        metavar="F",
+        help=f"realtime mode: simulated seconds per wall second (default {defaults.realtime_factor:g})",
+    )
+    group.add_argument(
+        "--world",
+        metavar="FILE",
+        help=f"world TOML file, or a built-in world ({', '.join(builtin_worlds())}); default: {DEFAULT_WORLD}",
+    )
+    group.add_argument("--gui", action="store_true", help="open a PyBullet window (needs a display)")
+    group.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="simulate every robot of this fleet file in one world, each robot's keys under its name "
+        "(docs/fleet.md); its world is the fleet's unless --world is given; --robot is then the fleet's",
+    )
+
+
+def overrides(args: argparse.Namespace) -> dict[str, Any]:
+    fleet = load_fleet(args.fleet) if args.fleet else None
+    return {
+        "sim.mode": args.mode,
+        "sim.step": args.step,
+        "sim.realtime_factor": args.realtime_factor,
+        "sim.world": args.world or (fleet.world if fleet else None),
+        "robot.name": fleet.robots[0].name if fleet else None,
+    }
+
+
+def options(args: argparse.Namespace) -> SimOptions:
+    fleet = load_fleet(args.fleet) if args.fleet else None
+    robots: tuple[RobotConfig, ...] = ()
+    if fleet is not None:
+        given = overrides_from_args(CLI, args)
+        robots = tuple(robot_config(robot, args.config, given).robot for robot in fleet.robots)
+    return SimOptions(
+        duration=args.duration,
+        until_drive_ends=args.until_drive_ends,
+        wait_for=tuple(args.wait_for or ()),
+        gui=args.gui,
+        fleet=fleet,
+        fleet_robots=robots,
+    )
+
+
+CLI = ServiceCli(
+    command=COMMAND,
+    help="the PyBullet simulator: wheel angles and body pose out, wheel torques in",
+    description="Plays OpenHRP3 and its controller bridge with PyBullet: each step publishes sim/wheel_angles and "
+    "sim/body_pose stamped with simulation time, applies the motor/torque answer and steps. Lockstep (default) "
+    "waits for the torque of each step while a motor control is alive; realtime paces steps to the wall clock. "
+    "A contact with an obstacle publishes sim/bump and calls motor/bump/stop. Parameters: [robot] geometry and "
+    "[sim] in the robot description; worlds are TOML files (docs/sim.md).",
+    add_arguments=add_arguments,
+    options=options,
+    overrides=overrides,
+)

@@ -1,0 +1,187 @@
+"""``invent up``: the whole loop and its report; its flags become an
+:class:`~services.launch.plan.UpPlan` for :func:`services.launch.up.run_up`, one robot or a fleet."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+from services.cli.flags import connection_from_args, description_from_args, port_number
+from services.cli.services import service_plan
+from services.cli.subcommand import Subcommand
+from services.config import RecordRate, SimMode, TfLayout
+from services.launch.plan import UpPlan
+from services.launch.ros2_run import BAG_DIRECTORY
+from services.launch.run import RECORDING_FILE, SECRETS_DIRECTORY
+from services.launch.up import run_up
+from services.recording import view
+from services.runtime.session import DEFAULT_ENDPOINT
+
+
+def run(args: argparse.Namespace) -> int:
+    return run_up(plan_from_args(args), service_plan)
+
+
+def plan_from_args(args: argparse.Namespace) -> UpPlan:
+    """The run the flags ask for; ``--record-full-rate`` and ``--tf`` become ``--set`` settings, for
+    every service of the run (the robot description's [record] and [ros2])."""
+    description = description_from_args(args)
+    settings = [
+        *description.settings,
+        *([f"record.rate={RecordRate.EVERY_STEP}"] if args.record_full_rate else []),
+        *([f"ros2.tf={args.tf}"] if args.tf else []),
+    ]
+    return UpPlan(
+        connection=connection_from_args(args),
+        description=dataclasses.replace(description, settings=tuple(settings)),
+        scenario=args.scenario,
+        fleet=args.fleet,
+        mode=args.mode,
+        report=Path(args.report) if args.report else None,
+        no_record=args.no_record,
+        gui=args.gui,
+        view=args.view,
+        strict=args.strict,
+        loop=args.loop,
+        secure=args.secure,
+        tls=args.tls,
+        ros2=args.ros2,
+        record_ros2=args.record_ros2,
+        teleop=args.teleop,
+        composed=args.composed,
+        workers=args.workers,
+        intra_process=not args.no_intra_process,
+    )
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--scenario",
+        default="square",
+        help="built-in scenario or TOML file (default square); with --fleet, of the robots that name none",
+    )
+    parser.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="run every robot of this fleet file in one world, each with its own motor, odometry, localization "
+        "and drive; report.json has each robot's report under robots.<name> and a fleet summary (docs/fleet.md)",
+    )
+    parser.add_argument(
+        "--mode",
+        choices=list(SimMode),
+        help="sim mode (default: sim.mode of the robot description, lockstep)",
+    )
+    report = parser.add_mutually_exclusive_group()
+    report.add_argument(
+        "--report",
+        metavar="DIR",
+        help=f"where the recording ({RECORDING_FILE}), report.json and the plots go (default runs/<timestamp>/)",
+    )
+    report.add_argument(
+        "--no-record",
+        action="store_true",
+        help=f"record nothing, so write no report (it is built from {RECORDING_FILE}): for long runs and benchmarks",
+    )
+    parser.add_argument(
+        "--record-full-rate",
+        action="store_true",
+        help="record every simulation step (the control path, the poses), not only the observed steps the report "
+        "needs: about ten times the size, for debugging the loop (the same as --set record.rate=every_step; "
+        "the [record] table caps and splits a recording: README, Rates and bounds)",
+    )
+    parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
+    parser.add_argument(
+        "--view",
+        nargs="?",
+        const=view.DEFAULT_PORT,
+        type=port_number,
+        metavar="PORT",
+        help=f"serve the run live to Foxglove with `invent view` on ws://{view.DEFAULT_HOST}:PORT (default port "
+        f"{view.DEFAULT_PORT}); a lockstep run is over in seconds: add --mode realtime or --loop to watch it",
+    )
+    parser.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit 1 when the run degraded (late or missing torques above 1 %% of the steps, a lockstep timeout, "
+        "an internal error, dropped events): for CI",
+    )
+    parser.add_argument(
+        "--loop",
+        action="store_true",
+        help="repeat the scenario until Ctrl-C, or until a pass is given up (its outcome and exit status: "
+        "docs/drive.md, Outcomes); a long-running stack to watch and probe; records nothing, so memory stays "
+        "flat, and prints the run's health at the end",
+    )
+    parser.add_argument(
+        "--secure",
+        action="store_true",
+        help="usrpwd authentication and access control on the router, every service a client with its role's "
+        f"fresh credentials, written first to <report dir>/{SECRETS_DIRECTORY}/<role>.json5 (see README, Security)",
+    )
+    parser.add_argument(
+        "--tls", action="store_true", help="with --secure: TLS on every link, a local CA and router certificate"
+    )
+    parser.add_argument(
+        "--ros2",
+        action="store_true",
+        help="start `invent ros2` beside the loop: the robot in the ROS 2 graph over rmw_zenoh (/odom, /tf, "
+        "/joint_states, /clock, /robot_description, /cmd_vel, the motor's Trigger services; docs/ros2.md); with "
+        "--fleet, one bridge per robot, each in its namespace (/rh0/odom, /rh0/cmd_vel, ...), /clock once",
+    )
+    parser.add_argument(
+        "--tf",
+        choices=list(TfLayout),
+        help="with --ros2 and a namespace (every robot of a fleet has one): namespaced (default), each robot's "
+        "TF on /<NS>/tf and /<NS>/tf_static, frames as named (Nav2's multi-robot bringup); prefixed, every robot "
+        "on the shared /tf and /tf_static, frames <NS>/odom, <NS>/base_link, ... under map, for one RViz (the "
+        "same as --set ros2.tf=...; docs/ros2.md, A fleet)",
+    )
+    parser.add_argument(
+        "--record-ros2",
+        action="store_true",
+        help=f"with --ros2: also record what the ROS 2 bridges publish into a rosbag2 bag (MCAP storage) beside "
+        f"run.mcap, <report dir>/{BAG_DIRECTORY}/, stamped in simulation time, /clock included, within the bounds "
+        "of [record] (`ros2 bag info`, `ros2 bag play --clock`, Foxglove: docs/ros2.md, Bags)",
+    )
+    parser.add_argument(
+        "--teleop",
+        action="store_true",
+        help="with --ros2: no scenario; the loop runs in realtime, the robot (with --fleet, each robot) following "
+        "/cmd_vel from ROS 2 (teleop_twist_keyboard, Nav2) until Ctrl-C; records nothing, prints the run's health "
+        "at the end",
+    )
+    parser.add_argument(
+        "--composed",
+        action="store_true",
+        help="run the services in this one process on one zenoh session (no network hop between them; "
+        "the session is the router, so outside zenoh tools still see every key)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="with --fleet --composed: spread the robots' services over N processes, this one (with the "
+        "simulator) and N - 1 workers, each robot's services together (default 1: every service in this "
+        "process, which measured faster on two cores: docs/fleet.md)",
+    )
+    parser.add_argument(
+        "--no-intra-process",
+        action="store_true",
+        help="with --composed: the services' messages go through the zenoh session, not handed over as they are "
+        "(intra-process delivery, the default: zenoh then carries a message only to subscribers outside the "
+        "process); for measuring and debugging",
+    )
+
+
+SUBCOMMAND = Subcommand(
+    name="up",
+    help="run the whole loop (router, sim, motor, odometry, localization, drive) and write a report",
+    description="Start every service as its own process in this terminal, drive a scenario, then stop "
+    "everything and write a run report (report.json, trajectory.png, wheel_speeds.png). "
+    f"--listen sets where its router listens (default {DEFAULT_ENDPOINT}); --connect joins an existing router "
+    "instead. Ctrl-C stops everything.",
+    groups=("connection", "description", "rt"),
+    add_arguments=add_arguments,
+    run=run,
+)

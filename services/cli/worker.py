@@ -1,0 +1,61 @@
+"""``invent worker``: a worker of a composed fleet (services/launch/worker.py)."""
+
+from __future__ import annotations
+
+import argparse
+
+from services.cli.flags import session_from_args
+from services.cli.services import service_plan
+from services.cli.subcommand import Subcommand
+from services.config import ConfigError
+from services.fleet.description import load_fleet
+from services.launch import worker
+from services.runtime.session import open_session, stop_on_signals
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="run the services (motor, odometry, localization, drive) of --robots of this fleet file, as "
+        "invent up --fleet starts them: one process on a robot computer for its robots (docs/deploy.md)",
+    )
+    parser.add_argument(
+        "--robots", metavar="R1,R2,...", help="with --fleet: the robots whose services this process runs"
+    )
+    parser.add_argument(
+        "--no-intra-process", action="store_true", help="the services' messages through the zenoh session"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    requests: list[list[str]] = []
+    if bool(args.fleet) != bool(args.robots):
+        raise ConfigError("invent worker: --fleet and --robots go together (or neither: up sends the services)")
+    if args.fleet:
+        fleet_file = load_fleet(args.fleet)
+        names = [name.strip() for name in args.robots.split(",") if name.strip()]
+        unknown = [name for name in names if name not in fleet_file.names]
+        if unknown or not names:
+            raise ConfigError(f"--robots {args.robots}: not robots of {args.fleet} ({', '.join(fleet_file.names)})")
+        connection = [flag for endpoint in args.connect for flag in ("--connect", endpoint)]
+        if args.zenoh_config:
+            connection += ["--zenoh-config", args.zenoh_config]
+        requests = worker.robot_requests(fleet_file, names, [*connection, "--log-level", args.log_level])
+    stop = stop_on_signals()
+    with open_session(session_from_args(args)) as session:
+        return worker.run_worker(
+            session, service_plan, stop, intra_process=not args.no_intra_process, requests=requests
+        )
+
+
+SUBCOMMAND = Subcommand(
+    name="worker",
+    help="(started by invent up --fleet --composed) compose the services it is sent on standard input",
+    description="A worker of a composed fleet (docs/fleet.md): reads one JSON array per line on standard "
+    'input, a service\'s name and the arguments `invent` takes (["rh1/motor", "motor", "--robot", "rh1"]), '
+    "starts each composed in this process and says so on standard output; stops on SIGINT or end of input.",
+    groups=("connection",),
+    add_arguments=add_arguments,
+    run=run,
+)

@@ -1,0 +1,73 @@
+"""What a run of ``invent up`` is asked to do, as typed values (the command line builds them from
+its flags: services/cli/up.py): how its processes connect, the robot description as given (the
+children load it themselves from the same flags), and the run's own choices."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from services.config import Config, SimMode, load_config, parse_override
+
+
+@dataclass(frozen=True)
+class Connection:
+    """How the run's processes reach zenoh: ``--connect``, ``--listen``, ``--zenoh-config``, ``--log-level``."""
+
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    zenoh_config: str | None = None
+    log_level: str = "info"
+
+
+@dataclass(frozen=True)
+class Description:
+    """The robot description as the command line gives it: ``--robot``, ``--config``, each
+    ``--set SECTION.KEY=VALUE`` (passed on to every child as given) and ``--rt``."""
+
+    robot: str | None = None
+    config: str | None = None
+    settings: tuple[str, ...] = ()
+    rt: bool = False
+
+    def overrides(self) -> dict[str, Any]:
+        """What it sets over the description file: ``--set``, then ``--robot`` and ``--rt``."""
+        overrides: dict[str, Any] = {}
+        for text in self.settings:
+            path, value = parse_override(text)
+            overrides[".".join(path)] = value
+        overrides["robot.name"] = self.robot
+        if self.rt:
+            overrides["rt.enabled"] = True
+        return overrides
+
+    def load(self) -> Config:
+        """The robot description: the file, then :meth:`overrides` (ConfigError names the field)."""
+        return load_config(self.config, self.overrides())
+
+
+@dataclass(frozen=True)
+class UpPlan:
+    """One run of ``invent up``: one robot, or with ``fleet`` every robot of a fleet file."""
+
+    connection: Connection = field(default_factory=Connection)
+    description: Description = field(default_factory=Description)
+    scenario: str = "square"
+    fleet: str | None = None
+    mode: SimMode | None = None
+    report: Path | None = None
+    no_record: bool = False
+    gui: bool = False
+    view: int | None = None
+    """The port of the live view (``--view``), or None for none."""
+    strict: bool = False
+    loop: bool = False
+    secure: bool = False
+    tls: bool = False
+    ros2: bool = False
+    record_ros2: bool = False
+    teleop: bool = False
+    composed: bool = False
+    workers: int | None = None
+    intra_process: bool = True
