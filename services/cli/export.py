@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from services.cli.flags import config_from_args, overrides_from_args
+from services.cli.flags import config_from_args, fleet_flag, overrides_from_args
 from services.cli.subcommand import Subcommand
 from services.config import ConfigError
 from services.fleet.description import load_fleet
@@ -22,10 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ros2", action="store_true", required=True, help="the format: a rosbag2 bag (MCAP storage), ROS 2 CDR"
     )
     parser.add_argument("--output", "-o", metavar="DIR", required=True, help="the bag's new directory")
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="the fleet file of the run: each robot in its namespace, /clock from the first (needed for a "
+    fleet_flag(
+        parser,
+        "the fleet file of the run: each robot in its namespace, /clock from the first (needed for a "
         "recording of several robots)",
     )
 

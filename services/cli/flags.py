@@ -218,3 +218,8 @@ def session_from_args(args: argparse.Namespace, mode: str = "peer", timestamping
     return session_config(
         connect=args.connect, listen=args.listen, mode=mode, file=args.zenoh_config, timestamping=timestamping
     )
+
+
+def fleet_flag(parser: argparse.ArgumentParser | argparse._ArgumentGroup, what_it_does: str) -> None:
+    """``--fleet FILE``: a fleet file (docs/fleet.md); ``what_it_does`` with it, as its help says."""
+    parser.add_argument("--fleet", metavar="FILE", help=what_it_does)

@@ -10,6 +10,7 @@ from schemas.keys import Keys
 from services.cli.export import say_bag
 from services.cli.flags import (
     config_from_args,
+    fleet_flag,
     overrides_from_args,
     positive_seconds,
     session_from_args,
@@ -44,10 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "the bounds of [record] apply (split_size, split_duration, max_size, max_duration, min_free_disk). "
         "`ros2 bag info DIR`, `ros2 bag play DIR --clock` (docs/ros2.md, Bags)",
     )
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="with --ros2: the bridges of every robot of this fleet file, in their namespaces",
+    fleet_flag(
+        parser,
+        "with --ros2: the bridges of every robot of this fleet file, in their namespaces",
     )
 
 

@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from services.cli.flags import overrides_from_args, session_from_args
+from services.cli.flags import fleet_flag, overrides_from_args, session_from_args
 from services.cli.serve import ServiceCli, journaling_from_args, serve
 from services.config import ConfigError, TfLayout
 from services.fleet.description import load_fleet
@@ -31,10 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "<NS>/tf_static with frames as named (Nav2's multi-robot bringup); prefixed, on the shared /tf and "
         "/tf_static with frames <NS>/odom, <NS>/base_link, ... under the world's map (one RViz for every robot)",
     )
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="bridge every robot of this fleet file, each its own ROS node in its namespace (the file's namespace, "
+    fleet_flag(
+        parser,
+        "bridge every robot of this fleet file, each its own ROS node in its namespace (the file's namespace, "
         "default its name): /<NS>/odom, /<NS>/tf, /<NS>/cmd_vel, /<NS>/motor/stop, ...; /clock once, from the first "
         "robot's bridge (docs/ros2.md, A fleet)",
     )

@@ -6,7 +6,7 @@ import argparse
 from typing import Any
 
 from schemas.keys import Service
-from services.cli.flags import overrides_from_args, positive_seconds
+from services.cli.flags import fleet_flag, overrides_from_args, positive_seconds
 from services.cli.serve import ServiceCli
 from services.config import RobotConfig, SimConfig, SimMode
 from services.fleet.description import load_fleet, robot_config
@@ -51,10 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"world TOML file, or a built-in world ({', '.join(builtin_worlds())}); default: {DEFAULT_WORLD}",
     )
     group.add_argument("--gui", action="store_true", help="open a PyBullet window (needs a display)")
-    group.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="simulate every robot of this fleet file in one world, each robot's keys under its name "
+    fleet_flag(
+        group,
+        "simulate every robot of this fleet file in one world, each robot's keys under its name "
         "(docs/fleet.md); its world is the fleet's unless --world is given; --robot is then the fleet's",
     )
 

@@ -7,7 +7,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from services.cli.flags import connection_from_args, description_from_args, port_number
+from services.cli.flags import connection_from_args, description_from_args, fleet_flag, port_number
 from services.cli.services import service_plan
 from services.cli.subcommand import Subcommand
 from services.config import RecordRate, SimMode, TfLayout
@@ -61,10 +61,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="square",
         help="built-in scenario or TOML file (default square); with --fleet, of the robots that name none",
     )
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="run every robot of this fleet file in one world, each with its own motor, odometry, localization "
+    fleet_flag(
+        parser,
+        "run every robot of this fleet file in one world, each with its own motor, odometry, localization "
         "and drive; report.json has each robot's report under robots.<name> and a fleet summary (docs/fleet.md)",
     )
     parser.add_argument(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from schemas.keys import Keys
-from services.cli.flags import config_from_args, overrides_from_args, port_number, session_from_args
+from services.cli.flags import config_from_args, fleet_flag, overrides_from_args, port_number, session_from_args
 from services.cli.subcommand import Subcommand
 from services.fleet.description import fleet_configs, load_fleet
 from services.recording import view
@@ -27,10 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"address to serve on (default {view.DEFAULT_HOST}, this machine only; 0.0.0.0 for every "
         "interface, e.g. in a container)",
     )
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="show every robot of this fleet file: each robot's frame <robot>/base_link, its poses and wheel "
+    fleet_flag(
+        parser,
+        "show every robot of this fleet file: each robot's frame <robot>/base_link, its poses and wheel "
         "speeds under /<robot>/..., its body, path and trails in /scene (docs/fleet.md)",
     )
 

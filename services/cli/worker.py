@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from services.cli.flags import session_from_args
+from services.cli.flags import fleet_flag, session_from_args
 from services.cli.services import service_plan
 from services.cli.subcommand import Subcommand
 from services.config import ConfigError
@@ -14,11 +14,10 @@ from services.runtime.session import open_session, stop_on_signals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="run the services (motor, odometry, localization, drive) of --robots of this fleet file, as "
-        "invent up --fleet starts them: one process on a robot computer for its robots (docs/deploy.md)",
+    fleet_flag(
+        parser,
+        "run the services (motor, odometry, localization, drive) of --robots of this fleet file, as "
+        "invent up --fleet starts them: one process on a service host for its robots (docs/deploy.md)",
     )
     parser.add_argument(
         "--robots", metavar="R1,R2,...", help="with --fleet: the robots whose services this process runs"
