@@ -19,23 +19,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--rate", type=float, metavar="HZ", help=f"fixes per second of simulation time (default {defaults.rate:g})"
     )
-    noise = " ".join(f"{getattr(defaults, key):g}" for key in TRIPLES["noise"])
-    group.add_argument(
-        "--noise",
-        type=float,
-        nargs=3,
-        metavar=("SX", "SY", "STHETA"),
-        help=f"standard deviations of the Gaussian noise on x, y (m) and theta (rad) (default {noise})",
+    _triple_flag(
+        group, "noise", ("SX", "SY", "STHETA"), "standard deviations of the Gaussian noise on x, y (m) and theta (rad)"
     )
     group.add_argument("--seed", type=int, metavar="N", help="random seed of the noise (default: from the OS)")
-    initial = " ".join(f"{getattr(defaults, key):g}" for key in TRIPLES["initial"])
-    group.add_argument(
-        "--initial",
-        type=float,
-        nargs=3,
-        metavar=("X", "Y", "THETA"),
-        help=f"initial pose published before the first fix (default {initial})",
-    )
+    _triple_flag(group, "initial", ("X", "Y", "THETA"), "initial pose published before the first fix")
+
+
+def _triple_flag(group: argparse._ArgumentGroup, flag: str, metavar: tuple[str, str, str], what: str) -> None:
+    """``--<flag> A B C``: the three ``localization.*`` keys of ``TRIPLES[flag]`` at once."""
+    defaults = LocalizationConfig()
+    default = " ".join(f"{getattr(defaults, key):g}" for key in TRIPLES[flag])
+    group.add_argument(f"--{flag}", type=float, nargs=3, metavar=metavar, help=f"{what} (default {default})")
 
 
 def overrides(args: argparse.Namespace) -> dict[str, Any]:
