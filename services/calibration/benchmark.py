@@ -26,11 +26,16 @@ class RunPaths:
     each says the run ended."""
 
     name: str
+    """The run's name in the figure and the recording (e.g. ``cw 1``)."""
     direction: Direction
     truth: tuple[PathPoint, ...]
+    """The robot as the simulator saw it (its ground truth), a point every centimetre or more."""
     odometry: tuple[PathPoint, ...]
+    """The odometry's pose over the run, a point every centimetre or more."""
     truth_end: PathPoint
+    """Where the robot really stopped."""
     odometry_end: PathPoint
+    """Where the odometry says it stopped: the return position error is ``truth_end - odometry_end``."""
 
 
 @dataclass(frozen=True)
