@@ -11,7 +11,6 @@ from services.calibration.settings import DEFAULT_PASSES, SIM_BODY_KEYS, Umbmark
 from services.calibration.umbmark import CONVERGED, DEFAULT_RUNS, DEFAULT_SIDE
 from services.cli.flags import description_flags, overrides_from_args, positive_int, positive_length
 from services.cli.services import service_plan
-from services.cli.subcommand import Subcommand
 from services.config import ConfigError, config_from_description, parse_override, read_description
 from services.launch.calibrate import run_umbmark
 from services.launch.composition import Composition
@@ -155,11 +154,6 @@ def run(args: argparse.Namespace) -> int:
     return run_umbmark(settings_from_args(args), functools.partial(Composition, parse=service_plan))
 
 
-SUBCOMMAND = Subcommand(
-    name="calibrate",
-    help="calibrate the odometry: UMBmark, in the simulator or from return positions measured by hand",
-    description="Calibrate the robot's odometry. The one method: umbmark (`invent calibrate umbmark --help`).",
-    groups=(),
-    add_arguments=add_arguments,
-    run=run,
-)
+HELP = "calibrate the odometry: UMBmark, in the simulator or from return positions measured by hand"
+DESCRIPTION = "Calibrate the robot's odometry. The one method: umbmark (`invent calibrate umbmark --help`)."
+GROUPS: tuple[str, ...] = ()

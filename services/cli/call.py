@@ -6,7 +6,6 @@ import argparse
 
 from services.cli import tools
 from services.cli.flags import session_from_args
-from services.cli.subcommand import Subcommand
 from services.runtime.session import open_session
 
 
@@ -21,15 +20,12 @@ def run(args: argparse.Namespace) -> int:
         return tools.run_call(session, args.key, args.payload, args.timeout)
 
 
-SUBCOMMAND = Subcommand(
-    name="call",
-    help="query a key (a Motor method, a status) and print the replies",
-    description="Send a query to KEY with an optional JSON payload and print each reply as JSON. "
+HELP = "query a key (a Motor method, a status) and print the replies"
+DESCRIPTION = (
+    "Send a query to KEY with an optional JSON payload and print each reply as JSON. "
     "Exits 1 on an error reply or when nothing answers. Target velocities are not queries: "
     "drive/target_velocity is data the motor takes by its stamp, refusing as stale a target stamped "
     "before the simulation time minus motor.command_timeout (a target stamped 0.0 once the simulation is "
-    "0.5 s in); send one with `invent drive --twist VX W`, which stamps with the newest simulation time.",
-    groups=("connection",),
-    add_arguments=add_arguments,
-    run=run,
+    "0.5 s in); send one with `invent drive --twist VX W`, which stamps with the newest simulation time."
 )
+GROUPS: tuple[str, ...] = ("connection",)

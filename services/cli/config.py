@@ -8,7 +8,6 @@ import json
 import msgspec
 
 from services.cli.flags import config_from_args
-from services.cli.subcommand import Subcommand
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,12 +19,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-SUBCOMMAND = Subcommand(
-    name="config",
-    help="print the resolved robot description (file + overrides) as JSON",
-    description="Load the robot description as a service would (--config file, then --set overrides) "
-    "and print it as JSON. Exits 2 naming the field when it is invalid.",
-    groups=("description",),
-    add_arguments=add_arguments,
-    run=run,
+HELP = "print the resolved robot description (file + overrides) as JSON"
+DESCRIPTION = (
+    "Load the robot description as a service would (--config file, then --set overrides) "
+    "and print it as JSON. Exits 2 naming the field when it is invalid."
 )
+GROUPS: tuple[str, ...] = ("description",)

@@ -6,7 +6,6 @@ import argparse
 
 from services.cli import tools
 from services.cli.flags import session_from_args
-from services.cli.subcommand import Subcommand
 from services.runtime.session import open_session, stop_on_signals
 
 
@@ -21,12 +20,9 @@ def run(args: argparse.Namespace) -> int:
         return tools.run_echo(session, args.keyexpr, args.count, stop)
 
 
-SUBCOMMAND = Subcommand(
-    name="echo",
-    help="print samples as JSON lines, decoded with their key's schema",
-    description="Subscribe to KEYEXPR and print one JSON line per sample: its key and its payload "
-    "decoded with the schema that key carries (raw text for unknown keys).",
-    groups=("connection",),
-    add_arguments=add_arguments,
-    run=run,
+HELP = "print samples as JSON lines, decoded with their key's schema"
+DESCRIPTION = (
+    "Subscribe to KEYEXPR and print one JSON line per sample: its key and its payload "
+    "decoded with the schema that key carries (raw text for unknown keys)."
 )
+GROUPS: tuple[str, ...] = ("connection",)

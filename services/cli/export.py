@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 from services.cli.flags import config_from_args, fleet_flag, overrides_from_args
-from services.cli.subcommand import Subcommand
 from services.config import ConfigError
 from services.fleet.description import load_fleet
 from services.launch import ros2_run
@@ -69,16 +68,13 @@ def say_bag(result: rosbag.BagResult) -> None:
         print(f"the bag stopped early: {result.stopped['reason']}")
 
 
-SUBCOMMAND = Subcommand(
-    name="export",
-    help="turn a recording of a run (run.mcap) into a ROS 2 bag",
-    description="Replay a recording of `invent up` (its run.mcap, and the files it was split into) through the "
+HELP = "turn a recording of a run (run.mcap) into a ROS 2 bag"
+DESCRIPTION = (
+    "Replay a recording of `invent up` (its run.mcap, and the files it was split into) through the "
     "ROS 2 bridge's own mapping (services/ros2/outputs.py) and write what the bridge would have published, "
     "/clock, odom, tf, tf_static, joint_states and robot_description of each robot, into a rosbag2 bag with "
     "MCAP storage, each message at the simulation time it carries. The messages come at the recording's "
     "observed steps: a run with --ros2 has the bridge's rates. --robot, --config and --set (or --fleet) must "
-    "match the run's; the [record] bounds apply to the bag.",
-    groups=("description",),
-    add_arguments=add_arguments,
-    run=run,
+    "match the run's; the [record] bounds apply to the bag."
 )
+GROUPS: tuple[str, ...] = ("description",)

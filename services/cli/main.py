@@ -28,30 +28,27 @@ from services.cli import (
     worker,
 )
 from services.cli.flags import Parents
-from services.cli.subcommand import Subcommand
+from services.cli.subcommand import SubcommandModule
 from services.config import ConfigError
 from services.errors import SessionFailed
 from services.exits import ExitStatus
 from services.runtime.logs import configure_logging
 
-SUBCOMMANDS: tuple[Subcommand, ...] = tuple(
-    module.SUBCOMMAND
-    for module in (
-        router,
-        secrets,
-        echo,
-        call,
-        status,
-        config,
-        record,
-        export,
-        view,
-        report,
-        replay,
-        up,
-        calibrate,
-        worker,
-    )
+SUBCOMMANDS: tuple[SubcommandModule, ...] = (
+    router,
+    secrets,
+    echo,
+    call,
+    status,
+    config,
+    record,
+    export,
+    view,
+    report,
+    replay,
+    up,
+    calibrate,
+    worker,
 )
 """The subcommands that are not services, in ``invent --help``'s order, each in its own module."""
 
@@ -66,10 +63,10 @@ def build_parser() -> argparse.ArgumentParser:
     parents = Parents()
     for subcommand in SUBCOMMANDS:
         sub = commands.add_parser(
-            subcommand.name,
-            parents=[getattr(parents, group) for group in subcommand.groups],
-            help=subcommand.help,
-            description=subcommand.description,
+            subcommand.__name__.rpartition(".")[2],
+            parents=[getattr(parents, group) for group in subcommand.GROUPS],
+            help=subcommand.HELP,
+            description=subcommand.DESCRIPTION,
         )
         subcommand.add_arguments(sub)
         sub.set_defaults(handler=subcommand.run)

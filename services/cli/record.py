@@ -15,7 +15,6 @@ from services.cli.flags import (
     positive_seconds,
     session_from_args,
 )
-from services.cli.subcommand import Subcommand
 from services.config import Config, ConfigError
 from services.fleet.description import load_fleet
 from services.launch import ros2_run
@@ -98,15 +97,12 @@ def _run_ros2(args: argparse.Namespace, config: Config) -> int:
     return 0
 
 
-SUBCOMMAND = Subcommand(
-    name="record",
-    help="record keys into an MCAP file (open it in Foxglove, read it with the mcap CLI)",
-    description="Record every sample of KEYEXPR (default invent/<robot>/**) into an MCAP file: one channel "
+HELP = "record keys into an MCAP file (open it in Foxglove, read it with the mcap CLI)"
+DESCRIPTION = (
+    "Record every sample of KEYEXPR (default invent/<robot>/**) into an MCAP file: one channel "
     "per key, JSON messages with their JSON schema, log_time the receive time, publish_time the message's "
     "tm; beside them the robot's Foxglove scene (transforms, poses, robot, obstacles, path, trails, wheel "
     "speeds) and the services' status every 0.5 s. Ctrl-C, SIGTERM or --duration end it with a valid, "
-    "indexed file; a recorder killed with SIGKILL loses at most its last chunk (about 0.2 s of the loop).",
-    groups=("connection", "description"),
-    add_arguments=add_arguments,
-    run=run,
+    "indexed file; a recorder killed with SIGKILL loses at most its last chunk (about 0.2 s of the loop)."
 )
+GROUPS: tuple[str, ...] = ("connection", "description")

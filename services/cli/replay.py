@@ -8,7 +8,6 @@ from pathlib import Path
 
 from schemas.keys import Keys
 from services.cli.flags import non_negative_float, robot_name, session_from_args
-from services.cli.subcommand import Subcommand
 from services.config import ConfigError
 from services.recording import replay
 from services.recording.mcap_files import read_run, replay_schedule
@@ -50,15 +49,12 @@ def run(args: argparse.Namespace) -> int:
         return replay.run_replay(session, schedule, keys, args.rate, stop)
 
 
-SUBCOMMAND = Subcommand(
-    name="replay",
-    help="publish a recording's samples again, e.g. into a changed odometry",
-    description="Publish the samples of a recording (`invent record`, or the run.mcap of `invent up`) again, "
+HELP = "publish a recording's samples again, e.g. into a changed odometry"
+DESCRIPTION = (
+    "Publish the samples of a recording (`invent record`, or the run.mcap of `invent up`) again, "
     "in simulation-time order, so a changed odometry, localization or drive runs on recorded inputs. "
     "--rate X paces them at X times the recorded simulation time; --rate 0 sends them as fast as the "
     "services that take every sample of those keys take them (read from their status), losing none. "
-    "Exits 0 once those services have taken every sample, 1 if one stops taking them.",
-    groups=("connection",),
-    add_arguments=add_arguments,
-    run=run,
+    "Exits 0 once those services have taken every sample, 1 if one stops taking them."
 )
+GROUPS: tuple[str, ...] = ("connection",)

@@ -6,7 +6,6 @@ import argparse
 from pathlib import Path
 
 from services.cli.flags import config_from_args
-from services.cli.subcommand import Subcommand
 from services.config import ConfigError
 from services.recording.mcap_files import write_run_report
 from services.recording.report import summary
@@ -29,13 +28,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-SUBCOMMAND = Subcommand(
-    name="report",
-    help="rebuild report.json and the plots from the recording of a run (run.mcap)",
-    description="Read a recording of `invent up` (its run.mcap) and write report.json, trajectory.png and "
+HELP = "rebuild report.json and the plots from the recording of a run (run.mcap)"
+DESCRIPTION = (
+    "Read a recording of `invent up` (its run.mcap) and write report.json, trajectory.png and "
     "wheel_speeds.png, as `invent up` does at the end of a run, into --output-dir (default: the "
-    "recording's directory). --robot and --config must match the run's.",
-    groups=("description",),
-    add_arguments=add_arguments,
-    run=run,
+    "recording's directory). --robot and --config must match the run's."
 )
+GROUPS: tuple[str, ...] = ("description",)

@@ -7,7 +7,6 @@ import json
 
 from services.cli import tools
 from services.cli.flags import session_from_args
-from services.cli.subcommand import Subcommand
 from services.config import ConfigError, load_config, parse_override
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import DEFAULT_ENDPOINT, open_session, stop_on_signals
@@ -35,13 +34,10 @@ def run(args: argparse.Namespace) -> int:
         return tools.run_router(session, json.loads(config.get_json("listen/endpoints")), stop)
 
 
-SUBCOMMAND = Subcommand(
-    name="router",
-    help="run a zenoh router in Python (no zenohd needed)",
-    description=f"A zenoh router; services connect to it. Default listen: {DEFAULT_ENDPOINT}. "
+HELP = "run a zenoh router in Python (no zenohd needed)"
+DESCRIPTION = (
+    f"A zenoh router; services connect to it. Default listen: {DEFAULT_ENDPOINT}. "
     "--config FILE (or $ZENOH_CONFIG) takes a zenoh router configuration, such as the router.json5 of "
-    "`invent secrets` (authentication and access control).",
-    groups=("connection", "rt"),
-    add_arguments=add_arguments,
-    run=run,
+    "`invent secrets` (authentication and access control)."
 )
+GROUPS: tuple[str, ...] = ("connection", "rt")

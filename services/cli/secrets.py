@@ -8,7 +8,6 @@ from pathlib import Path
 from schemas.keys import DEFAULT_ROBOT, Keys
 from services.cli import tools
 from services.cli.flags import robot_names
-from services.cli.subcommand import Subcommand
 from services.config import TfLayout, load_config
 from services.ros2.graph import bridge_graph
 from services.runtime.session import DEFAULT_ENDPOINT
@@ -89,15 +88,12 @@ def run(args: argparse.Namespace) -> int:
     )
 
 
-SUBCOMMAND = Subcommand(
-    name="secrets",
-    help="write a secure deployment's credentials, router and per-role zenoh configurations",
-    description="Write fresh credentials for every role (sim, motor, odometry, localization, drive, ros2, "
+HELP = "write a secure deployment's credentials, router and per-role zenoh configurations"
+DESCRIPTION = (
+    "Write fresh credentials for every role (sim, motor, odometry, localization, drive, ros2, "
     "ros_node, operator, observer) into DIR: router.json5 (usrpwd authentication and access control, default "
     "deny), dictionary.txt, and ROLE.json5, a complete client configuration per role (mode client, the "
     "router's endpoint, that role's user and password), all mode 0600. Start the router with "
-    "`invent router --config DIR/router.json5` and each service with `--zenoh-config DIR/ROLE.json5`.",
-    groups=(),
-    add_arguments=add_arguments,
-    run=run,
+    "`invent router --config DIR/router.json5` and each service with `--zenoh-config DIR/ROLE.json5`."
 )
+GROUPS: tuple[str, ...] = ()

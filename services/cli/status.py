@@ -6,7 +6,6 @@ import argparse
 
 from services.cli import tools
 from services.cli.flags import session_from_args
-from services.cli.subcommand import Subcommand
 from services.runtime.session import open_session
 
 
@@ -20,11 +19,6 @@ def run(args: argparse.Namespace) -> int:
         return tools.run_status(session, args.robot, args.timeout)
 
 
-SUBCOMMAND = Subcommand(
-    name="status",
-    help="list the services alive and their status",
-    description="List the services alive (from their liveliness tokens) and print each one's status reply.",
-    groups=("connection",),
-    add_arguments=add_arguments,
-    run=run,
-)
+HELP = "list the services alive and their status"
+DESCRIPTION = "List the services alive (from their liveliness tokens) and print each one's status reply."
+GROUPS: tuple[str, ...] = ("connection",)

@@ -9,7 +9,6 @@ from pathlib import Path
 
 from services.cli.flags import connection_from_args, description_from_args, fleet_flag, port_number
 from services.cli.services import service_plan
-from services.cli.subcommand import Subcommand
 from services.config import RecordRate, SimMode, TfLayout
 from services.launch.plan import UpPlan
 from services.launch.ros2_run import BAG_DIRECTORY
@@ -173,14 +172,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-SUBCOMMAND = Subcommand(
-    name="up",
-    help="run the whole loop (router, sim, motor, odometry, localization, drive) and write a report",
-    description="Start every service as its own process in this terminal, drive a scenario, then stop "
+HELP = "run the whole loop (router, sim, motor, odometry, localization, drive) and write a report"
+DESCRIPTION = (
+    "Start every service as its own process in this terminal, drive a scenario, then stop "
     "everything and write a run report (report.json, trajectory.png, wheel_speeds.png). "
     f"--listen sets where its router listens (default {DEFAULT_ENDPOINT}); --connect joins an existing router "
-    "instead. Ctrl-C stops everything.",
-    groups=("connection", "description", "rt"),
-    add_arguments=add_arguments,
-    run=run,
+    "instead. Ctrl-C stops everything."
 )
+GROUPS: tuple[str, ...] = ("connection", "description", "rt")

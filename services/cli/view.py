@@ -6,7 +6,6 @@ import argparse
 
 from schemas.keys import Keys
 from services.cli.flags import config_from_args, fleet_flag, overrides_from_args, port_number, session_from_args
-from services.cli.subcommand import Subcommand
 from services.fleet.description import fleet_configs, load_fleet
 from services.recording import view
 from services.runtime.session import open_session, stop_on_signals
@@ -48,18 +47,15 @@ def run(args: argparse.Namespace) -> int:
         )
 
 
-SUBCOMMAND = Subcommand(
-    name="view",
-    help="show the running robot live in Foxglove (a Foxglove WebSocket server)",
-    description="Serve the robot's loop live to Foxglove over a Foxglove WebSocket server: every key of "
+HELP = "show the running robot live in Foxglove (a Foxglove WebSocket server)"
+DESCRIPTION = (
+    "Serve the robot's loop live to Foxglove over a Foxglove WebSocket server: every key of "
     "invent/<robot>/** as its own JSON channel (with its message type's JSON schema), the services' status "
     "every 0.5 s (the motor's state, the sim's torque counters), and the robot's Foxglove scene: /tf "
     "(world -> base_link, the ground truth), /odometry/pose and /localization/pose, /scene (the robot, the "
     "world's obstacles, the planned path, the trails) and /plot/wheel_speeds, the channels a recording holds. "
     "Open it in Foxglove: Open connection -> Foxglove WebSocket -> ws://HOST:PORT (the URL it prints), then "
     "Layouts -> Import from file -> docs/foxglove/layout.json for a 3D view, wheel speeds, torques and the "
-    "motor's state. Runs until Ctrl-C or SIGTERM.",
-    groups=("connection", "description"),
-    add_arguments=add_arguments,
-    run=run,
+    "motor's state. Runs until Ctrl-C or SIGTERM."
 )
+GROUPS: tuple[str, ...] = ("connection", "description")

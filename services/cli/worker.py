@@ -6,7 +6,6 @@ import argparse
 
 from services.cli.flags import fleet_flag, session_from_args
 from services.cli.services import service_plan
-from services.cli.subcommand import Subcommand
 from services.config import ConfigError
 from services.fleet.description import load_fleet
 from services.launch import worker
@@ -48,13 +47,10 @@ def run(args: argparse.Namespace) -> int:
         )
 
 
-SUBCOMMAND = Subcommand(
-    name="worker",
-    help="(started by invent up --fleet --composed) compose the services it is sent on standard input",
-    description="A worker of a composed fleet (docs/fleet.md): reads one JSON array per line on standard "
+HELP = "(started by invent up --fleet --composed) compose the services it is sent on standard input"
+DESCRIPTION = (
+    "A worker of a composed fleet (docs/fleet.md): reads one JSON array per line on standard "
     'input, a service\'s name and the arguments `invent` takes (["rh1/motor", "motor", "--robot", "rh1"]), '
-    "starts each composed in this process and says so on standard output; stops on SIGINT or end of input.",
-    groups=("connection",),
-    add_arguments=add_arguments,
-    run=run,
+    "starts each composed in this process and says so on standard output; stops on SIGINT or end of input."
 )
+GROUPS: tuple[str, ...] = ("connection",)
