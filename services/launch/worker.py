@@ -65,7 +65,7 @@ ROBOT_SERVICES = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION, Service
 
 def robot_requests(fleet: Fleet, robots: Sequence[str], connection: Sequence[str]) -> list[list[str]]:
     """The services of ``robots`` (names in ``fleet``) as ``invent up --fleet`` starts them, as
-    requests (``[name, *argv]``): a robot computer's one process for its robots (docs/deploy.md)."""
+    requests (``[name, *argv]``): a service host's one process for its robots (docs/deploy.md)."""
     requests = []
     for name in robots:
         robot = fleet.robot(name)
