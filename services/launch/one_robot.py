@@ -42,6 +42,34 @@ def check_before_start(plan: UpPlan, config: Config) -> None:
         bridge_graph(config)  # $ROS_DOMAIN_ID
 
 
+def one_robot_access(plan: UpPlan, config: Config, report_dir: Path) -> Access:
+    """The run's :class:`Access`; with ``--secure``, the profile is written before anything starts."""
+    listen = secure_listen(plan)
+    connection = plan.connection
+    if listen is None:
+        return Access(None, connection.zenoh_config)
+    given = {"--composed": plan.composed, "--connect": connection.connect, "--zenoh-config": connection.zenoh_config}
+    conflicting = [flag for flag, value in given.items() if value]
+    if conflicting:
+        raise ConfigError(
+            f"--secure with {', '.join(conflicting)}: a secure run starts its own router and runs every "
+            "service as a client of it, each with its role's credentials"
+        )
+    profile = write_profile(
+        report_dir / SECRETS_DIRECTORY,
+        Keys(config.robot.name),
+        endpoint=listen[0],
+        router_listen=listen,
+        tls=plan.tls,
+        ros=bridge_graph(config),
+    )
+    say(
+        f"secure: usrpwd and access control on the router{', TLS' if profile.tls else ''}; every service a client; "
+        f"credentials for each role in {profile.directory}/ (e.g. --zenoh-config {profile.client_config(Role.OBSERVER)})"
+    )
+    return Access(profile, None)
+
+
 class OneRobot:
     """The robot of the run's own flags (:class:`~services.launch.robots.Robots`), checked before anything starts."""
 
@@ -59,36 +87,7 @@ class OneRobot:
         )
 
     def access(self, report_dir: Path) -> Access:
-        """The run's :class:`Access`; with ``--secure``, the profile is written before anything starts."""
-        plan = self.plan
-        listen = secure_listen(plan)
-        connection = plan.connection
-        if listen is None:
-            return Access(None, connection.zenoh_config)
-        given = {
-            "--composed": plan.composed,
-            "--connect": connection.connect,
-            "--zenoh-config": connection.zenoh_config,
-        }
-        conflicting = [flag for flag, value in given.items() if value]
-        if conflicting:
-            raise ConfigError(
-                f"--secure with {', '.join(conflicting)}: a secure run starts its own router and runs every "
-                "service as a client of it, each with its role's credentials"
-            )
-        profile = write_profile(
-            report_dir / SECRETS_DIRECTORY,
-            Keys(self.config.robot.name),
-            endpoint=listen[0],
-            router_listen=listen,
-            tls=plan.tls,
-            ros=bridge_graph(self.config),
-        )
-        say(
-            f"secure: usrpwd and access control on the router{', TLS' if profile.tls else ''}; every service a client; "
-            f"credentials for each role in {profile.directory}/ (e.g. --zenoh-config {profile.client_config(Role.OBSERVER)})"
-        )
-        return Access(profile, None)
+        return one_robot_access(self.plan, self.config, report_dir)
 
     def assignment(self) -> None:
         return None
