@@ -123,9 +123,9 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                 say(robots.teleop_line)
             else:
                 ending = ["--until-drive-ends", "--wait-for", *(str(service) for service in LOOP_BEFORE_FIRST_STEP)]
-            sim_flags = [*robots.sim_flags, "--mode", mode, *ending, *(["--gui"] if plan.gui else []), *rt_flags(plan)]
-            sim_flags = [*role_flags(access, Role.SIM), *(recorder.flags if recorder else []), *sim_flags]
-            launcher.start(str(Service.SIM), [str(Service.SIM), *common, *sim_flags])
+            sim_session = [*common, *role_flags(access, Role.SIM), *(recorder.flags if recorder else [])]
+            simulation = [*robots.sim_flags, "--mode", mode, *ending, *(["--gui"] if plan.gui else []), *rt_flags(plan)]
+            launcher.start(str(Service.SIM), [str(Service.SIM), *sim_session, *simulation])
             sim_started = True
             started = time.monotonic()
             if started_line := robots.started_line(mode):
