@@ -1,4 +1,4 @@
-"""What ``--ros2`` adds to a run of ``invent up`` (one robot, services/launch/up.py, or a fleet,
+"""What ``--ros2`` adds to a run of ``invent up`` (one robot, services/launch/one_robot.py, or a fleet,
 services/launch/fleet.py): the checks of its flags, each robot's bridge of a fleet (its namespace,
 ``/clock`` from one), and the run's ROS 2 bag (``--record-ros2``); and ``invent ros2 --fleet FILE``,
 a bridge per robot of a fleet in one process (:func:`serve_bridges`).

@@ -1,5 +1,5 @@
-"""What every run of ``invent up`` shares, for one robot (``services/launch/up.py``) and a fleet
-(``services/launch/fleet.py``) alike: where its files go, the flags its children are given
+"""The pieces of every run of ``invent up`` (its sequence is ``services/launch/up.py``), for one
+robot and a fleet alike: where its files go, the flags its children are given
 (:func:`child_flags`), how its sessions are configured (:class:`Access`, :func:`secure_listen`),
 how its services are launched (:func:`launch_services`), how it watches them (:class:`Run`), its
 live view, and how it ends: each robot's scenario outcome (:class:`Outcomes`) and the run's exit

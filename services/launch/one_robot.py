@@ -1,0 +1,149 @@
+"""What a run of ``invent up`` of one robot does its own way (the sequence is services/launch/up.py's,
+the same as a fleet's): its checks before anything starts, its ``--secure`` profile, a watch that
+ends the run when any of its services dies, and its flat ``report.json``."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from schemas.keys import Keys, Service
+from services.config import Config, ConfigError
+from services.drive.outcome import Outcome
+from services.drive.scenarios import load_scenario
+from services.launch.children import say
+from services.launch.plan import UpPlan
+from services.launch.robots import Robot
+from services.launch.ros2_run import check_ros2_flags
+from services.launch.run import RECORDING_FILE, SECRETS_DIRECTORY, Access, Outcomes, Run, secure_listen
+from services.recording.mcap_files import write_run_report
+from services.recording.report import health_lines, loop_health, summary
+from services.ros2.graph import bridge_graph
+from services.security import Role, write_profile
+from sim_bridge.display import require_display
+from sim_bridge.world import load_world
+
+
+def check_before_start(plan: UpPlan, config: Config) -> None:
+    """Refuse (ConfigError: exit 2) what a child would refuse once started, before any starts: a
+    service that exits 2 would take the others down noisily and leave a run of nothing behind."""
+    if plan.gui:
+        require_display()
+    if plan.workers is not None:
+        raise ConfigError("--workers: it spreads a fleet's robots over processes (with --fleet --composed)")
+    if plan.view == 0:
+        raise ConfigError("--view: the view's port must be fixed (1..65535), for the address to open in Foxglove")
+    check_ros2_flags(plan)
+    if not plan.teleop:
+        load_scenario(plan.scenario)
+    load_world(config.sim.world)
+    if plan.ros2:
+        bridge_graph(config)  # $ROS_DOMAIN_ID
+
+
+def one_robot_access(plan: UpPlan, config: Config, report_dir: Path) -> Access:
+    """The run's :class:`Access`; with ``--secure``, the profile is written before anything starts."""
+    listen = secure_listen(plan)
+    connection = plan.connection
+    if listen is None:
+        return Access(None, connection.zenoh_config)
+    given = {"--composed": plan.composed, "--connect": connection.connect, "--zenoh-config": connection.zenoh_config}
+    conflicting = [flag for flag, value in given.items() if value]
+    if conflicting:
+        raise ConfigError(
+            f"--secure with {', '.join(conflicting)}: a secure run starts its own router and runs every "
+            "service as a client of it, each with its role's credentials"
+        )
+    profile = write_profile(
+        report_dir / SECRETS_DIRECTORY,
+        Keys(config.robot.name),
+        endpoint=listen[0],
+        router_listen=listen,
+        tls=plan.tls,
+        ros=bridge_graph(config),
+    )
+    say(
+        f"secure: usrpwd and access control on the router{', TLS' if profile.tls else ''}; every service a client; "
+        f"credentials for each role in {profile.directory}/ (e.g. --zenoh-config {profile.client_config(Role.OBSERVER)})"
+    )
+    return Access(profile, None)
+
+
+class OneRobot:
+    """The robot of the run's own flags (:class:`~services.launch.robots.Robots`), checked before anything starts."""
+
+    def __init__(self, plan: UpPlan) -> None:
+        self.plan = plan
+        self.config = plan.description.load()
+        check_before_start(plan, self.config)
+        self.each: tuple[Robot, ...] = (Robot(self.config.robot.name, self.config, plan.scenario),)
+        self.scene: tuple[Config, ...] = ()
+        self.records_statuses = True
+        self.view_flags: list[str] = []
+        self.sim_flags: list[str] = []
+        self.teleop_line = (
+            "teleop: the robot follows ROS 2's /cmd_vel (Twist or TwistStamped) until Ctrl-C; see docs/ros2.md"
+        )
+
+    def access(self, report_dir: Path) -> Access:
+        return one_robot_access(self.plan, self.config, report_dir)
+
+    def assignment(self) -> None:
+        return None
+
+    def drive_waits(self, driven: Sequence[Robot]) -> list[list[str]]:
+        """Its drive alive, then the drive and the localization holding their lockstep tokens."""
+        if not driven:
+            return []
+        keys, config = Keys(self.config.robot.name), self.config
+        ticks = [
+            keys.ticks(Service.DRIVE, config.drive.rate),
+            keys.ticks(Service.LOCALIZATION, config.localization.rate),
+        ]
+        return [[keys.alive(Service.DRIVE)], ticks]
+
+    def started_line(self, mode: str) -> None:
+        return None
+
+    def watch(self, run: Run, drives: dict[str, Any]) -> OneRobotWatch:
+        return OneRobotWatch(run, drives.get(self.config.robot.name))
+
+    def health_lines(self, health: dict[str, dict[str, Any]]) -> list[str]:
+        return health_lines(health[self.config.robot.name])
+
+    def report(self, report_dir: Path) -> tuple[list[str], str]:
+        """``report.json`` and the plots, the report's summary printed."""
+        recording = report_dir / RECORDING_FILE
+        report, path, plots = write_run_report(recording, report_dir, self.config)
+        print(summary(report), flush=True)
+        return report["degraded"], f"recording: {recording}; report: {path}; plots: {', '.join(str(p) for p in plots)}"
+
+
+class OneRobotWatch:
+    """The one robot's run watched (:meth:`Run.supervise`): any of its services that dies ends the run."""
+
+    def __init__(self, run: Run, drive: Any | None) -> None:
+        self.run = run
+        self.drive = drive
+        self.sim_status: dict[str, Any] | None = None
+        self.drive_status: dict[str, Any] | None = None
+        """The drive's last status, taken while it runs: it exits at the end of its scenario."""
+        self.outcome: Outcome | None = None
+
+    def supervise(self, started: float, between_looks: Callable[[], None] | None, until_interrupted: bool) -> None:
+        self.sim_status, self.drive_status, self.outcome = self.run.supervise(
+            self.drive, started, between_looks, until_interrupted=until_interrupted
+        )
+
+    def health(self, robot: str) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+        statuses = {str(service): self.run.status(service) for service in Service if service != Service.DRIVE}
+        statuses[str(Service.DRIVE)] = self.drive_status
+        return self.sim_status, loop_health(self.sim_status, statuses)
+
+    def outcomes(self, published: Outcomes) -> dict[str, Outcome]:
+        return {} if self.outcome is None else {self.run.keys.robot: self.outcome}
+
+    def ended(self, child: str) -> bool:
+        """A drive that ended its scenario with an outcome exited as it should, whatever its code."""
+        return child == str(Service.DRIVE) and self.outcome is not None
