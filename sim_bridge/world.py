@@ -8,14 +8,13 @@ live in ``sim_bridge/worlds/`` and can be named without a path (``--world bump``
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Annotated
 
 import msgspec
 
 from schemas.messages import Obstacle
-from services.config import ConfigError, convert_toml
+from services.config import ConfigError, convert_toml, require_finite_fields
 
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0.0)]
@@ -29,11 +28,7 @@ WORLDS_FOLDER = Path(__file__).resolve().parent / "worlds"
 
 class _Table(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     def __post_init__(self) -> None:
-        for name in self.__struct_fields__:
-            value = getattr(self, name)
-            values = value if isinstance(value, tuple) else (value,)
-            if any(isinstance(v, float) and not math.isfinite(v) for v in values):
-                raise ValueError(f"`{name}` must be finite, got {value}")
+        require_finite_fields(self)
 
 
 class Ground(_Table, frozen=True):

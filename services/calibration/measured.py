@@ -31,7 +31,7 @@ from typing import Annotated
 import msgspec
 
 from services.calibration.umbmark import Direction, Point, return_error
-from services.config import ConfigError, convert_toml
+from services.config import ConfigError, convert_toml, require_finite_fields
 
 CSV_COLUMNS = ("direction", "x", "y", "odometry_x", "odometry_y")
 
@@ -46,9 +46,7 @@ class MeasuredEnd(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     odometry_y: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in self.__struct_fields__:
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"`{name}` must be finite")
+        require_finite_fields(self)
 
     @property
     def error(self) -> Point:

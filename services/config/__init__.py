@@ -9,7 +9,7 @@ below are what the rest of the project imports, from ``services.config``.
 """
 
 from services.config.description import SECTIONS, SEED_NAMES, Config
-from services.config.fields import NONE, NonNegative, Positive, WheelId, optional_fields
+from services.config.fields import NONE, NonNegative, Positive, WheelId, optional_fields, require_finite_fields
 from services.config.loading import (
     config_from_description,
     convert_toml,
@@ -84,4 +84,5 @@ __all__ = [
     "optional_fields",
     "parse_override",
     "read_description",
+    "require_finite_fields",
 ]

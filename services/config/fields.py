@@ -62,6 +62,17 @@ class Section(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
                 raise ValueError(f"`{name}` must be finite, got {value}{hint}")
 
 
+def require_finite_fields(table: msgspec.Struct, prefix: str = "") -> None:
+    """ValueError naming the first field of ``table`` that holds an infinite or NaN float (alone or
+    in a tuple), as ```<prefix><field>` must be finite, got <value>``: TOML reads ``nan`` and
+    ``inf``, and msgspec takes them for a float."""
+    for name in table.__struct_fields__:
+        value = getattr(table, name)
+        values = value if isinstance(value, tuple) else (value,)
+        if any(isinstance(item, float) and not math.isfinite(item) for item in values):
+            raise ValueError(f"`{prefix}{name}` must be finite, got {value}")
+
+
 @functools.cache
 def optional_fields(section: type[msgspec.Struct]) -> frozenset[str]:
     """The fields of ``section`` that may be None (written :data:`NONE` in a file or ``--set``)."""

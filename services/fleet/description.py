@@ -26,14 +26,13 @@ world (:func:`bridge_overrides`): neither is a robot's ``set``. Pure: no zenoh, 
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
 import msgspec
 
 from schemas.keys import validate_robot_name
-from services.config import NAMESPACE, Config, ConfigError, convert_toml, load_config
+from services.config import NAMESPACE, Config, ConfigError, convert_toml, load_config, require_finite_fields
 
 FLEET_WIDE_SECTION = "sim"
 """The section a robot may not override: its parameters are the one simulator's."""
@@ -52,9 +51,7 @@ class Start(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
     theta: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in self.__struct_fields__:
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"`start.{name}` must be finite, got {getattr(self, name)}")
+        require_finite_fields(self, prefix="start.")
 
 
 class FleetRobot(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
