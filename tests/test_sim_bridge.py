@@ -9,6 +9,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 import zenoh
@@ -31,7 +32,9 @@ class TorqueSource:
     """Answers every ``sim/wheel_angles`` sample with a ``motor/torque`` carrying the same ``tm``.
 
     The zenoh callback only queues the sample; the test thread replies (:meth:`answer`). While
-    :meth:`declare_alive` holds the motor's liveliness token, a lockstep sim waits for the answers.
+    :meth:`declare_alive` holds the motor's liveliness token, a lockstep sim waits for the answers;
+    its ``motor/status`` then says whether it sees the simulator's token, as a motor's does, so a
+    lockstep sim's first step does not wait out its start-up handshake for it.
     """
 
     def __init__(self, session: zenoh.Session, torque: Torque) -> None:
@@ -46,14 +49,27 @@ class TorqueSource:
         )
         self.publisher = session.declare_publisher(KEYS.motor_torque, encoding=zenoh.Encoding(ENCODING))
         self._token: zenoh.LivelinessToken | None = None
+        self._status: zenoh.Queryable | None = None
+        self._sim_alive = False
+        self._sim_tokens = session.liveliness().declare_subscriber(
+            KEYS.alive(Service.SIM), self._on_sim_token, history=True
+        )
+
+    def _on_sim_token(self, sample: zenoh.Sample) -> None:
+        self._sim_alive = sample.kind == zenoh.SampleKind.PUT
+
+    def _on_status(self, query: zenoh.Query) -> None:
+        query.reply(query.key_expr, msgspec.json.encode({"sim_alive": self._sim_alive}))
 
     def declare_alive(self) -> None:
         self._token = self._session.liveliness().declare_token(KEYS.alive(Service.MOTOR))
+        self._status = self._session.declare_queryable(KEYS.status(Service.MOTOR), self._on_status)
 
     def withdraw(self) -> None:
-        assert self._token is not None
+        assert self._token is not None and self._status is not None
         self._token.undeclare()
-        self._token = None
+        self._status.undeclare()
+        self._token = self._status = None
 
     def answer_one(self, timeout: float = 10.0) -> TimedDoubleSeq:
         payload, attachment = self.samples.get(timeout=timeout)
@@ -79,7 +95,8 @@ class TorqueSource:
 
     def close(self) -> None:
         if self._token is not None:
-            self._token.undeclare()
+            self.withdraw()
+        self._sim_tokens.undeclare()
         self.publisher.undeclare()
         self._subscriber.undeclare()
 
