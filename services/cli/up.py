@@ -86,7 +86,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="record every simulation step (the control path, the poses), not only the observed steps the report "
         "needs: about ten times the size, for debugging the loop (the same as --set record.rate=every_step; "
-        "the [record] table caps and splits a recording: README, Rates and bounds)",
+        "the [record] table caps and splits a recording: docs/recording.md, Rates and bounds)",
     )
     parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
     parser.add_argument(
@@ -115,7 +115,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--secure",
         action="store_true",
         help="usrpwd authentication and access control on the router, every service a client with its role's "
-        f"fresh credentials, written first to <report dir>/{SECRETS_DIRECTORY}/<role>.json5 (see README, Security)",
+        f"fresh credentials, written first to <report dir>/{SECRETS_DIRECTORY}/<role>.json5 (see docs/security.md)",
     )
     parser.add_argument(
         "--tls", action="store_true", help="with --secure: TLS on every link, a local CA and router certificate"
