@@ -14,10 +14,8 @@ from typing import Annotated
 import msgspec
 
 from schemas.messages import Obstacle
-from services.config import ConfigError, convert_toml, require_finite_fields
+from services.config import ConfigError, NonNegative, Positive, convert_toml, require_finite_fields
 
-Positive = Annotated[float, msgspec.Meta(gt=0.0)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0.0)]
 Name = Annotated[str, msgspec.Meta(min_length=1)]
 
 DEFAULT_WORLD = "empty"

@@ -544,7 +544,8 @@ class RemoteSession:
 def _session_main(args: argparse.Namespace) -> int:
     import zenoh
 
-    from services.runtime.session import SessionFailed, open_session, session_config
+    from services.errors import SessionFailed
+    from services.runtime.session import open_session, session_config
 
     # The JSON lines keep the real stdout; zenoh's own log (which goes to fd 1) goes to stderr.
     protocol = os.fdopen(os.dup(sys.stdout.fileno()), "w", buffering=1)

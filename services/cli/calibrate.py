@@ -9,7 +9,7 @@ from pathlib import Path
 
 from services.calibration.settings import DEFAULT_PASSES, SIM_BODY_KEYS, UmbmarkSettings
 from services.calibration.umbmark import CONVERGED, DEFAULT_RUNS, DEFAULT_SIDE
-from services.cli.flags import description_flags, overrides_from_args, positive_int, positive_length
+from services.cli.flags import LOG_LEVELS, description_flags, overrides_from_args, positive_int, positive_length
 from services.cli.services import service_plan
 from services.config import ConfigError, config_from_description, parse_override, read_description
 from services.launch.calibrate import run_umbmark
@@ -98,7 +98,7 @@ def umbmark_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--log-level",
         default="warning",
-        choices=["debug", "info", "warning", "error"],
+        choices=LOG_LEVELS,
         help="the services' log level (default warning: the calibration's own lines only)",
     )
 

@@ -21,6 +21,8 @@ from services.security import fleet_robots
 Commands: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
 """Where a subcommand's module adds its parser (``invent``'s subparsers)."""
 T = TypeVar("T")
+LOG_LEVELS = ("debug", "info", "warning", "error")
+"""``--log-level``'s choices: the services' and the calibration's."""
 
 
 class OwnFlags(Protocol):
@@ -61,9 +63,7 @@ def connection_flags() -> argparse.ArgumentParser:
         help=f"zenoh configuration file replacing the default (e.g. a role's file from `invent secrets`; "
         f"default ${ZENOH_CONFIG_VARIABLE}); --connect/--listen still apply on top",
     )
-    group.add_argument(
-        "--log-level", default="info", choices=["debug", "info", "warning", "error"], help="log level (default info)"
-    )
+    group.add_argument("--log-level", default="info", choices=LOG_LEVELS, help="log level (default info)")
     return flags
 
 

@@ -38,9 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def overrides(args: argparse.Namespace) -> dict[str, Any]:
-    """Only the flags given: an unset flag must not mask the same key set with --set."""
-    flags = {"motor.target_angle": args.target_angle, "motor.command_timeout": args.command_timeout}
-    return {key: value for key, value in flags.items() if value is not None}
+    return {"motor.target_angle": args.target_angle, "motor.command_timeout": args.command_timeout}
 
 
 def options(args: argparse.Namespace) -> MotorOptions:

@@ -1,4 +1,4 @@
-"""The zenoh tools of the ``invent`` CLI: router, echo, call, status.
+"""The zenoh tools of the ``invent`` CLI: router, echo, call, status, secrets.
 
 Each writes JSON lines to stdout (one per sample or reply) so that its output can be piped
 to ``jq`` or read by tests, and errors as one line on stderr.

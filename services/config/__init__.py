@@ -9,7 +9,7 @@ below are what the rest of the project imports, from ``services.config``.
 """
 
 from services.config.description import SECTIONS, SEED_NAMES, Config
-from services.config.fields import NONE, NonNegative, Positive, WheelId, optional_fields, require_finite_fields
+from services.config.fields import NONE, NonNegative, Positive, optional_fields, require_finite_fields
 from services.config.loading import (
     config_from_description,
     convert_toml,
@@ -19,10 +19,7 @@ from services.config.loading import (
 )
 from services.config.run_sections import (
     NAMESPACE,
-    Covariance,
     CpuChoice,
-    CpuId,
-    FrameId,
     GcPolicy,
     RecordConfig,
     RecordRate,
@@ -40,7 +37,6 @@ from services.config.sections import (
     RobotConfig,
     SimConfig,
     SimMode,
-    StraightStep,
     TargetAngleMode,
 )
 from services.config.writing import description_toml
@@ -54,11 +50,8 @@ __all__ = [
     "CalibratedGeometry",
     "Config",
     "ConfigError",
-    "Covariance",
     "CpuChoice",
-    "CpuId",
     "DriveConfig",
-    "FrameId",
     "GcPolicy",
     "InputConfig",
     "LocalizationConfig",
@@ -73,10 +66,8 @@ __all__ = [
     "RtConfig",
     "SimConfig",
     "SimMode",
-    "StraightStep",
     "TargetAngleMode",
     "TfLayout",
-    "WheelId",
     "config_from_description",
     "convert_toml",
     "description_toml",

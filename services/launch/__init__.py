@@ -1,4 +1,4 @@
-"""How a run starts and ends: ``invent up``, for one robot or a fleet.
+"""How a run starts and ends: ``invent up``, for one robot or a fleet, and the other launchers.
 
 - :mod:`~services.launch.plan`: the run asked for, typed (:class:`~services.launch.plan.UpPlan`);
 - :mod:`~services.launch.up`: ``invent up``'s one entry and its one sequence
@@ -13,5 +13,9 @@
   the services and watching them, the live view, the exit status;
 - :mod:`~services.launch.children`: the services as child processes (:class:`Supervisor`);
 - :mod:`~services.launch.composition`: ``--composed``, the same services in one process;
-- :mod:`~services.launch.recorder`: the run's ``run.mcap``, made of the services' journals.
+- :mod:`~services.launch.recorder`: the run's ``run.mcap``, made of the services' journals;
+- :mod:`~services.launch.worker`: a composed fleet over several processes (``invent worker``);
+- :mod:`~services.launch.ros2_run`: what ``--ros2`` adds, and ``invent ros2 --fleet``'s bridges;
+- :mod:`~services.launch.calibrate` and :mod:`~services.launch.umbmark_runs`: ``invent calibrate
+  umbmark``, its passes and its runs of the square.
 """

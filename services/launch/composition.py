@@ -23,6 +23,7 @@ from typing import Any
 import zenoh
 
 from services.config import RtConfig
+from services.exits import ExitStatus
 from services.runtime.executor import Executor
 from services.runtime.intraprocess import LocalBus
 from services.runtime.node import Node
@@ -48,7 +49,7 @@ class ComposedService:
             return self.service.exit_code if self.service.finished else None
         if self.thread.is_alive():
             return None
-        return self.exit_code if self.error is None else 1
+        return self.exit_code if self.error is None else ExitStatus.FAILURE
 
 
 class Composition:

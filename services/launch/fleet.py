@@ -93,7 +93,7 @@ def check_fleet(plan: UpPlan, path: str) -> tuple[Fleet, dict[str, Config]]:
 
 
 def fleet_access(plan: UpPlan, fleet: Fleet, report_dir: Path) -> Access:
-    """The run's :class:`Access`; with ``--secure`` a fresh fleet profile (services/security.py): a
+    """The run's :class:`Access`; with ``--secure`` a fresh fleet profile (``write_fleet_profile``): a
     user per robot and service, each allowed only its own robot's keys, written before anything starts."""
     listen = secure_listen(plan)
     if listen is None:
