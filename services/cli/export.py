@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
-from services.cli.flags import config_from_args, fleet_flag, overrides_from_args
-from services.config import ConfigError
+from services.cli.flags import config_from_args, existing_file, fleet_flag, new_bag_directory, overrides_from_args
+from services.config import Config, ConfigError
 from services.fleet.description import load_fleet
 from services.launch import ros2_run
 from services.recording import rosbag
@@ -29,16 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    path = Path(args.recording)
-    if not path.is_file():
-        raise ConfigError(f"{path}: no such file")
-    output = Path(args.output)
-    if output.exists():
-        raise ConfigError(f"--output {output}: it exists (a bag is written into a new directory)")
+    path = existing_file(args.recording)
+    output = new_bag_directory(args.output)
     if args.fleet:
-        configs = list(
-            ros2_run.fleet_bridges(load_fleet(args.fleet), args.config, overrides_from_args(None, args)).values()
-        )
+        configs = fleet_bridge_configs(args)
     else:
         recorded = rosbag.robots_in(read_run(path).messages)
         if len(recorded) > 1:
@@ -59,6 +52,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"{count} recorded samples of {key} were bad input, not exported", file=sys.stderr)
     say_bag(result)
     return 0
+
+
+def fleet_bridge_configs(args: argparse.Namespace) -> list[Config]:
+    """``--fleet FILE``: each robot's bridge's description, in the fleet's order."""
+    return list(ros2_run.fleet_bridges(load_fleet(args.fleet), args.config, overrides_from_args(None, args)).values())
 
 
 def say_bag(result: rosbag.BagResult) -> None:

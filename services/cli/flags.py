@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, Protocol, TypeAlias, TypeVar
 
 import zenoh
@@ -223,3 +224,19 @@ def session_from_args(args: argparse.Namespace, mode: str = "peer", timestamping
 def fleet_flag(parser: argparse.ArgumentParser | argparse._ArgumentGroup, what_it_does: str) -> None:
     """``--fleet FILE``: a fleet file (docs/fleet.md); ``what_it_does`` with it, as its help says."""
     parser.add_argument("--fleet", metavar="FILE", help=what_it_does)
+
+
+def existing_file(text: str) -> Path:
+    """``text`` as the path of a file that is there; ConfigError (exit 2) naming it otherwise."""
+    path = Path(text)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such file")
+    return path
+
+
+def new_bag_directory(text: str) -> Path:
+    """``--output``: the directory a bag is written into, which must not be there yet (ConfigError)."""
+    output = Path(text)
+    if output.exists():
+        raise ConfigError(f"--output {output}: it exists (a bag is written into a new directory)")
+    return output

@@ -7,17 +7,15 @@ import datetime
 from pathlib import Path
 
 from schemas.keys import Keys
-from services.cli.export import say_bag
+from services.cli.export import fleet_bridge_configs, say_bag
 from services.cli.flags import (
     config_from_args,
     fleet_flag,
-    overrides_from_args,
+    new_bag_directory,
     positive_seconds,
     session_from_args,
 )
 from services.config import Config, ConfigError
-from services.fleet.description import load_fleet
-from services.launch import ros2_run
 from services.recording import record, ros2_record
 from services.ros2.graph import bridge_graph
 from services.runtime.session import open_session, stop_on_signals
@@ -72,15 +70,9 @@ def run(args: argparse.Namespace) -> int:
 def _run_ros2(args: argparse.Namespace, config: Config) -> int:
     if args.keyexprs:
         raise ConfigError(f"--ros2 with {' '.join(args.keyexprs)}: a bag records the bridges' topics, not zenoh keys")
-    configs = (
-        list(ros2_run.fleet_bridges(load_fleet(args.fleet), args.config, overrides_from_args(None, args)).values())
-        if args.fleet
-        else [config]
-    )
+    configs = fleet_bridge_configs(args) if args.fleet else [config]
     bridges = [bridge_graph(robot) for robot in configs]
-    output = Path(args.output or datetime.datetime.now().strftime("rosbag2_%Y_%m_%d-%H_%M_%S"))
-    if output.exists():
-        raise ConfigError(f"--output {output}: it exists (a bag is written into a new directory)")
+    output = new_bag_directory(args.output or datetime.datetime.now().strftime("rosbag2_%Y_%m_%d-%H_%M_%S"))
     stop = stop_on_signals()
     with open_session(session_from_args(args)) as session:
         result = ros2_record.run_record_ros2(

@@ -4,11 +4,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from schemas.keys import Keys
-from services.cli.flags import non_negative_float, robot_name, session_from_args
-from services.config import ConfigError
+from services.cli.flags import existing_file, non_negative_float, robot_name, session_from_args
 from services.recording import replay
 from services.recording.mcap_files import read_run, replay_schedule
 from services.runtime.session import open_session, stop_on_signals
@@ -36,9 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    path = Path(args.recording)
-    if not path.is_file():
-        raise ConfigError(f"{path}: no such file")
+    path = existing_file(args.recording)
     read = read_run(path)  # and the files it was split into, if any
     if not read.complete:
         print(f"{path} was cut short: replaying its whole chunks", file=sys.stderr)

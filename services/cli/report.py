@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from services.cli.flags import config_from_args
-from services.config import ConfigError
+from services.cli.flags import config_from_args, existing_file
 from services.recording.mcap_files import write_run_report
 from services.recording.report import summary
 
@@ -17,9 +16,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    path = Path(args.recording)
-    if not path.is_file():
-        raise ConfigError(f"{path}: no such file")
+    path = existing_file(args.recording)
     report, report_path, plots = write_run_report(
         path, Path(args.output_dir) if args.output_dir else path.parent, config_from_args(None, args)
     )
