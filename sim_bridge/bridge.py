@@ -91,8 +91,8 @@ class SimService:
         self.finished = False
         self.exit_code = 0
         self.progress = RunProgress()
-        # Imported here, not at the top: every `invent` command imports this module for its flags,
-        # and importing PyBullet prints its build banner.
+        # Imported here, not at the top: every `invent` command imports this module (services/cli/sim.py
+        # for its command and options), and importing PyBullet prints its build banner.
         from sim_bridge.simulator import Placement, Simulator
 
         self.fleet = options.fleet

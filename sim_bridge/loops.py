@@ -121,8 +121,7 @@ class Loop:
                     return
         else:
             self.node.drain()
-            if not (torque.answered or final):
-                link.counters["missing_torques"] += 1
+            torque.not_awaited(final)
 
     def _lockstep_ticks(self, tm_ns: int, stop: threading.Event) -> None:
         """Wait for the outputs of the participants with a tick at ``tm_ns`` (or give up on them)."""

@@ -182,6 +182,12 @@ class TorquePolicy:
         elif not final:
             self._counters["missing_torques"] += 1
 
+    def not_awaited(self, final: bool) -> None:
+        """The step went on without waiting (no motor control alive): unless a torque came
+        anyway, the step's is missing (but for the ``final`` state's, which is never applied)."""
+        if not (self.answered or final):
+            self._counters["missing_torques"] += 1
+
     def _late(self, tm_ns: int) -> None:
         self._counters["late_torques"] += 1
         self._events.late(tm_ns)

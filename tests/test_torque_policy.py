@@ -231,6 +231,19 @@ def test_the_final_state_counts_neither_its_torque_nor_a_missing_one():
     assert r.counters["missing_torques"] == 0 and not r.wheels.braking
 
 
+def test_a_step_that_waited_for_no_motor_counts_its_torque_missing_unless_one_came_or_it_is_final():
+    r = rig()
+    r.policy.begin_wait(STEP_NS)
+    r.policy.not_awaited(final=False)
+    assert r.counters["missing_torques"] == 1
+    r.policy.begin_wait(2 * STEP_NS)
+    r.torque(2 * STEP_NS)
+    r.policy.not_awaited(final=False)
+    r.policy.begin_wait(3 * STEP_NS)
+    r.policy.not_awaited(final=True)
+    assert r.counters["missing_torques"] == 1
+
+
 def test_the_latency_of_each_answered_step_is_timed_by_the_injected_clock():
     r = rig()
     r.lockstep_step(1, answered=True)

@@ -53,7 +53,8 @@ class ComposedService:
 
 
 class Composition:
-    """Builds and runs services on one shared session; the in-process twin of ``up.Supervisor``."""
+    """Builds and runs services on one shared session; the in-process twin of
+    :class:`services.launch.children.Supervisor`."""
 
     def __init__(self, session: zenoh.Session, parse: ServiceParse, *, intra_process: bool = True) -> None:
         """``parse`` turns ``invent <service>``'s arguments into the service to start (the command

@@ -39,6 +39,8 @@ from services.launch.plan import UpPlan
 from services.launch.robots import Robot, robot_degradations
 from services.launch.ros2_run import check_ros2_flags, fleet_bridge_graphs, fleet_bridges
 from services.launch.run import (
+    LOOK_INTERVAL_S,
+    PROGRESS_INTERVAL_S,
     RECORDING_FILE,
     SECRETS_DIRECTORY,
     SERVICES_BEFORE_DRIVE,
@@ -53,8 +55,6 @@ from services.recording.report import loop_health, summary, write_plots, write_r
 from services.security import write_fleet_profile
 from sim_bridge.world import load_world
 
-PROGRESS_INTERVAL_S = 1.0
-LOOK_INTERVAL_S = 0.05
 UNSUPPORTED = {
     "--robot": "the robots are the fleet file's",
     "--loop": "a fleet runs each robot's scenario once",

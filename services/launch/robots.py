@@ -41,19 +41,11 @@ class Robot:
 
     def credentials(self, access: Access, role: Role) -> list[str]:
         """How its service of ``role`` connects: a fleet robot's own credentials when secure."""
-        return role_flags(access, role, self.name if self.in_fleet else None)
+        return access.flags(role, self.name if self.in_fleet else None)
 
     def label(self, line: str) -> str:
         """``line`` about this robot as ``up`` prints it: a fleet robot's prefixed with its name."""
         return f"{self.name}: {line}" if self.in_fleet else line
-
-
-def role_flags(access: Access, role: Role, robot: str | None = None) -> list[str]:
-    """How a service of ``robot`` (None: the one robot, or a fleet's fleet-wide sim) connects: its
-    robot's role's file when secure."""
-    if access.profile is None:
-        return access.flags(role)
-    return ["--zenoh-config", str(access.profile.client_config(role, robot))]
 
 
 def robot_degradations(health: dict[str, Any]) -> list[str]:

@@ -40,16 +40,13 @@ STARTUP_TIMEOUT_S = 60.0
 END_TIMEOUT_S = 10.0
 """How long the sim may take to hold at the drive's last command once the drive has ended."""
 PROGRESS_INTERVAL_S = 1.0
+LOOK_INTERVAL_S = 0.05
+"""How often a run looks at its children and the sim's status while it waits."""
 SECRETS_DIRECTORY = "secrets"
 RECORDING_FILE = "run.mcap"
 MOTOR_STATE_FILE = "motor-state.json"
 """The run's own motor state file (latches, gains), in the report directory: a run starts afresh."""
 SERVICES_BEFORE_DRIVE = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
-
-
-CONTROL_PATH = (Service.SIM, Service.MOTOR)
-"""The services ``--rt`` gives real-time settings to (with the router): every step's exchange
-runs through them (docs/realtime.md)."""
 
 
 def rt_flags(plan: UpPlan) -> list[str]:
@@ -129,11 +126,13 @@ class Access:
     profile: Profile | None
     zenoh_config: str | None
 
-    def config_file(self, role: Role) -> str | None:
-        return str(self.profile.client_config(role)) if self.profile else self.zenoh_config
+    def config_file(self, role: Role, robot: str | None = None) -> str | None:
+        """The file a service of ``role`` connects with (of ``robot``'s in a secure fleet; None: the
+        one robot's, or a fleet's fleet-wide sim), or None for zenoh's defaults."""
+        return str(self.profile.client_config(role, robot)) if self.profile else self.zenoh_config
 
-    def flags(self, role: Role) -> list[str]:
-        path = self.config_file(role)
+    def flags(self, role: Role, robot: str | None = None) -> list[str]:
+        path = self.config_file(role, robot)
         return ["--zenoh-config", path] if path else []
 
     def router_flags(self, endpoint: str) -> list[str]:
@@ -290,7 +289,7 @@ class Run:
                 raise ChildDied(f"drive exited unexpectedly ({describe_exit(code)})")
             if between_looks:
                 between_looks()
-            time.sleep(0.05)
+            time.sleep(LOOK_INTERVAL_S)
 
 
 class Outcomes:
@@ -345,7 +344,7 @@ class ViewProcess:
             self._child.check_running()
             if time.monotonic() > deadline:
                 raise ChildDied(f"the view did not serve on port {self._port} within {STARTUP_TIMEOUT_S} s")
-            time.sleep(0.05)
+            time.sleep(LOOK_INTERVAL_S)
         say(f"Foxglove live view: {status['url']} (Foxglove → Open connection)")
 
     def close(self) -> None:

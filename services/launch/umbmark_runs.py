@@ -29,7 +29,7 @@ from services.config import NONE, ConfigError, config_from_description
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.errors import RunFailed
 from services.launch.composition import Composition
-from services.launch.run import Outcomes, Run
+from services.launch.run import LOOK_INTERVAL_S, Outcomes, Run
 from services.recording.calibration_report import benchmark_line
 from services.recording.report import degradations, loop_health
 from services.runtime.intraprocess import LocalBus, Watch
@@ -233,5 +233,5 @@ class Simulation:
                     f"({pose.get('x', 0.0):+.3f}, {pose.get('y', 0.0):+.3f}) m"
                 )
                 next_progress = time.monotonic() + PROGRESS_S
-            time.sleep(0.05)
+            time.sleep(LOOK_INTERVAL_S)
         return int(code)

@@ -36,7 +36,7 @@ from services.launch.fleet import FleetRobots
 from services.launch.one_robot import OneRobot
 from services.launch.plan import UpPlan
 from services.launch.recorder import RunRecorder
-from services.launch.robots import Robot, Robots, robot_degradations, role_flags
+from services.launch.robots import Robot, Robots, robot_degradations
 from services.launch.ros2_run import BagRecording
 from services.launch.run import (
     MOTOR_STATE_FILE,
@@ -97,7 +97,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
             if recorder and robots.records_statuses:
                 recorder.watch(session, run.keys)
             if plan.view is not None:
-                live_view = ViewProcess([*common, *role_flags(access, Role.OBSERVER), *robots.view_flags], plan.view)
+                live_view = ViewProcess([*common, *access.flags(Role.OBSERVER), *robots.view_flags], plan.view)
                 closing.callback(live_view.close)
                 live_view.wait_serving(run)
             for robot in robots.each:
@@ -123,7 +123,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                 say(robots.teleop_line)
             else:
                 ending = ["--until-drive-ends", "--wait-for", *(str(service) for service in LOOP_BEFORE_FIRST_STEP)]
-            sim_session = [*common, *role_flags(access, Role.SIM), *(recorder.flags if recorder else [])]
+            sim_session = [*common, *access.flags(Role.SIM), *(recorder.flags if recorder else [])]
             simulation = [*robots.sim_flags, "--mode", mode, *ending, *(["--gui"] if plan.gui else []), *rt_flags(plan)]
             launcher.start(str(Service.SIM), [str(Service.SIM), *sim_session, *simulation])
             sim_started = True

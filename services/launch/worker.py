@@ -12,8 +12,8 @@ longer than the control it moves off the simulator's core: docs/fleet.md), so ``
 is one.
 
 On a machine of its own, ``invent worker --fleet FILE --robots R1,R2`` runs the services of those
-robots of the fleet file composed in one process, as ``up`` would start them: one process per robot
-computer for its robots (docs/deploy.md). Started by ``up``, a worker takes its services on its
+robots of the fleet file composed in one process, as ``up`` would start them: one process per service
+host for its robots (docs/deploy.md). Started by ``up``, a worker takes its services on its
 standard input instead, one JSON array per line
 (``[name, "motor", "--robot", ...]``: the name and the argv ``invent`` would take), starts each
 in its composition and says so on its standard output (:data:`WORKER_PREFIX` lines); it says too
