@@ -89,9 +89,9 @@ def test_invalid_values_raise_naming_the_field(overrides, field):
 
 
 def test_override_values_are_read_as_toml():
-    assert parse_override("motor.p_gain_l=3") == (["motor", "p_gain_l"], 3)
-    assert parse_override("sim.mode=realtime") == (["sim", "mode"], "realtime")
-    assert parse_override('robot.name="rh2"') == (["robot", "name"], "rh2")
+    assert parse_override("motor.p_gain_l=3") == ("motor.p_gain_l", 3)
+    assert parse_override("sim.mode=realtime") == ("sim.mode", "realtime")
+    assert parse_override('robot.name="rh2"') == ("robot.name", "rh2")
     with pytest.raises(ConfigError, match="SECTION.KEY=VALUE"):
         parse_override("motor.p_gain_l")
 

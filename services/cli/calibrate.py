@@ -117,10 +117,9 @@ def settings_from_args(args: argparse.Namespace) -> UmbmarkSettings:
     sim_set = {}
     for text in args.sim_set or ():
         try:
-            path, value = parse_override(text)
+            key, value = parse_override(text)
         except ConfigError:
             raise ConfigError(f"--sim-set {text!r} must be KEY=VALUE") from None
-        key = ".".join(path)
         if key not in SIM_BODY_KEYS:
             raise ConfigError(
                 f"--sim-set {key}: only the simulated body may differ from the description: " + ", ".join(SIM_BODY_KEYS)

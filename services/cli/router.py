@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    overrides = {".".join(path): value for path, value in map(parse_override, args.set or ())}
+    overrides = dict(map(parse_override, args.set or ()))
     not_rt = [key for key in overrides if not key.startswith("rt.")]
     if not_rt:
         raise ConfigError(f"invent router --set {', '.join(not_rt)}: a router takes only the [rt] settings")

@@ -11,6 +11,7 @@ below are what the rest of the project imports, from ``services.config``.
 from services.config.description import SECTIONS, SEED_NAMES, Config
 from services.config.fields import NONE, NonNegative, Positive, optional_fields, require_finite_fields
 from services.config.loading import (
+    apply_overrides,
     config_from_description,
     convert_toml,
     load_config,
@@ -68,6 +69,7 @@ __all__ = [
     "SimMode",
     "TargetAngleMode",
     "TfLayout",
+    "apply_overrides",
     "config_from_description",
     "convert_toml",
     "description_toml",

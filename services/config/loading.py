@@ -59,8 +59,9 @@ def convert_toml(text: str, struct_type: type[StructT], what: str) -> StructT:
         raise ConfigError(f"{what}: {str(error).replace('$.', '')}") from None
 
 
-def parse_override(text: str) -> tuple[list[str], Any]:
-    """``"motor.p_gain_l=3"`` -> (["motor", "p_gain_l"], 3). The value is read as TOML, else as a string."""
+def parse_override(text: str) -> tuple[str, Any]:
+    """``"motor.p_gain_l=3"`` -> ("motor.p_gain_l", 3): the dotted key :func:`apply_overrides` takes.
+    The value is read as TOML, else as a string."""
     path, sep, value_text = text.partition("=")
     if not sep or not path.strip():
         raise ConfigError(f"override {text!r} must be SECTION.KEY=VALUE")
@@ -68,7 +69,7 @@ def parse_override(text: str) -> tuple[list[str], Any]:
         value = tomllib.loads(f"v = {value_text.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = value_text.strip()
-    return path.strip().split("."), value
+    return path.strip(), value
 
 
 def load_config(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Config:
@@ -97,7 +98,13 @@ def read_description(path: str | Path | None = None, overrides: dict[str, Any] |
             raise ConfigError(f"config file {path}: {error.strerror}") from None
         except tomllib.TOMLDecodeError as error:
             raise ConfigError(f"config file {path}: {error}") from None
-    for dotted, value in (overrides or {}).items():
+    return apply_overrides(raw, overrides or {})
+
+
+def apply_overrides(raw: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """``raw`` (tables as written) with each of ``overrides`` ({"motor.p_gain_l": 3.0, ...}) set in
+    place, None values skipped; ConfigError when a key's section is not a table."""
+    for dotted, value in overrides.items():
         if value is None:
             continue
         *sections, field = dotted.split(".")

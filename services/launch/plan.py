@@ -35,8 +35,8 @@ class Description:
         """What it sets over the description file: ``--set``, then ``--robot`` and ``--rt``."""
         overrides: dict[str, Any] = {}
         for text in self.settings:
-            path, value = parse_override(text)
-            overrides[".".join(path)] = value
+            key, value = parse_override(text)
+            overrides[key] = value
         overrides["robot.name"] = self.robot
         if self.rt:
             overrides["rt.enabled"] = True

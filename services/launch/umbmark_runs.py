@@ -25,7 +25,7 @@ from schemas.messages import TimedDoubleSeq, TimedPosition
 from services.calibration.benchmark import Benchmark, Lap, PathPoint, RunPaths, wheelbase
 from services.calibration.settings import UmbmarkSettings
 from services.calibration.umbmark import Calibration, Direction, evaluate, square
-from services.config import NONE, ConfigError, config_from_description
+from services.config import NONE, ConfigError, apply_overrides, config_from_description
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.errors import RunFailed
 from services.launch.composition import Composition
@@ -62,10 +62,7 @@ def say(text: str) -> None:
 
 def check_sim_config(settings: UmbmarkSettings) -> None:
     """The sim's description, checked before any run: ConfigError naming a bad ``--sim-set`` value."""
-    description = copy.deepcopy(settings.description)
-    for key, value in {**RUN_SETTINGS, **settings.sim_set}.items():
-        section, name = key.split(".")
-        description.setdefault(section, {})[name] = value
+    description = apply_overrides(copy.deepcopy(settings.description), {**RUN_SETTINGS, **settings.sim_set})
     try:
         config_from_description(description)
     except ConfigError as error:
