@@ -113,17 +113,17 @@ class Journaling:
 
 
 @dataclass(frozen=True)
-class ServicePlan:
-    """One service to start: its command, its robot description, its own options and its journal."""
+class ServicePlan(Generic[OptionsT]):
+    """One service to start: its command, its robot description, its own options (of the type its
+    factory takes) and its journal."""
 
-    command: ServiceCommand[Any]
+    command: ServiceCommand[OptionsT]
     config: Config
-    options: Any
-    """The service's own options, of the type its factory takes."""
+    options: OptionsT
     journaling: Journaling = field(default_factory=Journaling)
 
 
-ServiceParse = Callable[[Sequence[str]], ServicePlan]
+ServiceParse = Callable[[Sequence[str]], ServicePlan[Any]]
 """What ``invent <service> ...``'s arguments (``["motor", "--robot", "rh1"]``) make: a composition
 starts services from such arguments (services/launch/composition.py); the command line provides it."""
 

@@ -8,14 +8,12 @@ import argparse
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic
 
 from services.cli.flags import Commands, Parents, config_from_args, session_from_args
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import open_session, stop_on_signals
-from services.service import Journaling, NoOptions, ServiceCommand, ServicePlan, run_service
-
-OptionsT = TypeVar("OptionsT")
+from services.service import Journaling, NoOptions, OptionsT, ServiceCommand, ServicePlan, run_service
 
 
 def no_overrides(_args: argparse.Namespace) -> dict[str, Any]:
@@ -58,7 +56,7 @@ def add_parser(commands: Commands, parents: Parents, cli: ServiceCli[Any]) -> No
     sub.set_defaults(handler=cli.run or serve, service_cli=cli)
 
 
-def plan_from_args(cli: ServiceCli[Any], args: argparse.Namespace) -> ServicePlan:
+def plan_from_args(cli: ServiceCli[OptionsT], args: argparse.Namespace) -> ServicePlan[OptionsT]:
     """The service to start: its robot description (file, ``--set``, its flags), its options, its journal."""
     config = config_from_args(cli, args)
     return ServicePlan(cli.command, config, cli.options(args), journaling_from_args(args))
