@@ -15,6 +15,8 @@ import msgspec
 
 from schemas.messages import (
     BumpEvent,
+    ImuSample,
+    LaserScan,
     MotorStateReport,
     NoArguments,
     PDGains,
@@ -53,6 +55,8 @@ class Topic(StrEnum):
     SIM_CLOCK = "sim/clock"
     SIM_BODY_POSE = "sim/body_pose"
     SIM_BUMP = "sim/bump"
+    SIM_SCAN = "sim/scan"
+    SIM_IMU = "sim/imu"
     MOTOR_TORQUE = "motor/torque"
     MOTOR_WHEEL_ANGLES = "motor/wheel_angles"
     MOTOR_SIM_POSE_GUI = "motor/sim_pose/gui"
@@ -72,6 +76,8 @@ TopicMessage = (
     | TimedVelocity
     | TimedPosition
     | BumpEvent
+    | LaserScan
+    | ImuSample
     | SimWorld
     | PlannedPath
     | MotorStateReport
@@ -85,6 +91,8 @@ TOPIC_TYPES: dict[Topic, type[TopicMessage]] = {
     Topic.SIM_CLOCK: TimedDoubleSeq,
     Topic.SIM_BODY_POSE: TimedDoubleSeq,
     Topic.SIM_BUMP: BumpEvent,
+    Topic.SIM_SCAN: LaserScan,
+    Topic.SIM_IMU: ImuSample,
     Topic.MOTOR_TORQUE: TimedDoubleSeq,
     Topic.MOTOR_WHEEL_ANGLES: TimedDoubleSeq,
     Topic.MOTOR_SIM_POSE_GUI: TimedDoubleSeq,
@@ -224,6 +232,8 @@ class Keys:
     sim_clock = property(lambda self: self.topic(Topic.SIM_CLOCK))
     sim_body_pose = property(lambda self: self.topic(Topic.SIM_BODY_POSE))
     sim_bump = property(lambda self: self.topic(Topic.SIM_BUMP))
+    sim_scan = property(lambda self: self.topic(Topic.SIM_SCAN))
+    sim_imu = property(lambda self: self.topic(Topic.SIM_IMU))
     motor_torque = property(lambda self: self.topic(Topic.MOTOR_TORQUE))
     motor_wheel_angles = property(lambda self: self.topic(Topic.MOTOR_WHEEL_ANGLES))
     motor_sim_pose_gui = property(lambda self: self.topic(Topic.MOTOR_SIM_POSE_GUI))

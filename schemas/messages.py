@@ -1,9 +1,10 @@
 """The four message types of docs/protocol.md section 1, mirroring the seeds' IDL field for field, and the
 project's own: the bump event, the Motor methods' payloads, and what a viewer or a report needs
-besides the loop's data (the sim's world, the drive's planned path, the summary of a run).
+besides the loop's data (the sim's world, the drive's planned path, the summary of a run), and the
+simulated sensors (the lidar's scan, the IMU's sample).
 
-Every float must be finite: a Struct checks it in ``__post_init__``, which msgspec also
-runs while decoding, so a NaN or inf can neither be built nor received.
+Every float must be finite: a Struct checks it in ``__post_init__``, which msgspec also runs while decoding, so a NaN or inf can
+neither be built nor received.
 """
 
 from __future__ import annotations
@@ -112,6 +113,83 @@ MAX_PATH_POINTS = 10_000
 """The most points a ``drive/path`` message carries."""
 
 
+MAX_SCAN_RAYS = 4096
+"""The most rays a ``sim/scan`` carries (a 0.1° lidar has 3,600)."""
+MAX_SCAN_BODIES = 1024
+"""The most distinct bodies one scan names (the world's obstacles and the fleet's robots)."""
+NO_HIT = -1
+"""``LaserScan.hits``: the ray hit nothing within ``range_max``."""
+Vector3 = tuple[float, float, float]
+Quaternion = tuple[float, float, float, float]
+"""x, y, z, w."""
+
+
+class LaserScan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``sim/scan``: one sweep of the robot's 2D lidar (project extension; sensor_msgs/LaserScan's
+    fields). Ray ``i`` points at ``angle_min + i * angle_increment`` about the lidar frame's z (x
+    forward, counter-clockwise positive); its range is in m from the lidar's origin, ``null`` where
+    nothing was within ``range_max``: JSON has no infinity, and ROS's +inf (REP 117) is what the
+    bridge and the viewers make of it (:meth:`ranges_or_inf`). A simulated scan also names what
+    each ray hit: ``hits[i]`` indexes ``bodies`` (``NO_HIT``: nothing); a real lidar leaves both empty."""
+
+    tm: Time
+    angle_min: float
+    angle_increment: float
+    range_min: float
+    range_max: float
+    ranges: Annotated[list[float | None], msgspec.Meta(max_length=MAX_SCAN_RAYS)]
+    bodies: Annotated[list[str], msgspec.Meta(max_length=MAX_SCAN_BODIES)] = []
+    hits: Annotated[list[int], msgspec.Meta(max_length=MAX_SCAN_RAYS)] = []
+
+    def __post_init__(self) -> None:
+        _require_finite(self.angle_min, self.angle_increment, self.range_min, self.range_max)
+        if not 0.0 <= self.range_min < self.range_max:
+            raise ValueError(f"range limits [{self.range_min!r}, {self.range_max!r}] are not 0 <= min < max")
+        for value in self.ranges:
+            if value is not None and not 0.0 <= value < math.inf:  # NaN fails this too
+                raise ValueError(f"range {value!r}: a range is finite and >= 0, or null")
+        if self.hits:
+            if len(self.hits) != len(self.ranges):
+                raise ValueError(f"{len(self.hits)} hits for {len(self.ranges)} ranges")
+            count = len(self.bodies)
+            for hit in self.hits:
+                if not NO_HIT <= hit < count:
+                    raise ValueError(f"hit {hit} names no body of the {count} listed")
+        elif self.bodies:
+            raise ValueError("bodies without hits")
+
+    def ranges_or_inf(self) -> list[float]:
+        """The ranges as ROS has them: +inf where nothing was within ``range_max``."""
+        return [math.inf if value is None else value for value in self.ranges]
+
+
+ImuOrientationSource = Literal["none", "simulator", "estimate"]
+
+
+class ImuSample(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``sim/imu``: the body's motion at the IMU, in the IMU frame (the base's axes at the mount;
+    project extension, sensor_msgs/Imu's fields). ``linear_acceleration`` is the specific force an
+    accelerometer measures (at rest: +9.81 m/s² on z); ``orientation`` (x, y, z, w) of the IMU frame
+    in the world, as ``orientation_source`` says: ``simulator``, the simulator's ground truth
+    (flagged so, since no real IMU knows its yaw); ``estimate``, a sensor's own filter; ``none``,
+    not known (the quaternion is then the identity and means nothing)."""
+
+    tm: Time
+    orientation: Quaternion
+    orientation_source: ImuOrientationSource
+    angular_velocity: Vector3
+    """rad/s about the IMU frame's x, y, z."""
+    linear_acceleration: Vector3
+    """m/s² along the IMU frame's x, y, z."""
+
+    def __post_init__(self) -> None:
+        _require_finite(*self.orientation, *self.angular_velocity, *self.linear_acceleration)
+        if self.orientation_source != "none":
+            norm = math.sqrt(sum(value * value for value in self.orientation))
+            if abs(norm - 1.0) > 1e-3:
+                raise ValueError(f"orientation {self.orientation!r} is not a unit quaternion (norm {norm:g})")
+
+
 class Obstacle(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """An obstacle of the sim's world: a ``box`` of full lengths ``size`` turned by ``yaw`` about z,
     or an upright ``cylinder`` of diameter ``size[0]`` and height ``size[2]``; centred on (x, y),
@@ -176,6 +254,9 @@ class MotorStateReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     stopped_by: StopCause
     """Who latched the emergency stop, while ``state`` is ``stopped``: the Motor method family
     called (``gui``, ``bump``), or ``state_file`` (restored, or the file unreadable); else ``""``."""
+    held_by: str = ""
+    """Why the collision monitor holds the robot (an obstacle in the stop zone, named, and where;
+    or no recent scan), while it does; else ``""``. A hold is not latched: it ends when its cause does."""
 
 
 ScenarioOutcomeName = Literal["completed", "aborted", "timed_out"]
@@ -226,6 +307,8 @@ MESSAGE_TYPES: tuple[type[msgspec.Struct], ...] = (
     TimedVelocity,
     TimedPosition,
     BumpEvent,
+    LaserScan,
+    ImuSample,
     PDGains,
     NoArguments,
     Obstacle,

@@ -25,7 +25,15 @@ from schemas import (
     schema_for_key,
 )
 from schemas.keys import TOPIC_TYPES, parse_alive_key
-from schemas.messages import MotorStateReport, PlannedPath, RunSummary, ScenarioOutcome, SimWorld
+from schemas.messages import (
+    ImuSample,
+    LaserScan,
+    MotorStateReport,
+    PlannedPath,
+    RunSummary,
+    ScenarioOutcome,
+    SimWorld,
+)
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 times = st.builds(Time, st.integers(0, 2**40), st.integers(0, 999_999_999))
@@ -37,6 +45,10 @@ EXAMPLES = [
     TimedVelocity(Time(1, 2), [7], 0.3, 0.0, -0.1, [0.0]),
     TimedPosition(Time(1, 2), [], 1.0, -2.0, math.pi, []),
     BumpEvent(Time(4, 0), "box_1", 1.0, 0.2, 0.1),
+    LaserScan(Time(0, 100), -math.pi, math.pi / 2, 0.12, 3.5, [0.5, None, 3.4, None], ["box"], [0, -1, 0, -1]),
+    LaserScan(Time(0, 100), -1.0, 0.5, 0.0, 10.0, [2.0, 3.0, 4.0, 5.0, None]),
+    ImuSample(Time(0, 10), (0.0, 0.0, 0.0, 1.0), "simulator", (0.0, 0.0, 0.5), (0.1, 0.0, 9.81)),
+    ImuSample(Time(0, 10), (0.0, 0.0, 0.0, 0.0), "none", (0.0, 0.0, 0.5), (0.1, 0.0, 9.81)),
     PDGains(5.0, 5.0, 2.0, 2.0),
     MotorStateReport(Time(1, 871_000_000), "stopped", "bump"),
     ScenarioOutcome(Time(3, 880_000_000), "straight", "aborted", "bumped into 'box'", 0, 3.88),
@@ -172,6 +184,8 @@ def test_every_spec_data_key_has_its_schema():
         "odometry/pose": TimedPosition,
         "localization/pose": TimedPosition,
         "sim/bump": BumpEvent,
+        "sim/scan": LaserScan,
+        "sim/imu": ImuSample,
         "sim/world": SimWorld,
         "drive/path": PlannedPath,
         "motor/state": MotorStateReport,
@@ -206,3 +220,33 @@ def test_msgspec_structs_are_strict_and_frozen():
     with pytest.raises(AttributeError):
         message.tm = Time(1, 0)
     assert msgspec.structs.asdict(message)["data"] == [1.0]
+
+
+SCAN = b'{"tm":{"sec":0,"nsec":0},"angle_min":-1.0,"angle_increment":0.5,"range_min":0.1,"range_max":3.5,'
+
+
+@pytest.mark.parametrize(
+    ("tail", "reason"),
+    [
+        (b'"ranges":[1.0,-0.5]}', "range -0.5"),
+        (b'"ranges":[1.0,NaN]}', "not JSON"),
+        (b'"ranges":[1.0],"bodies":["box"],"hits":[0,0]}', "2 hits for 1 ranges"),
+        (b'"ranges":[1.0],"bodies":["box"],"hits":[1]}', "hit 1 names no body"),
+        (b'"ranges":[1.0],"bodies":["box"]}', "bodies without hits"),
+        (b'"ranges":[' + b",".join([b"1.0"] * 5000) + b"]}", "length <= 4096"),
+    ],
+)
+def test_a_scan_that_cannot_be_a_scan_is_refused(tail: bytes, reason: str) -> None:
+    with pytest.raises(BadMessage, match=reason):
+        decode(LaserScan, SCAN + tail)
+
+
+def test_a_scan_range_limits_must_be_ordered() -> None:
+    payload = SCAN.replace(b'"range_min":0.1', b'"range_min":5.0') + b'"ranges":[1.0]}'
+    with pytest.raises(BadMessage, match="0 <= min < max"):
+        decode(LaserScan, payload)
+
+
+def test_an_imu_orientation_from_somewhere_is_a_unit_quaternion() -> None:
+    with pytest.raises(ValueError, match="not a unit quaternion"):
+        ImuSample(Time(0, 0), (0.0, 0.0, 0.0, 2.0), "simulator", (0.0, 0.0, 0.0), (0.0, 0.0, 9.81))

@@ -1,8 +1,8 @@
 """The robot description: one TOML file, a shared ``[robot]`` table and one table per service.
 
 Its rooms: :mod:`~services.config.fields` (bounds, units, the base section, ``"none"``),
-:mod:`~services.config.sections` and :mod:`~services.config.run_sections` (the section types, every
-default), :mod:`~services.config.description` (the whole description), :mod:`~services.config.loading`
+:mod:`~services.config.sections`, :mod:`~services.config.sensors` and :mod:`~services.config.run_sections`
+(the section types, every default), :mod:`~services.config.description` (the whole description), :mod:`~services.config.loading`
 (the file and ``--set``, strictly), :mod:`~services.config.writing` (back to TOML) and
 :mod:`~services.config.reference` (the parameter reference of docs/configuration.md). The names
 below are what the rest of the project imports, from ``services.config``.
@@ -40,6 +40,7 @@ from services.config.sections import (
     SimMode,
     TargetAngleMode,
 )
+from services.config.sensors import CollisionMonitorConfig, ImuConfig, LidarConfig
 from services.config.writing import description_toml
 from services.errors import ConfigError
 
@@ -49,12 +50,15 @@ __all__ = [
     "SECTIONS",
     "SEED_NAMES",
     "CalibratedGeometry",
+    "CollisionMonitorConfig",
     "Config",
     "ConfigError",
     "CpuChoice",
     "DriveConfig",
     "GcPolicy",
+    "ImuConfig",
     "InputConfig",
+    "LidarConfig",
     "LocalizationConfig",
     "MotorConfig",
     "NonNegative",

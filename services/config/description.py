@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import msgspec
 
-from services.config import run_sections, sections
+from services.config import run_sections, sections, sensors
 
 
 class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -17,6 +17,9 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     localization: sections.LocalizationConfig = msgspec.field(default_factory=sections.LocalizationConfig)
     drive: sections.DriveConfig = msgspec.field(default_factory=sections.DriveConfig)
     input: sections.InputConfig = msgspec.field(default_factory=sections.InputConfig)
+    lidar: sensors.LidarConfig = msgspec.field(default_factory=sensors.LidarConfig)
+    imu: sensors.ImuConfig = msgspec.field(default_factory=sensors.ImuConfig)
+    collision_monitor: sensors.CollisionMonitorConfig = msgspec.field(default_factory=sensors.CollisionMonitorConfig)
     ros2: run_sections.Ros2Config = msgspec.field(default_factory=run_sections.Ros2Config)
     record: run_sections.RecordConfig = msgspec.field(default_factory=run_sections.RecordConfig)
     rt: run_sections.RtConfig = msgspec.field(default_factory=run_sections.RtConfig)
