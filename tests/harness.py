@@ -161,6 +161,11 @@ class InventProcess:
                 pump.start()
                 self._pumps.append(pump)
 
+    def stderr_so_far(self) -> str:
+        """What a ``drain=True`` process wrote on stderr so far (its log lines)."""
+        assert self._drained is not None, "drain=True"
+        return "".join(self._drained[1])
+
     def _communicate(self, timeout: float | None = None) -> tuple[str, str]:
         if self._drained is None:
             return self.process.communicate(timeout=timeout)

@@ -192,11 +192,15 @@ def test_a_namespaced_bridges_tf_is_in_its_namespace_or_prefixed_on_the_shared_t
         "tf_static": "/tf_static" if shared else "/rh1/tf_static",
         "joint_states": "/rh1/joint_states",
         "robot_description": "/rh1/robot_description",
-    }, "no /clock: another bridge publishes it"
+        "scan": "/rh1/scan",
+        "imu": "/rh1/imu",
+    }, "no /clock: another bridge publishes it; the sensors in the namespace"
     outputs = RosOutputs(config, bridge)
     prefix = "rh1/" if shared else ""
     static, description = outputs.latched()
-    assert {t.child_frame_id for t in static.message.transforms} == {f"{prefix}front_caster", f"{prefix}rear_caster"}
+    assert {t.child_frame_id for t in static.message.transforms} == {
+        f"{prefix}{link}" for link in ("front_caster", "rear_caster", "base_scan", "imu_link")
+    }
     assert 'name="base_link"' in description.message.data, "the URDF's links as named: RViz adds a TF prefix"
     outputs.take_localized(TimedPosition(tm=Time.from_nanoseconds(0), id=[], x=1.0, y=2.0, theta=0.0, error=[]))
     assert outputs.take_wheels(_wheels(0, 0.0, 0.0)).outgoing

@@ -70,8 +70,8 @@ HELP = "turn a recording of a run (run.mcap) into a ROS 2 bag"
 DESCRIPTION = (
     "Replay a recording of `invent up` (its run.mcap, and the files it was split into) through the "
     "ROS 2 bridge's own mapping (services/ros2/outputs.py) and write what the bridge would have published, "
-    "/clock, odom, tf, tf_static, joint_states and robot_description of each robot, into a rosbag2 bag with "
-    "MCAP storage, each message at the simulation time it carries. The messages come at the recording's "
+    "/clock, odom, tf, tf_static, joint_states and robot_description of each robot (and scan and imu, from "
+    "the recording's sim/scan and sim/imu), into a rosbag2 bag with MCAP storage, each message at the simulation time it carries. The messages come at the recording's "
     "observed steps: a run with --ros2 has the bridge's rates. --robot, --config and --set (or --fleet) must "
     "match the run's; the [record] bounds apply to the bag."
 )

@@ -61,6 +61,12 @@ class Ros2Config(Section, frozen=True):
     """The odometry's frame: ``/odom``'s frame and the parent of ``base_frame`` in TF."""
     base_frame: FrameId = "base_link"
     """The robot's root frame (the axle centre, as the sim's body pose); the URDF's root link."""
+    scan_frame: FrameId = "base_scan"
+    """The lidar's frame (``scan``'s ``frame_id``): a fixed joint from ``base_frame`` at the ``[lidar]``
+    mount in the URDF and on ``tf_static``, named as TurtleBot3's."""
+    imu_frame: FrameId = "imu_link"
+    """The IMU's frame (``imu``'s ``frame_id``): a fixed joint from ``base_frame`` at the ``[imu]``
+    mount, named as TurtleBot3's."""
     publish_rate: Annotated[Positive, PER_SIMULATED_SECOND] = 50.0
     """``/odom``, ``/tf`` and ``/joint_states`` per second of simulation time (diff_drive_controller's
     ``publish_rate``)."""

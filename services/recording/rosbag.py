@@ -39,7 +39,7 @@ from ruamel.yaml import YAML
 
 from schemas.codec import BadInput, decode
 from schemas.keys import Keys, Topic, parse_data_key
-from schemas.messages import NANOSECONDS_PER_SECOND, TimedDoubleSeq, TimedPosition
+from schemas.messages import NANOSECONDS_PER_SECOND, ImuSample, LaserScan, TimedDoubleSeq, TimedPosition
 from services.config import Config, RecordConfig
 from services.recording.mcap_files import read_run
 from services.ros2 import interfaces, wire
@@ -345,7 +345,8 @@ def export_run(
 ) -> tuple[BagResult, dict[str, int]]:
     """The bag ``output`` of what the bridge of each of ``robots`` would have published during the
     run recorded in ``recording`` (``run.mcap`` and the files it was split into): each robot's
-    ``sim/clock``, ``odometry/pose`` and ``motor/torque`` replayed in the order they were published
+    ``sim/clock``, ``odometry/pose``, ``motor/torque``, ``sim/scan`` and ``sim/imu`` (those the
+    recording holds) replayed in the order they were published
     through :class:`~services.ros2.outputs.RosOutputs`. Returns the result and, per key, the recorded
     samples refused as bad input (not taken, as the bridge would not)."""
     read = read_run(recording)
@@ -363,11 +364,13 @@ def export_run(
         for name, (robot_outputs, bridge) in outputs.items():
             write(name, bridge, robot_outputs.latched())
         keys = {name: Keys(name) for name in outputs}
-        handlers: dict[str, tuple[str, BridgeGraph, type[Any], Callable[[Any], WheelsTaken | None]]] = {}
+        handlers: dict[str, tuple[str, BridgeGraph, type[Any], Callable[[Any], Any]]] = {}
         for name, (robot_outputs, bridge) in outputs.items():
             handlers[keys[name].sim_clock] = (name, bridge, TimedDoubleSeq, robot_outputs.take_wheels)
             handlers[keys[name].odometry_pose] = (name, bridge, TimedPosition, robot_outputs.take_localized)
             handlers[keys[name].motor_torque] = (name, bridge, TimedDoubleSeq, robot_outputs.take_torque)
+            handlers[keys[name].sim_scan] = (name, bridge, LaserScan, robot_outputs.take_scan)
+            handlers[keys[name].sim_imu] = (name, bridge, ImuSample, robot_outputs.take_imu)
         for recorded in read.messages:
             handler = handlers.get(recorded.topic)
             if handler is None:
@@ -379,7 +382,7 @@ def export_run(
                 refused[recorded.topic] = refused.get(recorded.topic, 0) + 1
                 continue
             if taken is not None:
-                write(name, bridge, taken.outgoing)
+                write(name, bridge, taken.outgoing if isinstance(taken, WheelsTaken) else taken)
             if writer.stopped is not None:
                 break
         if not read.complete:

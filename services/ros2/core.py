@@ -39,35 +39,37 @@ def ros_time(stamp_ns: int) -> Any:
     return interfaces.message_class("builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec)
 
 
-def _header(stamp_ns: int, frame: str) -> Any:
+def header(stamp_ns: int, frame: str) -> Any:
+    """std_msgs/Header: the simulation time ``stamp_ns`` in ``frame``."""
     return interfaces.message_class("std_msgs/msg/Header")(stamp=ros_time(stamp_ns), frame_id=frame)
 
 
-def _quaternion(x: float = 0.0, y: float = 0.0, z: float = 0.0, w: float = 1.0) -> Any:
+def quaternion(x: float = 0.0, y: float = 0.0, z: float = 0.0, w: float = 1.0) -> Any:
     return interfaces.message_class("geometry_msgs/msg/Quaternion")(x=x, y=y, z=z, w=w)
 
 
-def _yaw(theta: float) -> Any:
-    return _quaternion(z=math.sin(theta / 2.0), w=math.cos(theta / 2.0))
+def yaw_rotation(theta: float) -> Any:
+    """The quaternion of a turn by ``theta`` about z."""
+    return quaternion(z=math.sin(theta / 2.0), w=math.cos(theta / 2.0))
 
 
-def _vector(x: float = 0.0, y: float = 0.0, z: float = 0.0, kind: str = "Vector3") -> Any:
+def vector(x: float = 0.0, y: float = 0.0, z: float = 0.0, kind: str = "Vector3") -> Any:
     return interfaces.message_class(f"geometry_msgs/msg/{kind}")(x=x, y=y, z=z)
 
 
 def transform(stamp_ns: int, parent: str, child: str, x: float, y: float, z: float, rotation: Any) -> Any:
     """geometry_msgs/TransformStamped ``parent -> child``."""
     return interfaces.message_class("geometry_msgs/msg/TransformStamped")(
-        header=_header(stamp_ns, parent),
+        header=header(stamp_ns, parent),
         child_frame_id=child,
         transform=interfaces.message_class("geometry_msgs/msg/Transform")(
-            translation=_vector(x, y, z), rotation=rotation
+            translation=vector(x, y, z), rotation=rotation
         ),
     )
 
 
 def planar_transform(stamp_ns: int, parent: str, child: str, pose: Pose) -> Any:
-    return transform(stamp_ns, parent, child, pose.x, pose.y, 0.0, _yaw(pose.theta))
+    return transform(stamp_ns, parent, child, pose.x, pose.y, 0.0, yaw_rotation(pose.theta))
 
 
 def tf_message(transforms: list[Any]) -> Any:
@@ -171,16 +173,16 @@ def odometry_message(stamp_ns: int, odometry: ContinuousOdometry, settings: Ros2
     pose = odometry.pose
     v, omega = odometry.velocity
     return interfaces.message_class(interfaces.ODOMETRY)(
-        header=_header(stamp_ns, prefix + settings.odom_frame),
+        header=header(stamp_ns, prefix + settings.odom_frame),
         child_frame_id=prefix + settings.base_frame,
         pose=interfaces.message_class("geometry_msgs/msg/PoseWithCovariance")(
             pose=interfaces.message_class("geometry_msgs/msg/Pose")(
-                position=_vector(pose.x, pose.y, 0.0, kind="Point"), orientation=_yaw(pose.theta)
+                position=vector(pose.x, pose.y, 0.0, kind="Point"), orientation=yaw_rotation(pose.theta)
             ),
             covariance=_covariance(settings.pose_covariance),
         ),
         twist=interfaces.message_class("geometry_msgs/msg/TwistWithCovariance")(
-            twist=interfaces.message_class(interfaces.TWIST)(linear=_vector(v), angular=_vector(z=omega)),
+            twist=interfaces.message_class(interfaces.TWIST)(linear=vector(v), angular=vector(z=omega)),
             covariance=_covariance(settings.twist_covariance),
         ),
     )
@@ -198,7 +200,7 @@ def wheel_transforms(
             0.0,
             wheel.y,
             0.0,
-            _quaternion(y=math.sin(a / 2.0), w=math.cos(a / 2.0)),
+            quaternion(y=math.sin(a / 2.0), w=math.cos(a / 2.0)),
         )
         for wheel, a in zip(body.wheels, angles, strict=True)
     ]
@@ -207,7 +209,7 @@ def wheel_transforms(
 def static_transforms(stamp_ns: int, base_frame: str, body: RobotBody, prefix: str = "") -> list[Any]:
     """``base_link -> <caster>``: what never moves (``/tf_static``; each link's name after ``prefix``)."""
     return [
-        transform(stamp_ns, base_frame, prefix + caster.link, caster.x, 0.0, caster.z, _quaternion())
+        transform(stamp_ns, base_frame, prefix + caster.link, caster.x, 0.0, caster.z, quaternion())
         for caster in body.casters
     ]
 
@@ -215,7 +217,7 @@ def static_transforms(stamp_ns: int, base_frame: str, body: RobotBody, prefix: s
 def joint_state(stamp_ns: int, body: RobotBody, wheels: WheelSample, efforts: tuple[float, float] | None) -> Any:
     """sensor_msgs/JointState of the wheel joints: angle (rad), velocity (rad/s), torque (N m)."""
     return interfaces.message_class(interfaces.JOINT_STATE)(
-        header=_header(stamp_ns, ""),
+        header=header(stamp_ns, ""),
         name=[wheel.joint for wheel in body.wheels],
         position=_array(wheels.angles),
         velocity=_array(wheels.velocities),

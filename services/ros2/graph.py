@@ -35,8 +35,12 @@ PUBLICATIONS: dict[str, Entity] = {
     "tf_static": Entity("tf_static", interfaces.TF_MESSAGE, wire.LATCHED),
     "joint_states": Entity("joint_states", interfaces.JOINT_STATE, wire.SYSTEM_DEFAULT),
     "robot_description": Entity("robot_description", interfaces.STRING, wire.LATCHED),
+    "scan": Entity("scan", interfaces.LASER_SCAN, wire.SENSOR_DATA),
+    "imu": Entity("imu", interfaces.IMU, wire.SENSOR_DATA),
 }
 """Every topic a bridge may publish, by its short name; :attr:`BridgeGraph.publications` are one bridge's."""
+SENSOR_TOPICS = ("scan", "imu")
+"""Published only by the bridge of a robot with that sensor (``lidar.enabled``, ``imu.enabled``)."""
 TF_TOPICS = ("tf", "tf_static")
 """In the bridge's namespace by default (Nav2's multi-robot layout); on the shared ``/tf`` and
 ``/tf_static`` with ``ros2.tf = "prefixed"``."""
@@ -64,14 +68,18 @@ class BridgeGraph:
     tf_shared: bool = False
     """``ros2.tf = "prefixed"``: TF on the shared ``/tf`` and ``/tf_static`` (else in the namespace)."""
     publishes_clock: bool = True
+    sensors: frozenset[str] = frozenset(SENSOR_TOPICS)
+    """Of :data:`SENSOR_TOPICS`, those of the sensors the robot has."""
 
     @property
     def publications(self) -> dict[str, Entity]:
         """What this bridge publishes: :data:`PUBLICATIONS`, its TF topics where ``ros2.tf`` puts
-        them, and ``/clock`` only if it publishes it."""
+        them, ``/clock`` only if it publishes it, ``scan`` and ``imu`` only for the sensors the robot has."""
         entities = {}
         for topic, entity in PUBLICATIONS.items():
-            if topic == "clock" and not self.publishes_clock:
+            if (topic == "clock" and not self.publishes_clock) or (
+                topic in SENSOR_TOPICS and topic not in self.sensors
+            ):
                 continue
             shared = topic in TF_TOPICS and self.tf_shared
             entities[topic] = dataclasses.replace(entity, name=f"/{entity.name}") if shared else entity
@@ -119,4 +127,7 @@ def bridge_graph(config: Config, environ: Mapping[str, str] = os.environ) -> Bri
         type_hashes=settings.distro != "humble",
         tf_shared=settings.tf is TfLayout.PREFIXED,
         publishes_clock=settings.publish_clock,
+        sensors=frozenset(
+            topic for topic, enabled in zip(SENSOR_TOPICS, (config.lidar.enabled, config.imu.enabled)) if enabled
+        ),
     )

@@ -27,6 +27,8 @@ from schemas.codec import BadInput
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 JOINT_STATE = "sensor_msgs/msg/JointState"
+LASER_SCAN = "sensor_msgs/msg/LaserScan"
+IMU = "sensor_msgs/msg/Imu"
 CLOCK = "rosgraph_msgs/msg/Clock"
 STRING = "std_msgs/msg/String"
 TWIST = "geometry_msgs/msg/Twist"

@@ -6,7 +6,8 @@ Each wheel-angle sample of ``sim/clock`` is integrated into the continuous odome
 (:class:`~services.ros2.core.ContinuousOdometry`), and on the grids of ``ros2.clock_rate`` and
 ``ros2.publish_rate`` (simulation time anchored at 0, as the simulator's observed steps are) it
 yields ``/clock``, and ``odom``, ``tf`` and ``joint_states``, each stamped with the sample's time;
-``odometry/pose`` moves ``map -> odom``, ``motor/torque`` the wheels' efforts.
+``odometry/pose`` moves ``map -> odom``, ``motor/torque`` the wheels' efforts. Each ``sim/scan``
+and ``sim/imu`` is one ``scan`` and one ``imu`` (services/ros2/sensors.py), at the time it carries.
 """
 
 from __future__ import annotations
@@ -15,12 +16,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from schemas.codec import BadInput
-from schemas.messages import TimedDoubleSeq, TimedPosition
+from schemas.messages import ImuSample, LaserScan, TimedDoubleSeq, TimedPosition
 from services.body.geometry import robot_body
 from services.clock.sim_time import PeriodicSchedule, StampClock
 from services.config import Config
 from services.planar import Pose
-from services.ros2 import core
+from services.ros2 import core, sensors
 from services.ros2.graph import BridgeGraph
 from services.ros2.urdf import robot_urdf
 
@@ -55,6 +56,8 @@ class RosOutputs:
         self.prefix = graph.frame_prefix
         """Of the robot's frames (``odom``, ``base_link``, wheels, casters) on a shared ``/tf``."""
         self.body = robot_body(config.robot, config.sim)
+        self.sensor_frames = sensors.sensor_frames(config)
+        self.sensor_stamps = sensors.SensorStamps(config.input.stamp_horizon_ns)
         self.clock = StampClock(config.input.stamp_horizon_ns)
         self.odometry = core.ContinuousOdometry(config)
         self.map_to_odom: tuple[int, Pose] | None = None
@@ -68,11 +71,14 @@ class RosOutputs:
         return self.prefix + self.settings.base_frame
 
     def latched(self, stamp_ns: int = 0) -> list[Outgoing]:
-        """What is published once, for late subscribers too: ``tf_static`` (the casters) and
-        ``robot_description`` (the URDF, its links named as in the body, unprefixed: RViz's
-        RobotModel and robot_state_publisher add a TF prefix themselves)."""
-        static = core.tf_message(core.static_transforms(stamp_ns, self.base_frame, self.body, self.prefix))
-        urdf = robot_urdf(self.config.robot.name, self.settings.base_frame, self.body)
+        """What is published once, for late subscribers too: ``tf_static`` (the casters and the
+        sensors' frames) and ``robot_description`` (the URDF, its links named as in the body,
+        unprefixed: RViz's RobotModel and robot_state_publisher add a TF prefix themselves)."""
+        static = core.tf_message(
+            core.static_transforms(stamp_ns, self.base_frame, self.body, self.prefix)
+            + sensors.static_transforms(stamp_ns, self.base_frame, self.sensor_frames, self.prefix)
+        )
+        urdf = robot_urdf(self.config.robot.name, self.settings.base_frame, self.body, self.sensor_frames)
         return [Outgoing("tf_static", static, stamp_ns), Outgoing("robot_description", core.string(urdf), stamp_ns)]
 
     def take_wheels(self, message: TimedDoubleSeq) -> WheelsTaken:
@@ -126,8 +132,35 @@ class RosOutputs:
             raise BadInput(f"{len(message.data)} torques, wheel ids {left} and {right}")
         self.efforts = (message.data[left], message.data[right])
 
+    def take_scan(self, message: LaserScan) -> list[Outgoing]:
+        """A ``sim/scan``: the ``scan`` of it (none for a robot without a lidar); BadInput for one
+        out of order or that ROS's LaserScan cannot hold."""
+        if "scan" not in self.topics:
+            return []
+        stamp_ns = message.tm.to_nanoseconds()
+        scan = sensors.laser_scan(message, self.prefix + self.settings.scan_frame, self.config.lidar.rate)
+        self.sensor_stamps.check("scan", stamp_ns, self.clock.last_ns)
+        return [Outgoing("scan", scan, stamp_ns)]
+
+    def take_imu(self, message: ImuSample) -> list[Outgoing]:
+        """A ``sim/imu``: the ``imu`` of it (none for a robot without one); BadInput for one out of order."""
+        if "imu" not in self.topics:
+            return []
+        stamp_ns = message.tm.to_nanoseconds()
+        imu = self.config.imu
+        self.sensor_stamps.check("imu", stamp_ns, self.clock.last_ns)
+        return [
+            Outgoing(
+                "imu",
+                sensors.imu(message, self.prefix + self.settings.imu_frame, imu.gyro_noise, imu.accel_noise),
+                stamp_ns,
+            )
+        ]
+
     def _restart(self) -> None:
-        """A new simulator, whose clock started again: ``odom`` starts again at the origin."""
+        """A new simulator, whose clock started again: ``odom`` starts again at the origin, the
+        sensors' stamps too."""
+        self.sensor_stamps.restart()
         self.odometry.restart()
         self._schedules = None
         self.map_to_odom = None

@@ -9,6 +9,8 @@ One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
   and, latched (transient-local, zenoh-ext advanced publishers with a cache), ``tf_static`` (the
   casters) and ``robot_description`` (the URDF); ``tf`` and ``tf_static`` in the namespace, or on
   the shared ``/tf`` and ``/tf_static`` with prefixed frames (``ros2.tf``, services/ros2/graph.py);
+  ``scan`` and ``imu`` (sensor_msgs LaserScan and Imu, best-effort sensor QoS), one for each
+  ``sim/scan`` and ``sim/imu`` of a robot that has the sensor;
 - subscriptions: ``cmd_vel`` as geometry_msgs/Twist and as TwistStamped (diff_drive_controller's
   since Jazzy), each forwarded as ``drive/target_velocity`` stamped with the newest simulation time
   (at most ``ros2.cmd_vel_rate`` per simulated second, the newest kept between two), so the motor's
@@ -18,11 +20,12 @@ One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
 
 Its inputs from the loop: every sample of ``sim/clock`` (the clock, the wheels, and the continuous
 odometry: each observed step, so no tick is skipped), the newest of ``odometry/pose`` (``map``) and
-of ``motor/torque`` (the wheels' efforts); what they become is the pure :class:`~services.ros2.outputs.RosOutputs`,
+of ``motor/torque`` (the wheels' efforts), and every ``sim/scan`` and ``sim/imu``; what they become is the pure :class:`~services.ros2.outputs.RosOutputs`,
 which ``invent export --ros2`` replays a recording through. ``sim/clock`` comes at the simulator's
 observed steps: the bridge holds an observer token for each of its rates (docs/protocol.md section
 2.7), so each of its ticks is one of them. Bad input (a sample without rmw_zenoh's attachment,
-malformed CDR, a twist not finite or implausible) is counted under its ROS key and dropped;
+malformed CDR, a twist not finite or implausible) is counted under its ROS key and dropped, a
+scan or IMU sample malformed, not finite or out of order under its key;
 nothing from ROS reaches the motor unchecked. Several bridges may share one session (a composed
 fleet): their nodes' and entities' ids come from one counter per session, as in one ROS context.
 """
@@ -31,7 +34,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -43,7 +46,15 @@ import zenoh.ext
 
 from schemas.codec import BadInput
 from schemas.keys import Method, MethodFamily, Service
-from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
+from schemas.messages import (
+    NANOSECONDS_PER_SECOND,
+    ImuSample,
+    LaserScan,
+    Time,
+    TimedDoubleSeq,
+    TimedPosition,
+    TimedVelocity,
+)
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, ConfigError
 from services.ros2 import core, graph, interfaces, wire
@@ -213,6 +224,15 @@ class Ros2Bridge:
             sim.stamped(node.keys.motor_torque, outputs.take_torque, awaited=lambda: False),
             Delivery.NEWEST,
         )
+        # Every sample: each is a message of its own. Taken when the clock wakes the thread (the
+        # scan comes just before its step's clock), or, after a new simulator, once it decided.
+        for topic, key, message_type, take in (
+            ("scan", node.keys.sim_scan, LaserScan, outputs.take_scan),
+            ("imu", node.keys.sim_imu, ImuSample, outputs.take_imu),
+        ):
+            if topic in bridge.publications:
+                handler = partial(self._on_sensor, take)
+                node.subscribe(key, message_type, sim.stamped(key, handler, awaited=lambda: False), Delivery.EVERY)
         self.cmd_vel_keys: dict[str, str] = {}
         for entity in graph.SUBSCRIPTIONS:
             key = self.cmd_vel_keys[entity.interface] = bridge.key(entity)
@@ -257,6 +277,9 @@ class Ros2Bridge:
             )
         self._publish(taken.outgoing)
         self._forward_twist()
+
+    def _on_sensor(self, take: Callable[[Any], list[Outgoing]], message: Any) -> None:
+        self._publish(take(message))
 
     # -- ROS's side -----------------------------------------------------------------------------
 

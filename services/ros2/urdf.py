@@ -2,7 +2,9 @@
 one source, so RViz's RobotModel shows what PyBullet simulates. Published on ``/robot_description``.
 
 The root link is ``ros2.base_frame`` on the axle centre; the wheels are continuous joints about
-+y at y = ±b (the joint names of ``/joint_states``); the casters fixed spheres.
++y at y = ±b (the joint names of ``/joint_states``); the casters fixed spheres; each sensor's frame
+(``base_scan``, ``imu_link``) a link without geometry on a fixed joint at its mount, as TurtleBot3's
+(the lidar sits in a slot of the body, which the body's cylinder already draws).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import math
 from xml.etree import ElementTree
 
 from services.body.geometry import RobotBody
+from services.ros2.sensors import SensorFrame
 
 _BODY_COLOUR = "0.85 0.85 0.9 1"
 _WHEEL_COLOUR = "0.15 0.15 0.15 1"
@@ -48,8 +51,8 @@ def _shape(
         ElementTree.SubElement(material, "color", rgba=colour)
 
 
-def robot_urdf(name: str, base_frame: str, body: RobotBody) -> str:
-    """The URDF of ``body`` as a string (``<robot name=...>``)."""
+def robot_urdf(name: str, base_frame: str, body: RobotBody, sensors: tuple[SensorFrame, ...] = ()) -> str:
+    """The URDF of ``body`` and its ``sensors`` as a string (``<robot name=...>``)."""
     robot = ElementTree.Element("robot", name=name)
     base = ElementTree.SubElement(robot, "link", name=base_frame)
     half_height = body.body_height / 2.0
@@ -79,5 +82,13 @@ def robot_urdf(name: str, base_frame: str, body: RobotBody) -> str:
         ElementTree.SubElement(joint, "parent", link=base_frame)
         ElementTree.SubElement(joint, "child", link=caster.link)
         ElementTree.SubElement(joint, "origin", xyz=_numbers(caster.x, 0.0, caster.z), rpy="0 0 0")
+    for sensor in sensors:
+        ElementTree.SubElement(robot, "link", name=sensor.frame)
+        joint = ElementTree.SubElement(robot, "joint", name=sensor.joint, type="fixed")
+        ElementTree.SubElement(joint, "parent", link=base_frame)
+        ElementTree.SubElement(joint, "child", link=sensor.frame)
+        ElementTree.SubElement(
+            joint, "origin", xyz=_numbers(sensor.x, sensor.y, sensor.z), rpy=_numbers(0.0, 0.0, sensor.yaw)
+        )
     ElementTree.indent(robot)
     return '<?xml version="1.0"?>\n' + ElementTree.tostring(robot, encoding="unicode") + "\n"

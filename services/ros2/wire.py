@@ -98,6 +98,9 @@ LATCHED = Qos(depth=1, durability=Durability.TRANSIENT_LOCAL)
 """``/tf_static`` and ``/robot_description``: a late subscriber still gets the last message."""
 CLOCK = Qos(depth=1, reliability=Reliability.BEST_EFFORT)
 """rclcpp's ``ClockQoS``, what a node with ``use_sim_time`` subscribes ``/clock`` with."""
+SENSOR_DATA = Qos(depth=5, reliability=Reliability.BEST_EFFORT)
+"""rclcpp's ``SensorDataQoS`` (best effort, volatile, keep-last 5): ``scan`` and ``imu``, what
+Nav2, slam_toolbox and robot_localization subscribe sensors with."""
 SERVICES = Qos()
 """ROS's services default (reliable, volatile, keep-last 10)."""
 
