@@ -71,10 +71,10 @@ def serve_fleet(args: argparse.Namespace) -> int:
 
 CLI = ServiceCli(
     command=COMMAND,
-    help="bridge the robot (or a fleet) to ROS 2 over rmw_zenoh: odom, tf, joint_states, /clock, cmd_vel, "
+    help="bridge the robot (or a fleet) to ROS 2 over rmw_zenoh: odom, tf, joint_states, scan, imu, /clock, cmd_vel, "
     "Trigger services",
     description=f"The robot as one ROS 2 node on this zenoh network, in rmw_zenoh's wire format (no ROS install "
-    f"needed on this side): /clock, odom, tf, tf_static, joint_states, robot_description out; cmd_vel "
+    f"needed on this side): /clock, odom, tf, tf_static, joint_states, robot_description, scan, imu out; cmd_vel "
     f"(Twist or TwistStamped) in, as drive/target_velocity stamped with simulation time; motor/stop, "
     f"motor/clear, motor/start, motor/finish as std_srvs/srv/Trigger services. With --fleet FILE, one such node "
     f"per robot of the fleet, each in its own namespace. Domain: ${graph.DOMAIN_VARIABLE} (default 0). Frames, "

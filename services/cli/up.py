@@ -124,7 +124,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ros2",
         action="store_true",
         help="start `invent ros2` beside the loop: the robot in the ROS 2 graph over rmw_zenoh (/odom, /tf, "
-        "/joint_states, /clock, /robot_description, /cmd_vel, the motor's Trigger services; docs/ros2.md); with "
+        "/joint_states, /scan, /imu, /clock, /robot_description, /cmd_vel, the motor's Trigger services; docs/ros2.md); with "
         "--fleet, one bridge per robot, each in its namespace (/rh0/odom, /rh0/cmd_vel, ...), /clock once",
     )
     parser.add_argument(
