@@ -50,6 +50,8 @@ TOPICS = {
     "tf_static": "tf2_msgs/msg/TFMessage",
     "joint_states": "sensor_msgs/msg/JointState",
     "robot_description": "std_msgs/msg/String",
+    "scan": "sensor_msgs/msg/LaserScan",
+    "imu": "sensor_msgs/msg/Imu",
 }
 EXPECTED = {"/clock": "rosgraph_msgs/msg/Clock"} | {
     f"{namespace}/{topic}": interface for namespace in NAMESPACES.values() for topic, interface in TOPICS.items()
@@ -58,6 +60,9 @@ EXPECTED = {"/clock": "rosgraph_msgs/msg/Clock"} | {
 CLOCK_PERIOD_NS = 10_000_000
 STATE_PERIOD_NS = 20_000_000
 """ros2.clock_rate (100) and ros2.publish_rate (50) per simulated second, the defaults."""
+SCAN_PERIOD_NS = 100_000_000
+IMU_PERIOD_NS = 10_000_000
+"""lidar.rate (10) and imu.rate (100) per simulated second, the defaults: a sample each, in the bag."""
 BAGS = ("recorded", "exported")
 SPLIT = ("--set", "record.split_duration=3")
 """The straight line takes 7.4 simulated seconds: each bag is three files, as an unattended run's would be."""
@@ -181,6 +186,9 @@ def test_each_topic_is_the_runs_simulation_steps_on_its_rates_grid_and_clock_is_
             stamps = [_ns(message.header.stamp) for _t, message in messages[f"{namespace}/{topic}"]]
             assert stamps == grid, f"{namespace}/{topic} at every 50 Hz tick of the run"
         assert len(messages[f"{namespace}/tf"]) == len(grid)
+        for topic, period_ns in (("scan", SCAN_PERIOD_NS), ("imu", IMU_PERIOD_NS)):
+            stamps = [_ns(message.header.stamp) for _t, message in messages[f"{namespace}/{topic}"]]
+            assert stamps == list(range(0, run.steps[robot][-1] + 1, period_ns)), f"{namespace}/{topic}: every sample"
         assert len(messages[f"{namespace}/tf_static"]) == len(messages[f"{namespace}/robot_description"]) == 1
 
 

@@ -11,6 +11,7 @@ its robot's credentials in a secure fleet is tests/test_security_fleet.py's.)
 
 from __future__ import annotations
 
+import json
 import math
 import signal
 import subprocess
@@ -65,13 +66,13 @@ PUBLISHED = {
     "scan": "sensor_msgs/msg/LaserScan",
     "imu": "sensor_msgs/msg/Imu",
 }
-SENSORS = ("scan", "imu")
-"""Published for each sim/scan and sim/imu, which this simulator does not publish yet."""
+
 """What each robot's bridge publishes in its namespace (Nav2's multi-robot layout: tf in the namespace)."""
 CLOCK = ("/clock", "rosgraph_msgs/msg/Clock")
 SUBSCRIBED = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped")
 SERVICES = ("motor/stop", "motor/clear", "motor/start", "motor/finish")
 STARTUP_TIMEOUT_S = 90.0
+SHIPPED = REPO / "tests" / "data" / "ros2_interfaces"
 
 
 @dataclass
@@ -158,12 +159,7 @@ def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_type
         expected |= {clock} if robot == "rh0" else set()
         assert entities[_mangled(namespace)] == expected, robot
 
-    topics = {
-        ros_client.topic_key(DOMAIN, f"{ns}/{t}", i)
-        for ns in NAMESPACES.values()
-        for t, i in PUBLISHED.items()
-        if t not in SENSORS
-    }
+    topics = {ros_client.topic_key(DOMAIN, f"{ns}/{t}", i) for ns in NAMESPACES.values() for t, i in PUBLISHED.items()}
     topics.add(ros_client.topic_key(DOMAIN, *CLOCK))
     keys = wait_until(
         lambda: (seen := {sample.key for sample in fleet.recorder.take()}) >= topics and seen,
@@ -180,6 +176,60 @@ def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_type
         assert ("odom", "base_link") in {(t.header.frame_id, t.child_frame_id) for t in tf.transforms}, (
             "in its own namespace's tf, a robot's frames are named as Nav2 expects them, unprefixed"
         )
+
+
+def _shipped_hash(name: str) -> str:
+    """The RIHS01 hash in the type description ROS ships for ``name`` (tests/data/ros2_interfaces)."""
+    package, _msg, type_name = name.split("/")
+    description = json.loads((SHIPPED / package / "msg" / f"{type_name}.json").read_text())
+    return next(e["hash_string"] for e in description["type_hashes"] if e["type_name"] == name)
+
+
+def test_each_robots_scan_and_imu_decode_with_ross_hashes_and_their_frames_are_in_its_tf_tree(fleet):
+    """The simulator's lidar and IMU through each robot's bridge: ``/<ns>/scan`` and ``/<ns>/imu``
+    on keys with the hashes ROS ships, decoded; ``base_scan`` and ``imu_link`` reach ``map`` through
+    the robot's ``tf_static`` (from the bridge's cache, as a late tf2 listener gets it) and ``tf``."""
+    for namespace in NAMESPACES.values():
+        wait_until(lambda n=namespace: len(fleet.recorder.of(f"{n}/scan")) >= 3, 10.0, f"{namespace}/scan")
+    late: dict[str, list[bytes]] = {namespace: [] for namespace in NAMESPACES.values()}
+    with peer_session(fleet.endpoint) as session:
+        subscribers = [
+            zenoh.ext.declare_advanced_subscriber(
+                session,
+                ros_client.topic_key(DOMAIN, f"{namespace}/tf_static", PUBLISHED["tf_static"]),
+                lambda sample, n=namespace: late[n].append(sample.payload.to_bytes()),
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+            )
+            for namespace in NAMESPACES.values()
+        ]
+        try:
+            wait_until(lambda: all(late.values()), 20.0, "each namespace's cached tf_static")
+        finally:
+            for subscriber in subscribers:
+                subscriber.undeclare()
+    for robot, namespace in NAMESPACES.items():
+        for topic in ("scan", "imu"):
+            (key,) = {sample.key for sample in fleet.recorder.of(f"{namespace}/{topic}")}
+            assert key.endswith(f"_/{_shipped_hash(PUBLISHED[topic])}"), key
+        scan = ros_client.TYPESTORE.deserialize_cdr(
+            fleet.recorder.of(f"{namespace}/scan")[-1].payload, PUBLISHED["scan"]
+        )
+        assert scan.header.frame_id == "base_scan" and len(scan.ranges) == 360 and len(scan.intensities) == 0
+        assert (scan.range_max, scan.scan_time) == (3.5, pytest.approx(0.1))
+        assert all(math.isinf(r) or 0.0 <= r < 3.5 for r in scan.ranges), robot
+        imu = ros_client.TYPESTORE.deserialize_cdr(fleet.recorder.of(f"{namespace}/imu")[-1].payload, PUBLISHED["imu"])
+        assert imu.header.frame_id == "imu_link" and imu.linear_acceleration.z == pytest.approx(9.81, abs=0.5)
+        assert imu.orientation_covariance[0] > 0, "the simulator's orientation, flagged as known"
+        parents = {}
+        static = ros_client.TYPESTORE.deserialize_cdr(late[namespace][0], PUBLISHED["tf_static"])
+        tf = ros_client.TYPESTORE.deserialize_cdr(fleet.recorder.of(f"{namespace}/tf")[-1].payload, PUBLISHED["tf"])
+        for transform in (*static.transforms, *tf.transforms):
+            parents[transform.child_frame_id] = transform.header.frame_id
+        for frame in ("base_scan", "imu_link"):
+            chain = [frame]
+            while chain[-1] in parents:
+                chain.append(parents[chain[-1]])
+            assert chain == [frame, "base_link", "odom", "map"], (robot, chain)
 
 
 def _drive(fleet: Fleet, namespace: str, vx: float, seconds: float) -> None:
@@ -285,10 +335,7 @@ def test_invent_record_ros2_records_the_fleets_graph_into_a_bag(fleet):
     )
     assert result.returncode == 0, result.stderr
     expected = {CLOCK[0]: CLOCK[1]} | {
-        f"{namespace}/{topic}": interface
-        for namespace in NAMESPACES.values()
-        for topic, interface in PUBLISHED.items()
-        if topic not in SENSORS
+        f"{namespace}/{topic}": interface for namespace in NAMESPACES.values() for topic, interface in PUBLISHED.items()
     }
     with Reader(bag) as reader:
         assert {c.topic: c.msgtype for c in reader.connections} == expected
@@ -308,6 +355,7 @@ def test_invent_record_ros2_records_the_fleets_graph_into_a_bag(fleet):
     assert clocks == sorted(clocks) and len(set(clocks)) == len(clocks), "/clock monotonic"
     assert (clocks[-1] - clocks[0]) / 1e9 > 1.0, "the graph recorded for a while (3 s of wall time, realtime)"
     rates = {CLOCK[0]: 100.0} | {f"{n}/{t}": 50.0 for n in NAMESPACES.values() for t in ("odom", "tf", "joint_states")}
+    rates |= {f"{n}/{t}": rate for n in NAMESPACES.values() for t, rate in (("scan", 10.0), ("imu", 100.0))}
     for topic, rate_hz in rates.items():
         stamps = times[topic]
         assert abs(len(stamps) - (rate_hz * (stamps[-1] - stamps[0]) / 1e9 + 1)) <= 1, (
