@@ -161,11 +161,10 @@ def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_type
 
     topics = {ros_client.topic_key(DOMAIN, f"{ns}/{t}", i) for ns in NAMESPACES.values() for t, i in PUBLISHED.items()}
     topics.add(ros_client.topic_key(DOMAIN, *CLOCK))
-    keys = wait_until(
-        lambda: (seen := {sample.key for sample in fleet.recorder.take()}) >= topics and seen,
-        10.0,
-        f"every topic: missing {topics - {sample.key for sample in fleet.recorder.take()}}",
-    )
+    try:
+        keys = wait_until(lambda: (seen := {sample.key for sample in fleet.recorder.take()}) >= topics and seen, 10.0)
+    except AssertionError:
+        raise AssertionError(f"missing {topics - {sample.key for sample in fleet.recorder.take()}}") from None
     assert keys == topics, "every sample on a namespaced topic, or /clock"
     by_topic = {(ns, topic): fleet.recorder.of(f"{ns}/{topic}") for ns in NAMESPACES.values() for topic in PUBLISHED}
     for (namespace, topic), received in by_topic.items():

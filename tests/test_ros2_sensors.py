@@ -314,12 +314,18 @@ def _tokens(session: zenoh.Session) -> list[list[str]]:
 
 @pytest.mark.slow
 def test_each_robots_scan_and_imu_are_in_the_graph_under_its_namespace_with_sensor_qos(bridges):
-    tokens = _tokens(bridges.session)
-    publishers = {(chunks[9], "/".join(chunks[10:12]), chunks[12]) for chunks in tokens if chunks[5] == "MP"}
-    for namespace in NAMESPACES.values():
-        for topic, interface in TYPES.items():
-            mangled = f"{namespace}/{topic}".replace("/", "%")
-            assert (mangled, ros_client.key_type(interface), SENSOR_QOS) in publishers, (namespace, topic)
+    expected = {
+        (f"{namespace}/{topic}".replace("/", "%"), ros_client.key_type(interface), SENSOR_QOS)
+        for namespace in NAMESPACES.values()
+        for topic, interface in TYPES.items()
+    }
+
+    def publishers() -> set[tuple[str, str, str]]:
+        tokens = _tokens(bridges.session)
+        return {(chunks[9], "/".join(chunks[10:12]), chunks[12]) for chunks in tokens if chunks[5] == "MP"}
+
+    found = wait_until(lambda: (seen := publishers()) >= expected and seen, 10.0, f"the publishers {expected}")
+    assert expected <= found
 
 
 @pytest.mark.slow
