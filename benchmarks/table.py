@@ -98,8 +98,10 @@ def _loop_rows(results: dict[str, Any]) -> list[tuple[str, str, str]]:
         *(
             (
                 f"lockstep, {where}, the lidar (10 Hz) and the IMU (100 Hz)",
-                f"{fmt(lockstep['sensors'][where]['steps_per_s'])} vs "
-                f"{fmt(lockstep['sensors'][where]['without_steps_per_s'])} steps/s without",
+                (
+                    f"{fmt(lockstep['sensors'][where]['steps_per_s'])} vs "
+                    f"{fmt(lockstep['sensors'][where]['without_steps_per_s'])} steps/s without"
+                ),
                 f"cost {fmt(percent(lockstep['sensors'][where]['cost']), 1)} % of the steps",
             )
             for where in ("inprocess", "separate", "composed")
