@@ -237,3 +237,26 @@ def test_forget_is_a_new_time_base_with_no_scan_and_no_hold():
     assert watcher.held_by == "" and watcher.factor(0, 0.3, 0.0) == 1.0
     watcher.take_scan(scan(ahead(0.76), t=0.0), None)
     assert watcher.factor(1_000_000, 0.3, 0.0) == 0.0
+
+
+# --- in MotorCore --------------------------------------------------------------------------------
+
+
+def test_a_held_core_brakes_through_the_acceleration_limit_and_stays_running():
+    from services.config import MotorConfig
+    from services.motor.core import MotorCore, MotorState
+
+    motor = MotorConfig()
+    plain, held = MotorCore(RobotConfig(), motor), MotorCore(RobotConfig(), motor)
+    held.monitor = monitor()
+    for motor_core in (plain, held):
+        motor_core.set_target(0.5, 0.0)
+        motor_core.step(0, [0.0, 0.0])
+    for k in range(1, 51):  # 0.5 s at 10 ms: both ramp up at max_ax, with no scan alike
+        assert plain.step(k * 10_000_000, [0.0, 0.0]) == held.step(k * 10_000_000, [0.0, 0.0])
+    assert held.command == pytest.approx((0.5, 0.0))
+    held.set_target(0.5, 0.0, held.time_ns)  # a fresh command (motor.command_timeout)
+    held.monitor.take_scan(scan(ahead(0.76), t=0.5), held.time_ns)
+    held.step(510_000_000, [0.0, 0.0])
+    assert held.command == pytest.approx((0.5 - motor.max_ax * 0.01, 0.0)), "through the acceleration limit"
+    assert held.state is MotorState.RUNNING and held.monitor.held_by.startswith("an obstacle in the stop zone")

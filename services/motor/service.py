@@ -47,7 +47,7 @@ from services.config import Config
 from services.motor.core import MotorCore
 from services.motor.monitor import CollisionMonitor
 from services.motor.state import SavedState, StateFile, default_state_path
-from services.runtime.inputs import Delivery
+from services.runtime.inputs import Delivery, NodeInput
 from services.runtime.logs import RateLimitedLog
 from services.runtime.node import Node, Wait
 from services.service import ServiceCommand, TraceFile
@@ -152,16 +152,18 @@ class MotorService:
             sim.stamped(keys.drive_target_velocity, self._on_target_velocity, awaited=lambda: self.target_hold.holding),
             Delivery.NEWEST,
         )
+        self._scans: NodeInput | None = None
         if self.monitor is not None:
-            # Queued, not a channel: a posted event is handled before the sample a channel receive
-            # returns, and the simulator publishes a step's scan before its wheel angles, so every
-            # cycle controls with the scans of its own step and the ones before (lockstep: the same
-            # torques every run).
-            node.subscribe(
+            # A ring channel, as the wheel angles': zenoh fills both in arrival order, and the
+            # simulator publishes a step's scan before its wheel angles, so the scans waiting when a
+            # sample is controlled are those of its step and before (_control takes them first):
+            # a lockstep run's torques are the same every run. (A callback, QUEUED, runs in a
+            # thread of its own and may come after the wheel angles.)
+            self._scans = node.subscribe(
                 keys.sim_scan,
                 LaserScan,
                 sim.stamped(keys.sim_scan, self._on_scan, awaited=lambda: False),
-                Delivery.QUEUED,
+                Delivery.EVERY,
             )
         for family in MethodFamily:
             for method in Method:
@@ -206,6 +208,10 @@ class MotorService:
         angles, attachment, mark, stamp_ns = held
         tm = angles.tm
         core = self.core
+        scans = self._scans
+        if scans is not None:
+            while scans.take():  # the scans of this step and before, first
+                pass
         torques = core.step(stamp_ns, angles.data)
         # A run recorded at the observed steps keeps the control path's samples of those only.
         node = self.node
