@@ -146,6 +146,18 @@ def test_a_straight_into_the_box_ends_by_itself_aborted_naming_the_bump_and_the_
     assert "the scenario was given up: exit 3" in result.stdout
 
 
+def test_the_collision_monitor_holds_a_straight_short_of_the_box_and_the_drive_gives_it_up_naming_it(tmp_path):
+    result = _up("--composed", "--set", "sim.world=bump", "--scenario", "straight", "--report", str(tmp_path))
+    assert result.returncode == Outcome.ABORTED.exit_code, result.stdout[-4000:]
+    report = json.loads((tmp_path / "report.json").read_text())
+    outcome = report["outcome"]
+    assert re.match(r"held by the collision monitor for 2\.0\d\d s", outcome["reason"]), outcome
+    assert "obstacle 'box' in the stop zone" in outcome["reason"], outcome
+    assert "bumps 0, bump_stop_calls 0," in result.stdout + result.stderr, "held before it touched: no sim/bump"
+    # the body (0.45 m) touches the box at x = 0.45: at least 5 cm short
+    assert report["final"]["ground_truth"]["x"] <= 0.40, report["final"]
+
+
 def test_a_scenario_the_motor_is_too_slow_for_ends_timed_out_at_its_time_limit(tmp_path):
     limit_s = 1.0 * planned_duration(BUILTIN_SCENARIOS["straight"], Pose(0.0, 0.0, 0.0), DriveConfig()) + 1.0
     too_slow = ("motor.max_vx=0.01", "drive.time_limit_factor=1", "drive.time_limit_margin=1")
