@@ -66,7 +66,6 @@ PUBLISHED = {
     "scan": "sensor_msgs/msg/LaserScan",
     "imu": "sensor_msgs/msg/Imu",
 }
-
 """What each robot's bridge publishes in its namespace (Nav2's multi-robot layout: tf in the namespace)."""
 CLOCK = ("/clock", "rosgraph_msgs/msg/Clock")
 SUBSCRIBED = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped")
