@@ -48,7 +48,7 @@ from typing import Any
 
 from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, SimWorld, Time
-from services.config import Config, RobotConfig, SimMode
+from services.config import Config, ImuConfig, LidarConfig, SimMode
 from services.fleet.description import Fleet
 from services.runtime.node import Node
 from services.service import ServiceCommand
@@ -77,8 +77,13 @@ class SimOptions:
     gui: bool = False
     fleet: Fleet | None = None
     """Every robot of this fleet in one world, each robot's keys under its name."""
-    fleet_robots: tuple[RobotConfig, ...] = ()
+    fleet_robots: tuple[Config, ...] = ()
     """With ``fleet``: each robot's description, in the fleet's order."""
+
+
+def sensors(config: Config) -> tuple[LidarConfig | None, ImuConfig | None]:
+    """The lidar and the IMU a robot description gives its robot (None: turned off)."""
+    return (config.lidar if config.lidar.enabled else None, config.imu if config.imu.enabled else None)
 
 
 class SimService:
@@ -103,9 +108,17 @@ class SimService:
             for robot, description in zip(self.fleet.robots, options.fleet_robots, strict=True):
                 start = robot.start
                 placements.append(
-                    Placement(robot.name, description, InitialPose(x=start.x, y=start.y, theta=start.theta))
+                    Placement(
+                        robot.name,
+                        description.robot,
+                        InitialPose(x=start.x, y=start.y, theta=start.theta),
+                        *sensors(description),
+                    )
                 )
-        self.sim = Simulator(config.robot, config.sim, self.world, gui=options.gui, fleet=placements)
+        lidar, imu = sensors(config)
+        self.sim = Simulator(
+            config.robot, config.sim, self.world, gui=options.gui, fleet=placements, lidar=lidar, imu=imu
+        )
         self.run_status = RunStatus(
             sim=self.sim,
             parameters=config.sim,

@@ -6,6 +6,7 @@ Who is there is :mod:`sim_bridge.liveness`'s; which torque a step applies, :mod:
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from functools import partial
@@ -33,7 +34,7 @@ from services.runtime.node import Node
 from sim_bridge.latency import TorqueLatency
 from sim_bridge.liveness import Liveness
 from sim_bridge.progress import RunProgress
-from sim_bridge.status import late_fraction, planar_pose, robot_summary
+from sim_bridge.status import late_fraction, nearest_hit, planar_pose, robot_summary
 from sim_bridge.torque_policy import TorquePolicy
 
 if TYPE_CHECKING:
@@ -56,6 +57,9 @@ COUNTERS = (
     "realtime_late_steps",
     "tick_timeouts",
     "braked_steps",
+    "scans",
+    "scan_rays",
+    "imu_samples",
 )
 """The counters of ``sim/status`` (docs/sim.md explains each)."""
 
@@ -130,6 +134,11 @@ class RobotLink:
         self.clock: tuple[TimedDoubleSeq, bytes] | None = None
         """(wheel angles, mark) of an observed step published, while its ``sim/clock`` waits."""
         self.latency = TorqueLatency(step_ns)
+        self._lidar, self._imu = body.lidar, body.imu
+        self.next_sensor_ns: float = 0 if self._lidar or self._imu else math.inf
+        """The stamp of the next step at which a sensor of the robot is due (inf: it has none)."""
+        self.nearest: dict[str, Any] | None = None
+        """What the latest scan's nearest ray hit (``body``, ``range``); None when it hit nothing."""
         warn = RateLimitedLog(node.log)
         self.torque = TorquePolicy(
             body,
@@ -161,6 +170,8 @@ class RobotLink:
         self.angles_publisher = node.publisher(keys.sim_wheel_angles)
         self.clock_publisher = node.publisher(keys.sim_clock)
         self.bump_publisher = node.publisher(keys.sim_bump)
+        self.scan_publisher = node.publisher(keys.sim_scan)
+        self.imu_publisher = node.publisher(keys.sim_imu)
         self.world_publisher = node.latched_publisher(keys.sim_world)
         # Lockstep waits in the torque channel's receive itself, and in a participant's output
         # channel at its ticks; realtime waits for its step's deadline, which a posted torque must
@@ -216,6 +227,27 @@ class RobotLink:
         else:
             self.counters["bump_stop_errors"] += 1
             self.node.log.warning("%smotor/bump/stop answered with an error: %s", self.prefix, reason)
+
+    def publish_sensors(self, tm_ns: int, tm: Time) -> None:
+        """Publish the scan and the IMU sample due at ``tm_ns`` (the loop calls this only once
+        ``next_sensor_ns`` has come), before the step's wheel angles: the motor has the step's scan
+        before it controls the step."""
+        body, lidar, imu = self.body, self._lidar, self._imu
+        upcoming = math.inf
+        if lidar is not None:
+            if lidar.schedule.due(tm_ns):
+                scan = body.scan(tm)
+                self.scan_publisher.put(scan)
+                self.counters["scans"] += 1
+                self.counters["scan_rays"] += len(scan.ranges)
+                self.nearest = nearest_hit(scan)
+            upcoming = lidar.schedule.next_ns
+        if imu is not None:
+            if imu.schedule.due(tm_ns):
+                self.imu_publisher.put(body.imu_sample(tm))
+                self.counters["imu_samples"] += 1
+            upcoming = min(upcoming, imu.schedule.next_ns)
+        self.next_sensor_ns = upcoming
 
     def publish_state(self, step_index: int, tm_ns: int, tm: Time, every_step: bool, final: bool) -> None:
         """Publish this step's wheel angles, then its body pose if it is observed (or the run is
@@ -279,6 +311,10 @@ class RobotLink:
             observed_rates=self.observation.rates(),
             drive_ended=self.liveness.drive_ended,
             braking=self.body.braking,
+            sensors={
+                "lidar": None if self._lidar is None else {"rate": self._lidar.config.rate, "nearest": self.nearest},
+                "imu": None if self._imu is None else {"rate": self._imu.config.rate},
+            },
         )
         return status
 

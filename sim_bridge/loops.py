@@ -50,6 +50,8 @@ class Loop:
         self.progress.published_ns = tm_ns
         every_step = self.node.recording_every_step
         for link in self.links:
+            if tm_ns >= link.next_sensor_ns:
+                link.publish_sensors(tm_ns, tm)
             link.publish_state(sim.step_index, tm_ns, tm, every_step, final)
         return tm_ns
 

@@ -15,14 +15,19 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Self
 
+import numpy as np
 import pybullet as p
 
 from schemas.codec import BadInput
-from schemas.messages import NANOSECONDS_PER_SECOND
-from services.config import ConfigError, RobotConfig, SimConfig
+from schemas.messages import NANOSECONDS_PER_SECOND, ImuSample, LaserScan, Time
+from services.body.geometry import robot_body
+from services.config import ConfigError, ImuConfig, LidarConfig, RobotConfig, SimConfig
+from sim_bridge.building import Placement, build_ground, build_obstacles
 from sim_bridge.display import require_display
+from sim_bridge.ray_world import RayWorld
 from sim_bridge.robot import RobotModel, build_robot
-from sim_bridge.world import InitialPose, World
+from sim_bridge.sensors import Imu, Lidar
+from sim_bridge.world import World
 
 GRAVITY = 9.81
 """m/s^2, along -z."""
@@ -47,19 +52,10 @@ class Contact:
     z: float
 
 
-@dataclass(frozen=True)
-class Placement:
-    """A robot of the world: its name, its description, where it starts."""
-
-    name: str
-    robot: RobotConfig
-    pose: InitialPose
-
-
 class SimulatedRobot:
     """One robot's body in the world: its wheel angles, body pose and the torques of its next step."""
 
-    def __init__(self, client: int, placement: Placement, sim: SimConfig) -> None:
+    def __init__(self, client: int, placement: Placement, sim: SimConfig, index: int) -> None:
         robot = placement.robot
         self.name = placement.name
         self.client = client
@@ -77,6 +73,13 @@ class SimulatedRobot:
         """Whether the wheels' velocity motors are on (they brake), in the physics client."""
         self.applied_torques = [0.0] * self.wheel_count
         """The torques applied during the next step, by wheel id (after saturation)."""
+        self.index = index
+        """The robot's index in the world's placements."""
+        reach = robot_body(robot, sim).reach
+        self.lidar = None if placement.lidar is None else Lidar(placement.lidar, reach, index)
+        self.imu = None if placement.imu is None else Imu(placement.imu, index)
+        self.ray_world: RayWorld | None = None
+        """Where the lidar casts its rays (the world's, once built; :mod:`sim_bridge.ray_world`)."""
 
     def wheel_angles(self) -> list[float]:
         """Wheel joint angles in rad (unwrapped), by wheel id."""
@@ -90,6 +93,25 @@ class SimulatedRobot:
         """x, y, z of the axle centre, then its rotation matrix row-major (12 values)."""
         position, orientation = p.getBasePositionAndOrientation(self.body, physicsClientId=self.client)
         return [*position, *p.getMatrixFromQuaternion(orientation)]
+
+    def scan(self, tm: Time) -> LaserScan:
+        """Cast the lidar's rays in the world as it is now (the robot has a lidar)."""
+        lidar, rays = self.lidar, self.ray_world
+        assert lidar is not None and rays is not None
+        position, orientation = p.getBasePositionAndOrientation(self.body, physicsClientId=self.client)
+        rotation = np.array(p.getMatrixFromQuaternion(orientation)).reshape(3, 3)
+        starts, ends = lidar.rays(position, rotation)
+        return lidar.scan(tm, rays.cast(self.index, starts, ends), rays.names)
+
+    def imu_sample(self, tm: Time) -> ImuSample:
+        """What the IMU reads now (the robot has an IMU)."""
+        assert self.imu is not None
+        client = self.client
+        _, orientation = p.getBasePositionAndOrientation(self.body, physicsClientId=client)
+        linear, angular = p.getBaseVelocity(self.body, physicsClientId=client)
+        rotation = np.array(p.getMatrixFromQuaternion(orientation)).reshape(3, 3)
+        x, y, z, w = orientation
+        return self.imu.sample(tm, (x, y, z, w), rotation, linear, angular)
 
     def set_torques(self, torques: Sequence[float]) -> None:
         """Wheel torques in N·m by wheel id for the next step, each saturated at ``sim.max_wheel_torque``."""
@@ -140,7 +162,7 @@ def connect(gui: bool) -> int:
 
 class Simulator:
     """Diff-drive robots in a world, stepped together by :meth:`step`. One robot (``robot``, at the
-    world's initial pose) unless ``fleet`` places several; the single-robot methods
+    world's initial pose, with the sensors ``lidar`` and ``imu``) unless ``fleet`` places several; the single-robot methods
     (:meth:`wheel_angles`, :meth:`set_torques`, ...) are the first robot's."""
 
     def __init__(
@@ -151,12 +173,14 @@ class Simulator:
         *,
         gui: bool = False,
         fleet: Sequence[Placement] = (),
+        lidar: LidarConfig | None = None,
+        imu: ImuConfig | None = None,
     ) -> None:
         self.step_ns = round(sim.step * NANOSECONDS_PER_SECOND)
         if self.step_ns < 1:
             raise ConfigError(f"`sim.step`: {sim.step} s is shorter than 1 ns")
         self.robot_config, self.sim_config, self.world = robot, sim, world
-        self.placements = tuple(fleet) or (Placement(robot.name, robot, world.initial_pose),)
+        self.placements = tuple(fleet) or (Placement(robot.name, robot, world.initial_pose, lidar, imu),)
         self._release_steps = max(1, round(sim.bump_release * NANOSECONDS_PER_SECOND / self.step_ns))
         self.client = connect(gui)
         self._build()
@@ -170,11 +194,24 @@ class Simulator:
             physicsClientId=client,
         )
         p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=client)
-        ground_shape = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=client)
-        ground = p.createMultiBody(0.0, ground_shape, physicsClientId=client)
+        ground = build_ground(client)
         p.changeDynamics(ground, -1, lateralFriction=self.world.ground.friction, physicsClientId=client)
-        self._obstacles = self._build_obstacles()
-        self.robots = tuple(SimulatedRobot(client, placement, self.sim_config) for placement in self.placements)
+        self._obstacles = build_obstacles(client, self.world)
+        self.robots = tuple(
+            SimulatedRobot(client, placement, self.sim_config, index) for index, placement in enumerate(self.placements)
+        )
+        self._ray_world: RayWorld | None = None
+        if any(robot.lidar is not None for robot in self.robots):
+            self._ray_world = RayWorld(
+                client,
+                self.world,
+                self.sim_config,
+                self.placements,
+                [robot.body for robot in self.robots],
+                [body for body, _ in self._obstacles],
+            )
+            for robot in self.robots:
+                robot.ray_world = self._ray_world
         first = self.robots[0]
         self.model = first.model
         self.wheel_count = first.wheel_count
@@ -200,33 +237,6 @@ class Simulator:
             self._pair_of_bodies[other, body] = (pair_index, _CONTACT_POSITION_ON_B, _CONTACT_POSITION_ON_A)
         self._one_query = len(self._pairs) > len(self.robots)
         """Whether :meth:`_new_contacts` asks for all the world's contact points at once, not pair by pair."""
-
-    def _build_obstacles(self) -> tuple[tuple[int, str], ...]:
-        client = self.client
-        built = []
-        for box in self.world.boxes:
-            half = tuple(length / 2.0 for length in box.size)
-            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=client)
-            body = p.createMultiBody(
-                box.mass,
-                shape,
-                basePosition=(box.x, box.y, half[2]),
-                baseOrientation=p.getQuaternionFromEuler((0.0, 0.0, box.yaw)),
-                physicsClientId=client,
-            )
-            built.append((body, box.name))
-        for cylinder in self.world.cylinders:
-            shape = p.createCollisionShape(
-                p.GEOM_CYLINDER, radius=cylinder.radius, height=cylinder.height, physicsClientId=client
-            )
-            body = p.createMultiBody(
-                cylinder.mass,
-                shape,
-                basePosition=(cylinder.x, cylinder.y, cylinder.height / 2.0),
-                physicsClientId=client,
-            )
-            built.append((body, cylinder.name))
-        return tuple(built)
 
     @property
     def time_ns(self) -> int:
@@ -308,6 +318,8 @@ class Simulator:
         return sorted(first.values())
 
     def close(self) -> None:
+        if self._ray_world is not None:
+            self._ray_world.close()
         p.disconnect(physicsClientId=self.client)
 
     def __enter__(self) -> Self:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from schemas.messages import NANOSECONDS_PER_SECOND
+from schemas.messages import NANOSECONDS_PER_SECOND, LaserScan
 from services.config import SimConfig
 from sim_bridge.progress import RunProgress
 
@@ -22,6 +22,20 @@ def planar_pose(body_pose: Sequence[float]) -> dict[str, float]:
     """x, y and heading of ``sim/body_pose``'s axle centre (x, y, z, rotation row-major)."""
     x, y, _z, r00, _r01, _r02, r10 = body_pose[:7]
     return {"x": x, "y": y, "theta": math.atan2(r10, r00)}
+
+
+def nearest_hit(scan: LaserScan) -> dict[str, Any] | None:
+    """The nearest thing ``scan``'s rays hit: its name (when the scan names it) and range; None
+    when they hit nothing."""
+    best: tuple[float, int] | None = None
+    for ray, reading in enumerate(scan.ranges):
+        if reading is not None and (best is None or reading < best[0]):
+            best = (reading, ray)
+    if best is None:
+        return None
+    reading, ray = best
+    body = scan.bodies[scan.hits[ray]] if scan.hits else None
+    return {"body": body, "range": reading, "angle": scan.angle_min + ray * scan.angle_increment}
 
 
 def robot_summary(counters: dict[str, int], pose: dict[str, float]) -> str:

@@ -53,7 +53,10 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.fleet\.(description|summary)", CORE),
     (r"services\.calibration\.(umbmark|measured|benchmark|settings)", CORE),
     (r"services\.body\.geometry", CORE),
-    (r"sim_bridge\.(simulator|robot|world|latency|display|torque_policy|progress|status)", CORE),
+    (
+        r"sim_bridge\.(simulator|robot|world|building|ray_world|sensors|latency|display|torque_policy|progress|status)",
+        CORE,
+    ),
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph|outputs)", CORE),
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
     (r"sim_bridge\.(bridge|link|liveness|loops|handshakes)", SHELL),

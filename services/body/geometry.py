@@ -87,6 +87,14 @@ class RobotBody:
     def body_inertia(self) -> tuple[float, float, float]:
         return cylinder_inertia(self.body_mass, self.body_radius, self.body_height)
 
+    @property
+    def reach(self) -> float:
+        """m, the radius about the axle centre that holds every part of the robot seen from above
+        (its footprint: the body, or a wheel or caster sticking out of it)."""
+        wheels = (abs(wheel.y) + wheel.radius for wheel in self.wheels)
+        casters = (abs(caster.x) + caster.radius for caster in self.casters)
+        return max(self.body_radius, *wheels, *casters)
+
 
 def robot_body(robot: RobotConfig, sim: SimConfig) -> RobotBody:
     left_radius, right_radius = robot.radius_of_left_wheel, robot.radius_of_right_wheel

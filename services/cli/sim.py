@@ -8,7 +8,7 @@ from typing import Any
 from schemas.keys import Service
 from services.cli.flags import fleet_flag, overrides_from_args, positive_seconds
 from services.cli.serve import ServiceCli
-from services.config import RobotConfig, SimConfig, SimMode
+from services.config import Config, SimConfig, SimMode
 from services.fleet.description import load_fleet, robot_config
 from sim_bridge.bridge import COMMAND, SimOptions
 from sim_bridge.handshakes import START_HANDSHAKE_TIMEOUT_S
@@ -71,10 +71,10 @@ def overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 def options(args: argparse.Namespace) -> SimOptions:
     fleet = load_fleet(args.fleet) if args.fleet else None
-    robots: tuple[RobotConfig, ...] = ()
+    robots: tuple[Config, ...] = ()
     if fleet is not None:
         given = overrides_from_args(CLI, args)
-        robots = tuple(robot_config(robot, args.config, given).robot for robot in fleet.robots)
+        robots = tuple(robot_config(robot, args.config, given) for robot in fleet.robots)
     return SimOptions(
         duration=args.duration,
         until_drive_ends=args.until_drive_ends,

@@ -1,0 +1,58 @@
+"""The world's bodies in a physics client: the floor, the obstacles of a world file, and where each
+robot stands (:class:`Placement`). Both the simulator's world and the lidars' ray world
+(:mod:`sim_bridge.ray_world`) are built with these."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pybullet as p
+
+from services.config import ImuConfig, LidarConfig, RobotConfig
+from sim_bridge.world import InitialPose, World
+
+
+@dataclass(frozen=True)
+class Placement:
+    """A robot of the world: its name, its description, where it starts, and its sensors (None:
+    it has none)."""
+
+    name: str
+    robot: RobotConfig
+    pose: InitialPose
+    lidar: LidarConfig | None = None
+    imu: ImuConfig | None = None
+
+
+def build_ground(client: int) -> int:
+    """The floor: an infinite plane at z = 0."""
+    shape = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=client)
+    return int(p.createMultiBody(0.0, shape, physicsClientId=client))
+
+
+def build_obstacles(client: int, world: World) -> tuple[tuple[int, str], ...]:
+    """Each obstacle of ``world`` standing on the floor: its body id and its name, boxes first."""
+    built = []
+    for box in world.boxes:
+        half = tuple(length / 2.0 for length in box.size)
+        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=client)
+        body = p.createMultiBody(
+            box.mass,
+            shape,
+            basePosition=(box.x, box.y, half[2]),
+            baseOrientation=p.getQuaternionFromEuler((0.0, 0.0, box.yaw)),
+            physicsClientId=client,
+        )
+        built.append((body, box.name))
+    for cylinder in world.cylinders:
+        shape = p.createCollisionShape(
+            p.GEOM_CYLINDER, radius=cylinder.radius, height=cylinder.height, physicsClientId=client
+        )
+        body = p.createMultiBody(
+            cylinder.mass,
+            shape,
+            basePosition=(cylinder.x, cylinder.y, cylinder.height / 2.0),
+            physicsClientId=client,
+        )
+        built.append((body, cylinder.name))
+    return tuple(built)

@@ -1,0 +1,155 @@
+"""The simulated sensors' own arithmetic (docs/protocol.md section 6.6): where a robot's lidar rays
+go and what their hits read, and what its IMU measures. Pure: numpy, no PyBullet (the simulator
+casts the rays and reads the velocities, :mod:`sim_bridge.simulator`), no zenoh.
+
+Both are sampled on the simulation clock, on the grid of their rate
+(:class:`~services.clock.sim_time.PeriodicSchedule`), so a lockstep run samples the same states
+and, with the noise drawn from a seeded generator per robot, publishes the same numbers every run.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from schemas.messages import NO_HIT, ImuSample, LaserScan, Quaternion, Time
+from services.clock.sim_time import PeriodicSchedule
+from services.config import ConfigError, ImuConfig, LidarConfig
+
+GRAVITY = 9.81
+"""m/s^2, along -z (the simulator's)."""
+FOOTPRINT_CLEARANCE = 0.001
+"""m beyond the robot's own footprint where its rays start: a ray never sees its own robot."""
+_UP = np.array([0.0, 0.0, GRAVITY])
+Array = npt.NDArray[np.float64]
+RayHit = tuple[int, int, float, Sequence[float], Sequence[float]]
+"""One ray's result as PyBullet's ``rayTestBatch`` gives it: body id (-1: none), link, hit
+fraction along the ray, hit position, hit normal."""
+
+
+def footprint_exit(mount: tuple[float, float], direction: tuple[float, float], reach: float) -> float:
+    """How far along a ray from ``mount`` (base frame, m) in the unit ``direction`` the ray leaves
+    the circle of radius ``reach`` about the base's origin (the robot's footprint); 0 when it is
+    not in it ahead."""
+    along = mount[0] * direction[0] + mount[1] * direction[1]
+    discriminant = along * along - (mount[0] ** 2 + mount[1] ** 2 - reach * reach)
+    if discriminant <= 0.0:
+        return 0.0
+    return max(0.0, -along + math.sqrt(discriminant))
+
+
+class Lidar:
+    """One robot's 2D lidar: its rays in the base frame, each from where it leaves the robot's
+    footprint (radius ``reach``) to ``range_max``, and the scan their hits make."""
+
+    def __init__(self, lidar: LidarConfig, reach: float, stream: int) -> None:
+        self.config = lidar
+        count = lidar.rays
+        headings = lidar.yaw + lidar.angle_min + lidar.angle_increment * np.arange(count)
+        directions = np.stack([np.cos(headings), np.sin(headings), np.zeros(count)], axis=1)
+        mount = np.array([lidar.x, lidar.y, lidar.z])
+        starts = np.array(
+            [
+                max(lidar.range_min, footprint_exit((lidar.x, lidar.y), (dx, dy), reach) + FOOTPRINT_CLEARANCE)
+                for dx, dy, _ in directions
+            ]
+        )
+        if float(starts.max()) >= lidar.range_max:
+            raise ConfigError(
+                f"`lidar.range_max`: {lidar.range_max} m ends inside the robot's own footprint "
+                f"(its rays leave it {float(starts.max()):.3f} m from the lidar)"
+            )
+        self.starts = starts
+        self.lengths = lidar.range_max - starts
+        self.local_from = mount + starts[:, None] * directions
+        self.local_to = mount + lidar.range_max * directions
+        self.schedule = PeriodicSchedule(lidar.rate, 0)
+        self._noise = lidar.noise
+        self._rng = np.random.default_rng([lidar.seed, stream])
+
+    def rays(self, position: Sequence[float], rotation: Array) -> tuple[Array, Array]:
+        """Each ray's start and end in the world, for the base at ``position`` turned by ``rotation``."""
+        origin = np.asarray(position)
+        return origin + self.local_from @ rotation.T, origin + self.local_to @ rotation.T
+
+    def scan(self, tm: Time, hits: Sequence[RayHit], names: Mapping[int, str]) -> LaserScan:
+        """The scan of ``hits`` (one per ray, in ray order): the range of each hit from the lidar,
+        with its noise, and what it hit by name (``names``: body id -> name)."""
+        lidar = self.config
+        columns = tuple(zip(*hits, strict=True))
+        bodies: tuple[int, ...] = columns[0]
+        ranges = self.starts + np.array(columns[2]) * self.lengths
+        if self._noise > 0.0:
+            # drawn for every ray, hit or not, so that each scan takes the same share of the stream
+            ranges = np.clip(ranges + self._rng.normal(0.0, self._noise, ranges.size), lidar.range_min, lidar.range_max)
+        readings: list[float | None] = [
+            None if body == NO_HIT else reading for body, reading in zip(bodies, ranges.tolist(), strict=True)
+        ]
+        seen = sorted(set(bodies) - {NO_HIT})
+        index_of = {body: index for index, body in enumerate(seen)}
+        index_of[NO_HIT] = NO_HIT
+        return LaserScan(
+            tm=tm,
+            angle_min=lidar.angle_min,
+            angle_increment=lidar.angle_increment,
+            range_min=lidar.range_min,
+            range_max=lidar.range_max,
+            ranges=readings,
+            bodies=[names.get(body, f"body {body}") for body in seen],
+            hits=[index_of[body] for body in bodies],
+        )
+
+
+class Imu:
+    """One robot's IMU at ``mount`` on the base, the base's axes: the angular velocity and the
+    specific force there (the mount point's acceleration, differenced over one sample period, less
+    gravity), with bias and seeded noise, and the simulator's orientation."""
+
+    def __init__(self, imu: ImuConfig, stream: int) -> None:
+        self.config = imu
+        self.mount = np.array([imu.x, imu.y, imu.z])
+        self.schedule = PeriodicSchedule(imu.rate, 0)
+        self._gyro_bias = np.array(imu.gyro_bias)
+        self._accel_bias = np.array(imu.accel_bias)
+        self._rng = np.random.default_rng([imu.seed, stream])
+        self._previous: tuple[int, Array] | None = None
+        """(stamp, world velocity of the mount point) of the last sample."""
+
+    def sample(
+        self,
+        tm: Time,
+        orientation: Quaternion,
+        rotation: Array,
+        linear_velocity: Sequence[float],
+        angular_velocity: Sequence[float],
+    ) -> ImuSample:
+        """What the IMU reads at ``tm`` for the base turned by ``rotation`` (``orientation`` as a
+        quaternion) moving at ``linear_velocity`` and ``angular_velocity`` (world frame). The
+        first sample takes the robot to be at rest."""
+        imu = self.config
+        stamp_ns = tm.to_nanoseconds()
+        spin = np.asarray(angular_velocity)
+        velocity = np.asarray(linear_velocity) + np.cross(spin, rotation @ self.mount)
+        previous, self._previous = self._previous, (stamp_ns, velocity)
+        if previous is None or stamp_ns <= previous[0]:
+            acceleration = np.zeros(3)
+        else:
+            acceleration = (velocity - previous[1]) * (1e9 / (stamp_ns - previous[0]))
+        gyro = rotation.T @ spin + self._gyro_bias
+        accel = rotation.T @ (acceleration + _UP) + self._accel_bias
+        if imu.gyro_noise > 0.0:
+            gyro = gyro + self._rng.normal(0.0, imu.gyro_noise, 3)
+        if imu.accel_noise > 0.0:
+            accel = accel + self._rng.normal(0.0, imu.accel_noise, 3)
+        gx, gy, gz = gyro.tolist()
+        ax, ay, az = accel.tolist()
+        return ImuSample(
+            tm=tm,
+            orientation=orientation,
+            orientation_source="simulator",
+            angular_velocity=(gx, gy, gz),
+            linear_acceleration=(ax, ay, az),
+        )
