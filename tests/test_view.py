@@ -37,7 +37,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from schemas.codec import decode, encode
 from schemas.keys import Keys, Service, Topic, schema_for_key
-from schemas.messages import LaserScan, Time, TimedDoubleSeq
+from schemas.messages import ImuSample, LaserScan, Time, TimedDoubleSeq
 from services.config import Config
 from services.exits import ExitStatus
 from services.recording.scene import (
@@ -79,6 +79,9 @@ SUBSCRIBED = {
     WHEEL_SPEEDS_TOPIC: WHEEL_SPEEDS_SCHEMA["title"],
     KEYS.sim_body_pose: TimedDoubleSeq.__name__,
     KEYS.status(Service.MOTOR): None,
+    SCAN_TOPIC: "foxglove.LaserScan",
+    KEYS.sim_scan: LaserScan.__name__,
+    KEYS.sim_imu: ImuSample.__name__,
 }
 """The channels the client subscribes to, and the schema each must have (None: schemaless)."""
 
@@ -239,6 +242,8 @@ def test_a_foxglove_client_sees_the_running_loop_live(tmp_path: Path) -> None:
     assert len(body_pose.data) == 12, "a raw key's payload, as published"
     speeds = json.loads(watched.frames[WHEEL_SPEEDS_TOPIC][-1][1])
     assert set(speeds) == set(WHEEL_SPEEDS_SCHEMA["properties"])
+    scan = FoxgloveLaserScan.FromString(watched.frames[SCAN_TOPIC][-1][1])
+    assert scan.frame_id == LIDAR_FRAME and len(scan.ranges) == Config().lidar.rays, "the simulator's scan, drawn"
     status = json.loads(watched.frames[KEYS.status(Service.MOTOR)][-1][1])
     assert status["service"] == Service.MOTOR and isinstance(status["state"], str)
 
