@@ -33,6 +33,29 @@ def _loop_summary(runs: list[loop.LoopResult]) -> dict[str, Any]:
     }
 
 
+def _sensors_cost(
+    inprocess: list[float],
+    inprocess_bare: list[float],
+    separate: list[loop.LoopResult],
+    separate_bare: list[loop.LoopResult],
+    composed: list[loop.LoopResult],
+    composed_bare: list[loop.LoopResult],
+) -> dict[str, Any]:
+    """What the lidar (10 Hz) and the IMU (100 Hz) cost the loop: steps per second with and without
+    them, and the share of the steps they take (1 - with / without), in-process, separate, composed."""
+    figures: dict[str, Any] = {}
+    pairs = (
+        ("inprocess", inprocess, [value for value in inprocess_bare if value is not None]),
+        ("separate", [run.steps_per_s for run in separate], [run.steps_per_s for run in separate_bare]),
+        ("composed", [run.steps_per_s for run in composed], [run.steps_per_s for run in composed_bare]),
+    )
+    for name, with_sensors, without in pairs:
+        steps, bare = median(with_sensors), median(without)
+        cost = None if steps is None or not bare else 1.0 - steps / bare
+        figures[name] = {"steps_per_s": steps, "without_steps_per_s": bare, "cost": cost}
+    return figures
+
+
 def run_section(args: argparse.Namespace, composed: bool, failures: list[str]) -> dict[str, Any]:
     inprocess: list[float] = []
     floors: list[dict[str, float]] = []
@@ -47,6 +70,9 @@ def run_section(args: argparse.Namespace, composed: bool, failures: list[str]) -
     together_recording: list[loop.LoopResult] = []
     up_ros2: list[loop.LoopResult] = []
     together_ros2: list[loop.LoopResult] = []
+    inprocess_bare: list[float] = []
+    separate_bare: list[loop.LoopResult] = []
+    together_bare: list[loop.LoopResult] = []
     for repeat in range(args.repeats):
         print(f"lockstep, run {repeat + 1} of {args.repeats}", flush=True)
         inprocess.append(timed("in-process limit", lambda: loop.inprocess_steps_per_s(args.inprocess), failures))
@@ -60,6 +86,17 @@ def run_section(args: argparse.Namespace, composed: bool, failures: list[str]) -
         keep(
             separate,
             timed("separate processes", lambda: loop.measure_services([], args.warmup, args.window), failures),
+        )
+        inprocess_bare.append(
+            timed("in-process, no sensors", lambda: loop.inprocess_steps_per_s(args.inprocess, False), failures)
+        )
+        keep(
+            separate_bare,
+            timed(
+                "separate, no sensors",
+                lambda: loop.measure_services(loop.NO_SENSORS_FLAGS, args.warmup, args.window),
+                failures,
+            ),
         )
         keep(
             separate_rt,
@@ -110,6 +147,16 @@ def run_section(args: argparse.Namespace, composed: bool, failures: list[str]) -
                 timed(
                     "composed",
                     lambda: loop.measure_up([loop.COMPOSED_FLAG, loop.NO_RECORD_FLAG], args.warmup, args.window),
+                    failures,
+                ),
+            )
+            keep(
+                together_bare,
+                timed(
+                    "composed, no sensors",
+                    lambda: loop.measure_up(
+                        [loop.COMPOSED_FLAG, loop.NO_RECORD_FLAG, *loop.NO_SENSORS_FLAGS], args.warmup, args.window
+                    ),
                     failures,
                 ),
             )
@@ -188,6 +235,7 @@ def run_section(args: argparse.Namespace, composed: bool, failures: list[str]) -
             "up_ros2": cpu_per_step(up_ros2),
             "composed_ros2": cpu_per_step(together_ros2),
         },
+        "sensors": _sensors_cost(inprocess, inprocess_bare, separate, separate_bare, together, together_bare),
         "composed_note": (
             None if composed else f"this checkout's `invent up` has no {loop.COMPOSED_FLAG} {loop.NO_RECORD_FLAG}"
         ),

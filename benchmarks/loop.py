@@ -10,8 +10,8 @@ angles published -> matching torque received) of exactly the window's steps; the
 give the late and missing fractions. The processes are then stopped with SIGINT, as Ctrl-C would.
 
 The in-process limit steps the same robot (:class:`~sim_bridge.simulator.Simulator`) with the
-same PD law (:class:`~services.motor.core.MotorCore`) in one loop with no zenoh: read the
-wheel angles, compute the torques, apply them, step.
+same PD law (:class:`~services.motor.core.MotorCore`) in one loop with no zenoh: scan and sample
+the IMU when due, read the wheel angles, compute the torques, apply them, step.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from typing import Any
 import zenoh
 
 from schemas.keys import Keys, Service
+from schemas.messages import Time
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config
 from services.motor.core import MotorCore
@@ -55,6 +56,8 @@ NO_RECORD_FLAG = "--no-record"
 ROS2_FLAG = "--ros2"
 NO_INTRA_PROCESS_FLAG = "--no-intra-process"
 RT_FLAG = "--rt"
+NO_SENSORS_FLAGS = ("--set", "lidar.enabled=false", "--set", "imu.enabled=false")
+"""The robot without its lidar and IMU: the loop as it was before the sensors."""
 
 
 @dataclass(frozen=True)
@@ -87,20 +90,29 @@ class LoopResult:
         }
 
 
-def inprocess_steps_per_s(seconds: float) -> float:
-    """Steps per second of Simulator + MotorCore in one loop, no zenoh, for ``seconds`` of wall time."""
+def inprocess_steps_per_s(seconds: float, sensors: bool = True) -> float:
+    """Steps per second of Simulator + MotorCore in one loop, no zenoh, for ``seconds`` of wall time;
+    with ``sensors``, the robot's lidar scans and IMU samples at their rates too, as the sim does."""
     from sim_bridge.simulator import Simulator
     from sim_bridge.world import load_world
 
     config = Config()
     core = MotorCore(config.robot, config.motor)
     core.set_target(VX, W)
-    with Simulator(config.robot, config.sim, load_world(None)) as sim:
+    lidar, imu = (config.lidar, config.imu) if sensors else (None, None)
+    with Simulator(config.robot, config.sim, load_world(None), lidar=lidar, imu=imu) as sim:
+        robot = sim.robots[0]
+        scans, samples = robot.lidar, robot.imu
         started = time.perf_counter()
         deadline = started + seconds
         while True:
             for _ in range(CLOCK_CHECK_STEPS):
-                sim.set_torques(core.step(sim.time_ns, sim.wheel_angles()))
+                now_ns = sim.time_ns
+                if scans is not None and scans.schedule.due(now_ns):
+                    robot.scan(Time.from_nanoseconds(now_ns))
+                if samples is not None and samples.schedule.due(now_ns):
+                    robot.imu_sample(Time.from_nanoseconds(now_ns))
+                sim.set_torques(core.step(now_ns, sim.wheel_angles()))
                 sim.step()
             now = time.perf_counter()
             if now >= deadline:

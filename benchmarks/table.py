@@ -95,6 +95,18 @@ def _loop_rows(results: dict[str, Any]) -> list[tuple[str, str, str]]:
             _cost_line("the ROS 2 bridge", lockstep, cpu, "composed_ros2", "composed"),
         ),
         ("lockstep, in one process, no zenoh (limit)", f"{fmt(lockstep['inprocess_steps_per_s'])} steps/s", "1"),
+        *(
+            (
+                f"lockstep, {where}, the lidar (10 Hz) and the IMU (100 Hz)",
+                (
+                    f"{fmt(lockstep['sensors'][where]['steps_per_s'])} vs "
+                    f"{fmt(lockstep['sensors'][where]['without_steps_per_s'])} steps/s without"
+                ),
+                f"cost {fmt(percent(lockstep['sensors'][where]['cost']), 1)} % of the steps",
+            )
+            for where in ("inprocess", "separate", "composed")
+            if "sensors" in lockstep
+        ),
         (
             "lockstep torque latency, separate",
             f"p50 {fmt(lockstep['latency_us']['p50'])} µs",

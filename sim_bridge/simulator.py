@@ -109,9 +109,8 @@ class SimulatedRobot:
         client = self.client
         _, orientation = p.getBasePositionAndOrientation(self.body, physicsClientId=client)
         linear, angular = p.getBaseVelocity(self.body, physicsClientId=client)
-        rotation = np.array(p.getMatrixFromQuaternion(orientation)).reshape(3, 3)
         x, y, z, w = orientation
-        return self.imu.sample(tm, (x, y, z, w), rotation, linear, angular)
+        return self.imu.sample(tm, (x, y, z, w), p.getMatrixFromQuaternion(orientation), linear, angular)
 
     def set_torques(self, torques: Sequence[float]) -> None:
         """Wheel torques in N·m by wheel id for the next step, each saturated at ``sim.max_wheel_torque``."""

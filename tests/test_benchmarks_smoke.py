@@ -36,6 +36,11 @@ NUMBERS = (
     "lockstep.composed_ros2_steps_per_s",
     "lockstep.cpu_us_per_step.up_ros2",
     "lockstep.cpu_us_per_step.composed_ros2",
+    *(
+        f"lockstep.sensors.{where}.{field}"
+        for where in ("inprocess", "separate", "composed")
+        for field in ("steps_per_s", "without_steps_per_s", "cost")
+    ),
     "lockstep.cpu_us_per_step.up",
     "lockstep.cpu_us_per_step.up_not_recording",
     "lockstep.cpu_us_per_step.composed",

@@ -1,5 +1,6 @@
 """Lockstep means deterministic: ``invent up --scenario square`` gives the same samples, bit for
-bit, on a quiet machine, beside two CPU-burning processes, and composed in one process.
+bit, on a quiet machine, beside two CPU-burning processes, and composed in one process. The runs
+drive in the built-in ``room`` world, so that the lidar's scans (compared too) see walls and posts.
 
 Each run is recorded from outside, by this test's own zenoh router, which the run connects to: every
 payload of the ground truth, odometry and localization keys (and the drive's targets), in the
@@ -10,6 +11,7 @@ ones that check the square itself and composed mode's outside visibility.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import re
@@ -29,6 +31,7 @@ from mcap.reader import make_reader
 from benchmarks.loop import cpu_seconds
 from schemas.codec import decode
 from schemas.keys import Keys, Service, Topic, schema_for_key
+from schemas.messages import ImuSample, LaserScan, TimedDoubleSeq
 from services.recording.mcap_files import read_messages
 from services.recording.scene import LOCALIZATION_TOPIC, ODOMETRY_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
 from services.runtime.session import open_session, session_config
@@ -46,7 +49,14 @@ from tests.harness import (
 pytestmark = pytest.mark.slow
 
 KEYS = Keys("rh0")
-RECORDED = (KEYS.sim_body_pose, KEYS.odometry_pose, KEYS.localization_pose, KEYS.drive_target_velocity)
+RECORDED = (
+    KEYS.sim_body_pose,
+    KEYS.odometry_pose,
+    KEYS.localization_pose,
+    KEYS.drive_target_velocity,
+    KEYS.sim_scan,
+    KEYS.sim_imu,
+)
 WALL_CLOCK_FIELDS = ("wall_time_s", "real_time_factor")
 BURNERS = 2
 PATIENT = ("--set", "sim.lockstep_timeout=5")
@@ -102,6 +112,8 @@ def _run_square(report_dir: Path, *flags: str, ask_status: bool = False) -> Squa
                 "up",
                 "--scenario",
                 "square",
+                "--set",
+                "sim.world=room",
                 "--report",
                 str(report_dir),
                 "--connect",
@@ -195,6 +207,26 @@ def test_square_returns_to_the_start_and_writes_the_report(runs):
     )
     assert not (run.report_dir / "journals").exists(), "the journals are gone once run.mcap is written"
     assert not [name for name, pid in pids.items() if pid_alive(pid)]
+
+
+def test_the_scans_see_the_room_and_the_imu_turns_as_the_robot_does(runs):
+    """The lidar sees the room's walls and posts on every scan; the IMU's yaw rate, integrated over
+    the square, is the heading the robot turned (ground truth, unwrapped) within 2 %."""
+    run = runs["quiet"]
+    scans = [decode(LaserScan, payload) for payload in run.samples[KEYS.sim_scan]]
+    assert len(scans) == math.floor(run.report["sim_time_s"] * 10) + 1, "10 Hz of simulation time, from t = 0"
+    assert all(any(reading is not None for reading in scan.ranges) for scan in scans)
+    assert {"wall_south", "wall_west", "post_1"} <= {body for scan in scans for body in scan.bodies}
+    samples = [decode(ImuSample, payload) for payload in run.samples[KEYS.sim_imu]]
+    integrated = sum(
+        (later.tm.to_nanoseconds() - earlier.tm.to_nanoseconds()) / 1e9 * earlier.angular_velocity[2]
+        for earlier, later in itertools.pairwise(samples)
+    )
+    poses = [decode(TimedDoubleSeq, payload).data for payload in run.samples[KEYS.sim_body_pose]]
+    headings = [math.atan2(pose[6], pose[3]) for pose in poses]
+    turned = sum(math.remainder(b - a, math.tau) for a, b in itertools.pairwise(headings))
+    assert turned > math.pi, "the square turns the robot three quarters round, at least"
+    assert integrated == pytest.approx(turned, rel=0.02)
 
 
 def test_every_step_of_the_run_is_recorded(runs):

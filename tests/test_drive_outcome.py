@@ -74,6 +74,40 @@ def test_an_emergency_stop_is_named_and_a_clear_in_time_gives_nothing_up() -> No
     assert given_up is not None and given_up.reason.startswith("an emergency stop (motor/gui/stop)")
 
 
+HELD_BY = "obstacle 'box' in the stop zone, 0.31 m ahead at (0.76, 0.02) in base_link"
+
+
+def test_a_robot_held_by_the_collision_monitor_is_given_up_after_the_configured_time_naming_the_obstacle() -> None:
+    rule = GiveUpRule(PARAMS, limit_s=None)
+    rule.motor_state("running", int(1.5 * NS), "", HELD_BY)
+    assert rule.check(int(3.5 * NS) - 1, 0) is None, "not before give_up_after_stop"
+    given_up = rule.check(int(3.5 * NS), 0)
+    assert given_up is not None and given_up.outcome is Outcome.ABORTED
+    assert given_up.reason == f"held by the collision monitor for 2.000 s since t = 1.500 s: {HELD_BY}"
+
+
+def test_a_hold_that_ends_in_time_gives_nothing_up_and_a_change_of_cause_goes_on() -> None:
+    rule = GiveUpRule(PARAMS, limit_s=None)
+    rule.motor_state("running", 1 * NS, "", HELD_BY)
+    rule.motor_state("running", 2 * NS, "", "")
+    assert rule.check(int(3.5 * NS), 0) is None, "released after 1 s"
+    rule.motor_state("running", 4 * NS, "", HELD_BY)
+    stale = "no scan for 0.52 s (collision_monitor.scan_timeout 0.5 s)"
+    rule.motor_state("running", 5 * NS, "", stale)
+    given_up = rule.check(6 * NS, 0)
+    assert given_up is not None and given_up.reason.endswith(f"for 2.000 s since t = 4.000 s: {stale}")
+
+
+def test_a_hold_is_not_given_up_when_the_rule_is_off_nor_across_a_new_time_base() -> None:
+    off = GiveUpRule(msgspec.structs.replace(PARAMS, give_up_after_stop=None), limit_s=None)
+    off.motor_state("running", 0, "", HELD_BY)
+    assert off.check(10**15, 0) is None
+    rule = GiveUpRule(PARAMS, limit_s=None)
+    rule.motor_state("running", 9 * NS, "", HELD_BY)
+    rule.restart(0)
+    assert rule.check(3 * NS, 0) is None and rule.held_by == ""
+
+
 def test_a_pass_past_its_time_limit_times_out_and_never_before() -> None:
     rule = GiveUpRule(PARAMS, limit_s=8.5)
     assert rule.check(100 * NS, int(8.5 * NS)) is None

@@ -46,7 +46,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.runtime(\..*)?", RUNTIME),
     (r"services\.(motor|odometry|localization)\.core", CORE),
     (r"services\.motor\.state", CORE),
-    (r"services\.motor\.(sim_pose|speed_limiter)", CORE),
+    (r"services\.motor\.(sim_pose|speed_limiter|collision|monitor)", CORE),
     (r"services\.drive\.(scenarios|path_following|outcome)", CORE),
     (r"services\.clock\.(sim_time|lockstep|observation)", CORE),
     (r"services\.planar", CORE),
@@ -284,7 +284,7 @@ def test_a_room_holding_a_launcher_beside_its_cores_is_found():
 
 def test_each_service_room_holds_its_shell_and_its_core():
     for service, cores in {
-        "motor": ("core", "state", "sim_pose", "speed_limiter"),
+        "motor": ("core", "state", "sim_pose", "speed_limiter", "collision", "monitor"),
         "odometry": ("core",),
         "localization": ("core",),
         "drive": ("scenarios", "path_following", "outcome"),

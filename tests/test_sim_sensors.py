@@ -100,7 +100,8 @@ def test_noise_is_the_same_for_the_same_seed_and_robot_and_differs_between_robot
 def test_an_imu_at_rest_reads_gravity_and_no_rotation():
     imu = Imu(ImuConfig(), stream=0)
     for k in range(3):
-        sample = imu.sample(Time(0, k * 10_000_000), (0.0, 0.0, 0.0, 1.0), np.eye(3), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        identity = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+        sample = imu.sample(Time(0, k * 10_000_000), (0.0, 0.0, 0.0, 1.0), identity, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
         assert sample.angular_velocity == (0.0, 0.0, 0.0)
         assert sample.linear_acceleration == pytest.approx((0.0, 0.0, GRAVITY))
         assert sample.orientation_source == "simulator"
@@ -108,7 +109,7 @@ def test_an_imu_at_rest_reads_gravity_and_no_rotation():
 
 def test_an_imu_reads_its_bias_the_acceleration_in_its_own_axes_and_the_spin_at_its_mount():
     imu = Imu(ImuConfig(x=0.1, y=0.0, z=0.0, gyro_bias=(0.0, 0.0, 0.01), accel_bias=(0.2, 0.0, 0.0)), stream=0)
-    turned = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # heading +90°
+    turned = (0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0)  # heading +90°, row-major
     quaternion = (0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5))
     imu.sample(Time(0, 0), quaternion, turned, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
     sample = imu.sample(Time(0, 10_000_000), quaternion, turned, (0.0, 0.1, 0.0), (0.0, 0.0, 1.0))

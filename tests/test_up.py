@@ -139,8 +139,12 @@ def _up(*flags: str, cwd: Path = REPO) -> subprocess.CompletedProcess[str]:
     return subprocess.run(command, cwd=cwd, capture_output=True, text=True, timeout=180, check=False)
 
 
+NO_MONITOR = ("--set", "collision_monitor.enabled=false")
+"""The bump tests drive into the box: without it, the collision monitor holds the robot short of it."""
+
+
 def test_a_straight_into_the_box_ends_by_itself_aborted_naming_the_bump_and_the_box(tmp_path):
-    result = _up("--set", "sim.world=bump", "--scenario", "straight", "--report", str(tmp_path))
+    result = _up("--set", "sim.world=bump", *NO_MONITOR, "--scenario", "straight", "--report", str(tmp_path))
     assert result.returncode == Outcome.ABORTED.exit_code == 3, result.stdout[-4000:]
     outcome = json.loads((tmp_path / "report.json").read_text())["outcome"]
     assert outcome["outcome"] == "aborted" and outcome["iteration"] == 0, outcome
@@ -149,6 +153,18 @@ def test_a_straight_into_the_box_ends_by_itself_aborted_naming_the_bump_and_the_
     assert outcome["t_s"] == pytest.approx(3.9, abs=0.1), outcome
     assert "outcome: aborted (bumped into 'box'" in result.stdout
     assert "the scenario was given up: exit 3" in result.stdout
+
+
+def test_the_collision_monitor_holds_a_straight_short_of_the_box_and_the_drive_gives_it_up_naming_it(tmp_path):
+    result = _up("--composed", "--set", "sim.world=bump", "--scenario", "straight", "--report", str(tmp_path))
+    assert result.returncode == Outcome.ABORTED.exit_code, result.stdout[-4000:]
+    report = json.loads((tmp_path / "report.json").read_text())
+    outcome = report["outcome"]
+    assert re.match(r"held by the collision monitor for 2\.0\d\d s", outcome["reason"]), outcome
+    assert "obstacle 'box' in the stop zone" in outcome["reason"], outcome
+    assert "bumps 0, bump_stop_calls 0," in result.stdout + result.stderr, "held before it touched: no sim/bump"
+    # the body (0.45 m) touches the box at x = 0.45: at least 5 cm short
+    assert report["final"]["ground_truth"]["x"] <= 0.40, report["final"]
 
 
 def test_a_scenario_the_motor_is_too_slow_for_ends_timed_out_at_its_time_limit(tmp_path):
@@ -175,7 +191,7 @@ def test_a_stop_latched_in_the_motor_state_file_aborts_the_scenario_naming_it(tm
 
 
 def test_loop_ends_with_the_outcome_of_the_pass_that_gave_up(tmp_path):
-    result = _up("--loop", "--composed", "--set", "sim.world=bump", "--scenario", "straight", cwd=tmp_path)
+    result = _up("--loop", "--composed", "--set", "sim.world=bump", *NO_MONITOR, "--scenario", "straight", cwd=tmp_path)
     assert result.returncode == 3, result.stdout[-4000:]
     assert "outcome: aborted (bumped into 'box'" in result.stdout
     assert "done; no recording, no report (--loop)" in result.stdout

@@ -258,8 +258,9 @@ class DriveConfig(Section, frozen=True):
     """Age after which an odometry pose is too old to follow a path on: the drive then commands
     zero until a fresh one arrives."""
     give_up_after_stop: Annotated[Positive, SIMULATED_SECONDS] | None = 2.0
-    """How long the motor may stay latched stopped (a bump, an emergency stop) before the drive
-    gives its scenario up (``aborted``); None (``"none"``): it waits for a ``clear`` for ever."""
+    """How long the motor may stay latched stopped (a bump, an emergency stop), or held by its
+    collision monitor (``motor/state``'s ``held_by``), before the drive gives its scenario up
+    (``aborted``); None (``"none"``): it waits for a ``clear``, or a clear way, for ever."""
     time_limit_factor: Positive | None = 3.0
     """A pass of a scenario lasting longer than this many times its planned duration, plus
     ``time_limit_margin``, is given up (``timed_out``), unless the scenario sets its own

@@ -5,7 +5,9 @@ navigation stack aborts a goal, when it can no longer complete it:
 
 - **aborted**: the motor has stayed latched stopped (a bump, an emergency stop) for
   ``drive.give_up_after_stop`` simulated seconds: nothing the drive commands can move the robot
-  until someone clears the stop;
+  until someone clears the stop; or the motor's collision monitor has held the robot (``motor/state``'s
+  ``held_by``: an obstacle in the stop zone, or no recent scan) continuously for as long: the way
+  ahead stays blocked;
 - **timed_out**: one pass of the scenario has lasted longer than its time limit (the scenario
   file's ``time_limit``, else ``drive.time_limit_factor`` × its planned duration +
   ``drive.time_limit_margin``).
@@ -77,9 +79,18 @@ class GiveUpRule:
         """(simulation time in ns, obstacle) of the latest bump the simulator reported."""
         self.stop_bump: tuple[int, str] | None = None
         """The bump that latched the current stop (a robot pushed back touches again while stopped)."""
+        self.held_since_ns: int | None = None
+        """The simulation time from which the collision monitor has held the robot; None while it does not."""
+        self.held_by = ""
 
-    def motor_state(self, state: str, stamp_ns: int, stopped_by: str) -> None:
-        """The motor's state changed at ``stamp_ns`` (its wheel-angle time)."""
+    def motor_state(self, state: str, stamp_ns: int, stopped_by: str, held_by: str = "") -> None:
+        """The motor's state changed at ``stamp_ns`` (its wheel-angle time); ``held_by``: why its
+        collision monitor holds the robot ("" while it does not). A hold whose cause changes goes on."""
+        if not held_by:
+            self.held_since_ns = None
+        elif self.held_since_ns is None:
+            self.held_since_ns = stamp_ns
+        self.held_by = held_by
         if state != "stopped":
             self.stopped_since_ns, self.stop_bump = None, None
         elif self.stopped_since_ns is None:
@@ -93,6 +104,7 @@ class GiveUpRule:
         if self.stopped_since_ns is not None:
             self.stopped_since_ns = now_ns
         self.last_bump = self.stop_bump = None
+        self.held_since_ns, self.held_by = None, ""  # the motor forgets its scans and its hold too
 
     def bump(self, obstacle: str, stamp_ns: int) -> None:
         self.last_bump = (stamp_ns, obstacle)
@@ -117,6 +129,14 @@ class GiveUpRule:
         since_ns = self._stop_start_ns()
         if self._stop_ns is not None and since_ns is not None and now_ns - since_ns >= self._stop_ns:
             return GiveUp(Outcome.ABORTED, self._stop_reason(since_ns, now_ns))
+        held_ns = self.held_since_ns
+        if self._stop_ns is not None and held_ns is not None and now_ns - held_ns >= self._stop_ns:
+            held_s = (now_ns - held_ns) / NANOSECONDS_PER_SECOND
+            return GiveUp(
+                Outcome.ABORTED,
+                f"held by the collision monitor for {held_s:.3f} s since t = "
+                f"{held_ns / NANOSECONDS_PER_SECOND:.3f} s: {self.held_by}",
+            )
         if self._limit_ns is not None and pass_elapsed_ns > self._limit_ns:
             return GiveUp(
                 Outcome.TIMED_OUT,

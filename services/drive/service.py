@@ -20,8 +20,9 @@ When the scenario ends the drive publishes zero velocity on :data:`FINAL_ZERO_TI
 successive ticks, so the stop is not lost, the last with the attachment
 :data:`~services.clock.lockstep.FINAL`, then its outcome on ``drive/outcome`` (latched), and exits
 with the outcome's code (services/drive/outcome.py): 0 ``completed``; 3 ``aborted``, given up
-because the motor stayed latched stopped (``motor/state``; ``sim/bump`` names what it bumped into)
-for ``drive.give_up_after_stop``; 4 ``timed_out``, a pass past the scenario's time limit. A
+because the motor stayed latched stopped (``motor/state``; ``sim/bump`` names what it bumped into),
+or its collision monitor held the robot (``motor/state``'s ``held_by``), for
+``drive.give_up_after_stop``; 4 ``timed_out``, a pass past the scenario's time limit. A
 ``--twist`` holds its target until Ctrl-C and gives nothing up.
 
 A restarted simulator (its liveliness token appears, then its clock goes back) starts the
@@ -157,7 +158,7 @@ class DriveService:
         return self.outcome.outcome.exit_code if self.finished and self.outcome is not None else 0
 
     def _on_motor_state(self, report: MotorStateReport) -> None:
-        self.give_up.motor_state(report.state, report.tm.to_nanoseconds(), report.stopped_by)
+        self.give_up.motor_state(report.state, report.tm.to_nanoseconds(), report.stopped_by, report.held_by)
 
     def _on_bump(self, bump: BumpEvent) -> None:
         self.give_up.bump(bump.obstacle, bump.tm.to_nanoseconds())
@@ -310,6 +311,10 @@ class DriveService:
             "motor_stopped_since_s": None
             if self.give_up.stopped_since_ns is None
             else self.give_up.stopped_since_ns / NANOSECONDS_PER_SECOND,
+            "motor_held_since_s": None
+            if self.give_up.held_since_ns is None
+            else self.give_up.held_since_ns / NANOSECONDS_PER_SECOND,
+            "motor_held_by": self.give_up.held_by,
             "outcome": None
             if self.outcome is None
             else {"outcome": self.outcome.outcome, "reason": self.outcome.reason},

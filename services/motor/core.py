@@ -10,6 +10,8 @@ timeout, and the bounds on its input; the velocity and acceleration limits are a
 
 Per-sample work is a handful of float operations on locals: a benchmark runs this at
 thousands of samples per second, so there is no numpy and no allocation beyond the torque list.
+The collision monitor (:attr:`MotorCore.monitor`) adds a comparison per cycle: its geometry runs
+only when a scan arrives or the command changes.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND, PDGains
 from services.clock.sim_time import StampGap, check_stamp_near
 from services.config import CalibratedGeometry, InputConfig, MotorConfig, OdometryConfig, RobotConfig, TargetAngleMode
+from services.motor.monitor import CollisionMonitor
 from services.motor.sim_pose import SimPoseConverter
 from services.motor.speed_limiter import SpeedLimiter
 from services.planar import check_coordinates
@@ -117,6 +120,9 @@ class MotorCore:
 
         self._finished = False
         self._stopped = False
+        self.monitor: CollisionMonitor | None = None
+        """The collision monitor (services/motor/monitor.py) whose factor scales the command; None:
+        not monitored (``collision_monitor.enabled = false``, or a core with no scans)."""
 
         self.wheel_angle_samples = 0
         self.body_pose_samples = 0
@@ -230,6 +236,8 @@ class MotorCore:
         self._stamp_ns = None
         self._target_stamp_ns = None
         self._deferred_target = None
+        if self.monitor is not None:
+            self.monitor.forget()
         self._release()
         self.dq = self.dq_ref = self.q_ref = None
 
@@ -246,7 +254,10 @@ class MotorCore:
         self._anchored = False
 
     def _command_velocity(self, stamp_ns: int, dt: float, state: MotorState) -> tuple[float, float]:
+        monitor = self.monitor
         if state is MotorState.STOPPED:
+            if monitor is not None:
+                monitor.factor(stamp_ns, 0.0, 0.0)  # keeps held_by true (a scan gone stale holds)
             self.command = (0.0, 0.0)
             return self.command
         vx, w = self.target
@@ -258,6 +269,10 @@ class MotorCore:
             if not self._timed_out:
                 self._timed_out = True
                 self.command_timeouts += 1
+        if monitor is not None:
+            factor = monitor.factor(stamp_ns, vx, w)  # held: 0, slowed: slow_factor, clear: 1
+            if factor != 1.0:
+                vx, w = vx * factor, w * factor
         if self._limited:
             previous_vx, previous_w = self.command
             vx = self.vx_limiter.limit(vx, previous_vx, dt)

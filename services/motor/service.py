@@ -29,6 +29,8 @@ import msgspec
 from schemas.codec import BadInput, decode
 from schemas.keys import METHOD_ARGUMENTS, Method, MethodFamily, Service, Topic
 from schemas.messages import (
+    NANOSECONDS_PER_SECOND,
+    LaserScan,
     MotorStateName,
     MotorStateReport,
     NoArguments,
@@ -43,8 +45,9 @@ from services.clock.sim_time import ClockRestart
 from services.clock.sim_watch import HeldSample, SimulatorWatch
 from services.config import Config
 from services.motor.core import MotorCore
+from services.motor.monitor import CollisionMonitor
 from services.motor.state import SavedState, StateFile, default_state_path
-from services.runtime.inputs import Delivery
+from services.runtime.inputs import Delivery, NodeInput
 from services.runtime.logs import RateLimitedLog
 from services.runtime.node import Node, Wait
 from services.service import ServiceCommand, TraceFile
@@ -91,6 +94,12 @@ class MotorService:
     def __init__(self, node: Node, config: Config, options: MotorOptions) -> None:
         self.node = node
         self.core = MotorCore(config.robot, config.motor, config.input, config.geometry)
+        self.monitor: CollisionMonitor | None = None
+        if config.collision_monitor.enabled:
+            self.monitor = CollisionMonitor(
+                config.robot, config.lidar, config.collision_monitor, config.input.stamp_horizon_ns
+            )
+            self.core.monitor = self.monitor
         self.torques_published = 0
         # Lockstep: a wheel-angle sample waits for the drive's target it is owed (the sim took it).
         self.target_hold: Hold[HeldSample] = Hold(
@@ -111,7 +120,7 @@ class MotorService:
 
         keys = node.keys
         self._state = node.latched_publisher(keys.motor_state)
-        self._state_published: tuple[str, StopCause] = ("", "")
+        self._state_published: tuple[str, StopCause, str] = ("", "", "")
         self._publish_state()
         self._torque = node.publisher(keys.motor_torque)
         self._wheel_angles = node.publisher(keys.motor_wheel_angles)
@@ -143,6 +152,19 @@ class MotorService:
             sim.stamped(keys.drive_target_velocity, self._on_target_velocity, awaited=lambda: self.target_hold.holding),
             Delivery.NEWEST,
         )
+        self._scans: NodeInput | None = None
+        if self.monitor is not None:
+            # A ring channel, as the wheel angles': zenoh fills both in arrival order, and the
+            # simulator publishes a step's scan before its wheel angles, so the scans waiting when a
+            # sample is controlled are those of its step and before (_control takes them first):
+            # a lockstep run's torques are the same every run. (A callback, QUEUED, runs in a
+            # thread of its own and may come after the wheel angles.)
+            self._scans = node.subscribe(
+                keys.sim_scan,
+                LaserScan,
+                sim.stamped(keys.sim_scan, self._on_scan, awaited=lambda: False),
+                Delivery.EVERY,
+            )
         for family in MethodFamily:
             for method in Method:
                 node.queryable(keys.method(family, method), partial(self._call, family, method), mutates=True)
@@ -186,6 +208,10 @@ class MotorService:
         angles, attachment, mark, stamp_ns = held
         tm = angles.tm
         core = self.core
+        scans = self._scans
+        if scans is not None:
+            while scans.take():  # the scans of this step and before, first
+                pass
         torques = core.step(stamp_ns, angles.data)
         # A run recorded at the observed steps keeps the control path's samples of those only.
         node = self.node
@@ -193,7 +219,10 @@ class MotorService:
         self._torque.put(TimedDoubleSeq(tm, torques), keep=keep)
         self._wheel_angles.put(angles, attachment, keep=keep)
         self.torques_published += 1
-        if core.state != self._state_published[0]:
+        monitor = self.monitor
+        if core.state != self._state_published[0] or (
+            monitor is not None and monitor.held_by != self._state_published[2]
+        ):
             self._publish_state()
         trace = self._trace
         if trace is not None:
@@ -249,14 +278,31 @@ class MotorService:
                 publisher.record(sim_pose)
 
     def _publish_state(self) -> None:
-        """``motor/state`` (latched), when the state or who stopped the motor has changed."""
-        current = (str(self.core.state), self.stopped_by)
+        """``motor/state`` (latched), when the state, who stopped the motor or why the collision
+        monitor holds it has changed; one log line as a hold starts, changes cause or ends."""
+        held_by = "" if self.monitor is None else self.monitor.held_by
+        current = (str(self.core.state), self.stopped_by, held_by)
         if current == self._state_published:
             return
+        if held_by != self._state_published[2]:
+            self._log_hold(held_by, self._state_published[2])
         self._state_published = current
         stamp_ns = self.core.time_ns or 0
         state = typing.cast(MotorStateName, current[0])
-        self._state.put(MotorStateReport(Time.from_nanoseconds(stamp_ns), state=state, stopped_by=self.stopped_by))
+        self._state.put(
+            MotorStateReport(Time.from_nanoseconds(stamp_ns), state=state, stopped_by=self.stopped_by, held_by=held_by)
+        )
+
+    def _log_hold(self, held_by: str, before: str) -> None:
+        t = (self.core.time_ns or 0) / NANOSECONDS_PER_SECOND
+        if held_by:
+            self.node.log.warning("held at t = %.3f s: %s", t, held_by)
+        else:
+            self.node.log.info("hold released at t = %.3f s (was: %s)", t, before)
+
+    def _on_scan(self, scan: LaserScan) -> None:
+        assert self.monitor is not None
+        self.monitor.take_scan(scan, self.core.time_ns)
 
     def _on_target_velocity(self, velocity: TimedVelocity) -> None:
         stamp_ns = velocity.tm.to_nanoseconds()
@@ -298,8 +344,16 @@ class MotorService:
     def status(self) -> dict[str, Any]:
         status = self.core.status()
         status["counters"]["time_base_restarts"] = self.sim.restart.restarts
+        monitor = self.monitor
+        if monitor is None:
+            collision: dict[str, Any] = {"enabled": False}
+        else:
+            collision = monitor.status()
+            bad = self.node.bad_inputs.by_key.get(self.node.keys.sim_scan)
+            collision["counters"]["bad_scans"] = 0 if bad is None else bad.count
         return {
             **status,
+            "collision_monitor": collision,
             "sim_alive": self.sim.alive,
             "torques_published": self.torques_published,
             "lockstep_holds": {"held": self.target_hold.holds, "released_unanswered": self.target_hold.overflows},
