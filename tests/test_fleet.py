@@ -53,7 +53,14 @@ HEAD_ON = _robot("rh0", 0.0, 0.0, 0.0, "straight", NO_MONITOR) + _robot(
 )
 """Two robots 3 m apart facing each other, each to drive 2 m straight ahead: they meet half-way
 (their collision monitors off: they bump)."""
-COMPARED = (Topic.SIM_BODY_POSE, Topic.ODOMETRY_POSE, Topic.LOCALIZATION_POSE, Topic.DRIVE_TARGET_VELOCITY)
+COMPARED = (
+    Topic.SIM_BODY_POSE,
+    Topic.ODOMETRY_POSE,
+    Topic.LOCALIZATION_POSE,
+    Topic.DRIVE_TARGET_VELOCITY,
+    Topic.SIM_SCAN,
+    Topic.SIM_IMU,
+)
 PATIENT = ("--set", "sim.lockstep_timeout=5")
 """As in test_determinism: beside two burners a lockstep wait may take longer than the default."""
 HOME_M = 0.05
@@ -131,6 +138,7 @@ def test_both_robots_drive_their_square_from_their_own_start_and_come_home(squar
         assert report["fleet"]["bumps_between_robots"] == []
         shown = {topic.decode() for topic in squares[name][3]["shown"]}
         assert {"/rh0/odometry/pose", "/rh1/odometry/pose", "/tf", "/scene"} <= shown, "run.mcap shows every robot"
+        assert {"/rh0/scan", "/rh1/scan"} <= shown, "and each robot's scan"
 
 
 def test_a_fleet_run_is_the_same_bit_for_bit_composed_quietly_and_separate_beside_burners(squares):

@@ -6,13 +6,24 @@ that the report reads back whole."""
 
 from __future__ import annotations
 
-from schemas.codec import encode
-from schemas.keys import Keys, Service
-from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+import math
+
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan as FoxgloveLaserScan
+
+from schemas.codec import decode, encode
+from schemas.keys import TOPIC_TYPES, Keys, Service, Topic
+from schemas.messages import ImuSample, LaserScan, Time, TimedDoubleSeq, TimedPosition
 from services.config import RecordConfig, load_config
-from services.recording.mcap_files import RECORDING_STOPPED_TOPIC, read_messages, read_run, recording_parts
+from services.recording.mcap_files import (
+    RECORDING_STOPPED_TOPIC,
+    read_messages,
+    read_run,
+    recording_parts,
+    replay_schedule,
+)
 from services.recording.record import write_run_recording
-from services.recording.scene import ODOMETRY_TOPIC, TRANSFORMS_TOPIC
+from services.recording.scene import LIDAR_FRAME, ODOMETRY_TOPIC, SCAN_TOPIC, TRANSFORMS_TOPIC
 from services.runtime.journal import Journal, journal_path
 
 KEYS = Keys("rh0")
@@ -127,3 +138,56 @@ def test_a_recording_split_by_duration_and_by_size_reads_back_whole_in_order(tmp
                 assert poses[-1] - poses[0] == 249 * MS, (part, "a quarter of a second each")
             else:
                 assert sum(len(m.data) for m in read_messages(part).messages) >= 50_000, part
+
+
+def _scan(stamp_ns: int) -> bytes:
+    ranges = [None if ray % 2 else 1.0 + ray / 1000 for ray in range(360)]
+    return encode(LaserScan(Time.from_nanoseconds(stamp_ns), -math.pi, 2 * math.pi / 360, 0.12, 3.5, ranges))
+
+
+def _imu(stamp_ns: int) -> bytes:
+    return encode(ImuSample(Time.from_nanoseconds(stamp_ns), (0, 0, 0, 1), "simulator", (0, 0, 0.5), (0, 0, 9.81)))
+
+
+def test_the_lidar_and_imu_are_recorded_at_their_rates_the_scan_drawn_and_both_replayable(tmp_path):
+    """A second of the sim's journal as it publishes its sensors (scans at 10 Hz, the IMU at 100 Hz,
+    beside the observed steps' poses): run.mcap holds both keys with their schemas, every scan
+    again as a foxglove.LaserScan in the lidar's frame, and a replay sends both as recorded."""
+    journals = tmp_path / "journals"
+    journals.mkdir()
+    sim = Journal(journal_path(journals, str(Service.SIM)))
+    for step in range(0, 1000, 10):
+        published = PUBLISHED_NS + step * MS
+        if step % 100 == 0:
+            sim.write(KEYS.sim_scan, _scan(step * MS), published)
+        sim.write(KEYS.sim_imu, _imu(step * MS), published)
+        if step % 20 == 0:
+            sim.write(KEYS.sim_body_pose, _body_pose(step * MS, 0.0), published + 1)
+    sim.close()
+    output = tmp_path / "run.mcap"
+
+    write_run_recording(journals, output, load_config(None, {}))
+
+    messages = read_run(output).messages
+    by_topic: dict[str, list] = {}
+    for message in messages:
+        by_topic.setdefault(message.topic, []).append(message)
+    assert len(by_topic[KEYS.sim_scan]) == 10 and len(by_topic[KEYS.sim_imu]) == 100, "at their own rates"
+    assert {by_topic[key][0].schema_name for key in (KEYS.sim_scan, KEYS.sim_imu)} == {"LaserScan", "ImuSample"}
+    shown = by_topic[SCAN_TOPIC]
+    assert len(shown) == 10 and shown[0].schema_name == "foxglove.LaserScan"
+    assert [m.publish_time_ns for m in shown] == [m.publish_time_ns for m in by_topic[KEYS.sim_scan]]
+    scan = FoxgloveLaserScan.FromString(shown[-1].data)
+    assert scan.frame_id == LIDAR_FRAME and list(scan.ranges) == decode(LaserScan, _scan(0)).ranges_or_inf()
+    frames = {
+        (t.parent_frame_id, t.child_frame_id)
+        for m in by_topic[TRANSFORMS_TOPIC]
+        for t in FrameTransforms.FromString(m.data).transforms
+    }
+    assert frames == {("world", "base_link"), ("base_link", LIDAR_FRAME)}
+    robot, schedule = replay_schedule(messages)
+    replayed = [item for item in schedule if item.topic in (Topic.SIM_SCAN, Topic.SIM_IMU)]
+    assert robot == KEYS.robot and len(replayed) == 110
+    assert [decode(TOPIC_TYPES[item.topic], item.data).tm.to_nanoseconds() for item in replayed] == [
+        item.stamp_ns for item in replayed
+    ], "every sample decodes, in stamp order"

@@ -18,6 +18,7 @@ from services.drive.outcome import Outcome
 from services.drive.scenarios import BUILTIN_SCENARIOS, planned_duration
 from services.planar import Pose
 from services.recording.mcap_files import read_messages
+from services.recording.scene import SCAN_TOPIC
 from tests.harness import REPO, free_port, invent_command, pid_alive, run_invent, start_up, wait_until
 
 pytestmark = pytest.mark.slow
@@ -81,8 +82,16 @@ def test_up_straight_follows_the_waypoints_with_the_real_services(tmp_path):
     assert report["outcome"] == {**report["outcome"], "outcome": "completed", "reason": ""}
     # recorded at the observed steps (sim.observe_every = 20: 50 Hz), not at every step
     assert (tmp_path / "run.mcap").stat().st_size <= 0.1e6 * report["sim_time_s"], "at most 0.1 MB per simulated s"
-    poses = [m for m in read_messages(tmp_path / "run.mcap").messages if m.topic == KEYS.sim_body_pose]
+    recorded = read_messages(tmp_path / "run.mcap").messages
+    poses = [m for m in recorded if m.topic == KEYS.sim_body_pose]
     assert len(poses) == pytest.approx(report["steps"] / 20, abs=2), (len(poses), report["steps"])
+    # the sensors at their own rates (lidar 10 Hz, IMU 100 Hz), the scan drawn as each came
+    sensors = {key: [m for m in recorded if m.topic == key] for key in (KEYS.sim_scan, KEYS.sim_imu, SCAN_TOPIC)}
+    for key, rate_hz, schema in ((KEYS.sim_scan, 10, "LaserScan"), (KEYS.sim_imu, 100, "ImuSample")):
+        assert len(sensors[key]) == pytest.approx(report["sim_time_s"] * rate_hz, abs=2), (key, report["sim_time_s"])
+        assert {m.schema_name for m in sensors[key]} == {schema}
+    assert [m.publish_time_ns for m in sensors[SCAN_TOPIC]] == [m.publish_time_ns for m in sensors[KEYS.sim_scan]]
+    assert {m.schema_name for m in sensors[SCAN_TOPIC]} == {"foxglove.LaserScan"}
 
 
 @pytest.mark.parametrize(

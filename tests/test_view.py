@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import re
 import signal
 import struct
@@ -30,17 +31,21 @@ import pytest
 import websockets
 import zenoh
 from foxglove.messages import FrameTransforms
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms as FrameTransformsProto
+from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan as FoxgloveLaserScan
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-from schemas.codec import decode
+from schemas.codec import decode, encode
 from schemas.keys import Keys, Service, Topic, schema_for_key
-from schemas.messages import Time, TimedDoubleSeq
+from schemas.messages import ImuSample, LaserScan, Time, TimedDoubleSeq
 from services.config import Config
 from services.exits import ExitStatus
 from services.recording.scene import (
+    LIDAR_FRAME,
     LOCALIZATION_TOPIC,
     ODOMETRY_TOPIC,
     ROBOT_FRAME,
+    SCAN_TOPIC,
     SCENE_TOPIC,
     TRANSFORMS_TOPIC,
     WHEEL_SPEEDS_SCHEMA,
@@ -74,11 +79,14 @@ SUBSCRIBED = {
     WHEEL_SPEEDS_TOPIC: WHEEL_SPEEDS_SCHEMA["title"],
     KEYS.sim_body_pose: TimedDoubleSeq.__name__,
     KEYS.status(Service.MOTOR): None,
+    SCAN_TOPIC: "foxglove.LaserScan",
+    KEYS.sim_scan: LaserScan.__name__,
+    KEYS.sim_imu: ImuSample.__name__,
 }
 """The channels the client subscribes to, and the schema each must have (None: schemaless)."""
 
 
-SCENE_TOPICS = (TRANSFORMS_TOPIC, ODOMETRY_TOPIC, LOCALIZATION_TOPIC, SCENE_TOPIC, WHEEL_SPEEDS_TOPIC)
+SCENE_TOPICS = (TRANSFORMS_TOPIC, ODOMETRY_TOPIC, LOCALIZATION_TOPIC, SCENE_TOPIC, WHEEL_SPEEDS_TOPIC, SCAN_TOPIC)
 
 
 def served_topics(keys: Keys) -> frozenset[str]:
@@ -234,6 +242,8 @@ def test_a_foxglove_client_sees_the_running_loop_live(tmp_path: Path) -> None:
     assert len(body_pose.data) == 12, "a raw key's payload, as published"
     speeds = json.loads(watched.frames[WHEEL_SPEEDS_TOPIC][-1][1])
     assert set(speeds) == set(WHEEL_SPEEDS_SCHEMA["properties"])
+    scan = FoxgloveLaserScan.FromString(watched.frames[SCAN_TOPIC][-1][1])
+    assert scan.frame_id == LIDAR_FRAME and len(scan.ranges) == Config().lidar.rays, "the simulator's scan, drawn"
     status = json.loads(watched.frames[KEYS.status(Service.MOTOR)][-1][1])
     assert status["service"] == Service.MOTOR and isinstance(status["state"], str)
 
@@ -265,7 +275,7 @@ def test_the_layout_names_only_what_the_view_serves() -> None:
 
     three_d = _panel(layout, "3D")
     assert three_d["followTf"] == ROBOT_FRAME and three_d["fixedFrame"] == WORLD_FRAME
-    assert set(three_d["topics"]) == {SCENE_TOPIC, TRANSFORMS_TOPIC, ODOMETRY_TOPIC, LOCALIZATION_TOPIC}
+    assert set(three_d["topics"]) == {SCENE_TOPIC, TRANSFORMS_TOPIC, ODOMETRY_TOPIC, LOCALIZATION_TOPIC, SCAN_TOPIC}
 
     served = served_topics(KEYS)
     paths = _layout_paths(layout)
@@ -391,3 +401,66 @@ def test_only_clients_offering_the_current_subprotocol_are_served() -> None:
         server.stop()
     assert served == "foxglove.sdk.v1"
     assert refused == 400
+
+
+def test_hand_fed_scans_are_drawn_in_the_lidar_frame_and_a_malformed_one_is_dropped_and_counted() -> None:
+    """A real view on a real router, fed ``sim/scan`` by hand (as the simulator publishes it): a
+    Foxglove client gets each scan as a ``foxglove.LaserScan`` in ``base_scan`` and the transform
+    that puts that frame on ``base_link``; malformed scans between them are dropped and counted
+    in the view's status, and the view serves on."""
+    good = LaserScan(
+        tm=Time.from_nanoseconds(0),
+        angle_min=-math.pi,
+        angle_increment=2 * math.pi / 360,
+        range_min=0.12,
+        range_max=3.5,
+        ranges=[None if ray % 3 else 1.0 + ray / 1000 for ray in range(360)],
+    )
+    malformed = [b"{", encode(good).replace(b"[null,", b"[-1.0,", 1)]
+    feeding = threading.Event()
+    fed = [0]
+    feeder: threading.Thread | None = None
+    with running_router() as endpoint, peer_session(endpoint) as session:
+        view = _Process("view", "--connect", endpoint, "--port", "0", "--log-level", "info")
+        try:
+            match = wait_until(lambda: URL_LINE.search(view.output), STARTUP_TIMEOUT_S, "the view's URL")
+            publisher = session.declare_publisher(KEYS.sim_scan)
+            wait_until(lambda: publisher.matching_status.matching, what="the view's subscription")
+
+            def feed() -> None:
+                while feeding.is_set():
+                    fed[0] += 1
+                    stamped = msgspec.structs.replace(good, tm=Time.from_nanoseconds(fed[0] * 100_000_000))
+                    publisher.put(malformed[fed[0] % 2] if fed[0] % 5 == 0 else encode(stamped))
+                    time.sleep(0.05)
+
+            feeding.set()
+            feeder = threading.Thread(target=feed, daemon=True)
+            feeder.start()
+            watched = _watch_for(match.group(1), [SCAN_TOPIC, TRANSFORMS_TOPIC], WATCH_TIMEOUT_S)
+
+            def counted() -> dict[str, Any] | None:
+                ok, status = call(session, KEYS.view_status)
+                assert ok, status
+                return status if status["bad_input"]["by_key"].get(KEYS.sim_scan, {}).get("count", 0) >= 2 else None
+
+            view_status = wait_until(counted, WATCH_TIMEOUT_S, "two malformed scans counted")
+        finally:
+            feeding.clear()
+            if feeder is not None:
+                feeder.join(5)
+            code = view.stop()
+    assert code == 0, view.output[-3000:]
+    assert watched.channels[SCAN_TOPIC]["schemaName"] == "foxglove.LaserScan"
+    for _log_time, payload in watched.frames[SCAN_TOPIC]:
+        scan = FoxgloveLaserScan.FromString(payload)
+        assert scan.frame_id == LIDAR_FRAME and len(scan.ranges) == 360
+        assert list(scan.ranges) == good.ranges_or_inf()
+        assert (scan.start_angle, scan.end_angle) == pytest.approx((-math.pi, math.pi - 2 * math.pi / 360))
+    mounts = [
+        FrameTransformsProto.FromString(payload).transforms[0] for _t, payload in watched.frames[TRANSFORMS_TOPIC]
+    ]
+    assert {(t.parent_frame_id, t.child_frame_id) for t in mounts} == {(ROBOT_FRAME, LIDAR_FRAME)}
+    assert mounts[0].translation.z == Config().lidar.z, "at the [lidar] mount"
+    assert view_status["bad_input"]["total"] == view_status["bad_input"]["by_key"][KEYS.sim_scan]["count"]
+    assert view.process.returncode == 0 and "Traceback" not in view.output, "served on, stopped cleanly"

@@ -33,7 +33,7 @@ from typing import Any, Protocol
 import zenoh
 
 from schemas.codec import BadInput, decode
-from schemas.keys import LATCHED_TOPICS, TOPIC_TYPES, Keys, Topic, TopicMessage
+from schemas.keys import LATCHED_TOPICS, TOPIC_TYPES, Keys, Topic
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import Config, RecordConfig
 from services.recording.mcap_files import (
@@ -45,7 +45,7 @@ from services.recording.mcap_files import (
 from services.recording.scene import WHEEL_SPEEDS_SCHEMA, WHEEL_SPEEDS_TOPIC, Scene
 from services.runtime.journal import ALWAYS_KEPT, MB, STOPPED_KEY, JournalEntry, JournalReader
 from services.runtime.journal import SUFFIX as JOURNAL_SUFFIX
-from services.runtime.logs import RateLimitedLog
+from services.runtime.logs import BadInputCounter, RateLimitedLog
 from services.runtime.session import has_match
 
 log = logging.getLogger("invent.record")
@@ -77,17 +77,27 @@ class Sink:
 
 class SceneBuilder:
     """Hands each sample on to a sink, and the Foxglove scene it builds from the robot's own keys
-    (no zenoh here: the samples come from an :class:`Observer`, or from journals)."""
+    (no zenoh here: the samples come from an :class:`Observer`, or from journals).
 
-    def __init__(self, config: Config, sink: Sink, fleet: Sequence[Config] = ()) -> None:
+    A sample of the project's key space that does not decode as its key's type, or that the scene
+    refuses (well-formed but wrong: :class:`~schemas.codec.BadInput`), is bad input: a recorder
+    keeps it on its key as it was published (a recording is the evidence of what was) and shows
+    nothing of it; given ``bad_input`` (the live view), it is dropped altogether and counted there."""
+
+    def __init__(
+        self, config: Config, sink: Sink, fleet: Sequence[Config] = (), bad_input: BadInputCounter | None = None
+    ) -> None:
         """The scene of ``config``'s robot, or of every robot of ``fleet`` (each robot's description)."""
         self._sink = sink
         robots = tuple(fleet) or (config,)
         self._scenes = {
-            robot.robot.name: Scene(robot.robot, robot.sim, fleet=bool(fleet), geometry=robot.geometry)
+            robot.robot.name: Scene(
+                robot.robot, robot.sim, fleet=bool(fleet), geometry=robot.geometry, lidar=robot.lidar
+            )
             for robot in robots
         }
         self._not_shown = RateLimitedLog(log)
+        self._bad_input = bad_input
         self._topics = {
             Keys(robot.robot.name).topic(topic): (topic, self._scenes[robot.robot.name])
             for robot in robots
@@ -98,19 +108,33 @@ class SceneBuilder:
     def take(self, key: str, payload: bytes, log_time_ns: int) -> None:
         self.keys_taken.add(key)
         topic, scene = self._topics.get(key, (None, None))
-        message = None if topic is None else _decoded(TOPIC_TYPES[topic], payload)
-        stamp_ns = None if message is None else message.tm.to_nanoseconds()
-        if topic is None or scene is None or message is None or stamp_ns is None or stamp_ns > LATEST_STAMP_NS:
+        if topic is None or scene is None:
             self._sink.sample(key, payload, log_time_ns, None)
             return
-        self._sink.sample(key, payload, log_time_ns, stamp_ns)
+        try:
+            message = decode(TOPIC_TYPES[topic], payload)
+        except BadInput as error:
+            self._refused(key, payload, log_time_ns, None, error)
+            return
+        stamp_ns = message.tm.to_nanoseconds()
+        if stamp_ns > LATEST_STAMP_NS:
+            self._sink.sample(key, payload, log_time_ns, None)
+            return
         try:
             shown_messages = scene.add(topic, message)
-        except ValueError as error:  # well-formed but wrong (BadInput): recorded as it is, not shown
-            self._not_shown(key, logging.WARNING, "not shown in the scene: %s: %s", key, error)
+        except ValueError as error:  # well-formed but wrong (BadInput)
+            self._refused(key, payload, log_time_ns, stamp_ns, error)
             return
+        self._sink.sample(key, payload, log_time_ns, stamp_ns)
         for shown_topic, shown in shown_messages:
             self._sink.shown(shown_topic, shown, stamp_ns, log_time_ns)
+
+    def _refused(self, key: str, payload: bytes, log_time_ns: int, stamp_ns: int | None, error: ValueError) -> None:
+        if self._bad_input is not None:
+            self._bad_input.record(key, str(error))
+            return
+        self._sink.sample(key, payload, log_time_ns, stamp_ns)
+        self._not_shown(key, logging.WARNING, "not shown in the scene: %s: %s", key, error)
 
 
 class StatusPoll:
@@ -151,9 +175,11 @@ class Observer:
         config: Config,
         sink: Sink,
         fleet: Sequence[Config] = (),
+        bad_input: BadInputCounter | None = None,
     ) -> None:
-        """``fleet``: the scene of each of these robots (their descriptions), not only ``keys.robot``'s."""
-        self._builder = SceneBuilder(config, sink, fleet)
+        """``fleet``: the scene of each of these robots (their descriptions), not only ``keys.robot``'s;
+        ``bad_input``: where bad input is counted, dropped (:class:`SceneBuilder`)."""
+        self._builder = SceneBuilder(config, sink, fleet, bad_input)
         self._subscribers = [
             session.declare_subscriber(expr, zenoh.handlers.FifoChannel(SAMPLE_CAPACITY)) for expr in key_exprs
         ]
@@ -205,13 +231,6 @@ class Observer:
             subscriber.undeclare()
         for querier in self._latched_queriers:
             querier.undeclare()
-
-
-def _decoded(message_type: type[TopicMessage], payload: bytes) -> TopicMessage | None:
-    try:
-        return decode(message_type, payload)
-    except BadInput:
-        return None
 
 
 def _log_time(sample: zenoh.Sample, taken_ns: int) -> int:

@@ -8,11 +8,14 @@ opened in Foxglove shows the scene the live view showed:
 - ``/odometry/pose``, ``/localization/pose`` (``foxglove.PoseInFrame`` in ``world``);
 - ``/scene`` (``foxglove.SceneUpdate``): the robot (body, wheels, casters) on ``base_link``, the
   world's obstacles, the planned path, and the trails of ground truth and odometry;
-- ``/plot/wheel_speeds`` (JSON): commanded and measured wheel speeds, rad/s.
+- ``/plot/wheel_speeds`` (JSON): commanded and measured wheel speeds, rad/s;
+- ``/scan`` (``foxglove.LaserScan``): every lidar scan (``sim/scan``, at ``lidar.rate``: 10 Hz)
+  in the lidar's frame ``base_scan``, which ``/tf`` places on ``base_link`` at the ``[lidar]``
+  mount with each scan; a ray that saw nothing (``null``) is +inf, as ROS has it.
 
 Poses and transforms are shown at most every :data:`POSE_PERIOD_NS` of simulation time, the
 scene every :data:`SCENE_PERIOD_NS` (the loop publishes at its step rate, kHz, which no viewer
-needs); a trail keeps a point every :data:`TRAIL_SPACING_M`, the newest :data:`TRAIL_POINTS`. Each
+needs); a scan is shown as it comes, at its own rate. A trail keeps a point every :data:`TRAIL_SPACING_M`, the newest :data:`TRAIL_POINTS`. Each
 scene update carries the whole scene (a viewer that seeks, or joins late, needs only the last one),
 so what bounds a recording's growth is the trail's length: the scene costs at most about 30 kB per
 update however long the run (benchmarks/README.md, "What recording costs").
@@ -31,6 +34,7 @@ from foxglove.messages import (
     CylinderPrimitive,
     FrameTransform,
     FrameTransforms,
+    LaserScan,
     LinePrimitive,
     Point3,
     Pose,
@@ -53,17 +57,21 @@ from schemas.messages import (
     TimedPosition,
     TimedVelocity,
 )
+from schemas.messages import LaserScan as ScanMessage
 from services.body.geometry import robot_body
-from services.config import CalibratedGeometry, OdometryConfig, RobotConfig, SimConfig
+from services.config import CalibratedGeometry, LidarConfig, OdometryConfig, RobotConfig, SimConfig
 from services.recording.report import pose_from_body_pose
 
 WORLD_FRAME = "world"
 ROBOT_FRAME = "base_link"
+LIDAR_FRAME = "base_scan"
+"""The lidar's frame, on ``base_link`` at the ``[lidar]`` mount (TurtleBot3's name for it)."""
 TRANSFORMS_TOPIC = "/tf"
 ODOMETRY_TOPIC = "/odometry/pose"
 LOCALIZATION_TOPIC = "/localization/pose"
 SCENE_TOPIC = "/scene"
 WHEEL_SPEEDS_TOPIC = "/plot/wheel_speeds"
+SCAN_TOPIC = "/scan"
 
 POSE_PERIOD_NS = 20_000_000
 SCENE_PERIOD_NS = 500_000_000
@@ -153,17 +161,27 @@ class Scene:
     shared; the obstacles are the world's, one entity)."""
 
     def __init__(
-        self, robot: RobotConfig, sim: SimConfig, *, fleet: bool = False, geometry: CalibratedGeometry | None = None
+        self,
+        robot: RobotConfig,
+        sim: SimConfig,
+        *,
+        fleet: bool = False,
+        geometry: CalibratedGeometry | None = None,
+        lidar: LidarConfig | None = None,
     ) -> None:
         """``geometry``: the calibrated lengths the motor turns commands into wheel speeds with
-        (``Config.geometry``); None, the robot's own."""
+        (``Config.geometry``); None, the robot's own. ``lidar``: where the lidar sits (None: the
+        default ``[lidar]``)."""
         self._robot = robot
         self._geometry = geometry or CalibratedGeometry.of(robot, OdometryConfig())
         prefix = f"{robot.name}/" if fleet else ""
         self.frame = prefix + ROBOT_FRAME
+        self.lidar_frame = prefix + LIDAR_FRAME
+        self._lidar = lidar or LidarConfig()
         self._ids = {entity: prefix + entity for entity in ("robot", "planned_path", "trails")}
         self.topics = {
-            topic: f"/{prefix}{topic.lstrip('/')}" for topic in (ODOMETRY_TOPIC, LOCALIZATION_TOPIC, WHEEL_SPEEDS_TOPIC)
+            topic: f"/{prefix}{topic.lstrip('/')}"
+            for topic in (ODOMETRY_TOPIC, LOCALIZATION_TOPIC, WHEEL_SPEEDS_TOPIC, SCAN_TOPIC)
         }
         self._robot_entity = _robot_entity(robot, sim)
         self._cylinders: list[CylinderPrimitive] = []
@@ -188,6 +206,8 @@ class Scene:
             return self._localization_pose(message)
         if topic is Topic.MOTOR_WHEEL_ANGLES:
             return self._wheel_angles(message)
+        if topic is Topic.SIM_SCAN:
+            return self._scan(message)
         if topic is Topic.DRIVE_TARGET_VELOCITY:
             self._target(message)
         elif topic is Topic.SIM_WORLD:
@@ -255,6 +275,33 @@ class Scene:
             "measured": {"left": measured[0], "right": measured[1]},
         }
         return [(self.topics[WHEEL_SPEEDS_TOPIC], speeds)]
+
+    def _scan(self, message: ScanMessage) -> list[tuple[str, Any]]:
+        """The scan in the lidar's frame, and that frame on the robot's, at the scan's stamp: the
+        mount is fixed, but a transform sent once would be missing for a viewer that joins late."""
+        stamp = timestamp(message.tm)
+        count = len(message.ranges)
+        end_angle = message.angle_min + max(count - 1, 0) * message.angle_increment
+        if not math.isfinite(end_angle):
+            raise BadInput(f"the last ray's angle {end_angle} is not finite")
+        lidar = self._lidar
+        mount = FrameTransform(
+            timestamp=stamp,
+            parent_frame_id=self.frame,
+            child_frame_id=self.lidar_frame,
+            translation=Vector3(x=lidar.x, y=lidar.y, z=lidar.z),
+            rotation=yaw_quaternion(lidar.yaw),
+        )
+        scan = LaserScan(
+            timestamp=stamp,
+            frame_id=self.lidar_frame,
+            pose=foxglove_pose(0.0, 0.0, 0.0),
+            start_angle=message.angle_min,
+            end_angle=end_angle,
+            ranges=message.ranges_or_inf(),
+            intensities=[],
+        )
+        return [(TRANSFORMS_TOPIC, FrameTransforms(transforms=[mount])), (self.topics[SCAN_TOPIC], scan)]
 
     def _world(self, message: SimWorld) -> None:
         self._cubes = [

@@ -8,8 +8,12 @@ status replies every 0.5 s, and hands them, with the robot's Foxglove scene
 - one channel per zenoh key, named by the key, JSON messages as published, with the JSON schema
   of the key's message type (named ``TimedDoubleSeq``, ``TimedPosition``, ..., the schema a
   recording holds); keys outside the project's key space (the status replies) schemaless JSON;
-- ``/tf``, ``/odometry/pose``, ``/localization/pose``, ``/scene`` in Foxglove's well-known
-  (protobuf) schemas, and ``/plot/wheel_speeds`` as JSON of ``WHEEL_SPEEDS_SCHEMA``.
+- ``/tf``, ``/odometry/pose``, ``/localization/pose``, ``/scene``, ``/scan`` in Foxglove's
+  well-known (protobuf) schemas, and ``/plot/wheel_speeds`` as JSON of ``WHEEL_SPEEDS_SCHEMA``.
+
+A sample of a project key that does not decode as its type, or that the scene refuses, is bad
+input: dropped (neither on its key's channel nor in the scene), logged once a second per key and
+counted in the view's status (``bad_input``), as a service does.
 
 A channel is advertised when its first message comes. ``log_time`` is when the sample was
 received, as in a recording (what Foxglove's live timeline shows); a message's own stamp is
@@ -41,6 +45,7 @@ from services.config import Config
 from services.exits import ExitStatus
 from services.recording.mcap_files import JSON, JSON_SCHEMA, key_json_schema
 from services.recording.record import TAKE_PERIOD_S, Observer, writer_sink
+from services.runtime.logs import BadInputCounter
 
 log = logging.getLogger("invent.view")
 
@@ -115,7 +120,14 @@ STATUS_QUERIES = 16
 reply) and zenoh's thread never waits."""
 
 
-def _answer_status(queries: zenoh.Queryable, keys: Keys, url: str, started: float, channels: FoxgloveChannels) -> None:
+def _answer_status(
+    queries: zenoh.Queryable,
+    keys: Keys,
+    url: str,
+    started: float,
+    channels: FoxgloveChannels,
+    bad_input: BadInputCounter,
+) -> None:
     """Answer the status queries that wait, from the view's own loop (never in zenoh's callback):
     read-only, so a wildcard query (``invent/*/*/status``) gets it too."""
     while (query := queries.try_recv()) is not None:
@@ -127,6 +139,7 @@ def _answer_status(queries: zenoh.Queryable, keys: Keys, url: str, started: floa
                 "url": url,
                 "channels": channels.count,
                 "messages": channels.messages,
+                "bad_input": bad_input.as_dict(),
             }
             query.reply(keys.view_status, json.dumps(status), encoding=zenoh.Encoding(ENCODING))
         finally:
@@ -155,13 +168,14 @@ def run_view(
     url = f"ws://{host}:{server.port}"
     started = time.monotonic()
     observer: Observer | None = None
+    bad_input = BadInputCounter(VIEW)
     status_queries = session.declare_queryable(keys.view_status, zenoh.handlers.RingChannel(STATUS_QUERIES))
     try:
         watched = [Keys(robot.robot.name).everything for robot in fleet] or [keys.everything]
-        observer = Observer(session, keys, watched, config, writer_sink(channels), fleet)
+        observer = Observer(session, keys, watched, config, writer_sink(channels), fleet, bad_input)
         log.info("Foxglove live view on %s (open Foxglove → Open connection → Foxglove WebSocket)", url)
         while not stop.is_set():
-            _answer_status(status_queries, keys, url, started, channels)
+            _answer_status(status_queries, keys, url, started, channels, bad_input)
             if observer.spin_once():
                 stop.wait(TAKE_PERIOD_S)
     finally:
