@@ -3,9 +3,10 @@
 Two robots drive the square each from its own start: both come home, and the run is the same bit
 for bit composed on a quiet machine (over two processes: the simulator and one robot's services in
 ``up``'s, the other robot's in a worker) and as separate processes beside two CPU burners. Two robots
-driven head-on meet: a bump for each naming the other, both motors latched stopped. In a secure
-fleet (every service with its own robot's credentials) a robot whose motor dies degrades only its
-own part of the report, and the other robot still reaches its goal.
+driven head-on are held short of each other by their collision monitors, each naming the other;
+with the monitors off they meet: a bump for each naming the other, both motors latched stopped.
+In a secure fleet (every service with its own robot's credentials) a robot whose motor dies
+degrades only its own part of the report, and the other robot still reaches its goal.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from schemas.keys import Keys, Topic
 from services.config import RobotConfig
 from services.drive.outcome import Outcome
 from services.recording.mcap_files import read_messages
-from tests.harness import free_port, start_up, wait_until
+from tests.harness import REPO, free_port, start_up, wait_until
 
 pytestmark = pytest.mark.slow
 
@@ -171,6 +172,35 @@ def test_robots_that_meet_head_on_bump_each_other_stay_stopped_and_both_abort_by
         assert abs(end["x"] - 1.5) < 0.5, f"{robot} stopped near where they met, not 2 m on"
     body = 2 * RobotConfig().radius_of_body_area
     assert report["fleet"]["closest_approach"]["distance_m"] == pytest.approx(body, abs=0.02), "bodies touching"
+
+
+HEAD_ON_EXAMPLE = "examples/fleets/head_on.toml"
+"""Two robots 3 m apart facing each other, each to drive 1.8 m (6 s at 0.3 m/s) ahead, their collision
+monitors on (the default)."""
+
+
+def test_robots_driven_head_on_are_held_short_of_each_other_by_their_collision_monitors(tmp_path):
+    """The example fleet, as it is: each robot drives, then its collision monitor holds it short of
+    the other (no contact, no sim/bump), and its drive gives its scenario up naming the other."""
+    code, output, report = _up(tmp_path, (REPO / HEAD_ON_EXAMPLE).read_text(), "--composed")
+    assert code == Outcome.ABORTED.exit_code, output[-3000:]
+    assert report["fleet"]["bumps_between_robots"] == [] and "; no bumps" in output
+    recorded = {message.topic for message in read_messages(tmp_path / "report" / "run.mcap").messages}
+    assert not {Keys(name).sim_bump for name in ("rh0", "rh1")} & recorded, "no sim/bump for either robot"
+    assert re.search(r"rh0: .*bumps 0, bump_stop_calls 0,.*rh1: .*bumps 0, bump_stop_calls 0,", output), "the sim's"
+    ends = {}
+    for robot, other in (("rh0", "rh1"), ("rh1", "rh0")):
+        part = report["robots"][robot]
+        assert part["bumps"] == [], (robot, part["bumps"])
+        assert part["outcome"]["outcome"] == "aborted", (robot, part["outcome"])
+        assert re.match(r"held by the collision monitor for 2\.0\d\d s", part["outcome"]["reason"]), part["outcome"]
+        assert f"obstacle {other!r} in the stop zone" in part["outcome"]["reason"], (robot, part["outcome"])
+        ends[robot] = part["final"]["ground_truth"]
+        assert _home(part) > 0.5, f"{robot} drove before it was held: {ends[robot]}"
+    body = 2 * RobotConfig().radius_of_body_area
+    gap = math.hypot(ends["rh1"]["x"] - ends["rh0"]["x"], ends["rh1"]["y"] - ends["rh0"]["y"]) - body
+    closest = report["fleet"]["closest_approach"]["distance_m"] - body
+    assert gap >= 0.05 and closest >= 0.05, f"the bodies {gap:.3f} m apart at the end, {closest:.3f} m at the closest"
 
 
 def _kill_mid_run(tmp_path: Path, child: str, *flags: str) -> tuple[int, str, dict]:

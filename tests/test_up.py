@@ -155,16 +155,31 @@ def test_a_straight_into_the_box_ends_by_itself_aborted_naming_the_bump_and_the_
     assert "the scenario was given up: exit 3" in result.stdout
 
 
-def test_the_collision_monitor_holds_a_straight_short_of_the_box_and_the_drive_gives_it_up_naming_it(tmp_path):
-    result = _up("--composed", "--set", "sim.world=bump", "--scenario", "straight", "--report", str(tmp_path))
+BACK_M = 1.5
+"""How much further from the box than in the bump world the approach starts."""
+
+
+def test_the_collision_monitor_holds_a_straight_short_of_the_box_it_drove_towards_and_the_drive_gives_it_up(tmp_path):
+    """In the bump world the box is inside the stop zone at the start: the robot would be held where
+    it stands. Here it starts 1.5 m further back (the odometry and localization told so: the drive
+    places the straight there), drives towards the box, and is held short of it."""
+    bump_world = (REPO / "sim_bridge" / "worlds" / "bump.toml").read_text()
+    world = tmp_path / "approach.toml"
+    world.write_text(bump_world.replace("[initial_pose]\nx = 0.0", f"[initial_pose]\nx = {-BACK_M}"))
+    assert f"x = {-BACK_M}" in world.read_text()
+    start = _sets((f"sim.world={world}", f"odometry.initial_x={-BACK_M}", f"localization.initial_x={-BACK_M}"))
+    result = _up("--composed", *start, "--scenario", "straight", "--report", str(tmp_path / "report"))
     assert result.returncode == Outcome.ABORTED.exit_code, result.stdout[-4000:]
-    report = json.loads((tmp_path / "report.json").read_text())
+    report = json.loads((tmp_path / "report" / "report.json").read_text())
     outcome = report["outcome"]
     assert re.match(r"held by the collision monitor for 2\.0\d\d s", outcome["reason"]), outcome
     assert "obstacle 'box' in the stop zone" in outcome["reason"], outcome
     assert "bumps 0, bump_stop_calls 0," in result.stdout + result.stderr, "held before it touched: no sim/bump"
-    # the body (0.45 m) touches the box at x = 0.45: at least 5 cm short
-    assert report["final"]["ground_truth"]["x"] <= 0.40, report["final"]
+    assert report["start"]["x"] == pytest.approx(-BACK_M, abs=1e-3), report["start"]
+    end = report["final"]["ground_truth"]["x"]
+    assert end - report["start"]["x"] >= 1.0, f"it drove towards the box: from x = {-BACK_M} to {end:.3f}"
+    # the body (0.45 m) touches the box's face at x = 0.45: at least 5 cm short
+    assert end <= 0.40, report["final"]
 
 
 def test_a_scenario_the_motor_is_too_slow_for_ends_timed_out_at_its_time_limit(tmp_path):
