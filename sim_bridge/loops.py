@@ -50,9 +50,12 @@ class Loop:
         self.progress.published_ns = tm_ns
         every_step = self.node.recording_every_step
         for link in self.links:
+            link.publish_state(sim.step_index, tm_ns, tm, every_step, final)
+        # The sensors after the wheel angles: the motor computes the step's torque while the rays
+        # are cast (in realtime, within the step's wait), and takes the scan from the next step on.
+        for link in self.links:
             if tm_ns >= link.next_sensor_ns:
                 link.publish_sensors(tm_ns, tm)
-            link.publish_state(sim.step_index, tm_ns, tm, every_step, final)
         return tm_ns
 
     def final(self) -> bool:

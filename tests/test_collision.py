@@ -210,13 +210,13 @@ def test_a_stale_scan_holds_until_the_next_scan():
     assert watcher.held_by == "no scan for 0.52 s (collision_monitor.scan_timeout 0.5 s)"
     assert watcher.factor(530_000_000, 0.0, 0.0) == 0.0 and watcher.holds_by["stale_scan"] == 1
     watcher.take_scan(scan(ahead(None), t=0.55), 540_000_000)  # type: ignore[arg-type]
-    assert watcher.factor(550_000_000, 0.3, 0.0) == 1.0 and watcher.held_by == ""
+    assert watcher.factor(551_000_000, 0.3, 0.0) == 1.0 and watcher.held_by == ""
 
 
 def test_bad_scans_raise_and_change_nothing():
     watcher = monitor()
     watcher.take_scan(scan(ahead(0.76), t=1.0), NS)
-    watcher.factor(NS, 0.3, 0.0)
+    watcher.factor(NS + 1, 0.3, 0.0)
     before = (watcher.scan_ns, watcher.scans, watcher.held_by, watcher.nearest)
     for bad, reason in (
         (scan(ahead(None), t=1.0), "dt = 0 s <= 0"),  # type: ignore[arg-type]
@@ -232,7 +232,8 @@ def test_bad_scans_raise_and_change_nothing():
 def test_forget_is_a_new_time_base_with_no_scan_and_no_hold():
     watcher = monitor()
     watcher.take_scan(scan(ahead(0.76), t=5.0), 5 * NS)
-    assert watcher.factor(5 * NS, 0.3, 0.0) == 0.0
+    assert watcher.factor(5 * NS, 0.3, 0.0) == 1.0, "a scan applies from the first cycle after it"
+    assert watcher.factor(5 * NS + 1, 0.3, 0.0) == 0.0
     watcher.forget()
     assert watcher.held_by == "" and watcher.factor(0, 0.3, 0.0) == 1.0
     watcher.take_scan(scan(ahead(0.76), t=0.0), None)

@@ -197,7 +197,9 @@ def test_sensing_leaves_the_physics_bit_for_bit_as_it_was():
 # --- invent sim over zenoh ---
 
 
-def test_invent_sim_publishes_scans_and_imu_samples_on_their_grids_before_the_steps_wheel_angles(session, endpoint):
+def test_invent_sim_publishes_scans_and_imu_samples_on_their_grids_right_after_the_steps_wheel_angles(
+    session, endpoint
+):
     arrivals: list[tuple[str, bytes]] = []
     subscriber = session.declare_subscriber(
         f"{KEYS.prefix}/sim/*", lambda sample: arrivals.append((str(sample.key_expr), contents(sample)[0]))
@@ -221,14 +223,20 @@ def test_invent_sim_publishes_scans_and_imu_samples_on_their_grids_before_the_st
     assert [sample.tm.to_nanoseconds() for sample in samples] == [k * 10_000_000 for k in range(101)], "100 Hz"
     assert all(scan.ranges[AHEAD] == pytest.approx(BOX_FACE_X, abs=0.02) for scan in scans), "standing still"
     assert all(sample.linear_acceleration == pytest.approx((0.0, 0.0, GRAVITY), abs=0.05) for sample in samples)
-    order = [key for key, _ in arrivals]
-    for scan in scans[1:]:
-        angles = next(
-            index
-            for index, (key, payload) in enumerate(arrivals)
-            if key == KEYS.sim_wheel_angles and decode(TimedDoubleSeq, payload).tm == scan.tm
-        )
-        assert KEYS.sim_scan in order[:angles], "the step's scan comes before its wheel angles"
+    angle_stamps = [
+        (index, decode(TimedDoubleSeq, payload).tm)
+        for index, (key, payload) in enumerate(arrivals)
+        if key == KEYS.sim_wheel_angles
+    ]
+    for index, (key, payload) in enumerate(arrivals):
+        if key in (KEYS.sim_scan, KEYS.sim_imu):
+            stamp = decode(LaserScan if key == KEYS.sim_scan else ImuSample, payload).tm
+            before = [tm for at, tm in angle_stamps if at < index]
+            after = [tm for at, tm in angle_stamps if at > index]
+            assert before[-1] == stamp, "right after its step's wheel angles"
+            assert not after or after[0].to_nanoseconds() == stamp.to_nanoseconds() + 1_000_000, (
+                "before the next step's"
+            )
 
 
 def test_a_robot_without_sensors_publishes_none(session, endpoint):

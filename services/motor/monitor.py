@@ -1,7 +1,7 @@
 """The collision monitor's state beside MotorCore (docs/protocol.md section 4.10): pure, no zenoh.
 
 :class:`CollisionMonitor` takes the scans (:meth:`~CollisionMonitor.take_scan`, bad ones raise
-BadInput and change nothing) and, at every control cycle, gives the factor the command is
+BadInput and change nothing; each applies from the first control cycle stamped after it) and, at every control cycle, gives the factor the command is
 multiplied by (:meth:`~CollisionMonitor.factor`): 0 while held (an obstacle in the stop zone, or
 no scan for ``scan_timeout``), ``slow_factor`` while an obstacle is in the slow-down zone, else 1.
 The geometry (services/motor/collision.py, numpy) runs only when a scan arrives or the command
@@ -11,6 +11,7 @@ cause, and is not a state of the Motor state machine (the motor stays ``running`
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Any
 
 from schemas.messages import NANOSECONDS_PER_SECOND, LaserScan
@@ -19,6 +20,9 @@ from services.config import RobotConfig
 from services.config.sensors import CollisionMonitorConfig, LidarConfig
 from services.motor.collision import CLEAR, MonitorGeometry, Obstacle, ScanPoints, Verdict, Zone, judge
 
+PENDING_SCANS = 8
+"""The most scans waiting for their first cycle (one does, at 10 Hz of 1 ms steps); beyond, the
+oldest is dropped: a newer one supersedes it."""
 OBSTACLE = "obstacle"
 STALE_SCAN = "stale_scan"
 
@@ -36,9 +40,13 @@ class CollisionMonitor:
         self._horizon_ns = horizon_ns
         self._gap = StampGap(horizon_ns)
 
+        self._pending: deque[tuple[int, ScanPoints]] = deque(maxlen=PENDING_SCANS)
+        """Scans taken, not yet applied: (stamp, points)."""
+        self._taken_ns: int | None = None
+        """The stamp of the last scan taken: the next must be after it."""
         self._points: ScanPoints | None = None
         self.scan_ns: int | None = None
-        """The stamp of the last scan taken; None before the first (of this time base)."""
+        """The stamp of the scan applied last; None before the first (of this time base)."""
         self.nearest: Obstacle | None = None
         """The point of the last scan nearest the body."""
         self._judged = False
@@ -61,30 +69,43 @@ class CollisionMonitor:
         self.slowdowns = 0
 
     def take_scan(self, scan: LaserScan, wheel_ns: int | None) -> None:
-        """Take ``scan``; BadInput (nothing changes) for a stamp not after the last scan's (or past
-        the horizon from it, but for a stream back after a gap), or further than the horizon either
-        way from the wheel-angle time ``wheel_ns`` (None: none yet)."""
+        """Take ``scan``, to apply from the first cycle stamped after it (:meth:`factor`); BadInput
+        (nothing changes) for a stamp not after the last scan's (or past the horizon from it, but for
+        a stream back after a gap), or further than the horizon either way from the wheel-angle time
+        ``wheel_ns`` (None: none yet)."""
         stamp_ns = scan.tm.to_nanoseconds()
-        if self.scan_ns is not None:
-            self._gap.check(stamp_ns, self.scan_ns)
+        if self._taken_ns is not None:
+            self._gap.check(stamp_ns, self._taken_ns)
         if wheel_ns is not None:
             check_stamp_near(stamp_ns, wheel_ns, self._horizon_ns, self._horizon_ns, "scan")
-        points = ScanPoints.from_scan(scan, self.geometry)
-        self._points, self.scan_ns, self._judged = points, stamp_ns, False
-        self.nearest = points.nearest()
+        self._pending.append((stamp_ns, ScanPoints.from_scan(scan, self.geometry)))
+        self._taken_ns = stamp_ns
         self.scans += 1
         self.scan_rays += len(scan.ranges)
 
+    def _apply_scans_before(self, stamp_ns: int) -> None:
+        """Make the scans taken with a stamp before ``stamp_ns`` the monitor's, in order."""
+        pending = self._pending
+        while pending and pending[0][0] < stamp_ns:
+            scan_ns, points = pending.popleft()
+            self._points, self.scan_ns, self._judged = points, scan_ns, False
+            self.nearest = points.nearest()
+
     def forget(self) -> None:
         """A new time base (a restarted simulator): no scan yet, no hold."""
-        self._points = self.scan_ns = self.nearest = None
+        self._points = self.scan_ns = self.nearest = self._taken_ns = None
+        self._pending.clear()
         self._judged = False
         self.verdict, self._factor, self._slowed = CLEAR, 1.0, False
         self._release()
 
     def factor(self, stamp_ns: int, vx: float, w: float) -> float:
         """What the command (vx, w) of the cycle stamped ``stamp_ns`` is multiplied by (called at
-        every cycle: floats and a stamp unless the scan or the command changed)."""
+        every cycle: floats and a stamp unless the scan or the command changed). The scans stamped
+        before ``stamp_ns`` apply first: a step's scan, published right after its wheel angles, from
+        the next step's cycle on, whichever of the two the motor takes first."""
+        if self._pending and self._pending[0][0] < stamp_ns:
+            self._apply_scans_before(stamp_ns)
         scan_ns = self.scan_ns
         if scan_ns is None:
             return 1.0

@@ -155,10 +155,11 @@ class MotorService:
         self._scans: NodeInput | None = None
         if self.monitor is not None:
             # A ring channel, as the wheel angles': zenoh fills both in arrival order, and the
-            # simulator publishes a step's scan before its wheel angles, so the scans waiting when a
-            # sample is controlled are those of its step and before (_control takes them first):
-            # a lockstep run's torques are the same every run. (A callback, QUEUED, runs in a
-            # thread of its own and may come after the wheel angles.)
+            # simulator publishes a step's scan right after its wheel angles, before the next step's,
+            # so when a sample is controlled every scan stamped before it is in (_control takes them
+            # first; the monitor applies those stamped before the sample): a lockstep run's torques
+            # are the same every run. (A callback, QUEUED, runs in a thread of its own and may come
+            # after the next wheel angles.)
             self._scans = node.subscribe(
                 keys.sim_scan,
                 LaserScan,
@@ -210,7 +211,7 @@ class MotorService:
         core = self.core
         scans = self._scans
         if scans is not None:
-            while scans.take():  # the scans of this step and before, first
+            while scans.take():  # every scan in, first: the monitor applies those stamped before this sample
                 pass
         torques = core.step(stamp_ns, angles.data)
         # A run recorded at the observed steps keeps the control path's samples of those only.
