@@ -230,8 +230,8 @@ class RobotLink:
 
     def publish_sensors(self, tm_ns: int, tm: Time) -> None:
         """Publish the scan and the IMU sample due at ``tm_ns`` (the loop calls this only once
-        ``next_sensor_ns`` has come), right after the step's wheel angles and before the next
-        step's: the motor applies a scan from the first cycle after it (docs/protocol.md 4.10)."""
+        ``next_sensor_ns`` has come), once the step's torque is in and before the next step's wheel
+        angles: the motor applies a scan from the first cycle after it (docs/protocol.md 4.10)."""
         body, lidar, imu = self.body, self._lidar, self._imu
         upcoming = math.inf
         if lidar is not None:

@@ -51,12 +51,15 @@ class Loop:
         every_step = self.node.recording_every_step
         for link in self.links:
             link.publish_state(sim.step_index, tm_ns, tm, every_step, final)
-        # The sensors after the wheel angles: the motor computes the step's torque while the rays
-        # are cast (in realtime, within the step's wait), and takes the scan from the next step on.
-        for link in self.links:
-            if tm_ns >= link.next_sensor_ns:
-                link.publish_sensors(tm_ns, tm)
         return tm_ns
+
+    def _publish_sensors(self, link: RobotLink, tm_ns: int) -> None:
+        """``link``'s sensors due at ``tm_ns``, once the step's torque is in (or its wait is over):
+        the rays are cast while nothing waits for the sim (with ``--rt`` the control path shares one
+        CPU, and a cast before the torque delayed it past the step), and before the next step's
+        wheel angles, from whose cycle the motor applies the scan."""
+        if tm_ns >= link.next_sensor_ns:
+            link.publish_sensors(tm_ns, Time.from_nanoseconds(tm_ns))
 
     def final(self) -> bool:
         """Whether the state about to be published is a finite run's last (``--duration``): it is
@@ -72,8 +75,9 @@ class Loop:
                 return False
         return True
 
-    def _publish_clocks(self) -> None:
+    def _publish_clocks(self, tm_ns: int) -> None:
         for link in self.links:
+            self._publish_sensors(link, tm_ns)
             link.publish_clock()
 
     def _step(self) -> None:
@@ -90,7 +94,7 @@ class Loop:
             final = self.final()
             tm_ns = self._publish_state(final)
             self._lockstep_torques(tm_ns, stop, final)
-            self._publish_clocks()
+            self._publish_clocks(tm_ns)
             self._lockstep_ticks(tm_ns, stop)
             if final or self.ended():
                 return
@@ -165,8 +169,9 @@ class Loop:
                 node.spin_once(min(remaining, STOP_POLL_S))
                 for link in links:
                     if link.torque.newest_ns == tm_ns:
+                        self._publish_sensors(link, tm_ns)
                         link.publish_clock()
-            self._publish_clocks()
+            self._publish_clocks(tm_ns)
             if final:
                 return
             if -remaining > MAX_REALTIME_LAG_S:

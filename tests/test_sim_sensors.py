@@ -197,7 +197,7 @@ def test_sensing_leaves_the_physics_bit_for_bit_as_it_was():
 # --- invent sim over zenoh ---
 
 
-def test_invent_sim_publishes_scans_and_imu_samples_on_their_grids_right_after_the_steps_wheel_angles(
+def test_invent_sim_publishes_scans_and_imu_samples_on_their_grids_between_their_steps_and_the_next_steps_wheel_angles(
     session, endpoint
 ):
     arrivals: list[tuple[str, bytes]] = []
@@ -233,7 +233,7 @@ def test_invent_sim_publishes_scans_and_imu_samples_on_their_grids_right_after_t
             stamp = decode(LaserScan if key == KEYS.sim_scan else ImuSample, payload).tm
             before = [tm for at, tm in angle_stamps if at < index]
             after = [tm for at, tm in angle_stamps if at > index]
-            assert before[-1] == stamp, "right after its step's wheel angles"
+            assert before[-1] == stamp, "after its step's wheel angles"
             assert not after or after[0].to_nanoseconds() == stamp.to_nanoseconds() + 1_000_000, (
                 "before the next step's"
             )

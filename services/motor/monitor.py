@@ -102,7 +102,7 @@ class CollisionMonitor:
     def factor(self, stamp_ns: int, vx: float, w: float) -> float:
         """What the command (vx, w) of the cycle stamped ``stamp_ns`` is multiplied by (called at
         every cycle: floats and a stamp unless the scan or the command changed). The scans stamped
-        before ``stamp_ns`` apply first: a step's scan, published right after its wheel angles, from
+        before ``stamp_ns`` apply first: a step's scan, published after its torque, from
         the next step's cycle on, whichever of the two the motor takes first."""
         if self._pending and self._pending[0][0] < stamp_ns:
             self._apply_scans_before(stamp_ns)

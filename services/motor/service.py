@@ -155,7 +155,7 @@ class MotorService:
         self._scans: NodeInput | None = None
         if self.monitor is not None:
             # A ring channel, as the wheel angles': zenoh fills both in arrival order, and the
-            # simulator publishes a step's scan right after its wheel angles, before the next step's,
+            # simulator publishes a step's scan after its torque, before the next step's wheel angles,
             # so when a sample is controlled every scan stamped before it is in (_control takes them
             # first; the monitor applies those stamped before the sample): a lockstep run's torques
             # are the same every run. (A callback, QUEUED, runs in a thread of its own and may come
