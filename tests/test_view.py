@@ -236,8 +236,10 @@ def test_a_foxglove_client_sees_the_running_loop_live(tmp_path: Path) -> None:
     scene = SceneUpdate.FromString(watched.frames[SCENE_TOPIC][-1][1])
     [planned_path] = [entity for entity in scene.entities if entity.id == "planned_path"]
     assert len(planned_path.lines) == 1 and len(planned_path.lines[0].points) > 2, "the path published before the view"
-    _log_time, transforms = watched.frames[TRANSFORMS_TOPIC][-1]
-    assert WORLD_FRAME.encode() in transforms and ROBOT_FRAME.encode() in transforms, "world -> base_link"
+    transforms = [payload for _log_time, payload in watched.frames[TRANSFORMS_TOPIC]]
+    # /tf carries the robot's pose (world -> base_link) and, with each scan, the lidar's mount
+    assert any(WORLD_FRAME.encode() in tf and ROBOT_FRAME.encode() in tf for tf in transforms), "world -> base_link"
+    assert any(LIDAR_FRAME.encode() in tf for tf in transforms), "base_link -> base_scan"
     body_pose = decode(TimedDoubleSeq, watched.frames[KEYS.sim_body_pose][-1][1])
     assert len(body_pose.data) == 12, "a raw key's payload, as published"
     speeds = json.loads(watched.frames[WHEEL_SPEEDS_TOPIC][-1][1])
