@@ -51,7 +51,9 @@ CLI = ServiceCli(
     description="MotorControl: answers every sim/wheel_angles sample with one motor/torque (PD control "
     "towards drive/target_velocity) and passes the angles on to odometry; turns sim/body_pose into "
     "motor/sim_pose/*; serves the Motor interface on motor/gui/<method> and motor/bump/<method> "
-    "(set_pd_gain, start, finish, clear, stop). See docs/motor.md.",
+    "(set_pd_gain, start, finish, clear, stop). Its collision monitor holds the robot, not latched, while "
+    "sim/scan sees an obstacle in the stop zone along the commanded motion ([collision_monitor]). "
+    "See docs/motor.md.",
     add_arguments=add_arguments,
     options=options,
     overrides=overrides,

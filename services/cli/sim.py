@@ -91,8 +91,9 @@ CLI = ServiceCli(
     description="Plays OpenHRP3 and its controller bridge with PyBullet: each step publishes sim/wheel_angles and "
     "sim/body_pose stamped with simulation time, applies the motor/torque answer and steps. Lockstep (default) "
     "waits for the torque of each step while a motor control is alive; realtime paces steps to the wall clock. "
-    "A contact with an obstacle publishes sim/bump and calls motor/bump/stop. Parameters: [robot] geometry and "
-    "[sim] in the robot description; worlds are TOML files (docs/sim.md).",
+    "A contact with an obstacle publishes sim/bump and calls motor/bump/stop. Each robot's 2D lidar publishes "
+    "sim/scan (10 Hz) and its IMU sim/imu (100 Hz) of simulation time. Parameters: [robot] geometry, [sim], "
+    "[lidar] and [imu] in the robot description; worlds are TOML files (docs/sim.md).",
     add_arguments=add_arguments,
     options=options,
     overrides=overrides,
