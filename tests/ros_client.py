@@ -25,6 +25,8 @@ import zenoh
 import zenoh.ext
 from rosbags.typesys import Stores, get_typestore
 
+from tests.harness import wait_until
+
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 TRIGGER_KEY_TYPE = (
     "std_srvs::srv::dds_::Trigger_/RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f"
@@ -131,6 +133,35 @@ class RosNode:
             read_attachment(sample.attachment.to_bytes()),
             sequence_number,
         )
+
+
+def graph_tokens(session: zenoh.Session, domain: int) -> list[list[str]]:
+    """Every rmw_zenoh graph liveliness token of ``domain`` (nodes, publishers, subscriptions,
+    services), each split into its key's chunks."""
+    replies = session.liveliness().get(f"@ros2_lv/{domain}/**", timeout=2.0)
+    return [str(reply.ok.key_expr).split("/") for reply in replies if reply.ok is not None]
+
+
+def cached_samples(session: zenoh.Session, domain: int, topics: dict[str, str], timeout: float) -> dict[str, bytes]:
+    """The first sample of each transient-local topic (name -> its type), as a ROS node started
+    after its only publication gets it: from the publisher's cache, rmw_zenoh's way (an advanced
+    subscriber that detects late publishers)."""
+    received: dict[str, list[bytes]] = {topic: [] for topic in topics}
+    subscribers = [
+        zenoh.ext.declare_advanced_subscriber(
+            session,
+            topic_key(domain, topic, name),
+            lambda sample, t=topic: received[t].append(sample.payload.to_bytes()),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+        )
+        for topic, name in topics.items()
+    ]
+    try:
+        wait_until(lambda: all(received.values()), timeout, f"a cached sample of each of {list(topics)}")
+    finally:
+        for subscriber in subscribers:
+            subscriber.undeclare()
+    return {topic: samples[0] for topic, samples in received.items()}
 
 
 def trigger_response(data: bytes) -> tuple[bool, str]:

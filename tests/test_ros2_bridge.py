@@ -100,15 +100,14 @@ def teleop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Loop]:
     assert up.returncode == 0, output.read_text()[-3000:]
 
 
-def _tokens(session: zenoh.Session) -> list[list[str]]:
-    replies = session.liveliness().get(f"@ros2_lv/{DOMAIN}/**", timeout=2.0)
-    return [str(reply.ok.key_expr).split("/") for reply in replies if reply.ok is not None]
-
-
 def test_the_graph_shows_one_node_with_its_publishers_subscriptions_and_services(teleop):
     bridge = teleop.status(Service.ROS2)
     entities = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES)
-    tokens = wait_until(lambda: (found := _tokens(teleop.session)) and len(found) > entities and found, 10.0, "tokens")
+    tokens = wait_until(
+        lambda: (found := ros_client.graph_tokens(teleop.session, DOMAIN)) and len(found) > entities and found,
+        10.0,
+        "tokens",
+    )
     assert {chunks[2] for chunks in tokens} == {bridge["zid"]}, "every entity of the bridge's session"
     (node,) = [chunks for chunks in tokens if chunks[5] == "NN"]
     assert node == ["@ros2_lv", str(DOMAIN), bridge["zid"], "0", "0", "NN", "%", "%", "invent_bridge"]

@@ -23,7 +23,6 @@ from typing import Any
 
 import pytest
 import zenoh
-import zenoh.ext
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2 import Reader
@@ -129,11 +128,6 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
     assert up.returncode == 0, (directory / "up.log").read_text()[-3000:]
 
 
-def _tokens(session: zenoh.Session) -> list[list[str]]:
-    replies = session.liveliness().get(f"@ros2_lv/{DOMAIN}/**", timeout=2.0)
-    return [str(reply.ok.key_expr).split("/") for reply in replies if reply.ok is not None]
-
-
 def _mangled(name: str) -> str:
     return name.replace("/", "%")
 
@@ -141,7 +135,9 @@ def _mangled(name: str) -> str:
 def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_types_and_one_clock(fleet):
     per_node = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES) + 1
     tokens = wait_until(
-        lambda: (found := _tokens(fleet.session)) and len(found) >= 2 * per_node + 1 and found, 10.0, "the tokens"
+        lambda: (found := ros_client.graph_tokens(fleet.session, DOMAIN)) and len(found) >= 2 * per_node + 1 and found,
+        10.0,
+        "the tokens",
     )
     nodes = {chunks[7]: chunks for chunks in tokens if chunks[5] == "NN"}
     assert set(nodes) == {_mangled(ns) for ns in NAMESPACES.values()}
@@ -189,22 +185,9 @@ def test_each_robots_scan_and_imu_decode_with_ross_hashes_and_their_frames_are_i
     the robot's ``tf_static`` (from the bridge's cache, as a late tf2 listener gets it) and ``tf``."""
     for namespace in NAMESPACES.values():
         wait_until(lambda n=namespace: len(fleet.recorder.of(f"{n}/scan")) >= 3, 10.0, f"{namespace}/scan")
-    late: dict[str, list[bytes]] = {namespace: [] for namespace in NAMESPACES.values()}
     with peer_session(fleet.endpoint) as session:
-        subscribers = [
-            zenoh.ext.declare_advanced_subscriber(
-                session,
-                ros_client.topic_key(DOMAIN, f"{namespace}/tf_static", PUBLISHED["tf_static"]),
-                lambda sample, n=namespace: late[n].append(sample.payload.to_bytes()),
-                history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
-            )
-            for namespace in NAMESPACES.values()
-        ]
-        try:
-            wait_until(lambda: all(late.values()), 20.0, "each namespace's cached tf_static")
-        finally:
-            for subscriber in subscribers:
-                subscriber.undeclare()
+        topics = {f"{namespace}/tf_static": PUBLISHED["tf_static"] for namespace in NAMESPACES.values()}
+        late = ros_client.cached_samples(session, DOMAIN, topics, 20.0)
     for robot, namespace in NAMESPACES.items():
         for topic in ("scan", "imu"):
             (key,) = {sample.key for sample in fleet.recorder.of(f"{namespace}/{topic}")}
@@ -219,7 +202,7 @@ def test_each_robots_scan_and_imu_decode_with_ross_hashes_and_their_frames_are_i
         assert imu.header.frame_id == "imu_link" and imu.linear_acceleration.z == pytest.approx(9.81, abs=0.5)
         assert imu.orientation_covariance[0] > 0, "the simulator's orientation, flagged as known"
         parents = {}
-        static = ros_client.TYPESTORE.deserialize_cdr(late[namespace][0], PUBLISHED["tf_static"])
+        static = ros_client.TYPESTORE.deserialize_cdr(late[f"{namespace}/tf_static"], PUBLISHED["tf_static"])
         tf = ros_client.TYPESTORE.deserialize_cdr(fleet.recorder.of(f"{namespace}/tf")[-1].payload, PUBLISHED["tf"])
         for transform in (*static.transforms, *tf.transforms):
             parents[transform.child_frame_id] = transform.header.frame_id
@@ -276,25 +259,12 @@ def test_each_namespaces_robot_description_reaches_a_late_transient_local_subscr
     """A ROS node started long after the bridges published their only robot_description (a session
     of its own) subscribes as rmw_zenoh's transient-local subscriptions do, and gets each from the
     bridge's cache."""
-    received: dict[str, list[bytes]] = {namespace: [] for namespace in NAMESPACES.values()}
+    topics = {f"{namespace}/robot_description": PUBLISHED["robot_description"] for namespace in NAMESPACES.values()}
     with peer_session(fleet.endpoint) as late:
-        subscribers = [
-            zenoh.ext.declare_advanced_subscriber(
-                late,
-                ros_client.topic_key(DOMAIN, f"{namespace}/robot_description", PUBLISHED["robot_description"]),
-                lambda sample, n=namespace: received[n].append(sample.payload.to_bytes()),
-                history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
-            )
-            for namespace in NAMESPACES.values()
-        ]
-        try:
-            wait_until(lambda: all(received.values()), 20.0, f"each namespace's cached robot_description: {received}")
-        finally:
-            for subscriber in subscribers:
-                subscriber.undeclare()
-    for namespace, payloads in received.items():
-        urdf = ros_client.TYPESTORE.deserialize_cdr(payloads[0], PUBLISHED["robot_description"]).data
-        assert urdf.startswith("<?xml") and "left_wheel_joint" in urdf, namespace
+        received = ros_client.cached_samples(late, DOMAIN, topics, 20.0)
+    for topic, payload in received.items():
+        urdf = ros_client.TYPESTORE.deserialize_cdr(payload, PUBLISHED["robot_description"]).data
+        assert urdf.startswith("<?xml") and "left_wheel_joint" in urdf, topic
 
 
 def test_malformed_cdr_on_a_namespaced_cmd_vel_is_bad_input_counted_and_the_bridge_lives_on(fleet):
@@ -378,7 +348,11 @@ def test_invent_ros2_fleet_runs_a_node_per_robot_on_one_session_each_with_ids_of
         with InventProcess("ros2", "--fleet", str(tmp_path / "fleet.toml"), "--connect", endpoint) as bridges:
             per_node = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES) + 1
             tokens = wait_until(
-                lambda: (found := _tokens(session)) and len(found) == 2 * per_node + 1 and found, 30.0, "the tokens"
+                lambda: (
+                    (found := ros_client.graph_tokens(session, DOMAIN)) and len(found) == 2 * per_node + 1 and found
+                ),
+                30.0,
+                "the tokens",
             )
             code, _out, err = bridges.stop()
         assert code == 0, err

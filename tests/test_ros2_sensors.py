@@ -24,7 +24,6 @@ from xml.etree import ElementTree
 import numpy as np
 import pytest
 import zenoh
-import zenoh.ext
 from hypothesis import given
 from hypothesis import strategies as st
 from rosbags.rosbag2 import Reader
@@ -307,11 +306,6 @@ def bridges(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bridges]:
     assert code == 0, err[-3000:]
 
 
-def _tokens(session: zenoh.Session) -> list[list[str]]:
-    replies = session.liveliness().get(f"@ros2_lv/{DOMAIN}/**", timeout=2.0)
-    return [str(reply.ok.key_expr).split("/") for reply in replies if reply.ok is not None]
-
-
 @pytest.mark.slow
 def test_each_robots_scan_and_imu_are_in_the_graph_under_its_namespace_with_sensor_qos(bridges):
     expected = {
@@ -321,7 +315,7 @@ def test_each_robots_scan_and_imu_are_in_the_graph_under_its_namespace_with_sens
     }
 
     def publishers() -> set[tuple[str, str, str]]:
-        tokens = _tokens(bridges.session)
+        tokens = ros_client.graph_tokens(bridges.session, DOMAIN)
         return {(chunks[9], "/".join(chunks[10:12]), chunks[12]) for chunks in tokens if chunks[5] == "MP"}
 
     found = wait_until(lambda: (seen := publishers()) >= expected and seen, 10.0, f"the publishers {expected}")
@@ -354,23 +348,9 @@ def test_a_ros_client_decodes_each_robots_scan_and_imu_in_its_namespace(bridges)
 
 @pytest.mark.slow
 def test_each_robots_sensor_frames_are_on_its_tf_static_for_a_late_subscriber(bridges):
-    received: dict[str, list[bytes]] = {namespace: [] for namespace in NAMESPACES.values()}
-    subscribers = [
-        zenoh.ext.declare_advanced_subscriber(
-            bridges.session,
-            ros_client.topic_key(DOMAIN, f"{namespace}/tf_static", "tf2_msgs/msg/TFMessage"),
-            lambda sample, n=namespace: received[n].append(sample.payload.to_bytes()),
-            history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
-        )
-        for namespace in NAMESPACES.values()
-    ]
-    try:
-        wait_until(lambda: all(received.values()), 10.0, "each namespace's cached tf_static")
-    finally:
-        for subscriber in subscribers:
-            subscriber.undeclare()
-    for namespace, payloads in received.items():
-        static = ros_client.TYPESTORE.deserialize_cdr(payloads[0], "tf2_msgs/msg/TFMessage")
+    topics = {f"{namespace}/tf_static": "tf2_msgs/msg/TFMessage" for namespace in NAMESPACES.values()}
+    for namespace, payload in ros_client.cached_samples(bridges.session, DOMAIN, topics, 10.0).items():
+        static = ros_client.TYPESTORE.deserialize_cdr(payload, "tf2_msgs/msg/TFMessage")
         tree = {t.child_frame_id: t.header.frame_id for t in static.transforms}
         assert tree["base_scan"] == tree["imu_link"] == "base_link", namespace
 
@@ -409,6 +389,10 @@ def test_a_malformed_non_finite_or_out_of_order_sensor_sample_is_counted_and_the
 
 @pytest.mark.slow
 def test_invent_record_ros2_records_each_robots_scan_and_imu(bridges, tmp_path):
+    """The bag holds every scan and IMU sample the bridges published once its subscriptions reached
+    the router: every one of them, or all but the first few (whose routing to a subscription
+    just declared in another process nothing here can see), up to the last one fed."""
+    fed = 30
     bag = tmp_path / "bag"
     with InventProcess(
         "record",
@@ -422,14 +406,25 @@ def test_invent_record_ros2_records_each_robots_scan_and_imu(bridges, tmp_path):
         drain=True,
     ) as recording:
         wait_until(lambda: "into the bag" in recording.stderr_so_far(), 30.0, "the recorder's subscriptions")
-        time.sleep(0.5)  # for the router to route the bridges' samples to them
-        bridges.feed(30)
-        time.sleep(0.5)
+        published = {f"{n}/{t}": len(bridges.recorder.of(f"{n}/{t}")) for n in NAMESPACES.values() for t in TYPES}
+        bridges.feed(fed)
+        # the bridges' last samples reached this test's subscription: the recorder's, beside it on the
+        # same router, has them too
+        for topic, before in published.items():
+            wait_until(lambda t=topic, b=before: len(bridges.recorder.of(t)) >= b + fed, 10.0, f"{topic} published")
         code, _out, err = recording.stop(30)
     assert code == 0, err[-3000:]
+    last_ns = {namespace: bridges.stamp_ns[robot] for robot, namespace in NAMESPACES.items()}
     with Reader(bag) as reader:
-        counts = {c.topic: (c.msgtype, c.msgcount) for c in reader.connections}
+        types = {c.topic: c.msgtype for c in reader.connections}
+        stamps: dict[str, list[int]] = {}
+        sensor_topics = [c for c in reader.connections if c.msgtype in TYPES.values()]
+        for connection, _timestamp, raw in reader.messages(connections=sensor_topics):
+            header = ros_client.TYPESTORE.deserialize_cdr(raw, connection.msgtype).header
+            stamps.setdefault(connection.topic, []).append(header.stamp.sec * 1_000_000_000 + header.stamp.nanosec)
     for namespace in NAMESPACES.values():
-        assert counts[f"{namespace}/scan"][0] == interfaces.LASER_SCAN
-        assert counts[f"{namespace}/imu"] == (interfaces.IMU, 30)
-        assert counts[f"{namespace}/scan"][1] == 30
+        assert types[f"{namespace}/scan"] == interfaces.LASER_SCAN and types[f"{namespace}/imu"] == interfaces.IMU
+        for topic in ("scan", "imu"):
+            recorded = stamps[f"{namespace}/{topic}"]
+            tail = [last_ns[namespace] - k * 10 * MS for k in reversed(range(len(recorded)))]
+            assert recorded == tail and len(recorded) >= fed - 10, (namespace, topic, len(recorded))

@@ -4,7 +4,6 @@ and what ``invent sim`` publishes over real zenoh (docs/protocol.md section 6.6)
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -197,26 +196,32 @@ def test_sensing_leaves_the_physics_bit_for_bit_as_it_was():
 # --- invent sim over zenoh ---
 
 
-def test_invent_sim_publishes_scans_and_imu_samples_on_their_grids_between_their_steps_and_the_next_steps_wheel_angles(
-    session, endpoint
-):
+def _sim_run(session, endpoint: str, duration_s: float, *flags: str) -> tuple[list[tuple[str, bytes]], str]:
+    """``invent sim --duration`` with ``flags``: every ``sim/*`` sample it published, in arrival
+    order (up to its last step's wheel angles), and its stderr."""
     arrivals: list[tuple[str, bytes]] = []
     subscriber = session.declare_subscriber(
         f"{KEYS.prefix}/sim/*", lambda sample: arrivals.append((str(sample.key_expr), contents(sample)[0]))
     )
+    end = Time.from_nanoseconds(round(duration_s * 1e9))
     try:
-        with InventProcess("sim", "--connect", endpoint, "--world", "bump", "--duration", "1") as sim:
-            sim.process.communicate(timeout=60)
-            assert sim.process.returncode == 0
+        with InventProcess("sim", "--connect", endpoint, "--duration", str(duration_s), *flags) as sim:
+            _out, err = sim.process.communicate(timeout=60)
+            assert sim.process.returncode == 0, err
         wait_until(
-            lambda: any(
-                key == KEYS.sim_wheel_angles and decode(TimedDoubleSeq, p).tm == Time(1, 0) for key, p in arrivals
-            ),
+            lambda: any(key == KEYS.sim_wheel_angles and decode(TimedDoubleSeq, p).tm == end for key, p in arrivals),
             10,
             "the last step",
         )
     finally:
         subscriber.undeclare()
+    return arrivals, err
+
+
+def test_invent_sim_publishes_scans_and_imu_samples_on_their_grids_between_their_steps_and_the_next_steps_wheel_angles(
+    session, endpoint
+):
+    arrivals, _err = _sim_run(session, endpoint, 1, "--world", "bump")
     scans = [decode(LaserScan, payload) for key, payload in arrivals if key == KEYS.sim_scan]
     samples = [decode(ImuSample, payload) for key, payload in arrivals if key == KEYS.sim_imu]
     assert [scan.tm.to_nanoseconds() for scan in scans] == [k * 100_000_000 for k in range(11)], "10 Hz, 0 to 1 s"
@@ -240,17 +245,8 @@ def test_invent_sim_publishes_scans_and_imu_samples_on_their_grids_between_their
 
 
 def test_a_robot_without_sensors_publishes_none(session, endpoint):
-    keys: list[str] = []
-    subscriber = session.declare_subscriber(f"{KEYS.prefix}/sim/*", lambda sample: keys.append(str(sample.key_expr)))
-    try:
-        flags = ("--set", "lidar.enabled=false", "--set", "imu.enabled=false")
-        with InventProcess("sim", "--connect", endpoint, "--duration", "0.3", *flags) as sim:
-            _out, err = sim.process.communicate(timeout=60)
-            assert sim.process.returncode == 0, err
-        time.sleep(0.2)
-    finally:
-        subscriber.undeclare()
-    assert KEYS.sim_wheel_angles in keys
+    arrivals, err = _sim_run(session, endpoint, 0.3, "--set", "lidar.enabled=false", "--set", "imu.enabled=false")
+    keys = {key for key, _payload in arrivals}
     assert KEYS.sim_scan not in keys and KEYS.sim_imu not in keys
     assert "scans 0" in err and "imu_samples 0" in err
 
