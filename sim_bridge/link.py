@@ -252,7 +252,7 @@ class RobotLink:
     def publish_state(self, step_index: int, tm_ns: int, tm: Time, every_step: bool, final: bool) -> None:
         """Publish this step's wheel angles, then its body pose if it is observed (or the run is
         recorded at ``every_step``): the motor converts the pose once it has answered the wheel
-        angles, in the same wake. The step's clock waits for :meth:`publish_clock`. The ``final``
+        angles, in the same wake. The step's clock waits for :meth:`after_torque`. The ``final``
         state of a finite run is observed, whatever the step."""
         body = self.body
         observed = self.observation.observed(step_index, tm_ns) or final
@@ -265,10 +265,16 @@ class RobotLink:
         if observed:
             self.clock = (angles, mark)
 
-    def publish_clock(self) -> None:
-        """Publish this step's ``sim/clock`` if it is observed, once the step's torque is in or its
-        wait is over: the drive's command (and the ROS 2 bridge's messages) are then computed while
-        the simulator steps, not while the motor computes the torque."""
+    def after_torque(self, tm_ns: int) -> None:
+        """Once the step's torque is in, or its wait is over: the sensors due at ``tm_ns``
+        (:meth:`publish_sensors`), then the step's ``sim/clock`` if it is observed. The rays are cast
+        while nothing waits for the sim (with ``--rt`` the control path shares one CPU: cast before
+        the torque, a scan delayed it past the step) and before the next step's wheel angles, from
+        whose cycle the motor applies the scan. The drive's command (and the ROS 2 bridge's
+        messages) are computed while the simulator steps, not while the motor computes the torque.
+        Called again in a step, it does nothing more."""
+        if tm_ns >= self.next_sensor_ns:
+            self.publish_sensors(tm_ns, Time.from_nanoseconds(tm_ns))
         pending, self.clock = self.clock, None
         if pending is not None:
             self.clock_publisher.put(*pending)

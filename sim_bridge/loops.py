@@ -53,14 +53,6 @@ class Loop:
             link.publish_state(sim.step_index, tm_ns, tm, every_step, final)
         return tm_ns
 
-    def _publish_sensors(self, link: RobotLink, tm_ns: int) -> None:
-        """``link``'s sensors due at ``tm_ns``, once the step's torque is in (or its wait is over):
-        the rays are cast while nothing waits for the sim (with ``--rt`` the control path shares one
-        CPU, and a cast before the torque delayed it past the step), and before the next step's
-        wheel angles, from whose cycle the motor applies the scan."""
-        if tm_ns >= link.next_sensor_ns:
-            link.publish_sensors(tm_ns, Time.from_nanoseconds(tm_ns))
-
     def final(self) -> bool:
         """Whether the state about to be published is a finite run's last (``--duration``): it is
         published, observed, and answered as any step's, then the run ends without stepping."""
@@ -75,10 +67,9 @@ class Loop:
                 return False
         return True
 
-    def _publish_clocks(self, tm_ns: int) -> None:
+    def _after_torques(self, tm_ns: int) -> None:
         for link in self.links:
-            self._publish_sensors(link, tm_ns)
-            link.publish_clock()
+            link.after_torque(tm_ns)
 
     def _step(self) -> None:
         contacts = self.sim.step()
@@ -94,7 +85,7 @@ class Loop:
             final = self.final()
             tm_ns = self._publish_state(final)
             self._lockstep_torques(tm_ns, stop, final)
-            self._publish_clocks(tm_ns)
+            self._after_torques(tm_ns)
             self._lockstep_ticks(tm_ns, stop)
             if final or self.ended():
                 return
@@ -169,9 +160,8 @@ class Loop:
                 node.spin_once(min(remaining, STOP_POLL_S))
                 for link in links:
                     if link.torque.newest_ns == tm_ns:
-                        self._publish_sensors(link, tm_ns)
-                        link.publish_clock()
-            self._publish_clocks(tm_ns)
+                        link.after_torque(tm_ns)
+            self._after_torques(tm_ns)
             if final:
                 return
             if -remaining > MAX_REALTIME_LAG_S:
