@@ -15,6 +15,12 @@ import msgspec
 
 from schemas.messages import (
     BumpEvent,
+    CancelReply,
+    CancelRequest,
+    GoalFeedback,
+    GoalReply,
+    GoalRequest,
+    GoalTarget,
     ImuSample,
     LaserScan,
     MotorStateReport,
@@ -68,6 +74,8 @@ class Topic(StrEnum):
     DRIVE_PATH = "drive/path"
     MOTOR_STATE = "motor/state"
     DRIVE_OUTCOME = "drive/outcome"
+    DRIVE_GOAL = "drive/goal"
+    DRIVE_GOAL_FEEDBACK = "drive/goal/feedback"
     RUN_SUMMARY = "up/run"
 
 
@@ -82,6 +90,8 @@ TopicMessage = (
     | PlannedPath
     | MotorStateReport
     | ScenarioOutcome
+    | GoalTarget
+    | GoalFeedback
     | RunSummary
 )
 """What a data key carries: every one has its ``tm`` stamp."""
@@ -104,10 +114,12 @@ TOPIC_TYPES: dict[Topic, type[TopicMessage]] = {
     Topic.DRIVE_PATH: PlannedPath,
     Topic.MOTOR_STATE: MotorStateReport,
     Topic.DRIVE_OUTCOME: ScenarioOutcome,
+    Topic.DRIVE_GOAL: GoalTarget,
+    Topic.DRIVE_GOAL_FEEDBACK: GoalFeedback,
     Topic.RUN_SUMMARY: RunSummary,
 }
 
-LATCHED_TOPICS = (Topic.SIM_WORLD, Topic.DRIVE_PATH, Topic.MOTOR_STATE, Topic.DRIVE_OUTCOME)
+LATCHED_TOPICS = (Topic.SIM_WORLD, Topic.DRIVE_PATH, Topic.MOTOR_STATE, Topic.DRIVE_OUTCOME, Topic.DRIVE_GOAL)
 """Keys whose publisher also answers queries with its last message (a late viewer gets it at once)."""
 
 BODY_POSE_LENGTH = 12
@@ -138,6 +150,19 @@ METHOD_ARGUMENTS: dict[Method, type[msgspec.Struct]] = {
     Method.CLEAR: NoArguments,
     Method.STOP: NoArguments,
 }
+
+class GoalMethod(StrEnum):
+    """The drive's goal queryables (docs/protocol.md section 7.3): ``drive/goal/<method>``."""
+
+    SEND = "send"
+    CANCEL = "cancel"
+
+
+GOAL_METHOD_TYPES: dict[GoalMethod, tuple[type[msgspec.Struct], type[msgspec.Struct]]] = {
+    GoalMethod.SEND: (GoalRequest, GoalReply),
+    GoalMethod.CANCEL: (CancelRequest, CancelReply),
+}
+"""Each goal method's payload and reply."""
 
 _STATUS = "status"
 VIEW = "view"
@@ -175,6 +200,10 @@ class Keys:
 
     def method(self, family: MethodFamily, method: Method) -> str:
         return f"{self.prefix}/{Service.MOTOR}/{family}/{method}"
+
+    def goal_method(self, method: GoalMethod) -> str:
+        """``invent/<robot>/drive/goal/send`` or ``.../cancel``: the drive's goal queryables."""
+        return f"{self.prefix}/{Topic.DRIVE_GOAL}/{method}"
 
     def status(self, service: Service) -> str:
         return f"{self.prefix}/{service}/{_STATUS}"
@@ -245,6 +274,10 @@ class Keys:
     drive_path = property(lambda self: self.topic(Topic.DRIVE_PATH))
     motor_state = property(lambda self: self.topic(Topic.MOTOR_STATE))
     drive_outcome = property(lambda self: self.topic(Topic.DRIVE_OUTCOME))
+    drive_goal = property(lambda self: self.topic(Topic.DRIVE_GOAL))
+    drive_goal_feedback = property(lambda self: self.topic(Topic.DRIVE_GOAL_FEEDBACK))
+    drive_goal_send = property(lambda self: self.goal_method(GoalMethod.SEND))
+    drive_goal_cancel = property(lambda self: self.goal_method(GoalMethod.CANCEL))
     run_summary = property(lambda self: self.topic(Topic.RUN_SUMMARY))
 
 

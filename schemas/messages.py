@@ -259,13 +259,14 @@ class MotorStateReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     or no recent scan), while it does; else ``""``. A hold is not latched: it ends when its cause does."""
 
 
-ScenarioOutcomeName = Literal["completed", "aborted", "timed_out"]
+ScenarioOutcomeName = Literal["completed", "aborted", "timed_out", "canceled"]
 
 
 class ScenarioOutcome(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """``drive/outcome``: how the drive's scenario ended (project extension), latched, published
-    with the drive's last command: ``completed``, or given up, ``aborted`` (the motor stayed
-    latched stopped) or ``timed_out`` (past the scenario's time limit), with the reason."""
+    """``drive/outcome``: how the drive's scenario, or a goal, ended (project extension), latched,
+    published with the drive's last command of it: ``completed``, or given up, ``aborted`` (the
+    motor stayed latched stopped, or held) or ``timed_out`` (past the time limit), with the reason;
+    a goal may also end ``canceled`` (a cancel, or a newer goal preempting it)."""
 
     tm: Time
     """The simulation time of the drive's last command."""
@@ -276,10 +277,111 @@ class ScenarioOutcome(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     iteration: Annotated[int, msgspec.Meta(ge=0)]
     """The pass that ended (0: the first; a ``--loop`` scenario ends only when a pass is given up)."""
     elapsed_s: float
-    """Simulated seconds of that pass."""
+    """Simulated seconds of that pass (of a goal: from its start at a tick to its end)."""
+    goal_id: str = ""
+    """The goal that ended (``drive/goal``'s ``id``), in goal mode; ``""`` for a scenario."""
 
     def __post_init__(self) -> None:
         _require_finite(self.elapsed_s)
+
+
+MAX_GOAL_ID_LENGTH = 64
+GoalId = Annotated[str, msgspec.Meta(max_length=MAX_GOAL_ID_LENGTH, pattern=r"^[A-Za-z0-9_.\-]*$")]
+"""A goal's id: letters, digits, ``_``, ``.``, ``-``; at most 64 (a ROS goal's UUID is 32 hex digits)."""
+GoalFrame = Literal["map", "odom"]
+"""The frame of a goal's pose (docs/protocol.md section 7.3): ``map`` is the world frame of
+``odometry/pose`` and the simulator; ``odom`` is the frame in which the robot started at the origin
+facing +x (the configured initial pose is ``odom``'s origin in ``map``)."""
+
+
+class GoalRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """Payload of ``drive/goal/send``: where to go. Omitted fields take the ``[goals]`` defaults."""
+
+    x: float
+    y: float
+    theta: float | None = None
+    """The heading to end at (rad); None: any heading (the goal ends where it arrives)."""
+    frame: str = "map"
+    """:data:`GoalFrame`; another is rejected (a string here so that the reply can name it)."""
+    position_tolerance: float | None = None
+    """m; > 0; None: ``goals.position_tolerance``."""
+    heading_tolerance: float | None = None
+    """rad; > 0; None: ``goals.heading_tolerance``."""
+    time_limit: float | None = None
+    """Simulated seconds the goal may take; > 0; None: the drive's rule (as for a scenario)."""
+    id: GoalId = ""
+    """The caller's id for the goal (a ROS goal's UUID); ``""``: the drive makes one."""
+
+
+class GoalReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Reply of ``drive/goal/send``: accepted (with its id), or rejected and why."""
+
+    accepted: bool
+    id: str
+    """The goal's id when accepted (the caller's, or the drive's ``g<n>``); ``""`` when rejected."""
+    reason: str = ""
+    """Why the goal was rejected; ``""`` when accepted."""
+
+
+class CancelRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Payload of ``drive/goal/cancel``: the goal to cancel; ``""`` (or an empty payload): whatever runs."""
+
+    id: GoalId = ""
+
+
+class CancelReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Reply of ``drive/goal/cancel``: the goals now canceling (none, or the one that ran), or why none."""
+
+    canceling: list[str]
+    reason: str = ""
+    """Why nothing is canceling (no goal runs, an unknown id, the goal already ended); ``""`` otherwise."""
+
+
+class GoalTarget(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``drive/goal``: the goal the drive has started, in ``map`` (latched; project extension)."""
+
+    tm: Time
+    """The tick at which the goal started."""
+    id: str
+    x: float
+    y: float
+    theta: float | None
+    frame: str
+    """The frame the goal was given in (its pose here is already in ``map``)."""
+    position_tolerance: float
+    heading_tolerance: float
+    time_limit_s: float | None
+
+    def __post_init__(self) -> None:
+        _require_finite(self.x, self.y, self.position_tolerance, self.heading_tolerance)
+        if self.theta is not None:
+            _require_finite(self.theta)
+
+
+GoalStateName = Literal["executing", "canceling"]
+
+
+class GoalFeedback(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``drive/goal/feedback``: a running goal's progress, at ``goals.feedback_rate`` per simulated second."""
+
+    tm: Time
+    id: str
+    state: GoalStateName
+    x: float
+    y: float
+    theta: float
+    """The robot's pose (``odometry/pose``, in ``map``)."""
+    distance_remaining: float
+    """m, straight to the goal's position."""
+    elapsed_s: float
+    """Simulated seconds since the goal started."""
+    estimated_remaining_s: float
+    """Simulated seconds still needed by the drive's plan (turn, drive, turn) from here."""
+
+    def __post_init__(self) -> None:
+        _require_finite(
+            self.x, self.y, self.theta, self.distance_remaining, self.elapsed_s, self.estimated_remaining_s
+        )
 
 
 NonNegativeGain = Annotated[float, msgspec.Meta(ge=0.0)]
@@ -317,4 +419,10 @@ MESSAGE_TYPES: tuple[type[msgspec.Struct], ...] = (
     RunSummary,
     MotorStateReport,
     ScenarioOutcome,
+    GoalRequest,
+    GoalReply,
+    CancelRequest,
+    CancelReply,
+    GoalTarget,
+    GoalFeedback,
 )

@@ -18,6 +18,8 @@ class ExitStatus(enum.IntEnum):
     """A drive's scenario given up: the motor stayed latched stopped (services/drive/outcome.py)."""
     TIMED_OUT = 4
     """A drive's scenario given up: a pass outlasted its time limit (services/drive/outcome.py)."""
+    CANCELED = 5
+    """A goal canceled before it ended (``invent goto``: a cancel, Ctrl-C, or a newer goal preempting it)."""
     INTERRUPTED = 130
     """Ctrl-C (SIGINT) or SIGTERM ended a run of ``invent up`` or ``invent calibrate`` before it ended by itself
     (128 + SIGINT)."""

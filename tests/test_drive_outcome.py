@@ -21,8 +21,8 @@ PARAMS = DriveConfig()
 NS = 1_000_000_000
 
 
-def test_the_outcomes_have_three_distinct_exit_codes_zero_for_completed() -> None:
-    assert EXIT_CODES == {Outcome.COMPLETED: 0, Outcome.ABORTED: 3, Outcome.TIMED_OUT: 4}
+def test_the_outcomes_have_four_distinct_exit_codes_zero_for_completed() -> None:
+    assert EXIT_CODES == {Outcome.COMPLETED: 0, Outcome.ABORTED: 3, Outcome.TIMED_OUT: 4, Outcome.CANCELED: 5}
     assert {OUTCOME_OF_EXIT_CODE[outcome.exit_code] for outcome in Outcome} == set(Outcome)
 
 

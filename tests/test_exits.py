@@ -13,6 +13,7 @@ def test_the_statuses_are_their_numbers() -> None:
         "FAILURE": 1,
         "CONFIG": 2,
         "ABORTED": 3,
+        "CANCELED": 5,
         "TIMED_OUT": 4,
         "INTERRUPTED": 130,
     }

@@ -26,6 +26,12 @@ from schemas import (
 )
 from schemas.keys import TOPIC_TYPES, parse_alive_key
 from schemas.messages import (
+    CancelReply,
+    CancelRequest,
+    GoalFeedback,
+    GoalReply,
+    GoalRequest,
+    GoalTarget,
     ImuSample,
     LaserScan,
     MotorStateReport,
@@ -52,7 +58,24 @@ EXAMPLES = [
     PDGains(5.0, 5.0, 2.0, 2.0),
     MotorStateReport(Time(1, 871_000_000), "stopped", "bump"),
     ScenarioOutcome(Time(3, 880_000_000), "straight", "aborted", "bumped into 'box'", 0, 3.88),
+    ScenarioOutcome(Time(9, 0), "goals", "canceled", "canceled by g2", 0, 4.5, goal_id="g1"),
+    GoalRequest(x=1.5, y=0.5, theta=1.57, frame="odom", position_tolerance=0.05, id="a1b2"),
+    GoalRequest(x=-2.0, y=0.0),
+    GoalReply(True, "g1"),
+    GoalReply(False, "", "the motor is latched stopped"),
+    CancelRequest("g1"),
+    CancelReply(["g1"]),
+    CancelReply([], "no goal runs"),
+    GoalTarget(Time(1, 0), "g1", 1.5, 0.5, None, "map", 0.05, 0.1, None),
+    GoalFeedback(Time(2, 0), "g1", "executing", 0.3, 0.1, 0.2, 1.2, 1.0, 4.5),
 ]
+
+
+def test_a_goal_id_is_one_plain_word_of_at_most_64_characters():
+    assert decode(CancelRequest, b'{"id": "5f0e3a9c1d2b4e6f8a7b9c0d1e2f3a4b"}').id == "5f0e3a9c1d2b4e6f8a7b9c0d1e2f3a4b"
+    for bad in (b'{"id": "a/b"}', b'{"id": "' + b"x" * 65 + b'"}', b'{"id": "**"}'):
+        with pytest.raises(BadMessage):
+            decode(CancelRequest, bad)
 
 
 @pytest.mark.parametrize("message", EXAMPLES, ids=lambda m: type(m).__name__)
@@ -168,6 +191,9 @@ def test_keys_are_a_function_of_the_robot_name():
     assert keys.status(Service.ODOMETRY) == "invent/rh1/odometry/status"
     assert keys.alive(Service.SIM) == "invent/rh1/sim/alive"
     assert Keys().robot == "rh0"
+    assert keys.drive_goal_send == "invent/rh1/drive/goal/send"
+    assert keys.drive_goal_cancel == "invent/rh1/drive/goal/cancel"
+    assert keys.drive_goal_feedback == "invent/rh1/drive/goal/feedback"
 
 
 def test_every_spec_data_key_has_its_schema():
@@ -190,6 +216,8 @@ def test_every_spec_data_key_has_its_schema():
         "drive/path": PlannedPath,
         "motor/state": MotorStateReport,
         "drive/outcome": ScenarioOutcome,
+        "drive/goal": GoalTarget,
+        "drive/goal/feedback": GoalFeedback,
         "up/run": RunSummary,
     }
     assert {str(topic): schema for topic, schema in TOPIC_TYPES.items()} == spec

@@ -31,6 +31,7 @@ from services.config.run_sections import (
 from services.config.sections import (
     CalibratedGeometry,
     DriveConfig,
+    GoalsConfig,
     InputConfig,
     LocalizationConfig,
     MotorConfig,
@@ -55,6 +56,7 @@ __all__ = [
     "ConfigError",
     "CpuChoice",
     "DriveConfig",
+    "GoalsConfig",
     "GcPolicy",
     "ImuConfig",
     "InputConfig",

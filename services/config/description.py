@@ -16,6 +16,7 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     sim: sections.SimConfig = msgspec.field(default_factory=sections.SimConfig)
     localization: sections.LocalizationConfig = msgspec.field(default_factory=sections.LocalizationConfig)
     drive: sections.DriveConfig = msgspec.field(default_factory=sections.DriveConfig)
+    goals: sections.GoalsConfig = msgspec.field(default_factory=sections.GoalsConfig)
     input: sections.InputConfig = msgspec.field(default_factory=sections.InputConfig)
     lidar: sensors.LidarConfig = msgspec.field(default_factory=sensors.LidarConfig)
     imu: sensors.ImuConfig = msgspec.field(default_factory=sensors.ImuConfig)

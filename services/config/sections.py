@@ -269,6 +269,20 @@ class DriveConfig(Section, frozen=True):
     """Added to the time limit a scenario gets from ``time_limit_factor``."""
 
 
+class GoalsConfig(Section, frozen=True):
+    """Goals sent to a running drive (``invent drive --goals``, ``invent goto``, ROS 2's
+    NavigateToPose): what a goal that says nothing more is held to, and how often its progress goes out."""
+
+    position_tolerance: Annotated[Positive, METRES] = 0.05
+    """How close to the goal's position the robot must end (odometry's pose) for ``completed``."""
+    heading_tolerance: Annotated[Positive, RADIANS] = 0.1
+    """How close to the goal's heading the robot must end, when the goal gives one."""
+    feedback_rate: Annotated[Positive, PER_SIMULATED_SECOND] = 5.0
+    """``drive/goal/feedback`` messages per second of simulation time while a goal runs."""
+    max_distance: Annotated[Positive, METRES] = 100.0
+    """A goal further than this from the robot is rejected (an absurd pose, not a goal)."""
+
+
 class InputConfig(Section, frozen=True):
     """What every service accepts as plausible input (docs/input.md). Outside these bounds a
     well-formed sample is bad input: dropped, counted, and its stamp never moves a time base."""

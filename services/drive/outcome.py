@@ -31,6 +31,7 @@ class Outcome(StrEnum):
     COMPLETED = "completed"
     ABORTED = "aborted"
     TIMED_OUT = "timed_out"
+    CANCELED = "canceled"
 
     @property
     def exit_code(self) -> int:
@@ -41,6 +42,7 @@ EXIT_CODES: dict[Outcome, int] = {
     Outcome.COMPLETED: ExitStatus.OK,
     Outcome.ABORTED: ExitStatus.ABORTED,
     Outcome.TIMED_OUT: ExitStatus.TIMED_OUT,
+    Outcome.CANCELED: ExitStatus.CANCELED,
 }
 """The exit code of ``invent drive`` and of ``invent up`` for each outcome (docs/protocol.md section 8.5)."""
 OUTCOME_OF_EXIT_CODE: dict[int, Outcome] = {code: outcome for outcome, code in EXIT_CODES.items()}
