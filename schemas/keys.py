@@ -151,6 +151,7 @@ METHOD_ARGUMENTS: dict[Method, type[msgspec.Struct]] = {
     Method.STOP: NoArguments,
 }
 
+
 class GoalMethod(StrEnum):
     """The drive's goal queryables (docs/protocol.md section 7.3): ``drive/goal/<method>``."""
 

@@ -379,9 +379,7 @@ class GoalFeedback(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Simulated seconds still needed by the drive's plan (turn, drive, turn) from here."""
 
     def __post_init__(self) -> None:
-        _require_finite(
-            self.x, self.y, self.theta, self.distance_remaining, self.elapsed_s, self.estimated_remaining_s
-        )
+        _require_finite(self.x, self.y, self.theta, self.distance_remaining, self.elapsed_s, self.estimated_remaining_s)
 
 
 NonNegativeGain = Annotated[float, msgspec.Meta(ge=0.0)]
