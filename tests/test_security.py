@@ -65,6 +65,10 @@ def _methods(family: MethodFamily) -> set[str]:
     return {KEYS.method(family, method) for method in Method}
 
 
+GOALS = {KEYS.drive_goal_send, KEYS.drive_goal_cancel}
+"""The drive's goal queryables: sending and canceling goals is a right of its own."""
+
+
 def test_each_service_role_puts_exactly_the_keys_under_its_own_name():
     for service in LOOP_SERVICES:
         expected = {KEYS.topic(topic) for topic in Topic if topic.split("/")[0] == service}
@@ -79,7 +83,7 @@ def test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_tri
     cache_keys = {f"{ros.key(PUBLICATIONS[name])}/@adv/**" for name in ("tf_static", "robot_description")}
     assert _put_keys(Role.ROS2) == published | cache_keys | {KEYS.drive_target_velocity}
     assert all(key.startswith("0/") for key in published)
-    assert {KEYS.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES} == (
+    assert {KEYS.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES} | GOALS == (
         _queried_keys(Role.ROS2) - {all_robots_status()} - LATCHED
     )
     assert KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN) not in _queried_keys(Role.ROS2)
@@ -99,7 +103,7 @@ def test_the_ros_roles_are_granted_the_domain_and_namespace_they_are_written_for
 
 def test_only_the_operator_the_sim_and_the_ros2_bridge_query_motor_methods():
     status = {all_robots_status()} | LATCHED
-    assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI)
+    assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI) | GOALS
     assert _queried_keys(Role.SIM) == status | _methods(MethodFamily.BUMP)
     for role in (Role.OBSERVER, Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE):
         assert _queried_keys(role) == status, role
@@ -122,7 +126,16 @@ def test_only_the_motor_serves_the_methods_and_each_service_only_its_status_and_
             continue  # test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_trigger_methods
         else:
             service = Service(role.value)
-            assert served == {KEYS.status(service)} | {key for key in LATCHED if f"/{service}/" in key}, role
+            own = GOALS if role is Role.DRIVE else set()
+            assert served == {KEYS.status(service)} | {key for key in LATCHED if f"/{service}/" in key} | own, role
+
+
+def test_sending_and_canceling_goals_is_the_operators_and_the_bridges_right_and_only_the_drive_serves_them():
+    for role in Role:
+        queried, served = _queried_keys(role) & GOALS, _granted(role, Message.DECLARE_QUERYABLE) & GOALS
+        assert queried == (GOALS if role in (Role.OPERATOR, Role.ROS2) else set()), role
+        assert served == (GOALS if role is Role.DRIVE else set()), role
+    assert not any(GOALS & set(grant.key_exprs) for grant in grants(Role.OBSERVER, KEYS)), "the observer: nothing"
 
 
 def test_profile_files_are_private_and_complete_zenoh_configurations(tmp_path):
@@ -244,6 +257,37 @@ def test_router_routes_method_queries_only_from_the_operator_and_bump_stop_only_
                 assert len(replies) == int(allowed), (role, family)
                 expected += [key] if allowed else []
         assert calls == expected
+
+
+def test_router_routes_goals_only_from_the_operator_and_the_bridge_and_only_to_the_drive(tmp_path):
+    """Real sessions through a secured router: a drive-role session serves drive/goal/send and
+    cancel; the operator's and the ROS 2 bridge's queries reach it, the observer's and every other
+    role's do not; another role declaring the same queryables (an impostor drive) is never routed to."""
+    with _secured_router(tmp_path, tls=False) as (_profile, open_as):
+        calls: list[tuple[str, str]] = []
+
+        def serve(who: str) -> Callable[[zenoh.Query], None]:
+            def answer(query: zenoh.Query) -> None:
+                calls.append((who, str(query.key_expr)))
+                query.reply(query.key_expr, b'{"accepted": false, "id": "", "reason": "a test"}')
+
+            return answer
+
+        drive, impostor = open_as(Role.DRIVE), open_as(Role.OPERATOR)
+        for key in sorted(GOALS):
+            impostor.declare_queryable(key, serve("impostor"))
+            drive.declare_queryable(key, serve("drive"))
+        status = KEYS.status(Service.DRIVE)
+        drive.declare_queryable(status, lambda query: query.reply(status, b"{}"))
+        sessions = {role: open_as(role) for role in Role if role is not Role.DRIVE}
+        # Once the drive's status answers an observer, its declarations before it reached the router.
+        wait_until(lambda: call(sessions[Role.OBSERVER], status)[0], 10, "the drive's status")
+        answered = {
+            role: sorted(key for key in GOALS for reply in session.get(key, timeout=1.0) if reply.ok is not None)
+            for role, session in sessions.items()
+        }
+    assert answered == {role: sorted(GOALS) if role in (Role.OPERATOR, Role.ROS2) else [] for role in sessions}
+    assert sorted(calls) == sorted(("drive", key) for key in GOALS for _role in (Role.OPERATOR, Role.ROS2))
 
 
 def test_up_secure_refuses_flags_that_would_bypass_the_router(tmp_path):

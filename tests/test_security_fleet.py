@@ -71,6 +71,11 @@ def _methods(keys: Keys, family: MethodFamily) -> set[str]:
     return {keys.method(family, method) for method in Method}
 
 
+def _goals(keys: Keys) -> set[str]:
+    """The drive's goal queryables of ``keys.robot``."""
+    return {keys.drive_goal_send, keys.drive_goal_cancel}
+
+
 def test_each_robots_service_roles_get_exactly_the_single_robot_grants_on_their_robot_only():
     for robot in ROBOTS:
         other = Keys(next(r for r in ROBOTS if r != robot))
@@ -95,7 +100,10 @@ def test_each_robots_service_roles_get_exactly_the_single_robot_grants_on_their_
     ros2_calls = _granted(Identity(Role.ROS2, "rh1"), Message.QUERY) - {all_robots_status()}
     assert ros2_calls - {RH1.topic(topic) for topic in LATCHED_TOPICS} == {
         RH1.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES
-    }
+    } | _goals(RH1)
+    assert _granted(Identity(Role.DRIVE, "rh1"), Message.DECLARE_QUERYABLE) == (
+        {RH1.status(Service.DRIVE), RH1.drive_path, RH1.drive_outcome, RH1.drive_goal} | _goals(RH1)
+    )
 
 
 def test_each_robots_bridge_is_granted_its_own_ros_namespace_and_not_the_others():
@@ -149,8 +157,9 @@ def test_the_fleet_operator_and_observer_reach_every_robot_and_the_observer_puts
     }
     assert _granted(operator, Message.QUERY) - {all_robots_status()} - {
         keys.topic(topic) for keys in (RH0, RH1) for topic in LATCHED_TOPICS
-    } == (_methods(RH0, MethodFamily.GUI) | _methods(RH1, MethodFamily.GUI))
+    } == (_methods(RH0, MethodFamily.GUI) | _methods(RH1, MethodFamily.GUI) | _goals(RH0) | _goals(RH1))
     assert _granted(observer, Message.PUT) == set()
+    assert not _granted(observer, Message.QUERY) & (_goals(RH0) | _goals(RH1)), "the observer sends no goal"
     assert _granted(observer, Message.DECLARE_QUERYABLE) == {RH0.view_status, RH1.view_status}
 
 
@@ -433,6 +442,57 @@ def test_router_lets_one_robots_credentials_neither_call_nor_serve_another_robot
             ("rh1-motor", bump_stop["rh1"]),
             ("rh1-motor", gui_stop["rh1"]),
         ], "each call reached its own robot's motor, never the impostor"
+
+
+def test_router_lets_one_robots_bridge_reach_only_its_own_robots_goals_and_the_operator_every_robots(tmp_path):
+    """Each robot's drive serves its goal queryables; rh1's bridge reaches rh1's, never rh0's; the
+    fleet's operator reaches both; rh1's drive credentials cannot serve rh0's goals (an impostor is
+    never routed to); the observer reaches none."""
+    with _fleet_router(tmp_path) as (_profile, open_as):
+        calls: list[tuple[str, str]] = []
+
+        def serve(who: str) -> Callable[[zenoh.Query], None]:
+            def answer(query: zenoh.Query) -> None:
+                calls.append((who, str(query.key_expr)))
+                query.reply(query.key_expr, b'{"accepted": false, "id": "", "reason": "a test"}')
+
+            return answer
+
+        impostor = open_as(Identity(Role.DRIVE, "rh1"))
+        for key in sorted(_goals(RH0)):
+            impostor.declare_queryable(key, serve("impostor rh1-drive"))
+        drives = {robot: open_as(Identity(Role.DRIVE, robot)) for robot in ROBOTS}
+        for robot, keys in (("rh0", RH0), ("rh1", RH1)):
+            for key in sorted(_goals(keys)):
+                drives[robot].declare_queryable(key, serve(f"{robot}-drive"))
+            status = keys.status(Service.DRIVE)
+            drives[robot].declare_queryable(status, lambda query, status=status: query.reply(status, b"{}"))
+        observer = open_as(Identity(Role.OBSERVER))
+        for keys in (RH0, RH1):
+            wait_until(
+                lambda k=keys: [r for r in observer.get(k.status(Service.DRIVE), timeout=1.0) if r.ok is not None],
+                10,
+                "the drives' statuses",
+            )
+        callers = {
+            "rh1-ros2": open_as(Identity(Role.ROS2, "rh1")),
+            "operator": open_as(Identity(Role.OPERATOR)),
+            "observer": observer,
+        }
+        reached = {
+            (caller, key)
+            for caller, session in callers.items()
+            for key in sorted(_goals(RH0) | _goals(RH1))
+            for reply in session.get(key, timeout=1.0)
+            if reply.ok is not None
+        }
+    assert reached == {("rh1-ros2", key) for key in _goals(RH1)} | {
+        ("operator", key) for key in _goals(RH0) | _goals(RH1)
+    }, "rh1's bridge: rh1's goals only; the operator: every robot's; the observer: none"
+    assert sorted(calls) == sorted(
+        [("rh1-drive", key) for key in _goals(RH1) for _caller in ("rh1-ros2", "operator")]
+        + [("rh0-drive", key) for key in _goals(RH0)]
+    ), "each call reached its own robot's drive, never the impostor"
 
 
 def test_invent_secrets_robots_writes_a_fleet_profile_and_a_bad_name_exits_2_naming_the_flag(tmp_path):

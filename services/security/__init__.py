@@ -9,8 +9,8 @@ and peers talking directly would bypass it.
 
 What each role may do is :func:`grants`; the rules are built from :class:`~schemas.keys.Keys`,
 so they name exactly the keys the services use. Reading (subscribing, liveliness, queries on
-``status`` and the latched keys) is open to every authenticated role; every put and every Motor
-method query that no grant names is denied, and a session without valid credentials is refused
+``status`` and the latched keys) is open to every authenticated role; every put and every method
+query (the Motor's, the drive's goals) that no grant names is denied, and a session without valid credentials is refused
 at connection.
 
 A **fleet** (several robots in one world, :func:`write_fleet_profile`) has one user per robot for

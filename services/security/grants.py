@@ -14,7 +14,17 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
-from schemas.keys import LATCHED_TOPICS, ROOT, Keys, Method, MethodFamily, Service, Topic, all_robots_status
+from schemas.keys import (
+    LATCHED_TOPICS,
+    ROOT,
+    GoalMethod,
+    Keys,
+    Method,
+    MethodFamily,
+    Service,
+    Topic,
+    all_robots_status,
+)
 from services.config import Config
 from services.ros2.graph import MOTOR_SERVICES, SUBSCRIPTIONS, BridgeGraph, bridge_graph
 from services.ros2.wire import ADMIN_SPACE
@@ -69,6 +79,13 @@ def _published_by(service: Service, keys: Keys) -> tuple[str, ...]:
 
 def _methods(keys: Keys, family: MethodFamily) -> tuple[str, ...]:
     return tuple(keys.method(family, method) for method in Method)
+
+
+def _goal_methods(keys: Keys) -> tuple[str, ...]:
+    """The drive's goal queryables, ``drive/goal/send`` and ``drive/goal/cancel``: sending and
+    canceling goals is a right of its own (docs/protocol.md section 8.8), the operator's and the
+    robot's ROS 2 bridge's; only the drive serves them."""
+    return tuple(keys.goal_method(method) for method in GoalMethod)
 
 
 def _ros_grants(role: Role, keys: Keys, ros: BridgeGraph) -> list[Grant]:
@@ -157,13 +174,16 @@ def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant
                 (keys.alive(Service.ROS2), keys.observes_at_any_rate(Service.ROS2)),
             )
         ]
-        service_own = [*own_status, *own_token] if role is Role.ROS2 else []
+        # the bridge sends and cancels its robot's goals (ROS's NavigateToPose); a ROS node does not
+        own_goals = [Grant((Message.QUERY,), Flow.INGRESS, _goal_methods(keys))]
+        service_own = [*own_status, *own_token, *own_goals] if role is Role.ROS2 else []
         return [*reading, *service_own, *_ros_grants(role, keys, ros)]
     if role is Role.OPERATOR:
         return [
             *reading,
             Grant((Message.PUT,), Flow.INGRESS, (keys.drive_target_velocity, keys.run_summary)),
             Grant((Message.QUERY,), Flow.INGRESS, _methods(keys, MethodFamily.GUI)),
+            Grant((Message.QUERY,), Flow.INGRESS, _goal_methods(keys)),
         ]
     service = Service(role.value)
     served = (keys.status(service),) + tuple(
@@ -171,6 +191,8 @@ def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant
     )
     if service is Service.MOTOR:
         served += _methods(keys, MethodFamily.GUI) + _methods(keys, MethodFamily.BUMP)
+    if service is Service.DRIVE:
+        served += _goal_methods(keys)
     own = [
         Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (keys.alive(service), keys.ticks_at_any_rate(service))),
         Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, served),

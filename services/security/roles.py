@@ -19,14 +19,16 @@ class Role(StrEnum):
     LOCALIZATION = Service.LOCALIZATION.value
     DRIVE = Service.DRIVE.value
     ROS2 = Service.ROS2.value
-    """The ROS 2 bridge: its ROS keys, ``drive/target_velocity`` and the Motor methods ROS calls."""
+    """The ROS 2 bridge: its ROS keys, ``drive/target_velocity``, the Motor methods ROS calls, and
+    sending and canceling its robot's goals (``drive/goal/send``, ``drive/goal/cancel``)."""
     ROS_NODE = "ros_node"
     """A ROS 2 node over rmw_zenoh (RViz, teleop, Nav2): anything in the ROS domain, reading ours."""
     OPERATOR = "operator"
-    """Teleop or GUI: puts target velocities, calls the Motor methods (``motor/gui/*``); and
-    ``invent up`` itself, which puts the run's summary (``up/run``) at the end of a run."""
+    """Teleop or GUI: puts target velocities, calls the Motor methods (``motor/gui/*``), sends and
+    cancels goals (``invent goto``: ``drive/goal/send``, ``drive/goal/cancel``); and ``invent up``
+    itself, which puts the run's summary (``up/run``) at the end of a run."""
     OBSERVER = "observer"
-    """Watches: subscribes, gets ``status`` and liveliness, nothing else."""
+    """Watches: subscribes, gets ``status`` and liveliness, nothing else (no goals)."""
 
 
 PER_ROBOT_ROLES: tuple[Role, ...] = (Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE, Role.ROS2)
