@@ -214,6 +214,12 @@ class Keys:
         """The status of ``invent view`` (a tool, not a service of the loop)."""
         return f"{self.prefix}/{VIEW}/{_STATUS}"
 
+    def under(self, service: Service) -> str:
+        """Key expression matching every key under ``service``'s name (``invent/<robot>/drive/**``):
+        one subscriber for several of its keys gets their samples in the order they were published
+        (zenoh runs the callbacks of two subscribers in no set order)."""
+        return f"{self.prefix}/{service}/**"
+
     @property
     def every_status(self) -> str:
         """Key expression matching the ``status`` queryable of every service of this robot."""

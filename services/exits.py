@@ -21,5 +21,5 @@ class ExitStatus(enum.IntEnum):
     CANCELED = 5
     """A goal canceled before it ended (``invent goto``: a cancel, Ctrl-C, or a newer goal preempting it)."""
     INTERRUPTED = 130
-    """Ctrl-C (SIGINT) or SIGTERM ended a run of ``invent up`` or ``invent calibrate`` before it ended by itself
-    (128 + SIGINT)."""
+    """Ctrl-C (SIGINT) or SIGTERM ended a run of ``invent up`` or ``invent calibrate`` before it ended by itself,
+    or ``invent goto`` before its goal was sent (128 + SIGINT)."""

@@ -52,6 +52,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.planar", CORE),
     (r"services\.fleet\.(description|summary)", CORE),
     (r"services\.calibration\.(umbmark|measured|benchmark|settings)", CORE),
+    (r"services\.goto\.core", CORE),
     (r"services\.body\.geometry", CORE),
     (
         r"sim_bridge\.(simulator|robot|world|building|ray_world|sensors|latency|display|torque_policy|progress|status)",
@@ -64,7 +65,10 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
     (r"services\.(cli|launch|recording)(\..*)?", TOOL),
     (r"services\.security(\..*)?", TOOL),
-    (r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration|body))", PACKAGE),
+    (
+        r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration|body|goto))",
+        PACKAGE,
+    ),
 )
 
 PROJECT = re.compile(r"(schemas|services|sim_bridge)(\..*)?")

@@ -132,7 +132,7 @@ def run_echo(session: zenoh.Session, key_expr: str, count: int | None, stop: thr
     return ExitStatus.OK
 
 
-def _wait_for_match(querier: zenoh.Querier, timeout: float) -> bool:
+def wait_for_match(querier: zenoh.Querier, timeout: float) -> bool:
     deadline = time.monotonic() + timeout
     while not has_match(querier):
         if time.monotonic() > deadline:
@@ -141,7 +141,7 @@ def _wait_for_match(querier: zenoh.Querier, timeout: float) -> bool:
     return True
 
 
-def _no_answer(session: zenoh.Session, key: str, matched: bool, timeout: float) -> str:
+def no_answer(session: zenoh.Session, key: str, matched: bool, timeout: float) -> str:
     """Why nothing answered: no connection at all, nothing serving ``key``, or no reply in time."""
     if not list(session.info.routers_zid()) and not list(session.info.peers_zid()):
         return (
@@ -159,7 +159,7 @@ def run_call(session: zenoh.Session, key: str, payload: str | None, timeout: flo
     try:
         # Matching says the declarations reached this session. It is never seen for a wildcard key
         # whose queryables are not complete (every `status`), so the query goes out anyway.
-        matched = _wait_for_match(querier, timeout)
+        matched = wait_for_match(querier, timeout)
         replies = 0
         failed = False
         for reply in querier.get(payload=payload, encoding=zenoh.Encoding(ENCODING) if payload else None):
@@ -172,7 +172,7 @@ def run_call(session: zenoh.Session, key: str, payload: str | None, timeout: flo
                 print(f"invent call: {key} replied with an error: {json.dumps(error)}", file=sys.stderr)
                 failed = True
         if not replies and not failed:
-            print(f"invent call: {_no_answer(session, key, matched, timeout)}", file=sys.stderr)
+            print(f"invent call: {no_answer(session, key, matched, timeout)}", file=sys.stderr)
             return ExitStatus.FAILURE
         return ExitStatus.FAILURE if failed else ExitStatus.OK
     finally:
