@@ -18,7 +18,8 @@ import zenoh.ext
 
 from schemas.codec import encode
 from schemas.keys import LATCHED_TOPICS, LOOP_SERVICES, Keys, Method, MethodFamily, Service, Topic, all_robots_status
-from schemas.messages import Time, TimedPosition, TimedVelocity
+from schemas.messages import GoalReply, GoalRequest, ScenarioOutcome, Time, TimedPosition, TimedVelocity
+from services.exits import ExitStatus
 from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, BridgeGraph
 from services.security import (
     CA_CERTIFICATE,
@@ -32,7 +33,8 @@ from services.security import (
     grants,
     write_profile,
 )
-from tests.harness import call, free_port, run_invent, start_up, wait_until
+from tests.goal_standin import StandInDrive
+from tests.harness import InventProcess, call, free_port, run_invent, start_up, wait_until
 
 KEYS = Keys("secured")
 FORGED_VX = 0.4321
@@ -288,6 +290,27 @@ def test_router_routes_goals_only_from_the_operator_and_the_bridge_and_only_to_t
         }
     assert answered == {role: sorted(GOALS) if role in (Role.OPERATOR, Role.ROS2) else [] for role in sessions}
     assert sorted(calls) == sorted(("drive", key) for key in GOALS for _role in (Role.OPERATOR, Role.ROS2))
+
+
+def test_invent_goto_as_the_observer_reaches_no_drive_and_as_the_operator_drives_to_the_outcome(tmp_path):
+    """``invent goto`` with a role's file through a secured router, a stand-in drive with the drive's
+    credentials: the observer's goal is never routed to it (exit 1 naming the key); the operator's
+    is accepted, and its outcome is goto's exit status."""
+    with _secured_router(tmp_path, tls=False) as (profile, open_as):
+        drive = StandInDrive(open_as(Role.DRIVE), KEYS, lambda _request: GoalReply(True, "g1"))
+        goal = ("goto", "1.5", "0.5", "1.57", "--robot", KEYS.robot, "--wait", "2", "--zenoh-config")
+        refused = run_invent(*goal, str(profile.client_config(Role.OBSERVER)))
+        assert refused.returncode == ExitStatus.FAILURE, refused.stderr
+        assert f"no reply from {KEYS.drive_goal_send}" in refused.stderr and "only the operator" in refused.stderr
+        assert drive.goals.empty(), "the observer's goal never reached the drive"
+        with InventProcess(*goal, str(profile.client_config(Role.OPERATOR))) as operator:
+            assert drive.goals.get(timeout=20) == GoalRequest(x=1.5, y=0.5, theta=1.57)
+            drive.wait_for_subscribers()
+            drive.publish(KEYS.drive_outcome, ScenarioOutcome(Time(4, 0), "goals", "completed", "", 0, 3.5, "g1"))
+            out, err = operator.process.communicate(timeout=20)
+        drive.close()
+    assert operator.process.returncode == ExitStatus.OK, err
+    assert out.splitlines()[-1] == "outcome: completed (goal g1 after 3.50 s)"
 
 
 def test_up_secure_refuses_flags_that_would_bypass_the_router(tmp_path):

@@ -197,7 +197,12 @@ class Goto:
             except BadMessage as error:
                 _error(f"{key} replied with what is not a GoalReply ({error})")
                 return ExitStatus.FAILURE
-        hint = "" if matched else "; a drive takes goals in goal mode (`invent drive --goals`, `invent up --goals`)"
+        hint = (
+            "; in a secure deployment only the operator and the ROS 2 bridge may send goals (the router drops "
+            "the others' unanswered)"
+            if matched
+            else "; a drive takes goals in goal mode (`invent drive --goals`, `invent up --goals`)"
+        )
         _error(no_answer(self.session, key, matched, self.wait_s) + hint)
         return ExitStatus.FAILURE
 
