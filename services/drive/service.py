@@ -27,6 +27,10 @@ or its collision monitor held the robot (``motor/state``'s ``held_by``), for
 
 A restarted simulator (its liveliness token appears, then its clock goes back) starts the
 scenario over from its first stamp: a new simulator is a new run, the robot back at its start.
+
+In goal mode (``--goals``, ``--goal-file``; services/drive/goal_shell.py) there is no scenario and
+no planned path: the drive answers ``drive/goal/send`` and ``drive/goal/cancel``, commands zero
+between goals, and a goal file's run ends as a scenario does, with its last goal's outcome.
 """
 
 from __future__ import annotations
