@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from services.drive.outcome import Outcome
 from services.exits import ExitStatus
+from services.launch.run import outcome_exit_code
 from services.runtime.session import free_port
 from tests.harness import run_invent
 
@@ -17,6 +19,13 @@ def test_the_statuses_are_their_numbers() -> None:
         "TIMED_OUT": 4,
         "INTERRUPTED": 130,
     }
+
+
+def test_a_runs_exit_status_is_its_worst_robots_outcome_aborted_then_timed_out_then_canceled() -> None:
+    assert outcome_exit_code([Outcome.COMPLETED, None]) == ExitStatus.OK, "an interrupted robot has no outcome"
+    assert outcome_exit_code([Outcome.CANCELED, Outcome.COMPLETED]) == ExitStatus.CANCELED, "a goal file's last goal"
+    assert outcome_exit_code([Outcome.CANCELED, Outcome.TIMED_OUT]) == ExitStatus.TIMED_OUT
+    assert outcome_exit_code([Outcome.TIMED_OUT, Outcome.ABORTED, Outcome.CANCELED]) == ExitStatus.ABORTED
 
 
 def test_a_bad_configuration_exits_config() -> None:

@@ -280,6 +280,10 @@ def test_gui_without_a_display_exits_2_before_anything_starts():
         (("--ros2",), "ROS_DOMAIN_ID"),
         (("--teleop",), "--teleop (--ros2)"),
         (("--ros2", "--teleop", "--mode", "lockstep"), "--teleop (--mode lockstep)"),
+        (("--goals", "--scenario", "circle", "--loop"), "--goals with --scenario, --loop: in goal mode"),
+        (("--goals", "--ros2", "--teleop"), "--goals with --teleop"),
+        (("--goal-file", "nowhere.toml"), "goal file 'nowhere.toml'"),
+        (("--fleet", "examples/fleets/two_squares.toml", "--goal-file", "g.toml"), "--fleet with --goal-file"),
     ],
 )
 def test_a_scenario_or_world_a_service_would_refuse_exits_2_before_anything_starts(tmp_path, flags, message):

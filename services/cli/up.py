@@ -9,8 +9,8 @@ from pathlib import Path
 
 from services.cli.flags import connection_from_args, description_from_args, fleet_flag, port_number
 from services.cli.services import service_plan
-from services.config import RecordRate, SimMode, TfLayout
-from services.launch.plan import UpPlan
+from services.config import ConfigError, RecordRate, SimMode, TfLayout
+from services.launch.plan import DEFAULT_SCENARIO, UpPlan
 from services.launch.ros2_run import BAG_DIRECTORY
 from services.launch.run import RECORDING_FILE, SECRETS_DIRECTORY
 from services.launch.up import run_up
@@ -26,6 +26,15 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
     """The run the flags ask for; ``--record-full-rate`` and ``--tf`` become ``--set`` settings, for
     every service of the run (the robot description's [record] and [ros2])."""
     description = description_from_args(args)
+    goal_mode = args.goals or args.goal_file is not None
+    if goal_mode:
+        given = {"--scenario": args.scenario is not None, "--loop": args.loop, "--teleop": args.teleop}
+        conflicting = [flag for flag, value in given.items() if value]
+        if conflicting:
+            raise ConfigError(
+                f"{'--goals' if args.goals else '--goal-file'} with {', '.join(conflicting)}: in goal mode each drive "
+                "takes goals (invent goto X Y [THETA], or the goal file) instead of running a scenario"
+            )
     settings = [
         *description.settings,
         *([f"record.rate={RecordRate.EVERY_STEP}"] if args.record_full_rate else []),
@@ -34,7 +43,7 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
     return UpPlan(
         connection=connection_from_args(args),
         description=dataclasses.replace(description, settings=tuple(settings)),
-        scenario=args.scenario,
+        scenario=args.scenario if args.scenario is not None else DEFAULT_SCENARIO,
         fleet=args.fleet,
         mode=args.mode,
         report=Path(args.report) if args.report else None,
@@ -48,6 +57,8 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
         ros2=args.ros2,
         record_ros2=args.record_ros2,
         teleop=args.teleop,
+        goals=args.goals,
+        goal_file=args.goal_file,
         composed=args.composed,
         workers=args.workers,
         intra_process=not args.no_intra_process,
@@ -57,8 +68,21 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--scenario",
-        default="square",
-        help="built-in scenario or TOML file (default square); with --fleet, of the robots that name none",
+        help=f"built-in scenario or TOML file (default {DEFAULT_SCENARIO}); with --fleet, of the robots that name none",
+    )
+    parser.add_argument(
+        "--goals",
+        action="store_true",
+        help="no scenario: each robot's drive waits for goals (invent goto X Y [THETA] --robot R, ROS 2's "
+        "NavigateToPose), in realtime unless --mode says otherwise, until Ctrl-C; records run.mcap and writes the "
+        "report as a scenario run does, at Ctrl-C (exit 0). Not with --scenario, --loop or --teleop",
+    )
+    parser.add_argument(
+        "--goal-file",
+        metavar="FILE",
+        help="goal mode with goals (and cancels) sent at fixed simulation times from FILE (invent drive --goal-file; "
+        "docs/drive.md, Goals): the run ends when the last goal has, with its outcome, in the configured mode "
+        "(lockstep by default); one robot only",
     )
     fleet_flag(
         parser,

@@ -60,6 +60,7 @@ UNSUPPORTED = {
     "--loop": "a fleet runs each robot's scenario once",
     "--gui": "the PyBullet window is not offered for a fleet yet",
     "--connect": "a fleet run starts its own router",
+    "--goal-file": "a goal file is one robot's: send each robot its goals with `invent goto X Y --robot R`",
 }
 
 
@@ -71,6 +72,7 @@ def check_fleet(plan: UpPlan, path: str) -> tuple[Fleet, dict[str, Config]]:
         "--loop": plan.loop,
         "--gui": plan.gui,
         "--connect": plan.connection.connect,
+        "--goal-file": plan.goal_file,
     }
     wrong = [f"{flag} ({UNSUPPORTED[flag]})" for flag, value in given.items() if value]
     if wrong:
@@ -83,7 +85,7 @@ def check_fleet(plan: UpPlan, path: str) -> tuple[Fleet, dict[str, Config]]:
     configs = fleet_configs(fleet, description.config, description.overrides())
     if plan.ros2:
         fleet_bridges(fleet, description.config, description.overrides())
-    for robot in fleet.robots if not plan.teleop else ():
+    for robot in fleet.robots if not (plan.teleop or plan.goal_mode) else ():
         try:
             load_scenario(_scenario(robot, plan))
         except ConfigError as error:
@@ -116,7 +118,9 @@ def fleet_access(plan: UpPlan, fleet: Fleet, report_dir: Path) -> Access:
 
 
 def _scenario(robot: FleetRobot, plan: UpPlan) -> str:
-    """A robot's scenario: its own, else ``--scenario``."""
+    """A robot's scenario: its own, else ``--scenario``; in goal mode, goals (the fleet file's scenarios unused)."""
+    if plan.goal_mode:
+        return plan.drive_runs
     return robot.scenario or plan.scenario
 
 

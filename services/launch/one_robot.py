@@ -10,6 +10,7 @@ from typing import Any
 
 from schemas.keys import Keys, Service
 from services.config import Config, ConfigError
+from services.drive.goal_file import load_goal_file
 from services.drive.outcome import Outcome
 from services.drive.scenarios import load_scenario
 from services.launch.children import say
@@ -35,7 +36,9 @@ def check_before_start(plan: UpPlan, config: Config) -> None:
     if plan.view == 0:
         raise ConfigError("--view: the view's port must be fixed (1..65535), for the address to open in Foxglove")
     check_ros2_flags(plan)
-    if not plan.teleop:
+    if plan.goal_file is not None:
+        load_goal_file(plan.goal_file)
+    elif not (plan.teleop or plan.goal_mode):
         load_scenario(plan.scenario)
     load_world(config.sim.world)
     if plan.ros2:
@@ -77,7 +80,7 @@ class OneRobot:
         self.plan = plan
         self.config = plan.description.load()
         check_before_start(plan, self.config)
-        self.each: tuple[Robot, ...] = (Robot(self.config.robot.name, self.config, plan.scenario),)
+        self.each: tuple[Robot, ...] = (Robot(self.config.robot.name, self.config, plan.drive_runs),)
         self.scene: tuple[Config, ...] = ()
         self.records_statuses = True
         self.view_flags: list[str] = []

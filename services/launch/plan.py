@@ -10,6 +10,11 @@ from typing import Any
 
 from services.config import Config, SimMode, load_config, parse_override
 
+GOALS = "goals"
+"""What a ``--goals`` run's summary names as its scenario (the drive's ``drive/outcome`` says the same)."""
+DEFAULT_SCENARIO = "square"
+"""The scenario of ``invent up`` when no ``--scenario`` (or goal mode) says otherwise."""
+
 
 @dataclass(frozen=True)
 class Connection:
@@ -53,7 +58,7 @@ class UpPlan:
 
     connection: Connection = field(default_factory=Connection)
     description: Description = field(default_factory=Description)
-    scenario: str = "square"
+    scenario: str = DEFAULT_SCENARIO
     fleet: str | None = None
     mode: SimMode | None = None
     report: Path | None = None
@@ -68,6 +73,27 @@ class UpPlan:
     ros2: bool = False
     record_ros2: bool = False
     teleop: bool = False
+    goals: bool = False
+    """``--goals``: each robot's drive in goal mode (``invent drive --goals``), no scenario, until Ctrl-C."""
+    goal_file: str | None = None
+    """``--goal-file FILE``: goal mode with the goals of FILE (``invent drive --goal-file``), ending when the drive does."""
     composed: bool = False
     workers: int | None = None
     intra_process: bool = True
+
+    @property
+    def goal_mode(self) -> bool:
+        """Whether the drives run goals (``--goals`` or ``--goal-file``) instead of a scenario."""
+        return self.goals or self.goal_file is not None
+
+    @property
+    def until_interrupted(self) -> bool:
+        """Whether the run goes on until Ctrl-C (``--loop``, ``--teleop``, ``--goals`` without a goal file)."""
+        return self.loop or self.teleop or (self.goals and self.goal_file is None)
+
+    @property
+    def drive_runs(self) -> str:
+        """What the drives run, as the run's summary names it: ``goals``, the goal file, or the scenario."""
+        if self.goal_file is not None:
+            return self.goal_file
+        return GOALS if self.goals else self.scenario

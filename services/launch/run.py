@@ -318,8 +318,9 @@ class Outcomes:
 
 def outcome_exit_code(outcomes: Sequence[Outcome | None]) -> int:
     """The run's exit code from its robots' outcomes: aborted if any robot aborted, else timed out
-    if any timed out, else 0 (every robot completed; an interrupted robot has None)."""
-    for worst in (Outcome.ABORTED, Outcome.TIMED_OUT):
+    if any timed out, else canceled if any ended so (a goal file's last goal), else 0 (every robot
+    completed; an interrupted robot, or one of a ``--goals`` run, has None)."""
+    for worst in (Outcome.ABORTED, Outcome.TIMED_OUT, Outcome.CANCELED):
         if worst in outcomes:
             return worst.exit_code
     return ExitStatus.OK
@@ -353,12 +354,18 @@ class ViewProcess:
             say(f"view did not exit cleanly ({describe_exit(code)})")
 
 
-def verdict(strict: bool, degraded: list[str], done: str, outcome_code: int = 0) -> int:
-    """Say what was written; a scenario given up exits with its outcome's code, else under
-    ``--strict`` a degraded run exits 1."""
+def verdict(
+    strict: bool,
+    degraded: list[str],
+    done: str,
+    outcome_code: int = 0,
+    not_completed: str = "the scenario was given up",
+) -> int:
+    """Say what was written; a scenario given up (a goal file's last goal not completed: say so in
+    ``not_completed``) exits with its outcome's code, else under ``--strict`` a degraded run exits 1."""
     say(done)
     if outcome_code:
-        say(f"the scenario was given up: exit {outcome_code}")
+        say(f"{not_completed}: exit {outcome_code}")
         return outcome_code
     if degraded and strict:
         status = ExitStatus.FAILURE

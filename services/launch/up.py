@@ -64,7 +64,12 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     begun = start(plan, robots.access)
     report_dir, access, endpoint, common = begun.report_dir, begun.access, begun.endpoint, begun.common
     first = robots.each[0]
-    mode = SimMode.REALTIME if plan.teleop else plan.mode or first.config.sim.mode
+    # --teleop and --goals wait for someone to drive the robot: paced by the wall clock (--goals: unless --mode says)
+    mode = (
+        SimMode.REALTIME
+        if plan.teleop
+        else plan.mode or (SimMode.REALTIME if plan.goals and plan.goal_file is None else first.config.sim.mode)
+    )
     robot_services = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if plan.ros2 else ()))
     # the journals: each robot's services' and drive's, the sim's and up's own
     journals = len(robots.each) * (len(robot_services) + 1) + 2
@@ -114,7 +119,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
             drives = {}
             for robot in driven:
                 flags = [*common, *robot.credentials(access, Role.DRIVE), *robot.flags, *journal(robot)]
-                flags += ["--scenario", robot.scenario, *(["--loop"] if plan.loop else [])]
+                flags += _drive_flags(plan, robot)
                 drives[robot.name] = launcher.start(robot.child(Service.DRIVE), [str(Service.DRIVE), *flags])
             for tokens in robots.drive_waits(driven):
                 run.wait_tokens(tokens)
@@ -131,7 +136,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
             if started_line := robots.started_line(mode):
                 say(started_line)
             watch = robots.watch(run, drives)
-            watch.supervise(started, recorder.during if recorder else None, plan.loop or plan.teleop)
+            watch.supervise(started, recorder.during if recorder else None, plan.until_interrupted)
             wall_time_s = time.monotonic() - started
             for robot in robots.each:
                 sim_status, health[robot.name] = watch.health(robot.name)
@@ -163,11 +168,21 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         if bag:
             bag.finish(sim_started)
     outcome_code = outcome_exit_code(list(ended.values()))
+    not_completed = "the last goal did not complete" if plan.goal_mode else "the scenario was given up"
     if recorder is None:
         degraded = [robot.label(reason) for robot in robots.each for reason in robot_degradations(health[robot.name])]
         for line in [*outcome_lines, *robots.health_lines(health), *map(degradation_line, degraded)]:
             print(line, flush=True)
         why = "--teleop" if plan.teleop else "--loop" if plan.loop else "--no-record"
-        return verdict(plan.strict, degraded, f"done; no recording, no report ({why})", outcome_code)
+        return verdict(plan.strict, degraded, f"done; no recording, no report ({why})", outcome_code, not_completed)
     degraded, written = robots.report(report_dir)
-    return verdict(plan.strict, degraded, written, outcome_code)
+    return verdict(plan.strict, degraded, written, outcome_code, not_completed)
+
+
+def _drive_flags(plan: UpPlan, robot: Robot) -> list[str]:
+    """What ``robot``'s drive runs: goals (``--goals``), a goal file, or its scenario (``--loop``: over and over)."""
+    if plan.goal_file is not None:
+        return ["--goal-file", plan.goal_file]
+    if plan.goals:
+        return ["--goals"]
+    return ["--scenario", robot.scenario, *(["--loop"] if plan.loop else [])]
