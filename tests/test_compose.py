@@ -1,6 +1,7 @@
 """compose.yaml: a zenohd router with access control plus one client container per service, each
 a valid invent invocation with its own role's credentials, the script that makes them, and the
-profiles that let exactly one commander (the drive's scenario, or ROS 2's /cmd_vel) drive the robot."""
+profiles that let exactly one commander (the drive's scenario, ROS 2's /cmd_vel, or the drive in goal
+mode) drive the robot."""
 
 import json
 import os
@@ -20,8 +21,12 @@ from tests.harness import REPO
 SECRETS_DIR = "./docker/secure/secrets"
 MOUNTED_SECRETS = "/secrets"
 ROLE_FILE_IN_CONTAINER = "/run/secrets/zenoh.json5"
-ROLES = {**{str(service): Role(service.value) for service in Service}, "view": Role.OBSERVER}
+GOALS_DRIVE = "drive-goals"
+"""The drive of the `goals` profile: the drive in goal mode, with the drive's credentials."""
+ROLES = {**{str(service): Role(service.value) for service in Service}, "view": Role.OBSERVER, GOALS_DRIVE: Role.DRIVE}
 """Each client container's role: its service's own, the live view's the observer's (it only watches)."""
+COMMANDS = {name: str(role) if name == GOALS_DRIVE else name for name, role in ROLES.items()}
+"""The `invent` command each container runs: its name's, the goal drive's `drive`."""
 
 
 def _compose() -> dict:
@@ -33,7 +38,7 @@ def _services() -> dict:
 
 
 def test_services_are_the_router_plus_every_service():
-    assert set(_compose()["services"]) == {"router", "view"} | {str(service) for service in Service}
+    assert set(_compose()["services"]) == {"router", "view", GOALS_DRIVE} | {str(service) for service in Service}
 
 
 def test_router_reads_the_generated_config_and_publishes_rest_on_loopback_only():
@@ -49,7 +54,7 @@ def test_every_service_is_a_client_with_only_its_own_roles_credentials():
     declared = _compose()["secrets"]
     for name, spec in _services().items():
         command = spec["command"]
-        assert command[0] == name
+        assert command[0] == COMMANDS[name]
         args = parser.parse_args(command)
         assert args.connect == ["tcp/router:7447"], name
         assert args.zenoh_config == ROLE_FILE_IN_CONTAINER, name
@@ -86,6 +91,11 @@ def test_the_drive_loops_the_square_scenario():
     assert args.scenario.name == "square" and args.loop
 
 
+def test_the_goals_profiles_drive_waits_for_goals():
+    args = build_parser().parse_args(_compose()["services"][GOALS_DRIVE]["command"])
+    assert args.goals and args.scenario is None and args.goal_file is None
+
+
 def _default_profiles() -> set[str]:
     """The profiles `docker compose up` runs with no --profile: COMPOSE_PROFILES of the .env file
     beside compose.yaml (a --profile flag replaces them)."""
@@ -110,26 +120,32 @@ def _commanders() -> set[str]:
     }
 
 
-def test_the_drive_and_the_ros2_bridge_are_the_commanders():
-    assert _commanders() == {str(Service.DRIVE), str(Service.ROS2)}
+def test_the_drives_and_the_ros2_bridge_are_the_commanders():
+    assert _commanders() == {str(Service.DRIVE), GOALS_DRIVE, str(Service.ROS2)}
 
 
 def test_the_default_profile_runs_the_drives_scenario_and_no_ros2_bridge():
     assert _default_profiles() == {"scenario"}
     running = _running(_default_profiles())
-    assert running == set(_compose()["services"]) - {str(Service.ROS2)}
+    assert running == set(_compose()["services"]) - {str(Service.ROS2), GOALS_DRIVE}
     assert running & _commanders() == {str(Service.DRIVE)}
 
 
 def test_the_ros2_profile_runs_the_bridge_and_no_drive_so_the_robot_follows_cmd_vel():
     running = _running({"ros2"})
-    assert running == set(_compose()["services"]) - {str(Service.DRIVE)}
+    assert running == set(_compose()["services"]) - {str(Service.DRIVE), GOALS_DRIVE}
     assert running & _commanders() == {str(Service.ROS2)}
+
+
+def test_the_goals_profile_runs_the_drive_in_goal_mode_and_no_other_commander():
+    running = _running({"goals"})
+    assert running == set(_compose()["services"]) - {str(Service.DRIVE), str(Service.ROS2)}
+    assert running & _commanders() == {GOALS_DRIVE}
 
 
 def test_every_profile_has_exactly_one_commander():
     profiles = {profile for spec in _compose()["services"].values() for profile in spec.get("profiles", [])}
-    assert profiles == {"scenario", "ros2"}
+    assert profiles == {"scenario", "ros2", "goals"}
     for profile in profiles:
         assert len(_running({profile}) & _commanders()) == 1, profile
 
