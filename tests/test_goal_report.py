@@ -154,7 +154,9 @@ def test_any_goal_events_give_one_entry_per_start_and_per_unmatched_outcome(even
 
 def _goal_mode_journals(journals) -> None:
     """Four seconds of a goal-mode run as its processes journal it: the sim's ground truth; the
-    drive's goals (g1 preempted by g2 at 1 s, g2 completed at 3 s), feedback, outcomes; up's summary."""
+    drive's goals (g1 preempted by g2 at 1 s, g2 completed at 3 s), feedback, outcomes, and a goal
+    no drive publishes (a tolerance of 0: someone's bad input, kept in the recording as the evidence
+    but neither drawn nor reported); up's summary."""
     journals.mkdir()
     sim = Journal(journal_path(journals, str(Service.SIM)))
     for step in range(201):
@@ -165,6 +167,7 @@ def _goal_mode_journals(journals) -> None:
     published = [
         (0, KEYS.drive_goal, target(0, "g1", 3.0, 0.0, None)),
         (200 * MS, KEYS.drive_goal_feedback, feedback(200 * MS, "g1", 2.8)),
+        (500 * MS, KEYS.drive_goal, target(500 * MS, "bad", 1.0, 1.0, tolerance=0.0)),  # no drive's: not a goal
         (1000 * MS, KEYS.drive_goal, target(S, "g2", 1.5, 0.0, 0.0)),
         (1000 * MS + 1, KEYS.drive_outcome, outcome(S, "g1", "canceled", "preempted by goal g2", 1.0)),
         (1200 * MS, KEYS.drive_goal_feedback, feedback(1200 * MS, "g2", 0.3)),
@@ -190,7 +193,7 @@ def test_a_goal_mode_runs_recording_holds_its_goals_with_their_schemas_and_its_r
     assert schemas[KEYS.drive_goal] == "GoalTarget"
     assert schemas[KEYS.drive_goal_feedback] == "GoalFeedback"
     assert schemas[KEYS.drive_outcome] == "ScenarioOutcome"
-    assert [json.loads(m.data)["id"] for m in messages if m.topic == KEYS.drive_goal] == ["g1", "g2"]
+    assert [json.loads(m.data)["id"] for m in messages if m.topic == KEYS.drive_goal] == ["g1", "bad", "g2"]
     assert [json.loads(m.data)["goal_id"] for m in messages if m.topic == KEYS.drive_outcome] == ["g1", "g2"]
     scene = [SceneUpdate.FromString(m.data) for m in messages if m.topic == SCENE_TOPIC]
     labels = [t.text for update in scene for e in update.entities if e.id == "goal" for t in e.texts]
@@ -233,6 +236,6 @@ def test_a_stopped_recording_keeps_every_goal_and_its_outcome(tmp_path):
     )
     assert written.stopped is not None
     messages = read_messages(output).messages
-    assert len([m for m in messages if m.topic == KEYS.drive_goal]) == 2
+    assert len([m for m in messages if m.topic == KEYS.drive_goal]) == 3
     assert len([m for m in messages if m.topic == KEYS.drive_outcome]) == 2
     assert math.isfinite(written.stopped["stopped_at_s"])

@@ -70,6 +70,20 @@ OUTCOME_COLORS = {
 _LABEL = Color(r=1.0, g=1.0, b=1.0, a=1.0)
 
 
+def check_target(target: GoalTarget) -> GoalTarget:
+    """``target`` if the drive could have published it, else BadInput: a tolerance ≤ 0, an id longer
+    than :data:`~schemas.messages.MAX_GOAL_ID_LENGTH` (what decoding does not refuse)."""
+    if len(target.id) > MAX_GOAL_ID_LENGTH:
+        raise BadInput(f"goal id of {len(target.id)} characters (at most {MAX_GOAL_ID_LENGTH})")
+    if not (target.position_tolerance > 0.0 and target.heading_tolerance > 0.0):
+        raise BadInput(
+            f"goal {target.id}: tolerances {target.position_tolerance} m, {target.heading_tolerance} rad (must be > 0)"
+        )
+    if target.time_limit_s is not None and not (math.isfinite(target.time_limit_s) and target.time_limit_s > 0.0):
+        raise BadInput(f"goal {target.id}: time limit {target.time_limit_s} s (must be > 0)")
+    return target
+
+
 class _Points:
     """A polyline that keeps a point every ``spacing`` m, the newest ``limit``."""
 
@@ -122,12 +136,7 @@ class GoalDrawing:
     def start(self, target: GoalTarget) -> None:
         """A goal started (``drive/goal``): the one before it, if it had not ended, waits among the
         ended ones for its outcome (a preempted goal ends ``canceled`` at the tick the new one starts)."""
-        if len(target.id) > MAX_GOAL_ID_LENGTH:
-            raise BadInput(f"goal id of {len(target.id)} characters (at most {MAX_GOAL_ID_LENGTH})")
-        if not (target.position_tolerance > 0.0 and target.heading_tolerance > 0.0):
-            raise BadInput(
-                f"goal {target.id}: tolerances {target.position_tolerance} m, {target.heading_tolerance} rad (must be > 0)"
-            )
+        check_target(target)
         if self.current is not None and self.current.target == target:
             return  # the latched key's answer to a recorder's query, after the sample itself
         if self.current is not None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import io
 import json
-from collections.abc import Collection, Iterator
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -51,6 +51,7 @@ from schemas.messages import (
 from services.config import Config, ConfigError, InputConfig, RobotConfig
 from services.drive.scenarios import planned_path_for
 from services.planar import Pose, check_coordinates
+from services.recording.goal_scene import check_target
 from services.recording.report import (
     Point,
     Recording,
@@ -353,7 +354,7 @@ def robot_report(path: Path, messages: list[RecordedMessage], config: Config) ->
             f"{keys.robot!r} (or it was cut short; --robot names another robot)"
         )
     recording = recording_from(messages, keys, config.robot, config.input, summary.tm.to_seconds())
-    targets = decoded(messages, keys.drive_goal, GoalTarget)
+    targets = decoded(messages, keys.drive_goal, GoalTarget, check_target)
     report = build_report(
         recording,
         scenario=summary.scenario,
@@ -376,14 +377,16 @@ def robot_report(path: Path, messages: list[RecordedMessage], config: Config) ->
     return report, recording
 
 
-def decoded(messages: list[RecordedMessage], key: str, message_type: type[Any]) -> list[Any]:
-    """Every message recorded on ``key`` that decodes as ``message_type``, in recorded order (one
-    that does not is someone's bad input, not part of the run)."""
+def decoded(
+    messages: list[RecordedMessage], key: str, message_type: type[Any], check: Callable[[Any], Any] = lambda m: m
+) -> list[Any]:
+    """Every message recorded on ``key`` that decodes as ``message_type`` and passes ``check``, in
+    recorded order (one that does not is someone's bad input, not part of the run)."""
     found = []
     for message in messages:
         if message.topic == key:
             try:
-                found.append(decode(message_type, message.data))
+                found.append(check(decode(message_type, message.data)))
             except BadInput:
                 continue
     return found
