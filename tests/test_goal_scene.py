@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from schemas.codec import BadInput, encode
 from schemas.keys import Keys, Topic
-from schemas.messages import GoalFeedback, GoalTarget, ScenarioOutcome, Time, TimedDoubleSeq
+from schemas.messages import GoalFeedback, GoalTarget, ScenarioOutcome, Time, TimedDoubleSeq, TimedPosition
 from services.config import Config, load_config
 from services.recording.goal_scene import ENDED_GOALS, OUTCOME_COLORS, RUNNING
 from services.recording.record import SceneBuilder, Sink
@@ -337,3 +337,28 @@ def test_any_sequence_of_goal_events_draws_a_bounded_scene(events):
     assert len(goal.arrows) + len(goal.spheres) == (1 if started else 0)
     assert len(ended.texts) <= ENDED_GOALS
     assert all(len(line.points) <= GOAL_PATH_POINTS for line in path.lines)
+
+
+def test_goals_add_a_bounded_cost_to_every_scene_update():
+    """Two minutes around a circle with the trails full, the running goal's path full (its newest
+    10 m) and every ended goal kept, ids of 64 characters: each update stays under 45 kB (about
+    30 kB without goals: tests/test_scene.py)."""
+    scene = Scene(CONFIG.robot, CONFIG.sim)
+    for index in range(ENDED_GOALS + 1):
+        goal_id = f"{index}".rjust(64, "g")
+        scene.add(Topic.DRIVE_GOAL, target(index, goal_id, 50.0, 50.0))
+        scene.add(Topic.DRIVE_OUTCOME, outcome(index, goal_id, "aborted", "x" * 500))
+    running = "r" * 64
+    scene.add(Topic.DRIVE_GOAL, target(ENDED_GOALS + 1, running, 50.0, 50.0))
+    biggest = 0
+    for stamp_ns in range(100 * MS, 120 * S, 20 * MS):
+        angle = 0.3 * stamp_ns / S
+        scene.add(Topic.DRIVE_GOAL_FEEDBACK, feedback(stamp_ns, running, 99.99))
+        x, y = math.cos(angle), math.sin(angle)
+        scene.add(Topic.ODOMETRY_POSE, TimedPosition(tm=_stamp(stamp_ns), id=[], x=x, y=y, theta=angle, error=[]))
+        for topic, message in scene.add(Topic.SIM_BODY_POSE, body_pose(stamp_ns, x, y)):
+            if topic == SCENE_TOPIC:
+                biggest = max(biggest, len(message.encode()))
+    assert len(scene.goals.current.path.points) == GOAL_PATH_POINTS, "the goal's path is full"
+    assert len(scene.goals.ended) == ENDED_GOALS
+    assert 35_000 < biggest < 45_000, "the trails and the goal's path full"

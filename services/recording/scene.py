@@ -20,7 +20,8 @@ scene every :data:`SCENE_PERIOD_NS` (the loop publishes at its step rate, kHz, w
 needs); a scan is shown as it comes, at its own rate. A trail keeps a point every :data:`TRAIL_SPACING_M`, the newest :data:`TRAIL_POINTS`. Each
 scene update carries the whole scene (a viewer that seeks, or joins late, needs only the last one),
 so what bounds a recording's growth is the trail's length: the scene costs at most about 30 kB per
-update however long the run (benchmarks/README.md, "What recording costs").
+update however long the run (benchmarks/README.md, "What recording costs"), about 42 kB with a
+goal's path full and the ended goals drawn (tests/test_goal_scene.py).
 """
 
 from __future__ import annotations
