@@ -80,11 +80,11 @@ def test_a_preempted_goal_ends_canceled_and_the_next_one_is_its_own():
     goals = goal_results(
         [target(0, "g1", 3.0, 0.0, None), target(2 * S, "g2", 2.0, 0.0, None)],
         [],
-        [outcome(2 * S, "g1", "canceled", "preempted by goal g2", 2.0), outcome(4 * S, "g2", "completed", "", 2.0)],
+        [outcome(2 * S, "g1", "canceled", "preempted by goal 'g2'", 2.0), outcome(4 * S, "g2", "completed", "", 2.0)],
         truth,
     )
     assert [(g["id"], g["outcome"], g["reason"]) for g in goals] == [
-        ("g1", "canceled", "preempted by goal g2"),
+        ("g1", "canceled", "preempted by goal 'g2'"),
         ("g2", "completed", ""),
     ]
     first, second = (g["ground_truth"] for g in goals)
@@ -169,7 +169,7 @@ def _goal_mode_journals(journals) -> None:
         (200 * MS, KEYS.drive_goal_feedback, feedback(200 * MS, "g1", 2.8)),
         (500 * MS, KEYS.drive_goal, target(500 * MS, "bad", 1.0, 1.0, tolerance=0.0)),  # no drive's: not a goal
         (1000 * MS, KEYS.drive_goal, target(S, "g2", 1.5, 0.0, 0.0)),
-        (1000 * MS + 1, KEYS.drive_outcome, outcome(S, "g1", "canceled", "preempted by goal g2", 1.0)),
+        (1000 * MS + 1, KEYS.drive_outcome, outcome(S, "g1", "canceled", "preempted by goal 'g2'", 1.0)),
         (1200 * MS, KEYS.drive_goal_feedback, feedback(1200 * MS, "g2", 0.3)),
         (3000 * MS, KEYS.drive_outcome, outcome(3 * S, "g2", "completed", "", 2.0)),
     ]
@@ -209,7 +209,7 @@ def test_a_goal_mode_runs_recording_holds_its_goals_with_their_schemas_and_its_r
     assert (g1["id"], g1["outcome"], g1["reason"], g1["started_s"], g1["ended_s"]) == (
         "g1",
         "canceled",
-        "preempted by goal g2",
+        "preempted by goal 'g2'",
         0.0,
         1.0,
     )
@@ -223,7 +223,7 @@ def test_a_goal_mode_runs_recording_holds_its_goals_with_their_schemas_and_its_r
     text = summary(report)
     assert "outcome: completed" in text and "goals: 2 (canceled 1, completed 1)" in text
     assert (
-        "  goal g1 to (3.000, 0.000): canceled after 1.00 s (preempted by goal g2); ground truth 250.0 cm off" in text
+        "  goal g1 to (3.000, 0.000): canceled after 1.00 s (preempted by goal 'g2'); ground truth 250.0 cm off" in text
     )
 
 

@@ -189,7 +189,7 @@ def test_a_preempted_goal_stays_drawn_canceled_beside_the_new_one():
             (Topic.DRIVE_GOAL, target(0, "g1", 2.0, 0.0)),
             (Topic.DRIVE_GOAL_FEEDBACK, feedback(200 * MS, "g1", 1.5)),
             (Topic.DRIVE_GOAL, target(S, "g2", 0.0, 2.0)),  # the new goal first, then the old one's end
-            (Topic.DRIVE_OUTCOME, outcome(S, "g1", "canceled", "preempted by goal g2")),
+            (Topic.DRIVE_OUTCOME, outcome(S, "g1", "canceled", "preempted by goal 'g2'")),
             (Topic.DRIVE_GOAL_FEEDBACK, feedback(S + 200 * MS, "g1", 1.4)),  # a stale one: not drawn
         ],
     )

@@ -60,7 +60,7 @@ def _script(first: int) -> dict[int, list[tuple[str, bytes]]]:
     at[first + 5].append((KEYS.drive_goal, encode(target(stamp(first + 5), "bad", 1.0, 1.0, tolerance=0.0))))
     at[first + 10].append((KEYS.drive_goal, encode(target(stamp(first + 10), "g2", 1.5, 0.5, 1.57))))
     at[first + 10].append(
-        (KEYS.drive_outcome, encode(outcome(stamp(first + 10), "g1", "canceled", "preempted by goal g2", 1.0)))
+        (KEYS.drive_outcome, encode(outcome(stamp(first + 10), "g1", "canceled", "preempted by goal 'g2'", 1.0)))
     )
     for step in range(first + 1, first + 20, 2):
         goal = "g1" if step < first + 10 else "g2"
@@ -236,10 +236,10 @@ def test_invent_report_on_the_recording_says_how_each_goal_ended(goal_run, tmp_p
     reported = run_invent("report", str(goal_run.recording), "--output-dir", str(tmp_path), timeout=60)
     assert reported.returncode == 0, reported.stderr[-3000:]
     assert "goals: 2 (canceled 1, completed 1)" in reported.stdout, reported.stdout
-    assert "  goal g1 to (3.000, 0.000): canceled after 1.00 s (preempted by goal g2)" in reported.stdout
+    assert "  goal g1 to (3.000, 0.000): canceled after 1.00 s (preempted by goal 'g2')" in reported.stdout
     report = json.loads((tmp_path / "report.json").read_text())
     assert [(g["id"], g["outcome"], g["reason"]) for g in report["goals"]] == [
-        ("g1", "canceled", "preempted by goal g2"),
+        ("g1", "canceled", "preempted by goal 'g2'"),
         ("g2", "completed", ""),
     ]
     g2 = report["goals"][1]
