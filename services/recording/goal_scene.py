@@ -19,8 +19,8 @@ update:
 
 A goal without a heading has no heading tolerance to draw. An empty entity is sent while there
 is no goal, so a viewer that seeks back before the first goal shows none. What the drive never
-publishes (a tolerance ≤ 0, an id longer than :data:`~schemas.messages.MAX_GOAL_ID_LENGTH`) is
-bad input (:class:`~schemas.codec.BadInput`), refused before it changes anything.
+publishes (a tolerance or a time limit ≤ 0, an id longer than
+:data:`~schemas.messages.MAX_GOAL_ID_LENGTH`) is bad input (:class:`~schemas.codec.BadInput`), refused before it changes anything.
 """
 
 from __future__ import annotations
@@ -71,8 +71,9 @@ _LABEL = Color(r=1.0, g=1.0, b=1.0, a=1.0)
 
 
 def check_target(target: GoalTarget) -> GoalTarget:
-    """``target`` if the drive could have published it, else BadInput: a tolerance ≤ 0, an id longer
-    than :data:`~schemas.messages.MAX_GOAL_ID_LENGTH` (what decoding does not refuse)."""
+    """``target`` if the drive could have published it, else BadInput: a tolerance or a time limit
+    ≤ 0, an id longer than :data:`~schemas.messages.MAX_GOAL_ID_LENGTH` (what decoding does not
+    refuse). The report leaves such a goal out too."""
     if len(target.id) > MAX_GOAL_ID_LENGTH:
         raise BadInput(f"goal id of {len(target.id)} characters (at most {MAX_GOAL_ID_LENGTH})")
     if not (target.position_tolerance > 0.0 and target.heading_tolerance > 0.0):
