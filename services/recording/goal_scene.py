@@ -19,8 +19,8 @@ update:
 
 A goal without a heading has no heading tolerance to draw. An empty entity is sent while there
 is no goal, so a viewer that seeks back before the first goal shows none. What the drive never
-publishes (a tolerance or a time limit ≤ 0, an id longer than
-:data:`~schemas.messages.MAX_GOAL_ID_LENGTH`) is bad input (:class:`~schemas.codec.BadInput`), refused before it changes anything.
+publishes (a tolerance or a time limit ≤ 0, an id that is not a goal id) does not decode as a
+``GoalTarget``: bad input, refused before it changes anything.
 """
 
 from __future__ import annotations
@@ -45,8 +45,7 @@ from foxglove.messages import (
     Vector3,
 )
 
-from schemas.codec import BadInput
-from schemas.messages import MAX_GOAL_ID_LENGTH, GoalFeedback, GoalTarget, ScenarioOutcome
+from schemas.messages import GoalFeedback, GoalTarget, ScenarioOutcome
 
 ENDED_GOALS = 8
 """Ended goals drawn besides the running one (the newest)."""
@@ -68,21 +67,6 @@ OUTCOME_COLORS = {
     "timed_out": Color(r=0.9, g=0.15, b=0.15, a=1.0),
 }
 _LABEL = Color(r=1.0, g=1.0, b=1.0, a=1.0)
-
-
-def check_target(target: GoalTarget) -> GoalTarget:
-    """``target`` if the drive could have published it, else BadInput: a tolerance or a time limit
-    ≤ 0, an id longer than :data:`~schemas.messages.MAX_GOAL_ID_LENGTH` (what decoding does not
-    refuse). The report leaves such a goal out too."""
-    if len(target.id) > MAX_GOAL_ID_LENGTH:
-        raise BadInput(f"goal id of {len(target.id)} characters (at most {MAX_GOAL_ID_LENGTH})")
-    if not (target.position_tolerance > 0.0 and target.heading_tolerance > 0.0):
-        raise BadInput(
-            f"goal {target.id}: tolerances {target.position_tolerance} m, {target.heading_tolerance} rad (must be > 0)"
-        )
-    if target.time_limit_s is not None and not (math.isfinite(target.time_limit_s) and target.time_limit_s > 0.0):
-        raise BadInput(f"goal {target.id}: time limit {target.time_limit_s} s (must be > 0)")
-    return target
 
 
 class _Points:
@@ -137,7 +121,6 @@ class GoalDrawing:
     def start(self, target: GoalTarget) -> None:
         """A goal started (``drive/goal``): the one before it, if it had not ended, waits among the
         ended ones for its outcome (a preempted goal ends ``canceled`` at the tick the new one starts)."""
-        check_target(target)
         if self.current is not None and self.current.target == target:
             return  # the latched key's answer to a recorder's query, after the sample itself
         if self.current is not None:

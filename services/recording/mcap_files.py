@@ -51,7 +51,6 @@ from schemas.messages import (
 from services.config import Config, ConfigError, InputConfig, RobotConfig
 from services.drive.scenarios import planned_path_for
 from services.planar import Pose, check_coordinates
-from services.recording.goal_scene import check_target
 from services.recording.report import (
     Point,
     Recording,
@@ -354,7 +353,7 @@ def robot_report(path: Path, messages: list[RecordedMessage], config: Config) ->
             f"{keys.robot!r} (or it was cut short; --robot names another robot)"
         )
     recording = recording_from(messages, keys, config.robot, config.input, summary.tm.to_seconds())
-    targets = decoded(messages, keys.drive_goal, GoalTarget, check_target)
+    targets = decoded(messages, keys.drive_goal, GoalTarget)
     report = build_report(
         recording,
         scenario=summary.scenario,
