@@ -19,7 +19,7 @@ import zenoh.ext
 from schemas.codec import encode
 from schemas.keys import LATCHED_TOPICS, LOOP_SERVICES, Keys, Method, MethodFamily, Service, Topic, all_robots_status
 from schemas.messages import Time, TimedPosition, TimedVelocity
-from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, BridgeGraph
+from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, MOTOR_SERVICES, PUBLICATIONS, ActionTopic, BridgeGraph
 from services.security import (
     CA_CERTIFICATE,
     DEFAULT_ROS,
@@ -75,8 +75,9 @@ def test_each_service_role_puts_exactly_the_keys_under_its_own_name():
 
 def test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_trigger_methods():
     ros = DEFAULT_ROS
-    published = {ros.key(entity) for entity in PUBLICATIONS.values()}
+    published = {ros.key(entity) for entity in (*PUBLICATIONS.values(), *ACTION_TOPICS.values())}
     cache_keys = {f"{ros.key(PUBLICATIONS[name])}/@adv/**" for name in ("tf_static", "robot_description")}
+    cache_keys.add(f"{ros.key(ACTION_TOPICS[ActionTopic.STATUS])}/@adv/**")
     assert _put_keys(Role.ROS2) == published | cache_keys | {KEYS.drive_target_velocity}
     assert all(key.startswith("0/") for key in published)
     assert {KEYS.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES} == (
@@ -84,7 +85,8 @@ def test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_tri
     )
     assert KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN) not in _queried_keys(Role.ROS2)
     served = _granted(Role.ROS2, Message.DECLARE_QUERYABLE)
-    assert served == {KEYS.status(Service.ROS2)} | {ros.key(e) for e in MOTOR_SERVICES.values()} | cache_keys
+    services = (*MOTOR_SERVICES.values(), *ACTION_SERVICES.values())
+    assert served == {KEYS.status(Service.ROS2)} | {ros.key(e) for e in services} | cache_keys
 
 
 def test_the_ros_roles_are_granted_the_domain_and_namespace_they_are_written_for():
