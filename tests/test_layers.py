@@ -47,7 +47,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.(motor|odometry|localization)\.core", CORE),
     (r"services\.motor\.state", CORE),
     (r"services\.motor\.(sim_pose|speed_limiter|collision|monitor)", CORE),
-    (r"services\.drive\.(scenarios|path_following|outcome)", CORE),
+    (r"services\.drive\.(scenarios|path_following|outcome|goals|goal_file)", CORE),
     (r"services\.clock\.(sim_time|lockstep|observation)", CORE),
     (r"services\.planar", CORE),
     (r"services\.fleet\.(description|summary)", CORE),
@@ -59,6 +59,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     ),
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph|outputs|sensors)", CORE),
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
+    (r"services\.drive\.goal_shell", SHELL),
     (r"sim_bridge\.(bridge|link|liveness|loops|handshakes)", SHELL),
     (r"services\.service", SHELL_SUPPORT),
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
@@ -287,7 +288,7 @@ def test_each_service_room_holds_its_shell_and_its_core():
         "motor": ("core", "state", "sim_pose", "speed_limiter", "collision", "monitor"),
         "odometry": ("core",),
         "localization": ("core",),
-        "drive": ("scenarios", "path_following", "outcome"),
+        "drive": ("scenarios", "path_following", "outcome", "goals", "goal_file"),
     }.items():
         room = ROOT / "services" / service
         assert (room / "service.py").is_file(), service

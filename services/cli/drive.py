@@ -8,6 +8,7 @@ from typing import Any
 from services.cli.flags import finite_number, parsed_by, positive_seconds
 from services.cli.serve import ServiceCli
 from services.config import ConfigError, DriveConfig
+from services.drive.goal_file import load_goal_file
 from services.drive.scenarios import (
     BUILTIN_SCENARIOS,
     ConstantSegment,
@@ -16,11 +17,13 @@ from services.drive.scenarios import (
     load_scenario,
     parse_waypoints,
 )
-from services.drive.service import COMMAND, TWIST_PASS_S, DriveOptions
+from services.drive.service import COMMAND, GOALS_MODE, TWIST_PASS_S, DriveOptions
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    what = parser.add_argument_group("what to drive (exactly one of --for, --twist, --scenario, --waypoints)")
+    what = parser.add_argument_group(
+        "what to drive (exactly one of --for, --twist, --scenario, --waypoints, --goals, --goal-file)"
+    )
     mode = what.add_mutually_exclusive_group(required=True)
     mode.add_argument(
         "--for",
@@ -50,6 +53,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar='"X,Y X,Y ..."',
         help='follow a path through these points (world frame, m), e.g. "1,0 1,1 0,1 0,0"',
     )
+    mode.add_argument(
+        "--goals",
+        action="store_true",
+        help="goal mode: no scenario; wait for goals on drive/goal/send (invent goto X Y [THETA], ROS 2's "
+        "NavigateToPose), drive to each, publish feedback and each goal's outcome, until Ctrl-C",
+    )
+    mode.add_argument(
+        "--goal-file",
+        type=parsed_by(load_goal_file),
+        metavar="FILE",
+        help="goal mode with goals (and cancels) sent at fixed simulation times from a TOML file; ends once the "
+        "last has ended, with its outcome's exit code (docs/drive.md, Goals)",
+    )
     what.add_argument("--vx", type=finite_number, metavar="M/S", help="with --for: forward speed (default 0)")
     what.add_argument("--w", type=finite_number, metavar="RAD/S", help="with --for: turn rate (default 0)")
     what.add_argument(
@@ -71,6 +87,10 @@ def options(args: argparse.Namespace) -> DriveOptions:
     """What the flags drive: a constant velocity for a duration, a twist held, a scenario or waypoints."""
     if args.duration is None and (args.vx is not None or args.w is not None):
         raise ConfigError("--vx and --w go with --for (a constant velocity for a duration); --twist VX W holds one")
+    if args.goals or args.goal_file is not None:
+        if args.loop:
+            raise ConfigError("--loop goes with a scenario or waypoints, not with goals")
+        return DriveOptions(GOALS_MODE, None, goal_file=args.goal_file)
     if args.twist is not None:
         vx, w = args.twist
         twist = Scenario(name="twist", segments=[ConstantSegment(vx=vx, w=w, duration=TWIST_PASS_S)])
@@ -86,14 +106,16 @@ def options(args: argparse.Namespace) -> DriveOptions:
 
 CLI = ServiceCli(
     command=COMMAND,
-    help="publish target velocities: a constant, a scenario or a waypoint path (sim time)",
+    help="publish target velocities: a constant, a scenario, a waypoint path, or goals (sim time)",
     description="Publish drive/target_velocity at drive.rate per second of simulation time (clock: the "
     "stamps on sim/clock). Waypoint paths are followed (pure pursuit, turn-in-place at sharp "
     "corners) on odometry/pose. Publishes zero velocity at the end, then its outcome on drive/outcome, and "
     "exits with it: 0 completed; 3 aborted (the motor stayed latched stopped for drive.give_up_after_stop); "
     "4 timed out (a pass past its time limit). --loop ends only when a pass is given up. "
+    "--goals waits for goals (drive/goal/send, drive/goal/cancel; feedback on drive/goal/feedback, each result "
+    "on drive/outcome, 5 canceled) until Ctrl-C; --goal-file sends them at fixed simulation times. "
     "Examples: invent drive --vx 0.3 --w 0.1 --for 5; invent drive --twist 0.2 0.5 (until Ctrl-C); "
-    "invent drive --scenario square; "
+    "invent drive --scenario square; invent drive --goals; "
     'invent drive --waypoints "1,0 1,1 0,1 0,0". See docs/drive.md.',
     add_arguments=add_arguments,
     options=options,

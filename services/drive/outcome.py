@@ -126,12 +126,18 @@ class GiveUpRule:
         ):
             self.stop_bump = bump
 
-    def check(self, now_ns: int, pass_elapsed_ns: int) -> GiveUp | None:
-        """Whether to give the scenario up at ``now_ns``, ``pass_elapsed_ns`` into its current pass."""
-        since_ns = self._stop_start_ns()
+    def limit(self, limit_s: float | None) -> None:
+        """From now on a pass (a goal) may last ``limit_s`` simulated seconds (None: no limit)."""
+        self.limit_s = limit_s
+        self._limit_ns = None if limit_s is None else _ns(limit_s)
+
+    def check(self, now_ns: int, pass_elapsed_ns: int, from_ns: int | None = None) -> GiveUp | None:
+        """Whether to give the scenario (or goal) up at ``now_ns``, ``pass_elapsed_ns`` into its
+        current pass; a stop or hold counts from ``from_ns`` at the earliest (a goal's start)."""
+        since_ns = _not_before(self._stop_start_ns(), from_ns)
         if self._stop_ns is not None and since_ns is not None and now_ns - since_ns >= self._stop_ns:
             return GiveUp(Outcome.ABORTED, self._stop_reason(since_ns, now_ns))
-        held_ns = self.held_since_ns
+        held_ns = _not_before(self.held_since_ns, from_ns)
         if self._stop_ns is not None and held_ns is not None and now_ns - held_ns >= self._stop_ns:
             held_s = (now_ns - held_ns) / NANOSECONDS_PER_SECOND
             return GiveUp(
@@ -170,6 +176,12 @@ class GiveUpRule:
 BUMP_NEAR_STOP_S = 0.5
 """How far in simulation time a bump may be from the stop it caused (the sim calls the motor's
 ``motor/bump/stop`` without waiting, so the motor latches a few steps after the contact)."""
+
+
+def _not_before(stamp_ns: int | None, earliest_ns: int | None) -> int | None:
+    if stamp_ns is None or earliest_ns is None:
+        return stamp_ns
+    return max(stamp_ns, earliest_ns)
 
 
 def _ns(seconds: float) -> int:

@@ -27,6 +27,10 @@ or its collision monitor held the robot (``motor/state``'s ``held_by``), for
 
 A restarted simulator (its liveliness token appears, then its clock goes back) starts the
 scenario over from its first stamp: a new simulator is a new run, the robot back at its start.
+
+In goal mode (``--goals``, ``--goal-file``; services/drive/goal_shell.py) there is no scenario and
+no planned path: the drive answers ``drive/goal/send`` and ``drive/goal/cancel``, commands zero
+between goals, and a goal file's run ends as a scenario does, with its last goal's outcome.
 """
 
 from __future__ import annotations
@@ -54,8 +58,10 @@ from services.clock.lockstep import FINAL, decode_owed
 from services.clock.sim_time import PeriodicSchedule, StampClock, check_stamp_near
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config
+from services.drive.goal_file import GoalFile
+from services.drive.goal_shell import GoalDrive
 from services.drive.outcome import GiveUp, GiveUpRule, Outcome, time_limit
-from services.drive.path_following import STOPPED
+from services.drive.path_following import STOPPED, Command
 from services.drive.scenarios import Scenario, ScenarioRunner, describe, is_builtin, placed, planned_path
 from services.planar import Pose, check_coordinates
 from services.runtime.inputs import Delivery
@@ -68,14 +74,20 @@ TWIST_PASS_S = 1.0
 """``--twist``: the constant segment played over and over (its path is this much of the arc ahead)."""
 
 
+GOALS_MODE = "goals"
+
+
 @dataclass(frozen=True)
 class DriveOptions:
-    """What ``invent drive`` drives: ``mode`` (``constant``, ``twist``, ``scenario`` or
-    ``waypoints``, as its status says), the scenario, and whether it starts over when it ends."""
+    """What ``invent drive`` drives: ``mode`` (``constant``, ``twist``, ``scenario``,
+    ``waypoints`` or ``goals``, as its status says), the scenario, whether it starts over when it
+    ends; in goal mode, the goal file (None: goals come only from queries)."""
 
     mode: str
-    scenario: Scenario
+    scenario: Scenario | None
+    """None in goal mode."""
     loop: bool = False
+    goal_file: GoalFile | None = None
 
 
 class DriveService:
@@ -87,16 +99,20 @@ class DriveService:
         odometry = config.odometry
         start = Pose(odometry.initial_x, odometry.initial_y, odometry.initial_theta)
         # A built-in scenario runs from where the robot starts, as the odometry does.
-        self.runner = ScenarioRunner(
-            placed(scenario, start) if is_builtin(scenario) else scenario, config.drive, loop=loop
+        self.runner = (
+            None
+            if scenario is None
+            else ScenarioRunner(placed(scenario, start) if is_builtin(scenario) else scenario, config.drive, loop=loop)
         )
-        # A target held by hand (--twist) runs until Ctrl-C: nothing to give up.
+        # A target held by hand (--twist) runs until Ctrl-C: nothing to give up. A goal's limit is its own.
         self.give_up = GiveUpRule(
             config.drive if self.mode != "twist" else msgspec.structs.replace(config.drive, give_up_after_stop=None),
-            None if self.mode == "twist" else time_limit(self.runner.scenario, start, config.drive),
+            None
+            if self.mode == "twist" or self.runner is None
+            else time_limit(self.runner.scenario, start, config.drive),
         )
         self.outcome: GiveUp | None = None
-        """How the scenario ended, once it has (completed, or given up)."""
+        """How the scenario ended, once it has (completed, or given up); in goal mode, the last goal."""
         self.clock = StampClock(config.input.stamp_horizon_ns)
         self.max_coordinate = config.input.max_coordinate
         self.schedule: PeriodicSchedule | None = None
@@ -115,6 +131,20 @@ class DriveService:
         self.publisher = node.publisher(node.keys.drive_target_velocity)
         self._path = node.latched_publisher(node.keys.drive_path)
         self._outcome = node.latched_publisher(node.keys.drive_outcome)
+        self.motor_stopped_by: str | None = None
+        """Who latched the motor's stop (``motor/state``'s ``stopped_by``) while it is latched; else None."""
+        self.goal_drive = (
+            GoalDrive(
+                node,
+                config,
+                options.goal_file,
+                self.give_up,
+                lambda: self.pose if self.clock.last_ns is None else self._fresh_pose(self.clock.last_ns),
+                lambda: self.motor_stopped_by,
+            )
+            if self.mode == GOALS_MODE
+            else None
+        )
         node.subscribe_latched(node.keys.motor_state, MotorStateReport, self._on_motor_state)
         node.subscribe(node.keys.sim_bump, BumpEvent, self._on_bump, Delivery.QUEUED)
         self.sim = sim = SimulatorWatch(node, self.clock.restart)
@@ -135,21 +165,32 @@ class DriveService:
         node.participate(self.publisher, self.rate_hz)
         node.wait_with(self._next_wait)
         node.set_status(self.status)
-        node.log.info(
-            "%s %r%s at %g Hz of simulation time:\n%s",
-            self.mode,
-            scenario.name,
-            " (looping)" if loop else "",
-            self.rate_hz,
-            describe(scenario),
-        )
+        if scenario is not None:
+            node.log.info(
+                "%s %r%s at %g Hz of simulation time:\n%s",
+                self.mode,
+                scenario.name,
+                " (looping)" if loop else "",
+                self.rate_hz,
+                describe(scenario),
+            )
+        else:
+            node.log.info(
+                "goals at %g Hz of simulation time: %s",
+                self.rate_hz,
+                f"from {options.goal_file.name!r}, and from {node.keys.drive_goal_send}"
+                if options.goal_file is not None
+                else f"send them to {node.keys.drive_goal_send} (invent goto X Y [THETA])",
+            )
 
     @property
     def state(self) -> str:
-        if self.runner.done:
+        if self.finished or (self.runner is not None and self.runner.done):
             return "done"
         if self.schedule is None:
             return "waiting_for_clock" if self.clock.last_ns is None else "waiting_for_subscriber"
+        if self.runner is None:
+            return "waiting_for_goal" if self.goal_drive is not None and self.goal_drive.goals.idle else "running"
         return "waiting_for_pose" if self.runner.waiting_for_pose else "running"
 
     @property
@@ -158,6 +199,7 @@ class DriveService:
         return self.outcome.outcome.exit_code if self.finished and self.outcome is not None else 0
 
     def _on_motor_state(self, report: MotorStateReport) -> None:
+        self.motor_stopped_by = report.stopped_by if report.state == "stopped" else None
         self.give_up.motor_state(report.state, report.tm.to_nanoseconds(), report.stopped_by, report.held_by)
 
     def _on_bump(self, bump: BumpEvent) -> None:
@@ -195,17 +237,20 @@ class DriveService:
     def _restart(self, now_ns: int) -> None:
         """A new simulator, whose clock started again: the scenario starts over at ``now_ns``."""
         runner = self.runner
-        self.runner = ScenarioRunner(runner.scenario, runner.params, loop=runner.loop)
+        if runner is not None:
+            self.runner = ScenarioRunner(runner.scenario, runner.params, loop=runner.loop)
         self.schedule = None
         self.pose, self.pose_stamp_ns = None, None
         self._pending_tick = None
         self.final_zeros = 0
         self.outcome = None
         self.give_up.restart(now_ns)
+        if self.goal_drive is not None:
+            self.goal_drive.restart(now_ns)
         self.node.log.info(
             "simulation time went back to %.3f s (a new simulator): %r starts over",
             now_ns / NANOSECONDS_PER_SECOND,
-            runner.scenario.name,
+            "goal mode" if runner is None else runner.scenario.name,
         )
 
     def _on_clock(self, message: TimedDoubleSeq, attachment: bytes | None) -> None:
@@ -220,9 +265,10 @@ class DriveService:
             if not self.publisher.matched:
                 return
             self.schedule = PeriodicSchedule(self.rate_hz, 0)
-            start = self._fresh_pose(now_ns) or Pose(0.0, 0.0, 0.0)
-            scenario = self.runner.scenario
-            self._path.put(PlannedPath(message.tm, scenario.name, planned_path(scenario, start)))
+            if self.runner is not None:
+                start = self._fresh_pose(now_ns) or Pose(0.0, 0.0, 0.0)
+                scenario = self.runner.scenario
+                self._path.put(PlannedPath(message.tm, scenario.name, planned_path(scenario, start)))
         if self.finished or not self.schedule.due(now_ns):
             return
         if lockstep and self.odometry_alive:
@@ -251,23 +297,24 @@ class DriveService:
         self._command(tick_ns)
 
     def _command(self, tick_ns: int) -> None:
-        runner = self.runner
-        command = runner.step(tick_ns, self._fresh_pose(tick_ns))
-        if not runner.done and (given_up := self.give_up.check(tick_ns, runner.pass_elapsed_ns)) is not None:
-            runner.give_up()
-            command, self.outcome = STOPPED, given_up
-            self.node.log.warning("%s: %s", given_up.outcome, given_up.reason)
-        last = runner.done and self.final_zeros + 1 >= FINAL_ZERO_TICKS
+        command, done = self._goal_command(tick_ns) if self.goal_drive is not None else self._scenario_command(tick_ns)
+        last = done and self.final_zeros + 1 >= FINAL_ZERO_TICKS
         tm = Time.from_nanoseconds(tick_ns)
         self.publisher.put(
             TimedVelocity(tm=tm, id=[], vx=command.vx, vy=0.0, w=command.w, error=[]), FINAL if last else None
         )
         self.commands_published += 1
-        if not runner.done:
+        if not done:
             return
+        self.final_zeros += 1
+        if self.goal_drive is not None:
+            if last:
+                self.finished = True
+            return
+        runner = self.runner
+        assert runner is not None
         if self.outcome is None:
             self.outcome = GiveUp(Outcome.COMPLETED, "")
-        self.final_zeros += 1
         if self.final_zeros == 1:
             self._pass_elapsed_s = runner.pass_elapsed_ns / NANOSECONDS_PER_SECOND
             self.node.log.info("scenario %s after %.3f s of simulation time", self.outcome.outcome, runner.elapsed_s)
@@ -285,11 +332,43 @@ class DriveService:
             )
             self.finished = True
 
+    def _scenario_command(self, tick_ns: int) -> tuple[Command, bool]:
+        """The scenario's command at this tick, and whether it is done (completed or given up)."""
+        runner = self.runner
+        assert runner is not None
+        command = runner.step(tick_ns, self._fresh_pose(tick_ns))
+        if not runner.done and (given_up := self.give_up.check(tick_ns, runner.pass_elapsed_ns)) is not None:
+            runner.give_up()
+            command, self.outcome = STOPPED, given_up
+            self.node.log.warning("%s: %s", given_up.outcome, given_up.reason)
+        return command, runner.done
+
+    def _goal_command(self, tick_ns: int) -> tuple[Command, bool]:
+        """Goal mode's command at this tick, and whether a goal file's run is over."""
+        goal_drive = self.goal_drive
+        assert goal_drive is not None
+        command = goal_drive.tick(tick_ns, self._fresh_pose(tick_ns))
+        if goal_drive.finished and self.final_zeros == 0:
+            self.outcome = goal_drive.outcome
+            self.node.log.info(
+                "the goal file's goals are done after %.3f s of simulation time; the last %s",
+                tick_ns / NANOSECONDS_PER_SECOND,
+                "none" if self.outcome is None else self.outcome.outcome,
+            )
+        return command, goal_drive.finished
+
     def status(self) -> dict[str, Any]:
         runner = self.runner
+        if runner is None:
+            assert self.goal_drive is not None
+            command = self.goal_drive.goals.command
+            return {
+                **self._common_status(),
+                "command": {"vx": command.vx, "w": command.w},
+                "goals": self.goal_drive.status(),
+            }
         return {
-            "state": self.state,
-            "mode": self.mode,
+            **self._common_status(),
             "scenario": runner.scenario.name,
             "loop": runner.loop,
             "iteration": runner.iteration,
@@ -300,6 +379,12 @@ class DriveService:
             "waypoint_index": runner.waypoint_index,
             "follower_phase": runner.phase,
             "done": runner.done,
+        }
+
+    def _common_status(self) -> dict[str, Any]:
+        return {
+            "state": self.state,
+            "mode": self.mode,
             "rate_hz": self.rate_hz,
             "commands_published": self.commands_published,
             "sim_alive": self.sim.alive,
