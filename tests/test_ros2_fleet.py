@@ -69,6 +69,9 @@ PUBLISHED = {
 CLOCK = ("/clock", "rosgraph_msgs/msg/Clock")
 SUBSCRIBED = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped")
 SERVICES = ("motor/stop", "motor/clear", "motor/start", "motor/finish")
+GOAL_POSE = ("goal_pose", "geometry_msgs/msg/PoseStamped")
+ACTION = {"send_goal": "SS", "cancel_goal": "SS", "get_result": "SS", "feedback": "MP", "status": "MP"}
+"""Each robot's NavigateToPose action (``<ns>/navigate_to_pose/_action/<endpoint>``), by kind of token."""
 STARTUP_TIMEOUT_S = 90.0
 SHIPPED = REPO / "tests" / "data" / "ros2_interfaces"
 
@@ -133,7 +136,7 @@ def _mangled(name: str) -> str:
 
 
 def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_types_and_one_clock(fleet):
-    per_node = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES) + 1
+    per_node = len(PUBLISHED) + len(SUBSCRIBED) + 1 + len(SERVICES) + len(ACTION) + 1
     tokens = wait_until(
         lambda: (found := ros_client.graph_tokens(fleet.session, DOMAIN)) and len(found) >= 2 * per_node + 1 and found,
         10.0,
@@ -151,6 +154,15 @@ def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_type
         expected = {("MP", _mangled(f"{namespace}/{t}"), ros_client.key_type(i)) for t, i in PUBLISHED.items()}
         expected |= {("MS", _mangled(f"{namespace}/cmd_vel"), ros_client.key_type(i)) for i in SUBSCRIBED}
         expected |= {("SS", _mangled(f"{namespace}/{s}"), ros_client.TRIGGER_KEY_TYPE) for s in SERVICES}
+        expected.add(("MS", _mangled(f"{namespace}/{GOAL_POSE[0]}"), ros_client.key_type(GOAL_POSE[1])))
+        expected |= {
+            (
+                kind,
+                _mangled(f"{namespace}/navigate_to_pose/_action/{endpoint}"),
+                ros_client.action_key_type(ros_client.ACTION_ENDPOINTS[endpoint]),
+            )
+            for endpoint, kind in ACTION.items()
+        }
         expected |= {clock} if robot == "rh0" else set()
         assert entities[_mangled(namespace)] == expected, robot
 
@@ -339,6 +351,34 @@ def test_invent_record_ros2_records_the_fleets_graph_into_a_bag(fleet):
     assert decoded == sum(counts.values())
 
 
+def test_a_navigate_to_pose_goal_to_the_second_robot_moves_only_it(fleet):
+    """Each robot's action server under its namespace sends goals to its own robot's drive: rh1's
+    drive in goal mode (``invent drive --goals --robot rh1``, started here: a goal-mode drive
+    commands zero between goals, which the teleop tests before would fight), a goal on
+    ``/robot1/navigate_to_pose`` reached and SUCCEEDED, rh0 unmoved; rh0's action, whose robot has
+    no goal-mode drive, refuses a goal (nothing reaches rh1's drive)."""
+    with InventProcess("drive", "--goals", "--robot", "rh1", "--connect", fleet.endpoint, drain=True) as drive:
+        wait_alive(fleet.session, Keys("rh1").alive(Service.DRIVE), STARTUP_TIMEOUT_S)
+        start = fleet.status("rh1", Service.SIM)["pose"]
+        before = {robot: fleet.position(robot) for robot in NAMESPACES}
+        x, y, theta = start["x"] + 0.6 * math.cos(start["theta"]), start["y"] + 0.6 * math.sin(start["theta"]), 0.8
+        client = ros_client.ActionClient(fleet.session, f"{NAMESPACES['rh1']}/navigate_to_pose")
+        goal, reply = client.send_goal(x, y, theta)
+        assert reply.response.accepted
+        result = client.get_result(goal, timeout=60.0)
+        assert result.response.status == 4, result.response
+        after = {robot: fleet.position(robot) for robot in NAMESPACES}
+        assert math.hypot(after["rh1"][0] - x, after["rh1"][1] - y) <= 0.05, "rh1 at its goal"
+        assert _moved(before["rh0"], after["rh0"]) < 0.005, "rh0 did not move"
+        other = ros_client.ActionClient(fleet.session, f"{NAMESPACES['rh0']}/navigate_to_pose")
+        _goal, refused = other.send_goal(*after["rh0"], 0.0)
+        assert not refused.response.accepted
+        assert "no drive answered" in fleet.status("rh0", Service.ROS2)["navigate"]["last_rejection"]
+        assert fleet.status("rh1", Service.DRIVE)["goals"]["accepted"] == 1, "rh1's drive got one goal, rh1's"
+        code, _out, err = drive.stop()
+    assert code == 0, err[-3000:]
+
+
 def test_invent_ros2_fleet_runs_a_node_per_robot_on_one_session_each_with_ids_of_its_own(tmp_path):
     """``invent ros2 --fleet FILE``: one process, one session, a node per robot in its namespace,
     their nodes' and entities' ids drawn from one counter (rmw_zenoh's graph keys a node by its
@@ -346,7 +386,7 @@ def test_invent_ros2_fleet_runs_a_node_per_robot_on_one_session_each_with_ids_of
     (tmp_path / "fleet.toml").write_text(FLEET)
     with running_router() as endpoint, peer_session(endpoint) as session:
         with InventProcess("ros2", "--fleet", str(tmp_path / "fleet.toml"), "--connect", endpoint) as bridges:
-            per_node = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES) + 1
+            per_node = len(PUBLISHED) + len(SUBSCRIBED) + 1 + len(SERVICES) + len(ACTION) + 1
             tokens = wait_until(
                 lambda: (
                     (found := ros_client.graph_tokens(session, DOMAIN)) and len(found) == 2 * per_node + 1 and found

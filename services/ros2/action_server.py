@@ -37,7 +37,7 @@ import uuid as uuid_module
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import zenoh
 
@@ -60,7 +60,23 @@ from services.runtime.node import Node
 if TYPE_CHECKING:
     from services.clock.sim_time import StampClock
     from services.ros2.outputs import RosOutputs
-    from services.ros2.service import GraphTokens, RosPublisher
+
+
+class Tokens(Protocol):
+    """The bridge's node in the ROS graph (services/ros2/service.py's ``GraphTokens``)."""
+
+    bridge: graph.BridgeGraph
+
+    def declare(self, kind: wire.EntityKind, entity: graph.Entity) -> str: ...
+
+
+class Publisher(Protocol):
+    """One ROS topic's publisher (services/ros2/service.py's ``RosPublisher``)."""
+
+    def put(self, message: Any, stamp_ns: int) -> None: ...
+
+    def undeclare(self) -> None: ...
+
 
 GOAL_CALL_TIMEOUT_S = 2.0
 """How long a goal's send or cancel waits for the drive's reply."""
@@ -134,9 +150,9 @@ class NavigateServer:
         self,
         node: Node,
         config: Config,
-        tokens: GraphTokens,
+        tokens: Tokens,
         outputs: RosOutputs,
-        publisher: Callable[[graph.Entity], RosPublisher],
+        publisher: Callable[[graph.Entity], Publisher],
     ) -> None:
         self.node = node
         self.config = config
@@ -171,7 +187,7 @@ class NavigateServer:
         node.subscribe(keys.drive_goal, GoalTarget, self._on_started, Delivery.QUEUED)
         node.subscribe(keys.drive_goal_feedback, GoalFeedback, self._on_feedback, Delivery.QUEUED)
         node.subscribe(keys.drive_outcome, ScenarioOutcome, self._on_outcome, Delivery.QUEUED)
-        self._publish_status()
+        # As rcl_action: the status is published once there are goals, then at each change.
 
     @property
     def now_ns(self) -> int:
