@@ -19,15 +19,7 @@ import zenoh.ext
 from schemas.codec import encode
 from schemas.keys import LATCHED_TOPICS, LOOP_SERVICES, Keys, Method, MethodFamily, Service, Topic, all_robots_status
 from schemas.messages import Time, TimedPosition, TimedVelocity
-from services.ros2.graph import (
-    ACTION_SERVICES,
-    ACTION_TOPICS,
-    MOTOR_SERVICES,
-    PUBLICATIONS,
-    ActionService,
-    ActionTopic,
-    BridgeGraph,
-)
+from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, BridgeGraph
 from services.security import (
     CA_CERTIFICATE,
     DEFAULT_ROS,
@@ -82,6 +74,8 @@ def test_each_service_role_puts_exactly_the_keys_under_its_own_name():
 
 
 def test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_trigger_methods():
+    from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, ActionTopic
+
     ros = DEFAULT_ROS
     published = {ros.key(entity) for entity in (*PUBLICATIONS.values(), *ACTION_TOPICS.values())}
     cache_keys = {f"{ros.key(PUBLICATIONS[name])}/@adv/**" for name in ("tf_static", "robot_description")}
@@ -424,6 +418,7 @@ def test_router_lets_the_ros2_bridge_serve_its_navigate_to_pose_action_and_no_ot
     and gets its reply, an impostor's (the operator's) same queryable is never routed to; the
     bridge's status (a transient-local advanced publisher, as the bridge declares it) reaches a late
     ROS node from its cache, its feedback a subscribed one."""
+    from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, ActionService, ActionTopic
     from tests import ros_client
 
     ros = DEFAULT_ROS
