@@ -517,7 +517,7 @@ def test_the_graph_shows_the_actions_services_and_topics_and_goal_pose_with_ross
 
 @pytest.mark.slow
 def test_a_navigate_to_pose_goal_is_reached_with_feedback_and_its_result_succeeded(loop):
-    x, y, theta = loop.ahead(0.8, turn=1.0)
+    x, y, theta = loop.ahead(0.6, turn=0.8)
     uuid, reply = loop.client.send_goal(x, y, theta)
     assert reply.error is None and reply.response.accepted
     assert reply.attachment is not None and reply.attachment[0] == reply.sequence_number
@@ -582,7 +582,8 @@ def test_goals_canceled_by_id_preempted_and_canceled_all_end_canceled_in_the_sta
 def test_a_goal_pose_on_goal_pose_sends_a_goal_in_odom_whose_status_and_feedback_show_it_succeed(loop):
     """RViz's 2D Goal Pose: a PoseStamped on ``/goal_pose``, in ``odom`` (RViz's fixed frame): the
     bridge turns it into ``map`` with its own map -> odom and sends it; no client waits for a result."""
-    before = set(ros_client.goal_statuses(loop.recorder.of(STATUS)[-1].payload))
+    listed = loop.recorder.of(STATUS)
+    before = set(ros_client.goal_statuses(listed[-1].payload)) if listed else set()
     x, y, theta = loop.ahead(0.4, turn=-0.5)  # in map; the bridge's odom is the robot's start, here map's origin
     tf = ros_client.TYPESTORE.deserialize_cdr(loop.recorder.of("tf")[-1].payload, "tf2_msgs/msg/TFMessage")
     (map_to_odom,) = [t.transform for t in tf.transforms if (t.header.frame_id, t.child_frame_id) == ("map", "odom")]
@@ -596,7 +597,10 @@ def test_a_goal_pose_on_goal_pose_sends_a_goal_in_odom_whose_status_and_feedback
         "goal_pose", ros_client.pose_stamped(in_odom.x, in_odom.y, in_odom.theta, "odom", ros_client.TYPESTORE)
     )
     uuid = wait_until(
-        lambda: next(iter(set(ros_client.goal_statuses(loop.recorder.of(STATUS)[-1].payload)) - before), None),
+        lambda: (
+            (listed := loop.recorder.of(STATUS))
+            and next(iter(set(ros_client.goal_statuses(listed[-1].payload)) - before), None)
+        ),
         10.0,
         "a new goal in the status",
     )
