@@ -579,11 +579,9 @@ def test_goals_canceled_by_id_preempted_and_canceled_all_end_canceled_in_the_sta
 
 
 @pytest.mark.slow
-def test_a_goal_pose_on_goal_pose_sends_a_goal_in_odom_whose_status_and_feedback_show_it_succeed(loop):
+def test_goal_pose_sends_goals_in_odom_whose_status_and_feedback_show_one_succeed_and_one_canceled(loop):
     """RViz's 2D Goal Pose: a PoseStamped on ``/goal_pose``, in ``odom`` (RViz's fixed frame): the
     bridge turns it into ``map`` with its own map -> odom and sends it; no client waits for a result."""
-    listed = loop.recorder.of(STATUS)
-    before = set(ros_client.goal_statuses(listed[-1].payload)) if listed else set()
     x, y, theta = loop.ahead(0.4, turn=-0.5)  # in map; the bridge's odom is the robot's start, here map's origin
     tf = ros_client.TYPESTORE.deserialize_cdr(loop.recorder.of("tf")[-1].payload, "tf2_msgs/msg/TFMessage")
     (map_to_odom,) = [t.transform for t in tf.transforms if (t.header.frame_id, t.child_frame_id) == ("map", "odom")]
@@ -592,11 +590,26 @@ def test_a_goal_pose_on_goal_pose_sends_a_goal_in_odom_whose_status_and_feedback
         map_to_odom.translation.y,
         2 * math.atan2(map_to_odom.rotation.z, map_to_odom.rotation.w),
     )
-    in_odom = core.compose(core.inverse(correction), Pose(x, y, theta))
-    loop.node.put(
-        "goal_pose", ros_client.pose_stamped(in_odom.x, in_odom.y, in_odom.theta, "odom", ros_client.TYPESTORE)
-    )
-    uuid = wait_until(
+    uuid = _goal_pose(loop, core.compose(core.inverse(correction), Pose(x, y, theta)))
+    assert loop.wait_status(uuid, 4, timeout=60.0)[-1] == 4
+    assert loop.feedback(uuid), "its feedback on the action's topic"
+    truth = loop.ground_truth()
+    assert math.hypot(truth.x - x, truth.y - y) <= GOALS.position_tolerance + 0.01
+    assert abs(math.remainder(truth.theta - theta, math.tau)) <= GOALS.heading_tolerance
+    # a second one, far: an action client's cancel-all cancels it as any goal of the action
+    far = _goal_pose(loop, core.compose(core.inverse(correction), Pose(*loop.ahead(3.0))))
+    loop.wait_status(far, 2)
+    canceled = loop.client.cancel().response
+    assert canceled.return_code == 0 and [bytes(bytearray(g.goal_id.uuid)) for g in canceled.goals_canceling] == [far]
+    assert loop.wait_status(far, 5)[-2:] == [3, 5]
+
+
+def _goal_pose(loop: GoalLoop, pose: Pose) -> bytes:
+    """Publish ``pose`` (in odom) on ``goal_pose`` as RViz does; the UUID the bridge gave its goal."""
+    listed = loop.recorder.of(STATUS)
+    before = set(ros_client.goal_statuses(listed[-1].payload)) if listed else set()
+    loop.node.put("goal_pose", ros_client.pose_stamped(pose.x, pose.y, pose.theta, "odom", ros_client.TYPESTORE))
+    return wait_until(
         lambda: (
             (listed := loop.recorder.of(STATUS))
             and next(iter(set(ros_client.goal_statuses(listed[-1].payload)) - before), None)
@@ -604,11 +617,6 @@ def test_a_goal_pose_on_goal_pose_sends_a_goal_in_odom_whose_status_and_feedback
         10.0,
         "a new goal in the status",
     )
-    assert loop.wait_status(uuid, 4, timeout=60.0)[-1] == 4
-    assert loop.feedback(uuid), "its feedback on the action's topic"
-    truth = loop.ground_truth()
-    assert math.hypot(truth.x - x, truth.y - y) <= GOALS.position_tolerance + 0.01
-    assert abs(math.remainder(truth.theta - theta, math.tau)) <= GOALS.heading_tolerance
 
 
 @pytest.mark.slow
