@@ -6,6 +6,12 @@ by generate.py there) and, for action_msgs and unique_identifier_msgs, the type 
 ships; the keys and QoS the bridge announces; the CDR it writes, read back with a typestore built
 from ROS's type descriptions alone (tests/ros_client.py); UUIDs, frames, and the goals' states and
 cancel policy as rcl_action keeps them.
+
+Then, end to end, one run of the loop (``invent up --ros2 --teleop``, realtime) with the drive in
+goal mode beside it (``invent drive --goals``) serves every slow test, a ROS client on rmw_zenoh's
+wire format the test's session: the action in the graph; a goal reached with feedback and its
+result; goals canceled, preempted and canceled all; goals through ``goal_pose``; hostile requests
+refused while a goal runs. A fleet's goals are tests/test_ros2_fleet.py's.
 """
 
 from __future__ import annotations
