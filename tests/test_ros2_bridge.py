@@ -50,9 +50,16 @@ SUBSCRIBED = {
     ("goal_pose", "geometry_msgs/msg/PoseStamped"),
 }
 SERVICES = ("motor/stop", "motor/clear", "motor/start", "motor/finish")
-ACTION = {"send_goal": "SS", "cancel_goal": "SS", "get_result": "SS", "feedback": "MP", "status": "MP"}
-"""The NavigateToPose action's endpoints (``navigate_to_pose/_action/<endpoint>``) and their kinds
-(tests/test_ros2_navigate.py checks them, and the action itself, in depth)."""
+ACTION = {
+    "send_goal": ("SS", "::,10:,:,:,,"),
+    "cancel_goal": ("SS", "::,10:,:,:,,"),
+    "get_result": ("SS", "::,10:,:,:,,"),
+    "feedback": ("MP", "::,10:,:,:,,"),
+    "status": ("MP", ":1:,1:,:,:,,"),
+}
+"""The NavigateToPose action's endpoints (``navigate_to_pose/_action/<endpoint>``), their kinds and
+QoS: rcl_action's, the status reliable and transient-local, depth 1 (the action at work:
+tests/test_ros2_fleet.py)."""
 STARTUP_TIMEOUT_S = 60.0
 
 
@@ -133,20 +140,25 @@ def test_the_graph_shows_one_node_with_its_publishers_subscriptions_and_services
             (
                 f"%navigate_to_pose%_action%{endpoint}",
                 *ros_client.action_key_type(ros_client.ACTION_ENDPOINTS[endpoint]).split("/"),
+                qos,
             )
-            for endpoint, endpoint_kind in ACTION.items()
+            for endpoint, (endpoint_kind, qos) in ACTION.items()
             if endpoint_kind == kind
         }
         for kind in ("MP", "SS")
     }
-    assert {chunks[:3] for chunks in by_kind["MP"]} == {chunks[:3] for chunks in expected_publishers} | action["MP"]
-    assert expected_publishers <= by_kind["MP"]
+    assert by_kind["MP"] == expected_publishers | action["MP"]
     assert by_kind["MS"] == {
         (f"%{topic}", *ros_client.key_type(interface).split("/"), "::,10:,:,:,,") for topic, interface in SUBSCRIBED
     }
-    assert {chunks[:3] for chunks in by_kind["SS"]} == {
-        ("%" + service.replace("/", "%"), *ros_client.TRIGGER_KEY_TYPE.split("/")) for service in SERVICES
-    } | action["SS"]
+    assert (
+        by_kind["SS"]
+        == {
+            ("%" + service.replace("/", "%"), *ros_client.TRIGGER_KEY_TYPE.split("/"), "::,10:,:,:,,")
+            for service in SERVICES
+        }
+        | action["SS"]
+    )
     assert set(by_kind) == {"MP", "MS", "SS"}
 
 

@@ -1,48 +1,34 @@
 """The bridge's NavigateToPose action server (services/ros2/navigate.py, action_server.py).
 
-First the pure parts, no zenoh: every action type's RIHS01 hash, as the bridge computes it from the
+The pure parts, no zenoh: every action type's RIHS01 hash, as the bridge computes it from the
 definitions, equals the one ROS's own generator wrote (tests/data/ros2_interfaces/nav2_msgs, made
 by generate.py there) and, for action_msgs and unique_identifier_msgs, the type descriptions ROS
 ships; the keys and QoS the bridge announces; the CDR it writes, read back with a typestore built
 from ROS's type descriptions alone (tests/ros_client.py); UUIDs, frames, and the goals' states and
 cancel policy as rcl_action keeps them.
 
-Then, end to end, one run of the loop (``invent up --ros2 --teleop``, realtime) with the drive in
-goal mode beside it (``invent drive --goals``) serves every slow test, a ROS client on rmw_zenoh's
-wire format the test's session: the action in the graph; a goal reached with feedback and its
-result; goals canceled, preempted and canceled all; goals through ``goal_pose``; hostile requests
-refused while a goal runs. A fleet's goals are tests/test_ros2_fleet.py's.
+End to end, against a fleet's bridges and a drive in goal mode: tests/test_ros2_fleet.py.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
-import signal
-import subprocess
-import time
-from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
-import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
-from schemas.keys import Keys, Service
 from schemas.messages import GoalFeedback, ScenarioOutcome, Time
-from services.config import GoalsConfig, load_config
+from services.config import load_config
 from services.planar import Pose
 from services.ros2 import core, graph, interfaces, navigate
 from services.ros2.graph import ActionService, ActionTopic, bridge_graph
 from services.ros2.navigate import CancelCode, GoalBook, GoalStatus
 from tests import ros_client
-from tests.harness import InventProcess, call, invent_command, peer_session, running_router, wait_alive, wait_until
 
 DATA = Path(__file__).parent / "data" / "ros2_interfaces"
 GENERATED = DATA / "nav2_msgs" / "action" / "NavigateToPose.json"
@@ -382,294 +368,3 @@ def test_durations_are_whole_seconds_and_nanoseconds_never_negative():
     for value in (-1.0, math.nan, math.inf):
         assert (navigate.duration(value).sec, navigate.duration(value).nanosec) == (0, 0)
     assert np.array_equal(navigate.uuid_message(bytes(range(16))).uuid, np.arange(16, dtype=np.uint8))
-
-
-# -- end to end: the loop, its drive in goal mode, and a ROS client on rmw_zenoh's wire format ---
-
-DOMAIN = 0
-STARTUP_TIMEOUT_S = 60.0
-KEYS = Keys()
-GOALS = GoalsConfig()
-FEEDBACK, STATUS = "navigate_to_pose/_action/feedback", "navigate_to_pose/_action/status"
-
-
-@dataclass
-class GoalLoop:
-    endpoint: str
-    session: zenoh.Session
-    recorder: ros_client.Recorder
-    client: ros_client.ActionClient
-    node: ros_client.RosNode
-
-    def status(self, service: Service) -> dict[str, Any]:
-        ok, status = call(self.session, KEYS.status(service))
-        assert ok
-        return status
-
-    def ground_truth(self) -> Pose:
-        pose = self.status(Service.SIM)["pose"]
-        return Pose(pose["x"], pose["y"], pose["theta"])
-
-    def statuses(self, uuid: bytes) -> list[int]:
-        """The goal's status in each ``_action/status`` sample that lists it, repeats left out."""
-        seen: list[int] = []
-        for sample in self.recorder.of(STATUS):
-            status = ros_client.goal_statuses(sample.payload).get(uuid)
-            if status is not None and (not seen or seen[-1] != status):
-                seen.append(status)
-        return seen
-
-    def wait_status(self, uuid: bytes, status: int, timeout: float = 30.0) -> list[int]:
-        return wait_until(
-            lambda: (seen := self.statuses(uuid)) and seen[-1] == status and seen, timeout, f"status {status}"
-        )
-
-    def feedback(self, uuid: bytes) -> list[Any]:
-        messages = (
-            ros_client.action_decode(sample.payload, f"{ros_client.NAVIGATE}_FeedbackMessage")
-            for sample in self.recorder.of(FEEDBACK)
-        )
-        return [message.feedback for message in messages if bytes(bytearray(message.goal_id.uuid)) == uuid]
-
-    def ahead(self, distance: float, turn: float = 0.0) -> tuple[float, float, float]:
-        """A goal ``distance`` ahead of the robot, its heading turned by ``turn``."""
-        pose = self.ground_truth()
-        return (
-            pose.x + distance * math.cos(pose.theta),
-            pose.y + distance * math.sin(pose.theta),
-            pose.theta + turn,
-        )
-
-    def bad_inputs(self, key: str) -> int:
-        entry = self.status(Service.ROS2)["bad_input"]["by_key"].get(key)
-        return entry["count"] if entry else 0
-
-
-@pytest.fixture(scope="module")
-def loop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GoalLoop]:
-    """The loop in realtime with the ROS 2 bridge (``invent up --ros2 --teleop``) and the drive in
-    goal mode (``invent drive --goals``) beside it; the test's session a ROS node's peer, the
-    domain's samples recorded from before the bridge starts."""
-    directory = tmp_path_factory.mktemp("navigate")
-    with running_router() as endpoint, peer_session(endpoint) as session:
-        recorder = ros_client.Recorder(session, f"{DOMAIN}/**")
-        with (directory / "up.log").open("w") as log:
-            up = subprocess.Popen(
-                invent_command("up", "--ros2", "--teleop", "--connect", endpoint),
-                cwd=directory,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                text=True,
-            )
-            try:
-                wait_alive(session, KEYS.alive(Service.ROS2), STARTUP_TIMEOUT_S)
-                wait_alive(session, KEYS.alive(Service.SIM), STARTUP_TIMEOUT_S)
-                with InventProcess("drive", "--goals", "--connect", endpoint, drain=True) as drive:
-                    wait_alive(session, KEYS.alive(Service.DRIVE), STARTUP_TIMEOUT_S)
-                    client = ros_client.ActionClient(session, "/navigate_to_pose")
-                    yield GoalLoop(endpoint, session, recorder, client, ros_client.RosNode(session))
-                    code, _out, err = drive.stop()
-                    assert code == 0, err[-3000:]
-            finally:
-                up.send_signal(signal.SIGINT)
-                try:
-                    up.wait(60)
-                except subprocess.TimeoutExpired:
-                    up.kill()
-                recorder.close()
-    assert up.returncode == 0, (directory / "up.log").read_text()[-3000:]
-
-
-def _at_rest(loop: GoalLoop) -> bool:
-    """Whether the robot moved less than a millimetre in a tenth of a second of wall time."""
-    before = loop.ground_truth()
-    time.sleep(0.1)
-    after = loop.ground_truth()
-    return math.hypot(after.x - before.x, after.y - before.y) < 0.001
-
-
-def _token_entities(tokens: list[list[str]], kind: str) -> set[tuple[str, str, str, str]]:
-    return {(chunks[9], chunks[10], chunks[11], chunks[12]) for chunks in tokens if chunks[5] == kind}
-
-
-@pytest.mark.slow
-def test_the_graph_shows_the_actions_services_and_topics_and_goal_pose_with_ross_hashes(loop):
-    """What ``ros2 action list -t`` and ``ros2 action info`` read: the action's three services (SS)
-    and two topics (MP) in the tokens, with the types and hashes of ROS's own descriptions."""
-    tokens = wait_until(
-        lambda: (found := ros_client.graph_tokens(loop.session, DOMAIN)) and len(found) > 20 and found, 10.0
-    )
-    services = {
-        (
-            f"%navigate_to_pose%_action%{endpoint}",
-            *ros_client.action_key_type(ros_client.ACTION_ENDPOINTS[endpoint]).split("/"),
-            "::,10:,:,:,,",
-        )
-        for endpoint in ("send_goal", "cancel_goal", "get_result")
-    }
-    assert services <= _token_entities(tokens, "SS")
-    topics = {
-        (
-            f"%navigate_to_pose%_action%{endpoint}",
-            *ros_client.action_key_type(ros_client.ACTION_ENDPOINTS[endpoint]).split("/"),
-            qos,
-        )
-        for endpoint, qos in (("feedback", "::,10:,:,:,,"), ("status", ":1:,1:,:,:,,"))
-    }
-    assert topics <= _token_entities(tokens, "MP")
-    goal_pose = ("%goal_pose", *ros_client.key_type("geometry_msgs/msg/PoseStamped").split("/"), "::,10:,:,:,,")
-    assert goal_pose in _token_entities(tokens, "MS")
-
-
-@pytest.mark.slow
-def test_a_navigate_to_pose_goal_is_reached_with_feedback_and_its_result_succeeded(loop):
-    x, y, theta = loop.ahead(0.6, turn=0.8)
-    uuid, reply = loop.client.send_goal(x, y, theta)
-    assert reply.error is None and reply.response.accepted
-    assert reply.attachment is not None and reply.attachment[0] == reply.sequence_number
-    assert reply.attachment[2] == loop.client.gid, "the reply echoes the request's sequence number and GID"
-    result = loop.client.get_result(uuid, timeout=60.0)
-    assert (result.response.status, result.response.result.error_code) == (4, 0), result.response
-    truth = loop.ground_truth()
-    assert math.hypot(truth.x - x, truth.y - y) <= GOALS.position_tolerance
-    assert abs(math.remainder(truth.theta - theta, math.tau)) <= GOALS.heading_tolerance
-    statuses = loop.wait_status(uuid, 4)
-    assert statuses[0] == 1 and 2 in statuses and statuses[-1] == 4, "accepted, executing, then succeeded"
-    feedback = wait_until(lambda: len(loop.feedback(uuid)) >= 5 and loop.feedback(uuid), 10.0, "feedback")
-    assert {f.current_pose.header.frame_id for f in feedback} == {"map"}
-    times = [f.navigation_time.sec + f.navigation_time.nanosec / 1e9 for f in feedback]
-    assert times == sorted(times) and times[-1] > times[0]
-    assert feedback[0].distance_remaining > feedback[-1].distance_remaining
-    assert all(f.number_of_recoveries == 0 and f.estimated_time_remaining.sec >= 0 for f in feedback)
-    last = feedback[-1].current_pose.pose.position
-    assert math.hypot(last.x - x, last.y - y) < 0.3, "the robot's pose, in map"
-    navigate_status = loop.status(Service.ROS2)["navigate"]
-    assert navigate_status["goals"][uuid.hex()] == "succeeded" and navigate_status["succeeded"] >= 1
-    # a ROS node started after the goal ended gets the status from the bridge's cache (transient-local, as rcl's)
-    with peer_session(loop.endpoint) as late:
-        status = "/navigate_to_pose/_action/status"
-        cached = ros_client.cached_samples(late, DOMAIN, {status: "action_msgs/msg/GoalStatusArray"}, 10.0)
-    assert ros_client.goal_statuses(cached[status])[uuid] == 4
-
-
-@pytest.mark.slow
-def test_goals_canceled_by_id_preempted_and_canceled_all_end_canceled_in_the_status(loop):
-    far = loop.ahead(3.0)
-    second, reply = loop.client.send_goal(*far)
-    assert reply.response.accepted
-    loop.wait_status(second, 2)
-    canceled = loop.client.cancel(second)
-    assert canceled.response.return_code == 0
-    assert [bytes(bytearray(g.goal_id.uuid)) for g in canceled.response.goals_canceling] == [second]
-    result = loop.client.get_result(second, timeout=30.0)
-    assert result.response.status == 5 and result.response.result.error_code == 0
-    statuses = loop.wait_status(second, 5)
-    assert statuses[-2:] == [3, 5], "canceling, then canceled"
-    assert loop.client.cancel(second).response.return_code == 3, "already terminated"
-    assert loop.client.cancel(os.urandom(16)).response.return_code == 2, "an unknown goal"
-    assert loop.client.get_result(os.urandom(16)).response.status == 0, "an unknown goal's result: unknown, at once"
-
-    third, _ = loop.client.send_goal(*loop.ahead(3.0))
-    loop.wait_status(third, 2)
-    fourth, reply = loop.client.send_goal(*loop.ahead(3.0))
-    assert reply.response.accepted
-    preempted = loop.client.get_result(third, timeout=30.0).response
-    assert preempted.status == 5 and fourth.hex() in preempted.result.error_msg, "preempted by the newer goal"
-    loop.wait_status(fourth, 2)
-    everything = loop.client.cancel()
-    assert everything.response.return_code == 0, "a zero id and stamp: cancel all"
-    assert [bytes(bytearray(g.goal_id.uuid)) for g in everything.response.goals_canceling] == [fourth]
-    loop.wait_status(fourth, 5)
-    wait_until(lambda: _at_rest(loop), 10.0, "the robot at rest")
-    assert loop.client.cancel().response.return_code == 0, "cancel all with none running: none, no error"
-
-
-@pytest.mark.slow
-def test_goal_pose_sends_goals_in_odom_whose_status_and_feedback_show_one_succeed_and_one_canceled(loop):
-    """RViz's 2D Goal Pose: a PoseStamped on ``/goal_pose``, in ``odom`` (RViz's fixed frame): the
-    bridge turns it into ``map`` with its own map -> odom and sends it; no client waits for a result."""
-    x, y, theta = loop.ahead(0.4, turn=-0.5)  # in map; the bridge's odom is the robot's start, here map's origin
-    tf = ros_client.TYPESTORE.deserialize_cdr(loop.recorder.of("tf")[-1].payload, "tf2_msgs/msg/TFMessage")
-    (map_to_odom,) = [t.transform for t in tf.transforms if (t.header.frame_id, t.child_frame_id) == ("map", "odom")]
-    correction = Pose(
-        map_to_odom.translation.x,
-        map_to_odom.translation.y,
-        2 * math.atan2(map_to_odom.rotation.z, map_to_odom.rotation.w),
-    )
-    uuid = _goal_pose(loop, core.compose(core.inverse(correction), Pose(x, y, theta)))
-    assert loop.wait_status(uuid, 4, timeout=60.0)[-1] == 4
-    assert loop.feedback(uuid), "its feedback on the action's topic"
-    truth = loop.ground_truth()
-    assert math.hypot(truth.x - x, truth.y - y) <= GOALS.position_tolerance + 0.01
-    assert abs(math.remainder(truth.theta - theta, math.tau)) <= GOALS.heading_tolerance
-    # a second one, far: an action client's cancel-all cancels it as any goal of the action
-    far = _goal_pose(loop, core.compose(core.inverse(correction), Pose(*loop.ahead(3.0))))
-    loop.wait_status(far, 2)
-    canceled = loop.client.cancel().response
-    assert canceled.return_code == 0 and [bytes(bytearray(g.goal_id.uuid)) for g in canceled.goals_canceling] == [far]
-    assert loop.wait_status(far, 5)[-2:] == [3, 5]
-
-
-def _goal_pose(loop: GoalLoop, pose: Pose) -> bytes:
-    """Publish ``pose`` (in odom) on ``goal_pose`` as RViz does; the UUID the bridge gave its goal."""
-    listed = loop.recorder.of(STATUS)
-    before = set(ros_client.goal_statuses(listed[-1].payload)) if listed else set()
-    loop.node.put("goal_pose", ros_client.pose_stamped(pose.x, pose.y, pose.theta, "odom", ros_client.TYPESTORE))
-    return wait_until(
-        lambda: (
-            (listed := loop.recorder.of(STATUS))
-            and next(iter(set(ros_client.goal_statuses(listed[-1].payload)) - before), None)
-        ),
-        10.0,
-        "a new goal in the status",
-    )
-
-
-@pytest.mark.slow
-def test_hostile_requests_are_refused_in_the_reply_counted_and_the_running_goal_goes_on(loop):
-    x, y, theta = loop.ahead(0.8)
-    running, reply = loop.client.send_goal(x, y, theta)
-    assert reply.response.accepted
-    loop.wait_status(running, 2)
-    sent_before = loop.status(Service.ROS2)["navigate"]["sent"]
-    good = ros_client.send_goal_request(os.urandom(16), ros_client.pose_stamped(1.0, 0.0, 0.0))
-    send_key, cancel_key, result_key = (loop.client.key(e) for e in ("send_goal", "cancel_goal", "get_result"))
-    goal_pose_key = ros_client.topic_key(DOMAIN, "goal_pose", "geometry_msgs/msg/PoseStamped")
-    refused_goals = [
-        (ros_client.send_goal_request(os.urandom(16), ros_client.pose_stamped(math.nan, 0.0, 0.0)), "not finite"),
-        (
-            ros_client.send_goal_request(os.urandom(16), ros_client.pose_stamped(1.0, 0.0, 0.0, "base_link")),
-            "frame 'base_link'",
-        ),
-        (ros_client.send_goal_request(running, ros_client.pose_stamped(1.0, 0.0, 0.0)), "exists already"),
-        (b"\x00\x01\x00\x00" + b"\x07" * 9, "malformed CDR"),
-        (good + bytes(5000), "more than a send_goal request's"),
-    ]
-    for payload, reason in refused_goals:
-        answer = loop.client.call("send_goal", payload)
-        assert answer.response is not None and not answer.response.accepted, reason
-        assert reason in loop.status(Service.ROS2)["navigate"]["last_rejection"]
-    assert loop.bad_inputs(send_key) >= 4
-    unattached = loop.client.call("send_goal", good, with_attachment=False)
-    assert unattached.error is not None and "no attachment" in unattached.error, "an error reply: nothing to echo"
-    assert loop.client.call("cancel_goal", b"\x00\x01\x00\x00\x01").response.return_code == 1
-    assert loop.client.call("cancel_goal", ros_client.cancel_request() + bytes(100)).response.return_code == 1
-    assert loop.client.call("get_result", b"\x00\x01\x00\x00").response.status == 0
-    assert loop.bad_inputs(cancel_key) == 2 and loop.bad_inputs(result_key) == 1
-    for payload, attached in (
-        (b"\x00\x01\x00\x00\x02", True),
-        (ros_client.cdr(ros_client.pose_stamped(math.inf, 0.0, 0.0, "map", ros_client.TYPESTORE)), True),
-        (ros_client.cdr(ros_client.pose_stamped(1.0, 0.0, 0.0, "earth", ros_client.TYPESTORE)), True),
-        (ros_client.cdr(ros_client.pose_stamped(1.0, 0.0, 0.0, "map", ros_client.TYPESTORE)), False),
-        (bytes(5000), True),
-    ):
-        counted = loop.bad_inputs(goal_pose_key)
-        loop.node.put_raw(goal_pose_key, payload, ros_client.attachment(1, loop.node.gid) if attached else None)
-        wait_until(lambda c=counted: loop.bad_inputs(goal_pose_key) > c, 10.0, "the goal pose counted")
-    status = loop.status(Service.ROS2)
-    assert status["navigate"]["sent"] == sent_before, "nothing reached the drive"
-    assert status["internal_errors"] == 0
-    result = loop.client.get_result(running, timeout=60.0)
-    assert result.response.status == 4, "the running goal went on, untouched"
-    truth = loop.ground_truth()
-    assert math.hypot(truth.x - x, truth.y - y) <= GOALS.position_tolerance

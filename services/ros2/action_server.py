@@ -12,9 +12,9 @@ liveliness token.
 
 - ``send_goal``: the goal (checked and turned into ``map``, navigate.py) is sent to the drive from
   the service thread; the ROS reply waits for the drive's (``accepted`` follows it). A goal the
-  bridge refuses itself, or that the drive refuses or leaves unanswered, is answered
-  ``accepted: false`` and counted (the reason in the log and the status: SendGoal's response has
-  no field for it).
+  bridge refuses itself, or that the drive refuses or leaves unanswered (no drive serves goals: at
+  once; the status's ``drive_serves_goals`` says whether one does), is answered ``accepted: false``
+  and counted (the reason in the log and the status: SendGoal's response has no field for it).
 - ``cancel_goal``: rcl_action's policy on the goals this server knows; each that moves to
   ``canceling`` is canceled in the drive (``drive/goal/cancel``).
 - ``get_result``: answered once the goal has ended (held until then, at most
@@ -413,6 +413,7 @@ class NavigateServer:
     def status(self) -> dict[str, Any]:
         return {
             "action": self.action,
+            "drive_serves_goals": self._send.matching_status.matching,
             **dataclasses.asdict(self.counters),
             "waiting": {
                 "sends": len(self._pending),
