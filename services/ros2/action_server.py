@@ -56,6 +56,7 @@ from services.ros2 import graph, interfaces, navigate, wire
 from services.ros2.graph import ActionService, ActionTopic
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
+from services.runtime.session import has_match
 
 if TYPE_CHECKING:
     from services.clock.sim_time import StampClock
@@ -413,7 +414,7 @@ class NavigateServer:
     def status(self) -> dict[str, Any]:
         return {
             "action": self.action,
-            "drive_serves_goals": self._send.matching_status.matching,
+            "drive_serves_goals": has_match(self._send),
             **dataclasses.asdict(self.counters),
             "waiting": {
                 "sends": len(self._pending),
