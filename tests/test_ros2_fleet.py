@@ -554,7 +554,7 @@ def test_goal_pose_sends_goals_in_odom_whose_status_and_feedback_show_one_succee
 
 def test_hostile_requests_are_refused_in_the_reply_counted_and_the_running_goal_goes_on(goals):
     fleet = goals.fleet
-    x, y, theta = goals.ahead(0.8)
+    x, y, theta = goals.ahead(0.5)
     running, reply = goals.client.send_goal(x, y, theta)
     assert reply.response.accepted
     goals.wait_status(running, 2)
