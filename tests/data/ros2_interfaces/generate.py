@@ -110,6 +110,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="compare with the kept JSON instead of writing it")
     args = parser.parse_args()
+    if sys.version_info[:2] != (3, 11):
+        print("the ROS wheels are built for CPython 3.11 only: run this with python3.11", file=sys.stderr)
+        return 2
     with tempfile.TemporaryDirectory(prefix="rosidl-") as temporary:
         work = Path(temporary)
         venv.EnvBuilder(with_pip=True).create(work / "venv")
