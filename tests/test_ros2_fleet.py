@@ -33,7 +33,6 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2 import Reader
 
 from schemas.keys import Keys, Service
-from services.config import GoalsConfig
 from services.planar import Pose
 from services.ros2 import core
 from tests import ros_client
@@ -363,7 +362,12 @@ def test_invent_record_ros2_records_the_fleets_graph_into_a_bag(fleet):
 
 GOAL_ROBOT = "rh1"
 """The robot whose drive runs in goal mode for the goal tests (rh0 has none: its goals are refused)."""
-GOALS = GoalsConfig()
+NEAR_M, NEAR_RAD = 0.1, 0.3
+"""How near the simulated body must end to a goal the drive completed. The drive holds a goal to its
+tolerances (5 cm, 0.1 rad) by ``odometry/pose``, not the ground truth: here, on a loaded machine
+(load average 9 to 12 on two cores), the body ended 0.107 and 0.216 rad off a completed goal's
+heading; a goal sent wrong (frame, robot, heading) misses by far more. What the bridge sent is
+checked exactly, on the drive's ``drive/goal``."""
 GOAL_ACTION = f"{NAMESPACES[GOAL_ROBOT]}/navigate_to_pose"
 FEEDBACK, STATUS = f"{GOAL_ACTION}/_action/feedback", f"{GOAL_ACTION}/_action/status"
 
@@ -405,6 +409,19 @@ class Goals:
             for sample in self.fleet.recorder.of(FEEDBACK)
         )
         return [message.feedback for message in messages if bytes(bytearray(message.goal_id.uuid)) == uuid]
+
+    def started(self, uuid: bytes) -> dict[str, Any]:
+        """The goal rh1's drive started last (``drive/goal``, latched): it must be ``uuid``'s."""
+        ok, target = call(self.fleet.session, Keys(GOAL_ROBOT).drive_goal)
+        assert ok and target["id"] == uuid.hex(), target
+        return target
+
+    def near(self, x: float, y: float, theta: float) -> bool:
+        truth = self.ground_truth()
+        return (
+            math.hypot(truth.x - x, truth.y - y) <= NEAR_M
+            and abs(math.remainder(truth.theta - theta, math.tau)) <= NEAR_RAD
+        )
 
     def bad_inputs(self, key: str) -> int:
         entry = self.fleet.status(GOAL_ROBOT, Service.ROS2)["bad_input"]["by_key"].get(key)
@@ -457,9 +474,10 @@ def test_a_navigate_to_pose_goal_to_the_second_robot_is_reached_with_feedback_an
     assert reply.attachment[2] == goals.client.gid, "the reply echoes the request's sequence number and GID"
     result = goals.client.get_result(uuid, timeout=60.0)
     assert (result.response.status, result.response.result.error_code) == (4, 0), result.response
-    truth = goals.ground_truth()
-    assert math.hypot(truth.x - x, truth.y - y) <= GOALS.position_tolerance
-    assert abs(math.remainder(truth.theta - theta, math.tau)) <= GOALS.heading_tolerance
+    target = goals.started(uuid)
+    assert (target["x"], target["y"], target["frame"]) == (pytest.approx(x), pytest.approx(y), "map")
+    assert abs(math.remainder(target["theta"] - theta, math.tau)) < 1e-9, "the goal as sent, its heading the yaw"
+    assert goals.near(x, y, theta), (goals.ground_truth(), (x, y, theta))
     rh0_after = goals.ground_truth("rh0")
     assert math.hypot(rh0_after.x - rh0_before.x, rh0_after.y - rh0_before.y) < 0.005, "rh0 did not move"
     statuses = goals.wait_status(uuid, 4)
@@ -541,9 +559,11 @@ def test_goal_pose_sends_goals_in_odom_whose_status_and_feedback_show_one_succee
     uuid = goals.goal_pose(core.compose(core.inverse(correction), Pose(x, y, theta)))
     assert goals.wait_status(uuid, 4, timeout=60.0)[-1] == 4
     assert goals.feedback(uuid), "its feedback on the action's topic"
-    truth = goals.ground_truth()
-    assert math.hypot(truth.x - x, truth.y - y) <= GOALS.position_tolerance + 0.01
-    assert abs(math.remainder(truth.theta - theta, math.tau)) <= GOALS.heading_tolerance
+    target = goals.started(uuid)
+    assert target["frame"] == "map", "sent in map"
+    assert math.hypot(target["x"] - x, target["y"] - y) < 0.01, "in map through the bridge's map -> odom"
+    assert abs(math.remainder(target["theta"] - theta, math.tau)) < 0.01
+    assert goals.near(x, y, theta), (goals.ground_truth(), (x, y, theta))
     # a second one, far: an action client's cancel-all cancels it as any goal of the action
     far = goals.goal_pose(core.compose(core.inverse(correction), Pose(*goals.ahead(3.0))))
     goals.wait_status(far, 2)
@@ -598,8 +618,8 @@ def test_hostile_requests_are_refused_in_the_reply_counted_and_the_running_goal_
     assert status["internal_errors"] == 0
     result = goals.client.get_result(running, timeout=60.0)
     assert result.response.status == 4, "the running goal went on, untouched"
-    truth = goals.ground_truth()
-    assert math.hypot(truth.x - x, truth.y - y) <= GOALS.position_tolerance
+    goals.started(running)
+    assert goals.near(x, y, theta), (goals.ground_truth(), (x, y, theta))
 
 
 def test_invent_ros2_fleet_runs_a_node_per_robot_on_one_session_each_with_ids_of_its_own(tmp_path):
