@@ -278,7 +278,7 @@ class ScenarioOutcome(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """The pass that ended (0: the first; a ``--loop`` scenario ends only when a pass is given up)."""
     elapsed_s: float
     """Simulated seconds of that pass (of a goal: from its start at a tick to its end)."""
-    goal_id: str = ""
+    goal_id: GoalId = ""
     """The goal that ended (``drive/goal``'s ``id``), in goal mode; ``""`` for a scenario."""
 
     def __post_init__(self) -> None:
@@ -288,6 +288,7 @@ class ScenarioOutcome(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 MAX_GOAL_ID_LENGTH = 64
 GoalId = Annotated[str, msgspec.Meta(max_length=MAX_GOAL_ID_LENGTH, pattern=r"^[A-Za-z0-9_.\-]*$")]
 """A goal's id: letters, digits, ``_``, ``.``, ``-``; at most 64 (a ROS goal's UUID is 32 hex digits)."""
+PositiveFloat = Annotated[float, msgspec.Meta(gt=0.0)]
 GoalFrame = Literal["map", "odom"]
 """The frame of a goal's pose (docs/protocol.md section 7.3): ``map`` is the world frame of
 ``odometry/pose`` and the simulator; ``odom`` is the frame in which the robot started at the origin
@@ -342,20 +343,21 @@ class GoalTarget(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     tm: Time
     """The tick at which the goal started."""
-    id: str
+    id: GoalId
     x: float
     y: float
     theta: float | None
     frame: str
     """The frame the goal was given in (its pose here is already in ``map``)."""
-    position_tolerance: float
-    heading_tolerance: float
-    time_limit_s: float | None
+    position_tolerance: PositiveFloat
+    heading_tolerance: PositiveFloat
+    time_limit_s: PositiveFloat | None
 
     def __post_init__(self) -> None:
         _require_finite(self.x, self.y, self.position_tolerance, self.heading_tolerance)
-        if self.theta is not None:
-            _require_finite(self.theta)
+        for value in (self.theta, self.time_limit_s):
+            if value is not None:
+                _require_finite(value)
 
 
 GoalStateName = Literal["executing", "canceling"]
@@ -365,7 +367,7 @@ class GoalFeedback(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """``drive/goal/feedback``: a running goal's progress, at ``goals.feedback_rate`` per simulated second."""
 
     tm: Time
-    id: str
+    id: GoalId
     state: GoalStateName
     x: float
     y: float

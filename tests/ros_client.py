@@ -15,19 +15,23 @@ bundles, can be checked against this project's (docs/ros2.md)::
 from __future__ import annotations
 
 import itertools
+import json
 import os
 import queue
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 import zenoh
 import zenoh.ext
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from tests.harness import wait_until
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+INTERFACES = Path(__file__).parent / "data" / "ros2_interfaces"
 TRIGGER_KEY_TYPE = (
     "std_srvs::srv::dds_::Trigger_/RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f"
 )
@@ -133,6 +137,230 @@ class RosNode:
             read_attachment(sample.attachment.to_bytes()),
             sequence_number,
         )
+
+
+# -- actions: NavigateToPose, from ROS's own type descriptions ------------------------------------
+
+ACTION_DESCRIPTIONS = (
+    INTERFACES / "nav2_msgs" / "action" / "NavigateToPose.json",
+    INTERFACES / "action_msgs" / "srv" / "CancelGoal.json",
+    INTERFACES / "action_msgs" / "msg" / "GoalStatusArray.json",
+)
+"""The type descriptions ROS's generator wrote (NavigateToPose) and ROS ships (action_msgs):
+tests/data/ros2_interfaces/README.md says where each came from."""
+_FIELD_TYPES = {
+    2: "int8",
+    3: "uint8",
+    4: "int16",
+    5: "uint16",
+    6: "int32",
+    7: "uint32",
+    8: "int64",
+    9: "uint64",
+    10: "float32",
+    11: "float64",
+    15: "bool",
+    16: "byte",
+    17: "string",
+}
+"""type_description_interfaces/FieldType's ids of the scalar types; +48 an array, +96 a bounded
+sequence, +144 a sequence; 1 a nested type (its ``nested_type_name``)."""
+
+
+def _msg_text(description: dict[str, Any]) -> str:
+    """A type description (``type_description_msg``'s form) as ``.msg`` text for rosbags."""
+    lines = []
+    for entry in description["fields"]:
+        kind = entry["type"]
+        base_id, suffix = kind["type_id"], ""
+        if base_id > 144:
+            base_id, suffix = base_id - 144, "[]"
+        elif base_id > 96:
+            base_id, suffix = base_id - 96, f"[<={kind['capacity']}]"
+        elif base_id > 48:
+            base_id, suffix = base_id - 48, f"[{kind['capacity']}]"
+        base = kind["nested_type_name"] if base_id == 1 else _FIELD_TYPES[base_id]
+        lines.append(f"{base}{suffix} {entry['name']}")
+    return "\n".join(lines)
+
+
+def _ros_names(value: Any) -> Any:
+    if isinstance(value, str):
+        return value.replace("/srv/msg/", "/srv/")
+    if isinstance(value, tuple | list):
+        return type(value)(_ros_names(item) for item in value)
+    if isinstance(value, dict):
+        return {_ros_names(key): _ros_names(item) for key, item in value.items()}
+    return value
+
+
+def _action_typestore() -> Any:
+    """A rosbags typestore holding every type of :data:`ACTION_DESCRIPTIONS`, built from the
+    descriptions alone (not from the bridge's definitions), and the hashes ROS computed."""
+    store = get_typestore(Stores.EMPTY)
+    hashes: dict[str, str] = {}
+    for path in ACTION_DESCRIPTIONS:
+        content = json.loads(path.read_text())
+        message = content["type_description_msg"]
+        for description in (message["type_description"], *message["referenced_type_descriptions"]):
+            name = description["type_name"]
+            if name not in store.fielddefs:
+                # rosbags reads ``pkg/srv/Type`` as ``pkg/srv/msg/Type``: ROS's names are kept.
+                store.register(_ros_names(get_types_from_msg(_msg_text(description), name)))
+        hashes.update({entry["type_name"]: entry["hash_string"] for entry in content["type_hashes"]})
+    return store, hashes
+
+
+ACTION_TYPESTORE, ROS_HASHES = _action_typestore()
+"""What a ROS node of Jazzy knows of NavigateToPose and action_msgs: their types and RIHS01 hashes."""
+NAVIGATE = "nav2_msgs/action/NavigateToPose"
+STATUS_CODES = {
+    "unknown": 0,
+    "accepted": 1,
+    "executing": 2,
+    "canceling": 3,
+    "succeeded": 4,
+    "canceled": 5,
+    "aborted": 6,
+}
+
+
+def action_key_type(name: str) -> str:
+    """``nav2_msgs/action/NavigateToPose_SendGoal`` -> ``nav2_msgs::action::dds_::NavigateToPose_SendGoal_/RIHS01_<ROS's hash>``."""
+    package, kind, type_name = name.split("/")
+    return f"{package}::{kind}::dds_::{type_name}_/{ROS_HASHES[name]}"
+
+
+ACTION_ENDPOINTS = {
+    "send_goal": f"{NAVIGATE}_SendGoal",
+    "cancel_goal": "action_msgs/srv/CancelGoal",
+    "get_result": f"{NAVIGATE}_GetResult",
+    "feedback": f"{NAVIGATE}_FeedbackMessage",
+    "status": "action_msgs/msg/GoalStatusArray",
+}
+"""rcl_action's five endpoints of an action (``<action>/_action/<endpoint>``) and their types."""
+
+
+def action_key(domain: int, action: str, endpoint: str) -> str:
+    return f"{domain}/{action.strip('/')}/_action/{endpoint}/{action_key_type(ACTION_ENDPOINTS[endpoint])}"
+
+
+def action_message(name: str, **fields: Any) -> Any:
+    return ACTION_TYPESTORE.types[name](**fields)
+
+
+def action_cdr(value: Any) -> bytes:
+    return bytes(ACTION_TYPESTORE.serialize_cdr(value, value.__msgtype__))
+
+
+def action_decode(data: bytes, name: str) -> Any:
+    return ACTION_TYPESTORE.deserialize_cdr(data, name)
+
+
+def _uuid(value: bytes) -> Any:
+    return action_message("unique_identifier_msgs/msg/UUID", uuid=np.frombuffer(value, dtype=np.uint8).copy())
+
+
+def _time(stamp_ns: int = 0) -> Any:
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    return action_message("builtin_interfaces/msg/Time", sec=sec, nanosec=nanosec)
+
+
+def pose_stamped(x: float, y: float, yaw: float, frame: str = "map", typestore: Any = None) -> Any:
+    """geometry_msgs/PoseStamped at (x, y) heading ``yaw``, in ``frame``."""
+    store = typestore or ACTION_TYPESTORE
+    types = store.types
+    return types["geometry_msgs/msg/PoseStamped"](
+        header=types["std_msgs/msg/Header"](
+            stamp=types["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=frame
+        ),
+        pose=types["geometry_msgs/msg/Pose"](
+            position=types["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+            orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(yaw / 2), w=np.cos(yaw / 2)),
+        ),
+    )
+
+
+def send_goal_request(goal_id: bytes, pose: Any, behavior_tree: str = "") -> bytes:
+    goal = action_message(f"{NAVIGATE}_Goal", pose=pose, behavior_tree=behavior_tree)
+    return action_cdr(action_message(f"{NAVIGATE}_SendGoal_Request", goal_id=_uuid(goal_id), goal=goal))
+
+
+def cancel_request(goal_id: bytes = bytes(16), stamp_ns: int = 0) -> bytes:
+    info = action_message("action_msgs/msg/GoalInfo", goal_id=_uuid(goal_id), stamp=_time(stamp_ns))
+    return action_cdr(action_message("action_msgs/srv/CancelGoal_Request", goal_info=info))
+
+
+def result_request(goal_id: bytes) -> bytes:
+    return action_cdr(action_message(f"{NAVIGATE}_GetResult_Request", goal_id=_uuid(goal_id)))
+
+
+@dataclass
+class ServiceReply:
+    """A service's reply to an rmw_zenoh client: the decoded response, or the error reply's text."""
+
+    response: Any
+    error: str | None
+    attachment: tuple[int, int, bytes] | None
+    sequence_number: int
+    """The request's, which the reply must echo."""
+
+
+@dataclass
+class ActionClient:
+    """The client side of a NavigateToPose action, as rclcpp_action's client and rmw_zenoh lay it
+    out: each of the three services a zenoh query with the attachment, the two topics subscribed."""
+
+    session: zenoh.Session
+    action: str
+    """``/navigate_to_pose`` or ``/robot1/navigate_to_pose``."""
+    domain: int = 0
+    gid: bytes = field(default_factory=lambda: os.urandom(16))
+    _sequence: Any = field(default_factory=lambda: itertools.count(1))
+
+    def key(self, endpoint: str) -> str:
+        return action_key(self.domain, self.action, endpoint)
+
+    def call(self, endpoint: str, payload: bytes, timeout: float = 10.0, with_attachment: bool = True) -> ServiceReply:
+        """One call of ``endpoint``, once its queryable is there; its single reply (AssertionError if none)."""
+        key = self.key(endpoint)
+        querier = self.session.declare_querier(key, timeout=timeout)
+        try:
+            wait_until(lambda: querier.matching_status.matching, 10.0, f"a service on {key}")
+            sequence_number = next(self._sequence)
+            extra = {"attachment": attachment(sequence_number, self.gid)} if with_attachment else {}
+            replies = list(querier.get(payload=payload, **extra))
+        finally:
+            querier.undeclare()
+        assert len(replies) == 1, f"{key}: {len(replies)} replies"
+        (reply,) = replies
+        if reply.ok is None:
+            return ServiceReply(None, reply.err.payload.to_bytes().decode(errors="replace"), None, sequence_number)
+        response_type = f"{ACTION_ENDPOINTS[endpoint]}_Response"
+        return ServiceReply(
+            action_decode(reply.ok.payload.to_bytes(), response_type),
+            None,
+            read_attachment(reply.ok.attachment.to_bytes()) if reply.ok.attachment is not None else None,
+            sequence_number,
+        )
+
+    def send_goal(self, x: float, y: float, yaw: float, frame: str = "map") -> tuple[bytes, ServiceReply]:
+        """A new goal (a fresh UUID, as rclcpp_action makes one): its UUID and the reply."""
+        goal_id = os.urandom(16)
+        return goal_id, self.call("send_goal", send_goal_request(goal_id, pose_stamped(x, y, yaw, frame)))
+
+    def get_result(self, goal_id: bytes, timeout: float = 60.0) -> ServiceReply:
+        """As rclcpp_action asks for it once the goal is accepted: the reply comes when the goal ends."""
+        return self.call("get_result", result_request(goal_id), timeout=timeout)
+
+    def cancel(self, goal_id: bytes = bytes(16), stamp_ns: int = 0) -> ServiceReply:
+        return self.call("cancel_goal", cancel_request(goal_id, stamp_ns))
+
+
+def goal_statuses(payload: bytes) -> dict[bytes, int]:
+    """A GoalStatusArray's goals: UUID -> status code."""
+    array = action_decode(payload, "action_msgs/msg/GoalStatusArray")
+    return {bytes(bytearray(s.goal_info.goal_id.uuid)): int(s.status) for s in array.status_list}
 
 
 def graph_tokens(session: zenoh.Session, domain: int) -> list[list[str]]:

@@ -1,5 +1,6 @@
 """Lockstep means deterministic: ``invent up --scenario square`` gives the same samples, bit for
-bit, on a quiet machine, beside two CPU-burning processes, and composed in one process. The runs
+bit, on a quiet machine, beside two CPU-burning processes, and composed in one process; so does a
+run of goals sent at fixed simulation times (``--goals --goal-file``), quiet and loaded. The runs
 drive in the built-in ``room`` world, so that the lidar's scans (compared too) see walls and posts.
 
 Each run is recorded from outside, by this test's own zenoh router, which the run connects to: every
@@ -31,7 +32,8 @@ from mcap.reader import make_reader
 from benchmarks.loop import cpu_seconds
 from schemas.codec import decode
 from schemas.keys import Keys, Service, Topic, schema_for_key
-from schemas.messages import ImuSample, LaserScan, TimedDoubleSeq
+from schemas.messages import GoalTarget, ImuSample, LaserScan, ScenarioOutcome, TimedDoubleSeq
+from services.config import GoalsConfig
 from services.recording.mcap_files import read_messages
 from services.recording.scene import LOCALIZATION_TOPIC, ODOMETRY_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
 from services.runtime.session import open_session, session_config
@@ -58,6 +60,9 @@ RECORDED = (
     KEYS.sim_imu,
 )
 WALL_CLOCK_FIELDS = ("wall_time_s", "real_time_factor")
+SCHEMA_CHECKED = 500
+GOAL_TOPICS = (Topic.DRIVE_GOAL, Topic.DRIVE_GOAL_FEEDBACK)
+"""Published in goal mode only: a scenario's run has none."""
 BURNERS = 2
 PATIENT = ("--set", "sim.lockstep_timeout=5")
 """Every run's lockstep waits give up after 5 s, not the default 0.5 s: beside two burners (and
@@ -100,25 +105,27 @@ def _burning_cpus(count: int) -> Iterator[list[float]]:
 
 
 def _run_square(report_dir: Path, *flags: str, ask_status: bool = False) -> SquareRun:
+    """The square, recorded at every step: :func:`_run`."""
+    return _run(report_dir, RECORDED, "--scenario", "square", "--record-full-rate", *flags, ask_status=ask_status)
+
+
+def _run(report_dir: Path, recorded: tuple[str, ...], *flags: str, ask_status: bool = False) -> SquareRun:
     """One ``invent up`` run connected to this test's router, whose subscriptions exist before any
-    of the run's sessions opens, so that they get every sample from the first step."""
+    of the run's sessions opens, so that they get every sample of ``recorded`` from the first step."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    samples: dict[str, list[bytes]] = {key: [] for key in RECORDED}
+    samples: dict[str, list[bytes]] = {key: [] for key in recorded}
     status = ""
     with open_session(session_config(listen=[endpoint], mode="router")) as router:
-        channels = {key: router.declare_subscriber(key, zenoh.handlers.FifoChannel(1 << 20)) for key in RECORDED}
+        channels = {key: router.declare_subscriber(key, zenoh.handlers.FifoChannel(1 << 20)) for key in recorded}
         process = subprocess.Popen(
             invent_command(
                 "up",
-                "--scenario",
-                "square",
                 "--set",
                 "sim.world=room",
                 "--report",
                 str(report_dir),
                 "--connect",
                 endpoint,
-                "--record-full-rate",
                 *PATIENT,
                 *flags,
             ),
@@ -167,7 +174,7 @@ def _comparable(report: dict) -> dict:
 
 def _assert_same_samples(first: SquareRun, second: SquareRun) -> None:
     differences = []
-    for key in RECORDED:
+    for key in first.samples:
         a, b = first.samples[key], second.samples[key]
         assert a, f"nothing recorded on {key}"
         if len(a) != len(b):
@@ -291,10 +298,11 @@ SCENE_SCHEMAS = {
 
 @pytest.mark.parametrize("name", ["quiet", "composed"])
 def test_the_recording_has_every_key_valid_against_its_schema_and_the_foxglove_scene(runs, name):
-    """Every message of the quiet run is checked against its JSON schema (about 100 µs each); the
-    composed run's are decoded with the project's types, which the schemas are generated from."""
+    """Every message of both runs is decoded with the project's types, which the schemas are
+    generated from; the quiet run's first :data:`SCHEMA_CHECKED` of each key are also checked against
+    the JSON schema in the file (about 100 µs each: every one of a full-rate run's 10^5 took 15 s)."""
     run = runs[name]
-    validate_every_message = name == "quiet"
+    checked = SCHEMA_CHECKED if name == "quiet" else 1
     assert run.returncode == 0, run.output[-4000:]
     with open(run.report_dir / "run.mcap", "rb") as file:
         reader = make_reader(file)
@@ -314,11 +322,11 @@ def test_the_recording_has_every_key_valid_against_its_schema_and_the_foxglove_s
                     schema_document = json.loads(schema.data)
                     jsonschema.Draft202012Validator.check_schema(schema_document)
                     validator = validators[schema.id] = jsonschema.Draft202012Validator(schema_document)
-                if validate_every_message or counts[channel.topic] == 1:
+                if counts[channel.topic] <= checked:
                     validator.validate(json.loads(message.data))
                 decoded = decode(message_type, message.data)
                 assert message.publish_time == decoded.tm.to_nanoseconds()
-    published = [topic for topic in Topic if topic is not Topic.SIM_BUMP]
+    published = [topic for topic in Topic if topic not in (Topic.SIM_BUMP, *GOAL_TOPICS)]
     assert {KEYS.topic(topic) for topic in published} <= set(counts), sorted(counts)
     for topic in PER_STEP_TOPICS:
         assert counts[KEYS.topic(topic)] == run.report["steps"] + 1, topic
@@ -375,3 +383,46 @@ def test_replaying_wheel_angles_and_fixes_into_a_fresh_odometry_reproduces_its_p
     assert len(got) == len(recorded)
     differing = next((index for index, (a, b) in enumerate(zip(got, recorded, strict=True)) if a != b), None)
     assert differing is None, f"pose {differing}: {got[differing]!r} replayed, {recorded[differing]!r} recorded"
+
+
+GOAL_FILE = REPO / "examples" / "goals" / "errands.toml"
+GOAL_RECORDED = (
+    KEYS.sim_body_pose,
+    KEYS.odometry_pose,
+    KEYS.drive_target_velocity,
+    KEYS.drive_goal,
+    KEYS.drive_goal_feedback,
+    KEYS.drive_outcome,
+)
+
+
+@pytest.fixture(scope="module")
+def goal_runs(tmp_path_factory) -> dict[str, SquareRun]:
+    """``examples/goals/errands.toml`` (a goal, one preempting it, a cancel, a goal in ``odom``)
+    sent by the drive at fixed simulation times, through the same path as ``drive/goal/send``, in
+    lockstep: on a quiet machine and beside two CPU burners."""
+    base = tmp_path_factory.mktemp("goals")
+    flags = ("--goals", "--goal-file", str(GOAL_FILE), "--no-record")
+    quiet = _run(base / "quiet", GOAL_RECORDED, *flags)
+    with _burning_cpus(BURNERS) as burner_shares:
+        loaded = _run(base / "loaded", GOAL_RECORDED, *flags)
+    loaded.burner_shares = burner_shares
+    return {"quiet": quiet, "loaded": loaded}
+
+
+def test_goals_sent_at_fixed_simulation_times_end_the_same_on_a_quiet_and_a_loaded_machine(goal_runs):
+    quiet, loaded = goal_runs["quiet"], goal_runs["loaded"]
+    outcomes = [decode(ScenarioOutcome, sample) for sample in quiet.samples[KEYS.drive_outcome]]
+    assert [(o.goal_id, o.outcome) for o in outcomes] == [
+        ("g1", "canceled"),
+        ("corner", "canceled"),
+        ("g2", "completed"),
+    ], quiet.output[-4000:]
+    assert outcomes[0].reason == "preempted by goal 'corner'"
+    assert quiet.returncode == 0, "the last goal completed: exit 0"
+    home = decode(TimedDoubleSeq, quiet.samples[KEYS.sim_body_pose][-1]).data
+    assert math.hypot(home[0], home[1]) <= GoalsConfig().position_tolerance, "the ground truth at the last goal"
+    assert [decode(GoalTarget, sample).id for sample in quiet.samples[KEYS.drive_goal]] == ["g1", "corner", "g2"]
+    assert loaded.burner_shares is not None and min(loaded.burner_shares) >= BURNER_MIN_SHARE, loaded.burner_shares
+    assert loaded.returncode == quiet.returncode, loaded.output[-4000:]
+    _assert_same_samples(quiet, loaded)

@@ -44,8 +44,22 @@ PUBLISHED = {
     "imu": ("sensor_msgs/msg/Imu", "2::,5:,:,:,,"),
 }
 """Topic (relative, no namespace) -> (type, QoS chunk of its token), as rmw_zenoh writes them."""
-SUBSCRIBED = {("cmd_vel", "geometry_msgs/msg/Twist"), ("cmd_vel", "geometry_msgs/msg/TwistStamped")}
+SUBSCRIBED = {
+    ("cmd_vel", "geometry_msgs/msg/Twist"),
+    ("cmd_vel", "geometry_msgs/msg/TwistStamped"),
+    ("goal_pose", "geometry_msgs/msg/PoseStamped"),
+}
 SERVICES = ("motor/stop", "motor/clear", "motor/start", "motor/finish")
+ACTION = {
+    "send_goal": ("SS", "::,10:,:,:,,"),
+    "cancel_goal": ("SS", "::,10:,:,:,,"),
+    "get_result": ("SS", "::,10:,:,:,,"),
+    "feedback": ("MP", "::,10:,:,:,,"),
+    "status": ("MP", ":1:,1:,:,:,,"),
+}
+"""The NavigateToPose action's endpoints (``navigate_to_pose/_action/<endpoint>``), their kinds and
+QoS: rcl_action's, the status reliable and transient-local, depth 1 (the action at work:
+tests/test_ros2_fleet.py)."""
 STARTUP_TIMEOUT_S = 60.0
 
 
@@ -102,7 +116,7 @@ def teleop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Loop]:
 
 def test_the_graph_shows_one_node_with_its_publishers_subscriptions_and_services(teleop):
     bridge = teleop.status(Service.ROS2)
-    entities = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES)
+    entities = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES) + len(ACTION)
     tokens = wait_until(
         lambda: (found := ros_client.graph_tokens(teleop.session, DOMAIN)) and len(found) > entities and found,
         10.0,
@@ -121,14 +135,30 @@ def test_the_graph_shows_one_node_with_its_publishers_subscriptions_and_services
     expected_publishers = {
         (f"%{topic}", *ros_client.key_type(interface).split("/"), qos) for topic, (interface, qos) in PUBLISHED.items()
     }
-    assert by_kind["MP"] == expected_publishers
+    action = {
+        kind: {
+            (
+                f"%navigate_to_pose%_action%{endpoint}",
+                *ros_client.action_key_type(ros_client.ACTION_ENDPOINTS[endpoint]).split("/"),
+                qos,
+            )
+            for endpoint, (endpoint_kind, qos) in ACTION.items()
+            if endpoint_kind == kind
+        }
+        for kind in ("MP", "SS")
+    }
+    assert by_kind["MP"] == expected_publishers | action["MP"]
     assert by_kind["MS"] == {
         (f"%{topic}", *ros_client.key_type(interface).split("/"), "::,10:,:,:,,") for topic, interface in SUBSCRIBED
     }
-    assert by_kind["SS"] == {
-        ("%" + service.replace("/", "%"), *ros_client.TRIGGER_KEY_TYPE.split("/"), "::,10:,:,:,,")
-        for service in SERVICES
-    }
+    assert (
+        by_kind["SS"]
+        == {
+            ("%" + service.replace("/", "%"), *ros_client.TRIGGER_KEY_TYPE.split("/"), "::,10:,:,:,,")
+            for service in SERVICES
+        }
+        | action["SS"]
+    )
     assert set(by_kind) == {"MP", "MS", "SS"}
 
 

@@ -5,14 +5,19 @@ its own process, the test a ROS node (a peer of the run's router). Every robot's
 it and not the first; the first robot's ``motor/stop`` stops only it; each namespace's
 ``robot_description`` reaches a late transient-local subscriber; malformed CDR on a namespaced
 ``cmd_vel`` is counted and the bridge lives on; ``invent record --ros2 --fleet`` records the graph
-into a bag. One fleet run serves every test of the module. (What each robot's bridge may do with
-its robot's credentials in a secure fleet is tests/test_security_fleet.py's.)
+into a bag. Then, with rh1's drive in goal mode (``invent drive --goals --robot rh1``), each robot's
+NavigateToPose action: a goal on ``/robot1/navigate_to_pose`` reached with feedback and SUCCEEDED,
+rh0 unmoved (rh0's action refuses goals: its robot has no goal-mode drive); goals canceled by id,
+preempted and canceled all, CANCELED in the status; ``/robot1/goal_pose`` in odom; hostile requests
+refused while a goal runs. One fleet run serves every test of the module. (What each robot's bridge
+may do with its robot's credentials in a secure fleet is tests/test_security_fleet.py's.)
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import signal
 import subprocess
 import time
@@ -28,6 +33,8 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2 import Reader
 
 from schemas.keys import Keys, Service
+from services.planar import Pose
+from services.ros2 import core
 from tests import ros_client
 from tests.harness import (
     REPO,
@@ -69,6 +76,9 @@ PUBLISHED = {
 CLOCK = ("/clock", "rosgraph_msgs/msg/Clock")
 SUBSCRIBED = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped")
 SERVICES = ("motor/stop", "motor/clear", "motor/start", "motor/finish")
+GOAL_POSE = ("goal_pose", "geometry_msgs/msg/PoseStamped")
+ACTION_ENDPOINTS = {"send_goal": "SS", "cancel_goal": "SS", "get_result": "SS", "feedback": "MP", "status": "MP"}
+"""Each robot's NavigateToPose action (``<ns>/navigate_to_pose/_action/<endpoint>``), by kind of token."""
 STARTUP_TIMEOUT_S = 90.0
 SHIPPED = REPO / "tests" / "data" / "ros2_interfaces"
 
@@ -133,7 +143,7 @@ def _mangled(name: str) -> str:
 
 
 def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_types_and_one_clock(fleet):
-    per_node = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES) + 1
+    per_node = len(PUBLISHED) + len(SUBSCRIBED) + 1 + len(SERVICES) + len(ACTION_ENDPOINTS) + 1
     tokens = wait_until(
         lambda: (found := ros_client.graph_tokens(fleet.session, DOMAIN)) and len(found) >= 2 * per_node + 1 and found,
         10.0,
@@ -151,6 +161,15 @@ def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_type
         expected = {("MP", _mangled(f"{namespace}/{t}"), ros_client.key_type(i)) for t, i in PUBLISHED.items()}
         expected |= {("MS", _mangled(f"{namespace}/cmd_vel"), ros_client.key_type(i)) for i in SUBSCRIBED}
         expected |= {("SS", _mangled(f"{namespace}/{s}"), ros_client.TRIGGER_KEY_TYPE) for s in SERVICES}
+        expected.add(("MS", _mangled(f"{namespace}/{GOAL_POSE[0]}"), ros_client.key_type(GOAL_POSE[1])))
+        expected |= {
+            (
+                kind,
+                _mangled(f"{namespace}/navigate_to_pose/_action/{endpoint}"),
+                ros_client.action_key_type(ros_client.ACTION_ENDPOINTS[endpoint]),
+            )
+            for endpoint, kind in ACTION_ENDPOINTS.items()
+        }
         expected |= {clock} if robot == "rh0" else set()
         assert entities[_mangled(namespace)] == expected, robot
 
@@ -339,6 +358,270 @@ def test_invent_record_ros2_records_the_fleets_graph_into_a_bag(fleet):
     assert decoded == sum(counts.values())
 
 
+# -- goals: each robot's NavigateToPose action and goal_pose, against rh1's drive in goal mode ------
+
+GOAL_ROBOT = "rh1"
+"""The robot whose drive runs in goal mode for the goal tests (rh0 has none: its goals are refused)."""
+NEAR_M, NEAR_RAD = 0.1, 0.3
+"""How near the simulated body must end to a goal the drive completed. The drive holds a goal to its
+tolerances (5 cm, 0.1 rad) by ``odometry/pose``, not the ground truth: here, on a loaded machine
+(load average 9 to 12 on two cores), the body ended 0.107 and 0.216 rad off a completed goal's
+heading; a goal sent wrong (frame, robot, heading) misses by far more. What the bridge sent is
+checked exactly, on the drive's ``drive/goal``."""
+GOAL_ACTION = f"{NAMESPACES[GOAL_ROBOT]}/navigate_to_pose"
+FEEDBACK, STATUS = f"{GOAL_ACTION}/_action/feedback", f"{GOAL_ACTION}/_action/status"
+
+
+@dataclass
+class Goals:
+    """rh1's action as a ROS client sees it, and what the test reads of the fleet."""
+
+    fleet: Fleet
+    client: ros_client.ActionClient
+    drive: InventProcess
+
+    def ground_truth(self, robot: str = GOAL_ROBOT) -> Pose:
+        pose = self.fleet.status(robot, Service.SIM)["pose"]
+        return Pose(pose["x"], pose["y"], pose["theta"])
+
+    def ahead(self, distance: float, turn: float = 0.0) -> tuple[float, float, float]:
+        """A goal (in map) ``distance`` ahead of rh1, its heading turned by ``turn``."""
+        pose = self.ground_truth()
+        return pose.x + distance * math.cos(pose.theta), pose.y + distance * math.sin(pose.theta), pose.theta + turn
+
+    def statuses(self, uuid: bytes) -> list[int]:
+        """The goal's status in each ``_action/status`` sample that lists it, repeats left out."""
+        seen: list[int] = []
+        for sample in self.fleet.recorder.of(STATUS):
+            status = ros_client.goal_statuses(sample.payload).get(uuid)
+            if status is not None and (not seen or seen[-1] != status):
+                seen.append(status)
+        return seen
+
+    def wait_status(self, uuid: bytes, status: int, timeout: float = 30.0) -> list[int]:
+        return wait_until(
+            lambda: (seen := self.statuses(uuid)) and seen[-1] == status and seen, timeout, f"status {status}"
+        )
+
+    def feedback(self, uuid: bytes) -> list[Any]:
+        messages = (
+            ros_client.action_decode(sample.payload, f"{ros_client.NAVIGATE}_FeedbackMessage")
+            for sample in self.fleet.recorder.of(FEEDBACK)
+        )
+        return [message.feedback for message in messages if bytes(bytearray(message.goal_id.uuid)) == uuid]
+
+    def started(self, uuid: bytes) -> dict[str, Any]:
+        """The goal rh1's drive started last (``drive/goal``, latched): it must be ``uuid``'s."""
+        ok, target = call(self.fleet.session, Keys(GOAL_ROBOT).drive_goal)
+        assert ok and target["id"] == uuid.hex(), target
+        return target
+
+    def near(self, x: float, y: float, theta: float) -> bool:
+        truth = self.ground_truth()
+        return (
+            math.hypot(truth.x - x, truth.y - y) <= NEAR_M
+            and abs(math.remainder(truth.theta - theta, math.tau)) <= NEAR_RAD
+        )
+
+    def bad_inputs(self, key: str) -> int:
+        entry = self.fleet.status(GOAL_ROBOT, Service.ROS2)["bad_input"]["by_key"].get(key)
+        return entry["count"] if entry else 0
+
+    def goal_pose(self, pose: Pose) -> bytes:
+        """Publish ``pose`` (in odom) on rh1's ``goal_pose`` as RViz does; the UUID the bridge gave its goal."""
+        listed = self.fleet.recorder.of(STATUS)
+        before = set(ros_client.goal_statuses(listed[-1].payload)) if listed else set()
+        topic = f"{NAMESPACES[GOAL_ROBOT]}/goal_pose"
+        self.fleet.node.put(topic, ros_client.pose_stamped(pose.x, pose.y, pose.theta, "odom", ros_client.TYPESTORE))
+        return wait_until(
+            lambda: (
+                (listed := self.fleet.recorder.of(STATUS))
+                and next(iter(set(ros_client.goal_statuses(listed[-1].payload)) - before), None)
+            ),
+            10.0,
+            "a new goal in the status",
+        )
+
+
+@pytest.fixture(scope="module")
+def goals(fleet: Fleet) -> Iterator[Goals]:
+    """rh1's drive in goal mode (``invent drive --goals --robot rh1``), started once the teleop tests
+    before are done (a goal-mode drive commands zero between goals, which twists would fight)."""
+    with InventProcess("drive", "--goals", "--robot", GOAL_ROBOT, "--connect", fleet.endpoint, drain=True) as drive:
+        wait_alive(fleet.session, Keys(GOAL_ROBOT).alive(Service.DRIVE), STARTUP_TIMEOUT_S)
+        # the drive's queryable reaches the bridge's session asynchronously: a goal before it is refused
+        wait_until(
+            lambda: fleet.status(GOAL_ROBOT, Service.ROS2)["navigate"]["drive_serves_goals"],
+            STARTUP_TIMEOUT_S,
+            "rh1's bridge to see the drive's goal queryable",
+        )
+        yield Goals(fleet, ros_client.ActionClient(fleet.session, GOAL_ACTION), drive)
+        code, _out, err = drive.stop()
+    assert code == 0, err[-3000:]
+
+
+def test_a_navigate_to_pose_goal_to_the_second_robot_is_reached_with_feedback_and_moves_only_it(goals):
+    """A ROS client on ``/robot1/navigate_to_pose``: the goal accepted (the reply echoing the request's
+    sequence number and GID), feedback in ``map`` while it drives, the result SUCCEEDED with rh1 at
+    the goal within its tolerances and rh0 unmoved; the status ACCEPTED, EXECUTING, SUCCEEDED, also for
+    a late subscriber; rh0's action, whose robot has no goal-mode drive, refuses a goal."""
+    fleet = goals.fleet
+    rh0_before = goals.ground_truth("rh0")
+    x, y, theta = goals.ahead(0.6, turn=0.8)
+    uuid, reply = goals.client.send_goal(x, y, theta)
+    assert reply.error is None and reply.response.accepted, fleet.status(GOAL_ROBOT, Service.ROS2)["navigate"]
+    assert reply.attachment is not None and reply.attachment[0] == reply.sequence_number
+    assert reply.attachment[2] == goals.client.gid, "the reply echoes the request's sequence number and GID"
+    result = goals.client.get_result(uuid, timeout=60.0)
+    assert (result.response.status, result.response.result.error_code) == (4, 0), result.response
+    target = goals.started(uuid)
+    assert (target["x"], target["y"], target["frame"]) == (pytest.approx(x), pytest.approx(y), "map")
+    assert abs(math.remainder(target["theta"] - theta, math.tau)) < 1e-9, "the goal as sent, its heading the yaw"
+    assert goals.near(x, y, theta), (goals.ground_truth(), (x, y, theta))
+    rh0_after = goals.ground_truth("rh0")
+    assert math.hypot(rh0_after.x - rh0_before.x, rh0_after.y - rh0_before.y) < 0.005, "rh0 did not move"
+    statuses = goals.wait_status(uuid, 4)
+    assert statuses[0] == 1 and 2 in statuses and statuses[-1] == 4, "accepted, executing, then succeeded"
+    feedback = wait_until(lambda: len(goals.feedback(uuid)) >= 5 and goals.feedback(uuid), 10.0, "feedback")
+    assert {f.current_pose.header.frame_id for f in feedback} == {"map"}
+    times = [f.navigation_time.sec + f.navigation_time.nanosec / 1e9 for f in feedback]
+    assert times == sorted(times) and times[-1] > times[0]
+    assert feedback[0].distance_remaining > feedback[-1].distance_remaining
+    assert all(f.number_of_recoveries == 0 and f.estimated_time_remaining.sec >= 0 for f in feedback)
+    last = feedback[-1].current_pose.pose.position
+    assert math.hypot(last.x - x, last.y - y) < 0.3, "the robot's pose, in map"
+    navigate = fleet.status(GOAL_ROBOT, Service.ROS2)["navigate"]
+    assert navigate["action"] == GOAL_ACTION and navigate["goals"][uuid.hex()] == "succeeded"
+    assert fleet.status(GOAL_ROBOT, Service.DRIVE)["goals"]["accepted"] == 1, "rh1's drive got one goal, rh1's"
+    with peer_session(fleet.endpoint) as late:  # a node started after the goal ended: the cached status
+        cached = ros_client.cached_samples(late, DOMAIN, {STATUS: "action_msgs/msg/GoalStatusArray"}, 10.0)
+    assert ros_client.goal_statuses(cached[STATUS])[uuid] == 4
+
+    other = ros_client.ActionClient(fleet.session, f"{NAMESPACES['rh0']}/navigate_to_pose")
+    _goal, refused = other.send_goal(rh0_after.x + 0.5, rh0_after.y, 0.0)
+    assert not refused.response.accepted
+    rh0 = fleet.status("rh0", Service.ROS2)["navigate"]
+    assert "no drive answered" in rh0["last_rejection"] and not rh0["drive_serves_goals"]
+    assert fleet.status(GOAL_ROBOT, Service.DRIVE)["goals"]["accepted"] == 1, "rh0's goal never reached rh1's drive"
+
+
+def _at_rest(goals: Goals) -> bool:
+    """Whether rh1 moved less than a millimetre in a tenth of a second of wall time."""
+    before = goals.ground_truth()
+    time.sleep(0.1)
+    after = goals.ground_truth()
+    return math.hypot(after.x - before.x, after.y - before.y) < 0.001
+
+
+def test_goals_canceled_by_id_preempted_and_canceled_all_end_canceled_in_the_status(goals):
+    second, reply = goals.client.send_goal(*goals.ahead(3.0))
+    assert reply.response.accepted
+    goals.wait_status(second, 2)
+    canceled = goals.client.cancel(second)
+    assert canceled.response.return_code == 0
+    assert [bytes(bytearray(g.goal_id.uuid)) for g in canceled.response.goals_canceling] == [second]
+    result = goals.client.get_result(second, timeout=30.0)
+    assert result.response.status == 5 and result.response.result.error_code == 0
+    assert goals.wait_status(second, 5)[-2:] == [3, 5], "canceling, then canceled"
+    assert goals.client.cancel(second).response.return_code == 3, "already terminated"
+    assert goals.client.cancel(os.urandom(16)).response.return_code == 2, "an unknown goal"
+    assert goals.client.get_result(os.urandom(16)).response.status == 0, "an unknown goal's result: unknown, at once"
+
+    third, _ = goals.client.send_goal(*goals.ahead(3.0))
+    goals.wait_status(third, 2)
+    fourth, reply = goals.client.send_goal(*goals.ahead(3.0))
+    assert reply.response.accepted
+    preempted = goals.client.get_result(third, timeout=30.0).response
+    assert preempted.status == 5 and fourth.hex() in preempted.result.error_msg, "preempted by the newer goal"
+    goals.wait_status(fourth, 2)
+    everything = goals.client.cancel()
+    assert everything.response.return_code == 0, "a zero id and stamp: cancel all"
+    assert [bytes(bytearray(g.goal_id.uuid)) for g in everything.response.goals_canceling] == [fourth]
+    goals.wait_status(fourth, 5)
+    wait_until(lambda: _at_rest(goals), 10.0, "the robot at rest")
+    assert goals.client.cancel().response.return_code == 0, "cancel all with none running: none, no error"
+
+
+def test_goal_pose_sends_goals_in_odom_whose_status_and_feedback_show_one_succeed_and_one_canceled(goals):
+    """RViz's 2D Goal Pose: a PoseStamped on ``/robot1/goal_pose`` in ``odom`` (RViz's fixed frame):
+    rh1's bridge turns it into ``map`` with its own map -> odom (rh1 started at (0, 3): its bridge's
+    odom is there) and sends it; no client waits for a result: it shows in the status and feedback."""
+    x, y, theta = goals.ahead(0.4, turn=-0.5)
+    tf_topic = f"{NAMESPACES[GOAL_ROBOT]}/tf"
+    tf = ros_client.TYPESTORE.deserialize_cdr(goals.fleet.recorder.of(tf_topic)[-1].payload, PUBLISHED["tf"])
+    (map_to_odom,) = [t.transform for t in tf.transforms if (t.header.frame_id, t.child_frame_id) == ("map", "odom")]
+    correction = Pose(
+        map_to_odom.translation.x,
+        map_to_odom.translation.y,
+        2 * math.atan2(map_to_odom.rotation.z, map_to_odom.rotation.w),
+    )
+    assert abs(correction.y - 3.0) < 0.05, "rh1's odom is where its bridge started: (0, 3) in map"
+    uuid = goals.goal_pose(core.compose(core.inverse(correction), Pose(x, y, theta)))
+    assert goals.wait_status(uuid, 4, timeout=60.0)[-1] == 4
+    assert goals.feedback(uuid), "its feedback on the action's topic"
+    target = goals.started(uuid)
+    assert target["frame"] == "map", "sent in map"
+    assert math.hypot(target["x"] - x, target["y"] - y) < 0.01, "in map through the bridge's map -> odom"
+    assert abs(math.remainder(target["theta"] - theta, math.tau)) < 0.01
+    assert goals.near(x, y, theta), (goals.ground_truth(), (x, y, theta))
+    # a second one, far: an action client's cancel-all cancels it as any goal of the action
+    far = goals.goal_pose(core.compose(core.inverse(correction), Pose(*goals.ahead(3.0))))
+    goals.wait_status(far, 2)
+    canceled = goals.client.cancel().response
+    assert canceled.return_code == 0 and [bytes(bytearray(g.goal_id.uuid)) for g in canceled.goals_canceling] == [far]
+    assert goals.wait_status(far, 5)[-2:] == [3, 5]
+
+
+def test_hostile_requests_are_refused_in_the_reply_counted_and_the_running_goal_goes_on(goals):
+    fleet = goals.fleet
+    x, y, theta = goals.ahead(0.5)
+    running, reply = goals.client.send_goal(x, y, theta)
+    assert reply.response.accepted
+    goals.wait_status(running, 2)
+    sent_before = fleet.status(GOAL_ROBOT, Service.ROS2)["navigate"]["sent"]
+    good = ros_client.send_goal_request(os.urandom(16), ros_client.pose_stamped(1.0, 0.0, 0.0))
+    send_key, cancel_key, result_key = (goals.client.key(e) for e in ("send_goal", "cancel_goal", "get_result"))
+    goal_pose_key = ros_client.topic_key(DOMAIN, f"{NAMESPACES[GOAL_ROBOT]}/goal_pose", "geometry_msgs/msg/PoseStamped")
+    refused_goals = [
+        (ros_client.send_goal_request(os.urandom(16), ros_client.pose_stamped(math.nan, 0.0, 0.0)), "not finite"),
+        (
+            ros_client.send_goal_request(os.urandom(16), ros_client.pose_stamped(1.0, 0.0, 0.0, "base_link")),
+            "frame 'base_link'",
+        ),
+        (ros_client.send_goal_request(running, ros_client.pose_stamped(1.0, 0.0, 0.0)), "exists already"),
+        (b"\x00\x01\x00\x00" + b"\x07" * 9, "malformed CDR"),
+        (good + bytes(5000), "more than a send_goal request's"),
+    ]
+    for payload, reason in refused_goals:
+        answer = goals.client.call("send_goal", payload)
+        assert answer.response is not None and not answer.response.accepted, reason
+        assert reason in fleet.status(GOAL_ROBOT, Service.ROS2)["navigate"]["last_rejection"]
+    assert goals.bad_inputs(send_key) >= 4
+    unattached = goals.client.call("send_goal", good, with_attachment=False)
+    assert unattached.error is not None and "no attachment" in unattached.error, "an error reply: nothing to echo"
+    assert goals.client.call("cancel_goal", b"\x00\x01\x00\x00\x01").response.return_code == 1
+    assert goals.client.call("cancel_goal", ros_client.cancel_request() + bytes(100)).response.return_code == 1
+    assert goals.client.call("get_result", b"\x00\x01\x00\x00").response.status == 0
+    assert goals.bad_inputs(cancel_key) == 2 and goals.bad_inputs(result_key) == 1
+    for payload, attached in (
+        (b"\x00\x01\x00\x00\x02", True),
+        (ros_client.cdr(ros_client.pose_stamped(math.inf, 0.0, 0.0, "map", ros_client.TYPESTORE)), True),
+        (ros_client.cdr(ros_client.pose_stamped(1.0, 0.0, 0.0, "earth", ros_client.TYPESTORE)), True),
+        (ros_client.cdr(ros_client.pose_stamped(1.0, 0.0, 0.0, "map", ros_client.TYPESTORE)), False),
+        (bytes(5000), True),
+    ):
+        counted = goals.bad_inputs(goal_pose_key)
+        fleet.node.put_raw(goal_pose_key, payload, ros_client.attachment(1, fleet.node.gid) if attached else None)
+        wait_until(lambda c=counted: goals.bad_inputs(goal_pose_key) > c, 10.0, "the goal pose counted")
+    status = fleet.status(GOAL_ROBOT, Service.ROS2)
+    assert status["navigate"]["sent"] == sent_before, "nothing reached the drive"
+    assert status["internal_errors"] == 0
+    result = goals.client.get_result(running, timeout=60.0)
+    assert result.response.status == 4, "the running goal went on, untouched"
+    goals.started(running)
+    assert goals.near(x, y, theta), (goals.ground_truth(), (x, y, theta))
+
+
 def test_invent_ros2_fleet_runs_a_node_per_robot_on_one_session_each_with_ids_of_its_own(tmp_path):
     """``invent ros2 --fleet FILE``: one process, one session, a node per robot in its namespace,
     their nodes' and entities' ids drawn from one counter (rmw_zenoh's graph keys a node by its
@@ -346,7 +629,7 @@ def test_invent_ros2_fleet_runs_a_node_per_robot_on_one_session_each_with_ids_of
     (tmp_path / "fleet.toml").write_text(FLEET)
     with running_router() as endpoint, peer_session(endpoint) as session:
         with InventProcess("ros2", "--fleet", str(tmp_path / "fleet.toml"), "--connect", endpoint) as bridges:
-            per_node = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES) + 1
+            per_node = len(PUBLISHED) + len(SUBSCRIBED) + 1 + len(SERVICES) + len(ACTION_ENDPOINTS) + 1
             tokens = wait_until(
                 lambda: (
                     (found := ros_client.graph_tokens(session, DOMAIN)) and len(found) == 2 * per_node + 1 and found

@@ -80,9 +80,12 @@ def test_each_service_role_puts_exactly_the_keys_under_its_own_name():
 
 
 def test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_trigger_methods():
+    from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, ActionTopic
+
     ros = DEFAULT_ROS
-    published = {ros.key(entity) for entity in PUBLICATIONS.values()}
+    published = {ros.key(entity) for entity in (*PUBLICATIONS.values(), *ACTION_TOPICS.values())}
     cache_keys = {f"{ros.key(PUBLICATIONS[name])}/@adv/**" for name in ("tf_static", "robot_description")}
+    cache_keys.add(f"{ros.key(ACTION_TOPICS[ActionTopic.STATUS])}/@adv/**")
     assert _put_keys(Role.ROS2) == published | cache_keys | {KEYS.drive_target_velocity}
     assert all(key.startswith("0/") for key in published)
     assert {KEYS.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES} | GOALS == (
@@ -90,7 +93,8 @@ def test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_tri
     )
     assert KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN) not in _queried_keys(Role.ROS2)
     served = _granted(Role.ROS2, Message.DECLARE_QUERYABLE)
-    assert served == {KEYS.status(Service.ROS2)} | {ros.key(e) for e in MOTOR_SERVICES.values()} | cache_keys
+    services = (*MOTOR_SERVICES.values(), *ACTION_SERVICES.values())
+    assert served == {KEYS.status(Service.ROS2)} | {ros.key(e) for e in services} | cache_keys
 
 
 def test_the_ros_roles_are_granted_the_domain_and_namespace_they_are_written_for():
@@ -474,3 +478,61 @@ def test_router_lets_the_ros2_bridge_put_only_its_ros_keys_and_call_only_its_met
         )
         assert late.get(timeout=10.0) == b"<robot/>", "a late ROS node gets the latched topic through the router"
         late_subscriber.undeclare()
+
+
+def test_router_lets_the_ros2_bridge_serve_its_navigate_to_pose_action_and_no_other_role_impersonate_it(tmp_path):
+    """Real sessions through a secured router: a ROS node's send_goal reaches the bridge's queryable
+    and gets its reply, an impostor's (the operator's) same queryable is never routed to; the
+    bridge's status (a transient-local advanced publisher, as the bridge declares it) reaches a late
+    ROS node from its cache, its feedback a subscribed one."""
+    from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, ActionService, ActionTopic
+    from tests import ros_client
+
+    ros = DEFAULT_ROS
+    send_goal = ros.key(ACTION_SERVICES[ActionService.SEND_GOAL])
+    status, feedback = (ros.key(ACTION_TOPICS[topic]) for topic in (ActionTopic.STATUS, ActionTopic.FEEDBACK))
+    assert send_goal == ros_client.action_key(0, "/navigate_to_pose", "send_goal")
+    with _secured_router(tmp_path, tls=False) as (_profile, open_as):
+        bridge, ros_node, impostor = open_as(Role.ROS2), open_as(Role.ROS_NODE), open_as(Role.OPERATOR)
+        served: list[str] = []
+
+        def serve(who: str) -> Callable[[zenoh.Query], None]:
+            def answer(query: zenoh.Query) -> None:
+                served.append(who)
+                query.reply(query.key_expr, who.encode())
+
+            return answer
+
+        impostor.declare_queryable(send_goal, serve("impostor"))
+        bridge.declare_queryable(send_goal, serve("bridge"), complete=True)
+        replies = wait_until(
+            lambda: [r.ok.payload.to_bytes() for r in ros_node.get(send_goal, timeout=1.0) if r.ok is not None],
+            10,
+            "the bridge's send_goal",
+        )
+        assert replies == [b"bridge"] and set(served) == {"bridge"}
+
+        heard: queue.Queue[bytes] = queue.Queue()
+        ros_node.declare_subscriber(feedback, lambda sample: heard.put(sample.payload.to_bytes()))
+        publisher = bridge.declare_publisher(feedback)
+        wait_until(lambda: publisher.matching_status.matching, 10, "the ROS node's feedback subscription")
+        publisher.put(b"feedback")
+        assert heard.get(timeout=5.0) == b"feedback"
+        cached = zenoh.ext.declare_advanced_publisher(
+            bridge,
+            status,
+            cache=zenoh.ext.CacheConfig(1),
+            publisher_detection=True,
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=1.0),
+        )
+        cached.put(b"status")
+        late: queue.Queue[bytes] = queue.Queue()
+        late_subscriber = zenoh.ext.declare_advanced_subscriber(
+            ros_node,
+            status,
+            lambda sample: late.put(sample.payload.to_bytes()),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+        )
+        assert late.get(timeout=10.0) == b"status", "a late ROS node gets the action's status through the router"
+        late_subscriber.undeclare()
+        cached.undeclare()

@@ -117,6 +117,21 @@ def test_each_robots_bridge_is_granted_its_own_ros_namespace_and_not_the_others(
     assert _granted(Identity(Role.ROS_NODE), Message.PUT) == {"0/**", "0/**/@adv/**", "@ros2_lv/0/**"}
 
 
+def test_each_robots_bridge_is_granted_its_own_navigate_to_pose_action_and_goal_pose_and_not_the_others():
+    from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, GOAL_POSE
+
+    for robot, other in (("rh0", "rh1"), ("rh1", "rh0")):
+        bridge = Identity(Role.ROS2, robot)
+        served, puts = _granted(bridge, Message.DECLARE_QUERYABLE), _granted(bridge, Message.PUT)
+        subscribed = _granted(bridge, Message.DECLARE_SUBSCRIBER)
+        for name, entity in ACTION_SERVICES.items():
+            assert BRIDGES[robot].key(entity).startswith(f"0/{robot}/navigate_to_pose/_action/{name}/")
+            assert BRIDGES[robot].key(entity) in served and BRIDGES[other].key(entity) not in served
+        for entity in ACTION_TOPICS.values():
+            assert BRIDGES[robot].key(entity) in puts and BRIDGES[other].key(entity) not in puts
+        assert BRIDGES[robot].key(GOAL_POSE) in subscribed and BRIDGES[other].key(GOAL_POSE) not in subscribed
+
+
 def test_each_robots_bridge_is_granted_its_namespaces_tf_and_only_the_first_robots_bridge_clock():
     tf = {robot: BRIDGES[robot].key(BRIDGES[robot].publications["tf"]) for robot in ROBOTS}
     assert tf["rh0"].startswith("0/rh0/tf/") and tf["rh1"].startswith("0/rh1/tf/")

@@ -294,6 +294,8 @@ def test_the_layout_names_only_what_the_view_serves() -> None:
     assert {WHEEL_SPEEDS_TOPIC, KEYS.motor_torque, KEYS.status(Service.MOTOR)} <= topics
     assert set(SCENE_TOPICS) <= served and KEYS.topic(Topic.SIM_BODY_POSE) in served
     assert f"{KEYS.status(Service.MOTOR)}.state" in paths, "the motor's state"
+    assert f"{KEYS.drive_goal_feedback}.distance_remaining" in paths, "a goal's progress"
+    assert f"{KEYS.drive_outcome}.outcome" in paths, "how a goal ended"
 
     def panels(node: Any) -> set[str]:
         return {node} if isinstance(node, str) else panels(node["first"]) | panels(node["second"])

@@ -94,7 +94,7 @@ DESCRIPTION = (
     "Record every sample of KEYEXPR (default invent/<robot>/**) into an MCAP file: one channel "
     "per key, JSON messages with their JSON schema, log_time the receive time, publish_time the message's "
     "tm; beside them the robot's Foxglove scene (transforms, poses, robot, obstacles, path, trails, wheel "
-    "speeds) and the services' status every 0.5 s. Ctrl-C, SIGTERM or --duration end it with a valid, "
+    "speeds, a goal-mode drive's goals) and the services' status every 0.5 s. Ctrl-C, SIGTERM or --duration end it with a valid, "
     "indexed file; a recorder killed with SIGKILL loses at most its last chunk (about 0.2 s of the loop)."
 )
 GROUPS: tuple[str, ...] = ("connection", "description")

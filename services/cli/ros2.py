@@ -72,11 +72,13 @@ def serve_fleet(args: argparse.Namespace) -> int:
 CLI = ServiceCli(
     command=COMMAND,
     help="bridge the robot (or a fleet) to ROS 2 over rmw_zenoh: odom, tf, joint_states, scan, imu, /clock, cmd_vel, "
-    "Trigger services",
+    "Trigger services, the NavigateToPose action",
     description=f"The robot as one ROS 2 node on this zenoh network, in rmw_zenoh's wire format (no ROS install "
     f"needed on this side): /clock, odom, tf, tf_static, joint_states, robot_description, scan, imu out; cmd_vel "
     f"(Twist or TwistStamped) in, as drive/target_velocity stamped with simulation time; motor/stop, "
-    f"motor/clear, motor/start, motor/finish as std_srvs/srv/Trigger services. With --fleet FILE, one such node "
+    f"motor/clear, motor/start, motor/finish as std_srvs/srv/Trigger services; the action navigate_to_pose "
+    f"(nav2_msgs/NavigateToPose) and goal_pose (RViz's 2D Goal Pose), each goal sent to the drive in goal mode "
+    f"(invent drive --goals). With --fleet FILE, one such node "
     f"per robot of the fleet, each in its own namespace. Domain: ${graph.DOMAIN_VARIABLE} (default 0). Frames, "
     f"rates and covariances: [ros2] in the robot description. See docs/ros2.md.",
     add_arguments=add_arguments,

@@ -53,9 +53,9 @@ DESCRIPTION = (
     "invent/<robot>/** as its own JSON channel (with its message type's JSON schema), the services' status "
     "every 0.5 s (the motor's state, the sim's torque counters), and the robot's Foxglove scene: /tf "
     "(world -> base_link, the ground truth), /odometry/pose and /localization/pose, /scene (the robot, the "
-    "world's obstacles, the planned path, the trails) and /plot/wheel_speeds, the channels a recording holds. "
+    "world's obstacles, the planned path, the trails, a goal-mode drive's goals and the path driven to each) and /plot/wheel_speeds, the channels a recording holds. "
     "Open it in Foxglove: Open connection -> Foxglove WebSocket -> ws://HOST:PORT (the URL it prints), then "
-    "Layouts -> Import from file -> docs/foxglove/layout.json for a 3D view, wheel speeds, torques and the "
-    "motor's state. Runs until Ctrl-C or SIGTERM."
+    "Layouts -> Import from file -> docs/foxglove/layout.json for a 3D view, wheel speeds, torques, a goal's "
+    "progress and the motor's and the goal's states. Runs until Ctrl-C or SIGTERM."
 )
 GROUPS: tuple[str, ...] = ("connection", "description")

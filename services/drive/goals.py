@@ -28,7 +28,12 @@ GOAL_FRAMES = ("map", "odom")
 MAX_ATTEMPTS = 3
 """Approaches of one goal: a robot at rest outside the tolerances drives again, up to this many times."""
 SETTLE_S = 0.2
-"""Simulated seconds the drive commands zero before judging where the robot came to rest."""
+"""Simulated seconds the robot's pose must stay still, the command zero, before the drive judges
+where it came to rest."""
+STILL_M = 0.001
+STILL_RAD = 0.002
+"""How far the pose may move between two ticks and still count as still (a wheel the motor is
+still braking turns the body on after the command is zero)."""
 REMEMBERED_RESULTS = 16
 """Ended goals whose outcome a cancel of their id is told (the oldest forgotten first)."""
 
@@ -68,6 +73,8 @@ class RunningGoal:
     attempts: int = 1
     follower: PathFollower | None = None
     settle_since_ns: int | None = None
+    """Since when the pose has been still, with the command zero, while settling."""
+    settle_pose: Pose | None = None
     cancel_reason: str = ""
 
 
@@ -347,7 +354,13 @@ class Goals:
                 running.phase = Phase.SETTLE
             else:
                 return command
-        if running.settle_since_ns is None:
+        last = running.settle_pose
+        moved = last is None or (
+            math.hypot(pose.x - last.x, pose.y - last.y) > STILL_M
+            or abs(wrap_angle(pose.theta - last.theta)) > STILL_RAD
+        )
+        running.settle_pose = pose
+        if running.settle_since_ns is None or moved or self.command != STOPPED:
             running.settle_since_ns = now_ns
         return limit_rate(self.command, STOPPED, dt, params.max_acceleration, params.max_angular_acceleration)
 
@@ -375,7 +388,7 @@ class Goals:
             )
             return
         running.attempts += 1
-        running.settle_since_ns = None
+        running.settle_since_ns, running.settle_pose = None, None
         running.phase = Phase.APPROACH if distance > goal.position_tolerance else Phase.ALIGN
 
     def give_up(self, now_ns: int, outcome: Outcome, reason: str) -> Ended | None:

@@ -304,7 +304,7 @@ def fleet_report(report_dir: Path, fleet: Fleet, configs: dict[str, Config]) -> 
         report["degraded"] = robot_degradations(report["health"])
         robots[name] = report
         (report_dir / name).mkdir(parents=True, exist_ok=True)
-        write_plots(recording, report.get("planned_path"), configs[name].geometry, report_dir / name)
+        write_plots(recording, report.get("planned_path"), configs[name].geometry, report_dir / name, report["goals"])
         tracks[name] = [(t, pose.x, pose.y) for t, pose in recording.ground_truth]
         bump_key = Keys(name).sim_bump
         bumps[name] = [

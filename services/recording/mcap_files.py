@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import io
 import json
-from collections.abc import Collection, Iterator
+from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -38,6 +38,8 @@ from schemas.codec import BadInput, decode
 from schemas.keys import Keys, Topic, parse_data_key, schema_for_key
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
+    GoalFeedback,
+    GoalTarget,
     PlannedPath,
     RunSummary,
     ScenarioOutcome,
@@ -49,7 +51,15 @@ from schemas.messages import (
 from services.config import Config, ConfigError, InputConfig, RobotConfig
 from services.drive.scenarios import planned_path_for
 from services.planar import Pose, check_coordinates
-from services.recording.report import Point, Recording, build_report, pose_from_body_pose, write_plots, write_report
+from services.recording.report import (
+    Point,
+    Recording,
+    build_report,
+    goal_results,
+    pose_from_body_pose,
+    write_plots,
+    write_report,
+)
 
 CHUNK_SIZE = 256 * 1024
 """Bytes of messages per chunk: about a fifth of a second of the loop in lockstep."""
@@ -328,7 +338,7 @@ def write_run_report(path: Path, report_dir: Path, config: Config) -> tuple[dict
     file holds no run (no ``up/run`` summary of ``config.robot.name``)."""
     report, recording = robot_report(path, read_run(path).messages, config)
     report_path = write_report(report, report_dir)
-    plots = write_plots(recording, report.get("planned_path"), config.geometry, report_dir)
+    plots = write_plots(recording, report.get("planned_path"), config.geometry, report_dir, report["goals"])
     return report, report_path, plots
 
 
@@ -343,19 +353,42 @@ def robot_report(path: Path, messages: list[RecordedMessage], config: Config) ->
             f"{keys.robot!r} (or it was cut short; --robot names another robot)"
         )
     recording = recording_from(messages, keys, config.robot, config.input, summary.tm.to_seconds())
+    targets = decoded(messages, keys.drive_goal, GoalTarget)
     report = build_report(
         recording,
         scenario=summary.scenario,
         mode=summary.mode,
-        planned_path=_planned_path(summary, messages, keys, recording),
+        # goal mode: no one planned path (each goal's is the straight line to it: its path_error_max_m)
+        planned_path=None if targets else _planned_path(summary, messages, keys, recording),
         wall_time_s=summary.wall_time_s,
         steps=summary.steps,
         health=summary.health,
     )
     report["composed"] = summary.composed
     report["outcome"] = scenario_outcome(messages, keys)
+    report["goals"] = goal_results(
+        targets,
+        decoded(messages, keys.drive_goal_feedback, GoalFeedback),
+        decoded(messages, keys.drive_outcome, ScenarioOutcome),
+        recording.ground_truth,
+    )
     report["recording"] = recording_bounds(messages)
     return report, recording
+
+
+def decoded(
+    messages: list[RecordedMessage], key: str, message_type: type[Any], check: Callable[[Any], Any] = lambda m: m
+) -> list[Any]:
+    """Every message recorded on ``key`` that decodes as ``message_type`` and passes ``check``, in
+    recorded order (one that does not is someone's bad input, not part of the run)."""
+    found = []
+    for message in messages:
+        if message.topic == key:
+            try:
+                found.append(check(decode(message_type, message.data)))
+            except BadInput:
+                continue
+    return found
 
 
 RECORDING_STOPPED_TOPIC = "/recording/stopped"
@@ -379,7 +412,8 @@ def recording_bounds(messages: list[RecordedMessage]) -> dict[str, Any] | None:
 
 def scenario_outcome(messages: list[RecordedMessage], keys: Keys) -> dict[str, Any] | None:
     """How the robot's scenario ended, from the drive's last ``drive/outcome`` (None: the run was
-    interrupted, or has no scenario: ``--teleop``)."""
+    interrupted, or has no scenario: ``--teleop``); in goal mode, the last goal's outcome, with its
+    ``goal_id`` (every goal's is in ``report.json``'s ``goals``)."""
     outcomes = [m for m in messages if m.topic == keys.drive_outcome]
     if not outcomes:
         return None
@@ -393,4 +427,5 @@ def scenario_outcome(messages: list[RecordedMessage], keys: Keys) -> dict[str, A
         "t_s": outcome.tm.to_seconds(),
         "iteration": outcome.iteration,
         "elapsed_s": outcome.elapsed_s,
+        **({"goal_id": outcome.goal_id} if outcome.goal_id else {}),
     }

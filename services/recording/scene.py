@@ -7,7 +7,9 @@ opened in Foxglove shows the scene the live view showed:
 - ``/tf`` (``foxglove.FrameTransforms``): ``world`` → ``base_link``, the ground truth;
 - ``/odometry/pose``, ``/localization/pose`` (``foxglove.PoseInFrame`` in ``world``);
 - ``/scene`` (``foxglove.SceneUpdate``): the robot (body, wheels, casters) on ``base_link``, the
-  world's obstacles, the planned path, and the trails of ground truth and odometry;
+  world's obstacles, the planned path, the trails of ground truth and odometry, and in goal mode
+  the drive's goals: the running one's pose, tolerances and progress, the path driven to it, the
+  ended ones with their outcomes (:mod:`services.recording.goal_scene`);
 - ``/plot/wheel_speeds`` (JSON): commanded and measured wheel speeds, rad/s;
 - ``/scan`` (``foxglove.LaserScan``): every lidar scan (``sim/scan``, at ``lidar.rate``: 10 Hz)
   in the lidar's frame ``base_scan``, which ``/tf`` places on ``base_link`` at the ``[lidar]``
@@ -18,7 +20,8 @@ scene every :data:`SCENE_PERIOD_NS` (the loop publishes at its step rate, kHz, w
 needs); a scan is shown as it comes, at its own rate. A trail keeps a point every :data:`TRAIL_SPACING_M`, the newest :data:`TRAIL_POINTS`. Each
 scene update carries the whole scene (a viewer that seeks, or joins late, needs only the last one),
 so what bounds a recording's growth is the trail's length: the scene costs at most about 30 kB per
-update however long the run (benchmarks/README.md, "What recording costs").
+update however long the run (benchmarks/README.md, "What recording costs"), about 42 kB with a
+goal's path full and the ended goals drawn (tests/test_goal_scene.py).
 """
 
 from __future__ import annotations
@@ -51,6 +54,9 @@ from schemas.codec import BadInput
 from schemas.keys import Topic
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
+    GoalFeedback,
+    GoalTarget,
+    ScenarioOutcome,
     SimWorld,
     Time,
     TimedDoubleSeq,
@@ -60,6 +66,7 @@ from schemas.messages import (
 from schemas.messages import LaserScan as ScanMessage
 from services.body.geometry import robot_body
 from services.config import CalibratedGeometry, LidarConfig, OdometryConfig, RobotConfig, SimConfig
+from services.recording.goal_scene import GoalDrawing
 from services.recording.report import pose_from_body_pose
 
 WORLD_FRAME = "world"
@@ -79,6 +86,10 @@ TRAIL_SPACING_M = 0.02
 TRAIL_POINTS = 500
 """10 m of the newest path: a trail of 20,000 points resent at every update made an hour's
 recording grow with the square of its length (1 GB after six minutes of a circle)."""
+GOAL_PATH_SPACING_M = 2 * TRAIL_SPACING_M
+GOAL_PATH_POINTS = TRAIL_POINTS // 2
+"""The path driven to a goal: its newest 10 m, at half the trails' points (it is drawn over the
+ground truth's trail, in every update while its goal is the last one)."""
 
 WHEEL_SPEEDS_SCHEMA: dict[str, Any] = {
     "type": "object",
@@ -157,8 +168,8 @@ class Scene:
     """The Foxglove messages of one robot's loop; see the module docstring. In a fleet
     (``fleet=True``) every name is the robot's own, so several scenes share one recording or view:
     its frame ``<robot>/base_link``, its topics ``/<robot>/odometry/pose``, ... and its entities
-    ``<robot>/robot``, ``<robot>/planned_path``, ``<robot>/trails`` (``/tf`` and ``/scene`` are
-    shared; the obstacles are the world's, one entity)."""
+    ``<robot>/robot``, ``<robot>/planned_path``, ``<robot>/trails``, ``<robot>/goal``, ... (``/tf``
+    and ``/scene`` are shared; the obstacles are the world's, one entity)."""
 
     def __init__(
         self,
@@ -178,7 +189,10 @@ class Scene:
         self.frame = prefix + ROBOT_FRAME
         self.lidar_frame = prefix + LIDAR_FRAME
         self._lidar = lidar or LidarConfig()
-        self._ids = {entity: prefix + entity for entity in ("robot", "planned_path", "trails")}
+        self._ids = {
+            entity: prefix + entity
+            for entity in ("robot", "planned_path", "trails", "goal", "goal_path", "goals_ended")
+        }
         self.topics = {
             topic: f"/{prefix}{topic.lstrip('/')}"
             for topic in (ODOMETRY_TOPIC, LOCALIZATION_TOPIC, WHEEL_SPEEDS_TOPIC, SCAN_TOPIC)
@@ -189,6 +203,7 @@ class Scene:
         self._path: list[tuple[float, float]] = []
         self._truth = _Trail()
         self._odometry = _Trail()
+        self.goals = GoalDrawing(self._ids, GOAL_PATH_SPACING_M, GOAL_PATH_POINTS)
         self._next_transform_ns = 0
         self._next_odometry_ns = 0
         self._next_scene_ns = 0
@@ -215,12 +230,32 @@ class Scene:
         elif topic is Topic.DRIVE_PATH:
             self._path = list(message.points)
             self._scene_changed = True
+        elif topic is Topic.DRIVE_GOAL:
+            self._goal(message)
+        elif topic is Topic.DRIVE_GOAL_FEEDBACK:
+            self._goal_feedback(message)
+        elif topic is Topic.DRIVE_OUTCOME:
+            self._outcome(message)
         return []
+
+    def _goal(self, message: GoalTarget) -> None:
+        self.goals.start(message)
+        self._scene_changed = True
+
+    def _goal_feedback(self, message: GoalFeedback) -> None:
+        """Shown in the goal's label at the next scene update (every :data:`SCENE_PERIOD_NS`): a
+        scene update at every feedback would cost the recording a whole scene each time."""
+        self.goals.feedback(message)
+
+    def _outcome(self, message: ScenarioOutcome) -> None:
+        if self.goals.end(message):
+            self._scene_changed = True
 
     def _body_pose(self, message: TimedDoubleSeq) -> list[tuple[str, Any]]:
         stamp_ns = message.tm.to_nanoseconds()
         pose = pose_from_body_pose(message.data)
         self._truth.add(pose.x, pose.y)
+        self.goals.track(stamp_ns, pose.x, pose.y)
         shown: list[tuple[str, Any]] = []
         if stamp_ns >= self._next_transform_ns or stamp_ns < self._next_transform_ns - POSE_PERIOD_NS:
             self._next_transform_ns = stamp_ns + POSE_PERIOD_NS
@@ -350,6 +385,7 @@ class Scene:
                 id=self._ids["trails"],
                 lines=[self._truth.line(_TRUTH), self._odometry.line(_ODOMETRY)],
             ),
+            *self.goals.entities(stamp, WORLD_FRAME),
         ]
         return SceneUpdate(entities=entities)
 

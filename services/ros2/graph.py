@@ -1,4 +1,5 @@
-"""What the bridge is in the ROS graph (pure, no zenoh): its topics, subscriptions and services, with
+"""What the bridge is in the ROS graph (pure, no zenoh): its topics, subscriptions, services and its
+NavigateToPose action (three services and two topics, as rcl_action lays an action out), with
 their interfaces and QoS, and the keys they travel on for a domain and namespace. The bridge
 declares exactly these (services/ros2/service.py), and the secure profile grants exactly these
 (services/security/grants.py).
@@ -10,6 +11,7 @@ import dataclasses
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
+from enum import StrEnum
 
 from schemas.keys import Method
 from services.config import Config, ConfigError, TfLayout
@@ -44,10 +46,50 @@ SENSOR_TOPICS = ("scan", "imu")
 TF_TOPICS = ("tf", "tf_static")
 """In the bridge's namespace by default (Nav2's multi-robot layout); on the shared ``/tf`` and
 ``/tf_static`` with ``ros2.tf = "prefixed"``."""
-SUBSCRIPTIONS = (
+CMD_VEL_SUBSCRIPTIONS = (
     Entity("cmd_vel", interfaces.TWIST, wire.SYSTEM_DEFAULT),
     Entity("cmd_vel", interfaces.TWIST_STAMPED, wire.SYSTEM_DEFAULT),
 )
+GOAL_POSE = Entity("goal_pose", interfaces.POSE_STAMPED, wire.SYSTEM_DEFAULT)
+"""What RViz's "2D Goal Pose" tool publishes (``/goal_pose``; in the namespace, as ``cmd_vel`` is)."""
+SUBSCRIPTIONS = (*CMD_VEL_SUBSCRIPTIONS, GOAL_POSE)
+NAVIGATE_TO_POSE = "navigate_to_pose"
+"""The NavigateToPose action's name, as Nav2's bt_navigator serves it (in the namespace)."""
+
+
+class ActionService(StrEnum):
+    """An action's services, as rcl_action names them: ``<action>/_action/<service>``."""
+
+    SEND_GOAL = "send_goal"
+    CANCEL_GOAL = "cancel_goal"
+    GET_RESULT = "get_result"
+
+
+class ActionTopic(StrEnum):
+    """An action's topics, as rcl_action names them: ``<action>/_action/<topic>``."""
+
+    FEEDBACK = "feedback"
+    STATUS = "status"
+
+
+ACTION_SERVICES: dict[ActionService, Entity] = {
+    ActionService.SEND_GOAL: Entity(
+        f"{NAVIGATE_TO_POSE}/_action/send_goal", interfaces.NAVIGATE_TO_POSE_SEND_GOAL, wire.SERVICES
+    ),
+    ActionService.CANCEL_GOAL: Entity(f"{NAVIGATE_TO_POSE}/_action/cancel_goal", interfaces.CANCEL_GOAL, wire.SERVICES),
+    ActionService.GET_RESULT: Entity(
+        f"{NAVIGATE_TO_POSE}/_action/get_result", interfaces.NAVIGATE_TO_POSE_GET_RESULT, wire.SERVICES
+    ),
+}
+"""The NavigateToPose action server's services (rcl_action's services QoS: reliable, volatile, keep-last 10)."""
+ACTION_TOPICS: dict[ActionTopic, Entity] = {
+    ActionTopic.FEEDBACK: Entity(
+        f"{NAVIGATE_TO_POSE}/_action/feedback", interfaces.NAVIGATE_TO_POSE_FEEDBACK_MESSAGE, wire.SYSTEM_DEFAULT
+    ),
+    ActionTopic.STATUS: Entity(f"{NAVIGATE_TO_POSE}/_action/status", interfaces.GOAL_STATUS_ARRAY, wire.ACTION_STATUS),
+}
+"""The NavigateToPose action server's topics: feedback as ROS's default QoS, status as rcl_action's
+(reliable, transient-local, keep-last 1: a client started late gets the last status)."""
 MOTOR_SERVICES: dict[Method, Entity] = {
     method: Entity(f"motor/{method}", interfaces.TRIGGER, wire.SERVICES)
     for method in (Method.STOP, Method.CLEAR, Method.START, Method.FINISH)

@@ -10,6 +10,15 @@ fields ``request_message``, ``response_message``, ``event_message``). One correc
 ``service_msgs/msg/ServiceEventInfo`` declares ``char[16] client_gid``, and ROS's type description
 maps a ``.msg`` ``char`` to ``uint8`` (rosidl_adapter), so the event is hashed with ``uint8[16]``;
 with rosbags' ``char`` the Trigger hash differs from the one ROS computes.
+
+Actions likewise: ``nav2_msgs/action/NavigateToPose`` is built from its ``.action`` text (Jazzy's,
+kept unchanged in tests/data/ros2_interfaces/ with where it came from) into the types rosidl derives
+from an action: ``_Goal``, ``_Result``, ``_Feedback``, the services ``_SendGoal`` and ``_GetResult``
+(each with its ``_Request``, ``_Response`` and ``_Event``), ``_FeedbackMessage``, and the action
+itself, laid out as ``rosidl_adapter`` lays them out; ``action_msgs/srv/CancelGoal`` from its
+``.srv``, the messages of ``action_msgs`` and ``unique_identifier_msgs`` from rosbags' Jazzy store.
+Every hash is computed here, at run time; tests/test_ros2_navigate.py compares each with the type
+descriptions ROS ships (action_msgs) and the one ROS's own generator writes for NavigateToPose.
 """
 
 from __future__ import annotations
@@ -39,8 +48,58 @@ TRIGGER_RESPONSE = f"{TRIGGER}_Response"
 
 _TRIGGER_SRV = ("", "bool success   # indicate successful run of triggered service\nstring message # informational")
 """std_srvs/srv/Trigger.srv: an empty request, then ``bool success`` and ``string message``."""
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+UUID = "unique_identifier_msgs/msg/UUID"
+GOAL_INFO = "action_msgs/msg/GoalInfo"
+GOAL_STATUS = "action_msgs/msg/GoalStatus"
+GOAL_STATUS_ARRAY = "action_msgs/msg/GoalStatusArray"
+CANCEL_GOAL = "action_msgs/srv/CancelGoal"
+CANCEL_GOAL_REQUEST = f"{CANCEL_GOAL}_Request"
+CANCEL_GOAL_RESPONSE = f"{CANCEL_GOAL}_Response"
+NAVIGATE_TO_POSE = "nav2_msgs/action/NavigateToPose"
+NAVIGATE_TO_POSE_GOAL = f"{NAVIGATE_TO_POSE}_Goal"
+NAVIGATE_TO_POSE_RESULT = f"{NAVIGATE_TO_POSE}_Result"
+NAVIGATE_TO_POSE_FEEDBACK = f"{NAVIGATE_TO_POSE}_Feedback"
+NAVIGATE_TO_POSE_SEND_GOAL = f"{NAVIGATE_TO_POSE}_SendGoal"
+NAVIGATE_TO_POSE_GET_RESULT = f"{NAVIGATE_TO_POSE}_GetResult"
+NAVIGATE_TO_POSE_FEEDBACK_MESSAGE = f"{NAVIGATE_TO_POSE}_FeedbackMessage"
+
+_CANCEL_GOAL_SRV = (
+    f"{GOAL_INFO} goal_info",
+    (
+        "int8 ERROR_NONE=0\nint8 ERROR_REJECTED=1\nint8 ERROR_UNKNOWN_GOAL_ID=2\nint8 ERROR_GOAL_TERMINATED=3\n"
+        f"int8 return_code\n{GOAL_INFO}[] goals_canceling"
+    ),
+)
+"""action_msgs/srv/CancelGoal.srv (rcl_interfaces), its request and response (comments left out,
+``GoalInfo`` named with its package)."""
+NAVIGATE_TO_POSE_ACTION = """#goal definition
+geometry_msgs/PoseStamped pose
+string behavior_tree
+---
+#result definition
+
+# Error codes
+# Note: The expected priority order of the errors should match the message order
+uint16 NONE=0
+
+uint16 error_code
+string error_msg
+---
+#feedback definition
+geometry_msgs/PoseStamped current_pose
+builtin_interfaces/Duration navigation_time
+builtin_interfaces/Duration estimated_time_remaining
+int16 number_of_recoveries
+float32 distance_remaining
+"""
+"""nav2_msgs/action/NavigateToPose.action of navigation2's ``jazzy`` branch, unchanged (a test
+compares it with the copy in tests/data/ros2_interfaces/, which says where it came from)."""
+_ACTION_SEPARATOR = "---"
 _SERVICE_EVENT_INFO = "service_msgs/msg/ServiceEventInfo"
 _TIME = "builtin_interfaces/msg/Time"
+_ACTION_MSGS_DEPENDENCIES = (GOAL_INFO, GOAL_STATUS, GOAL_STATUS_ARRAY, POSE_STAMPED, "builtin_interfaces/msg/Duration")
+"""The messages of rosbags' Jazzy store the services and actions here refer to (with theirs)."""
 
 
 @dataclass(frozen=True)
@@ -61,37 +120,90 @@ def messages() -> Typestore:
 
 @functools.cache
 def services() -> Typestore:
-    """A typestore holding ``std_srvs/srv/Trigger``: its request, response and event messages and
-    the service itself as REP 2011 describes a service for hashing."""
+    """A typestore of the services and actions (REP 2011 describes each for hashing), and of the
+    messages they refer to: ``std_srvs/srv/Trigger``, ``action_msgs/srv/CancelGoal`` and
+    ``nav2_msgs/action/NavigateToPose`` with every type derived from them."""
     store = get_typestore(Stores.EMPTY)
     jazzy = messages()
     consts, fields = jazzy.fielddefs[_SERVICE_EVENT_INFO]
     store.register(
         {
-            _TIME: jazzy.fielddefs[_TIME],
+            **_with_dependencies(jazzy, (_TIME, *_ACTION_MSGS_DEPENDENCIES)),
             _SERVICE_EVENT_INFO: (consts, [(name, _uint8_for_char(field)) for name, field in fields]),
         }
     )
-    request, response = _TRIGGER_SRV
-    store.register(
-        _service_types(
-            TRIGGER,
-            {
-                "Request": request,
-                "Response": response,
-                "Event": f"{_SERVICE_EVENT_INFO} info\n{TRIGGER_REQUEST}[<=1] request\n{TRIGGER_RESPONSE}[<=1] response",
-            },
-        )
-    )
-    store.register(
-        _service_types(
-            TRIGGER,
-            {
-                "": f"{TRIGGER_REQUEST} request_message\n{TRIGGER_RESPONSE} response_message\n{TRIGGER}_Event event_message"
-            },
-        )
-    )
+    store.register(_service(TRIGGER, *_TRIGGER_SRV))
+    store.register(_service(CANCEL_GOAL, *_CANCEL_GOAL_SRV))
+    store.register(_action(NAVIGATE_TO_POSE, NAVIGATE_TO_POSE_ACTION))
     return store
+
+
+def _with_dependencies(store: Typestore, names: tuple[str, ...]) -> dict[str, Any]:
+    """The field definitions of ``names`` in ``store`` and of every type they refer to."""
+    found: dict[str, Any] = {}
+    pending = list(names)
+    while pending:
+        name = pending.pop()
+        if name in found:
+            continue
+        found[name] = store.fielddefs[name]
+        pending += _referred(found[name][1])
+    return found
+
+
+def _referred(fields: list[tuple[str, Any]]) -> list[str]:
+    """The message types a type's fields refer to (in arrays and sequences too)."""
+    names = []
+    for _name, (kind, detail) in fields:
+        if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+            kind, detail = detail[0]
+        if kind is Nodetype.NAME:
+            names.append(detail)
+    return names
+
+
+def _service(service: str, request: str, response: str) -> dict[str, Any]:
+    """The types ROS generates for a service from its ``.srv`` parts: ``_Request``, ``_Response``,
+    ``_Event`` (the ServiceEventInfo and at most one of each), and the service itself, whose fields
+    REP 2011 hashes: ``request_message``, ``response_message``, ``event_message``."""
+    return _types(
+        service,
+        {
+            "Request": request,
+            "Response": response,
+            "Event": f"{_SERVICE_EVENT_INFO} info\n{service}_Request[<=1] request\n{service}_Response[<=1] response",
+            "": f"{service}_Request request_message\n{service}_Response response_message\n{service}_Event event_message",
+        },
+    )
+
+
+def _action(action: str, text: str) -> dict[str, Any]:
+    """The types rosidl derives from an ``.action`` (goal, result and feedback parts between
+    ``---`` lines): ``_Goal``, ``_Result``, ``_Feedback``; the services ``_SendGoal`` (request
+    ``goal_id`` and ``goal``, response ``accepted`` and ``stamp``) and ``_GetResult`` (request
+    ``goal_id``, response ``status`` and ``result``); ``_FeedbackMessage`` (``goal_id``,
+    ``feedback``); and the action, whose fields are the six."""
+    lines = text.splitlines()
+    cuts = [index for index, line in enumerate(lines) if line.strip() == _ACTION_SEPARATOR]
+    if len(cuts) != 2:
+        raise ValueError(f"{action}: an .action has three parts, between two {_ACTION_SEPARATOR!r} lines")
+    goal, result, feedback = (
+        "\n".join(part) for part in (lines[: cuts[0]], lines[cuts[0] + 1 : cuts[1]], lines[cuts[1] + 1 :])
+    )
+    return {
+        **_types(action, {"Goal": goal, "Result": result, "Feedback": feedback}),
+        **_service(f"{action}_SendGoal", f"{UUID} goal_id\n{action}_Goal goal", f"bool accepted\n{_TIME} stamp"),
+        **_service(f"{action}_GetResult", f"{UUID} goal_id", f"int8 status\n{action}_Result result"),
+        **_types(action, {"FeedbackMessage": f"{UUID} goal_id\n{action}_Feedback feedback"}),
+        **_types(
+            action,
+            {
+                "": f"{action}_Goal goal\n{action}_Result result\n{action}_Feedback feedback\n"
+                f"{action}_SendGoal send_goal_service\n{action}_GetResult get_result_service\n"
+                f"{action}_FeedbackMessage feedback_message"
+            },
+        ),
+    }
 
 
 def _uint8_for_char(field: Any) -> Any:
@@ -102,12 +214,13 @@ def _uint8_for_char(field: Any) -> Any:
     return field
 
 
-def _service_types(service: str, parts: dict[str, str]) -> dict[str, Any]:
-    """rosbags' field definitions of ``<service>_<part>`` from ``.msg`` text. rosbags files any type
-    under ``msg``; a service's parts keep ROS's name (``std_srvs/srv/Trigger_Request``)."""
+def _types(base: str, parts: dict[str, str]) -> dict[str, Any]:
+    """rosbags' field definitions of ``<base>_<part>`` (``<base>`` for the part ``""``) from ``.msg``
+    text. rosbags files any type under ``msg``; a service's parts keep ROS's name
+    (``std_srvs/srv/Trigger_Request``), an action's are ROS's already (``nav2_msgs/action/...``)."""
     types: dict[str, Any] = {}
     for part, text in parts.items():
-        name = f"{service}_{part}" if part else service
+        name = f"{base}_{part}" if part else base
         types.update(_srv_names(get_types_from_msg(text, name)))
     return types
 
@@ -122,28 +235,32 @@ def _srv_names(value: Any) -> Any:
     return value
 
 
+def _store(name: str) -> Typestore:
+    """The typestore of a message (``pkg/msg/Type``), or of a service's or action's type (and of
+    ServiceEventInfo, corrected there)."""
+    return messages() if "/msg/" in name and name != _SERVICE_EVENT_INFO else services()
+
+
 def interface(name: str) -> Interface:
-    """A message (``pkg/msg/Type``) or service (``pkg/srv/Type``) with its RIHS01 hash."""
-    store = services() if "/srv/" in name else messages()
-    return Interface(name, store.hash_rihs01(name))
+    """A message (``pkg/msg/Type``), service (``pkg/srv/Type``) or action type
+    (``pkg/action/Type_SendGoal``, ...) with its RIHS01 hash."""
+    return Interface(name, _store(name).hash_rihs01(name))
 
 
 def message_class(name: str) -> Any:
-    """The dataclass of a message (or a service's request or response) type."""
-    store = services() if "/srv/" in name else messages()
-    return store.types[name]
+    """The dataclass of a message (or a service's or action's request, response, ...) type."""
+    return _store(name).types[name]
 
 
 def serialize(message: Any) -> bytes:
     """CDR, little-endian, with its 4-byte encapsulation header, as rmw_zenoh sends it."""
     name = message.__msgtype__
-    store = services() if "/srv/" in name else messages()
-    return bytes(store.serialize_cdr(message, name))
+    return bytes(_store(name).serialize_cdr(message, name))
 
 
 def deserialize(data: bytes, name: str) -> Any:
     """A message of type ``name`` from CDR; BadInput naming the type when it is not one."""
-    store = services() if "/srv/" in name else messages()
+    store = _store(name)
     try:
         return store.deserialize_cdr(data, name)
     except Exception as error:  # noqa: BLE001 (rosbags raises what a truncated buffer makes: struct, index, value errors)

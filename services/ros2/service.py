@@ -16,7 +16,10 @@ One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
   (at most ``ros2.cmd_vel_rate`` per simulated second, the newest kept between two), so the motor's
   command timeout works as diff_drive_controller's ``cmd_vel_timeout``;
 - services ``motor/stop``, ``motor/clear``, ``motor/start``, ``motor/finish`` (std_srvs/Trigger),
-  each calling the Motor method of that name (``motor/gui/<method>``, as an operator would).
+  each calling the Motor method of that name (``motor/gui/<method>``, as an operator would);
+- the action ``navigate_to_pose`` (nav2_msgs/NavigateToPose: its three services and two topics)
+  and the subscription ``goal_pose`` (RViz's 2D Goal Pose), each goal sent to the drive's
+  ``drive/goal/send`` (services/ros2/action_server.py).
 
 Its inputs from the loop: every sample of ``sim/clock`` (the clock, the wheels, and the continuous
 odometry: each observed step, so no tick is skipped), the newest of ``odometry/pose`` (``map``) and
@@ -58,6 +61,7 @@ from schemas.messages import (
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, ConfigError
 from services.ros2 import core, graph, interfaces, wire
+from services.ros2.action_server import NavigateServer
 from services.ros2.outputs import Outgoing, RosOutputs
 from services.runtime.inputs import Delivery
 from services.runtime.journal import Journal, journal_path
@@ -234,7 +238,7 @@ class Ros2Bridge:
                 handler = partial(self._on_sensor, take)
                 node.subscribe(key, message_type, sim.stamped(key, handler, awaited=lambda: False), Delivery.EVERY)
         self.cmd_vel_keys: dict[str, str] = {}
-        for entity in graph.SUBSCRIPTIONS:
+        for entity in graph.CMD_VEL_SUBSCRIPTIONS:
             key = self.cmd_vel_keys[entity.interface] = bridge.key(entity)
             tokens.declare(wire.EntityKind.SUBSCRIPTION, entity)
             node.subscribe_bytes(key, partial(self._on_cmd_vel, entity.interface), Delivery.EVERY)
@@ -250,6 +254,7 @@ class Ros2Bridge:
             self._motor_methods[method] = node.session.declare_querier(
                 node.keys.method(MethodFamily.GUI, method), timeout=SERVICE_CALL_TIMEOUT_S
             )
+        self.navigate = NavigateServer(node, config, tokens, outputs, partial(RosPublisher, tokens))
         self._publish(outputs.latched())
         node.wait_with(lambda: Wait(self._clock_input))
         node.set_status(self.status)
@@ -376,10 +381,12 @@ class Ros2Bridge:
             "published": {publisher.name: publisher.published for publisher in self.publishers.values()},
             "cmd_vel": dict(self.cmd_vel),
             "service_calls": {**self.calls, "waiting": len(self._pending_calls)},
+            "navigate": self.navigate.status(),
             "odom": self.outputs.odometry.pose._asdict(),
         }
 
     def close(self) -> None:
+        self.navigate.close()
         for pending in self._pending_calls.values():
             pending.query.drop()
         self._pending_calls.clear()

@@ -103,6 +103,9 @@ SENSOR_DATA = Qos(depth=5, reliability=Reliability.BEST_EFFORT)
 Nav2, slam_toolbox and robot_localization subscribe sensors with."""
 SERVICES = Qos()
 """ROS's services default (reliable, volatile, keep-last 10)."""
+ACTION_STATUS = Qos(depth=1, durability=Durability.TRANSIENT_LOCAL)
+"""rcl_action's status topic (``rcl_action_qos_profile_status_default``): reliable, transient-local,
+keep-last 1."""
 
 
 def absolute_namespace(namespace: str) -> str:
@@ -124,7 +127,8 @@ def mangle(name: str) -> str:
 
 
 def dds_type_name(interface: str) -> str:
-    """``nav_msgs/msg/Odometry`` -> ``nav_msgs::msg::dds_::Odometry_`` (services likewise, ``srv``)."""
+    """``nav_msgs/msg/Odometry`` -> ``nav_msgs::msg::dds_::Odometry_`` (services likewise, ``srv``;
+    an action's types, ``action``: ``nav2_msgs::action::dds_::NavigateToPose_SendGoal_``)."""
     package, kind, name = interface.split("/")
     return f"{package}::{kind}::dds_::{name}_"
 
@@ -135,9 +139,15 @@ def data_key(domain: int, name: str, interface: str, type_hash: str) -> str:
 
 
 def interface_of_dds_type(dds_type: str) -> str:
-    """``nav_msgs::msg::dds_::Odometry_`` -> ``nav_msgs/msg/Odometry``; BadInput for another layout."""
+    """``nav_msgs::msg::dds_::Odometry_`` -> ``nav_msgs/msg/Odometry`` (services' and actions' types
+    likewise); BadInput for another layout."""
     chunks = dds_type.split("::")
-    if len(chunks) != 4 or chunks[1] not in ("msg", "srv") or chunks[2] != "dds_" or not chunks[3].endswith("_"):
+    if (
+        len(chunks) != 4
+        or chunks[1] not in ("msg", "srv", "action")
+        or chunks[2] != "dds_"
+        or not chunks[3].endswith("_")
+    ):
         raise BadInput(f"{dds_type!r} is not a type as rmw_zenoh names one")
     return f"{chunks[0]}/{chunks[1]}/{chunks[3][:-1]}"
 

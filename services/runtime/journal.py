@@ -28,6 +28,8 @@ from pathlib import Path
 
 import msgspec
 
+from schemas.keys import Topic
+
 SUFFIX = ".journal"
 BATCH_SAMPLES = 4096
 """Samples written at once: about half a second of a service's output in lockstep."""
@@ -43,8 +45,20 @@ _BATCH = msgspec.msgpack.Decoder(list[JournalEntry])
 STOPPED_KEY = "@journal/stopped"
 """The entry a journal that stops early writes: its payload JSON ``{"reason", "journal"}`` (its
 file's name), its time when."""
-ALWAYS_KEPT = ("/up/run", "/drive/outcome", "/drive/path", "/sim/world", "/motor/state", "/sim/bump")
-"""Keys (by suffix) a stopped journal still keeps: a few samples per run, what says how it ended."""
+ALWAYS_KEPT = tuple(
+    f"/{topic}"
+    for topic in (
+        Topic.RUN_SUMMARY,
+        Topic.DRIVE_OUTCOME,
+        Topic.DRIVE_PATH,
+        Topic.DRIVE_GOAL,
+        Topic.SIM_WORLD,
+        Topic.MOTOR_STATE,
+        Topic.SIM_BUMP,
+    )
+)
+"""Keys (by suffix) a stopped journal still keeps: a few samples per run, what says how it ended
+(each goal of a goal-mode run too: its outcome names it, ``drive/goal`` says where it was)."""
 MB = 1_000_000
 
 

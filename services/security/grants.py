@@ -26,7 +26,7 @@ from schemas.keys import (
     all_robots_status,
 )
 from services.config import Config
-from services.ros2.graph import MOTOR_SERVICES, SUBSCRIPTIONS, BridgeGraph, bridge_graph
+from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, MOTOR_SERVICES, SUBSCRIPTIONS, BridgeGraph, bridge_graph
 from services.ros2.wire import ADMIN_SPACE
 from services.security.roles import FLEET_ROLES, Identity, Role
 
@@ -106,11 +106,13 @@ def _ros_grants(role: Role, keys: Keys, ros: BridgeGraph) -> list[Grant]:
             Message.LIVELINESS_QUERY,
         )
         return [Grant(everything, Flow.INGRESS, domain), Grant(everything, Flow.EGRESS, domain)]
-    published = tuple(ros.key(entity) for entity in ros.publications.values())
-    latched = tuple(ros.key(entity) for entity in ros.publications.values() if entity.qos.transient_local)
+    # the NavigateToPose action server: its status and feedback topics and its three services
+    topics = (*ros.publications.values(), *ACTION_TOPICS.values())
+    published = tuple(ros.key(entity) for entity in topics)
+    latched = tuple(ros.key(entity) for entity in topics if entity.qos.transient_local)
     advanced = tuple(f"{key}/@adv/**" for key in latched)
     subscribed = tuple(ros.key(entity) for entity in SUBSCRIPTIONS)
-    served = tuple(ros.key(entity) for entity in MOTOR_SERVICES.values())
+    served = tuple(ros.key(entity) for entity in (*MOTOR_SERVICES.values(), *ACTION_SERVICES.values()))
     return [
         Grant((Message.PUT,), Flow.INGRESS, (*published, *advanced, keys.drive_target_velocity)),
         Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (*served, *advanced)),

@@ -1,0 +1,461 @@
+"""The bridge's NavigateToPose action server, and ``goal_pose``: a ROS goal becomes a goal of the
+robot's drive (``drive/goal/send``), the drive's feedback and outcome become the action's feedback,
+status and result. The shell around services/ros2/navigate.py (the pure core); docs/ros2.md
+"Navigate" is the walkthrough, docs/protocol.md section 12 the contract.
+
+rmw_zenoh's wire format for an action is rcl_action's five endpoints, each an ordinary service or
+topic in the bridge's namespace: the queryables ``navigate_to_pose/_action/send_goal``,
+``_action/cancel_goal`` and ``_action/get_result`` (requests and replies with rmw_zenoh's
+attachment, the reply echoing the request's sequence number and GID), and the topics
+``_action/feedback`` and ``_action/status`` (reliable, transient-local, depth 1), each with its
+liveliness token.
+
+- ``send_goal``: the goal (checked and turned into ``map``, navigate.py) is sent to the drive from
+  the service thread; the ROS reply waits for the drive's (``accepted`` follows it). A goal the
+  bridge refuses itself, or that the drive refuses or leaves unanswered (no drive serves goals: at
+  once; the status's ``drive_serves_goals`` says whether one does), is answered ``accepted: false``
+  and counted (the reason in the log and the status: SendGoal's response has no field for it).
+- ``cancel_goal``: rcl_action's policy on the goals this server knows; each that moves to
+  ``canceling`` is canceled in the drive (``drive/goal/cancel``).
+- ``get_result``: answered once the goal has ended (held until then, at most
+  :data:`WAITING_RESULTS` at once), at once for an ended or unknown goal.
+- ``goal_pose`` (RViz's "2D Goal Pose", ``geometry_msgs/PoseStamped``): a goal with a UUID of the
+  bridge's making, sent the same way; only ``status`` and ``feedback`` show how it goes.
+
+Bad input (a request without rmw_zenoh's attachment, malformed or oversized CDR, a pose not finite,
+an unknown frame) is counted under its key and refused in the reply (an error reply without an
+attachment to echo; else ``accepted: false``, return code 1 or status 0); nothing reaches the drive
+and the running goal goes on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import time
+import uuid as uuid_module
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import partial
+from typing import TYPE_CHECKING, Any, Protocol
+
+import zenoh
+
+from schemas.codec import BadInput, decode, encode
+from schemas.messages import (
+    CancelReply,
+    CancelRequest,
+    GoalFeedback,
+    GoalReply,
+    GoalRequest,
+    GoalTarget,
+    ScenarioOutcome,
+)
+from services.config import Config
+from services.ros2 import graph, interfaces, navigate, wire
+from services.ros2.graph import ActionService, ActionTopic
+from services.runtime.inputs import Delivery
+from services.runtime.node import Node
+from services.runtime.session import has_match
+
+if TYPE_CHECKING:
+    from services.clock.sim_time import StampClock
+    from services.ros2.outputs import RosOutputs
+
+
+class Tokens(Protocol):
+    """The bridge's node in the ROS graph (services/ros2/service.py's ``GraphTokens``)."""
+
+    bridge: graph.BridgeGraph
+
+    def declare(self, kind: wire.EntityKind, entity: graph.Entity) -> str: ...
+
+
+class Publisher(Protocol):
+    """One ROS topic's publisher (services/ros2/service.py's ``RosPublisher``)."""
+
+    def put(self, message: Any, stamp_ns: int) -> None: ...
+
+    def undeclare(self) -> None: ...
+
+
+GOAL_CALL_TIMEOUT_S = 2.0
+"""How long a goal's send or cancel waits for the drive's reply."""
+PENDING_SENDS = 16
+"""Goals waiting for the drive's reply at once; beyond, a goal is refused at once."""
+WAITING_RESULTS = 16
+"""``get_result`` calls held until their goals end, at once; beyond, one is answered at once, status 0."""
+MAX_REQUEST_PAYLOAD: dict[ActionService, int] = {
+    ActionService.SEND_GOAL: 4096,
+    ActionService.CANCEL_GOAL: 64,
+    ActionService.GET_RESULT: 64,
+}
+"""Bytes of CDR a request may have: a cancel is 28 (a UUID and a stamp), a result request 20; a goal
+a pose, a frame id and a behaviour tree's name."""
+MAX_GOAL_POSE_PAYLOAD = 4096
+"""Bytes: a ``goal_pose`` larger than this is bad input, refused before it is decoded."""
+
+
+@dataclass
+class Caller:
+    """A ROS service call to answer: its query, the key it came on, its attachment (to echo)."""
+
+    query: zenoh.Query
+    key: str
+    attachment: wire.Attachment
+
+    def reply(self, message: Any) -> None:
+        attachment = wire.Attachment(self.attachment.sequence_number, time.time_ns(), self.attachment.gid)
+        try:
+            self.query.reply(self.key, interfaces.serialize(message), attachment=attachment.encode())
+        finally:
+            self.query.drop()
+
+
+@dataclass
+class PendingSend:
+    """A goal sent to the drive, waiting for its reply: to the ROS caller, or none (``goal_pose``)."""
+
+    uuid: bytes
+    caller: Caller | None
+    source: str
+    """The key it came on (the send_goal service's or goal_pose's)."""
+
+
+@dataclass
+class Counters:
+    sent: int = 0
+    accepted: int = 0
+    rejected: int = 0
+    succeeded: int = 0
+    canceled: int = 0
+    aborted: int = 0
+    cancel_requests: int = 0
+    result_requests: int = 0
+    last_rejection: str = ""
+    """Why the last goal was refused (SendGoal's response cannot say)."""
+
+    def ended(self, status: navigate.GoalStatus) -> None:
+        if status is navigate.GoalStatus.SUCCEEDED:
+            self.succeeded += 1
+        elif status is navigate.GoalStatus.CANCELED:
+            self.canceled += 1
+        else:
+            self.aborted += 1
+
+
+class NavigateServer:
+    """One bridge's ``navigate_to_pose`` action server and ``goal_pose`` subscription."""
+
+    def __init__(
+        self,
+        node: Node,
+        config: Config,
+        tokens: Tokens,
+        outputs: RosOutputs,
+        publisher: Callable[[graph.Entity], Publisher],
+    ) -> None:
+        self.node = node
+        self.config = config
+        bridge = tokens.bridge
+        self.outputs = outputs
+        self.clock: StampClock = outputs.clock
+        settings = config.ros2
+        self.frames = navigate.GoalFrames(settings.map_frame, outputs.prefix + settings.odom_frame)
+        self.action = wire.full_name(bridge.namespace, graph.NAVIGATE_TO_POSE)
+        self.book = navigate.GoalBook()
+        self.counters = Counters()
+        self._pending: dict[int, PendingSend] = {}
+        self._call_ids = itertools.count(1)
+        self._waiting_results: dict[bytes, list[Caller]] = {}
+        self.publishers = {topic: publisher(entity) for topic, entity in graph.ACTION_TOPICS.items()}
+        self.service_keys: dict[ActionService, str] = {}
+        self._declarations: list[Any] = []
+        for service, entity in graph.ACTION_SERVICES.items():
+            key = self.service_keys[service] = bridge.key(entity)
+            tokens.declare(wire.EntityKind.SERVICE, entity)
+            self._declarations.append(
+                node.session.declare_queryable(key, partial(self._on_query, service, key), complete=True)
+            )
+        self.goal_pose_key = bridge.key(graph.GOAL_POSE)
+        tokens.declare(wire.EntityKind.SUBSCRIPTION, graph.GOAL_POSE)
+        node.subscribe_bytes(self.goal_pose_key, self._on_goal_pose, Delivery.QUEUED)
+        keys = node.keys
+        self._send = node.session.declare_querier(keys.drive_goal_send, timeout=GOAL_CALL_TIMEOUT_S)
+        self._cancel = node.session.declare_querier(keys.drive_goal_cancel, timeout=GOAL_CALL_TIMEOUT_S)
+        self._declarations += [self._send, self._cancel]
+        # Every sample, in order with the queries: each changes a goal's state.
+        node.subscribe(keys.drive_goal, GoalTarget, self._on_started, Delivery.QUEUED)
+        node.subscribe(keys.drive_goal_feedback, GoalFeedback, self._on_feedback, Delivery.QUEUED)
+        node.subscribe(keys.drive_outcome, ScenarioOutcome, self._on_outcome, Delivery.QUEUED)
+        # As rcl_action: the status is published once there are goals, then at each change.
+
+    @property
+    def now_ns(self) -> int:
+        """The newest simulation time the bridge has (0 before the first)."""
+        return self.clock.last_ns or 0
+
+    # -- requests from ROS (zenoh's thread posts them to the service thread) ---------------------
+
+    def _on_query(self, service: ActionService, key: str, query: zenoh.Query) -> None:
+        """zenoh's thread: a call on exactly the service's key goes to the service thread; any
+        other query (a wildcard) is dropped, unanswered: looking never acts."""
+        if str(query.key_expr) == key:
+            self._post(key, self._take_call, (service, key, query))
+
+    def _post(self, key: str, handle: Callable[[Any], None], item: Any) -> None:
+        """Run ``handle(item)`` on the service thread (from zenoh's), a bug counted under ``key``."""
+        self.node.executor.post(partial(self.node.guard, key, handle), item)
+
+    def _take_call(self, call: tuple[ActionService, str, zenoh.Query]) -> None:
+        service, key, query = call
+        try:
+            attachment = wire.Attachment.decode(query.attachment.to_bytes() if query.attachment is not None else None)
+        except BadInput as error:
+            self.node.bad_inputs.record(key, str(error))
+            try:
+                query.reply_err(str(error).encode())
+            finally:
+                query.drop()
+            return
+        caller = Caller(query, key, attachment)
+        try:
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            if len(payload) > MAX_REQUEST_PAYLOAD[service]:
+                raise BadInput(f"{len(payload)} bytes, more than a {service} request's {MAX_REQUEST_PAYLOAD[service]}")
+            request_type = graph.ACTION_SERVICES[service].interface + "_Request"
+            request = interfaces.deserialize(payload, request_type)
+        except BadInput as error:
+            self.node.bad_inputs.record(key, str(error))
+            self._refuse(service, caller, str(error))
+            return
+        handler = {
+            ActionService.SEND_GOAL: self._send_goal,
+            ActionService.CANCEL_GOAL: self._cancel_goal,
+            ActionService.GET_RESULT: self._get_result,
+        }[service]
+        handler(request, caller)
+
+    def _refuse(self, service: ActionService, caller: Caller, reason: str) -> None:
+        """A request the bridge cannot take, answered with its type's refusal."""
+        if service is ActionService.SEND_GOAL:
+            self._rejected(reason)
+            caller.reply(navigate.send_goal_response(False, self.now_ns))
+        elif service is ActionService.CANCEL_GOAL:
+            caller.reply(navigate.cancel_response(navigate.CancelCode.REJECTED, []))
+        else:
+            caller.reply(navigate.result_response(None))
+
+    def _send_goal(self, request: Any, caller: Caller) -> None:
+        uuid = navigate.uuid_bytes(request.goal_id)
+        try:
+            goal = self._goal_request(uuid, request.goal.pose)
+        except BadInput as error:
+            self.node.bad_inputs.record(caller.key, str(error))
+            self._refuse(ActionService.SEND_GOAL, caller, str(error))
+            return
+        self._send_to_drive(uuid, goal, caller, caller.key)
+
+    def _on_goal_pose(self, payload: bytes, attachment: bytes | None) -> None:
+        """A ``goal_pose`` (service thread): a goal with a UUID of the bridge's own. BadInput for a
+        sample without rmw_zenoh's attachment, malformed or oversized, or a pose refused."""
+        wire.Attachment.decode(attachment)
+        if len(payload) > MAX_GOAL_POSE_PAYLOAD:
+            raise BadInput(f"{len(payload)} bytes, more than a goal pose's {MAX_GOAL_POSE_PAYLOAD}")
+        pose = interfaces.deserialize(payload, interfaces.POSE_STAMPED)
+        uuid = uuid_module.uuid4().bytes
+        try:
+            goal = self._goal_request(uuid, pose)
+        except BadInput as error:
+            self._rejected(str(error))
+            raise
+        self._send_to_drive(uuid, goal, None, self.goal_pose_key)
+
+    def _goal_request(self, uuid: bytes, pose: Any) -> GoalRequest:
+        correction = self.outputs.map_to_odom
+        return navigate.goal_request(
+            pose,
+            self.frames,
+            None if correction is None else correction[1],
+            navigate.goal_id_of(uuid),
+            self.config.input.max_coordinate,
+        )
+
+    def _send_to_drive(self, uuid: bytes, goal: GoalRequest, caller: Caller | None, source: str) -> None:
+        """Send ``goal`` to the drive (a zenoh get from the service thread; its reply posted back)."""
+        try:
+            if len(self._pending) >= PENDING_SENDS:
+                raise BadInput(f"{PENDING_SENDS} goals already wait for the drive's reply")
+            self.book.send(uuid)
+        except BadInput as error:
+            self._rejected(str(error))
+            if caller is not None:
+                caller.reply(navigate.send_goal_response(False, self.now_ns))
+            return
+        call_id = next(self._call_ids)
+        self._pending[call_id] = PendingSend(uuid, caller, source)
+        self.counters.sent += 1
+        key = self.node.keys.drive_goal_send
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            self._post(key, self._drive_replied, (call_id, _goal_reply(reply)))
+
+        def on_done() -> None:
+            self._post(key, self._drive_done, call_id)
+
+        self._send.get(zenoh.handlers.Callback(on_reply, on_done), payload=encode(goal))
+
+    def _drive_replied(self, answer: tuple[int, GoalReply]) -> None:
+        call_id, reply = answer
+        pending = self._pending.pop(call_id, None)
+        if pending is None:
+            return
+        goal_id = navigate.goal_id_of(pending.uuid)
+        if reply.accepted and reply.id == goal_id:
+            stamp_ns = self.now_ns
+            self.book.accepted(pending.uuid, stamp_ns)
+            self.counters.accepted += 1
+            self.node.log.info("goal %s from %s accepted by the drive", goal_id, pending.source)
+            if pending.caller is not None:
+                pending.caller.reply(navigate.send_goal_response(True, stamp_ns))
+            self._publish_status()
+            goal = self.book.get(pending.uuid)
+            if goal is not None and goal.status.terminal:
+                self._answer_results(goal)
+            return
+        self.book.rejected(pending.uuid)
+        reason = reply.reason if not reply.accepted else f"the drive accepted it as {reply.id!r}, not {goal_id!r}"
+        self._rejected(f"the drive refused goal {goal_id}: {reason}")
+        if pending.caller is not None:
+            pending.caller.reply(navigate.send_goal_response(False, self.now_ns))
+
+    def _drive_done(self, call_id: int) -> None:
+        """The send's query ended: a goal still pending got no reply (no drive serves goals)."""
+        if call_id in self._pending:
+            self._drive_replied(
+                (call_id, GoalReply(False, "", "no drive answered (is `invent drive --goals` running?)"))
+            )
+
+    def _rejected(self, reason: str) -> None:
+        self.counters.rejected += 1
+        self.counters.last_rejection = reason
+        self.node.log.info("%s: goal refused: %s", self.action, reason)
+
+    def _cancel_goal(self, request: Any, caller: Caller) -> None:
+        self.counters.cancel_requests += 1
+        info = request.goal_info
+        stamp_ns = int(info.stamp.sec) * 1_000_000_000 + int(info.stamp.nanosec)
+        code, goals = self.book.cancel(navigate.uuid_bytes(info.goal_id), stamp_ns)
+        caller.reply(navigate.cancel_response(code, goals))
+        key = self.node.keys.drive_goal_cancel
+        for goal in goals:
+
+            def on_reply(reply: zenoh.Reply, goal_id: str = goal.id) -> None:
+                self._post(key, self._cancel_replied, (goal_id, _cancel_reply(reply)))
+
+            self._cancel.get(on_reply, payload=encode(CancelRequest(id=goal.id)))
+        if goals:
+            self._publish_status()
+
+    def _cancel_replied(self, answer: tuple[str, CancelReply]) -> None:
+        goal_id, reply = answer
+        if goal_id not in reply.canceling:
+            self.node.log.info("%s: the drive did not cancel goal %s: %s", self.action, goal_id, reply.reason)
+
+    def _get_result(self, request: Any, caller: Caller) -> None:
+        self.counters.result_requests += 1
+        goal = self.book.get(navigate.uuid_bytes(request.goal_id))
+        if goal is None or goal.stamp_ns is None or goal.status.terminal:
+            caller.reply(navigate.result_response(goal if goal is not None and goal.stamp_ns is not None else None))
+            return
+        if sum(len(callers) for callers in self._waiting_results.values()) >= WAITING_RESULTS:
+            caller.reply(navigate.result_response(None))
+            return
+        self._waiting_results.setdefault(goal.uuid, []).append(caller)
+
+    # -- the drive's side -----------------------------------------------------------------------
+
+    def _on_started(self, target: GoalTarget) -> None:
+        if self.book.executing(target.id):
+            self._publish_status()
+
+    def _on_feedback(self, feedback: GoalFeedback) -> None:
+        goal = self.book.by_id(feedback.id)
+        if goal is None or goal.status.terminal:
+            return
+        changed = (
+            self.book.canceling(feedback.id) if feedback.state == "canceling" else self.book.executing(feedback.id)
+        )
+        if changed:
+            self._publish_status()
+        if goal.stamp_ns is not None:
+            message = navigate.feedback_message(goal.uuid, feedback, self.frames.map)
+            self.publishers[ActionTopic.FEEDBACK].put(message, feedback.tm.to_nanoseconds())
+
+    def _on_outcome(self, outcome: ScenarioOutcome) -> None:
+        goal = self.book.ended(outcome)
+        if goal is None:
+            return
+        self.counters.ended(goal.status)
+        self.node.log.info(
+            "goal %s ended %s%s", goal.id, outcome.outcome, f": {outcome.reason}" if outcome.reason else ""
+        )
+        if goal.stamp_ns is not None:
+            self._publish_status()
+            self._answer_results(goal)
+
+    def _answer_results(self, goal: navigate.Goal) -> None:
+        for caller in self._waiting_results.pop(goal.uuid, []):
+            caller.reply(navigate.result_response(goal))
+
+    def _publish_status(self) -> None:
+        self.publishers[ActionTopic.STATUS].put(navigate.status_array(self.book.status_list()), self.now_ns)
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "action": self.action,
+            "drive_serves_goals": has_match(self._send),
+            **dataclasses.asdict(self.counters),
+            "waiting": {
+                "sends": len(self._pending),
+                "results": sum(len(callers) for callers in self._waiting_results.values()),
+            },
+            "goals": {goal.id: goal.status.name.lower() for goal in self.book.status_list()},
+        }
+
+    def close(self) -> None:
+        for callers in self._waiting_results.values():
+            for caller in callers:
+                caller.query.drop()
+        self._waiting_results.clear()
+        for pending in self._pending.values():
+            if pending.caller is not None:
+                pending.caller.query.drop()
+        self._pending.clear()
+        for declaration in self._declarations:
+            declaration.undeclare()
+        self._declarations.clear()
+        for publisher in self.publishers.values():
+            publisher.undeclare()
+
+
+def _goal_reply(reply: zenoh.Reply) -> GoalReply:
+    """zenoh's thread: the drive's reply to a goal (a refusal naming why, for an error reply or
+    one that does not decode)."""
+    if reply.ok is None:
+        text = reply.err.payload.to_bytes().decode(errors="replace") if reply.err is not None else ""
+        return GoalReply(False, "", f"the drive answered an error: {text}")
+    try:
+        return decode(GoalReply, reply.ok.payload.to_bytes())
+    except BadInput as error:
+        return GoalReply(False, "", f"the drive's reply does not decode: {error}")
+
+
+def _cancel_reply(reply: zenoh.Reply) -> CancelReply:
+    if reply.ok is None:
+        text = reply.err.payload.to_bytes().decode(errors="replace") if reply.err is not None else ""
+        return CancelReply([], f"the drive answered an error: {text}")
+    try:
+        return decode(CancelReply, reply.ok.payload.to_bytes())
+    except BadInput as error:
+        return CancelReply([], f"the drive's reply does not decode: {error}")
