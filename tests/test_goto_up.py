@@ -226,6 +226,9 @@ def test_ctrl_c_ends_the_goals_run_with_exit_0_its_recording_of_the_goals_and_it
     report = json.loads((loop.report / "report.json").read_text())
     assert report["scenario"] == "goals" and report["mode"] == "realtime", report["scenario"]
     assert report["outcome"]["outcome"] == "completed", "the last goal's"
+    ended = [(goal["id"], goal["outcome"]) for goal in report["goals"]]
+    assert ended == [("g1", "completed"), ("g2", "canceled"), ("g3", "canceled"), ("g4", "completed")], ended
+    assert all(goal["feedbacks"] > 0 for goal in report["goals"]), "each goal's progress recorded"
 
 
 def test_a_goal_behind_the_box_of_the_bump_world_ends_aborted_naming_it_and_goto_exits_3(tmp_path):
