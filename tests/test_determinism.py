@@ -402,7 +402,7 @@ def goal_runs(tmp_path_factory) -> dict[str, SquareRun]:
     sent by the drive at fixed simulation times, through the same path as ``drive/goal/send``, in
     lockstep: on a quiet machine and beside two CPU burners."""
     base = tmp_path_factory.mktemp("goals")
-    flags = ("--goals", "--goal-file", str(GOAL_FILE), "--no-record")
+    flags = ("--goals", "--goal-file", str(GOAL_FILE))
     quiet = _run(base / "quiet", GOAL_RECORDED, *flags)
     with _burning_cpus(BURNERS) as burner_shares:
         loaded = _run(base / "loaded", GOAL_RECORDED, *flags)
