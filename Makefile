@@ -15,11 +15,11 @@ $(STAMP): pyproject.toml
 run: $(STAMP)  ## the whole loop: router, sim, motor, odometry, localization, drive, then a report
 	$(BIN)/invent up
 
-test: $(STAMP)  ## the whole suite
-	$(BIN)/python -m pytest
+test: $(STAMP)  ## the whole suite (but the benchmarks' own smoke: make bench-smoke)
+	$(BIN)/python -m pytest -m "not bench_smoke"
 
 test-fast: $(STAMP)  ## the suite without the end-to-end runs of the whole loop (the edit-test loop)
-	$(BIN)/python -m pytest -m "not slow"
+	$(BIN)/python -m pytest -m "not slow and not bench_smoke"
 
 lint: $(STAMP)  ## ruff (lint and format) on everything, mypy on schemas/ services/ sim_bridge/
 	$(BIN)/ruff check .
@@ -32,6 +32,9 @@ fuzz: $(STAMP)  ## 10^4 generated bad payloads per consumed key and queryable in
 
 bench: $(STAMP)  ## benchmarks/ -> benchmarks/results/latest.json, not committed (never part of `make test`)
 	$(BIN)/python -m benchmarks
+
+bench-smoke: $(STAMP)  ## every benchmark section with --quick, checking every field is written (a minute and more; run it after changing benchmarks/)
+	$(BIN)/python -m pytest -m bench_smoke tests/test_benchmarks_smoke.py
 
 soak: $(STAMP)  ## the stack left running an hour (DURATION=3600): memory, open files, health -> benchmarks/results/soak.json
 	$(BIN)/python -m benchmarks.soak --duration $(or $(DURATION),3600)

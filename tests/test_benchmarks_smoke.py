@@ -4,6 +4,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -88,10 +89,12 @@ def _lookup(results: dict, dotted: str):
     return value
 
 
-def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
-    out = tmp_path / "latest.json"
+FLEET_AND_CODEC = tuple(name for name in NUMBERS if name.startswith(("fleet.", "ros2_fleet.", "machine.")))
+
+
+def _quick_bench(out: Path, *only: str) -> tuple[subprocess.CompletedProcess[str], dict]:
     result = subprocess.run(
-        [sys.executable, "-m", "benchmarks", "--quick", "--out", str(out)],
+        [sys.executable, "-m", "benchmarks", "--quick", "--out", str(out), *(("--only", *only) if only else ())],
         cwd=REPO,
         capture_output=True,
         text=True,
@@ -101,17 +104,48 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     results = json.loads(out.read_text())
     assert results["failures"] == []
-    for name in NUMBERS:
+    return result, results
+
+
+def _numbers_written(results: dict, names: tuple[str, ...]) -> None:
+    for name in names:
         value = _lookup(results, name)
         lowest = 0 if name.endswith("late_fraction") else 1e-9
         assert isinstance(value, (int, float)) and value >= lowest, (name, value)
+
+
+def _codec_written(results: dict) -> None:
+    for name in MESSAGE_TYPES:
+        entry = results["codec"][name]
+        assert entry["codec_ns"] > 0 and entry["json_ns"] > 0 and entry["ratio"] == entry["json_ns"] / entry["codec_ns"]
+
+
+def _fleet_written(result: subprocess.CompletedProcess[str], results: dict) -> None:
+    assert results["fleet"]["sizes"] == [2]
+    assert results["fleet"]["composed"]["2"]["sim_share"] is None  # one thread: not separable
+    assert "| robots | mode | steps/s |" in result.stdout
+    assert "| robots | steps/s without → with |" in result.stdout
+
+
+def test_the_quick_fleet_ros2_fleet_and_codec_sections_write_their_fields(tmp_path):
+    """The part of the quick bench ``make test`` runs (about 20 s); the loop's sections, about a
+    minute, are ``make bench-smoke``'s (below)."""
+    result, results = _quick_bench(tmp_path / "latest.json", "fleet", "ros2_fleet", "codec")
+    _numbers_written(results, FLEET_AND_CODEC)
+    _codec_written(results)
+    _fleet_written(result, results)
+
+
+@pytest.mark.bench_smoke
+def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
+    out = tmp_path / "latest.json"
+    result, results = _quick_bench(out)
+    _numbers_written(results, NUMBERS)
     for where in ("inprocess", "separate", "composed"):
         # a difference of two timed runs: a quick run on a busy machine may make it negative
         sensors = results["lockstep"]["sensors"][where]
         assert sensors["cost"] == 1.0 - sensors["steps_per_s"] / sensors["without_steps_per_s"], where
-    for name in MESSAGE_TYPES:
-        entry = results["codec"][name]
-        assert entry["codec_ns"] > 0 and entry["json_ns"] > 0 and entry["ratio"] == entry["json_ns"] / entry["codec_ns"]
+    _codec_written(results)
     assert {"python", "zenoh", "pybullet", "date"} <= set(results["machine"])
     assert set(results["targets"]) == {
         "lockstep.floor_ratio",
@@ -125,10 +159,7 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
         "fleet.workers_speedup.8",
     }
     assert results["realtime"]["rt"]["sched"] == ("SCHED_FIFO 50" if os.geteuid() == 0 else "SCHED_OTHER 0")
-    assert results["fleet"]["sizes"] == [2]
-    assert results["fleet"]["composed"]["2"]["sim_share"] is None  # one thread: not separable
-    assert "| robots | mode | steps/s |" in result.stdout
-    assert "| robots | steps/s without → with |" in result.stdout
+    _fleet_written(result, results)
     assert "| lockstep, separate processes |" in result.stdout and f"wrote {out}" in result.stdout
 
 
