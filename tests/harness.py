@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Self, TypeVar
 
 import msgspec
+import pytest
 import zenoh
 
 from schemas.codec import decode
@@ -213,6 +214,18 @@ def start_up(*args: str) -> subprocess.Popen[str]:
 
 def run_invent(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run(invent_command(*args), cwd=REPO, capture_output=True, text=True, timeout=timeout, check=False)
+
+
+def refused(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str]:
+    """``invent ARGS`` run in this process, for arguments it refuses before anything starts (a
+    process of its own costs a second of imports): its exit status and what it wrote on stderr."""
+    from services.cli.main import main
+
+    try:
+        code = main(list(args))
+    except SystemExit as exit_:
+        code = exit_.code if isinstance(exit_.code, int) else 1
+    return code, capsys.readouterr().err
 
 
 def json_lines(text: str) -> list[Any]:

@@ -16,7 +16,7 @@ from schemas.keys import Keys
 from schemas.messages import GoalFeedback, GoalReply, GoalRequest, GoalTarget, ScenarioOutcome, Time
 from services.exits import ExitStatus
 from tests.goal_standin import StandInDrive
-from tests.harness import InventProcess, peer_session, run_invent, running_router, wait_until
+from tests.harness import InventProcess, peer_session, refused, run_invent, running_router, wait_until
 
 KEYS = Keys("rh0")
 
@@ -141,6 +141,6 @@ def test_a_drive_that_goes_away_while_the_goal_runs_ends_goto_with_1(endpoint):
     ("args", "named"),
     [(("1", "nan"), "argument Y"), (("1", "0", "inf"), "argument THETA"), (("1", "0", "--frame", "base"), "--frame")],
 )
-def test_a_bad_argument_exits_2_naming_it(args, named):
-    result = run_invent("goto", *args)
-    assert result.returncode == ExitStatus.CONFIG and named in result.stderr, result.stderr
+def test_a_bad_argument_exits_2_naming_it(args, named, capsys):
+    code, stderr = refused(capsys, "goto", *args)
+    assert code == ExitStatus.CONFIG and named in stderr, stderr

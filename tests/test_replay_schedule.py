@@ -6,7 +6,7 @@ from schemas.keys import Keys, Service, Topic
 from services.config import ConfigError
 from services.recording.mcap_files import RecordedMessage, replay_schedule
 from services.recording.replay import parse_topics
-from tests.harness import run_invent
+from tests.harness import refused
 
 KEYS = Keys("rh0")
 
@@ -57,10 +57,10 @@ def test_keys_name_data_keys_relative_to_the_robot():
         parse_topics(["motor/status"])
 
 
-def test_bad_flags_exit_2_naming_them(tmp_path):
-    missing = run_invent("replay", str(tmp_path / "nothing.mcap"))
-    assert missing.returncode == 2 and "no such file" in missing.stderr
-    negative = run_invent("replay", str(tmp_path / "nothing.mcap"), "--rate", "-1")
-    assert negative.returncode == 2 and "--rate" in negative.stderr
-    robot = run_invent("replay", str(tmp_path / "nothing.mcap"), "--robot", "a/b")
-    assert robot.returncode == 2 and "--robot" in robot.stderr
+def test_bad_flags_exit_2_naming_them(tmp_path, capsys):
+    code, stderr = refused(capsys, "replay", str(tmp_path / "nothing.mcap"))
+    assert code == 2 and "no such file" in stderr
+    code, stderr = refused(capsys, "replay", str(tmp_path / "nothing.mcap"), "--rate", "-1")
+    assert code == 2 and "--rate" in stderr
+    code, stderr = refused(capsys, "replay", str(tmp_path / "nothing.mcap"), "--robot", "a/b")
+    assert code == 2 and "--robot" in stderr

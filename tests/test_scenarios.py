@@ -25,7 +25,7 @@ from services.drive.scenarios import (
     planned_path_for,
 )
 from services.planar import Pose
-from tests.harness import REPO, run_invent
+from tests.harness import REPO, refused
 
 PARAMS = DriveConfig()
 ORIGIN = Pose(0.0, 0.0, 0.0)
@@ -170,15 +170,15 @@ def test_parse_waypoints() -> None:
             parse_waypoints(bad)
 
 
-def test_bad_scenario_file_exits_2_naming_the_field(tmp_path: Path) -> None:
+def test_bad_scenario_file_exits_2_naming_the_field(tmp_path: Path, capsys) -> None:
     file = tmp_path / "bad.toml"
     file.write_text(
         '[[segments]]\ntype = "waypoints"\nwaypoints = [[1, 0]]\n\n'
         '[[segments]]\ntype = "constant"\nvx = 1\nw = 0\nduration = -2\n'
     )
-    result = run_invent("drive", "--scenario", str(file), *DEAD_ENDPOINT)
-    assert result.returncode == 2, result.stderr
-    assert "segments[1].duration" in result.stderr and str(file) in result.stderr
+    code, stderr = refused(capsys, "drive", "--scenario", str(file), *DEAD_ENDPOINT)
+    assert code == 2, stderr
+    assert "segments[1].duration" in stderr and str(file) in stderr
 
 
 @pytest.mark.parametrize(
@@ -193,10 +193,10 @@ def test_bad_scenario_file_exits_2_naming_the_field(tmp_path: Path) -> None:
         (("--for", "1", "--rate", "0"), "drive.rate"),
     ],
 )
-def test_bad_drive_flags_exit_2_naming_the_flag(flags: tuple[str, ...], names: str) -> None:
-    result = run_invent("drive", *flags, *DEAD_ENDPOINT)
-    assert result.returncode == 2, result.stderr
-    assert names in result.stderr
+def test_bad_drive_flags_exit_2_naming_the_flag(flags: tuple[str, ...], names: str, capsys) -> None:
+    code, stderr = refused(capsys, "drive", *flags, *DEAD_ENDPOINT)
+    assert code == 2, stderr
+    assert names in stderr
 
 
 class TestRunner:

@@ -230,13 +230,24 @@ def _started_pids(process: subprocess.Popen[str], output: list[str]) -> dict[str
 
 def test_a_realtime_run_with_a_stalled_motor_reports_its_degradation_and_strict_exits_1(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
+    # paced at twice the wall clock: the straight's 7.5 simulated seconds in under 4 s
     process = start_up(
-        "--scenario", "straight", "--mode", "realtime", "--strict", "--report", str(tmp_path), "--listen", endpoint
+        "--scenario",
+        "straight",
+        "--mode",
+        "realtime",
+        "--set",
+        "sim.realtime_factor=2",
+        "--strict",
+        "--report",
+        str(tmp_path),
+        "--listen",
+        endpoint,
     )
     output: list[str] = []
     try:
         motor = _started_pids(process, output)["motor"]
-        time.sleep(2.0)  # let the straight get under way, in real time
+        time.sleep(1.0)  # let the straight get under way, in (twice) real time
         os.kill(motor, signal.SIGSTOP)
         time.sleep(0.2)  # the stall itself: 200 ms with no torque
         os.kill(motor, signal.SIGCONT)
