@@ -216,16 +216,17 @@ def run_invent(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess
     return subprocess.run(invent_command(*args), cwd=REPO, capture_output=True, text=True, timeout=timeout, check=False)
 
 
-def refused(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str]:
+def refused(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
     """``invent ARGS`` run in this process, for arguments it refuses before anything starts (a
-    process of its own costs a second of imports): its exit status and what it wrote on stderr."""
+    process of its own costs a second of imports): its exit status, and what it wrote on stdout and stderr."""
     from services.cli.main import main
 
     try:
         code = main(list(args))
     except SystemExit as exit_:
         code = exit_.code if isinstance(exit_.code, int) else 1
-    return code, capsys.readouterr().err
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
 
 
 def json_lines(text: str) -> list[Any]:

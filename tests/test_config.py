@@ -113,7 +113,7 @@ def test_cli_prints_the_resolved_config():
     ],
 )
 def test_cli_exits_2_naming_the_field(args, field, capsys):
-    code, stderr = refused(capsys, "config", *args)
+    code, _out, stderr = refused(capsys, "config", *args)
     assert code == 2
     assert field in stderr
 
@@ -121,11 +121,11 @@ def test_cli_exits_2_naming_the_field(args, field, capsys):
 def test_cli_exits_2_on_an_invalid_file(tmp_path, capsys):
     path = tmp_path / "robot.toml"
     path.write_text('[robot]\nlength_of_axle = "wide"\n')
-    code, stderr = refused(capsys, "config", "--config", str(path))
+    code, _out, stderr = refused(capsys, "config", "--config", str(path))
     assert code == 2
     assert "robot.length_of_axle" in stderr
     path.write_text("[robot\n")
-    code, stderr = refused(capsys, "config", "--config", str(path))
+    code, _out, stderr = refused(capsys, "config", "--config", str(path))
     assert code == 2 and str(path) in stderr
     result = run_invent("config", "--config", str(tmp_path / "missing.toml"))
     assert result.returncode == 2 and "No such file" in result.stderr

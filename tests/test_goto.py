@@ -142,5 +142,5 @@ def test_a_drive_that_goes_away_while_the_goal_runs_ends_goto_with_1(endpoint):
     [(("1", "nan"), "argument Y"), (("1", "0", "inf"), "argument THETA"), (("1", "0", "--frame", "base"), "--frame")],
 )
 def test_a_bad_argument_exits_2_naming_it(args, named, capsys):
-    code, stderr = refused(capsys, "goto", *args)
+    code, _out, stderr = refused(capsys, "goto", *args)
     assert code == ExitStatus.CONFIG and named in stderr, stderr

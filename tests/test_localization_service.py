@@ -15,7 +15,7 @@ from schemas.keys import Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
 from services.localization.core import Localizer, Noise
 from services.planar import Pose, wrap_angle
-from tests.harness import Collector, InventProcess, call, run_invent, wait_alive, wait_until
+from tests.harness import Collector, InventProcess, call, refused, wait_alive, wait_until
 from tests.sim_presence import SimPresence
 
 KEYS = Keys()
@@ -158,7 +158,7 @@ def test_a_restarted_simulator_takes_a_fix_at_once_and_restarts_the_schedule(
     assert code == 0, err
 
 
-def test_a_negative_noise_exits_2_naming_the_field() -> None:
-    result = run_invent("localization", "--noise", "-0.1", "0", "0", "--connect", "tcp/127.0.0.1:1")
-    assert result.returncode == 2
-    assert "localization.noise_x" in result.stderr
+def test_a_negative_noise_exits_2_naming_the_field(capsys) -> None:
+    code, _out, err = refused(capsys, "localization", "--noise", "-0.1", "0", "0", "--connect", "tcp/127.0.0.1:1")
+    assert code == 2
+    assert "localization.noise_x" in err

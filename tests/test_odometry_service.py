@@ -28,6 +28,7 @@ from tests.harness import (
     InventProcess,
     call,
     peer_session,
+    refused,
     run_invent,
     running_router,
     wait_alive,
@@ -377,10 +378,10 @@ def test_trace_writes_one_line_per_accepted_step(link: OdometryLink, trace_path:
         assert line["localization_resets"] == link.status()["counters"]["localization_resets"]
 
 
-def test_bad_config_exits_2_naming_the_field() -> None:
-    result = run_invent("odometry", "--set", "odometry.rho_border=-1")
-    assert result.returncode == 2
-    assert "rho_border" in result.stderr
+def test_bad_config_exits_2_naming_the_field(capsys) -> None:
+    code, _out, err = refused(capsys, "odometry", "--set", "odometry.rho_border=-1")
+    assert code == 2
+    assert "rho_border" in err
 
 
 def test_unwritable_trace_file_exits_2_naming_the_flag(module_endpoint: str, tmp_path: Path) -> None:

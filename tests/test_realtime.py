@@ -180,6 +180,6 @@ def test_a_router_and_a_motor_refused_real_time_say_so_in_one_line_and_serve_wit
     ],
 )
 def test_a_real_time_setting_out_of_range_exits_2_naming_it(command, setting, named, capsys):
-    code, stderr = refused(capsys, *command, "--set", setting)
+    code, _out, stderr = refused(capsys, *command, "--set", setting)
     assert code == 2, stderr
     assert named in stderr

@@ -58,9 +58,9 @@ def test_keys_name_data_keys_relative_to_the_robot():
 
 
 def test_bad_flags_exit_2_naming_them(tmp_path, capsys):
-    code, stderr = refused(capsys, "replay", str(tmp_path / "nothing.mcap"))
+    code, _out, stderr = refused(capsys, "replay", str(tmp_path / "nothing.mcap"))
     assert code == 2 and "no such file" in stderr
-    code, stderr = refused(capsys, "replay", str(tmp_path / "nothing.mcap"), "--rate", "-1")
+    code, _out, stderr = refused(capsys, "replay", str(tmp_path / "nothing.mcap"), "--rate", "-1")
     assert code == 2 and "--rate" in stderr
-    code, stderr = refused(capsys, "replay", str(tmp_path / "nothing.mcap"), "--robot", "a/b")
+    code, _out, stderr = refused(capsys, "replay", str(tmp_path / "nothing.mcap"), "--robot", "a/b")
     assert code == 2 and "--robot" in stderr

@@ -13,7 +13,7 @@ from schemas import BadInput, Keys, Service, Time, TimedDoubleSeq
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
 from services.runtime.session import DEFAULT_ENDPOINT, LOOPBACK_LISTEN, has_match, session_config, stop_on_signals
-from tests.harness import call, free_port, peer_session, run_invent, wait_until
+from tests.harness import call, free_port, peer_session, refused, run_invent, wait_until
 
 
 @pytest.fixture
@@ -196,11 +196,11 @@ def test_a_peer_listens_on_loopback_unless_told(monkeypatch, tmp_path):
     assert "client" not in json.loads(str(session_config(file=str(client_file))))["listen"]["endpoints"]
 
 
-def test_an_unreadable_zenoh_config_exits_2_naming_the_file(tmp_path):
+def test_an_unreadable_zenoh_config_exits_2_naming_the_file(tmp_path, capsys):
     path = tmp_path / "broken.json5"
     path.write_text("{ mode: ")
-    result = run_invent("status", "--zenoh-config", str(path))
-    assert result.returncode == 2 and str(path) in result.stderr, result.stderr
+    code, _out, err = refused(capsys, "status", "--zenoh-config", str(path))
+    assert code == 2 and str(path) in err, err
 
 
 def test_a_session_that_cannot_connect_exits_1_naming_the_endpoint(tmp_path):

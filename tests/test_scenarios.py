@@ -176,7 +176,7 @@ def test_bad_scenario_file_exits_2_naming_the_field(tmp_path: Path, capsys) -> N
         '[[segments]]\ntype = "waypoints"\nwaypoints = [[1, 0]]\n\n'
         '[[segments]]\ntype = "constant"\nvx = 1\nw = 0\nduration = -2\n'
     )
-    code, stderr = refused(capsys, "drive", "--scenario", str(file), *DEAD_ENDPOINT)
+    code, _out, stderr = refused(capsys, "drive", "--scenario", str(file), *DEAD_ENDPOINT)
     assert code == 2, stderr
     assert "segments[1].duration" in stderr and str(file) in stderr
 
@@ -194,7 +194,7 @@ def test_bad_scenario_file_exits_2_naming_the_field(tmp_path: Path, capsys) -> N
     ],
 )
 def test_bad_drive_flags_exit_2_naming_the_flag(flags: tuple[str, ...], names: str, capsys) -> None:
-    code, stderr = refused(capsys, "drive", *flags, *DEAD_ENDPOINT)
+    code, _out, stderr = refused(capsys, "drive", *flags, *DEAD_ENDPOINT)
     assert code == 2, stderr
     assert names in stderr
 

@@ -21,7 +21,7 @@ from services.clock.lockstep import StepMark, decode_mark, observed
 from services.config import SimConfig
 from services.runtime.inputs import contents
 from sim_bridge.display import DISPLAY_VARIABLE
-from tests.harness import Collector, InventProcess, call, wait_alive, wait_until
+from tests.harness import Collector, InventProcess, call, refused, wait_alive, wait_until
 
 KEYS = Keys()
 STEP_NS = 1_000_000
@@ -359,10 +359,9 @@ def test_gui_without_a_display_exits_2_naming_the_problem(endpoint):
     assert "--gui needs a display" in err
 
 
-def test_a_bad_world_file_exits_2_naming_the_field(endpoint, tmp_path: Path):
+def test_a_bad_world_file_exits_2_naming_the_field(endpoint, tmp_path: Path, capsys):
     world = tmp_path / "bad.toml"
     world.write_text('[[boxes]]\nname = "b"\nx = "far"\ny = 0\nsize = [1, 1, 1]\n')
-    sim = InventProcess("sim", "--connect", endpoint, "--world", str(world))
-    _out, err = sim.process.communicate(timeout=30)
-    assert sim.process.returncode == 2
+    code, _out, err = refused(capsys, "sim", "--connect", endpoint, "--world", str(world))
+    assert code == 2
     assert "boxes[0].x" in err

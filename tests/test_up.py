@@ -19,7 +19,7 @@ from services.drive.scenarios import BUILTIN_SCENARIOS, planned_duration
 from services.planar import Pose
 from services.recording.mcap_files import read_messages
 from services.recording.scene import SCAN_TOPIC
-from tests.harness import REPO, free_port, invent_command, pid_alive, run_invent, start_up, wait_until
+from tests.harness import REPO, free_port, invent_command, pid_alive, refused, run_invent, start_up, wait_until
 
 pytestmark = pytest.mark.slow
 
@@ -297,19 +297,16 @@ def test_gui_without_a_display_exits_2_before_anything_starts():
         (("--fleet", "examples/fleets/two_squares.toml", "--goal-file", "g.toml"), "--fleet with --goal-file"),
     ],
 )
-def test_a_scenario_or_world_a_service_would_refuse_exits_2_before_anything_starts(tmp_path, flags, message):
-    environment = {**os.environ, "ROS_DOMAIN_ID": "999"}
-    result = subprocess.run(
-        invent_command("up", *flags),
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-        env=environment,
-    )
-    assert result.returncode == 2 and message in result.stderr, result.stderr
-    assert "started" not in result.stdout
+def test_a_scenario_or_world_a_service_would_refuse_exits_2_before_anything_starts(
+    tmp_path, monkeypatch, capsys, flags, message
+):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("ROS_DOMAIN_ID", "999")
+    if flags[0] == "--fleet":
+        flags = ("--fleet", str(REPO / flags[1]), *flags[2:])
+    code, out, err = refused(capsys, "up", *flags)
+    assert code == 2 and message in err, err
+    assert "started" not in out
     assert list(tmp_path.iterdir()) == [], "nothing left behind"
 
 
