@@ -14,6 +14,7 @@ ended meanwhile unseen. A drive whose liveliness token goes while the goal runs 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import queue
 import sys
 import threading
@@ -51,6 +52,8 @@ GONE_GRACE_S = 0.5
 """Wall seconds the tool still takes samples once the drive's token is gone (its last ones may come after)."""
 GOALS = GoalsConfig()
 """The ``[goals]`` defaults, for the help (the drive applies its own description's)."""
+ARRIVED_MAX = 1024
+"""Samples the callbacks may queue ahead of the printing thread (feedback comes at 5 Hz)."""
 _GONE = "gone"
 """What the liveliness subscriber queues when the drive's token is withdrawn."""
 
@@ -139,17 +142,22 @@ class Goto:
         self.keys = keys
         self.wait_s = wait_s
         self.stop = stop
-        self.arrived: queue.Queue[tuple[str, bytes]] = queue.Queue()
+        self.arrived: queue.Queue[tuple[str, bytes]] = queue.Queue(ARRIVED_MAX)
         self._taken = {keys.drive_goal, keys.drive_goal_feedback, keys.drive_outcome}
 
     def _queue(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         if key in self._taken:  # not the drive's other keys (its 50 Hz targets)
-            self.arrived.put((key, sample.payload.to_bytes()))
+            self._put((key, sample.payload.to_bytes()))
 
     def _liveliness(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.DELETE:
-            self.arrived.put((_GONE, b""))
+            self._put((_GONE, b""))
+
+    def _put(self, item: tuple[str, bytes]) -> None:
+        # Bounded: a flood is dropped; the goal's outcome is then still found on the latched key.
+        with contextlib.suppress(queue.Full):
+            self.arrived.put_nowait(item)
 
     def run(self, request: GoalRequest) -> int:
         keys = self.keys
