@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from schemas.messages import CancelRequest, GoalRequest
 from services.config import ConfigError, DriveConfig, GoalsConfig, InputConfig
 from services.drive.goal_file import GoalSchedule, parse_goal_file
-from services.drive.goals import MAX_ATTEMPTS, Goals, Phase, Tick, goal_duration, odom_to_map
+from services.drive.goals import MAX_ATTEMPTS, MAX_WAITING, Goals, Phase, Tick, goal_duration, odom_to_map
 from services.drive.outcome import Outcome
 from services.drive.path_following import STOPPED
 from services.planar import Pose, wrap_angle
@@ -199,6 +199,18 @@ def test_a_bad_goal_is_rejected_with_its_reason_and_the_running_goal_goes_on(req
     assert (goals.running, goals.command) == before
     tick = plant.tick()
     assert not tick.ended and tick.started is None
+
+
+def test_a_flood_of_goals_between_two_ticks_is_bounded_and_the_last_accepted_one_starts() -> None:
+    goals = make_goals()
+    replies = [goals.send(GoalRequest(x=1.0, y=float(k) / 100), ORIGIN, None) for k in range(MAX_WAITING + 5)]
+    accepted = [reply.id for reply in replies if reply.accepted]
+    assert len(accepted) == MAX_WAITING + 1, "one to start, the ones it replaced waiting to end canceled"
+    assert all("wait for the drive's next tick" in reply.reason for reply in replies if not reply.accepted)
+    tick = goals.step(0, ORIGIN, 0.0)
+    assert [e.goal.id for e in tick.ended] == accepted[:-1] and {e.outcome for e in tick.ended} == {Outcome.CANCELED}
+    assert tick.started is not None and tick.started.goal.id == accepted[-1]
+    assert goals.send(GoalRequest(x=1.0, y=0.0), ORIGIN, None).accepted, "room again once the tick came"
 
 
 def test_a_goal_is_rejected_while_the_motor_is_latched_stopped_or_no_pose_is_known() -> None:

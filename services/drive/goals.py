@@ -34,6 +34,9 @@ STILL_M = 0.001
 STILL_RAD = 0.002
 """How far the pose may move between two ticks and still count as still (a wheel the motor is
 still braking turns the body on after the command is zero)."""
+MAX_WAITING = 16
+"""Goals accepted and replaced before the next tick (each to end ``canceled`` at that tick) that may
+wait at once; more are rejected (a flood of goals, or a drive whose clock has stopped)."""
 REMEMBERED_RESULTS = 16
 """Ended goals whose outcome a cancel of their id is told (the oldest forgotten first)."""
 
@@ -213,6 +216,8 @@ class Goals:
         limit = self.bounds.max_coordinate
         if abs(x) > limit or abs(y) > limit:
             return f"the goal ({x:.6g}, {y:.6g}) in map is beyond input.max_coordinate = {limit:g} m"
+        if len(self._preempted) >= MAX_WAITING:
+            return f"{MAX_WAITING} goals already wait for the drive's next tick (is the simulation clock running?)"
         if request.id and (request.id in self._live_ids()):
             return f"goal {request.id!r} is still running: give a new goal a new id"
         if motor_stopped_by is not None:
