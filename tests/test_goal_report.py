@@ -1,5 +1,5 @@
 """What a goal-mode run's recording and report say of its goals (docs/recording.md, report.json's
-``goals``): :func:`services.recording.report.goal_results` from sequences of GoalTarget,
+``goals``): :func:`services.recording.goal_report.goal_results` from sequences of GoalTarget,
 GoalFeedback and ScenarioOutcome and the ground truth, the summary's lines, and ``run.mcap`` made of
 a goal-mode run's journals as ``invent up`` makes it, read back into ``report.json`` as ``invent
 report run.mcap`` does (no zenoh: the journals are written here)."""
@@ -19,9 +19,10 @@ from schemas.keys import Keys, Service
 from schemas.messages import RunSummary, Time
 from services.config import RecordConfig, load_config
 from services.planar import Pose
+from services.recording.goal_report import goal_lines, goal_results
 from services.recording.mcap_files import read_messages, write_run_report
 from services.recording.record import write_run_recording
-from services.recording.report import goal_lines, goal_results, loop_health, summary
+from services.recording.report import loop_health, summary
 from services.recording.scene import SCENE_TOPIC
 from services.runtime.journal import Journal, journal_path
 from tests.test_goal_scene import S, body_pose, feedback, outcome, target

@@ -12,9 +12,10 @@ from hypothesis import strategies as st
 from schemas.messages import CancelRequest, GoalRequest
 from services.config import ConfigError, DriveConfig, GoalsConfig, InputConfig
 from services.drive.goal_file import GoalSchedule, parse_goal_file
-from services.drive.goals import MAX_ATTEMPTS, MAX_WAITING, Goals, Phase, Tick, goal_duration, odom_to_map
+from services.drive.goals import MAX_ATTEMPTS, MAX_WAITING, Goals, Phase, Tick, odom_to_map
 from services.drive.outcome import Outcome
 from services.drive.path_following import STOPPED
+from services.drive.scenarios import goal_duration
 from services.planar import Pose, wrap_angle
 from tests.test_path_following import unicycle
 

@@ -19,7 +19,18 @@ from services.drive.scenarios import BUILTIN_SCENARIOS, planned_duration
 from services.planar import Pose
 from services.recording.mcap_files import read_messages
 from services.recording.scene import SCAN_TOPIC
-from tests.harness import REPO, free_port, invent_command, pid_alive, refused, run_invent, start_up, wait_until
+from tests.harness import (
+    REPO,
+    call,
+    free_port,
+    invent_command,
+    peer_session,
+    pid_alive,
+    refused,
+    run_invent,
+    start_up,
+    wait_until,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -247,7 +258,8 @@ def test_a_realtime_run_with_a_stalled_motor_reports_its_degradation_and_strict_
     output: list[str] = []
     try:
         motor = _started_pids(process, output)["motor"]
-        time.sleep(1.0)  # let the straight get under way, in (twice) real time
+        with peer_session(endpoint) as session:  # the straight under way
+            wait_until(lambda: call(session, KEYS.status(Service.SIM))[1]["sim_time_s"] > 2.0, 60, "2 s simulated")
         os.kill(motor, signal.SIGSTOP)
         time.sleep(0.2)  # the stall itself: 200 ms with no torque
         os.kill(motor, signal.SIGCONT)

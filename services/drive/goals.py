@@ -21,6 +21,7 @@ from schemas.messages import NANOSECONDS_PER_SECOND, CancelReply, CancelRequest,
 from services.config import DriveConfig, GoalsConfig, InputConfig
 from services.drive.outcome import Outcome
 from services.drive.path_following import STOPPED, Command, PathFollower, limit_rate
+from services.drive.scenarios import goal_duration
 from services.planar import Pose, wrap_angle
 
 GOAL_FRAMES = ("map", "odom")
@@ -128,25 +129,6 @@ def odom_to_map(origin: Pose, x: float, y: float, theta: float | None) -> tuple[
         origin.y + sin * x + cos * y,
         None if theta is None else wrap_angle(origin.theta + theta),
     )
-
-
-def goal_duration(pose: Pose, x: float, y: float, theta: float | None, params: DriveConfig) -> float:
-    """Simulated seconds the drive's plan needs from ``pose`` to the goal: a turn in place toward
-    it when it lies more than ``turn_in_place_angle`` off the heading, the leg at ``cruise_speed``
-    (plus speeding up and braking), and the final turn to ``theta``. An estimate, as
-    services/drive/scenarios.py's ``planned_duration`` is for a scenario."""
-    distance = math.hypot(x - pose.x, y - pose.y)
-    heading = pose.theta
-    total = 0.0
-    if distance > params.goal_tolerance:
-        heading = math.atan2(y - pose.y, x - pose.x)
-        turn = abs(wrap_angle(heading - pose.theta))
-        if turn > params.turn_in_place_angle:
-            total += turn / params.max_turn_rate
-        total += distance / params.cruise_speed + params.cruise_speed / params.max_acceleration
-    if theta is not None:
-        total += abs(wrap_angle(theta - heading)) / params.max_turn_rate
-    return total
 
 
 class Goals:

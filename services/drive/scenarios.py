@@ -345,6 +345,17 @@ def planned_duration(scenario: Scenario, start: Pose, params: DriveConfig) -> fl
     return total
 
 
+def goal_duration(pose: Pose, x: float, y: float, theta: float | None, params: DriveConfig) -> float:
+    """Simulated seconds the drive's plan needs from ``pose`` to a goal (services/drive/goals.py):
+    :func:`planned_duration` of the one leg to (``x``, ``y``), then the turn in place to ``theta``."""
+    leg = Scenario(segments=[WaypointSegment(waypoints=[(x, y)])])
+    heading = pose.theta
+    if math.hypot(x - pose.x, y - pose.y) > params.goal_tolerance:
+        heading = math.atan2(y - pose.y, x - pose.x)
+    turn = 0.0 if theta is None else abs(wrap_angle(theta - heading)) / params.max_turn_rate
+    return planned_duration(leg, pose, params) + turn
+
+
 def _arc_samples(segment: ConstantSegment) -> list[float]:
     """The times into ``segment`` at which its path is sampled: a straight line needs its end
     only; an arc every :data:`PATH_SAMPLE_S` over one turn at most (beyond, it retraces the

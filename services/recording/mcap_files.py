@@ -51,11 +51,11 @@ from schemas.messages import (
 from services.config import Config, ConfigError, InputConfig, RobotConfig
 from services.drive.scenarios import planned_path_for
 from services.planar import Pose, check_coordinates
+from services.recording.goal_report import goal_results
 from services.recording.report import (
     Point,
     Recording,
     build_report,
-    goal_results,
     pose_from_body_pose,
     write_plots,
     write_report,

@@ -37,7 +37,7 @@ import uuid as uuid_module
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import zenoh
 
@@ -57,6 +57,8 @@ from services.ros2.graph import ActionService, ActionTopic
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
 from services.runtime.session import has_match
+
+ReplyT = TypeVar("ReplyT", GoalReply, CancelReply)
 
 if TYPE_CHECKING:
     from services.clock.sim_time import StampClock
@@ -122,28 +124,6 @@ class PendingSend:
     """The key it came on (the send_goal service's or goal_pose's)."""
 
 
-@dataclass
-class Counters:
-    sent: int = 0
-    accepted: int = 0
-    rejected: int = 0
-    succeeded: int = 0
-    canceled: int = 0
-    aborted: int = 0
-    cancel_requests: int = 0
-    result_requests: int = 0
-    last_rejection: str = ""
-    """Why the last goal was refused (SendGoal's response cannot say)."""
-
-    def ended(self, status: navigate.GoalStatus) -> None:
-        if status is navigate.GoalStatus.SUCCEEDED:
-            self.succeeded += 1
-        elif status is navigate.GoalStatus.CANCELED:
-            self.canceled += 1
-        else:
-            self.aborted += 1
-
-
 class NavigateServer:
     """One bridge's ``navigate_to_pose`` action server and ``goal_pose`` subscription."""
 
@@ -164,7 +144,7 @@ class NavigateServer:
         self.frames = navigate.GoalFrames(settings.map_frame, outputs.prefix + settings.odom_frame)
         self.action = wire.full_name(bridge.namespace, graph.NAVIGATE_TO_POSE)
         self.book = navigate.GoalBook()
-        self.counters = Counters()
+        self.counters = navigate.Counters()
         self._pending: dict[int, PendingSend] = {}
         self._call_ids = itertools.count(1)
         self._waiting_results: dict[bytes, list[Caller]] = {}
@@ -442,20 +422,18 @@ class NavigateServer:
 def _goal_reply(reply: zenoh.Reply) -> GoalReply:
     """zenoh's thread: the drive's reply to a goal (a refusal naming why, for an error reply or
     one that does not decode)."""
-    if reply.ok is None:
-        text = reply.err.payload.to_bytes().decode(errors="replace") if reply.err is not None else ""
-        return GoalReply(False, "", f"the drive answered an error: {text}")
-    try:
-        return decode(GoalReply, reply.ok.payload.to_bytes())
-    except BadInput as error:
-        return GoalReply(False, "", f"the drive's reply does not decode: {error}")
+    return _drive_reply(reply, GoalReply, lambda why: GoalReply(False, "", why))
 
 
 def _cancel_reply(reply: zenoh.Reply) -> CancelReply:
+    return _drive_reply(reply, CancelReply, lambda why: CancelReply([], why))
+
+
+def _drive_reply(reply: zenoh.Reply, reply_type: type[ReplyT], refused: Callable[[str], ReplyT]) -> ReplyT:
     if reply.ok is None:
         text = reply.err.payload.to_bytes().decode(errors="replace") if reply.err is not None else ""
-        return CancelReply([], f"the drive answered an error: {text}")
+        return refused(f"the drive answered an error: {text}")
     try:
-        return decode(CancelReply, reply.ok.payload.to_bytes())
+        return decode(reply_type, reply.ok.payload.to_bytes())
     except BadInput as error:
-        return CancelReply([], f"the drive's reply does not decode: {error}")
+        return refused(f"the drive's reply does not decode: {error}")

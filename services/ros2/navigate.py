@@ -352,3 +352,27 @@ def cancel_response(code: CancelCode, goals: list[Goal]) -> Any:
     return interfaces.message_class(interfaces.CANCEL_GOAL_RESPONSE)(
         return_code=int(code), goals_canceling=[goal_info(goal.uuid, goal.stamp_ns or 0) for goal in goals]
     )
+
+
+@dataclass
+class Counters:
+    """The action server's counts, for its status."""
+
+    sent: int = 0
+    accepted: int = 0
+    rejected: int = 0
+    succeeded: int = 0
+    canceled: int = 0
+    aborted: int = 0
+    cancel_requests: int = 0
+    result_requests: int = 0
+    last_rejection: str = ""
+    """Why the last goal was refused (SendGoal's response cannot say)."""
+
+    def ended(self, status: GoalStatus) -> None:
+        if status is GoalStatus.SUCCEEDED:
+            self.succeeded += 1
+        elif status is GoalStatus.CANCELED:
+            self.canceled += 1
+        else:
+            self.aborted += 1
