@@ -34,9 +34,13 @@ def encode(message: msgspec.Struct) -> bytes:
 
 
 def decode(message_type: type[MessageT], payload: bytes) -> MessageT:
-    """Decode ``payload`` as ``message_type``; raise BadMessage with msgspec's reason."""
+    """Decode ``payload`` as ``message_type`` (one of the project's, or a user service's own
+    msgspec Struct: its decoder made once); raise BadMessage with msgspec's reason."""
+    decoder = _decoders.get(message_type)
+    if decoder is None:
+        decoder = _decoders[message_type] = msgspec.json.Decoder(message_type)
     try:
-        return _decoders[message_type].decode(payload)
+        return decoder.decode(payload)
     except msgspec.ValidationError as error:
         raise BadMessage(str(error)) from None
     except msgspec.DecodeError as error:

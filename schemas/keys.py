@@ -10,6 +10,7 @@ import math
 import re
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import NewType, TypeAlias
 
 import msgspec
 
@@ -52,6 +53,17 @@ class Service(StrEnum):
 
 LOOP_SERVICES = tuple(service for service in Service if service is not Service.ROS2)
 """The services of the closed loop that ``invent up`` always runs (every one but the ROS 2 bridge)."""
+
+UserServiceName = NewType("UserServiceName", str)
+"""The name of a service of one's own (services/extension/, docs/extending.md): one key chunk,
+never a built-in's; made only by :func:`user_service_name`, which checks it."""
+ServiceName: TypeAlias = Service | UserServiceName
+"""Whose keys: a built-in service, or a user service (``invent/<robot>/<name>/...``)."""
+_USER_SERVICE_NAME = re.compile(r"[a-z][a-z0-9_]{0,31}")
+RESERVED_NAMES = frozenset({"up", "view", "router", "all", "ros", "invent", "operator", "observer", "ros_node"})
+"""Chunks a user service may not take beside the built-ins': ``up/run``, ``view/status``, the
+secure profile's other users (a user service's credentials are ``<name>.json5`` beside theirs),
+and names the command line or the tools use for themselves."""
 
 
 class Topic(StrEnum):
@@ -172,6 +184,24 @@ _TICKS = "ticks"
 _OBSERVES = "observes"
 
 
+def user_service_name(name: str) -> UserServiceName:
+    """``name`` as a user service's name: lower case letters, digits and ``_``, starting with a
+    letter, at most 32 characters, neither a built-in service's name nor reserved
+    (:data:`RESERVED_NAMES`); ValueError saying which rule it breaks."""
+    if not _USER_SERVICE_NAME.fullmatch(name):
+        raise ValueError(f"service name {name!r} must match {_USER_SERVICE_NAME.pattern} (one key chunk)")
+    if name in Service._value2member_map_:
+        raise ValueError(f"service name {name!r} is a built-in service's")
+    if name in RESERVED_NAMES:
+        raise ValueError(f"service name {name!r} is reserved ({', '.join(sorted(RESERVED_NAMES))})")
+    return UserServiceName(name)
+
+
+def service_name(name: str) -> ServiceName:
+    """A built-in :class:`Service` for its name, else ``name`` as a user service's (ValueError if not one)."""
+    return Service(name) if name in Service._value2member_map_ else user_service_name(name)
+
+
 def validate_robot_name(name: str) -> str:
     """Return ``name`` if it is one key chunk (no ``/``, wildcards or spaces), else raise ValueError."""
     if not _ROBOT_NAME.fullmatch(name):
@@ -206,7 +236,7 @@ class Keys:
         """``invent/<robot>/drive/goal/send`` or ``.../cancel``: the drive's goal queryables."""
         return f"{self.prefix}/{Topic.DRIVE_GOAL}/{method}"
 
-    def status(self, service: Service) -> str:
+    def status(self, service: ServiceName) -> str:
         return f"{self.prefix}/{service}/{_STATUS}"
 
     @property
@@ -214,7 +244,7 @@ class Keys:
         """The status of ``invent view`` (a tool, not a service of the loop)."""
         return f"{self.prefix}/{VIEW}/{_STATUS}"
 
-    def under(self, service: Service) -> str:
+    def under(self, service: ServiceName) -> str:
         """Key expression matching every key under ``service``'s name (``invent/<robot>/drive/**``):
         one subscriber for several of its keys gets their samples in the order they were published
         (zenoh runs the callbacks of two subscribers in no set order)."""
@@ -230,32 +260,45 @@ class Keys:
         """Key expression matching the liveliness token of every service of this robot."""
         return f"{self.prefix}/*/{_ALIVE}"
 
-    def alive(self, service: Service) -> str:
+    def alive(self, service: ServiceName) -> str:
         """The liveliness token a running service holds."""
         return f"{self.prefix}/{service}/{_ALIVE}"
 
-    def ticks(self, service: Service, rate_hz: float) -> str:
+    def ticks(self, service: ServiceName, rate_hz: float) -> str:
         """The liveliness token of a lockstep participant: ``service`` outputs on a grid of
         ``rate_hz`` ticks per second of simulation time (services/clock/lockstep.py)."""
         return f"{self.prefix}/{service}/{_TICKS}/{rate_hz!r}"
 
-    def ticks_at_any_rate(self, service: Service) -> str:
-        """Key expression matching ``service``'s lockstep participant token, whatever its rate."""
-        return f"{self.prefix}/{service}/{_TICKS}/*"
+    def ticks_with_output(self, service: UserServiceName, rate_hz: float, output: str) -> str:
+        """A user service's participant token: :meth:`ticks` followed by its output's key under its
+        own name (``invent/rh0/odometer/ticks/10.0/distance`` waits for ``odometer/distance``), so the
+        simulator learns what to wait for from the token itself (:func:`parse_participant_key`)."""
+        return f"{self.ticks(service, rate_hz)}/{validate_own_key(output)}"
+
+    def own(self, service: ServiceName, suffix: str) -> str:
+        """A key under ``service``'s own name: ``own("odometer", "distance")`` ==
+        ``invent/<robot>/odometer/distance`` (ValueError for a suffix that cannot be one: :func:`validate_own_key`)."""
+        return f"{self.prefix}/{service}/{validate_own_key(suffix)}"
+
+    def ticks_at_any_rate(self, service: ServiceName) -> str:
+        """Key expression matching ``service``'s lockstep participant token, whatever its rate (and,
+        a user service's, its output)."""
+        return f"{self.prefix}/{service}/{_TICKS}/{'*' if isinstance(service, Service) else '**'}"
 
     @property
     def every_ticks(self) -> str:
-        """Key expression matching every lockstep participant's token of this robot."""
-        return f"{self.prefix}/*/{_TICKS}/*"
+        """Key expression matching every lockstep participant's token of this robot (a user
+        participant's names its output after its rate: ``**``)."""
+        return f"{self.prefix}/*/{_TICKS}/**"
 
-    def observes(self, service: Service, rate_hz: float) -> str:
+    def observes(self, service: ServiceName, rate_hz: float) -> str:
         """The liveliness token of an observer: ``service`` takes what the loop observes (the
         simulation clock, poses) ``rate_hz`` times per second of simulation time, on the same grid
         as a participant's ticks, so the simulator marks those steps observed (docs/protocol.md
         section 2.7) without waiting for anything."""
         return f"{self.prefix}/{service}/{_OBSERVES}/{rate_hz!r}"
 
-    def observes_at_any_rate(self, service: Service) -> str:
+    def observes_at_any_rate(self, service: ServiceName) -> str:
         """Key expression matching ``service``'s observer tokens, whatever their rates."""
         return f"{self.prefix}/{service}/{_OBSERVES}/*"
 
@@ -297,35 +340,106 @@ def all_robots_status() -> str:
     return f"{ROOT}/*/*/{_STATUS}"
 
 
-def parse_alive_key(key: str) -> tuple[str, Service] | None:
-    """``invent/rh0/motor/alive`` -> ``("rh0", Service.MOTOR)``; None for any other key."""
-    parts = key.split("/")
-    if len(parts) != 4 or parts[0] != ROOT or parts[3] != _ALIVE or parts[2] not in Service._value2member_map_:
+def _service_chunk(chunk: str) -> ServiceName | None:
+    """The service a key's chunk names: a built-in, a valid user service name, or None."""
+    try:
+        return service_name(chunk)
+    except ValueError:
         return None
-    return parts[1], Service(parts[2])
 
 
-def parse_ticks_key(key: str) -> tuple[Service, float] | None:
-    """``invent/rh0/drive/ticks/50.0`` -> ``(Service.DRIVE, 50.0)``; None for any other key."""
+def parse_alive_key(key: str) -> tuple[str, ServiceName] | None:
+    """``invent/rh0/motor/alive`` -> ``("rh0", Service.MOTOR)`` (a user service's name as it is);
+    None for any other key."""
+    parts = key.split("/")
+    if len(parts) != 4 or parts[0] != ROOT or parts[3] != _ALIVE:
+        return None
+    service = _service_chunk(parts[2])
+    return None if service is None else (parts[1], service)
+
+
+def parse_ticks_key(key: str) -> tuple[ServiceName, float] | None:
+    """``invent/rh0/drive/ticks/50.0`` -> ``(Service.DRIVE, 50.0)``; None for any other key (a user
+    participant's token, which names its output, is :func:`parse_participant_key`'s)."""
     return _parse_rate_key(key, _TICKS)
 
 
-def parse_observes_key(key: str) -> tuple[Service, float] | None:
+def parse_observes_key(key: str) -> tuple[ServiceName, float] | None:
     """``invent/rh0/ros2/observes/50.0`` -> ``(Service.ROS2, 50.0)``; None for any other key."""
     return _parse_rate_key(key, _OBSERVES)
 
 
-def _parse_rate_key(key: str, kind: str) -> tuple[Service, float] | None:
+@dataclass(frozen=True)
+class Participant:
+    """A lockstep participant as its ticks token names it: who, at what rate, and the key (relative
+    to the robot) of the output the simulator waits for at each of its ticks."""
+
+    service: ServiceName
+    rate_hz: float
+    output: str
+
+
+def parse_participant_key(key: str, builtin_outputs: dict[Service, Topic]) -> Participant | None:
+    """A participant's ticks token: a built-in's (``invent/rh0/drive/ticks/50.0``, its output from
+    ``builtin_outputs``) or a user service's (``invent/rh0/odometer/ticks/10.0/distance``: its
+    output ``odometer/distance``); None for any other key."""
     parts = key.split("/")
-    if len(parts) != 5 or parts[0] != ROOT or parts[3] != kind or parts[2] not in Service._value2member_map_:
+    if len(parts) < 5 or parts[0] != ROOT or parts[3] != _TICKS:
         return None
+    service = _service_chunk(parts[2])
+    rate_hz = _rate(parts[4])
+    if service is None or rate_hz is None:
+        return None
+    if isinstance(service, Service):
+        output = builtin_outputs.get(service)
+        return None if output is None or len(parts) != 5 else Participant(service, rate_hz, str(output))
+    suffix = "/".join(parts[5:])
+    if not suffix or _own_suffix_error(suffix) is not None:
+        return None
+    return Participant(service, rate_hz, f"{service}/{suffix}")
+
+
+def _rate(text: str) -> float | None:
     try:
-        rate_hz = float(parts[4])
+        rate_hz = float(text)
     except ValueError:
         return None
-    if not (math.isfinite(rate_hz) and rate_hz > 0.0):
+    return rate_hz if math.isfinite(rate_hz) and rate_hz > 0.0 else None
+
+
+def _parse_rate_key(key: str, kind: str) -> tuple[ServiceName, float] | None:
+    parts = key.split("/")
+    if len(parts) != 5 or parts[0] != ROOT or parts[3] != kind:
         return None
-    return Service(parts[2]), rate_hz
+    service = _service_chunk(parts[2])
+    rate_hz = _rate(parts[4])
+    if service is None or rate_hz is None:
+        return None
+    return service, rate_hz
+
+
+_OWN_CHUNK = re.compile(r"[A-Za-z0-9_\-.]+")
+_SERVICE_CHUNKS = frozenset({_STATUS, _ALIVE, _TICKS, _OBSERVES})
+
+
+def _own_suffix_error(suffix: str) -> str | None:
+    """Why ``suffix`` cannot be a key under a service's name, or None when it can."""
+    chunks = suffix.split("/")
+    for chunk in chunks:
+        if not _OWN_CHUNK.fullmatch(chunk):
+            return f"key {suffix!r}: each chunk must match {_OWN_CHUNK.pattern} (no wildcards, no empty chunk)"
+    if chunks[0] in _SERVICE_CHUNKS:
+        return f"key {suffix!r}: {chunks[0]!r} is the runtime's own (status, alive, ticks, observes)"
+    return None
+
+
+def validate_own_key(suffix: str) -> str:
+    """``suffix`` (``distance``, ``progress/leg``) if it may name a key under a service's own name,
+    else ValueError saying why."""
+    error = _own_suffix_error(suffix)
+    if error is not None:
+        raise ValueError(error)
+    return suffix
 
 
 def parse_data_key(key: str) -> tuple[str, Topic] | None:

@@ -21,7 +21,7 @@ from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
 import msgspec
 import zenoh
 
-from schemas.keys import Keys, Service
+from schemas.keys import Keys, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import Config, ConfigError, RecordConfig
 from services.runtime.executor import Executor
@@ -91,7 +91,8 @@ class ServiceCommand(Generic[OptionsT]):
     """A service as whatever runs it sees it: what it is, and how it is built from the robot
     description and its own options (a frozen dataclass beside its factory)."""
 
-    service: Service
+    service: ServiceName
+    """A built-in's, or a user service's name (services/extension/)."""
     factory: Callable[[Node, Config, OptionsT], RunningService]
     timestamped: bool = False
     """Its session stamps what it publishes (zenoh's ``timestamping``): a zenoh-ext advanced
@@ -148,7 +149,7 @@ def start_service(
         raise
 
 
-def _journal(journaling: Journaling, service: Service, record: RecordConfig) -> Journal | None:
+def _journal(journaling: Journaling, service: ServiceName, record: RecordConfig) -> Journal | None:
     directory = journaling.directory
     if directory is None:
         return None

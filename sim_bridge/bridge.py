@@ -46,7 +46,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from schemas.keys import Keys, Service
+from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND, SimWorld, Time
 from services.config import Config, ImuConfig, LidarConfig, SimMode
 from services.fleet.description import Fleet
@@ -72,7 +72,7 @@ class SimOptions:
     """Simulate this many seconds, then exit 0 (None: until stopped)."""
     until_drive_ends: bool = False
     """Hold at the drive's last target, answering status, until stopped (``invent up``'s)."""
-    wait_for: tuple[Service, ...] = ()
+    wait_for: tuple[ServiceName, ...] = ()
     """The services to wait for before the first step."""
     gui: bool = False
     fleet: Fleet | None = None
@@ -92,7 +92,7 @@ class SimService:
         self.parameters = config.sim
         self.mode = config.sim.mode
         self.duration: float | None = options.duration
-        self.wait_for: list[Service] = list(options.wait_for)
+        self.wait_for: list[ServiceName] = list(options.wait_for)
         self.finished = False
         self.exit_code = 0
         self.progress = RunProgress()

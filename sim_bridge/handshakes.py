@@ -12,7 +12,7 @@ from typing import Any
 import msgspec
 import zenoh
 
-from schemas.keys import Service
+from schemas.keys import Service, ServiceName
 from services.runtime.executor import STOP_POLL_S
 from services.runtime.node import Node
 from sim_bridge.link import RobotLink
@@ -29,7 +29,9 @@ def await_motor_subscriptions(node: Node, links: Sequence[RobotLink], timeout_s:
         node.spin_once(STOP_POLL_S / 10.0)
 
 
-def await_services(node: Node, links: Sequence[RobotLink], wait_for: Sequence[Service], stop: threading.Event) -> None:
+def await_services(
+    node: Node, links: Sequence[RobotLink], wait_for: Sequence[ServiceName], stop: threading.Event
+) -> None:
     """``--wait-for``: before the first step, until each named service of every robot is alive
     (a lockstep participant: holds its ticks token), so that the run starts the same way every time."""
     if not wait_for:
@@ -65,7 +67,7 @@ def await_participants(node: Node, links: Sequence[RobotLink]) -> None:
         for index, link in enumerate(links)
         for service in (*link.barrier.waited_for(), *((Service.MOTOR,) if link.torque.motor_alive else ()))
     }
-    asked: dict[tuple[int, Service], Any] = {}
+    asked: dict[tuple[int, ServiceName], Any] = {}
     while waiting and time.monotonic() < deadline:
         for index, service in waiting - set(asked):
             asked[index, service] = node.session.get(links[index].node.keys.status(service), timeout=STOP_POLL_S)

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from schemas.codec import encode
-from schemas.keys import Method, MethodFamily, Service
+from schemas.keys import Method, MethodFamily, Service, ServiceName
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
     BumpEvent,
@@ -25,7 +25,7 @@ from schemas.messages import (
     TimedPosition,
     TimedVelocity,
 )
-from services.clock.lockstep import OUTPUTS, TickBarrier, encode_mark
+from services.clock.lockstep import OUTPUTS, StampedOutput, TickBarrier, encode_mark
 from services.clock.observation import ObservedSteps
 from services.config import SimConfig, SimMode
 from services.runtime.inputs import Delivery, NodeInput
@@ -123,7 +123,7 @@ class RobotLink:
         """The part of the status that is the world's (:meth:`~sim_bridge.status.RunStatus.world_status`)."""
         self._lockstep = parameters.mode == SimMode.LOCKSTEP
         self.barrier = TickBarrier()
-        self.outputs: dict[Service, NodeInput | None] = {}
+        self.outputs: dict[ServiceName, NodeInput | None] = {}
         """Lockstep: the participants' output channels, to wait in at their ticks."""
         self.observation = ObservedSteps(parameters.observe_every)
         self.marks = (b"", b"")
@@ -155,6 +155,7 @@ class RobotLink:
             observation=self.observation,
             torque=self.torque,
             owed_changed=self.owed_changed,
+            take_output=self._take_output,
             progress=progress,
             counters=self.counters,
             parameters=parameters,
@@ -200,6 +201,19 @@ class RobotLink:
         )
         node.watch(Service.MOTOR, liveness.set_motor_alive)
         node.set_status(self.status)
+
+    def _take_output(self, service: ServiceName, output: str) -> None:
+        """Subscribe a user participant's output (on the service thread, when its token appears):
+        only its stamp is read. Kept for the run: a participant that comes back outputs there again."""
+        if service in self.outputs:
+            return
+        self.outputs[service] = self.node.subscribe(
+            f"{self.node.keys.prefix}/{output}",
+            StampedOutput,
+            partial(self.liveness.on_output, service),
+            Delivery.EVERY if self._lockstep else Delivery.QUEUED,
+            with_attachment=True,
+        )
 
     # --- zenoh callbacks: they only hand over to the service thread ---
 

@@ -10,9 +10,9 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from schemas.keys import Service, parse_observes_key, parse_ticks_key
+from schemas.keys import Service, ServiceName, parse_observes_key, parse_participant_key
 from schemas.messages import NANOSECONDS_PER_SECOND, TimedPosition, TimedVelocity
-from services.clock.lockstep import FINAL, OUTPUTS, TickBarrier
+from services.clock.lockstep import FINAL, OUTPUTS, StampedOutput, TickBarrier
 from services.clock.observation import ObservedSteps
 from services.config import SimConfig
 from services.runtime.logs import RateLimitedLog
@@ -29,6 +29,9 @@ class Liveness:
     torque: TorquePolicy
     owed_changed: Callable[[], None]
     """Re-encodes the marks of the wheel angles: what the barrier owes has changed."""
+    take_output: Callable[[ServiceName, str], None]
+    """Subscribes a user participant's output (its key relative to the robot), once: a built-in's
+    is subscribed from the start."""
     progress: RunProgress
     counters: dict[str, int]
     parameters: SimConfig
@@ -56,14 +59,16 @@ class Liveness:
         self.log.info("%smotor control %s: %s", self.prefix, "alive" if alive else "gone", effect)
 
     def participant_changed(self, key: str, alive: bool) -> None:
-        parsed = parse_ticks_key(key)
-        if parsed is None or parsed[0] not in OUTPUTS:
+        parsed = parse_participant_key(key, OUTPUTS)
+        if parsed is None:
             return
-        service, rate_hz = parsed
+        service, rate_hz = parsed.service, parsed.rate_hz
         lockstep, prefix = self.torque.lockstep, self.prefix
         if alive:
+            if not isinstance(service, Service):
+                self.take_output(service, parsed.output)
             self.observation.add(key, rate_hz, self.progress.present())
-            self.barrier.announce(service, rate_hz, from_start=not self.progress.started)
+            self.barrier.announce(service, rate_hz, from_start=not self.progress.started, output=parsed.output)
             if lockstep:
                 self.log.info("%s%s ticks at %g Hz: steps at its ticks wait for its output", prefix, service, rate_hz)
             return
@@ -86,7 +91,9 @@ class Liveness:
         else:
             self.observation.remove(key)
 
-    def on_output(self, service: Service, message: TimedVelocity | TimedPosition, attachment: bytes | None) -> None:
+    def on_output(
+        self, service: ServiceName, message: TimedVelocity | TimedPosition | StampedOutput, attachment: bytes | None
+    ) -> None:
         final = attachment == FINAL
         self.barrier.took(service, message.tm.to_nanoseconds(), self.progress.published_ns, final=final)
         self.owed_changed()
@@ -94,7 +101,7 @@ class Liveness:
             self.drive_ended = True
             self.log.info("%sthe drive's scenario ended at t = %.3f s", self.prefix, message.tm.to_seconds())
 
-    def tick_timed_out(self, service: Service, tm_ns: int) -> None:
+    def tick_timed_out(self, service: ServiceName, tm_ns: int) -> None:
         self.barrier.gave_up(service)
         self.counters["tick_timeouts"] += 1
         self.warn(
@@ -102,7 +109,7 @@ class Liveness:
             logging.WARNING,
             "%sno %s for t = %.3f s within %.3f s: stepping on; waiting for it again once it outputs",
             self.prefix,
-            OUTPUTS[service],
+            self.barrier.output(service),
             tm_ns / NANOSECONDS_PER_SECOND,
             self.parameters.lockstep_timeout,
         )

@@ -5,14 +5,25 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from schemas.keys import Service
-from services.cli.flags import fleet_flag, overrides_from_args, positive_seconds
+from schemas.keys import Service, ServiceName, service_name
+from services.cli.flags import fleet_flag, overrides_from_args, parsed_by, positive_seconds
 from services.cli.serve import ServiceCli
-from services.config import Config, SimConfig, SimMode
+from services.config import Config, ConfigError, SimConfig, SimMode
 from services.fleet.description import load_fleet, robot_config
 from sim_bridge.bridge import COMMAND, SimOptions
 from sim_bridge.handshakes import START_HANDSHAKE_TIMEOUT_S
 from sim_bridge.world import DEFAULT_WORLD, builtin_worlds
+
+
+def waited_service(text: str) -> ServiceName:
+    """A service ``--wait-for`` may name: a built-in other than the sim, or a user service's name."""
+    try:
+        service = service_name(text)
+    except ValueError as error:
+        raise ConfigError(f"--wait-for: {error}") from None
+    if service is Service.SIM:
+        raise ConfigError("--wait-for: the sim does not wait for itself")
+    return service
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,12 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--wait-for",
         nargs="+",
-        type=Service,
-        choices=[service for service in Service if service is not Service.SIM],
+        type=parsed_by(waited_service),
         metavar="SERVICE",
         help=f"before the first step, wait (at most {START_HANDSHAKE_TIMEOUT_S:g} s) until these services are there "
-        "(motor: alive; drive, localization: holding their lockstep token), so a lockstep run starts the same way "
-        "every time (invent up uses it)",
+        "(motor: alive; drive, localization, a user service taking part in lockstep: holding its lockstep token), "
+        "so a lockstep run starts the same way every time (invent up uses it)",
     )
     group.add_argument(
         "--until-drive-ends",

@@ -42,8 +42,8 @@ from typing import Generic, TypeVar
 import msgspec
 
 from schemas.codec import BadInput
-from schemas.keys import Service, Topic
-from schemas.messages import NANOSECONDS_PER_SECOND
+from schemas.keys import Service, ServiceName, Topic
+from schemas.messages import NANOSECONDS_PER_SECOND, Time
 from services.clock.sim_time import PeriodicSchedule
 
 SampleT = TypeVar("SampleT")
@@ -55,10 +55,18 @@ OUTPUTS: dict[Service, Topic] = {
     Service.DRIVE: Topic.DRIVE_TARGET_VELOCITY,
     Service.LOCALIZATION: Topic.LOCALIZATION_POSE,
 }
-"""What each participant outputs at its ticks."""
+"""What each built-in participant outputs at its ticks; a user service's token names its own
+output (:func:`schemas.keys.parse_participant_key`)."""
 LOOP_BEFORE_FIRST_STEP: tuple[Service, ...] = (Service.MOTOR, *OUTPUTS)
 """What a lockstep simulator waits for before its first step (``invent sim --wait-for``), so a run
 of the whole loop starts at the same step every time: the motor and every participant."""
+
+
+class StampedOutput(msgspec.Struct, frozen=True):
+    """A user participant's output as the simulator reads it: only its stamp (any other field,
+    the service's own, is left alone)."""
+
+    tm: Time
 
 
 class StepMark(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_defaults=True):
@@ -205,6 +213,8 @@ class Hold(Generic[SampleT]):
 @dataclass
 class _Participant:
     rate_hz: float
+    output: str
+    """The key (relative to the robot) of its output at its ticks."""
     schedule: PeriodicSchedule | None
     """Its ticks after the present; None while it is not waited for (it joins when it outputs)."""
     taken_ns: int | None = None
@@ -220,33 +230,45 @@ class TickBarrier:
     """
 
     def __init__(self) -> None:
-        self._participants: dict[Service, _Participant] = {}
-        self._awaited: dict[Service, int] = {}
+        self._participants: dict[ServiceName, _Participant] = {}
+        self._awaited: dict[ServiceName, int] = {}
         self._next_tick_ns: float = -1
         """No participant has a tick before this stamp: :meth:`ticks` answers the steps between at
         once (it runs at every step, ticks come every few dozen). -1 when a schedule has changed."""
 
-    def announce(self, service: Service, rate_hz: float, *, from_start: bool) -> None:
+    def announce(self, service: ServiceName, rate_hz: float, *, from_start: bool, output: str | None = None) -> None:
         """A participant's token appeared: ``from_start`` (before the first step) it is waited for
-        from its first tick; otherwise from its first output."""
+        from its first tick; otherwise from its first output. ``output``: the key (relative to the
+        robot) it outputs on, a user service's; a built-in's is :data:`OUTPUTS`'."""
+        if output is None:
+            if not isinstance(service, Service) or service not in OUTPUTS:
+                raise ValueError(f"participant {service}: its output is not known")
+            output = str(OUTPUTS[service])
         known = self._participants.get(service)
-        if known is not None and known.rate_hz == rate_hz:
+        if known is not None and known.rate_hz == rate_hz and known.output == output:
             return
         schedule = PeriodicSchedule(rate_hz, 0) if from_start else None
-        self._participants[service] = _Participant(rate_hz, schedule)
+        self._participants[service] = _Participant(rate_hz, output, schedule)
         self._next_tick_ns = -1
 
-    def withdraw(self, service: Service) -> bool:
+    def output(self, service: ServiceName) -> str:
+        """The key (relative to the robot) of ``service``'s output at its ticks."""
+        participant = self._participants.get(service)
+        if participant is not None:
+            return participant.output
+        return str(OUTPUTS[service]) if isinstance(service, Service) and service in OUTPUTS else str(service)
+
+    def withdraw(self, service: ServiceName) -> bool:
         """Its token went (it ended or died): never waited for again. True if it was known."""
         self._awaited.pop(service, None)
         return self._participants.pop(service, None) is not None
 
-    def took(self, service: Service, stamp_ns: int, now_ns: int, *, final: bool = False) -> None:
+    def took(self, service: ServiceName, stamp_ns: int, now_ns: int, *, final: bool = False) -> None:
         """An output of ``service`` stamped ``stamp_ns`` arrived while the present is ``now_ns``.
 
         Raises BadInput for one stamped after the present: no tick of it has come yet."""
         if stamp_ns > now_ns:
-            raise BadInput(f"{OUTPUTS[service]} stamped {stamp_ns} ns, after the present ({now_ns} ns)")
+            raise BadInput(f"{self.output(service)} stamped {stamp_ns} ns, after the present ({now_ns} ns)")
         participant = self._participants.get(service)
         if participant is None:
             return
@@ -258,7 +280,7 @@ class TickBarrier:
             self._next_tick_ns = -1
         participant.final = participant.final or final
 
-    def ticks(self, now_ns: int) -> list[Service]:
+    def ticks(self, now_ns: int) -> list[ServiceName]:
         """The participants with a tick at ``now_ns`` (call once per step, steps in order)."""
         if now_ns < self._next_tick_ns:
             return []
@@ -275,7 +297,7 @@ class TickBarrier:
         self._next_tick_ns = next_tick_ns
         return due
 
-    def missing(self) -> list[Service]:
+    def missing(self) -> list[ServiceName]:
         """The participants whose output for their tick at this step has not arrived yet."""
         done = [
             service
@@ -286,7 +308,7 @@ class TickBarrier:
             del self._awaited[service]
         return list(self._awaited)
 
-    def gave_up(self, service: Service) -> None:
+    def gave_up(self, service: ServiceName) -> None:
         """Its output did not come in time: it is waited for again once it outputs again."""
         self._awaited.pop(service, None)
         participant = self._participants.get(service)
@@ -294,30 +316,32 @@ class TickBarrier:
             participant.schedule = None
             self._next_tick_ns = -1
 
-    def announced(self, service: Service) -> bool:
+    def announced(self, service: ServiceName) -> bool:
         return service in self._participants
 
-    def waited_for(self) -> list[Service]:
+    def waited_for(self) -> list[ServiceName]:
         """The participants whose ticks are waited for."""
         return [service for service, participant in self._participants.items() if participant.schedule is not None]
 
-    def final(self, service: Service) -> bool:
+    def final(self, service: ServiceName) -> bool:
         """True once ``service``'s last output (:data:`FINAL`) has been taken."""
         participant = self._participants.get(service)
         return participant is not None and participant.final
 
     def owed(self) -> dict[Topic, int]:
-        """For the next step's attachment: the newest output taken of each participant."""
+        """For the next step's attachment: the newest output taken of each built-in participant
+        (a user participant's output is waited for, but no consumer of the loop holds for it)."""
         return {
             OUTPUTS[service]: participant.taken_ns
             for service, participant in self._participants.items()
-            if participant.taken_ns is not None
+            if participant.taken_ns is not None and isinstance(service, Service) and service in OUTPUTS
         }
 
     def status(self) -> dict[str, dict[str, object]]:
         return {
             str(service): {
                 "rate_hz": participant.rate_hz,
+                "output": participant.output,
                 "waited_for": participant.schedule is not None and not participant.final,
                 "last_output_s": None
                 if participant.taken_ns is None

@@ -10,7 +10,7 @@ from typing import Any
 
 import zenoh
 
-from schemas.keys import Keys, Service, parse_alive_key
+from schemas.keys import Keys, ServiceName, parse_alive_key
 
 
 def payload_value(payload: bytes) -> Any:
@@ -38,12 +38,12 @@ def alive_services(session: zenoh.Session, key_expr: str, timeout: float, settle
     return sorted(set(found))
 
 
-def service_statuses(session: zenoh.Session, key_expr: str, timeout: float) -> list[tuple[str, Service, Any]]:
+def service_statuses(session: zenoh.Session, key_expr: str, timeout: float) -> list[tuple[str, ServiceName, Any]]:
     """(robot, service, status reply) of each service whose liveliness token matches ``key_expr``:
     the tokens first (they reach a new session through the router at once), then each one's exact
     ``status`` key (a query on a wildcard, sent before the queryables reached this session, would
     reach none). The status is None when it did not answer."""
-    statuses: list[tuple[str, Service, Any]] = []
+    statuses: list[tuple[str, ServiceName, Any]] = []
     for token in alive_services(session, key_expr, timeout):
         parsed = parse_alive_key(token)
         if parsed is None:

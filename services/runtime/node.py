@@ -21,7 +21,7 @@ import msgspec
 import zenoh
 
 from schemas.codec import ENCODING, BadInput, decode
-from schemas.keys import Keys, Service
+from schemas.keys import Keys, Service, ServiceName
 from services.runtime.executor import STOP_POLL_S, Executor
 from services.runtime.inputs import (
     ChannelInput,
@@ -75,7 +75,7 @@ class Node:
         self,
         session: zenoh.Session,
         keys: Keys,
-        service: Service,
+        service: ServiceName,
         status: Callable[[], dict[str, Any]] = dict,
         executor: Executor | None = None,
         journal: Journal | None = None,
@@ -335,7 +335,7 @@ class Node:
         """Run ``callback()`` on the service thread (thread-safe; usable from zenoh callbacks)."""
         self.executor.post(lambda _: callback(), None)
 
-    def watch(self, service: Service, on_change: Callable[[bool], None]) -> None:
+    def watch(self, service: ServiceName, on_change: Callable[[bool], None]) -> None:
         """Call ``on_change(alive)`` on the service thread whenever ``service``'s liveliness token
         appears (True; also for one already there) or goes (False): a neighbour that dies and
         comes back is then picked up again."""
@@ -348,10 +348,19 @@ class Node:
             )
         )
 
-    def participate(self, publisher: Publisher, rate_hz: float) -> None:
+    def participate(self, publisher: Publisher, rate_hz: float, output: str | None = None) -> None:
         """Take part in lockstep (services/clock/lockstep.py), outputting on ``publisher`` at ``rate_hz``
         ticks per second of simulation time: hold the token ``Keys.ticks`` once ``publisher`` has a
-        subscriber (before, the outputs would reach no one, and waiting for them would only time out)."""
+        subscriber (before, the outputs would reach no one, and waiting for them would only time out).
+        A user service names its ``output`` (a key under its name) in the token, held at once: the
+        simulator subscribes that output when it sees the token (``Keys.ticks_with_output``)."""
+        if output is not None:
+            if isinstance(self.service, Service):
+                raise ValueError(f"{self.service}: a built-in participant's output is fixed (OUTPUTS)")
+            token = self.keys.ticks_with_output(self.service, rate_hz, output)
+            self._declarations.append(self.session.liveliness().declare_token(token))
+            self.participating = True
+            return
         post = self.executor.post
 
         def on_matching(matched: bool) -> None:
@@ -371,7 +380,7 @@ class Node:
         grid observed (services/clock/observation.py). Nothing waits for this service."""
         self._declarations.append(self.session.liveliness().declare_token(self.keys.observes(self.service, rate_hz)))
 
-    def alive_now(self, service: Service, timeout: float = LIVELINESS_QUERY_TIMEOUT_S) -> bool:
+    def alive_now(self, service: ServiceName, timeout: float = LIVELINESS_QUERY_TIMEOUT_S) -> bool:
         """Whether ``service``'s liveliness token exists now: one query, answered by the router
         or peers at once (for a decision at start-up, before any watch has reported)."""
         replies = self.session.liveliness().get(self.keys.alive(service), timeout=timeout)
