@@ -22,6 +22,7 @@ from services.cli import (
     report,
     router,
     secrets,
+    service,
     services,
     status,
     up,
@@ -51,6 +52,7 @@ SUBCOMMANDS: tuple[SubcommandModule, ...] = (
     up,
     calibrate,
     worker,
+    service,
 )
 """The subcommands that are not services, in ``invent --help``'s order, each in its own module."""
 

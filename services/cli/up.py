@@ -62,6 +62,7 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
         composed=args.composed,
         workers=args.workers,
         intra_process=not args.no_intra_process,
+        with_services=tuple(args.with_services or ()),
     )
 
 
@@ -193,6 +194,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="with --composed: the services' messages go through the zenoh session, not handed over as they are "
         "(intra-process delivery, the default: zenoh then carries a message only to subscribers outside the "
         "process); for measuring and debugging",
+    )
+    parser.add_argument(
+        "--with",
+        dest="with_services",
+        action="append",
+        metavar="FILE.py:NAME",
+        help="also run this service of your own (a UserService subclass; docs/extending.md) beside the loop, "
+        "supervised as the built-ins are (repeatable; not with --composed; a fleet file says it with `with`)",
     )
 
 

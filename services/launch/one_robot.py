@@ -8,11 +8,12 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from schemas.keys import Keys, Service
+from schemas.keys import Keys, Service, UserServiceName
 from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
 from services.drive.outcome import Outcome
 from services.drive.scenarios import load_scenario
+from services.extension.loader import Loaded, load_all
 from services.launch.children import say
 from services.launch.plan import UpPlan
 from services.launch.robots import Robot
@@ -21,7 +22,7 @@ from services.launch.run import RECORDING_FILE, SECRETS_DIRECTORY, Access, Outco
 from services.recording.mcap_files import write_run_report
 from services.recording.report import health_lines, loop_health, summary
 from services.ros2.graph import bridge_graph
-from services.security import Role, write_profile
+from services.security import Role, UserServiceGrant, write_profile
 from sim_bridge.display import require_display
 from sim_bridge.world import load_world
 
@@ -36,6 +37,11 @@ def check_before_start(plan: UpPlan, config: Config) -> None:
     if plan.view == 0:
         raise ConfigError("--view: the view's port must be fixed (1..65535), for the address to open in Foxglove")
     check_ros2_flags(plan)
+    if plan.with_services and plan.composed:
+        raise ConfigError(
+            "--with with --composed: a user service runs as a process of its own, beside the loop's; a composed "
+            "run takes none (run it with invent service FILE.py:NAME --connect ... beside the composed run)"
+        )
     if plan.goal_file is not None:
         load_goal_file(plan.goal_file)
     elif not (plan.teleop or plan.goal_mode):
@@ -45,7 +51,7 @@ def check_before_start(plan: UpPlan, config: Config) -> None:
         bridge_graph(config)  # $ROS_DOMAIN_ID
 
 
-def one_robot_access(plan: UpPlan, config: Config, report_dir: Path) -> Access:
+def one_robot_access(plan: UpPlan, config: Config, report_dir: Path, extensions: tuple[Loaded, ...] = ()) -> Access:
     """The run's :class:`Access`; with ``--secure``, the profile is written before anything starts."""
     listen = secure_listen(plan)
     connection = plan.connection
@@ -65,6 +71,7 @@ def one_robot_access(plan: UpPlan, config: Config, report_dir: Path) -> Access:
         router_listen=listen,
         tls=plan.tls,
         ros=bridge_graph(config),
+        user_services=[UserServiceGrant(user.name, user.service.calls) for user in extensions],
     )
     say(
         f"secure: usrpwd and access control on the router{', TLS' if profile.tls else ''}; every service a client; "
@@ -80,7 +87,10 @@ class OneRobot:
         self.plan = plan
         self.config = plan.description.load()
         check_before_start(plan, self.config)
-        self.each: tuple[Robot, ...] = (Robot(self.config.robot.name, self.config, plan.drive_runs),)
+        self.extensions = load_all(plan.with_services)
+        self.each: tuple[Robot, ...] = (
+            Robot(self.config.robot.name, self.config, plan.drive_runs, extensions=self.extensions),
+        )
         self.scene: tuple[Config, ...] = ()
         self.records_statuses = True
         self.view_flags: list[str] = []
@@ -90,7 +100,7 @@ class OneRobot:
         )
 
     def access(self, report_dir: Path) -> Access:
-        return one_robot_access(self.plan, self.config, report_dir)
+        return one_robot_access(self.plan, self.config, report_dir, self.extensions)
 
     def assignment(self) -> None:
         return None
@@ -110,7 +120,7 @@ class OneRobot:
         return None
 
     def watch(self, run: Run, drives: dict[str, Any]) -> OneRobotWatch:
-        return OneRobotWatch(run, drives.get(self.config.robot.name))
+        return OneRobotWatch(run, drives.get(self.config.robot.name), [user.name for user in self.extensions])
 
     def health_lines(self, health: dict[str, dict[str, Any]]) -> list[str]:
         return health_lines(health[self.config.robot.name])
@@ -126,9 +136,11 @@ class OneRobot:
 class OneRobotWatch:
     """The one robot's run watched (:meth:`Run.supervise`): any of its services that dies ends the run."""
 
-    def __init__(self, run: Run, drive: Any | None) -> None:
+    def __init__(self, run: Run, drive: Any | None, user_services: Sequence[UserServiceName] = ()) -> None:
         self.run = run
         self.drive = drive
+        self.user_services = user_services
+        """The names of its services of the user's own (``--with``)."""
         self.sim_status: dict[str, Any] | None = None
         self.drive_status: dict[str, Any] | None = None
         """The drive's last status, taken while it runs: it exits at the end of its scenario."""
@@ -142,7 +154,11 @@ class OneRobotWatch:
     def health(self, robot: str) -> tuple[dict[str, Any] | None, dict[str, Any]]:
         statuses = {str(service): self.run.status(service) for service in Service if service != Service.DRIVE}
         statuses[str(Service.DRIVE)] = self.drive_status
-        return self.sim_status, loop_health(self.sim_status, statuses)
+        users = {str(name): self.run.status(name) for name in self.user_services}
+        health = loop_health(self.sim_status, {**statuses, **users})
+        if users:
+            health["user_services"] = users
+        return self.sim_status, health
 
     def outcomes(self, published: Outcomes) -> dict[str, Outcome]:
         return {} if self.outcome is None else {self.run.keys.robot: self.outcome}

@@ -80,6 +80,8 @@ class UpPlan:
     composed: bool = False
     workers: int | None = None
     intra_process: bool = True
+    with_services: tuple[str, ...] = ()
+    """``--with FILE.py:NAME``, each a user service run beside the loop (services/extension/)."""
 
     @property
     def goal_mode(self) -> bool:

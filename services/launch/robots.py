@@ -12,6 +12,7 @@ from typing import Any, Protocol
 
 from services.config import Config
 from services.drive.outcome import Outcome
+from services.extension.loader import Loaded
 from services.launch.run import Access, Outcomes, Run
 from services.recording.report import degradations
 from services.security import Role
@@ -30,6 +31,13 @@ class Robot:
     bridge_flags: tuple[str, ...] = ()
     """What its ROS 2 bridge is given beyond those: a fleet robot's namespace and frames."""
     in_fleet: bool = False
+    extensions: tuple[Loaded, ...] = ()
+    """Its services of the user's own (``--with``; a fleet file's ``with``), run beside its loop."""
+
+    @property
+    def participants(self) -> tuple[str, ...]:
+        """Its user services taking part in lockstep: the sim waits for them before its first step."""
+        return tuple(loaded.name for loaded in self.extensions if loaded.service.lockstep is not None)
 
     def child(self, service: str) -> str:
         """The name its ``service``'s child runs under (and its output is prefixed with)."""

@@ -20,7 +20,7 @@ from typing import Any
 
 import zenoh
 
-from schemas.keys import Keys, Service
+from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import ScenarioOutcome
 from services.config import ConfigError
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
@@ -135,6 +135,12 @@ class Access:
         path = self.config_file(role, robot)
         return ["--zenoh-config", path] if path else []
 
+    def user_service_flags(self, name: str) -> list[str]:
+        """How user service ``name`` connects: its own credentials when secure (services/extension/)."""
+        if self.profile:
+            return ["--zenoh-config", str(self.profile.user_service_config(name))]
+        return ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
+
     def router_flags(self, endpoint: str) -> list[str]:
         return ["--config", str(self.profile.router_config)] if self.profile else ["--listen", endpoint]
 
@@ -234,7 +240,7 @@ class Run:
             for subscriber in subscribers:
                 subscriber.undeclare()
 
-    def status(self, service: Service) -> dict[str, Any] | None:
+    def status(self, service: ServiceName) -> dict[str, Any] | None:
         return self.query(self.keys.status(service))
 
     def query(self, key: str) -> dict[str, Any] | None:

@@ -71,8 +71,8 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         else plan.mode or (SimMode.REALTIME if plan.goals and plan.goal_file is None else first.config.sim.mode)
     )
     robot_services = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if plan.ros2 else ()))
-    # the journals: each robot's services' and drive's, the sim's and up's own
-    journals = len(robots.each) * (len(robot_services) + 1) + 2
+    # the journals: each robot's services', user services' and drive's, the sim's and up's own
+    journals = len(robots.each) * (len(robot_services) + 1) + sum(len(r.extensions) for r in robots.each) + 2
     record = first.config.record
     bag = BagRecording(report_dir, record, len(robots.each), first.config.ros2.distro) if plan.record_ros2 else None
     recording = not (plan.no_record or plan.loop or plan.teleop)
@@ -113,8 +113,15 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                 for service in robot_services:
                     flags = [*common, *robot.credentials(access, Role(service)), *robot.flags, *journal(robot)]
                     launcher.start(robot.child(service), [str(service), *flags, *own.get(service, [])])
+            for robot in robots.each:  # the user's own (--with), beside them, supervised as they are
+                for user in robot.extensions:
+                    flags = [*common, *access.user_service_flags(user.name), *robot.flags, *journal(robot)]
+                    launcher.start(robot.child(user.name), ["service", user.spec, *flags])
             # Until the sim starts, any service that ends ends the run.
-            run.wait_tokens([Keys(robot.name).alive(service) for robot in robots.each for service in robot_services])
+            run.wait_tokens(
+                [Keys(robot.name).alive(service) for robot in robots.each for service in robot_services]
+                + [Keys(robot.name).alive(user.name) for robot in robots.each for user in robot.extensions]
+            )
             driven = () if plan.teleop else robots.each
             drives = {}
             for robot in driven:
@@ -128,6 +135,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                 say(robots.teleop_line)
             else:
                 ending = ["--until-drive-ends", "--wait-for", *(str(service) for service in LOOP_BEFORE_FIRST_STEP)]
+                ending += sorted({name for robot in robots.each for name in robot.participants})
             sim_session = [*common, *access.flags(Role.SIM), *(recorder.flags if recorder else [])]
             simulation = [*robots.sim_flags, "--mode", mode, *ending, *(["--gui"] if plan.gui else []), *rt_flags(plan)]
             launcher.start(str(Service.SIM), [str(Service.SIM), *sim_session, *simulation])

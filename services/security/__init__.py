@@ -29,9 +29,11 @@ from services.security.grants import (
     DEFAULT_ROS,
     Flow,
     Message,
+    UserServiceGrant,
     fleet_grants,
     grants,
     robot_bridge,
+    user_service_grants,
 )
 from services.security.profile import (
     DICTIONARY,
@@ -59,11 +61,13 @@ __all__ = [
     "Message",
     "Profile",
     "Role",
+    "UserServiceGrant",
     "fleet_grants",
     "fleet_identities",
     "fleet_robots",
     "grants",
     "robot_bridge",
+    "user_service_grants",
     "write_fleet_profile",
     "write_profile",
 ]

@@ -23,6 +23,7 @@ from schemas.keys import (
     MethodFamily,
     Service,
     Topic,
+    UserServiceName,
     all_robots_status,
 )
 from services.config import Config
@@ -128,11 +129,10 @@ def _ros_grants(role: Role, keys: Keys, ros: BridgeGraph) -> list[Grant]:
     ]
 
 
-def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant]:
-    """Everything ``role`` may do on robot ``keys.robot`` (and, for the ROS roles, in the ROS domain
-    and namespace of ``ros``); the router denies anything else."""
+def _reading(keys: Keys) -> list[Grant]:
+    """What every role may do to read: subscribe, liveliness, ``status`` and the latched keys."""
     everything = (f"{ROOT}/**",)
-    reading = [
+    return [
         Grant(
             (Message.DECLARE_SUBSCRIBER, Message.DECLARE_LIVELINESS_SUBSCRIBER, Message.LIVELINESS_QUERY),
             Flow.INGRESS,
@@ -155,6 +155,13 @@ def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant
         # the latched keys answer what was last published on them (a viewer started mid-run).
         Grant((Message.QUERY,), Flow.INGRESS, (all_robots_status(), *(keys.topic(t) for t in LATCHED_TOPICS))),
     ]
+
+
+def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant]:
+    """Everything ``role`` may do on robot ``keys.robot`` (and, for the ROS roles, in the ROS domain
+    and namespace of ``ros``); the router denies anything else."""
+    everything = (f"{ROOT}/**",)
+    reading = _reading(keys)
     if role is Role.OBSERVER:
         # `invent view` answers its own status; the queries on it are delivered, also as
         # invent/*/*/status (a rule lets through the key expressions it includes).
@@ -207,6 +214,37 @@ def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant
     return [*reading, *own]
 
 
+@dataclass(frozen=True)
+class UserServiceGrant:
+    """A user service of a secure run (services/extension/): its name and the queryables of other
+    services it calls (relative to the robot: ``drive/goal/send``)."""
+
+    name: UserServiceName
+    calls: tuple[str, ...] = ()
+
+
+def user_service_grants(user: UserServiceGrant, keys: Keys) -> list[Grant]:
+    """What a user service may do on robot ``keys.robot``: read what the observer reads; put,
+    serve queryables and hold liveliness tokens only under its own name (``invent/<robot>/<name>/**``:
+    its outputs, status, queryables, alive, ticks and observes tokens); query only its ``calls``."""
+    own = f"{keys.prefix}/{user.name}/**"
+    granted = [
+        *_reading(keys),
+        Grant(
+            (Message.LIVELINESS_TOKEN,),
+            Flow.INGRESS,
+            (keys.alive(user.name), keys.ticks_at_any_rate(user.name), keys.observes_at_any_rate(user.name)),
+        ),
+        Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (own,)),
+        # as for every service: queries (its status, on invent/*/*/status too) are delivered to it
+        Grant((Message.QUERY,), Flow.EGRESS, (f"{ROOT}/**",)),
+        Grant((Message.PUT,), Flow.INGRESS, (own,)),
+    ]
+    if user.calls:
+        granted.append(Grant((Message.QUERY,), Flow.INGRESS, tuple(f"{keys.prefix}/{call}" for call in user.calls)))
+    return granted
+
+
 def fleet_grants(identity: Identity, robots: Sequence[str], bridges: Mapping[str, BridgeGraph]) -> list[Grant]:
     """Everything ``identity`` may do in the fleet of ``robots``, whose ROS 2 bridges are
     ``bridges[robot]``: a per-robot role exactly what :func:`grants` gives its role on its own robot,
@@ -243,6 +281,11 @@ def fleet_access_control(
     return _access_control(
         (identity.user, user, fleet_grants(identity, robots, bridges)) for identity, user in users.items()
     )
+
+
+def access_control_section(entries: Iterable[tuple[str, str, list[Grant]]]) -> dict[str, Any]:
+    """:func:`_access_control` of ``entries``: (subject's name, usrpwd user, its grants)."""
+    return _access_control(entries)
 
 
 def _access_control(entries: Iterable[tuple[str, str, list[Grant]]]) -> dict[str, Any]:

@@ -17,7 +17,15 @@ from typing import Any, Required, TypedDict, Unpack
 
 from schemas.keys import Keys
 from services.ros2.graph import BridgeGraph
-from services.security.grants import DEFAULT_ROS, access_control, fleet_access_control, robot_bridge
+from services.security.grants import (
+    DEFAULT_ROS,
+    UserServiceGrant,
+    access_control,
+    access_control_section,
+    fleet_access_control,
+    robot_bridge,
+    user_service_grants,
+)
 from services.security.roles import FLEET_ROLES, Identity, Role, fleet_identities, fleet_robots
 from services.security.tls import CA_CERTIFICATE, ROUTER_CERTIFICATE, ROUTER_KEY, TLS_DIRECTORY, TLS_NAMES, certificates
 
@@ -57,6 +65,15 @@ class Profile:
     roles: tuple[Role, ...] = field(default=tuple(Role))
     robots: tuple[str, ...] = ()
     """The fleet's robots (:func:`write_fleet_profile`); empty for a single robot's profile."""
+    user_services: tuple[str, ...] = ()
+    """The user services with credentials of their own (``<name>.json5``; services/extension/)."""
+
+    def user_service_config(self, name: str) -> Path:
+        """The client file of user service ``name``: ``<name>.json5`` (no role is named as a user
+        service may be: schemas.keys.RESERVED_NAMES). ValueError for one the profile does not have."""
+        if name not in self.user_services:
+            raise ValueError(f"user service {name!r} has no credentials in {self.directory}")
+        return self.directory / f"{name}.json5"
 
     @property
     def router_config(self) -> Path:
@@ -109,18 +126,33 @@ class Deployment(TypedDict, total=False):
 
 
 def write_profile(
-    directory: Path, keys: Keys, *, ros: BridgeGraph = DEFAULT_ROS, **where: Unpack[Deployment]
+    directory: Path,
+    keys: Keys,
+    *,
+    ros: BridgeGraph = DEFAULT_ROS,
+    user_services: Sequence[UserServiceGrant] = (),
+    **where: Unpack[Deployment],
 ) -> Profile:
     """Write a fresh profile for robot ``keys.robot`` into ``directory`` (created 0700; every file
     0600), placed as ``where`` says (:class:`Deployment`). ``ros`` is the ROS domain and the
-    bridge's namespace the ROS roles are granted. ValueError for a bad endpoint."""
+    bridge's namespace the ROS roles are granted; each of ``user_services`` gets a user and a
+    client file of its own (``<name>.json5``), granted :func:`user_service_grants`. ValueError for
+    a bad endpoint."""
     credentials = fresh_credentials()
+    rules = access_control({role: c.user for role, c in credentials.items()}, keys, ros)
+    users: dict[str, Credentials] = {user.name: Credentials(user.name, _fresh_password()) for user in user_services}
+    for user in user_services:
+        _add_subject(rules, user.name, users[user.name].user, user_service_grants(user, keys))
     return _write_files(
-        directory,
-        {Identity(role): login for role, login in credentials.items()},
-        access_control({role: c.user for role, c in credentials.items()}, keys, ros),
-        **where,
+        directory, {Identity(role): login for role, login in credentials.items()}, rules, users=users, **where
     )
+
+
+def _add_subject(rules: dict[str, Any], name: str, user: str, granted: Sequence[Any]) -> None:
+    """Add subject ``name`` (usrpwd ``user``) with ``granted`` to a router's ``access_control``."""
+    section = access_control_section([(name, user, list(granted))])
+    for part in ("rules", "subjects", "policies"):
+        rules[part].extend(section[part])
 
 
 def write_fleet_profile(
@@ -169,6 +201,7 @@ def _write_files(
     seen_as: Path | None = None,
     router_base: dict[str, Any] | None = None,
     robots: tuple[str, ...] = (),
+    users: Mapping[str, Credentials] | None = None,
 ) -> Profile:
     """The files of every profile: one user and one client file per identity of ``credentials``,
     the router's configuration with ``rules``, its ``access_control``."""
@@ -177,7 +210,9 @@ def _write_files(
     seen = (seen_as or directory).absolute()
     endpoint = _with_scheme(endpoint, tls)
     listen = [_with_scheme(address, tls) for address in router_listen] or [endpoint]
-    _write_private(directory / DICTIONARY, "".join(f"{c.user}:{c.password}\n" for c in credentials.values()))
+    users = users or {}
+    logins = [*credentials.values(), *users.values()]
+    _write_private(directory / DICTIONARY, "".join(f"{c.user}:{c.password}\n" for c in logins))
     router: dict[str, Any] = {
         **(router_base or {}),
         "mode": "router",
@@ -198,8 +233,21 @@ def _write_files(
         }
         client_tls = {"link": {"tls": {"root_ca_certificate": str(tls_dir / CA_CERTIFICATE)}}}
     _write_private(directory / ROUTER_CONFIG, _json5(router, "the router of an invent secure deployment"))
-    profile = Profile(directory, endpoint, tuple(listen), tls, robots=robots)
-    for identity, login in credentials.items():
+    profile = Profile(directory, endpoint, tuple(listen), tls, robots=robots, user_services=tuple(users))
+    clients: list[tuple[Path, Credentials, str, bool]] = [
+        (
+            profile.client_config(identity.role, identity.robot),
+            login,
+            f"role {identity.role}" + (f" of robot {identity.robot}" if identity.robot is not None else ""),
+            # zenoh-ext advanced publishers with a cache (ROS's transient-local topics) need timestamps.
+            identity.role in (Role.ROS2, Role.ROS_NODE),
+        )
+        for identity, login in credentials.items()
+    ]
+    clients += [
+        (profile.user_service_config(name), login, f"user service {name}", False) for name, login in users.items()
+    ]
+    for path, login, what, timestamped in clients:
         client = {
             "mode": "client",
             "connect": {"endpoints": [endpoint], "timeout_ms": CLIENT_CONNECT_TIMEOUT_MS},
@@ -207,14 +255,9 @@ def _write_files(
             "scouting": {"multicast": {"enabled": False}},
             "transport": {"auth": {"usrpwd": {"user": login.user, "password": login.password}}, **client_tls},
         }
-        if identity.role in (Role.ROS2, Role.ROS_NODE):
-            # zenoh-ext advanced publishers with a cache (ROS's transient-local topics) need timestamps.
+        if timestamped:
             client["timestamping"] = {"enabled": True}
-        what = f"role {identity.role}" + (f" of robot {identity.robot}" if identity.robot is not None else "")
-        _write_private(
-            profile.client_config(identity.role, identity.robot),
-            _json5(client, f"{what} of an invent secure deployment"),
-        )
+        _write_private(path, _json5(client, f"{what} of an invent secure deployment"))
     return profile
 
 

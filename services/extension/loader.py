@@ -1,0 +1,97 @@
+"""``FILE.py:NAME``: a user service's class loaded from its file, and its declarations checked
+(its name, the queryables it calls, its lockstep), before anything runs. A bad one is a
+:class:`~services.errors.ConfigError` naming the file and what is wrong: exit 2."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from schemas.keys import UserServiceName, user_service_name, validate_own_key
+from services.errors import ConfigError
+from services.extension.api import Lockstep, UserService
+
+
+@dataclass(frozen=True)
+class Loaded:
+    """A user service as the launcher and the runner see it: where it came from and its class."""
+
+    spec: str
+    """``FILE.py:NAME`` as given."""
+    service: type[UserService]
+    name: UserServiceName
+
+
+def split_spec(spec: str) -> tuple[Path, str]:
+    """``FILE.py:NAME`` -> (the file, the class's name); ConfigError when it is not of that form."""
+    path, colon, attribute = spec.rpartition(":")
+    if not colon or not path.endswith(".py") or not attribute.isidentifier():
+        raise ConfigError(f"{spec}: a user service is FILE.py:NAME (a Python file, then the class's name)")
+    return Path(path), attribute
+
+
+def load(spec: str) -> Loaded:
+    """Import ``FILE.py`` (as a module of its own, once per process) and check its class ``NAME``."""
+    path, attribute = split_spec(spec)
+    if not path.is_file():
+        raise ConfigError(f"{spec}: no such file {path}")
+    module_name = f"invent_user_service_{abs(hash(str(path.resolve())))}"
+    module = sys.modules.get(module_name)
+    if module is None:
+        module_spec = importlib.util.spec_from_file_location(module_name, path)
+        if module_spec is None or module_spec.loader is None:
+            raise ConfigError(f"{spec}: {path} cannot be imported as Python")
+        module = importlib.util.module_from_spec(module_spec)
+        try:
+            module_spec.loader.exec_module(module)
+        except Exception as error:  # noqa: BLE001 (any error in the user's file is the file's, named)
+            raise ConfigError(f"{spec}: importing {path} failed: {type(error).__name__}: {error}") from None
+        sys.modules[module_name] = module
+    service = getattr(module, attribute, None)
+    if service is None:
+        raise ConfigError(f"{spec}: {path} defines no {attribute}")
+    if not (isinstance(service, type) and issubclass(service, UserService)) or service is UserService:
+        raise ConfigError(f"{spec}: {attribute} is not a subclass of services.extension.api.UserService")
+    return Loaded(spec, service, check_declarations(spec, service))
+
+
+def check_declarations(spec: str, service: type[UserService]) -> UserServiceName:
+    """Its name, calls and lockstep as the class declares them; ConfigError naming the first wrong one."""
+    name = getattr(service, "name", None)
+    if not isinstance(name, str):
+        raise ConfigError(f"{spec}: {service.__name__}.name must be set to the service's name (a str)")
+    if not isinstance(service.calls, tuple) or not all(isinstance(call, str) for call in service.calls):
+        raise ConfigError(f"{spec}: {service.__name__}.calls must be a tuple of keys (str), got {service.calls!r}")
+    try:
+        checked = user_service_name(name)
+        for call in service.calls:
+            validate_own_key(call)
+    except ValueError as error:
+        raise ConfigError(f"{spec}: {error}") from None
+    lockstep = service.lockstep
+    if lockstep is not None:
+        if not isinstance(lockstep, Lockstep):
+            raise ConfigError(f"{spec}: {service.__name__}.lockstep must be a Lockstep(output, rate_hz) or None")
+        if not (isinstance(lockstep.rate_hz, int | float) and math.isfinite(lockstep.rate_hz) and lockstep.rate_hz > 0):
+            raise ConfigError(f"{spec}: lockstep.rate_hz must be a finite number > 0, got {lockstep.rate_hz!r}")
+        try:
+            validate_own_key(lockstep.output)
+        except ValueError as error:
+            raise ConfigError(f"{spec}: lockstep.output: {error}") from None
+    return checked
+
+
+def load_all(specs: Sequence[str], taken: Sequence[str] = ()) -> tuple[Loaded, ...]:
+    """Every ``--with`` of a run, loaded; ConfigError for two of the same name (or a name in ``taken``)."""
+    loaded: list[Loaded] = []
+    for spec in specs:
+        one = load(spec)
+        clash = next((other.spec for other in loaded if other.name == one.name), None)
+        if clash is not None or one.name in taken:
+            raise ConfigError(f"{spec}: the name {one.name!r} is taken already ({clash or 'in this run'})")
+        loaded.append(one)
+    return tuple(loaded)
