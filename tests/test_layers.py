@@ -65,10 +65,11 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"sim_bridge\.(bridge|link|liveness|loops|handshakes)", SHELL),
     (r"services\.service", SHELL_SUPPORT),
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
+    (r"services\.extension\.(api|loader|hosting)", SHELL_SUPPORT),
     (r"services\.(cli|launch|recording)(\..*)?", TOOL),
     (r"services\.security(\..*)?", TOOL),
     (
-        r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration|body|goto))",
+        r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration|body|goto|extension))",
         PACKAGE,
     ),
 )

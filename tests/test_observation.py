@@ -99,5 +99,5 @@ def test_the_observer_token_names_the_service_and_its_rate():
     assert parse_observes_key(keys.observes(Service.ROS2, 1 / 3)) == (Service.ROS2, 1 / 3)
     assert parse_observes_key(keys.ticks(Service.DRIVE, 50.0)) is None, "a participant's token is not an observer's"
     assert parse_ticks_key(keys.observes(Service.ROS2, 50.0)) is None
-    for key in ("invent/rh0/ros2/observes/0.0", "invent/rh0/ros2/observes/inf", "invent/rh0/nobody/observes/1.0"):
+    for key in ("invent/rh0/ros2/observes/0.0", "invent/rh0/ros2/observes/inf", "invent/rh0/No-body/observes/1.0"):
         assert parse_observes_key(key) is None, key

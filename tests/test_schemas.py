@@ -239,7 +239,8 @@ def test_robot_names_must_be_one_key_chunk(name):
 
 def test_alive_keys_parse_back():
     assert parse_alive_key(Keys("rh2").alive(Service.DRIVE)) == ("rh2", Service.DRIVE)
-    assert parse_alive_key("invent/rh2/nothing/alive") is None
+    assert parse_alive_key("invent/rh2/odometer/alive") == ("rh2", "odometer"), "a user service's (docs/extending.md)"
+    assert parse_alive_key("invent/rh2/No-thing/alive") is None
     assert parse_alive_key(Keys("rh2").status(Service.DRIVE)) is None
 
 

@@ -249,7 +249,7 @@ class Context:
                 post(take, (None, "error reply" if error is None else _error_text(error.payload.to_bytes())))
 
         def on_done() -> None:
-            post(take, (None, f"no reply from {key} within {timeout_s:g} s"))
+            post(take, (None, f"no reply from {key} (nothing serves it yet, or none within {timeout_s:g} s)"))
 
         self._node.session.get(
             f"{self.keys.prefix}/{key}",
