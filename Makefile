@@ -47,7 +47,7 @@ profile: $(STAMP)  ## where each process of the lockstep loop spends its time (p
 	$(BIN)/python -m benchmarks.profile $(ARGS)
 
 secrets: $(STAMP)  ## fresh credentials for `docker compose up`, in docker/secure/secrets/ (never committed)
-	PATH="$(CURDIR)/$(BIN):$$PATH" docker/secure/make-secrets
+	PATH="$(CURDIR)/$(BIN):$$PATH" INVENT_WITH="$(WITH)" docker/secure/make-secrets
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

@@ -12,10 +12,10 @@ from pathlib import Path
 import yaml
 import zenoh
 
-from schemas.keys import Keys, Service
+from schemas.keys import Keys, Service, user_service_name
 from services.cli.flags import config_from_args
 from services.cli.main import build_parser
-from services.security import DICTIONARY, ROUTER_CONFIG, Message, Role, grants
+from services.security import DICTIONARY, ROUTER_CONFIG, Message, Role, UserServiceGrant, grants, user_service_grants
 from tests.harness import REPO
 
 SECRETS_DIR = "./docker/secure/secrets"
@@ -27,6 +27,9 @@ ROLES = {**{str(service): Role(service.value) for service in Service}, "view": R
 """Each client container's role: its service's own, the live view's the observer's (it only watches)."""
 COMMANDS = {name: str(role) if name == GOALS_DRIVE else name for name, role in ROLES.items()}
 """The `invent` command each container runs: its name's, the goal drive's `drive`."""
+USER_SERVICES = {"odometer": "./examples/services:/services:ro"}
+"""The services of one's own (docs/extending.md), in the `extension` profile: each runs `invent service`
+with its file mounted (its directory, here), with credentials of its own (<name>.json5)."""
 
 
 def _compose() -> dict:
@@ -38,7 +41,9 @@ def _services() -> dict:
 
 
 def test_services_are_the_router_plus_every_service():
-    assert set(_compose()["services"]) == {"router", "view", GOALS_DRIVE} | {str(service) for service in Service}
+    assert set(_compose()["services"]) == {"router", "view", GOALS_DRIVE, *USER_SERVICES} | {
+        str(service) for service in Service
+    }
 
 
 def test_router_reads_the_generated_config_and_publishes_rest_on_loopback_only():
@@ -54,6 +59,13 @@ def test_every_service_is_a_client_with_only_its_own_roles_credentials():
     declared = _compose()["secrets"]
     for name, spec in _services().items():
         command = spec["command"]
+        if name in USER_SERVICES:
+            assert command[:2] == ["service", f"/services/{name}.py:{name.title()}"], name
+            assert spec["secrets"] == [{"source": name, "target": Path(ROLE_FILE_IN_CONTAINER).name}], name
+            assert declared[name] == {"file": f"{SECRETS_DIR}/{name}.json5"}, name
+            assert spec["volumes"] == [USER_SERVICES[name]] and spec["profiles"] == ["extension"], name
+            assert build_parser().parse_args(command).zenoh_config == ROLE_FILE_IN_CONTAINER
+            continue
         assert command[0] == COMMANDS[name]
         args = parser.parse_args(command)
         assert args.connect == ["tcp/router:7447"], name
@@ -127,27 +139,34 @@ def test_the_drives_and_the_ros2_bridge_are_the_commanders():
 def test_the_default_profile_runs_the_drives_scenario_and_no_ros2_bridge():
     assert _default_profiles() == {"scenario"}
     running = _running(_default_profiles())
-    assert running == set(_compose()["services"]) - {str(Service.ROS2), GOALS_DRIVE}
+    assert running == set(_compose()["services"]) - {str(Service.ROS2), GOALS_DRIVE, *USER_SERVICES}
     assert running & _commanders() == {str(Service.DRIVE)}
 
 
 def test_the_ros2_profile_runs_the_bridge_and_no_drive_so_the_robot_follows_cmd_vel():
     running = _running({"ros2"})
-    assert running == set(_compose()["services"]) - {str(Service.DRIVE), GOALS_DRIVE}
+    assert running == set(_compose()["services"]) - {str(Service.DRIVE), GOALS_DRIVE, *USER_SERVICES}
     assert running & _commanders() == {str(Service.ROS2)}
 
 
 def test_the_goals_profile_runs_the_drive_in_goal_mode_and_no_other_commander():
     running = _running({"goals"})
-    assert running == set(_compose()["services"]) - {str(Service.DRIVE), str(Service.ROS2)}
+    assert running == set(_compose()["services"]) - {str(Service.DRIVE), str(Service.ROS2), *USER_SERVICES}
     assert running & _commanders() == {GOALS_DRIVE}
 
 
 def test_every_profile_has_exactly_one_commander():
     profiles = {profile for spec in _compose()["services"].values() for profile in spec.get("profiles", [])}
-    assert profiles == {"scenario", "ros2", "goals"}
-    for profile in profiles:
+    assert profiles == {"scenario", "ros2", "goals", "extension"}
+    for profile in profiles - {"extension"}:
         assert len(_running({profile}) & _commanders()) == 1, profile
+    # the extension profile adds services of one's own beside a commander, and commands nothing itself
+    assert _running({"extension"}) - _running({"none"}) == set(USER_SERVICES)
+    assert not _running({"extension"}) & _commanders()
+    target = Keys("rh0").drive_target_velocity
+    for name in USER_SERVICES:
+        granted = user_service_grants(UserServiceGrant(user_service_name(name)), Keys("rh0"))
+        assert not [grant for grant in granted if Message.PUT in grant.messages and target in grant.key_exprs]
 
 
 def test_make_secrets_writes_the_files_compose_mounts(tmp_path):

@@ -9,8 +9,10 @@ from schemas.keys import DEFAULT_ROBOT, Keys
 from services.cli import tools
 from services.cli.flags import robot_names
 from services.config import TfLayout, load_config
+from services.extension.loader import load_all
 from services.ros2.graph import bridge_graph
 from services.runtime.session import DEFAULT_ENDPOINT
+from services.security import UserServiceGrant
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -73,7 +75,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+    parser.add_argument(
+        "--with",
+        dest="with_services",
+        action="append",
+        metavar="FILE.py:NAME",
+        help="also credentials for this service of your own (<name>.json5; docs/extending.md): it may put and "
+        "serve only under its name and query only its class's calls (repeatable; not with --robots)",
+    )
+
+
 def run(args: argparse.Namespace) -> int:
+    users = [UserServiceGrant(user.name, user.service.calls) for user in load_all(args.with_services or ())]
     return tools.run_secrets(
         Path(args.directory),
         Keys(args.robot),
@@ -85,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
         router_base=args.router_base,
         ros=bridge_graph(load_config(overrides={"ros2.namespace": args.ros_namespace, "ros2.tf": args.ros_tf})),
         robots=args.robots,
+        user_services=users,
     )
 
 

@@ -25,7 +25,7 @@ from services.exits import ExitStatus
 from services.ros2.graph import BridgeGraph
 from services.runtime.discovery import payload_value, service_statuses
 from services.runtime.session import ROUTER_LISTENING, has_match
-from services.security import write_fleet_profile, write_profile
+from services.security import UserServiceGrant, write_fleet_profile, write_profile
 
 
 def _print_json(value: Any, stream=sys.stdout) -> None:
@@ -71,8 +71,10 @@ def run_secrets(
     router_base: str | None,
     ros: BridgeGraph,
     robots: Sequence[str] = (),
+    user_services: Sequence[UserServiceGrant] = (),
 ) -> int:
-    """Write a secure deployment's profile (:func:`services.security.write_profile`) and say what is where.
+    """Write a secure deployment's profile (:func:`services.security.write_profile`) and say what is where;
+    ``user_services`` (``--with``) get credentials of their own (one robot's profile only).
 
     With ``robots`` (``--robots``), a fleet's profile (:func:`services.security.write_fleet_profile`)
     for those robots in place of ``keys``'s one; ``ros`` then places each robot's bridge in the
@@ -89,9 +91,11 @@ def run_secrets(
             "ros": ros,
         }
         if robots:
+            if user_services:
+                raise ConfigError("--with with --robots: a fleet's profile has no user services yet")
             profile = write_fleet_profile(directory, robots, **options)
         else:
-            profile = write_profile(directory, keys, **options)
+            profile = write_profile(directory, keys, user_services=user_services, **options)
     except ValueError as error:
         raise ConfigError(str(error)) from None
     fleet = f" for the fleet {', '.join(profile.robots)}" if profile.robots else ""
@@ -101,6 +105,8 @@ def run_secrets(
     for identity in profile.identities:
         path = profile.client_config(identity.role, identity.robot)
         print(f"  {identity.user + ':':<{width}} --zenoh-config {path}", file=sys.stderr)
+    for name in profile.user_services:
+        print(f"  {name + ':':<{width}} --zenoh-config {profile.user_service_config(name)}", file=sys.stderr)
     return ExitStatus.OK
 
 
