@@ -74,7 +74,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "tf in its namespace; prefixed: every robot's bridge may put on the shared /tf and /tf_static)",
     )
 
-
     parser.add_argument(
         "--with",
         dest="with_services",
