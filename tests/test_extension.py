@@ -29,7 +29,9 @@ from services.config import Config
 from services.errors import ConfigError
 from services.extension.hosting import UserOptions, command
 from services.extension.loader import load, load_all
-from services.security import Role, UserServiceGrant, user_service_grants, write_profile
+from services.launch.fleet import FleetRobots
+from services.launch.plan import UpPlan
+from services.security import Role, UserServiceGrant, user_service_grants, write_fleet_profile, write_profile
 from services.security.grants import Message
 from services.service import ServicePlan, run_service, start_service
 from tests.harness import REPO, call, free_port, peer_session, refused, running_router, wait_alive, wait_until
@@ -270,3 +272,48 @@ def test_the_router_lets_a_user_service_put_and_serve_only_under_its_name_and_qu
         # in order through one transport: once its ticks token is there, the drive's would have been
         wait_until(lambda: KEYS.ticks_with_output(patrol, 10.0, "progress") in tokens, 5, "its ticks token")
         assert tokens == {KEYS.alive(patrol), KEYS.ticks_with_output(patrol, 10.0, "progress")}
+
+
+# --- a fleet's services of one's own ---
+
+
+def test_a_fleet_file_runs_services_of_ones_own_beside_every_robot_or_one(tmp_path):
+    fleet_file = tmp_path / "fleet.toml"
+    fleet_file.write_text(
+        f'with = ["{ODOMETER}:Odometer"]\n'
+        '[[robots]]\nname = "rh0"\n'
+        f'[[robots]]\nname = "rh1"\nstart = {{ x = 0.0, y = 3.0, theta = 0.0 }}\nwith = ["{_spec("Doubler")}"]\n'
+    )
+    robots = FleetRobots(UpPlan(fleet=str(fleet_file)), str(fleet_file))
+    assert {robot.name: [user.name for user in robot.extensions] for robot in robots.each} == {
+        "rh0": ["odometer"],
+        "rh1": ["odometer", "doubler"],
+    }
+    assert [robot.participants for robot in robots.each] == [("odometer",), ("odometer",)]
+    access = robots.access(tmp_path / "run")
+    assert access.user_service_flags("odometer", "rh1") == []  # not secure: zenoh's defaults
+    fleet_file.write_text(f'[[robots]]\nname = "rh0"\nwith = ["{_spec("Named")}"]\n')
+    with pytest.raises(ConfigError, match="fleet robot 'rh0': .*built-in"):
+        FleetRobots(UpPlan(fleet=str(fleet_file)), str(fleet_file))
+
+
+def test_a_secure_fleets_user_service_is_granted_its_own_robots_keys_only(tmp_path):
+    doubler = user_service_name("doubler")
+    profile = write_fleet_profile(
+        tmp_path / "secrets",
+        ["rh0", "rh1"],
+        endpoint="tcp/127.0.0.1:7447",
+        user_services={"rh1": [UserServiceGrant(doubler)]},
+    )
+    assert profile.user_service_config("doubler", "rh1").name == "rh1-doubler.json5"
+    with pytest.raises(ValueError):
+        profile.user_service_config("doubler", "rh0")
+    router = json.loads(str(zenoh.Config.from_file(str(profile.router_config))))
+    rules = {rule["id"]: rule for rule in router["access_control"]["rules"]}
+    puts = [
+        key
+        for rule in rules.values()
+        if rule["id"].startswith("rh1-doubler-") and "put" in rule["messages"] and rule["flows"] == ["ingress"]
+        for key in rule["key_exprs"]
+    ]
+    assert puts == ["invent/rh1/doubler/**"]

@@ -63,12 +63,16 @@ class FleetRobot(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_onl
     """Its ROS 2 namespace (``rh1``: ``/rh1/odom``, ``/rh1/cmd_vel``); None: its name."""
     set: dict[str, Any] = msgspec.field(default_factory=dict)
     """Overrides of the robot description, ``"section.key" = value`` (nested tables are flattened)."""
+    with_services: tuple[str, ...] = msgspec.field(default=(), name="with")
+    """``with = ["FILE.py:NAME", ...]``: services of one's own for this robot (docs/extending.md)."""
 
 
 class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     world: str | None = None
     """As ``sim.world``: a built-in world's name or a world file; None: the default world."""
     robots: tuple[FleetRobot, ...]
+    with_services: tuple[str, ...] = msgspec.field(default=(), name="with")
+    """``with = ["FILE.py:NAME", ...]``: services of one's own beside every robot (docs/extending.md)."""
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -76,6 +80,10 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tru
 
     def robot(self, name: str) -> FleetRobot:
         return next(robot for robot in self.robots if robot.name == name)
+
+    def services_of(self, name: str) -> tuple[str, ...]:
+        """The services of one's own beside robot ``name``: the fleet-wide ``with``, then its own."""
+        return (*self.with_services, *self.robot(name).with_services)
 
     @property
     def clock_robot(self) -> str:

@@ -21,17 +21,18 @@ between two robots, their bumps into each other), and ``<report dir>/<robot>/`` 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from schemas.codec import decode
-from schemas.keys import Keys, Service
+from schemas.keys import Keys, Service, ServiceName, UserServiceName
 from schemas.messages import BumpEvent
 from services.config import Config, ConfigError
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.scenarios import load_scenario
 from services.errors import ChildDied, Interrupted
+from services.extension.loader import Loaded, load_all
 from services.fleet.description import Fleet, FleetRobot, bridge_flags, fleet_configs, load_fleet, robot_flags
 from services.fleet.summary import bumps_between, closest_approach
 from services.launch.children import say
@@ -52,7 +53,7 @@ from services.launch.run import (
 from services.launch.worker import assign
 from services.recording.mcap_files import read_run, robot_report
 from services.recording.report import loop_health, summary, write_plots, write_report
-from services.security import write_fleet_profile
+from services.security import UserServiceGrant, write_fleet_profile
 from sim_bridge.world import load_world
 
 UNSUPPORTED = {
@@ -94,7 +95,9 @@ def check_fleet(plan: UpPlan, path: str) -> tuple[Fleet, dict[str, Config]]:
     return fleet, configs
 
 
-def fleet_access(plan: UpPlan, fleet: Fleet, report_dir: Path) -> Access:
+def fleet_access(
+    plan: UpPlan, fleet: Fleet, report_dir: Path, extensions: Mapping[str, Sequence[Loaded]] | None = None
+) -> Access:
     """The run's :class:`Access`; with ``--secure`` a fresh fleet profile (``write_fleet_profile``): a
     user per robot and service, each allowed only its own robot's keys, written before anything starts."""
     listen = secure_listen(plan)
@@ -112,9 +115,27 @@ def fleet_access(plan: UpPlan, fleet: Fleet, report_dir: Path) -> Access:
         router_listen=listen,
         tls=plan.tls,
         bridges=fleet_bridge_graphs(fleet, plan.description.config, plan.description.overrides()),
+        user_services={
+            robot: [UserServiceGrant(user.name, user.service.calls) for user in users]
+            for robot, users in (extensions or {}).items()
+        },
     )
     say(f"secure: a user per robot and service, credentials in {profile.directory}/")
     return Access(profile, None)
+
+
+def _extensions(plan: UpPlan, fleet: Fleet, robot: str) -> tuple[Loaded, ...]:
+    """Robot ``robot``'s services of one's own: ``--with`` (every robot's), the fleet file's
+    fleet-wide ``with``, then its own; ConfigError naming the robot for a bad one."""
+    specs = (*plan.with_services, *fleet.services_of(robot))
+    if specs and plan.composed:
+        raise ConfigError(
+            "--with (or a fleet file's `with`) with --composed: a user service runs as a process of its own"
+        )
+    try:
+        return load_all(specs)
+    except ConfigError as error:
+        raise ConfigError(f"fleet robot {robot!r}: {error}") from None
 
 
 def _scenario(robot: FleetRobot, plan: UpPlan) -> str:
@@ -132,6 +153,7 @@ class FleetRobots:
         self.plan = plan
         self.fleet, self.configs = check_fleet(plan, fleet_file)
         fleet = self.fleet
+        self.extensions = {robot.name: _extensions(plan, fleet, robot.name) for robot in fleet.robots}
         self.each: tuple[Robot, ...] = tuple(
             Robot(
                 robot.name,
@@ -140,6 +162,7 @@ class FleetRobots:
                 tuple(robot_flags(robot)),
                 tuple(bridge_flags(fleet, robot)),
                 in_fleet=True,
+                extensions=self.extensions[robot.name],
             )
             for robot in fleet.robots
         )
@@ -150,7 +173,7 @@ class FleetRobots:
         self.teleop_line = "teleop: each robot follows ROS 2's /<namespace>/cmd_vel until Ctrl-C; see docs/ros2.md"
 
     def access(self, report_dir: Path) -> Access:
-        return fleet_access(self.plan, self.fleet, report_dir)
+        return fleet_access(self.plan, self.fleet, report_dir, self.extensions)
 
     def assignment(self) -> dict[str, int] | None:
         return assign(self.fleet.names, self.plan.workers or 1) if self.plan.composed else None
@@ -171,7 +194,9 @@ class FleetRobots:
         return f"fleet of {len(self.fleet.robots)}: {', '.join(self.fleet.names)}; {mode} mode"
 
     def watch(self, run: Run, drives: dict[str, Any]) -> FleetRun:
-        return FleetRun(run, self.fleet)
+        return FleetRun(
+            run, self.fleet, {name: [user.name for user in users] for name, users in self.extensions.items()}
+        )
 
     def health_lines(self, health: dict[str, dict[str, Any]]) -> list[str]:
         """None: each robot's degradations say what matters."""
@@ -189,8 +214,12 @@ class FleetRobots:
 class FleetRun:
     """One fleet run: its launcher, session, and which robot lost which service."""
 
-    def __init__(self, run: Run, fleet: Fleet) -> None:
+    def __init__(
+        self, run: Run, fleet: Fleet, user_services: Mapping[str, Sequence[UserServiceName]] | None = None
+    ) -> None:
         self.run = run
+        self.user_services = user_services or {}
+        """Per robot, the names of its services of one's own."""
         """The run as ``up`` watches one robot's: its launcher, session, queries, start-up waits."""
         self.launcher = run.launcher
         self.fleet = fleet
@@ -226,7 +255,7 @@ class FleetRun:
         robot, _, service = child.partition("/")
         return service in self.lost.get(robot, {}) or (child in self._drives and robot in self.outcomes_of)
 
-    def status(self, keys: Keys, service: Service) -> dict[str, Any] | None:
+    def status(self, keys: Keys, service: ServiceName) -> dict[str, Any] | None:
         return self.run.query(keys.status(service))
 
     def _over(self) -> bool:
@@ -279,8 +308,14 @@ class FleetRun:
             for service in SERVICES_BEFORE_DRIVE
         }
         statuses[str(Service.DRIVE)] = self.status(keys, Service.DRIVE) or self.drive_statuses[robot]
+        users = {
+            str(name): None if str(name) in self.lost[robot] else self.status(keys, name)
+            for name in self.user_services.get(robot, ())
+        }
         robot_sim = self.status(keys, Service.SIM) or self.sim_status
-        health = loop_health(robot_sim, statuses)
+        health = loop_health(robot_sim, {**statuses, **users})
+        if users:
+            health["user_services"] = users
         health["lost_services"] = dict(self.lost[robot])
         return robot_sim, health
 

@@ -51,6 +51,10 @@ class Robot:
         """How its service of ``role`` connects: a fleet robot's own credentials when secure."""
         return access.flags(role, self.name if self.in_fleet else None)
 
+    def user_credentials(self, access: Access, name: str) -> list[str]:
+        """How its service of one's own ``name`` connects: a fleet robot's own credentials when secure."""
+        return access.user_service_flags(name, self.name if self.in_fleet else None)
+
     def label(self, line: str) -> str:
         """``line`` about this robot as ``up`` prints it: a fleet robot's prefixed with its name."""
         return f"{self.name}: {line}" if self.in_fleet else line

@@ -135,10 +135,11 @@ class Access:
         path = self.config_file(role, robot)
         return ["--zenoh-config", path] if path else []
 
-    def user_service_flags(self, name: str) -> list[str]:
-        """How user service ``name`` connects: its own credentials when secure (services/extension/)."""
+    def user_service_flags(self, name: str, robot: str | None = None) -> list[str]:
+        """How user service ``name`` (of ``robot``'s, in a secure fleet) connects: its own credentials
+        when secure (services/extension/)."""
         if self.profile:
-            return ["--zenoh-config", str(self.profile.user_service_config(name))]
+            return ["--zenoh-config", str(self.profile.user_service_config(name, robot))]
         return ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
 
     def router_flags(self, endpoint: str) -> list[str]:

@@ -115,7 +115,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                     launcher.start(robot.child(service), [str(service), *flags, *own.get(service, [])])
             for robot in robots.each:  # the user's own (--with), beside them, supervised as they are
                 for user in robot.extensions:
-                    flags = [*common, *access.user_service_flags(user.name), *robot.flags, *journal(robot)]
+                    flags = [*common, *robot.user_credentials(access, user.name), *robot.flags, *journal(robot)]
                     launcher.start(robot.child(user.name), ["service", user.spec, *flags])
             # Until the sim starts, any service that ends ends the run.
             run.wait_tokens(
@@ -135,7 +135,8 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                 say(robots.teleop_line)
             else:
                 ending = ["--until-drive-ends", "--wait-for", *(str(service) for service in LOOP_BEFORE_FIRST_STEP)]
-                ending += sorted({name for robot in robots.each for name in robot.participants})
+                # a user participant's name, where every robot has it (the sim waits for each name on every robot)
+                ending += sorted(set.intersection(*(set(robot.participants) for robot in robots.each)))
             sim_session = [*common, *access.flags(Role.SIM), *(recorder.flags if recorder else [])]
             simulation = [*robots.sim_flags, "--mode", mode, *ending, *(["--gui"] if plan.gui else []), *rt_flags(plan)]
             launcher.start(str(Service.SIM), [str(Service.SIM), *sim_session, *simulation])

@@ -66,14 +66,17 @@ class Profile:
     robots: tuple[str, ...] = ()
     """The fleet's robots (:func:`write_fleet_profile`); empty for a single robot's profile."""
     user_services: tuple[str, ...] = ()
-    """The user services with credentials of their own (``<name>.json5``; services/extension/)."""
+    """The users of the services of one's own (services/extension/): ``<name>``, in a fleet
+    ``<robot>-<name>``; each has its client file ``<user>.json5``."""
 
-    def user_service_config(self, name: str) -> Path:
-        """The client file of user service ``name``: ``<name>.json5`` (no role is named as a user
-        service may be: schemas.keys.RESERVED_NAMES). ValueError for one the profile does not have."""
-        if name not in self.user_services:
-            raise ValueError(f"user service {name!r} has no credentials in {self.directory}")
-        return self.directory / f"{name}.json5"
+    def user_service_config(self, name: str, robot: str | None = None) -> Path:
+        """The client file of user service ``name`` (of ``robot``'s, in a fleet): ``<name>.json5`` or
+        ``<robot>-<name>.json5`` (no role is named as a user service may be: schemas.keys.RESERVED_NAMES,
+        and no name holds a ``-``). ValueError for one the profile does not have."""
+        user = name if robot is None else f"{robot}-{name}"
+        if user not in self.user_services:
+            raise ValueError(f"user service {user!r} has no credentials in {self.directory}")
+        return self.directory / f"{user}.json5"
 
     @property
     def router_config(self) -> Path:
@@ -161,6 +164,7 @@ def write_fleet_profile(
     *,
     ros: BridgeGraph = DEFAULT_ROS,
     bridges: Mapping[str, BridgeGraph] | None = None,
+    user_services: Mapping[str, Sequence[UserServiceGrant]] | None = None,
     **where: Unpack[Deployment],
 ) -> Profile:
     """Write a fresh profile for the fleet of ``robots`` (several robots in one world) into
@@ -171,8 +175,9 @@ def write_fleet_profile(
     each of :data:`PER_ROBOT_ROLES` (``rh1-motor``); each has its client file ``<user>.json5``
     beside ``router.json5`` (:meth:`Profile.client_config`). Robot ``r``'s ROS 2 bridge is granted
     ``bridges[r]``, by default :func:`robot_bridge` of ``ros`` (namespace ``/<r>``; ``/clock`` for the
-    first robot's only); ``ros_node`` the domains of them all. ValueError for a bad fleet
-    (:func:`fleet_robots`) or endpoint.
+    first robot's only); ``ros_node`` the domains of them all. Each of ``user_services[r]`` gets the
+    user ``<r>-<name>``, granted :func:`user_service_grants` on robot ``r``. ValueError for a bad
+    fleet (:func:`fleet_robots`) or endpoint.
     """
     fleet = fleet_robots(robots)
     graphs = {
@@ -180,13 +185,13 @@ def write_fleet_profile(
         for index, robot in enumerate(fleet)
     }
     credentials = {identity: Credentials(identity.user, _fresh_password()) for identity in fleet_identities(fleet)}
-    return _write_files(
-        directory,
-        credentials,
-        fleet_access_control({identity: c.user for identity, c in credentials.items()}, fleet, graphs),
-        robots=fleet,
-        **where,
-    )
+    rules = fleet_access_control({identity: c.user for identity, c in credentials.items()}, fleet, graphs)
+    users: dict[str, Credentials] = {}
+    for robot, granted in (user_services or {}).items():
+        for user in granted:
+            login = users[f"{robot}-{user.name}"] = Credentials(f"{robot}-{user.name}", _fresh_password())
+            _add_subject(rules, login.user, login.user, user_service_grants(user, Keys(robot)))
+    return _write_files(directory, credentials, rules, robots=fleet, users=users, **where)
 
 
 def _write_files(
