@@ -101,8 +101,9 @@ def _circle_hits(shape: Circle, sx: Array, sy: Array, dx: Array, dy: Array) -> t
     discriminant = b * b - a * c
     with np.errstate(invalid="ignore"):
         t = (-b - np.sqrt(discriminant)) / a
-    t = np.where((discriminant >= 0.0) & (c > 0.0) & (t >= 0.0) & (t <= 1.0), t, np.inf)
-    return t, (fx + t * dx) / shape.radius, (fy + t * dy) / shape.radius
+    hit = (discriminant >= 0.0) & (c > 0.0) & (t >= 0.0) & (t <= 1.0)
+    at = np.where(hit, t, 0.0)
+    return np.where(hit, t, np.inf), (fx + at * dx) / shape.radius, (fy + at * dy) / shape.radius
 
 
 def _rectangle_hits(shape: Rectangle, sx: Array, sy: Array, dx: Array, dy: Array) -> tuple[Array, Array, Array]:
