@@ -45,7 +45,9 @@ def tracked_pose(k: int) -> list[float]:
     return [x + offset_x, y + offset_y, 0.06, c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0]
 
 
-def test_a_tracker_on_sim_body_pose_gives_the_localization_stub_its_fixes(endpoint: str, session: zenoh.Session) -> None:
+def test_a_tracker_on_sim_body_pose_gives_the_localization_stub_its_fixes(
+    endpoint: str, session: zenoh.Session
+) -> None:
     dx, dy, dtheta = MARKER
     offsets = (
         f"motor.simulated_offset_x={dx}",
