@@ -1,8 +1,9 @@
 """The loop on the kinematic engine (``invent up --engine kinematic``): the square closes, home within
 1 cm by the ground truth; two runs give the same samples bit for bit; in the bump world the
 collision monitor holds the robot short of the box its lidar sees, and with the monitor off the
-robot bumps into the box and stops against it. Every run is lockstep and ``--composed`` (one
-process: the fastest), shared by the tests that read it; the four together take a few seconds."""
+robot bumps into the box and stops against it; a fleet's two robots meeting head-on bump each other
+and stop touching. Every run is lockstep and ``--composed`` (one process: the fastest), shared by
+the tests that read it; the five runs take about 10 s."""
 
 from __future__ import annotations
 
@@ -137,3 +138,25 @@ def test_without_the_monitor_the_robot_bumps_into_the_box_and_stops_against_it(b
     assert len(bumps) == 1 and bumps[0].obstacle == "box" and bumps[0].x == pytest.approx(BOX_FACE_X)
     x, y = final_pose(bumped)
     assert BOX_FACE_X - BODY_RADIUS - 0.01 < x <= BOX_FACE_X - BODY_RADIUS and y == pytest.approx(0.0, abs=1e-9)
+
+
+HEAD_ON = "".join(
+    f'[[robots]]\nname = "{name}"\nstart = {{ x = {x}, y = 0.0, theta = {theta} }}\nscenario = "straight"\n'
+    'set = { "collision_monitor.enabled" = false }\n'
+    for name, x, theta in (("rh0", 0.0, 0.0), ("rh1", 3.0, math.pi))
+)
+"""Two robots 3 m apart facing each other, each to drive 2 m ahead, their collision monitors off."""
+
+
+def test_a_fleet_runs_on_it_two_robots_meeting_head_on_bump_each_other_once_and_stop_touching(tmp_path: Path):
+    fleet = tmp_path / "fleet.toml"
+    fleet.write_text(HEAD_ON)
+    run = up(tmp_path / "report", "--fleet", str(fleet))
+    assert run.returncode == ExitStatus.ABORTED, run.output[-4000:]
+    between = run.report["fleet"]["bumps_between_robots"]
+    assert {(bump["robot"], bump["other"]) for bump in between} == {("rh0", "rh1"), ("rh1", "rh0")}, between
+    assert between[0]["t_s"] == between[1]["t_s"], "one contact, a bump for each at the same step"
+    for robot, other in (("rh0", "rh1"), ("rh1", "rh0")):
+        assert f"bumped into {other!r}" in run.report["robots"][robot]["outcome"]["reason"]
+    touching = run.report["fleet"]["closest_approach"]["distance_m"]
+    assert 2 * BODY_RADIUS <= touching < 2 * BODY_RADIUS + 0.002, "stopped touching, never into each other"
