@@ -22,7 +22,7 @@ import msgspec
 import zenoh
 
 from schemas.codec import BadInput, decode, encode
-from schemas.keys import Keys, Service, UserServiceName, validate_own_key
+from schemas.keys import Keys, Service, UserServiceName, service_name, user_service_name, validate_own_key
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq
 from services.clock.sim_time import PeriodicSchedule
 from services.config import Config
@@ -140,7 +140,7 @@ class Context:
         self._node = node
         self._on_finish = on_finish
         self._service_type = service
-        self.name: UserServiceName = node.service  # type: ignore[assignment]
+        self.name: UserServiceName = user_service_name(str(node.service))
         self.keys: Keys = node.keys
         """The robot's keys: ``ctx.keys.odometry_pose``, ``ctx.keys.drive_goal_send``, ..."""
         self.robot = node.keys.robot
@@ -149,11 +149,11 @@ class Context:
         self.log: logging.Logger = node.log
         """Its logger: ``invent up`` prefixes each line with the service's name."""
         self._outputs: dict[str, Output[Any]] = {}
-        self._timers: list[list[Any]] = []
+        self._timers: list[_Timer] = []
         self._sim_ns: int | None = None
         self._sim_alive = False
         self._schedule: PeriodicSchedule | None = None
-        self.calls = {"sent": 0, "replied": 0, "failed": 0}
+        self._calls = {"sent": 0, "replied": 0, "failed": 0}
         node.watch(Service.SIM, self._on_sim)
         node.subscribe(node.keys.sim_clock, TimedDoubleSeq, self._on_clock, _RuntimeDelivery.SAMPLED)
         node.wait_with(self._next_wait)
@@ -175,7 +175,7 @@ class Context:
 
     def watch(self, service: str, on_change: Callable[[bool], None]) -> None:
         """``on_change(alive)`` whenever ``service`` (``"drive"``, another user service) comes or goes."""
-        self._node.watch(service, on_change)  # type: ignore[arg-type]
+        self._node.watch(service_name(service), on_change)
 
     # --- outputs and queryables ---
 
@@ -218,7 +218,7 @@ class Context:
         service thread, once (the first reply, or the error). Never waits."""
         if key not in self._service_type.calls:
             raise ValueError(f"{key!r} is not in {self._service_type.__name__}.calls {self._service_type.calls}")
-        self.calls["sent"] += 1
+        self._calls["sent"] += 1
         done = False
 
         def settle(reply: Reply[MessageT]) -> None:
@@ -226,7 +226,7 @@ class Context:
             if done:
                 return
             done = True
-            self.calls["replied" if reply.ok else "failed"] += 1
+            self._calls["replied" if reply.ok else "failed"] += 1
             on_reply(reply)
 
         def take(result: tuple[bytes | None, str]) -> None:
@@ -264,7 +264,7 @@ class Context:
         """Call ``callback()`` every ``period_s`` seconds of wall time (first after one period)."""
         if not period_s > 0.0:
             raise ValueError(f"timer period must be > 0, got {period_s}")
-        self._timers.append([time.monotonic() + period_s, period_s, callback])
+        self._timers.append(_Timer(time.monotonic() + period_s, period_s, callback))
 
     @property
     def sim_time(self) -> Time | None:
@@ -315,7 +315,7 @@ class Context:
             "sim_time_s": None if self._sim_ns is None else self._sim_ns / NANOSECONDS_PER_SECOND,
             "lockstep": participating,
             "outputs": {key: output.published for key, output in self._outputs.items()},
-            "calls": dict(self.calls),
+            "calls": dict(self._calls),
         }
 
     def _on_sim(self, alive: bool) -> None:
@@ -330,10 +330,18 @@ class Context:
             return Wait()
         now = time.monotonic()
         for timer in self._timers:
-            if timer[0] <= now:
-                timer[0] = now + timer[1]
-                self._node.guard("timer", timer[2])
-        return Wait(until=min(timer[0] for timer in self._timers))
+            if timer.due <= now:
+                timer.due = now + timer.period_s
+                self._node.guard("timer", timer.callback)
+        return Wait(until=min(timer.due for timer in self._timers))
+
+
+@dataclass
+class _Timer:
+    due: float
+    """When it runs next (``time.monotonic()``)."""
+    period_s: float
+    callback: Callable[[], None]
 
 
 def _error_text(payload: bytes) -> str:
