@@ -7,27 +7,11 @@ statuses (services/exits.py)."""
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from collections.abc import Sequence
 
-from services.cli import (
-    calibrate,
-    call,
-    config,
-    echo,
-    export,
-    goto,
-    record,
-    replay,
-    report,
-    router,
-    secrets,
-    services,
-    status,
-    up,
-    view,
-    worker,
-)
+from services.cli import services
 from services.cli.flags import Parents
 from services.cli.subcommand import SubcommandModule
 from services.config import ConfigError
@@ -35,27 +19,31 @@ from services.errors import SessionFailed
 from services.exits import ExitStatus
 from services.runtime.logs import configure_logging
 
-SUBCOMMANDS: tuple[SubcommandModule, ...] = (
-    router,
-    secrets,
-    echo,
-    call,
-    status,
-    goto,
-    config,
-    record,
-    export,
-    view,
-    report,
-    replay,
-    up,
-    calibrate,
-    worker,
+SUBCOMMANDS = (
+    "router",
+    "secrets",
+    "echo",
+    "call",
+    "status",
+    "goto",
+    "config",
+    "record",
+    "export",
+    "view",
+    "report",
+    "replay",
+    "up",
+    "calibrate",
+    "worker",
 )
-"""The subcommands that are not services, in ``invent --help``'s order, each in its own module."""
+"""The subcommands that are not services, in ``invent --help``'s order, each the module of its name
+in this package (a :class:`~services.cli.subcommand.SubcommandModule`)."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """``invent``'s parser; with ``only`` (a subcommand's name), that subcommand's alone, so that
+    only its module is imported: an ``invent motor`` process then starts in about half the time
+    (~0.2 s of the 0.4 s of importing every subcommand's module, measured here)."""
     parser = argparse.ArgumentParser(
         prog="invent",
         description="invent-zenoh: a differential-drive robot stack on zenoh (motor, odometry, "
@@ -63,21 +51,27 @@ def build_parser() -> argparse.ArgumentParser:
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     parents = Parents()
-    for subcommand in SUBCOMMANDS:
+    for name in SUBCOMMANDS:
+        if only not in (None, name):
+            continue
+        subcommand: SubcommandModule = importlib.import_module(f"services.cli.{name}")
         sub = commands.add_parser(
-            subcommand.__name__.rpartition(".")[2],
+            name,
             parents=[getattr(parents, group) for group in subcommand.GROUPS],
             help=subcommand.HELP,
             description=subcommand.DESCRIPTION,
         )
         subcommand.add_arguments(sub)
         sub.set_defaults(handler=subcommand.run)
-    services.add_parsers(commands, parents)
+    services.add_parsers(commands, parents, [name for name in services.SERVICE_COMMANDS if only in (None, name)])
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    arguments = list(sys.argv[1:] if argv is None else argv)
+    command = arguments[0] if arguments else None
+    known = command in SUBCOMMANDS or command in services.SERVICE_COMMANDS
+    args = build_parser(command if known else None).parse_args(arguments)
     configure_logging(getattr(args, "log_level", "info"))  # a subcommand without the connection flags logs at info
     try:
         return args.handler(args)

@@ -6,21 +6,29 @@ from __future__ import annotations
 
 import argparse
 import functools
+import importlib
 from collections.abc import Sequence
 from typing import Any
 
-from services.cli import drive, localization, motor, odometry, ros2, sim
 from services.cli.flags import Commands, Parents
 from services.cli.serve import ServiceCli, add_parser, plan_from_args
 from services.service import ServicePlan
 
-SERVICES: tuple[ServiceCli[Any], ...] = (sim.CLI, motor.CLI, odometry.CLI, localization.CLI, drive.CLI, ros2.CLI)
-"""One ``invent <service>`` subcommand each, in this order."""
+SERVICE_COMMANDS = ("sim", "motor", "odometry", "localization", "drive", "ros2")
+"""One ``invent <service>`` subcommand each, in this order; each is the module of its name here,
+whose ``CLI`` is its :class:`~services.cli.serve.ServiceCli`."""
 
 
-def add_parsers(commands: Commands, parents: Parents) -> None:
-    for cli in SERVICES:
-        add_parser(commands, parents, cli)
+def service_cli(name: str) -> ServiceCli[Any]:
+    """The subcommand ``invent <name>``, its module imported only now: a process that runs one
+    service does not import the others (every ``invent`` process would pay for all of them)."""
+    cli: ServiceCli[Any] = importlib.import_module(f"services.cli.{name}").CLI
+    return cli
+
+
+def add_parsers(commands: Commands, parents: Parents, names: Sequence[str] = SERVICE_COMMANDS) -> None:
+    for name in names:
+        add_parser(commands, parents, service_cli(name))
 
 
 @functools.cache
