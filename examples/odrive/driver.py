@@ -3,9 +3,10 @@ the simulator serves (docs/plant.md), so ``invent motor``, ``invent odometry`` a
 run against the real wheels unchanged. A template to adapt (README.md); it has not met the hardware.
 
     python -m examples.odrive.driver --port /dev/ttyACM0 --connect tcp/127.0.0.1:7447 \\
-        --set sim.mode=realtime --set sim.step=0.005 --set sim.observe_every=4
+        --set sim.step=0.01 --set sim.observe_every=2 --set sim.torque_max_age=0.02
 
-Every ``sim.step`` of wall time (divided by ``sim.realtime_factor``) a cycle reads both axes'
+It always runs in realtime (``sim.mode`` is the simulator's setting; a real base cannot hold its
+time). Every ``sim.step`` of wall time (divided by ``sim.realtime_factor``) a cycle reads both axes'
 positions (``f 0``, ``f 1``), publishes them as ``sim/wheel_angles`` stamped with the cycle's
 time (k·step: a real base's clock is its cycle count), and at the observed steps ``sim/clock``
 once the cycle's torque is in; each ``motor/torque`` goes to the axes at once (``c 0``, ``c 1``).
@@ -28,13 +29,13 @@ from typing import Any
 import zenoh
 
 from examples.odrive.odrive_link import Axes, LinkError, ODrive, SerialPort
-from examples.odrive.protocol import AXIS_STATE_CLOSED_LOOP_CONTROL, Wheel
+from examples.odrive.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, AXIS_STATE_CLOSED_LOOP_CONTROL, Wheel
 from schemas.codec import BadInput
 from schemas.keys import Keys, Service, parse_observes_key, parse_ticks_key
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq
 from services.clock.lockstep import encode_mark
 from services.clock.observation import ObservedSteps
-from services.config import Config, ConfigError, SimMode, load_config
+from services.config import Config, ConfigError, load_config
 from services.config.loading import parse_override
 from services.runtime.executor import STOP_POLL_S
 from services.runtime.inputs import Delivery
@@ -45,9 +46,11 @@ from services.runtime.session import open_session, session_config, stop_on_signa
 MAX_LAG_S = 0.1
 """A loop this far behind its schedule starts it again from now (as the realtime sim), rather
 than run the cycles it missed back to back."""
-STATE_POLL_S = 1.0
-"""How often the axes' ``current_state`` is read: an axis that left closed-loop control (its own
-watchdog, an error) takes no torque, and the status says so."""
+START_REPLY_TIMEOUT_S = 0.5
+"""What a reply may take before the loop runs (a board just plugged in answers slower)."""
+STATE_POLL_S = 0.25
+"""How often the axes' ``current_state`` is read: an axis that left closed-loop control takes no
+torque, and the robot rolls on meanwhile (4 polls a second cost 4 short exchanges)."""
 COUNTERS = (
     "steps",
     "serial_errors",
@@ -58,6 +61,7 @@ COUNTERS = (
     "stale_torques",
     "watchdog_zero_steps",
     "axis_faults",
+    "rearms",
 )
 
 
@@ -166,9 +170,23 @@ class Driver:
             self.counters["serial_errors"] += 1
             self._warn("serial", logging.WARNING, "reading the axes' state: %s", error)
             return
-        if any(state != AXIS_STATE_CLOSED_LOOP_CONTROL for state in self.states):
-            self.counters["axis_faults"] += 1
-            self._warn("axes", logging.ERROR, "an axis left closed-loop control: current_state %s", self.states)
+        if all(state == AXIS_STATE_CLOSED_LOOP_CONTROL for state in self.states):
+            return
+        self.counters["axis_faults"] += 1
+        try:
+            errors = self.odrive.errors()
+        except LinkError as error:
+            self.counters["serial_errors"] += 1
+            self._warn("serial", logging.WARNING, "reading the axes' errors: %s", error)
+            return
+        if all(error & ~AXIS_ERROR_WATCHDOG_TIMER_EXPIRED == 0 for error in errors):
+            # Only the ODrive's own watchdog: this process was late feeding it (a stall). It is
+            # back, so control again; any other error needs a person (README.md).
+            self.odrive.rearm()
+            self.counters["rearms"] += 1
+            self._warn("rearm", logging.WARNING, "the ODrive's watchdog idled the axes %s: re-armed", self.states)
+        else:
+            self._warn("axes", logging.ERROR, "axes idle, errors %s: not re-armed", [hex(e) for e in errors])
 
     def run(self, stop: threading.Event) -> None:
         node, period = self.node, self.period_s
@@ -235,12 +253,15 @@ def settings(args: argparse.Namespace) -> tuple[Config, Axes]:
     if args.robot:
         overrides["robot.name"] = args.robot
     config = load_config(args.config, overrides)
-    if config.sim.mode is not SimMode.REALTIME:
-        raise ConfigError("sim.mode: a real base runs in realtime (--set sim.mode=realtime, for every service)")
     if config.sim.torque_max_age < config.sim.step:
         raise ConfigError(
             f"sim.torque_max_age = {config.sim.torque_max_age} s: at least sim.step ({config.sim.step} s)"
         )
+    for flag in ("gear_ratio", "max_motor_torque", "vel_limit", "reply_timeout"):
+        if not getattr(args, flag) > 0.0:
+            raise ConfigError(f"--{flag.replace('_', '-')} must be > 0, not {getattr(args, flag)}")
+    if args.watchdog_timeout < 0.0:
+        raise ConfigError(f"--watchdog-timeout must be >= 0, not {args.watchdog_timeout}")
     try:
         axes = Axes(
             Wheel(args.left_axis, args.left_sign, args.gear_ratio),
@@ -261,31 +282,42 @@ def main(argv: list[str] | None = None) -> int:
         log.error("%s", error)
         return 2
     stop = stop_on_signals()
-    port = SerialPort(args.port, args.baud)
-    odrive = ODrive(port, axes, args.reply_timeout, args.max_motor_torque)
     try:
+        port = SerialPort(args.port, args.baud)
+    except OSError as error:
+        log.error("cannot open %s: %s", args.port, error.strerror or error)
+        return 1
+    odrive = ODrive(port, axes, START_REPLY_TIMEOUT_S, args.max_motor_torque)
+    try:
+        # before anything is announced: is there an ODrive, speaking ASCII, on this port?
         log.info("ODrive on %s: vbus %.1f V", args.port, odrive.read("vbus_voltage"))
         with open_session(session_config(connect=args.connect)) as session:
             node = Node(session, Keys(config.robot.name), Service.SIM)
             driver = Driver(node, config, odrive)
             try:
-                # armed last: the ODrive's watchdog runs from here, and the loop feeds it
+                # armed last: the ODrive's own watchdog runs from here, and the loop feeds it
                 odrive.arm(args.vel_limit, args.watchdog_timeout or None)
+                odrive.reply_timeout = args.reply_timeout
                 log.info("axes in closed-loop control; %g Hz", 1.0 / config.sim.step)
                 driver.run(stop)
             finally:
                 driver.close()
                 node.close()
+        log.info("stopped: %s", driver.counters)
+        return 0
     except LinkError as error:
         log.error("the ODrive on %s: %s (the port, its baud rate, the ASCII protocol enabled?)", args.port, error)
+        return 1
+    except OSError as error:
+        log.error("the serial port %s failed: %s", args.port, error)
         return 1
     finally:
         try:
             odrive.disarm()
-        finally:
-            port.close()
-    log.info("axes idle; %s", driver.counters if "driver" in locals() else "")
-    return 0
+            log.info("axes idle")
+        except OSError as error:
+            log.error("could not idle the axes: %s", error)
+        port.close()
 
 
 if __name__ == "__main__":

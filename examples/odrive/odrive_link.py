@@ -23,6 +23,7 @@ from examples.odrive.protocol import (
     LineSplitter,
     Wheel,
     feedback_request,
+    line,
     parse_feedback,
     parse_number,
     read_property,
@@ -31,6 +32,11 @@ from examples.odrive.protocol import (
 )
 
 BAUD_RATES = {9600: termios.B9600, 57600: termios.B57600, 115200: termios.B115200, 921600: termios.B921600}
+
+
+ARM_TIMEOUT_S = 1.0
+"""How long an axis may take to enter closed-loop control (a board does it in milliseconds once
+calibrated; an uncalibrated one never does, and needs ``odrivetool`` first: README.md)."""
 
 
 class LinkError(Exception):
@@ -179,14 +185,29 @@ class ODrive:
                 self.write_checked(f"{axis}.config.enable_watchdog", 1)
             self.port.write(torque_command(wheel.axis, 0.0))
             self.port.write(write_property(f"{axis}.requested_state", AXIS_STATE_CLOSED_LOOP_CONTROL))
-        states = self.states()
-        if any(state != AXIS_STATE_CLOSED_LOOP_CONTROL for state in states):
-            raise LinkError(f"the axes did not enter closed-loop control: current_state {states}")
+        deadline = time.monotonic() + ARM_TIMEOUT_S
+        while (states := self.states()) != (AXIS_STATE_CLOSED_LOOP_CONTROL,) * 2:
+            if time.monotonic() > deadline:
+                raise LinkError(f"the axes did not enter closed-loop control: current_state {states}")
+            time.sleep(0.01)
 
     def states(self) -> tuple[int, int]:
         """(left, right) axes' ``current_state``."""
         left, right = self.axes.left.axis, self.axes.right.axis
         return int(self.read(f"axis{left}.current_state")), int(self.read(f"axis{right}.current_state"))
+
+    def errors(self) -> tuple[int, int]:
+        """(left, right) axes' ``error`` bits."""
+        left, right = self.axes.left.axis, self.axes.right.axis
+        return int(self.read(f"axis{left}.error")), int(self.read(f"axis{right}.error"))
+
+    def rearm(self) -> None:
+        """After the ODrive's own watchdog idled the axes (this process was late feeding it): clear
+        the errors (``sc``), zero torque, closed-loop control again. The next poll says if it took."""
+        self.port.write(line("sc"))
+        for wheel in (self.axes.left, self.axes.right):
+            self.port.write(torque_command(wheel.axis, 0.0))
+            self.port.write(write_property(f"axis{wheel.axis}.requested_state", AXIS_STATE_CLOSED_LOOP_CONTROL))
 
     def disarm(self) -> None:
         """Zero torque, then both axes idle (the motors unpowered: the wheels roll freely)."""

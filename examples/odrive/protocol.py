@@ -26,6 +26,8 @@ same bound, so a device that never ends a line cannot grow the host's buffer).""
 AXIS_STATE_IDLE = 1
 AXIS_STATE_CLOSED_LOOP_CONTROL = 8
 """``axisN.requested_state`` / ``current_state`` values (ODrive's ``AxisState``)."""
+AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = 0x800
+"""``axisN.error``'s bit when the ODrive's own watchdog idled the axis (firmware 0.5)."""
 ERROR_REPLIES = ("unknown command", "invalid command format", "invalid property", "not implemented", "invalid motor")
 """What the device answers instead of a value (the start of the line)."""
 
