@@ -117,8 +117,8 @@ class Driver:
             raise BadInput(
                 f"torque stamped {tm_ns} ns, after the latest step ({self.published_ns} ns): from the future"
             )
-        if self.newest_ns is not None and tm_ns <= self.newest_ns:
-            self.counters["stale_torques"] += 1
+        if (self.newest_ns is not None and tm_ns <= self.newest_ns) or self.published_ns - tm_ns > self.max_age_ns:
+            self.counters["stale_torques"] += 1  # older than the one applied, or too old to apply
             return
         self.newest_ns = tm_ns
         # at once, not at the next cycle: the ODrive holds a torque until told otherwise
@@ -205,7 +205,7 @@ class Driver:
                 node.spin_once(min(remaining, STOP_POLL_S))
             self._end_of_cycle(step_index)
             if time.monotonic() >= next_poll:
-                next_poll += STATE_POLL_S
+                next_poll = time.monotonic() + STATE_POLL_S
                 self._poll_states()
             step_index += 1
 

@@ -31,7 +31,7 @@ import time
 import tty
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from services.config import load_config
 from services.config.loading import parse_override
@@ -72,7 +72,7 @@ class Axis:
             "config.watchdog_timeout": 0.0,
         }
     )
-    integers: frozenset[str] = frozenset(
+    integers: ClassVar[frozenset[str]] = frozenset(
         {
             "requested_state",
             "current_state",
@@ -83,7 +83,7 @@ class Axis:
             "config.enable_watchdog",
         }
     )
-    read_only: frozenset[str] = frozenset({"current_state", "encoder.pos_estimate", "encoder.vel_estimate"})
+    read_only: ClassVar[frozenset[str]] = frozenset({"current_state", "encoder.pos_estimate", "encoder.vel_estimate"})
     fed_at: float = 0.0
 
     def motor_torque(self, velocity_turns: float) -> float:
