@@ -18,6 +18,9 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
   (``invent up --fleet --no-record`` with and without ``--ros2``, N = 1, 2, 4): the bridges' CPU per
   robot per simulated second and memory per robot, the loop's steps/s and CPU per robot-step with
   and without.
+- ``engines`` (benchmarks/engines.py): the real-time factor of the lockstep square on PyBullet and
+  on the kinematic engine (``--engine``), separate and composed, and kinematic / PyBullet; each
+  engine's own µs per step in-process.
 - ``machine`` (benchmarks/machine.py): where it ran.
 
 Loop figures are medians over ``--repeats`` runs (lockstep runs interleaved with the in-process
@@ -35,7 +38,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmarks import codec, fleet_section, lockstep, loop, machine, realtime, ros2_fleet
+from benchmarks import codec, engines, fleet_section, lockstep, loop, machine, realtime, ros2_fleet
 from benchmarks.figures import timed
 from benchmarks.table import table
 from benchmarks.targets import check_targets, verdicts
@@ -76,9 +79,10 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-SECTIONS = ("loop", "codec", "fleet", "ros2_fleet")
+SECTIONS = ("loop", "codec", "fleet", "ros2_fleet", "engines")
 """``loop``: the ``lockstep`` and ``realtime`` sections; ``fleet``: benchmarks/fleet.py; ``ros2_fleet``:
-the ROS 2 bridge of each robot of a fleet, benchmarks/ros2_fleet.py."""
+the ROS 2 bridge of each robot of a fleet, benchmarks/ros2_fleet.py; ``engines``: the lockstep square
+on PyBullet and on the kinematic engine, benchmarks/engines.py."""
 FLEET_SIZES = (1, 2, 4, 8)
 QUICK_FLEET_SIZES = (2,)
 
@@ -127,6 +131,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         results["ros2_fleet"] = ros2_fleet.run_section(
             args.repeats, args.warmup, args.window, sizes, failures, args.quick
         )
+    if "engines" in sections:
+        results["engines"] = engines.run_section(args, failures)
     results["targets"] = check_targets({**results, "codec": {"min_ratio": results.get("codec_min_ratio")}})
     results["settings"] = {
         key: getattr(args, key)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from benchmarks import fleet_section, ros2_fleet
+from benchmarks import engines, fleet_section, ros2_fleet
 from benchmarks.figures import cost, cpu_cost, fmt, percent, ratio
 from benchmarks.realtime import RT_VARIANTS
 from services.runtime.session import LOW_LATENCY_VARIABLE
@@ -171,6 +171,8 @@ def table(results: dict[str, Any]) -> str:
         lines += [fleet_section.table(results["fleet"]), ""]
     if "ros2_fleet" in results:
         lines += [ros2_fleet.table(results["ros2_fleet"]), ""]
+    if "engines" in results:
+        lines += [engines.table(results["engines"]), ""]
     lines.append(
         f"Machine: {machine_info['cores']} cores ({machine_info['cpu']}), Python {machine_info['python']}, "
         f"zenoh {machine_info['zenoh']}, pybullet {machine_info['pybullet']}, msgspec {machine_info['msgspec']}; "

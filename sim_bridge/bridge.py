@@ -48,10 +48,11 @@ from typing import Any
 
 from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, SimWorld, Time
-from services.config import Config, ImuConfig, LidarConfig, SimMode
+from services.config import Config, ImuConfig, LidarConfig, SimEngine, SimMode
 from services.fleet.description import Fleet
 from services.runtime.node import Node
 from services.service import ServiceCommand
+from sim_bridge.engine import Engine, Placement, check_gui
 from sim_bridge.handshakes import (
     await_motor_subscriptions,
     await_participants,
@@ -61,7 +62,7 @@ from sim_bridge.link import RobotLink
 from sim_bridge.loops import Loop
 from sim_bridge.progress import RunProgress
 from sim_bridge.status import RunStatus
-from sim_bridge.world import InitialPose, obstacles, read_world, resolve_world
+from sim_bridge.world import InitialPose, World, obstacles, read_world, resolve_world
 
 
 @dataclass(frozen=True)
@@ -86,6 +87,28 @@ def sensors(config: Config) -> tuple[LidarConfig | None, ImuConfig | None]:
     return (config.lidar if config.lidar.enabled else None, config.imu if config.imu.enabled else None)
 
 
+def build_engine(
+    config: Config,
+    world: World,
+    gui: bool,
+    fleet: list[Placement],
+    lidar: LidarConfig | None,
+    imu: ImuConfig | None,
+) -> Engine:
+    """The engine ``sim.engine`` names (:mod:`sim_bridge.engine`). Each is imported here, not at
+    the top: every `invent` command imports this module (services/cli/sim.py for its command and
+    options), importing PyBullet prints its build banner, and the kinematic engine runs where
+    PyBullet is not installed."""
+    check_gui(config.sim, gui)
+    if config.sim.engine == SimEngine.KINEMATIC:
+        from sim_bridge.kinematic import KinematicSimulator
+
+        return KinematicSimulator(config.robot, config.sim, world, fleet=fleet, lidar=lidar, imu=imu)
+    from sim_bridge.simulator import Simulator
+
+    return Simulator(config.robot, config.sim, world, gui=gui, fleet=fleet, lidar=lidar, imu=imu)
+
+
 class SimService:
     def __init__(self, node: Node, config: Config, options: SimOptions) -> None:
         self.node = node
@@ -96,10 +119,6 @@ class SimService:
         self.finished = False
         self.exit_code = 0
         self.progress = RunProgress()
-        # Imported here, not at the top: every `invent` command imports this module (services/cli/sim.py
-        # for its command and options), and importing PyBullet prints its build banner.
-        from sim_bridge.simulator import Placement, Simulator
-
         self.fleet = options.fleet
         self.world_file = resolve_world(config.sim.world)
         self.world = read_world(self.world_file)
@@ -116,9 +135,7 @@ class SimService:
                     )
                 )
         lidar, imu = sensors(config)
-        self.sim = Simulator(
-            config.robot, config.sim, self.world, gui=options.gui, fleet=placements, lidar=lidar, imu=imu
-        )
+        self.sim = build_engine(config, self.world, options.gui, placements, lidar, imu)
         self.run_status = RunStatus(
             sim=self.sim,
             parameters=config.sim,
@@ -180,8 +197,9 @@ class SimService:
         if lockstep:
             await_participants(self.node, self.links)
         self.node.log.info(
-            "simulating %s in %s mode, step %g s%s%s",
+            "simulating %s on the %s engine in %s mode, step %g s%s%s",
             self.world_file,
+            self.parameters.engine,
             self.mode,
             self.parameters.step,
             "" if self.duration is None else f", for {self.duration:g} s",

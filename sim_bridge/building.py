@@ -1,27 +1,12 @@
-"""The world's bodies in a physics client: the floor, the obstacles of a world file, and where each
-robot stands (:class:`Placement`). Both the simulator's world and the lidars' ray world
-(:mod:`sim_bridge.ray_world`) are built with these."""
+"""The world's bodies in a physics client: the floor and the obstacles of a world file (where each
+robot stands is a :class:`~sim_bridge.engine.Placement`). Both the simulator's world and the
+lidars' ray world (:mod:`sim_bridge.ray_world`) are built with these."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import pybullet as p
 
-from services.config import ImuConfig, LidarConfig, RobotConfig
-from sim_bridge.world import InitialPose, World
-
-
-@dataclass(frozen=True)
-class Placement:
-    """A robot of the world: its name, its description, where it starts, and its sensors (None:
-    it has none)."""
-
-    name: str
-    robot: RobotConfig
-    pose: InitialPose
-    lidar: LidarConfig | None = None
-    imu: ImuConfig | None = None
+from sim_bridge.world import World
 
 
 def build_ground(client: int) -> int:

@@ -38,7 +38,7 @@ from sim_bridge.status import late_fraction, nearest_hit, planar_pose, robot_sum
 from sim_bridge.torque_policy import TorquePolicy
 
 if TYPE_CHECKING:
-    from sim_bridge.simulator import Contact, SimulatedRobot
+    from sim_bridge.engine import Contact, RobotPlant
 
 BUMP_STOP_TIMEOUT_S = 1.0
 """How long a ``motor/bump/stop`` call stays open for its reply."""
@@ -106,7 +106,7 @@ class RobotLink:
     def __init__(
         self,
         node: Node,
-        body: SimulatedRobot,
+        body: RobotPlant,
         parameters: SimConfig,
         *,
         step_ns: int,

@@ -19,7 +19,7 @@ from sim_bridge.liveness import Liveness
 from sim_bridge.progress import RunProgress
 
 if TYPE_CHECKING:
-    from sim_bridge.simulator import Simulator
+    from sim_bridge.engine import Engine
 
 MAX_REALTIME_LAG_S = 0.1
 """Realtime mode: a loop this far behind the wall clock restarts its schedule instead of bursting."""
@@ -29,7 +29,7 @@ MAX_REALTIME_LAG_S = 0.1
 class Loop:
     """Steps the world: each step publishes every robot's state, sets its torques, and steps."""
 
-    sim: Simulator
+    sim: Engine
     node: Node
     links: list[RobotLink]
     parameters: SimConfig

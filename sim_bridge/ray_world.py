@@ -18,7 +18,8 @@ import numpy.typing as npt
 import pybullet as p
 
 from services.config import SimConfig
-from sim_bridge.building import Placement, build_ground, build_obstacles
+from sim_bridge.building import build_ground, build_obstacles
+from sim_bridge.engine import Placement
 from sim_bridge.robot import build_robot
 from sim_bridge.sensors import RayHit
 from sim_bridge.world import World

@@ -12,7 +12,6 @@ the lockstep loop runs it thousands of times per second.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Self
 
 import numpy as np
@@ -22,8 +21,9 @@ from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND, ImuSample, LaserScan, Time
 from services.body.geometry import robot_body
 from services.config import ConfigError, ImuConfig, LidarConfig, RobotConfig, SimConfig
-from sim_bridge.building import Placement, build_ground, build_obstacles
+from sim_bridge.building import build_ground, build_obstacles
 from sim_bridge.display import require_display
+from sim_bridge.engine import Contact, Placement
 from sim_bridge.ray_world import RayWorld
 from sim_bridge.robot import RobotModel, build_robot
 from sim_bridge.sensors import Imu, Lidar
@@ -38,18 +38,6 @@ _CONTACT_POSITION_ON_A = 5
 _CONTACT_POSITION_ON_B = 6
 _CONTACT_DISTANCE = 8
 Position = tuple[float, float, float]
-
-
-@dataclass(frozen=True)
-class Contact:
-    """Robot ``robot`` (its index in :attr:`Simulator.robots`) began touching ``obstacle`` (an
-    obstacle's name, or another robot's) at world point (x, y, z), on the obstacle's surface."""
-
-    robot: int
-    obstacle: str
-    x: float
-    y: float
-    z: float
 
 
 class SimulatedRobot:

@@ -15,7 +15,7 @@ from services.config import SimConfig
 from sim_bridge.progress import RunProgress
 
 if TYPE_CHECKING:
-    from sim_bridge.simulator import Simulator
+    from sim_bridge.engine import Engine
 
 
 def planar_pose(body_pose: Sequence[float]) -> dict[str, float]:
@@ -53,7 +53,7 @@ def late_fraction(counters: dict[str, int], steps: int, lockstep: bool) -> float
 class RunStatus:
     """The run as a whole: when its steps began and ended, how fast they went, what it simulates."""
 
-    sim: Simulator
+    sim: Engine
     parameters: SimConfig
     progress: RunProgress
     world_file: Path
@@ -90,6 +90,7 @@ class RunStatus:
         elapsed = self.elapsed()
         status: dict[str, Any] = {
             "state": "finished" if finished else ("running" if self.progress.started else "starting"),
+            "engine": parameters.engine,
             "mode": parameters.mode,
             "world": str(self.world_file),
             "sim_time_s": simulated,

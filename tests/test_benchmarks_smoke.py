@@ -64,6 +64,12 @@ NUMBERS = (
     "fleet.spread_bound.2",
     "machine.cores",
     *(
+        f"engines.{engine}.{field}"
+        for engine in ("pybullet", "kinematic")
+        for field in ("separate_real_time_factor", "composed_real_time_factor", "us_per_step")
+    ),
+    *(f"engines.ratio.{layout}" for layout in ("separate", "composed", "inprocess")),
+    *(
         f"fleet.{mode}.2.{field}"
         for mode in ("separate", "composed", "composed_workers")
         for field in ("steps_per_s", "robot_steps_per_s", "cpu_us_per_robot_step", "late_fraction")
@@ -161,6 +167,7 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
     assert results["realtime"]["rt"]["sched"] == ("SCHED_FIFO 50" if os.geteuid() == 0 else "SCHED_OTHER 0")
     _fleet_written(result, results)
     assert "| lockstep, separate processes |" in result.stdout and f"wrote {out}" in result.stdout
+    assert "| lockstep square | PyBullet | kinematic | kinematic / PyBullet |" in result.stdout
 
 
 def test_the_spread_bound_is_amdahls_law_of_the_worlds_own_work():

@@ -55,8 +55,8 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.goto\.core", CORE),
     (r"services\.body\.geometry", CORE),
     (
-        r"sim_bridge\.(simulator|robot|world|building|ray_world|sensors|latency|display|torque_policy|progress|status"
-        r"|kinematic_model|kinematic|engine|placement)",
+        r"sim_bridge\.(simulator|robot|world|building|ray_world|sensors|latency|display|torque_policy|progress|status|"
+        + r"kinematic_model|kinematic_world|kinematic|engine)",
         CORE,
     ),
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph|outputs|sensors|navigate)", CORE),

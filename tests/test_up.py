@@ -35,6 +35,9 @@ from tests.harness import (
 pytestmark = pytest.mark.slow
 
 KEYS = Keys()
+KINEMATIC = ("--engine", "kinematic")
+"""For a long composed run whose subject is the launcher, not the physics: the loop without PyBullet
+takes less CPU (the square: 2.4 s against 3.0-3.8 s measured; benchmarks/README.md)."""
 
 
 def _child_pids(output: str) -> dict[str, int]:
@@ -126,7 +129,16 @@ def test_no_record_runs_the_loop_and_writes_nothing_with_a_live_view_beside_it(t
     view_port = free_port()
     result = subprocess.run(
         invent_command(
-            "up", "--composed", "--no-record", "--scenario", "square", "--listen", endpoint, "--view", str(view_port)
+            "up",
+            "--composed",
+            *KINEMATIC,
+            "--no-record",
+            "--scenario",
+            "square",
+            "--listen",
+            endpoint,
+            "--view",
+            str(view_port),
         ),
         cwd=tmp_path,
         capture_output=True,

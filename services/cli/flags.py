@@ -14,7 +14,7 @@ from typing import Any, Protocol, TypeAlias, TypeVar
 import zenoh
 
 from schemas.keys import DEFAULT_ROBOT, validate_robot_name
-from services.config import Config, ConfigError, load_config
+from services.config import Config, ConfigError, SimConfig, SimEngine, load_config
 from services.launch.plan import Connection, Description
 from services.runtime.session import DEFAULT_ENDPOINT, LOOPBACK_LISTEN, ZENOH_CONFIG_VARIABLE, session_config
 from services.security import fleet_robots
@@ -218,6 +218,16 @@ def session_from_args(args: argparse.Namespace, mode: str = "peer", timestamping
     """The zenoh session the connection flags ask for."""
     return session_config(
         connect=args.connect, listen=args.listen, mode=mode, file=args.zenoh_config, timestamping=timestamping
+    )
+
+
+def engine_flag(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """``--engine``: ``sim.engine`` (``invent sim``'s and ``invent up``'s)."""
+    parser.add_argument(
+        "--engine",
+        choices=list(SimEngine),
+        help="what moves the robot: PyBullet's physics, or a model of the wheels' motors and the robot's inertia "
+        f"with ideal rolling and no PyBullet (sets sim.engine; default {SimConfig().engine}; docs/sim.md, Engines)",
     )
 
 

@@ -6,7 +6,7 @@ import argparse
 from typing import Any
 
 from schemas.keys import Service
-from services.cli.flags import fleet_flag, overrides_from_args, positive_seconds
+from services.cli.flags import engine_flag, fleet_flag, overrides_from_args, positive_seconds
 from services.cli.serve import ServiceCli
 from services.config import Config, SimConfig, SimMode
 from services.fleet.description import load_fleet, robot_config
@@ -19,6 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = SimConfig()
     group = parser.add_argument_group("simulation")
     group.add_argument("--mode", choices=list(SimMode), help=f"(default {defaults.mode})")
+    engine_flag(group)
     group.add_argument(
         "--step", type=positive_seconds, metavar="S", help=f"simulated seconds per step (default {defaults.step:g})"
     )
@@ -50,7 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help=f"world TOML file, or a built-in world ({', '.join(builtin_worlds())}); default: {DEFAULT_WORLD}",
     )
-    group.add_argument("--gui", action="store_true", help="open a PyBullet window (needs a display)")
+    group.add_argument(
+        "--gui", action="store_true", help="open a PyBullet window (needs a display and the pybullet engine)"
+    )
     fleet_flag(
         group,
         "simulate every robot of this fleet file in one world, each robot's keys under its name "
@@ -61,6 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def overrides(args: argparse.Namespace) -> dict[str, Any]:
     fleet = load_fleet(args.fleet) if args.fleet else None
     return {
+        "sim.engine": args.engine,
         "sim.mode": args.mode,
         "sim.step": args.step,
         "sim.realtime_factor": args.realtime_factor,
@@ -87,8 +91,9 @@ def options(args: argparse.Namespace) -> SimOptions:
 
 CLI = ServiceCli(
     command=COMMAND,
-    help="the PyBullet simulator: wheel angles and body pose out, wheel torques in",
-    description="Plays OpenHRP3 and its controller bridge with PyBullet: each step publishes sim/wheel_angles and "
+    help="the simulator (PyBullet, or the kinematic engine): wheel angles and body pose out, wheel torques in",
+    description="Plays OpenHRP3 and its controller bridge with PyBullet (or, with --engine kinematic, a model of the "
+    "wheels' motors and the robot's inertia with ideal rolling, no PyBullet): each step publishes sim/wheel_angles and "
     "sim/body_pose stamped with simulation time, applies the motor/torque answer and steps. Lockstep (default) "
     "waits for the torque of each step while a motor control is alive; realtime paces steps to the wall clock. "
     "A contact with an obstacle publishes sim/bump and calls motor/bump/stop. Each robot's 2D lidar publishes "

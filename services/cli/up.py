@@ -7,7 +7,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from services.cli.flags import connection_from_args, description_from_args, fleet_flag, port_number
+from services.cli.flags import connection_from_args, description_from_args, engine_flag, fleet_flag, port_number
 from services.cli.services import service_plan
 from services.config import ConfigError, RecordRate, SimMode, TfLayout
 from services.launch.plan import DEFAULT_SCENARIO, UpPlan
@@ -23,7 +23,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def plan_from_args(args: argparse.Namespace) -> UpPlan:
-    """The run the flags ask for; ``--record-full-rate`` and ``--tf`` become ``--set`` settings, for
+    """The run the flags ask for; ``--record-full-rate``, ``--tf`` and ``--engine`` become ``--set`` settings, for
     every service of the run (the robot description's [record] and [ros2])."""
     description = description_from_args(args)
     goal_mode = args.goals or args.goal_file is not None
@@ -39,6 +39,7 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
         *description.settings,
         *([f"record.rate={RecordRate.EVERY_STEP}"] if args.record_full_rate else []),
         *([f"ros2.tf={args.tf}"] if args.tf else []),
+        *([f"sim.engine={args.engine}"] if args.engine else []),
     ]
     return UpPlan(
         connection=connection_from_args(args),
@@ -112,7 +113,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "needs: about ten times the size, for debugging the loop (the same as --set record.rate=every_step; "
         "the [record] table caps and splits a recording: docs/recording.md, Rates and bounds)",
     )
-    parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
+    parser.add_argument(
+        "--gui", action="store_true", help="open the PyBullet window (needs a display and the pybullet engine)"
+    )
+    engine_flag(parser)
     parser.add_argument(
         "--view",
         nargs="?",

@@ -38,6 +38,7 @@ from services.config.sections import (
     OdometryConfig,
     RobotConfig,
     SimConfig,
+    SimEngine,
     SimMode,
     TargetAngleMode,
 )
@@ -72,6 +73,7 @@ __all__ = [
     "Ros2Config",
     "RtConfig",
     "SimConfig",
+    "SimEngine",
     "SimMode",
     "TargetAngleMode",
     "TfLayout",

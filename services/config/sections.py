@@ -171,9 +171,20 @@ class SimMode(StrEnum):
     REALTIME = "realtime"
 
 
+class SimEngine(StrEnum):
+    """What computes the simulated robot's motion (``sim.engine``)."""
+
+    PYBULLET = "pybullet"
+    KINEMATIC = "kinematic"
+
+
 class SimConfig(Section, frozen=True):
     """The simulator: how it steps, the world, the robot's body and its motor driver."""
 
+    engine: SimEngine = SimEngine.PYBULLET
+    """``pybullet``: rigid-body physics (contacts, friction, slip); ``kinematic``: each wheel a motor
+    turning the robot's inertia, ideal rolling, bumps by geometry, no PyBullet needed (docs/sim.md,
+    "Engines")."""
     mode: SimMode = SimMode.LOCKSTEP
     """``lockstep``: every step waits for its torque; ``realtime``: steps paced to the wall clock
     (docs/protocol.md section 6)."""

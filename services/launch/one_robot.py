@@ -23,6 +23,7 @@ from services.recording.report import health_lines, loop_health, summary
 from services.ros2.graph import bridge_graph
 from services.security import Role, write_profile
 from sim_bridge.display import require_display
+from sim_bridge.engine import check_gui
 from sim_bridge.world import load_world
 
 
@@ -30,6 +31,7 @@ def check_before_start(plan: UpPlan, config: Config) -> None:
     """Refuse (ConfigError: exit 2) what a child would refuse once started, before any starts: a
     service that exits 2 would take the others down noisily and leave a run of nothing behind."""
     if plan.gui:
+        check_gui(config.sim, plan.gui)
         require_display()
     if plan.workers is not None:
         raise ConfigError("--workers: it spreads a fleet's robots over processes (with --fleet --composed)")
