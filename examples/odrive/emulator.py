@@ -16,7 +16,9 @@ mounted mirrored, torques in N·m of the motor, limited by ``current_lim`` times
 that takes torque only in closed-loop control (``requested_state`` 8); the ODrive's own watchdog;
 checksums; and the firmware's answers to what it does not know (``unknown command``,
 ``invalid property``, ...). What it leaves out: calibration, motor and encoder errors, the
-rotor's inertia and the gearbox's backlash and losses, the current loop (a torque applies at once).
+rotor's inertia and the gearbox's backlash and losses, friction (an idle wheel rolls on), the
+current loop (a torque applies at once), the encoder's velocity filter, and position and velocity
+control (``p``, ``q``, ``v``, ``t`` answer ``not implemented``, as a board would not).
 """
 
 from __future__ import annotations
