@@ -122,7 +122,9 @@ class Device:
         self.time = 0.0
         self._buffer = bytearray()
         self._active = True
-        self.counters = dict.fromkeys(("lines", "unknown_commands", "bad_checksums", "watchdog_expiries"), 0)
+        self.counters = dict.fromkeys(
+            ("lines", "unknown_commands", "bad_checksums", "watchdog_expiries", "dropped_replies"), 0
+        )
 
     # --- the motors and the robot ---
 
@@ -295,8 +297,12 @@ def serve(device: Device, master: int, stop: list[bool], report: Path | None, ti
         now = (time.monotonic() - start) * time_scale
         if readable:
             replies = device.receive(os.read(master, 4096), now)
-            if replies:
-                os.write(master, replies)
+            try:
+                written = os.write(master, replies)
+            except BlockingIOError:
+                written = 0
+            if written < len(replies):  # nobody reads the port: replies lost, as a board's would be
+                device.counters["dropped_replies"] += 1
         else:
             device.advance(now)
         if stop[1] and report is not None:
@@ -320,6 +326,7 @@ def main(argv: list[str] | None = None) -> int:
     mechanics = Mechanics(args.left_axis, mirrored, args.gear_ratio)
     device = Device(DiffDrivePlant(DriveModel.from_description(config.robot, config.sim)), mechanics)
     master, slave = os.openpty()
+    os.set_blocking(master, False)
     tty.setraw(slave)  # the pty's own line discipline would echo and translate, as no ODrive does
     port = os.ttyname(slave)
     if args.link:
