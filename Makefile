@@ -21,7 +21,7 @@ test: $(STAMP)  ## the whole suite (but the benchmarks' own smoke: make bench-sm
 test-fast: $(STAMP)  ## the suite without the end-to-end runs of the whole loop (the edit-test loop)
 	$(BIN)/python -m pytest -m "not slow and not bench_smoke"
 
-lint: $(STAMP)  ## ruff (lint and format) on everything, mypy on schemas/ services/ sim_bridge/
+lint: $(STAMP)  ## ruff (lint and format) on everything, mypy on schemas/ services/ sim_bridge/ examples/
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
