@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-fast lint fuzz bench soak stress profile secrets clean
+.PHONY: run test test-fast test-kinematic lint fuzz bench soak stress profile secrets clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,6 +20,9 @@ test: $(STAMP)  ## the whole suite (but the benchmarks' own smoke: make bench-sm
 
 test-fast: $(STAMP)  ## the suite without the end-to-end runs of the whole loop (the edit-test loop)
 	$(BIN)/python -m pytest -m "not slow and not bench_smoke"
+
+test-kinematic: $(STAMP)  ## the loop's end-to-end tier on the kinematic engine (no physics): the square, determinism, bumps, a fleet
+	$(BIN)/python -m pytest -m kinematic
 
 lint: $(STAMP)  ## ruff (lint and format) on everything, mypy on schemas/ services/ sim_bridge/ examples/
 	$(BIN)/ruff check .

@@ -23,7 +23,7 @@ from services.exits import ExitStatus
 from services.recording.mcap_files import RecordedMessage, read_messages
 from tests.harness import REPO, invent_command
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.kinematic]
 
 KEYS = Keys("rh0")
 HOME_TOLERANCE_M = 0.01
