@@ -6,7 +6,6 @@ No key string is spelled anywhere else: services, tools and tests build every ke
 
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import dataclass
 from enum import StrEnum
@@ -179,9 +178,9 @@ GOAL_METHOD_TYPES: dict[GoalMethod, tuple[type[msgspec.Struct], type[msgspec.Str
 
 _STATUS = "status"
 VIEW = "view"
-_ALIVE = "alive"
-_TICKS = "ticks"
-_OBSERVES = "observes"
+ALIVE = "alive"
+TICKS = "ticks"
+OBSERVES = "observes"
 
 
 def user_service_name(name: str) -> UserServiceName:
@@ -258,16 +257,16 @@ class Keys:
     @property
     def every_alive(self) -> str:
         """Key expression matching the liveliness token of every service of this robot."""
-        return f"{self.prefix}/*/{_ALIVE}"
+        return f"{self.prefix}/*/{ALIVE}"
 
     def alive(self, service: ServiceName) -> str:
         """The liveliness token a running service holds."""
-        return f"{self.prefix}/{service}/{_ALIVE}"
+        return f"{self.prefix}/{service}/{ALIVE}"
 
     def ticks(self, service: ServiceName, rate_hz: float) -> str:
         """The liveliness token of a lockstep participant: ``service`` outputs on a grid of
         ``rate_hz`` ticks per second of simulation time (services/clock/lockstep.py)."""
-        return f"{self.prefix}/{service}/{_TICKS}/{rate_hz!r}"
+        return f"{self.prefix}/{service}/{TICKS}/{rate_hz!r}"
 
     def ticks_with_output(self, service: UserServiceName, rate_hz: float, output: str) -> str:
         """A user service's participant token: :meth:`ticks` followed by its output's key under its
@@ -283,29 +282,29 @@ class Keys:
     def ticks_at_any_rate(self, service: ServiceName) -> str:
         """Key expression matching ``service``'s lockstep participant token, whatever its rate (and,
         a user service's, its output)."""
-        return f"{self.prefix}/{service}/{_TICKS}/{'*' if isinstance(service, Service) else '**'}"
+        return f"{self.prefix}/{service}/{TICKS}/{'*' if isinstance(service, Service) else '**'}"
 
     @property
     def every_ticks(self) -> str:
         """Key expression matching every lockstep participant's token of this robot (a user
         participant's names its output after its rate: ``**``)."""
-        return f"{self.prefix}/*/{_TICKS}/**"
+        return f"{self.prefix}/*/{TICKS}/**"
 
     def observes(self, service: ServiceName, rate_hz: float) -> str:
         """The liveliness token of an observer: ``service`` takes what the loop observes (the
         simulation clock, poses) ``rate_hz`` times per second of simulation time, on the same grid
         as a participant's ticks, so the simulator marks those steps observed (docs/protocol.md
         section 2.7) without waiting for anything."""
-        return f"{self.prefix}/{service}/{_OBSERVES}/{rate_hz!r}"
+        return f"{self.prefix}/{service}/{OBSERVES}/{rate_hz!r}"
 
     def observes_at_any_rate(self, service: ServiceName) -> str:
         """Key expression matching ``service``'s observer tokens, whatever their rates."""
-        return f"{self.prefix}/{service}/{_OBSERVES}/*"
+        return f"{self.prefix}/{service}/{OBSERVES}/*"
 
     @property
     def every_observes(self) -> str:
         """Key expression matching every observer's token of this robot."""
-        return f"{self.prefix}/*/{_OBSERVES}/*"
+        return f"{self.prefix}/*/{OBSERVES}/*"
 
     sim_wheel_angles = property(lambda self: self.topic(Topic.SIM_WHEEL_ANGLES))
     sim_clock = property(lambda self: self.topic(Topic.SIM_CLOCK))
@@ -333,96 +332,18 @@ class Keys:
 
 def all_robots_alive() -> str:
     """Key expression matching the liveliness token of every service of every robot."""
-    return f"{ROOT}/*/*/{_ALIVE}"
+    return f"{ROOT}/*/*/{ALIVE}"
 
 
 def all_robots_status() -> str:
     return f"{ROOT}/*/*/{_STATUS}"
 
 
-def _service_chunk(chunk: str) -> ServiceName | None:
-    """The service a key's chunk names: a built-in, a valid user service name, or None."""
-    try:
-        return service_name(chunk)
-    except ValueError:
-        return None
-
-
-def parse_alive_key(key: str) -> tuple[str, ServiceName] | None:
-    """``invent/rh0/motor/alive`` -> ``("rh0", Service.MOTOR)`` (a user service's name as it is);
-    None for any other key."""
-    parts = key.split("/")
-    if len(parts) != 4 or parts[0] != ROOT or parts[3] != _ALIVE:
-        return None
-    service = _service_chunk(parts[2])
-    return None if service is None else (parts[1], service)
-
-
-def parse_ticks_key(key: str) -> tuple[ServiceName, float] | None:
-    """``invent/rh0/drive/ticks/50.0`` -> ``(Service.DRIVE, 50.0)``; None for any other key (a user
-    participant's token, which names its output, is :func:`parse_participant_key`'s)."""
-    return _parse_rate_key(key, _TICKS)
-
-
-def parse_observes_key(key: str) -> tuple[ServiceName, float] | None:
-    """``invent/rh0/ros2/observes/50.0`` -> ``(Service.ROS2, 50.0)``; None for any other key."""
-    return _parse_rate_key(key, _OBSERVES)
-
-
-@dataclass(frozen=True)
-class Participant:
-    """A lockstep participant as its ticks token names it: who, at what rate, and the key (relative
-    to the robot) of the output the simulator waits for at each of its ticks."""
-
-    service: ServiceName
-    rate_hz: float
-    output: str
-
-
-def parse_participant_key(key: str, builtin_outputs: dict[Service, Topic]) -> Participant | None:
-    """A participant's ticks token: a built-in's (``invent/rh0/drive/ticks/50.0``, its output from
-    ``builtin_outputs``) or a user service's (``invent/rh0/odometer/ticks/10.0/distance``: its
-    output ``odometer/distance``); None for any other key."""
-    parts = key.split("/")
-    if len(parts) < 5 or parts[0] != ROOT or parts[3] != _TICKS:
-        return None
-    service = _service_chunk(parts[2])
-    rate_hz = _rate(parts[4])
-    if service is None or rate_hz is None:
-        return None
-    if isinstance(service, Service):
-        output = builtin_outputs.get(service)
-        return None if output is None or len(parts) != 5 else Participant(service, rate_hz, str(output))
-    suffix = "/".join(parts[5:])
-    if not suffix or _own_suffix_error(suffix) is not None:
-        return None
-    return Participant(service, rate_hz, f"{service}/{suffix}")
-
-
-def _rate(text: str) -> float | None:
-    try:
-        rate_hz = float(text)
-    except ValueError:
-        return None
-    return rate_hz if math.isfinite(rate_hz) and rate_hz > 0.0 else None
-
-
-def _parse_rate_key(key: str, kind: str) -> tuple[ServiceName, float] | None:
-    parts = key.split("/")
-    if len(parts) != 5 or parts[0] != ROOT or parts[3] != kind:
-        return None
-    service = _service_chunk(parts[2])
-    rate_hz = _rate(parts[4])
-    if service is None or rate_hz is None:
-        return None
-    return service, rate_hz
-
-
 _OWN_CHUNK = re.compile(r"[A-Za-z0-9_\-.]+")
-_SERVICE_CHUNKS = frozenset({_STATUS, _ALIVE, _TICKS, _OBSERVES})
+_SERVICE_CHUNKS = frozenset({_STATUS, ALIVE, TICKS, OBSERVES})
 
 
-def _own_suffix_error(suffix: str) -> str | None:
+def own_suffix_error(suffix: str) -> str | None:
     """Why ``suffix`` cannot be a key under a service's name, or None when it can."""
     chunks = suffix.split("/")
     for chunk in chunks:
@@ -436,7 +357,7 @@ def _own_suffix_error(suffix: str) -> str | None:
 def validate_own_key(suffix: str) -> str:
     """``suffix`` (``distance``, ``progress/leg``) if it may name a key under a service's own name,
     else ValueError saying why."""
-    error = _own_suffix_error(suffix)
+    error = own_suffix_error(suffix)
     if error is not None:
         raise ValueError(error)
     return suffix

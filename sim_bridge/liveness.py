@@ -10,8 +10,9 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from schemas.keys import Service, ServiceName, parse_observes_key, parse_participant_key
+from schemas.keys import Service, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND, TimedPosition, TimedVelocity
+from schemas.tokens import parse_observes_key, parse_participant_key
 from services.clock.lockstep import FINAL, OUTPUTS, StampedOutput, TickBarrier
 from services.clock.observation import ObservedSteps
 from services.config import SimConfig

@@ -15,15 +15,9 @@ import msgspec
 import pytest
 import zenoh
 
-from schemas.keys import (
-    Keys,
-    Service,
-    parse_alive_key,
-    parse_participant_key,
-    parse_ticks_key,
-    user_service_name,
-)
+from schemas.keys import Keys, Service, user_service_name
 from schemas.messages import GoalReply, Time
+from schemas.tokens import parse_alive_key, parse_participant_key, parse_ticks_key
 from services.clock.lockstep import OUTPUTS
 from services.config import Config
 from services.errors import ConfigError

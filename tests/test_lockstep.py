@@ -7,7 +7,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
-from schemas.keys import Keys, Service, Topic, parse_ticks_key
+from schemas.keys import Keys, Service, Topic
+from schemas.tokens import parse_ticks_key
 from services.clock.lockstep import Hold, StepMark, TickBarrier, decode_mark, decode_owed, encode_mark, observed
 
 MS = 1_000_000

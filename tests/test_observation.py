@@ -8,7 +8,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from schemas.keys import Keys, Service, parse_observes_key, parse_ticks_key
+from schemas.keys import Keys, Service
+from schemas.tokens import parse_observes_key, parse_ticks_key
 from services.clock.observation import ObservedSteps
 from services.clock.sim_time import PeriodicSchedule
 

@@ -24,7 +24,7 @@ from schemas import (
     encode,
     schema_for_key,
 )
-from schemas.keys import TOPIC_TYPES, parse_alive_key
+from schemas.keys import TOPIC_TYPES
 from schemas.messages import (
     CancelReply,
     CancelRequest,
@@ -40,6 +40,7 @@ from schemas.messages import (
     ScenarioOutcome,
     SimWorld,
 )
+from schemas.tokens import parse_alive_key
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 times = st.builds(Time, st.integers(0, 2**40), st.integers(0, 999_999_999))

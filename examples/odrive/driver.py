@@ -31,8 +31,9 @@ import zenoh
 from examples.odrive.odrive_link import Axes, LinkError, ODrive, SerialPort
 from examples.odrive.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, AXIS_STATE_CLOSED_LOOP_CONTROL, Wheel
 from schemas.codec import BadInput
-from schemas.keys import Keys, Service, parse_observes_key, parse_ticks_key
+from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq
+from schemas.tokens import parse_observes_key, parse_ticks_key
 from services.clock.lockstep import encode_mark
 from services.clock.observation import ObservedSteps
 from services.config import Config, ConfigError, load_config

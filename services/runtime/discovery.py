@@ -10,7 +10,8 @@ from typing import Any
 
 import zenoh
 
-from schemas.keys import Keys, ServiceName, parse_alive_key
+from schemas.keys import Keys, ServiceName
+from schemas.tokens import parse_alive_key
 
 
 def payload_value(payload: bytes) -> Any:
