@@ -56,6 +56,7 @@ COUNTERS = (
     "realtime_resyncs",
     "realtime_late_steps",
     "tick_timeouts",
+    "refused_participants",
     "braked_steps",
     "scans",
     "scan_rays",

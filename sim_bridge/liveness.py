@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from schemas.keys import Service, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND, TimedPosition, TimedVelocity
 from schemas.tokens import parse_observes_key, parse_participant_key
-from services.clock.lockstep import FINAL, OUTPUTS, StampedOutput, TickBarrier
+from services.clock.lockstep import FINAL, MAX_PARTICIPANTS, OUTPUTS, StampedOutput, TickBarrier
 from services.clock.observation import ObservedSteps
 from services.config import SimConfig
 from services.runtime.logs import RateLimitedLog
@@ -66,10 +66,20 @@ class Liveness:
         service, rate_hz = parsed.service, parsed.rate_hz
         lockstep, prefix = self.torque.lockstep, self.prefix
         if alive:
+            if not self.barrier.announce(service, rate_hz, from_start=not self.progress.started, output=parsed.output):
+                self.counters["refused_participants"] += 1
+                self.warn(
+                    "refused_participant",
+                    logging.WARNING,
+                    "%s%s: not a lockstep participant: %d are already (the most one robot waits for)",
+                    prefix,
+                    service,
+                    MAX_PARTICIPANTS,
+                )
+                return
             if not isinstance(service, Service):
                 self.take_output(service, parsed.output)
             self.observation.add(key, rate_hz, self.progress.present())
-            self.barrier.announce(service, rate_hz, from_start=not self.progress.started, output=parsed.output)
             if lockstep:
                 self.log.info("%s%s ticks at %g Hz: steps at its ticks wait for its output", prefix, service, rate_hz)
             return

@@ -7,9 +7,18 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
-from schemas.keys import Keys, Service, Topic
+from schemas.keys import Keys, Service, Topic, user_service_name
 from schemas.tokens import parse_ticks_key
-from services.clock.lockstep import Hold, StepMark, TickBarrier, decode_mark, decode_owed, encode_mark, observed
+from services.clock.lockstep import (
+    MAX_PARTICIPANTS,
+    Hold,
+    StepMark,
+    TickBarrier,
+    decode_mark,
+    decode_owed,
+    encode_mark,
+    observed,
+)
 
 MS = 1_000_000
 STEP = MS
@@ -225,3 +234,14 @@ def test_samples_are_taken_in_order_each_once(events):
             hold.took(stamp)
     hold.took(10)
     assert taken == offered
+
+
+def test_participants_beyond_the_most_one_robot_waits_for_are_refused_and_the_others_kept():
+    barrier = TickBarrier()
+    assert barrier.announce(Service.DRIVE, 50.0, from_start=True)
+    names = [user_service_name(f"peer{index}") for index in range(MAX_PARTICIPANTS)]
+    accepted = [barrier.announce(name, 10.0, from_start=True, output=f"{name}/out") for name in names]
+    assert accepted == [True] * (MAX_PARTICIPANTS - 1) + [False], "a token beyond the bound is refused"
+    assert not barrier.announced(names[-1]) and barrier.announced(names[0])
+    assert barrier.announce(names[0], 5.0, from_start=True, output=f"{names[0]}/out"), "a known one may change its rate"
+    assert barrier.withdraw(names[0]) and barrier.announce(names[-1], 10.0, from_start=True, output=f"{names[-1]}/out")

@@ -221,6 +221,11 @@ class _Participant:
     final: bool = False
 
 
+MAX_PARTICIPANTS = 32
+"""Lockstep participants one robot's steps wait for at most: the drive, the localization and user
+services (docs/protocol.md section 10.1)."""
+
+
 class TickBarrier:
     """The simulator's side: which participants' outputs a step must wait for.
 
@@ -236,20 +241,25 @@ class TickBarrier:
         """No participant has a tick before this stamp: :meth:`ticks` answers the steps between at
         once (it runs at every step, ticks come every few dozen). -1 when a schedule has changed."""
 
-    def announce(self, service: ServiceName, rate_hz: float, *, from_start: bool, output: str | None = None) -> None:
+    def announce(self, service: ServiceName, rate_hz: float, *, from_start: bool, output: str | None = None) -> bool:
         """A participant's token appeared: ``from_start`` (before the first step) it is waited for
         from its first tick; otherwise from its first output. ``output``: the key (relative to the
-        robot) it outputs on, a user service's; a built-in's is :data:`OUTPUTS`'."""
+        robot) it outputs on, a user service's; a built-in's is :data:`OUTPUTS`'. False (not a
+        participant) for a new one beyond :data:`MAX_PARTICIPANTS`: tokens from a buggy or hostile
+        peer must not grow what every step looks at without bound."""
         if output is None:
             if not isinstance(service, Service) or service not in OUTPUTS:
                 raise ValueError(f"participant {service}: its output is not known")
             output = str(OUTPUTS[service])
         known = self._participants.get(service)
         if known is not None and known.rate_hz == rate_hz and known.output == output:
-            return
+            return True
+        if known is None and len(self._participants) >= MAX_PARTICIPANTS:
+            return False
         schedule = PeriodicSchedule(rate_hz, 0) if from_start else None
         self._participants[service] = _Participant(rate_hz, output, schedule)
         self._next_tick_ns = -1
+        return True
 
     def output(self, service: ServiceName) -> str:
         """The key (relative to the robot) of ``service``'s output at its ticks."""
