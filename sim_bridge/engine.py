@@ -11,12 +11,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Generic, Protocol, Self, TypeVar
 
-from schemas.messages import ImuSample, LaserScan, Time
+from schemas.messages import NANOSECONDS_PER_SECOND, ImuSample, LaserScan, Time
 from services.config import ConfigError, ImuConfig, LidarConfig, RobotConfig, SimConfig, SimEngine
 from sim_bridge.sensors import Imu, Lidar
-from sim_bridge.world import InitialPose
+from sim_bridge.world import InitialPose, World
 
 
 @dataclass(frozen=True)
@@ -104,6 +104,67 @@ class Engine(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+RobotT = TypeVar("RobotT", bound=RobotPlant)
+
+
+class WorldOfRobots(Generic[RobotT]):
+    """What both engines share: the step in integer ns, the placements (one robot at the world's
+    initial pose with ``lidar`` and ``imu`` unless ``fleet`` places several), how many steps a
+    contact stays the same bump, the simulation time, and the single-robot methods
+    (:meth:`wheel_angles`, :meth:`set_torques`, ...), which are the first robot's. A subclass
+    builds ``robots`` (in the placements' order), ``step`` and ``close``."""
+
+    robots: tuple[RobotT, ...]
+    step_index: int
+
+    def __init__(
+        self,
+        robot: RobotConfig,
+        sim: SimConfig,
+        world: World,
+        fleet: Sequence[Placement],
+        lidar: LidarConfig | None,
+        imu: ImuConfig | None,
+    ) -> None:
+        self.step_ns = round(sim.step * NANOSECONDS_PER_SECOND)
+        if self.step_ns < 1:
+            raise ConfigError(f"`sim.step`: {sim.step} s is shorter than 1 ns")
+        self.robot_config, self.sim_config, self.world = robot, sim, world
+        self.placements = tuple(fleet) or (Placement(robot.name, robot, world.initial_pose, lidar, imu),)
+        self._release_steps = max(1, round(sim.bump_release * NANOSECONDS_PER_SECOND / self.step_ns))
+        """Steps without a touch after which touching again is a new bump (``sim.bump_release``)."""
+
+    @property
+    def time_ns(self) -> int:
+        """Simulation time of the current state."""
+        return self.step_index * self.step_ns
+
+    @property
+    def applied_torques(self) -> list[float]:
+        return self.robots[0].applied_torques
+
+    def wheel_angles(self) -> list[float]:
+        return self.robots[0].wheel_angles()
+
+    def body_pose(self) -> list[float]:
+        return self.robots[0].body_pose()
+
+    def set_torques(self, torques: Sequence[float]) -> None:
+        self.robots[0].set_torques(torques)
+
+    def set_zero_torques(self) -> None:
+        self.robots[0].set_zero_torques()
+
+    def close(self) -> None:
+        """Release what the engine holds (a physics client)."""
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
 
 
 def check_gui(sim: SimConfig, gui: bool) -> None:

@@ -19,15 +19,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Self
 
 import numpy as np
 
 from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND, ImuSample, LaserScan, Time
 from services.body.geometry import robot_body
-from services.config import ConfigError, ImuConfig, LidarConfig, RobotConfig, SimConfig
-from sim_bridge.engine import Contact, Placement
+from services.config import ImuConfig, LidarConfig, RobotConfig, SimConfig
+from sim_bridge.engine import Contact, Placement, WorldOfRobots
 from sim_bridge.kinematic_model import DiffDrivePlant, DriveModel
 from sim_bridge.kinematic_world import RayCaster, footprint_gap, world_shapes
 from sim_bridge.sensors import Imu, Lidar
@@ -113,7 +112,7 @@ class KinematicRobot:
         self.braking = True
 
 
-class KinematicSimulator:
+class KinematicSimulator(WorldOfRobots[KinematicRobot]):
     """Diff-drive robots in a world without physics, stepped together by :meth:`step`: the
     surface of :class:`sim_bridge.simulator.Simulator` (:class:`sim_bridge.engine.Engine`)."""
 
@@ -127,13 +126,8 @@ class KinematicSimulator:
         lidar: LidarConfig | None = None,
         imu: ImuConfig | None = None,
     ) -> None:
-        self.step_ns = round(sim.step * NANOSECONDS_PER_SECOND)
-        if self.step_ns < 1:
-            raise ConfigError(f"`sim.step`: {sim.step} s is shorter than 1 ns")
+        super().__init__(robot, sim, world, fleet, lidar, imu)
         self.step_s = self.step_ns / NANOSECONDS_PER_SECOND
-        self.robot_config, self.sim_config, self.world = robot, sim, world
-        self.placements = tuple(fleet) or (Placement(robot.name, robot, world.initial_pose, lidar, imu),)
-        self._release_steps = max(1, round(sim.bump_release * NANOSECONDS_PER_SECOND / self.step_ns))
         self.robots = tuple(KinematicRobot(placement, sim, index) for index, placement in enumerate(self.placements))
         self.obstacles = world_shapes(world)
         self.rays = RayCaster(self.obstacles, [(r.name, r.body_radius, r.body_top) for r in self.robots])
@@ -142,26 +136,6 @@ class KinematicSimulator:
         self.step_index = 0
         self._last_touch: dict[tuple[int, int], int] = {}
         """(robot, obstacle index; or robot, len(obstacles) + other robot) -> the step it last touched."""
-
-    @property
-    def time_ns(self) -> int:
-        return self.step_index * self.step_ns
-
-    @property
-    def applied_torques(self) -> list[float]:
-        return self.robots[0].applied_torques
-
-    def wheel_angles(self) -> list[float]:
-        return self.robots[0].wheel_angles()
-
-    def body_pose(self) -> list[float]:
-        return self.robots[0].body_pose()
-
-    def set_torques(self, torques: Sequence[float]) -> None:
-        self.robots[0].set_torques(torques)
-
-    def set_zero_torques(self) -> None:
-        self.robots[0].set_zero_torques()
 
     def step(self) -> tuple[Contact, ...]:
         """Move every robot by its torques (in the world's order), but not into an obstacle or
@@ -235,12 +209,3 @@ class KinematicSimulator:
         distance = math.hypot(dx, dy)
         scale = body.reach / distance if distance > 0.0 else 0.0
         return body.plant.x + dx * scale, body.plant.y + dy * scale, body.axle_height
-
-    def close(self) -> None:
-        """Nothing to release: no physics client."""
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        self.close()

@@ -12,7 +12,6 @@ the lockstep loop runs it thousands of times per second.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Self
 
 import numpy as np
 import pybullet as p
@@ -23,7 +22,7 @@ from services.body.geometry import robot_body
 from services.config import ConfigError, ImuConfig, LidarConfig, RobotConfig, SimConfig
 from sim_bridge.building import build_ground, build_obstacles
 from sim_bridge.display import require_display
-from sim_bridge.engine import Contact, Placement
+from sim_bridge.engine import Contact, Placement, WorldOfRobots
 from sim_bridge.ray_world import RayWorld
 from sim_bridge.robot import RobotModel, build_robot
 from sim_bridge.sensors import Imu, Lidar
@@ -147,7 +146,7 @@ def connect(gui: bool) -> int:
     return client
 
 
-class Simulator:
+class Simulator(WorldOfRobots[SimulatedRobot]):
     """Diff-drive robots in a world, stepped together by :meth:`step`. One robot (``robot``, at the
     world's initial pose, with the sensors ``lidar`` and ``imu``) unless ``fleet`` places several; the single-robot methods
     (:meth:`wheel_angles`, :meth:`set_torques`, ...) are the first robot's."""
@@ -163,12 +162,7 @@ class Simulator:
         lidar: LidarConfig | None = None,
         imu: ImuConfig | None = None,
     ) -> None:
-        self.step_ns = round(sim.step * NANOSECONDS_PER_SECOND)
-        if self.step_ns < 1:
-            raise ConfigError(f"`sim.step`: {sim.step} s is shorter than 1 ns")
-        self.robot_config, self.sim_config, self.world = robot, sim, world
-        self.placements = tuple(fleet) or (Placement(robot.name, robot, world.initial_pose, lidar, imu),)
-        self._release_steps = max(1, round(sim.bump_release * NANOSECONDS_PER_SECOND / self.step_ns))
+        super().__init__(robot, sim, world, fleet, lidar, imu)
         self.client = connect(gui)
         self._build()
 
@@ -224,27 +218,6 @@ class Simulator:
             self._pair_of_bodies[other, body] = (pair_index, _CONTACT_POSITION_ON_B, _CONTACT_POSITION_ON_A)
         self._one_query = len(self._pairs) > len(self.robots)
         """Whether :meth:`_new_contacts` asks for all the world's contact points at once, not pair by pair."""
-
-    @property
-    def time_ns(self) -> int:
-        """Simulation time of the current state."""
-        return self.step_index * self.step_ns
-
-    @property
-    def applied_torques(self) -> list[float]:
-        return self.robots[0].applied_torques
-
-    def wheel_angles(self) -> list[float]:
-        return self.robots[0].wheel_angles()
-
-    def body_pose(self) -> list[float]:
-        return self.robots[0].body_pose()
-
-    def set_torques(self, torques: Sequence[float]) -> None:
-        self.robots[0].set_torques(torques)
-
-    def set_zero_torques(self) -> None:
-        self.robots[0].set_zero_torques()
 
     def step(self) -> tuple[Contact, ...]:
         """Apply every robot's torques, advance one step; return the contacts that began in it
@@ -308,9 +281,3 @@ class Simulator:
         if self._ray_world is not None:
             self._ray_world.close()
         p.disconnect(physicsClientId=self.client)
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        self.close()
