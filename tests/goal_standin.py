@@ -19,6 +19,9 @@ from schemas.keys import Keys, Service
 from schemas.messages import CancelReply, CancelRequest, GoalReply, GoalRequest, ScenarioOutcome
 from tests.harness import wait_until
 
+GOAL_REFUSED = encode(GoalReply(accepted=False, id="", reason="a test"))
+"""A drive's refusal of a goal, as a rights test's stand-in queryable replies."""
+
 
 class StandInDrive:
     def __init__(self, session: zenoh.Session, keys: Keys, answer: Callable[[GoalRequest], GoalReply]) -> None:

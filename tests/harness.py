@@ -101,6 +101,17 @@ class Collector:
         self._subscriber.undeclare()
 
 
+def noting_replier(calls: list[tuple[str, str]], who: str, reply: bytes = b"{}") -> Callable[[zenoh.Query], None]:
+    """A queryable's handler for rights tests: notes ``(who, key)`` of each query it is routed, in
+    ``calls``, and replies ``reply``."""
+
+    def answer(query: zenoh.Query) -> None:
+        calls.append((who, str(query.key_expr)))
+        query.reply(query.key_expr, reply)
+
+    return answer
+
+
 def call(
     session: zenoh.Session, key: str, payload: bytes | str | None = None, timeout: float = 5.0
 ) -> tuple[bool, Any]:

@@ -9,6 +9,7 @@ import queue
 import stat
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
+from functools import partial
 from pathlib import Path
 
 import msgspec
@@ -33,8 +34,8 @@ from services.security import (
     grants,
     write_profile,
 )
-from tests.goal_standin import StandInDrive
-from tests.harness import InventProcess, call, free_port, run_invent, start_up, wait_until
+from tests.goal_standin import GOAL_REFUSED, StandInDrive
+from tests.harness import InventProcess, call, free_port, noting_replier, run_invent, start_up, wait_until
 
 KEYS = Keys("secured")
 FORGED_VX = 0.4321
@@ -271,13 +272,7 @@ def test_router_routes_goals_only_from_the_operator_and_the_bridge_and_only_to_t
     role's do not; another role declaring the same queryables (an impostor drive) is never routed to."""
     with _secured_router(tmp_path, tls=False) as (_profile, open_as):
         calls: list[tuple[str, str]] = []
-
-        def serve(who: str) -> Callable[[zenoh.Query], None]:
-            def answer(query: zenoh.Query) -> None:
-                calls.append((who, str(query.key_expr)))
-                query.reply(query.key_expr, b'{"accepted": false, "id": "", "reason": "a test"}')
-
-            return answer
+        serve = partial(noting_replier, calls, reply=GOAL_REFUSED)
 
         drive, impostor = open_as(Role.DRIVE), open_as(Role.OPERATOR)
         for key in sorted(GOALS):

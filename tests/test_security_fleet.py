@@ -11,6 +11,7 @@ import queue
 import stat
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
+from functools import partial
 from pathlib import Path
 
 import pytest
@@ -39,7 +40,8 @@ from services.security import (
     write_fleet_profile,
     write_profile,
 )
-from tests.harness import free_port, run_invent, wait_until
+from tests.goal_standin import GOAL_REFUSED
+from tests.harness import free_port, noting_replier, run_invent, wait_until
 
 ROBOTS = ("rh0", "rh1")
 RH0, RH1 = Keys("rh0"), Keys("rh1")
@@ -386,13 +388,7 @@ def test_router_lets_one_robots_credentials_neither_call_nor_serve_another_robot
     robot's motor/gui/stop."""
     with _fleet_router(tmp_path) as (_profile, open_as):
         calls: list[tuple[str, str]] = []
-
-        def serve(user: str) -> Callable[[zenoh.Query], None]:
-            def answer(query: zenoh.Query) -> None:
-                calls.append((user, str(query.key_expr)))
-                query.reply(query.key_expr, b"{}")
-
-            return answer
+        serve = partial(noting_replier, calls)
 
         motors = {robot: open_as(Identity(Role.MOTOR, robot)) for robot in ROBOTS}
         # A second session with rh1's motor credentials tries to serve rh0's stop methods, then rh1's
@@ -465,13 +461,7 @@ def test_router_lets_one_robots_bridge_reach_only_its_own_robots_goals_and_the_o
     never routed to); the observer reaches none."""
     with _fleet_router(tmp_path) as (_profile, open_as):
         calls: list[tuple[str, str]] = []
-
-        def serve(who: str) -> Callable[[zenoh.Query], None]:
-            def answer(query: zenoh.Query) -> None:
-                calls.append((who, str(query.key_expr)))
-                query.reply(query.key_expr, b'{"accepted": false, "id": "", "reason": "a test"}')
-
-            return answer
+        serve = partial(noting_replier, calls, reply=GOAL_REFUSED)
 
         impostor = open_as(Identity(Role.DRIVE, "rh1"))
         for key in sorted(_goals(RH0)):
