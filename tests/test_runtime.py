@@ -5,6 +5,8 @@ import ctypes.util
 import json
 import logging
 import signal
+import subprocess
+import sys
 import threading
 
 import pytest
@@ -13,7 +15,7 @@ from schemas import BadInput, Keys, Service, Time, TimedDoubleSeq
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
 from services.runtime.session import DEFAULT_ENDPOINT, LOOPBACK_LISTEN, has_match, session_config, stop_on_signals
-from tests.harness import call, free_port, peer_session, refused, run_invent, wait_until
+from tests.harness import REPO, call, free_port, peer_session, refused, run_invent, wait_until
 
 
 @pytest.fixture
@@ -273,3 +275,36 @@ def test_a_backlog_of_queued_samples_holds_their_bytes_not_the_batches_they_arri
         held = _malloc_in_use() - before
     _spin_until(node, lambda: len(received) == backlog)
     assert held < 5_000_000, f"{held / 1e6:.1f} MB held by {backlog} queued samples"
+
+
+STUCK_IN_SHUTDOWN = """
+import sys, threading
+from services.runtime.session import stop_on_signals
+
+def stuck_in_shutdown(never: threading.Event) -> None:
+    never.wait()
+
+stop = stop_on_signals(shutdown_watchdog_s=1.0)
+print("ready", flush=True)
+stop.wait()
+stuck_in_shutdown(threading.Event())
+"""
+
+
+def test_a_process_stuck_in_its_shutdown_prints_where_and_exits_1_after_the_watchdog():
+    """A service whose shutdown hangs (seen once: a view that never exited after SIGINT) must not
+    wait to be killed silently: the watchdog prints every thread's stack, naming the stuck frame,
+    and ends the process with exit 1."""
+    process = subprocess.Popen(
+        [sys.executable, "-c", STUCK_IN_SHUTDOWN], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert process.stdout is not None and process.stdout.readline() == "ready\n"
+        process.send_signal(signal.SIGTERM)
+        _out, err = process.communicate(timeout=15)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == 1, err
+    assert "Timeout (0:00:01)!" in err and "stuck_in_shutdown" in err, err

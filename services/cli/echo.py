@@ -6,7 +6,7 @@ import argparse
 
 from services.cli import tools
 from services.cli.flags import session_from_args
-from services.runtime.session import open_session, stop_on_signals
+from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -15,7 +15,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    stop = stop_on_signals()
+    stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args)) as session:
         return tools.run_echo(session, args.keyexpr, args.count, stop)
 

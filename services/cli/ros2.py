@@ -14,7 +14,7 @@ from services.fleet.description import load_fleet
 from services.launch import ros2_run
 from services.ros2 import graph
 from services.ros2.service import COMMAND, Ros2Options
-from services.runtime.session import open_session, stop_on_signals
+from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 from services.service import ServicePlan
 
 
@@ -64,7 +64,7 @@ def serve_fleet(args: argparse.Namespace) -> int:
     configs = ros2_run.fleet_bridges(load_fleet(args.fleet), args.config, overrides_from_args(CLI, args))
     journaling = journaling_from_args(args)
     plans = {name: ServicePlan(COMMAND, config, options(args), journaling) for name, config in configs.items()}
-    stop = stop_on_signals()
+    stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args, timestamping=COMMAND.timestamped)) as session:
         return ros2_run.serve_bridges(session, plans, stop)
 

@@ -9,7 +9,7 @@ from services.cli import tools
 from services.cli.flags import session_from_args
 from services.config import ConfigError, load_config, parse_override
 from services.runtime.realtime import apply_realtime
-from services.runtime.session import DEFAULT_ENDPOINT, open_session, stop_on_signals
+from services.runtime.session import DEFAULT_ENDPOINT, SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"invent router --set {', '.join(not_rt)}: a router takes only the [rt] settings")
     apply_realtime(load_config(overrides={**overrides, "rt.enabled": args.rt or None}).rt, "invent router")
     config = session_from_args(args, mode="router")
-    stop = stop_on_signals()
+    stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(config) as session:
         return tools.run_router(session, json.loads(config.get_json("listen/endpoints")), stop)
 

@@ -12,7 +12,7 @@ from typing import Any, Generic
 
 from services.cli.flags import Commands, Parents, config_from_args, session_from_args
 from services.runtime.realtime import apply_realtime
-from services.runtime.session import open_session, stop_on_signals
+from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 from services.service import Journaling, NoOptions, OptionsT, ServiceCommand, ServicePlan, run_service
 
 
@@ -71,6 +71,6 @@ def serve(args: argparse.Namespace) -> int:
     cli: ServiceCli[Any] = args.service_cli
     plan = plan_from_args(cli, args)
     apply_realtime(plan.config.rt, f"invent {cli.command.service}")
-    stop = stop_on_signals()
+    stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args, timestamping=cli.command.timestamped)) as session:
         return run_service(plan, session, stop)

@@ -10,7 +10,7 @@ from services.cli.serve import journaling_from_args
 from services.extension.hosting import UserOptions, command
 from services.extension.loader import load
 from services.runtime.realtime import apply_realtime
-from services.runtime.session import open_session, stop_on_signals
+from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 from services.service import ServicePlan, run_service
 
 HELP = "run a service of your own: a UserService subclass in a Python file (docs/extending.md)"
@@ -35,6 +35,6 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(None, args)
     plan = ServicePlan(command(loaded), config, UserOptions(loaded), journaling_from_args(args))
     apply_realtime(config.rt, f"invent service {loaded.name}")
-    stop = stop_on_signals()
+    stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args)) as session:
         return run_service(plan, session, stop)

@@ -8,7 +8,7 @@ from schemas.keys import Keys
 from services.cli.flags import config_from_args, fleet_flag, overrides_from_args, port_number, session_from_args
 from services.fleet.description import fleet_configs, load_fleet
 from services.recording import view
-from services.runtime.session import open_session, stop_on_signals
+from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
         if args.fleet
         else ()
     )
-    stop = stop_on_signals()
+    stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args)) as session:
         return view.run_view(
             session, Keys(config.robot.name), config, stop, host=args.host, port=args.port, fleet=fleet

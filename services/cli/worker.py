@@ -9,7 +9,7 @@ from services.cli.services import service_plan
 from services.config import ConfigError
 from services.fleet.description import load_fleet
 from services.launch import worker
-from services.runtime.session import open_session, stop_on_signals
+from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
         if args.zenoh_config:
             connection += ["--zenoh-config", args.zenoh_config]
         requests = worker.robot_requests(fleet_file, names, [*connection, "--log-level", args.log_level])
-    stop = stop_on_signals()
+    stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args)) as session:
         return worker.run_worker(
             session, service_plan, stop, intra_process=not args.no_intra_process, requests=requests

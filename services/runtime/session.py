@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import faulthandler
 import json
 import os
 import random
@@ -132,8 +133,18 @@ def open_session(config: zenoh.Config) -> Iterator[zenoh.Session]:
         session.close()
 
 
-def stop_on_signals() -> threading.Event:
+SHUTDOWN_WATCHDOG_S = 8.0
+"""How long a service may take to shut down once signalled, under ``invent up``'s wait for its
+children (``STOP_TIMEOUT_S``, 10 s) so that a hung one says where before it is killed."""
+
+
+def stop_on_signals(shutdown_watchdog_s: float | None = None) -> threading.Event:
     """An event set by SIGINT or SIGTERM (the service then shuts down cleanly, exit 0).
+
+    ``shutdown_watchdog_s``: a process still alive that long after the signal prints every thread's
+    stack to stderr (``Timeout (0:00:08)!`` and the tracebacks) and exits 1. The watchdog is
+    faulthandler's own thread, which needs neither the GIL nor the main thread: a shutdown stuck in
+    native code (a session's close, a server's stop) ends too, and says where it was stuck.
 
     Only the first signal sets it. Python runs a signal's handler between two bytecodes of the
     main thread, so a second signal (SIGTERM, then SIGINT from an impatient supervisor) can run
@@ -148,6 +159,8 @@ def stop_on_signals() -> threading.Event:
         if signalled:
             return
         signalled = True
+        if shutdown_watchdog_s is not None:
+            faulthandler.dump_traceback_later(shutdown_watchdog_s, exit=True)
         stop.set()
 
     signal.signal(signal.SIGINT, handle)
