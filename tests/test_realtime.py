@@ -94,6 +94,46 @@ def test_the_control_path_with_rt_shares_the_last_cpu_by_default():
     assert set(map(frozenset, affinities.values())) == {frozenset({last})}, affinities
 
 
+def _affinities(processes: dict[str, InventProcess]) -> dict[str, set[frozenset[int]]]:
+    """Each process's CPU sets: its main thread's and zenoh's threads'."""
+    return {
+        name: {frozenset(os.sched_getaffinity(tid)) for tid in _control_threads(process.process.pid)}
+        for name, process in processes.items()
+    }
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to partition")
+@pytest.mark.parametrize("partition", [True, False])
+def test_without_rt_the_control_path_runs_on_the_last_cpu_and_the_observers_on_the_others(partition):
+    """rt.partition (default on, no privilege needed): the router and the motor on the last CPU,
+    odometry and the view on the CPUs left; off, every process where the system likes."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    available = os.sched_getaffinity(0)
+    last = max(available)
+    setting = ("--set", f"rt.partition={str(partition).lower()}")
+    with (
+        InventProcess("router", "--listen", endpoint, *setting) as router,
+        peer_session(endpoint) as session,
+        InventProcess("motor", "--connect", endpoint, *setting) as motor,
+        InventProcess("odometry", "--connect", endpoint, *setting) as odometry,
+        InventProcess("view", "--connect", endpoint, "--port", "0", *setting) as view,
+    ):
+        for service in (Service.MOTOR, Service.ODOMETRY):
+            wait_alive(session, KEYS.alive(service))
+        wait_until(lambda: call(session, KEYS.view_status)[0], what="the view's status")
+        affinities = _affinities({"router": router, "motor": motor, "odometry": odometry, "view": view})
+        ok, status = call(session, KEYS.status(Service.MOTOR))
+        for process in (view, odometry, motor, router):
+            process.stop()
+    if partition:
+        on_control_path, off_it = {frozenset({last})}, {frozenset(available - {last})}
+        assert ok and status["rt"]["cpus"] == [last] and status["rt"]["policy"] == "SCHED_OTHER", status["rt"]
+    else:
+        on_control_path = off_it = {frozenset(available)}
+        assert ok and status["rt"]["cpus"] is None, status["rt"]
+    assert affinities == {"router": on_control_path, "motor": on_control_path, "odometry": off_it, "view": off_it}
+
+
 @pytest.mark.skipif(not CAN_SCHEDULE_FIFO, reason="SCHED_FIFO and mlockall need root (or CAP_SYS_NICE, CAP_IPC_LOCK)")
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to choose")
 def test_a_composed_loop_with_rt_holds_its_loop_thread_to_the_last_cpu_and_still_answers_from_outside(tmp_path):

@@ -18,6 +18,7 @@ from services.cli.flags import (
 from services.config import Config, ConfigError
 from services.recording import record, ros2_record
 from services.ros2.graph import bridge_graph
+from services.runtime.realtime import apply_realtime
 from services.runtime.session import open_session, stop_on_signals
 
 
@@ -50,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     config = config_from_args(None, args)
+    apply_realtime(config.rt, "invent record", control_path=False)
     if args.ros2:
         return _run_ros2(args, config)
     if args.fleet:

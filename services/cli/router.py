@@ -27,7 +27,9 @@ def run(args: argparse.Namespace) -> int:
     not_rt = [key for key in overrides if not key.startswith("rt.")]
     if not_rt:
         raise ConfigError(f"invent router --set {', '.join(not_rt)}: a router takes only the [rt] settings")
-    apply_realtime(load_config(overrides={**overrides, "rt.enabled": args.rt or None}).rt, "invent router")
+    apply_realtime(
+        load_config(overrides={**overrides, "rt.enabled": args.rt or None}).rt, "invent router", control_path=True
+    )
     config = session_from_args(args, mode="router")
     stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(config) as session:

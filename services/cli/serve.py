@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, Generic
 
 from services.cli.flags import Commands, Parents, config_from_args, session_from_args
-from services.runtime.realtime import apply_realtime
+from services.runtime.realtime import CONTROL_PATH, apply_realtime
 from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 from services.service import Journaling, NoOptions, OptionsT, ServiceCommand, ServicePlan, run_service
 
@@ -70,7 +70,7 @@ def serve(args: argparse.Namespace) -> int:
     """``invent <service>``: the service alone, on a session of its own, until SIGINT/SIGTERM or its own end."""
     cli: ServiceCli[Any] = args.service_cli
     plan = plan_from_args(cli, args)
-    apply_realtime(plan.config.rt, f"invent {cli.command.service}")
+    apply_realtime(plan.config.rt, f"invent {cli.command.service}", control_path=cli.command.service in CONTROL_PATH)
     stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args, timestamping=cli.command.timestamped)) as session:
         return run_service(plan, session, stop)

@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     loaded = load(args.spec)
     config = config_from_args(None, args)
     plan = ServicePlan(command(loaded), config, UserOptions(loaded), journaling_from_args(args))
-    apply_realtime(config.rt, f"invent service {loaded.name}")
+    apply_realtime(config.rt, f"invent service {loaded.name}", control_path=False)
     stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args)) as session:
         return run_service(plan, session, stop)

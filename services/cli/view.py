@@ -8,6 +8,7 @@ from schemas.keys import Keys
 from services.cli.flags import config_from_args, fleet_flag, overrides_from_args, port_number, session_from_args
 from services.fleet.description import fleet_configs, load_fleet
 from services.recording import view
+from services.runtime.realtime import apply_realtime
 from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 
 
@@ -40,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
         if args.fleet
         else ()
     )
+    apply_realtime(config.rt, "invent view", control_path=False)
     stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args)) as session:
         return view.run_view(

@@ -154,3 +154,9 @@ class RtConfig(Section, frozen=True):
     """Python's garbage collector: ``automatic`` (as ever), ``frozen`` (what start-up made is frozen
     and never scanned again), ``idle`` (frozen, and the young generation collected when the service
     thread is about to wait; automatic collections only as a safety net)."""
+    partition: bool = True
+    """With or without ``enabled``: the control path's processes (the sim, the motor, the router)
+    on ``cpus``, and every other process of the stack (the other services, the ROS 2 bridge, the
+    view, the recorder, your own services) on the CPUs left, so that no observer's thread is ever
+    woken on the core a step's exchange runs on (CPU affinity needs no privilege). Nothing is pinned
+    with a single CPU or ``cpus = "any"``."""

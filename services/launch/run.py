@@ -161,7 +161,7 @@ def launch_services(
     connection = plan.connection
     if plan.composed:
         # One process runs the whole loop: it is the control path.
-        apply_realtime(plan.description.load().rt, "invent up --composed", composed=True)
+        apply_realtime(plan.description.load().rt, "invent up --composed", control_path=True, composed=True)
         mode_config = (
             session_config(connect=[endpoint], file=access.config_file(Role.OPERATOR), timestamping=plan.ros2)
             if connection.connect
