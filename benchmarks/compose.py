@@ -1,0 +1,218 @@
+"""Compose against bare (``make compose-bench``; never part of ``make test``): the sim's late steps
+in realtime at 1 kHz, the square in a loop, with the same services started by ``invent up`` on this
+machine and by ``docker compose up``, one cause at a time.
+
+Each case runs alone: started, warmed up (``--warmup``), then the sim's ``realtime_late_steps``
+over its steps for ``--window`` seconds of wall time. Bare cases: ``invent up --mode realtime
+--loop`` with or without ``invent view``, the ROS 2 bridge, ``--secure`` (every service a client of
+the router with its role's credentials, as in compose), ``--rt``, and ``rt.partition`` off. Compose
+cases (when Docker is here; the section says so and is skipped when it is not): ``compose.yaml``'s
+default profile, and the same with one thing changed by an override file: the router's CPU left to
+the system, ``rt.partition`` off, no view, ``compose.rt.yaml`` (real-time budgets from the daemon).
+Needs ``make secrets`` for compose. Writes ``benchmarks/results/compose.json``; figures in
+benchmarks/README.md, "Compose".
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zenoh
+from ruamel.yaml import YAML
+
+from benchmarks import compose_stack
+from benchmarks.machine import describe
+from services.runtime.session import free_port, open_session, session_config
+
+RESULTS = Path(__file__).resolve().parent / "results" / "compose.json"
+INVENT = str(Path(sys.executable).with_name("invent"))
+NO_PARTITION = ("--set", "rt.partition=false")
+
+
+@dataclass(frozen=True)
+class Bare:
+    """``invent up --mode realtime --loop`` with these flags, and ``invent view`` beside it or not."""
+
+    description: str
+    up_flags: tuple[str, ...] = ()
+    view: bool = False
+    view_flags: tuple[str, ...] = ()
+    secure: bool = False
+
+
+@dataclass(frozen=True)
+class Compose:
+    """``compose.yaml`` with ``changes`` (an override built from it) or ``files`` merged over it."""
+
+    description: str
+    changes: Callable[[dict[str, Any]], dict[str, Any]] | None = None
+    files: tuple[str, ...] = ()
+
+
+def _router_on_any_cpu(compose: dict[str, Any]) -> dict[str, Any]:
+    return {"services": {"router": {"cpuset": f"0-{os.cpu_count() - 1}" if os.cpu_count() else "0"}}}
+
+
+def _no_partition(compose: dict[str, Any]) -> dict[str, Any]:
+    services = {
+        name: {"command": [*service["command"], *NO_PARTITION]}
+        for name, service in compose["services"].items()
+        if service.get("build") or service.get("image") == "invent-zenoh"
+        if name != "router"
+    }
+    return {"services": services}
+
+
+def _no_view(compose: dict[str, Any]) -> dict[str, Any]:
+    return {"services": {"view": {"profiles": ["no-view"]}}}
+
+
+CASES: dict[str, Bare | Compose] = {
+    "bare": Bare("the loop alone"),
+    "bare_view": Bare("the loop + invent view (compose's default services)", view=True),
+    "bare_view_no_partition": Bare("the loop + view, rt.partition off", NO_PARTITION, True, NO_PARTITION),
+    "bare_ros2_view": Bare("the loop + ROS 2 bridge + view", ("--ros2",), view=True),
+    "bare_ros2_view_no_partition": Bare(
+        "the loop + ROS 2 bridge + view, rt.partition off", ("--ros2", *NO_PARTITION), True, NO_PARTITION
+    ),
+    "bare_secure_view": Bare(
+        "--secure (compose's topology: every service a client of the router) + view", (), True, (), True
+    ),
+    "bare_rt_view": Bare("--rt + view", ("--rt",), view=True),
+    "compose": Compose("docker compose up: the default profile, every container"),
+    "compose_router_any_cpu": Compose("compose, the router's CPU left to the system", _router_on_any_cpu),
+    "compose_no_partition": Compose("compose, rt.partition off", _no_partition),
+    "compose_no_view": Compose("compose without the view", _no_view),
+    "compose_rt": Compose("compose + compose.rt.yaml (the daemon's real-time budget)", files=("compose.rt.yaml",)),
+}
+
+
+@dataclass
+class Outcome:
+    description: str
+    late: dict[str, Any] | None = None
+    skipped: str | None = None
+    load_average: list[float] = field(default_factory=list)
+
+
+def _stop(processes: Sequence[subprocess.Popen[bytes]]) -> None:
+    for process in reversed(processes):
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+    for process in processes:
+        try:
+            process.wait(30)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def measure_bare(case: Bare, warmup_s: float, window_s: float) -> dict[str, Any]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with tempfile.TemporaryDirectory(prefix="invent-compose-bench-") as folder:
+        report = Path(folder) / "run"
+        recording = ["--secure", "--report", str(report)] if case.secure else ["--no-record"]
+        up = [INVENT, "up", "--mode", "realtime", "--loop", "--listen", endpoint, *recording, *case.up_flags]
+        processes = [subprocess.Popen(up, cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+        try:
+            observer = report / "secrets" / "observer.json5"
+            deadline = time.monotonic() + compose_stack.START_TIMEOUT_S
+            while case.secure and not observer.is_file() and time.monotonic() < deadline:
+                time.sleep(0.2)
+            connection = ["--zenoh-config", str(observer)] if case.secure else ["--connect", endpoint]
+            config = zenoh.Config.from_file(str(observer)) if case.secure else session_config(connect=[endpoint])
+            with open_session(config) as session:
+                compose_stack.wait_for_steps(session)
+                if case.view:
+                    view = [INVENT, "view", *connection, "--port", "0", *case.view_flags]
+                    processes.append(subprocess.Popen(view, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+                time.sleep(warmup_s)
+                return compose_stack.late_over(session, window_s)
+        finally:
+            _stop(processes)
+
+
+def measure_compose(case: Compose, compose: list[str], warmup_s: float, window_s: float) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory(prefix="invent-compose-bench-") as folder:
+        overrides = [compose_stack.REPO / name for name in case.files]
+        if case.changes is not None:
+            override = Path(folder) / "override.yaml"
+            override.write_text(json.dumps(case.changes(YAML(typ="safe").load(compose_stack.REPO / "compose.yaml"))))
+            overrides.append(override)
+        stack = compose_stack.Stack(compose, overrides)
+        try:
+            stack.up()
+            with compose_stack.observer_session() as session:
+                compose_stack.wait_for_steps(session)
+                time.sleep(warmup_s)
+                return compose_stack.late_over(session, window_s)
+        finally:
+            stack.down()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.compose", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--window", type=float, default=45.0, metavar="S", help="wall seconds counted (45)")
+    parser.add_argument("--warmup", type=float, default=10.0, metavar="S", help="wall seconds before (10)")
+    parser.add_argument("--only", metavar="CASE,...", help=f"these cases only, of: {', '.join(CASES)}")
+    parser.add_argument("--output", type=Path, default=RESULTS, metavar="FILE", help=f"default {RESULTS}")
+    args = parser.parse_args(argv)
+    names = args.only.split(",") if args.only else list(CASES)
+    unknown = [name for name in names if name not in CASES]
+    if unknown:
+        parser.error(f"--only {','.join(unknown)}: not a case ({', '.join(CASES)})")
+    reason = ""
+    try:
+        compose: list[str] | None = compose_stack.compose_command()
+        compose_stack.role_config("observer")
+        print(f"Docker: {' '.join(compose or [])}", flush=True)
+    except compose_stack.DockerMissing as missing:
+        compose, reason = None, str(missing)
+        print(f"Docker is not here ({reason}): the compose cases are skipped", flush=True)
+    outcomes: dict[str, Outcome] = {}
+    for name in names:
+        case = CASES[name]
+        outcome = outcomes[name] = Outcome(case.description)
+        if isinstance(case, Compose) and compose is None:
+            outcome.skipped = f"Docker is not here ({reason})"
+            continue
+        print(f"{name}: {case.description} ...", flush=True)
+        try:
+            if isinstance(case, Bare):
+                outcome.late = measure_bare(case, args.warmup, args.window)
+            else:
+                assert compose is not None
+                outcome.late = measure_compose(case, compose, args.warmup, args.window)
+        except RuntimeError as error:
+            outcome.skipped = f"failed: {error}"
+        outcome.load_average = [round(value, 2) for value in os.getloadavg()]
+        late = outcome.late
+        said = (
+            f"{100 * late['late_fraction']:.2f} % ({late['late_steps']}/{late['steps']})" if late else outcome.skipped
+        )
+        print(f"  {said}", flush=True)
+    results = {
+        "machine": describe(),
+        "window_s": args.window,
+        "warmup_s": args.warmup,
+        "cases": {name: vars(outcome) for name, outcome in outcomes.items()},
+    }
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(results, indent=2) + "\n")
+    print(f"wrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
