@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-fast test-kinematic lint fuzz bench soak stress profile secrets clean
+.PHONY: run test test-fast test-kinematic lint fuzz bench soak compose-bench compose-soak stress profile secrets clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -41,6 +41,12 @@ bench-smoke: $(STAMP)  ## every benchmark section with --quick, checking every f
 
 soak: $(STAMP)  ## the stack left running an hour (DURATION=3600): memory, open files, health -> benchmarks/results/soak.json
 	$(BIN)/python -m benchmarks.soak --duration $(or $(DURATION),3600)
+
+compose-bench: $(STAMP)  ## the sim's late steps bare and under docker compose, one cause at a time (Docker and `make secrets`; skipped, saying so, without Docker) -> benchmarks/results/compose.json
+	$(BIN)/python -m benchmarks.compose $(ARGS)
+
+compose-soak: $(STAMP)  ## docker compose up left running an hour (DURATION=3600), the motor's then the sim's container killed mid-run -> benchmarks/results/compose-soak.json
+	$(BIN)/python -m benchmarks.compose_soak --duration $(or $(DURATION),3600)
 
 stress: $(STAMP)  ## `invent up --no-record` started and stopped 100 times in a row (STARTS=100): every start must succeed
 	$(BIN)/python -m benchmarks.stress_starts --starts $(or $(STARTS),100)

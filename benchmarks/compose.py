@@ -3,7 +3,8 @@ in realtime at 1 kHz, the square in a loop, with the same services started by ``
 machine and by ``docker compose up``, one cause at a time.
 
 Each case runs alone: started, warmed up (``--warmup``), then the sim's ``realtime_late_steps``
-over its steps for ``--window`` seconds of wall time. Bare cases: ``invent up --mode realtime
+over its steps for ``--window`` seconds of wall time; ``--repeats N`` runs the cases N times,
+interleaved (the machine's noise then falls on every case alike), and reports each case's median. Bare cases: ``invent up --mode realtime
 --loop`` with or without ``invent view``, the ROS 2 bridge, ``--secure`` (every service a client of
 the router with its role's credentials, as in compose), ``--rt``, and ``rt.partition`` off. Compose
 cases (when Docker is here; the section says so and is skipped when it is not): ``compose.yaml``'s
@@ -19,6 +20,7 @@ import argparse
 import json
 import os
 import signal
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -61,7 +63,7 @@ class Compose:
 
 
 def _router_on_any_cpu(compose: dict[str, Any]) -> dict[str, Any]:
-    return {"services": {"router": {"cpuset": f"0-{os.cpu_count() - 1}" if os.cpu_count() else "0"}}}
+    return {"services": {"router": {"cpuset": f"0-{(os.cpu_count() or 1) - 1}"}}}
 
 
 def _no_partition(compose: dict[str, Any]) -> dict[str, Any]:
@@ -101,9 +103,17 @@ CASES: dict[str, Bare | Compose] = {
 @dataclass
 class Outcome:
     description: str
-    late: dict[str, Any] | None = None
+    runs: list[dict[str, Any]] = field(default_factory=list)
+    """Each repeat's late steps over the window, with the load average after it."""
     skipped: str | None = None
-    load_average: list[float] = field(default_factory=list)
+
+    @property
+    def median_late_fraction(self) -> float | None:
+        fractions = [run["late_fraction"] for run in self.runs if run.get("late_fraction") is not None]
+        return statistics.median(fractions) if fractions else None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**vars(self), "median_late_fraction": self.median_late_fraction}
 
 
 def _stop(processes: Sequence[subprocess.Popen[bytes]]) -> None:
@@ -166,6 +176,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--window", type=float, default=45.0, metavar="S", help="wall seconds counted (45)")
     parser.add_argument("--warmup", type=float, default=10.0, metavar="S", help="wall seconds before (10)")
     parser.add_argument("--only", metavar="CASE,...", help=f"these cases only, of: {', '.join(CASES)}")
+    parser.add_argument(
+        "--repeats", type=int, default=1, metavar="N", help="each case N times, the cases interleaved (1)"
+    )
     parser.add_argument("--output", type=Path, default=RESULTS, metavar="FILE", help=f"default {RESULTS}")
     args = parser.parse_args(argv)
     names = args.only.split(",") if args.only else list(CASES)
@@ -180,33 +193,36 @@ def main(argv: Sequence[str] | None = None) -> int:
     except compose_stack.DockerMissing as missing:
         compose, reason = None, str(missing)
         print(f"Docker is not here ({reason}): the compose cases are skipped", flush=True)
-    outcomes: dict[str, Outcome] = {}
-    for name in names:
-        case = CASES[name]
-        outcome = outcomes[name] = Outcome(case.description)
-        if isinstance(case, Compose) and compose is None:
-            outcome.skipped = f"Docker is not here ({reason})"
-            continue
-        print(f"{name}: {case.description} ...", flush=True)
-        try:
-            if isinstance(case, Bare):
-                outcome.late = measure_bare(case, args.warmup, args.window)
-            else:
-                assert compose is not None
-                outcome.late = measure_compose(case, compose, args.warmup, args.window)
-        except RuntimeError as error:
-            outcome.skipped = f"failed: {error}"
-        outcome.load_average = [round(value, 2) for value in os.getloadavg()]
-        late = outcome.late
-        said = (
-            f"{100 * late['late_fraction']:.2f} % ({late['late_steps']}/{late['steps']})" if late else outcome.skipped
-        )
-        print(f"  {said}", flush=True)
+    outcomes = {name: Outcome(CASES[name].description) for name in names}
+    for repeat in range(args.repeats):
+        for name in names:
+            case, outcome = CASES[name], outcomes[name]
+            if isinstance(case, Compose) and compose is None:
+                outcome.skipped = f"Docker is not here ({reason})"
+                continue
+            print(f"{name} ({repeat + 1} of {args.repeats}): {case.description} ...", flush=True)
+            try:
+                if isinstance(case, Bare):
+                    late = measure_bare(case, args.warmup, args.window)
+                else:
+                    assert compose is not None
+                    late = measure_compose(case, compose, args.warmup, args.window)
+            except RuntimeError as error:
+                outcome.skipped = f"failed: {error}"
+                print(f"  {outcome.skipped}", flush=True)
+                continue
+            outcome.runs.append({**late, "load_average": [round(value, 2) for value in os.getloadavg()]})
+            print(f"  {100 * late['late_fraction']:.2f} % ({late['late_steps']}/{late['steps']})", flush=True)
+    print("median late fraction of each case:")
+    for name, outcome in outcomes.items():
+        median = outcome.median_late_fraction
+        print(f"  {name:32} {'-' if median is None else f'{100 * median:.2f} %'}  {outcome.skipped or ''}")
     results = {
         "machine": describe(),
         "window_s": args.window,
         "warmup_s": args.warmup,
-        "cases": {name: vars(outcome) for name, outcome in outcomes.items()},
+        "repeats": args.repeats,
+        "cases": {name: outcome.as_dict() for name, outcome in outcomes.items()},
     }
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(results, indent=2) + "\n")

@@ -117,7 +117,7 @@ def observer_session(role: str = "observer") -> Iterator[zenoh.Session]:
         yield session
 
 
-def status(session: zenoh.Session, service: Service | str, keys: Keys = KEYS) -> dict[str, Any] | None:
+def status(session: zenoh.Session, service: Service, keys: Keys = KEYS) -> dict[str, Any] | None:
     """``service``'s status, or None when it does not answer."""
     for reply in session.get(keys.status(service), timeout=STATUS_TIMEOUT_S):
         if reply.ok is not None:

@@ -90,6 +90,24 @@ def test_the_sim_and_the_motor_run_with_rt_and_their_containers_grant_what_it_ne
             assert "cap_add" not in spec and "ulimits" not in spec, name
 
 
+def test_the_router_the_sim_and_the_motor_share_the_control_paths_cpu_that_env_names():
+    """The four hops of every step through the router stay on one core; the other containers keep
+    off it by themselves (rt.partition, on by default), so none of them has a cpuset."""
+    services = _compose()["services"]
+    control_path = {"router", str(Service.SIM), str(Service.MOTOR)}
+    env = dict(
+        line.split("=", 1) for line in (REPO / ".env").read_text().splitlines() if line and not line.startswith("#")
+    )
+    assert env["INVENT_CONTROL_PATH_CPU"].isdigit()
+    for name, spec in services.items():
+        if name in control_path:
+            assert spec["cpuset"].startswith("${INVENT_CONTROL_PATH_CPU:?"), name
+        else:
+            assert "cpuset" not in spec, name
+            args = build_parser().parse_args(spec["command"])
+            assert config_from_args(getattr(args, "service_cli", None), args).rt.partition, name
+
+
 def test_the_live_view_listens_in_its_container_and_is_published_to_this_host_only():
     view = _compose()["services"]["view"]
     args = build_parser().parse_args(view["command"])
