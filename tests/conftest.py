@@ -41,3 +41,20 @@ def _state_home_of_this_test(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) ->
     """And each test's own processes one of their own, so a robot stopped in one test is not
     found stopped by the next."""
     monkeypatch.setenv(STATE_HOME_VARIABLE, str(tmp_path / "state-home"))
+
+
+_CPUS_OF_THE_TEST_RUN = os.sched_getaffinity(0)
+
+
+@pytest.fixture(autouse=True)
+def _cpus_of_the_test_run() -> Iterator[None]:
+    """``invent`` run in this process (tests.harness.refused) may get as far as its real-time
+    settings, which hold the calling thread, and every thread and process it starts later, to one
+    side of the CPUs (rt.partition): every later test's processes would then share one core. Each
+    test starts with every thread of this process on the CPUs the run began with."""
+    yield
+    for thread in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(thread), _CPUS_OF_THE_TEST_RUN)
+        except OSError:  # the thread ended meanwhile
+            pass
