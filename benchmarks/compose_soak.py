@@ -10,7 +10,8 @@ unless-stopped``); the motor must come back ``stopped`` (the latch kept in its s
 robot stay put until the operator's ``clear``, after which the loop resumes (the drive's next
 target moves the robot). At the end: each container's memory growth per hour after the warm-up (a
 least-squares slope over each life of the container, its first minutes left out), the restarts, the internal errors, the late fraction per sample interval, and
-each kill's figures. Writes ``benchmarks/results/compose-soak.json``; exit 0 when every check
+each kill's figures. Ctrl-C ends it early with what it has (``interrupted``). Writes
+``benchmarks/results/compose-soak.json``; exit 0 when every check
 holds, 1 otherwise. Figures in benchmarks/README.md, "Compose".
 """
 
@@ -34,6 +35,7 @@ from benchmarks.compose_stack import KEYS, Stack, status
 from benchmarks.machine import describe
 from benchmarks.soak import _slope_per_hour
 from schemas.keys import Method, MethodFamily, Service
+from services.runtime.session import stop_on_signals
 
 RESULTS = Path(__file__).resolve().parent / "results" / "compose-soak.json"
 WATCHED = (Service.SIM, Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION, Service.DRIVE)
@@ -207,6 +209,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     samples: list[dict[str, Any]] = []
     kills: list[dict[str, Any]] = []
     kill_at = {args.duration / 3: Service.MOTOR, 2 * args.duration / 3: Service.SIM}
+    stop = stop_on_signals()
+    elapsed = 0.0
     try:
         stack.up()
         running = {service: stack.container(service) for service in stack.services()}
@@ -215,12 +219,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             compose_stack.wait_for_steps(observer)
             started = time.monotonic()
             next_sample = 0.0
-            while (elapsed := time.monotonic() - started) < args.duration:
+            while (elapsed := time.monotonic() - started) < args.duration and not stop.is_set():
                 for at, service in list(kill_at.items()):
                     if elapsed >= at:
                         del kill_at[at]
                         print(f"{elapsed:7.0f} s  killing {service}'s container (the robot stopped first)", flush=True)
-                        kills.append(kill_and_restart(stack, service, observer, operator))
+                        try:
+                            kills.append(kill_and_restart(stack, service, observer, operator))
+                        except RuntimeError as failed:
+                            kills.append({"service": service, "ok": False, "failed": str(failed)})
                         print(f"          {json.dumps(kills[-1])}", flush=True)
                 if elapsed >= next_sample:
                     samples.append(sample(stack, containers, observer, elapsed))
@@ -230,13 +237,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                         flush=True,
                     )
                     next_sample += args.sample_every
-                time.sleep(1.0)
+                stop.wait(1.0)
             samples.append(sample(stack, containers, observer, time.monotonic() - started))
     finally:
         stack.down()
     result = {
         "machine": describe(),
         "duration_s": args.duration,
+        "ran_s": round(elapsed, 1),
+        "interrupted": stop.is_set(),
         "summary": summary(samples, args.warm_up, kills),
         "kills": kills,
         "samples": samples,
@@ -245,7 +254,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.output.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result["summary"], indent=2))
     print(f"wrote {args.output}")
-    return 0 if all(result["summary"]["checks"].values()) else 1
+    return 0 if all(result["summary"]["checks"].values()) and not stop.is_set() else 1
 
 
 if __name__ == "__main__":
