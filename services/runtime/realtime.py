@@ -115,8 +115,8 @@ def apply_realtime(rt: RtConfig, who: str, *, control_path: bool, composed: bool
     ``rt.enabled`` or not), such a process, or one given ``--rt``, runs on ``rt.cpus``, and every
     other process on the CPUs left: the observers' threads (the view's, the ROS 2 bridge's, each
     taking the 1 kHz keys or a status) then never preempt a step's exchange. Measured on the 2-core
-    VM, realtime square with the ROS 2 bridge and the view: 6.5 % of the steps late without the
-    partition, 1.2 % with it (benchmarks/README.md, "Observers and the control path").
+    VM, realtime square with the ROS 2 bridge and the view, side by side: 13.1 % of the steps late
+    without the partition, 1.0 % with it (benchmarks/README.md, "Compose").
 
     ``composed``: the CPUs are left to :func:`pin_loop_thread`, for the thread the loop runs on
     alone. A composed lockstep loop never blocks: a thread sharing its one core at its priority
