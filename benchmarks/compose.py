@@ -131,15 +131,23 @@ def _stop(processes: Sequence[subprocess.Popen[bytes]]) -> None:
 def measure_bare(case: Bare, warmup_s: float, window_s: float) -> dict[str, Any]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     with tempfile.TemporaryDirectory(prefix="invent-compose-bench-") as folder:
-        report = Path(folder) / "run"
-        recording = ["--secure", "--report", str(report)] if case.secure else ["--no-record"]
-        up = [INVENT, "up", "--mode", "realtime", "--loop", "--listen", endpoint, *recording, *case.up_flags]
-        processes = [subprocess.Popen(up, cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+        # Nothing recorded, as in compose; --secure writes its credentials into runs/<time>/secrets/.
+        up = [INVENT, "up", "--mode", "realtime", "--loop", "--no-record", "--listen", endpoint]
+        processes = [
+            subprocess.Popen(
+                [*up, *(["--secure"] if case.secure else []), *case.up_flags],
+                cwd=folder,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+        ]
         try:
-            observer = report / "secrets" / "observer.json5"
             deadline = time.monotonic() + compose_stack.START_TIMEOUT_S
-            while case.secure and not observer.is_file() and time.monotonic() < deadline:
+            while case.secure and not list(Path(folder).glob("runs/*/secrets/observer.json5")):
+                if time.monotonic() > deadline:
+                    raise RuntimeError("invent up --secure wrote no observer credentials")
                 time.sleep(0.2)
+            observer = next(Path(folder).glob("runs/*/secrets/observer.json5"), Path())
             connection = ["--zenoh-config", str(observer)] if case.secure else ["--connect", endpoint]
             config = zenoh.Config.from_file(str(observer)) if case.secure else session_config(connect=[endpoint])
             with open_session(config) as session:
