@@ -20,7 +20,6 @@ import argparse
 import json
 import os
 import signal
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -34,6 +33,7 @@ import zenoh
 from ruamel.yaml import YAML
 
 from benchmarks import compose_stack
+from benchmarks.figures import median
 from benchmarks.machine import describe
 from services.runtime.session import free_port, open_session, session_config
 
@@ -109,8 +109,7 @@ class Outcome:
 
     @property
     def median_late_fraction(self) -> float | None:
-        fractions = [run["late_fraction"] for run in self.runs if run.get("late_fraction") is not None]
-        return statistics.median(fractions) if fractions else None
+        return median([run.get("late_fraction") for run in self.runs])
 
     def as_dict(self) -> dict[str, Any]:
         return {**vars(self), "median_late_fraction": self.median_late_fraction}
@@ -223,8 +222,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"  {100 * late['late_fraction']:.2f} % ({late['late_steps']}/{late['steps']})", flush=True)
     print("median late fraction of each case:")
     for name, outcome in outcomes.items():
-        median = outcome.median_late_fraction
-        print(f"  {name:32} {'-' if median is None else f'{100 * median:.2f} %'}  {outcome.skipped or ''}")
+        typical = outcome.median_late_fraction
+        print(f"  {name:32} {'-' if typical is None else f'{100 * typical:.2f} %'}  {outcome.skipped or ''}")
     results = {
         "machine": describe(),
         "window_s": args.window,

@@ -31,14 +31,14 @@ from typing import Any
 import zenoh
 
 from benchmarks import compose_stack
-from benchmarks.compose_stack import KEYS, Stack, status
+from benchmarks.compose_stack import KEYS, Stack
+from benchmarks.loop import service_status as status
 from benchmarks.machine import describe
-from benchmarks.soak import _slope_per_hour
+from benchmarks.soak import SERVICES, slope_per_hour
 from schemas.keys import Method, MethodFamily, Service
 from services.runtime.session import stop_on_signals
 
 RESULTS = Path(__file__).resolve().parent / "results" / "compose-soak.json"
-WATCHED = (Service.SIM, Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION, Service.DRIVE)
 MEMORY_LIMIT_MB_PER_H = 5.0
 RESTART_TIMEOUT_S = 60.0
 STILL_S = 5.0
@@ -131,7 +131,7 @@ def sample(stack: Stack, containers: dict[str, str], observer: zenoh.Session, el
             "restarts": inspected["RestartCount"],
             "running": inspected["State"]["Running"],
         }
-    for service in WATCHED:
+    for service in SERVICES:
         answered = status(observer, service)
         taken["internal_errors"][str(service)] = None if answered is None else answered.get("internal_errors")
         if service is Service.SIM and answered is not None:
@@ -159,7 +159,7 @@ def _segments(samples: list[dict[str, Any]], service: str, warm_up_s: float) -> 
 
 def summary(samples: list[dict[str, Any]], warm_up_s: float, kills: list[dict[str, Any]]) -> dict[str, Any]:
     growth = {
-        service: [round(_slope_per_hour(life), 2) for life in _segments(samples, service, warm_up_s)]
+        service: [round(slope_per_hour(life), 2) for life in _segments(samples, service, warm_up_s)]
         for service in samples[0]["containers"]
     }
     intervals = [

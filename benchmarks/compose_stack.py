@@ -16,13 +16,13 @@ from typing import Any
 
 import zenoh
 
+from benchmarks.loop import service_status
 from schemas.keys import Keys, Service
 from services.runtime.session import open_session
 
 REPO = Path(__file__).resolve().parent.parent
 SECRETS = REPO / "docker" / "secure" / "secrets"
 KEYS = Keys()
-STATUS_TIMEOUT_S = 3.0
 START_TIMEOUT_S = 120.0
 
 
@@ -117,20 +117,11 @@ def observer_session(role: str = "observer") -> Iterator[zenoh.Session]:
         yield session
 
 
-def status(session: zenoh.Session, service: Service, keys: Keys = KEYS) -> dict[str, Any] | None:
-    """``service``'s status, or None when it does not answer."""
-    for reply in session.get(keys.status(service), timeout=STATUS_TIMEOUT_S):
-        if reply.ok is not None:
-            answered: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
-            return answered
-    return None
-
-
 def wait_for_steps(session: zenoh.Session, steps: int = 1000, timeout: float = START_TIMEOUT_S) -> dict[str, Any]:
     """The sim's status once it has stepped ``steps`` times; RuntimeError after ``timeout``."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        sim = status(session, Service.SIM)
+        sim = service_status(session, Service.SIM)
         if sim is not None and sim.get("steps", 0) >= steps:
             return sim
         time.sleep(1.0)
@@ -139,9 +130,9 @@ def wait_for_steps(session: zenoh.Session, steps: int = 1000, timeout: float = S
 
 def late_over(session: zenoh.Session, window_s: float) -> dict[str, Any]:
     """The sim's late steps over ``window_s`` of wall time from now."""
-    before = status(session, Service.SIM)
+    before = service_status(session, Service.SIM)
     time.sleep(window_s)
-    after = status(session, Service.SIM)
+    after = service_status(session, Service.SIM)
     if before is None or after is None:
         raise RuntimeError("the sim did not answer its status")
     steps = after["steps"] - before["steps"]

@@ -127,11 +127,17 @@ def scenario_file(directory: Path) -> Path:
     return path
 
 
-def sim_status(session: zenoh.Session) -> dict[str, Any] | None:
-    for reply in session.get(KEYS.status(Service.SIM), timeout=STATUS_TIMEOUT_S):
+def service_status(session: zenoh.Session, service: Service, keys: Keys = KEYS) -> dict[str, Any] | None:
+    """``service``'s status, or None when it does not answer."""
+    for reply in session.get(keys.status(service), timeout=STATUS_TIMEOUT_S):
         if reply.ok is not None:
-            return json.loads(reply.ok.payload.to_bytes())
+            answered: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
+            return answered
     return None
+
+
+def sim_status(session: zenoh.Session) -> dict[str, Any] | None:
+    return service_status(session, Service.SIM)
 
 
 def _alive(session: zenoh.Session, service: Service) -> bool:

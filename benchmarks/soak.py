@@ -140,7 +140,7 @@ def _directory_mb(directory: Path) -> float:
     return sum(path.stat().st_size for path in directory.rglob("*") if path.is_file()) / 1e6
 
 
-def _slope_per_hour(points: list[tuple[float, float]]) -> float:
+def slope_per_hour(points: list[tuple[float, float]]) -> float:
     """Least-squares slope of (seconds, MB), in MB per hour."""
     if len(points) < 2:
         return 0.0
@@ -211,7 +211,7 @@ def _summary(run: Watched, warm_up_s: float) -> dict[str, Any]:
         processes[name] = {
             "rss_mb_after_warm_up": after[0][1]["rss_mb"],
             "rss_mb_at_end": after[-1][1]["rss_mb"],
-            "rss_growth_mb_per_hour": _slope_per_hour([(t, values["rss_mb"]) for t, values in after]),
+            "rss_growth_mb_per_hour": slope_per_hour([(t, values["rss_mb"]) for t, values in after]),
             "open_files_after_warm_up": after[0][1]["open_files"],
             "open_files_at_end": after[-1][1]["open_files"],
         }
@@ -223,7 +223,7 @@ def _summary(run: Watched, warm_up_s: float) -> dict[str, Any]:
         ]
         if allocated:
             entry["allocated_mb_at_end"] = allocated[-1][1]
-            entry["allocated_growth_mb_per_hour"] = _slope_per_hour(allocated)
+            entry["allocated_growth_mb_per_hour"] = slope_per_hour(allocated)
     health = run.health or {}
     internal = {name: counts["internal_errors"] for name, counts in health.get("services", {}).items()}
     return {

@@ -126,12 +126,12 @@ def apply_realtime(rt: RtConfig, who: str, *, control_path: bool, composed: bool
     watch_collections()
     available = os.sched_getaffinity(0)
     cpus = chosen_cpus(rt.cpus, available)
-    refused: list[str] = []
     if not rt.enabled:
         if rt.partition and cpus and not composed:
             _partition(cpus if control_path else sorted(available - set(cpus)), control_path, who)
         return _state
     _state.enabled = True
+    refused: list[str] = []
     if cpus and not composed:
         _pin(cpus, refused)
     try:
