@@ -45,8 +45,8 @@ soak: $(STAMP)  ## the stack left running an hour (DURATION=3600): memory, open 
 compose-bench: $(STAMP)  ## the sim's late steps bare and under docker compose, one cause at a time (Docker and `make secrets`; skipped, saying so, without Docker) -> benchmarks/results/compose.json
 	$(BIN)/python -m benchmarks.compose $(ARGS)
 
-compose-soak: $(STAMP)  ## docker compose up left running an hour (DURATION=3600), the motor's then the sim's container killed mid-run -> benchmarks/results/compose-soak.json
-	$(BIN)/python -m benchmarks.compose_soak --duration $(or $(DURATION),3600)
+compose-soak: $(STAMP)  ## docker compose up left running an hour (DURATION=3600), the control path's container killed twice mid-run (ARGS=--split: the motor's, then the sim's) -> benchmarks/results/compose-soak.json
+	$(BIN)/python -m benchmarks.compose_soak --duration $(or $(DURATION),3600) $(ARGS)
 
 stress: $(STAMP)  ## `invent up --no-record` started and stopped 100 times in a row (STARTS=100): every start must succeed
 	$(BIN)/python -m benchmarks.stress_starts --starts $(or $(STARTS),100)

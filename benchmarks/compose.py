@@ -8,8 +8,10 @@ interleaved (the machine's noise then falls on every case alike), and reports ea
 --loop`` with or without ``invent view``, the ROS 2 bridge, ``--secure`` (every service a client of
 the router with its role's credentials, as in compose), ``--rt``, and ``rt.partition`` off. Compose
 cases (when Docker is here; the section says so and is skipped when it is not): ``compose.yaml``'s
-default profile, and the same with one thing changed by an override file: the router's CPU left to
-the system, ``rt.partition`` off, no view, ``compose.rt.yaml`` (real-time budgets from the daemon).
+default profile (the sim and the motor composed in its control container), and the same with one
+thing changed by an override file: ``compose.split.yaml`` (the sim and the motor a container each),
+the router's CPU left to the system, ``rt.partition`` off, no view, ``compose.rt.yaml`` (real-time
+budgets from the daemon).
 Needs ``make secrets`` for compose. Writes ``benchmarks/results/compose.json``; figures in
 benchmarks/README.md, "Compose".
 """
@@ -92,7 +94,10 @@ CASES: dict[str, Bare | Compose] = {
         "--secure (compose's topology: every service a client of the router) + view", (), True, (), True
     ),
     "bare_rt_view": Bare("--rt + view", ("--rt",), view=True),
-    "compose": Compose("docker compose up: the default profile, every container"),
+    "compose": Compose("docker compose up: the default profile (the control path composed), every container"),
+    "compose_split": Compose(
+        "compose + compose.split.yaml (the sim and the motor a container each)", files=("compose.split.yaml",)
+    ),
     "compose_router_any_cpu": Compose("compose, the router's CPU left to the system", _router_on_any_cpu),
     "compose_no_partition": Compose("compose, rt.partition off", _no_partition),
     "compose_no_view": Compose("compose without the view", _no_view),

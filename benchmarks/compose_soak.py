@@ -4,7 +4,8 @@ through the router's published port with the observer's and the operator's crede
 
 Every ``--sample-every`` seconds: each container's memory (``docker stats``) and restart count, and
 the services' status (the sim's steps and late steps, every service's ``internal_errors``). At a third
-of the run the motor's container, at two thirds the sim's, is killed (SIGKILL to its process from
+and at two thirds of the run the control path's container (the sim and the motor composed; with
+``--split``, compose.split.yaml's: the motor's, then the sim's) is killed (SIGKILL to its process from
 the host, as a crash would) after an operator's ``stop``: docker restarts it (``restart:
 unless-stopped``); the motor must come back ``stopped`` (the latch kept in its state volume) and the
 robot stay put until the operator's ``clear``, after which the loop resumes (the drive's next
@@ -18,6 +19,7 @@ holds, 1 otherwise. Figures in benchmarks/README.md, "Compose".
 from __future__ import annotations
 
 import argparse
+import collections
 import itertools
 import json
 import os
@@ -78,13 +80,22 @@ def _motor_state(observer: zenoh.Session) -> str | None:
     return None if motor is None else motor.get("state")
 
 
-def kill_and_restart(
-    stack: Stack, service: Service, observer: zenoh.Session, operator: zenoh.Session
-) -> dict[str, Any]:
-    """Stop the robot, kill ``service``'s container's process, and check what the soak's docstring says."""
-    container = stack.container(service)
+SPLIT = "compose.split.yaml"
+KILLED = {"composed": ("control", "control"), "split": (str(Service.MOTOR), str(Service.SIM))}
+"""The containers killed at a third and at two thirds of the run, by layout."""
+SERVED_BY = {
+    "control": (Service.SIM, Service.MOTOR),
+    str(Service.MOTOR): (Service.MOTOR,),
+    str(Service.SIM): (Service.SIM,),
+}
+"""What answers again once a killed container is back."""
+
+
+def kill_and_restart(stack: Stack, name: str, observer: zenoh.Session, operator: zenoh.Session) -> dict[str, Any]:
+    """Stop the robot, kill container ``name``'s process, and check what the soak's docstring says."""
+    container = stack.container(name)
     restarts_before = compose_stack.inspect(container)["RestartCount"]
-    figures: dict[str, Any] = {"service": service, "stop_acknowledged": _call(operator, Method.STOP)}
+    figures: dict[str, Any] = {"container": name, "stop_acknowledged": _call(operator, Method.STOP)}
     _wait(lambda: _motor_state(observer) == "stopped", 10.0, "the motor stopped")
     os.kill(compose_stack.inspect(container)["State"]["Pid"], signal.SIGKILL)
     killed = time.monotonic()
@@ -94,9 +105,10 @@ def kill_and_restart(
             and compose_stack.inspect(container)["State"]["Running"]
         ),
         RESTART_TIMEOUT_S,
-        f"{service}'s container restarted",
+        f"{name}'s container restarted",
     )
-    _wait(lambda: status(observer, service) is not None, RESTART_TIMEOUT_S, f"{service} answering again")
+    for service in SERVED_BY[name]:
+        _wait(lambda s=service: status(observer, s) is not None, RESTART_TIMEOUT_S, f"{service} answering again")
     figures["back_after_s"] = round(time.monotonic() - killed, 1)
     figures["state_after_restart"] = _motor_state(observer)
     before = _pose(observer)
@@ -169,7 +181,7 @@ def summary(samples: list[dict[str, Any]], warm_up_s: float, kills: list[dict[st
     ]
     late = [late_steps / steps for late_steps, steps in intervals]
     restarts = {service: samples[-1]["containers"][service]["restarts"] for service in samples[-1]["containers"]}
-    killed = {kill["service"] for kill in kills}
+    killed = collections.Counter(kill["container"] for kill in kills)
     errors = [value for entry in samples for value in entry["internal_errors"].values() if value]
     return {
         "memory_growth_mb_per_h": growth,
@@ -185,7 +197,7 @@ def summary(samples: list[dict[str, Any]], warm_up_s: float, kills: list[dict[st
         else None,
         "checks": {
             "memory_flat": all(value < MEMORY_LIMIT_MB_PER_H for lives in growth.values() for value in lives),
-            "no_other_restart": all(count == (1 if service in killed else 0) for service, count in restarts.items()),
+            "no_other_restart": all(count == killed[service] for service, count in restarts.items()),
             "no_internal_error": not errors,
             "kills": all(kill["ok"] for kill in kills) and len(kills) == 2,
         },
@@ -198,6 +210,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--sample-every", type=float, default=30.0, metavar="S", help="seconds between looks (30)")
     parser.add_argument("--warm-up", type=float, default=300.0, metavar="S", help="memory slope after (300)")
     parser.add_argument("--output", type=Path, default=RESULTS, metavar="FILE", help=f"default {RESULTS}")
+    parser.add_argument("--split", action="store_true", help=f"with {SPLIT}: the sim and the motor a container each")
     args = parser.parse_args(argv)
     try:
         compose = compose_stack.compose_command()
@@ -205,10 +218,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"Docker is not here ({missing}): no compose soak")
         return 1
     compose_stack.role_config("operator")
-    stack = Stack(compose)
+    layout = "split" if args.split else "composed"
+    stack = Stack(compose, [compose_stack.REPO / SPLIT] if args.split else [])
     samples: list[dict[str, Any]] = []
     kills: list[dict[str, Any]] = []
-    kill_at = {args.duration / 3: Service.MOTOR, 2 * args.duration / 3: Service.SIM}
+    first, second = KILLED[layout]
+    kill_at = {args.duration / 3: first, 2 * args.duration / 3: second}
     stop = stop_on_signals()
     elapsed = 0.0
     try:
@@ -220,14 +235,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             started = time.monotonic()
             next_sample = 0.0
             while (elapsed := time.monotonic() - started) < args.duration and not stop.is_set():
-                for at, service in list(kill_at.items()):
+                for at, name in list(kill_at.items()):
                     if elapsed >= at:
                         del kill_at[at]
-                        print(f"{elapsed:7.0f} s  killing {service}'s container (the robot stopped first)", flush=True)
+                        print(f"{elapsed:7.0f} s  killing {name}'s container (the robot stopped first)", flush=True)
                         try:
-                            kills.append(kill_and_restart(stack, service, observer, operator))
+                            kills.append(kill_and_restart(stack, name, observer, operator))
                         except RuntimeError as failed:
-                            kills.append({"service": service, "ok": False, "failed": str(failed)})
+                            kills.append({"container": name, "ok": False, "failed": str(failed)})
                         print(f"          {json.dumps(kills[-1])}", flush=True)
                 if elapsed >= next_sample:
                     samples.append(sample(stack, containers, observer, elapsed))
@@ -243,6 +258,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         stack.down()
     result = {
         "machine": describe(),
+        "layout": layout,
         "duration_s": args.duration,
         "ran_s": round(elapsed, 1),
         "interrupted": stop.is_set(),

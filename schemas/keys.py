@@ -59,7 +59,9 @@ never a built-in's; made only by :func:`user_service_name`, which checks it."""
 ServiceName: TypeAlias = Service | UserServiceName
 """Whose keys: a built-in service, or a user service (``invent/<robot>/<name>/...``)."""
 _USER_SERVICE_NAME = re.compile(r"[a-z][a-z0-9_]{0,31}")
-RESERVED_NAMES = frozenset({"up", "view", "router", "all", "ros", "invent", "operator", "observer", "ros_node"})
+RESERVED_NAMES = frozenset(
+    {"up", "view", "router", "all", "ros", "invent", "operator", "observer", "ros_node", "control"}
+)
 """Chunks a user service may not take beside the built-ins': ``up/run``, ``view/status``, the
 secure profile's other users (a user service's credentials are ``<name>.json5`` beside theirs),
 and names the command line or the tools use for themselves."""

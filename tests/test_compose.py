@@ -1,7 +1,8 @@
-"""compose.yaml: a zenohd router with access control plus one client container per service, each
-a valid invent invocation with its own role's credentials, the script that makes them, and the
-profiles that let exactly one commander (the drive's scenario, ROS 2's /cmd_vel, or the drive in goal
-mode) drive the robot."""
+"""compose.yaml: a zenohd router with access control plus client containers, the control path (the
+sim and the motor composed in one, or with compose.split.yaml a container each) and one per other
+service, each a valid invent invocation with its own role's credentials, the script that makes them,
+and the profiles that let exactly one commander (the drive's scenario, ROS 2's /cmd_vel, or the drive
+in goal mode) drive the robot."""
 
 import json
 import os
@@ -9,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import yaml
 import zenoh
 
@@ -23,8 +25,19 @@ MOUNTED_SECRETS = "/secrets"
 ROLE_FILE_IN_CONTAINER = "/run/secrets/zenoh.json5"
 GOALS_DRIVE = "drive-goals"
 """The drive of the `goals` profile: the drive in goal mode, with the drive's credentials."""
-ROLES = {**{str(service): Role(service.value) for service in Service}, "view": Role.OBSERVER, GOALS_DRIVE: Role.DRIVE}
-"""Each client container's role: its service's own, the live view's the observer's (it only watches)."""
+CONTROL = "control"
+"""The control path's container: ``invent control``, the sim and the motor composed in one process."""
+SPLIT = {str(Service.SIM), str(Service.MOTOR)}
+"""compose.split.yaml's containers, in place of the control container."""
+ROLES = {
+    **{str(service): Role(service.value) for service in Service},
+    "view": Role.OBSERVER,
+    GOALS_DRIVE: Role.DRIVE,
+    CONTROL: Role.CONTROL,
+}
+"""Each client container's role: its service's own, the live view's the observer's (it only watches),
+the control path's the sim's and the motor's together."""
+CONTROL_PATH = {CONTROL, *SPLIT}
 COMMANDS = {name: str(role) if name == GOALS_DRIVE else name for name, role in ROLES.items()}
 """The `invent` command each container runs: its name's, the goal drive's `drive`."""
 USER_SERVICES = {"odometer": "./examples/services:/services:ro"}
@@ -32,18 +45,31 @@ USER_SERVICES = {"odometer": "./examples/services:/services:ro"}
 with its file mounted (its directory, here), with credentials of its own (<name>.json5)."""
 
 
-def _compose() -> dict:
-    return yaml.safe_load((REPO / "compose.yaml").read_text())
+def _compose(*overrides: str) -> dict:
+    """compose.yaml with ``overrides`` (files beside it) merged over it as docker compose merges
+    them here: a service's keys replaced, new services and secrets added."""
+    compose = yaml.safe_load((REPO / "compose.yaml").read_text())
+    for name in overrides:
+        override = yaml.safe_load((REPO / name).read_text())
+        for service, spec in override["services"].items():
+            compose["services"].setdefault(service, {}).update(spec)
+        compose["secrets"].update(override.get("secrets", {}))
+    return compose
 
 
-def _services() -> dict:
-    return {name: spec for name, spec in _compose()["services"].items() if name != "router"}
+def _services(*overrides: str) -> dict:
+    """The client containers that run: those of no profile a deployment never names."""
+    return {
+        name: spec
+        for name, spec in _compose(*overrides)["services"].items()
+        if name != "router" and spec.get("profiles") != ["composed-control-path"]
+    }
 
 
 def test_services_are_the_router_plus_every_service():
-    assert set(_compose()["services"]) == {"router", "view", GOALS_DRIVE, *USER_SERVICES} | {
-        str(service) for service in Service
-    }
+    others = {"view", GOALS_DRIVE, *USER_SERVICES} | {str(service) for service in Service} - SPLIT
+    assert set(_compose()["services"]) == {"router", CONTROL} | others
+    assert set(_services("compose.split.yaml")) == SPLIT | others, "the sim and the motor apart, no control"
 
 
 def test_router_reads_the_generated_config_and_publishes_rest_on_loopback_only():
@@ -54,10 +80,11 @@ def test_router_reads_the_generated_config_and_publishes_rest_on_loopback_only()
     assert set(router["ports"]) == {"7447:7447", "127.0.0.1:8000:8000"}
 
 
-def test_every_service_is_a_client_with_only_its_own_roles_credentials():
+@pytest.mark.parametrize("overrides", [(), ("compose.split.yaml",)], ids=["composed", "split"])
+def test_every_service_is_a_client_with_only_its_own_roles_credentials(overrides):
     parser = build_parser()
-    declared = _compose()["secrets"]
-    for name, spec in _services().items():
+    declared = _compose(*overrides)["secrets"]
+    for name, spec in _services(*overrides).items():
         command = spec["command"]
         if name in USER_SERVICES:
             assert command[:2] == ["service", f"/services/{name}.py:{name.title()}"], name
@@ -73,15 +100,17 @@ def test_every_service_is_a_client_with_only_its_own_roles_credentials():
         role = ROLES[name]
         assert spec["secrets"] == [{"source": str(role), "target": Path(ROLE_FILE_IN_CONTAINER).name}], name
         assert declared[str(role)] == {"file": f"{SECRETS_DIR}/{role}.json5"}, name
-        assert spec.get("volumes", []) == (["motor-state:/state"] if name == "motor" else []), name
+        holds_motor = name in (CONTROL, str(Service.MOTOR))
+        assert spec.get("volumes", []) == (["motor-state:/state"] if holds_motor else []), name
         assert config_from_args(getattr(args, "service_cli", None), args).robot.name == "rh0"
 
 
-def test_the_sim_and_the_motor_run_with_rt_and_their_containers_grant_what_it_needs():
+@pytest.mark.parametrize("overrides", [(), ("compose.split.yaml",)], ids=["composed", "split"])
+def test_the_control_path_runs_with_rt_and_its_containers_grant_what_it_needs(overrides):
     parser = build_parser()
-    for name, spec in _services().items():
+    for name, spec in _services(*overrides).items():
         args = parser.parse_args(spec["command"])
-        control_path = name in (str(Service.SIM), str(Service.MOTOR))
+        control_path = name in CONTROL_PATH
         assert getattr(args, "rt", False) is control_path, name
         assert config_from_args(getattr(args, "service_cli", None), args).rt.enabled is control_path, name
         if control_path:
@@ -90,11 +119,12 @@ def test_the_sim_and_the_motor_run_with_rt_and_their_containers_grant_what_it_ne
             assert "cap_add" not in spec and "ulimits" not in spec, name
 
 
-def test_the_router_the_sim_and_the_motor_share_the_control_paths_cpu_that_env_names():
-    """The four hops of every step through the router stay on one core; the other containers keep
+@pytest.mark.parametrize("overrides", [(), ("compose.split.yaml",)], ids=["composed", "split"])
+def test_the_router_and_the_control_path_share_the_control_paths_cpu_that_env_names(overrides):
+    """What the control path sends through the router stays on one core; the other containers keep
     off it by themselves (rt.partition, on by default), so none of them has a cpuset."""
-    services = _compose()["services"]
-    control_path = {"router", str(Service.SIM), str(Service.MOTOR)}
+    services = _compose(*overrides)["services"]
+    control_path = {"router", *CONTROL_PATH}
     env = dict(
         line.split("=", 1) for line in (REPO / ".env").read_text().splitlines() if line and not line.startswith("#")
     )
@@ -216,18 +246,25 @@ def test_no_credentials_are_committed_or_copied_into_the_image():
     assert SECRETS_DIR.removeprefix("./") in (REPO / ".dockerignore").read_text().splitlines()
 
 
-def test_the_motors_state_file_is_on_a_volume_so_an_emergency_stop_survives_a_restart():
-    compose = _compose()
-    args = build_parser().parse_args(compose["services"]["motor"]["command"])
-    volume, mount = compose["services"]["motor"]["volumes"][0].split(":")
+@pytest.mark.parametrize("container", [CONTROL, str(Service.MOTOR)])
+def test_the_motors_state_file_is_on_a_volume_so_an_emergency_stop_survives_a_restart(container):
+    """And the same volume composed or split: a stop latched in one layout holds in the other."""
+    compose = _compose("compose.split.yaml")
+    args = build_parser().parse_args(compose["services"][container]["command"])
+    volume, mount = compose["services"][container]["volumes"][0].split(":")
     assert volume in compose["volumes"]
     assert Path(args.state).parent == Path(mount)
 
 
+def test_the_control_container_composes_the_sim_and_the_motor_in_realtime():
+    args = build_parser().parse_args(_compose()["services"][CONTROL]["command"])
+    assert args.command == CONTROL and args.mode == "realtime"
+
+
 def test_the_real_time_override_gives_the_control_path_a_budget_within_the_daemons():
     """compose.rt.yaml, for hosts with real-time group scheduling (docs/realtime.md): a share of
-    the budget `dockerd --cpu-rt-runtime=950000` holds, to the sim and the motor only."""
+    the budget `dockerd --cpu-rt-runtime=950000` holds, to the control path only."""
     override = yaml.safe_load((REPO / "compose.rt.yaml").read_text())["services"]
-    assert set(override) == {str(Service.SIM), str(Service.MOTOR)}
+    assert set(override) == {CONTROL}
     assert all(set(spec) == {"cpu_rt_runtime"} for spec in override.values())
     assert sum(spec["cpu_rt_runtime"] for spec in override.values()) <= 950_000

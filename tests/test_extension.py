@@ -51,7 +51,7 @@ def _spec(name: str, path: Path = SERVICES) -> str:
 
 def test_a_user_service_name_is_one_lower_case_chunk_never_a_builtins_nor_reserved():
     assert user_service_name("odometer") == "odometer"
-    for bad in ("motor", "sim", "up", "view", "operator", "Loud", "a/b", "a*", "", "9lives", "x" * 33):
+    for bad in ("motor", "sim", "up", "view", "operator", "control", "Loud", "a/b", "a*", "", "9lives", "x" * 33):
         with pytest.raises(ValueError):
             user_service_name(bad)
 

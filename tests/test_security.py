@@ -76,6 +76,7 @@ def test_each_service_role_puts_exactly_the_keys_under_its_own_name():
     for service in LOOP_SERVICES:
         expected = {KEYS.topic(topic) for topic in Topic if topic.split("/")[0] == service}
         assert _put_keys(Role(service.value)) == expected, service
+    assert _put_keys(Role.CONTROL) == _put_keys(Role.SIM) | _put_keys(Role.MOTOR), "the sim and the motor, composed"
     assert _put_keys(Role.OPERATOR) == {KEYS.drive_target_velocity, KEYS.run_summary}, "the run's summary: invent up"
     assert _put_keys(Role.OBSERVER) == set()
 
@@ -108,21 +109,24 @@ def test_the_ros_roles_are_granted_the_domain_and_namespace_they_are_written_for
     assert {"7/**", "7/**/@adv/**", "@ros2_lv/7/**"} <= node and not any(key.startswith("0/") for key in node)
 
 
-def test_only_the_operator_the_sim_and_the_ros2_bridge_query_motor_methods():
+def test_only_the_operator_the_sim_the_control_path_and_the_ros2_bridge_query_motor_methods():
     status = {all_robots_status()} | LATCHED
     assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI) | GOALS
-    assert _queried_keys(Role.SIM) == status | _methods(MethodFamily.BUMP)
+    assert _queried_keys(Role.SIM) == _queried_keys(Role.CONTROL) == status | _methods(MethodFamily.BUMP)
     for role in (Role.OBSERVER, Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE):
         assert _queried_keys(role) == status, role
     assert _queried_keys(Role.ROS_NODE) == status | {"0/**", "0/**/@adv/**", "@ros2_lv/0/**"}
 
 
-def test_only_the_motor_serves_the_methods_and_each_service_only_its_status_and_latched_keys():
+def test_only_the_motor_and_the_control_path_serve_the_methods_and_each_service_its_status_and_latched_keys():
+    methods = _methods(MethodFamily.GUI) | _methods(MethodFamily.BUMP)
     for role in Role:
         served = _granted(role, Message.DECLARE_QUERYABLE)
         if role is Role.MOTOR:
-            methods = _methods(MethodFamily.GUI) | _methods(MethodFamily.BUMP)
             assert served == {KEYS.status(Service.MOTOR), KEYS.motor_state} | methods
+        elif role is Role.CONTROL:
+            sim = {KEYS.status(Service.SIM), KEYS.sim_world}
+            assert served == sim | {KEYS.status(Service.MOTOR), KEYS.motor_state} | methods, "the sim's and the motor's"
         elif role is Role.OPERATOR:
             assert served == set(), role
         elif role is Role.OBSERVER:
@@ -145,11 +149,29 @@ def test_sending_and_canceling_goals_is_the_operators_and_the_bridges_right_and_
     assert not any(GOALS & set(grant.key_exprs) for grant in grants(Role.OBSERVER, KEYS)), "the observer: nothing"
 
 
+def test_the_control_role_is_granted_exactly_the_union_of_the_sims_and_the_motors():
+    """``invent control`` runs the sim and the motor on one session: for every message and flow, the
+    key expressions granted to ``control`` are the sim's and the motor's together, nothing more."""
+
+    def keys(role: Role, message: Message, flow: Flow) -> set[str]:
+        return {key for g in grants(role, KEYS) if message in g.messages and g.flow is flow for key in g.key_exprs}
+
+    for message in Message:
+        for flow in Flow:
+            union = keys(Role.SIM, message, flow) | keys(Role.MOTOR, message, flow)
+            assert keys(Role.CONTROL, message, flow) == union, (message, flow)
+    assert KEYS.drive_target_velocity not in _put_keys(Role.CONTROL)
+    assert not _queried_keys(Role.CONTROL) & (_methods(MethodFamily.GUI) | GOALS), "no gui methods, no goals"
+    merged = [(grant.messages, grant.flow) for grant in grants(Role.CONTROL, KEYS)]
+    assert len(merged) == len(set(merged)), "one rule per message set and flow"
+
+
 def test_profile_files_are_private_and_complete_zenoh_configurations(tmp_path):
     profile = write_profile(tmp_path / "secrets", KEYS, endpoint="tcp/127.0.0.1:7447")
     assert stat.S_IMODE(profile.directory.stat().st_mode) == 0o700
     files = list(profile.directory.iterdir())
     assert {path.name for path in files} == {"router.json5", DICTIONARY} | {f"{role}.json5" for role in Role}
+    assert "control.json5" in {path.name for path in files}, "invent control's credentials"
     assert all(stat.S_IMODE(path.stat().st_mode) == 0o600 for path in files)
     users = dict(line.split(":") for line in (profile.directory / DICTIONARY).read_text().splitlines())
     assert set(users) == {str(role) for role in Role}
@@ -240,7 +262,7 @@ def test_router_lets_each_role_put_only_its_own_keys_and_refuses_strangers(tmp_p
                 zenoh.open(_client_config(plain, str(Role.OBSERVER), "x"))
 
 
-def test_router_routes_method_queries_only_from_the_operator_and_bump_stop_only_from_the_sim(tmp_path):
+def test_router_routes_method_queries_only_from_the_operator_and_bump_stop_only_from_the_sim_and_control(tmp_path):
     with _secured_router(tmp_path, tls=False) as (_profile, open_as):
         motor = open_as(Role.MOTOR)
         calls: list[str] = []
@@ -256,14 +278,50 @@ def test_router_routes_method_queries_only_from_the_operator_and_bump_stop_only_
         operator, sim, observer = open_as(Role.OPERATOR), open_as(Role.SIM), open_as(Role.OBSERVER)
         wait_until(lambda: list(observer.get(KEYS.status(Service.MOTOR), timeout=1.0)), 10, "the motor's status")
         expected = []
-        for role, session in ((Role.OPERATOR, operator), (Role.SIM, sim), (Role.OBSERVER, observer)):
+        callers = {Role.OPERATOR: operator, Role.SIM: sim, Role.CONTROL: open_as(Role.CONTROL), Role.OBSERVER: observer}
+        bump = ((Role.SIM, MethodFamily.BUMP), (Role.CONTROL, MethodFamily.BUMP))
+        for role, session in callers.items():
             for family in MethodFamily:
                 key = KEYS.method(family, Method.STOP)
                 replies = [reply for reply in session.get(key, timeout=1.0) if reply.ok is not None]
-                allowed = (role, family) in ((Role.OPERATOR, MethodFamily.GUI), (Role.SIM, MethodFamily.BUMP))
+                allowed = (role, family) in ((Role.OPERATOR, MethodFamily.GUI), *bump)
                 assert len(replies) == int(allowed), (role, family)
                 expected += [key] if allowed else []
         assert calls == expected
+
+
+def test_router_lets_the_control_path_put_and_serve_what_the_sim_and_the_motor_may_and_nothing_else(tmp_path):
+    """Real sessions through a secured router: one session logged in as ``control`` (``invent
+    control``: the sim and the motor on one session) puts ``motor/torque`` and ``sim/wheel_angles``
+    and serves ``motor/gui/stop`` to the operator; its put on ``drive/target_velocity`` (neither the
+    sim's nor the motor's) reaches no subscriber."""
+    with _secured_router(tmp_path, tls=False) as (_profile, open_as):
+        # The witness, an observer, serves invent view's status, which every role may query: the
+        # control session's query reaches it after everything that session put before it, in order.
+        witness = open_as(Role.OBSERVER)
+        received: queue.Queue[tuple[str, str]] = queue.Queue()
+        witness.declare_subscriber(
+            KEYS.everything, lambda sample: received.put((str(sample.key_expr), sample.payload.to_string()))
+        )
+        witness.declare_queryable(KEYS.view_status, lambda query: query.reply(KEYS.view_status, b"{}"))
+        control = open_as(Role.CONTROL)
+        keys = (KEYS.drive_target_velocity, KEYS.motor_torque, KEYS.sim_wheel_angles)  # the forbidden one first
+        publishers = [control.declare_publisher(key) for key in keys]
+        wait_until(lambda: all(p.matching_status.matching for p in publishers), 10, "the witness to match")
+        for publisher in publishers:
+            publisher.put("control")
+        assert len([reply.ok for reply in control.get(KEYS.view_status, timeout=5.0) if reply.ok]) == 1
+        delivered = set()
+        while not received.empty():
+            delivered.add(received.get())
+        assert delivered == {(KEYS.motor_torque, "control"), (KEYS.sim_wheel_angles, "control")}
+
+        calls: list[tuple[str, str]] = []
+        stop = KEYS.method(MethodFamily.GUI, Method.STOP)
+        control.declare_queryable(stop, noting_replier(calls, "control"))
+        operator = open_as(Role.OPERATOR)
+        wait_until(lambda: [r for r in operator.get(stop, timeout=1.0) if r.ok is not None], 10, "control's stop")
+    assert calls and set(calls) == {("control", stop)}, "the operator's stop reached the control session"
 
 
 def test_router_routes_goals_only_from_the_operator_and_the_bridge_and_only_to_the_drive(tmp_path):

@@ -193,6 +193,26 @@ def test_a_fleet_names_each_robot_once_with_valid_names():
         fleet_grants(Identity(Role.MOTOR), ROBOTS, BRIDGES)
 
 
+def test_a_fleet_has_no_control_role_it_is_one_robots(tmp_path):
+    """``invent control`` (the sim and the motor on one session) is one robot's: a fleet's sim steps
+    every robot while each robot has its own motor. A single robot's profile has ``control.json5``."""
+    assert Role.CONTROL not in FLEET_ROLES and Role.CONTROL not in PER_ROBOT_ROLES
+    assert all(identity.role is not Role.CONTROL for identity in fleet_identities(ROBOTS))
+    for robot in (None, "rh1"):
+        with pytest.raises(ValueError, match="a fleet has no control role"):
+            fleet_grants(Identity(Role.CONTROL, robot), ROBOTS, BRIDGES)
+    profile = write_fleet_profile(tmp_path / "secrets", ROBOTS, endpoint="tcp/127.0.0.1:7447")
+    for robot in (None, "rh1"):
+        with pytest.raises(ValueError, match=r"a fleet has no control role \(it is one robot's\)"):
+            profile.identity(Role.CONTROL, robot)
+        with pytest.raises(ValueError, match="a fleet has no control role"):
+            profile.client_config(Role.CONTROL, robot)
+    assert not any("control" in path.name for path in profile.directory.iterdir())
+    single = write_profile(tmp_path / "one", RH0, endpoint="tcp/127.0.0.1:7447")
+    assert single.client_config(Role.CONTROL) == single.directory / "control.json5"
+    assert single.client_config(Role.CONTROL).is_file() and Identity(Role.CONTROL) in single.identities
+
+
 def test_a_fleet_profile_has_one_private_user_and_client_file_per_robot_and_service_role(tmp_path):
     profile = write_fleet_profile(tmp_path / "secrets", ROBOTS, endpoint="tcp/127.0.0.1:7447")
     assert profile.robots == ROBOTS
@@ -283,7 +303,7 @@ def test_run_secrets_with_robots_writes_a_fleet_profile_and_lists_every_user(tmp
     assert secrets(tmp_path / "one", ()) == 0
     assert {path.name for path in (tmp_path / "one").iterdir()} == {ROUTER_CONFIG, DICTIONARY} | {
         f"{role}.json5" for role in Role
-    }
+    }, "one robot's profile: every role's file, control.json5 among them"
 
 
 @contextmanager
@@ -505,6 +525,7 @@ def test_invent_secrets_robots_writes_a_fleet_profile_and_a_bad_name_exits_2_nam
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "fleet" / "rh1-motor.json5").is_file() and (tmp_path / "fleet" / "sim.json5").is_file()
     assert not (tmp_path / "fleet" / "motor.json5").exists()
+    assert not (tmp_path / "fleet" / "control.json5").exists(), "a fleet has no control role"
     for bad in ("rh0,rh/1", "rh0,rh0", ""):
         result = run_invent("secrets", str(tmp_path / "bad"), "--robots", bad)
         assert result.returncode == 2 and "argument --robots" in result.stderr, (bad, result.stderr)

@@ -37,6 +37,7 @@ SUBCOMMANDS = (
     "up",
     "calibrate",
     "worker",
+    "control",
     "service",
 )
 """The subcommands that are not services, in ``invent --help``'s order, each the module of its name

@@ -24,11 +24,11 @@ import zenoh
 
 from services.config import RtConfig
 from services.exits import ExitStatus
-from services.runtime.executor import Executor
+from services.runtime.executor import STOP_POLL_S, Executor
 from services.runtime.intraprocess import LocalBus
 from services.runtime.node import Node
 from services.runtime.realtime import pin_loop_thread, settle_garbage_collector
-from services.service import ClockedService, RunningService, ServiceParse, start_service
+from services.service import ClockedService, RunningService, ServiceParse, ServicePlan, start_service
 
 log = logging.getLogger("invent.composed")
 
@@ -70,7 +70,11 @@ class Composition:
 
     def start(self, name: str, argv: Sequence[str]) -> ComposedService:
         """Build the service ``invent <argv>`` would run, here, and start its loop if it has one."""
-        plan = self._parse(argv)
+        return self.start_plan(name, self._parse(argv), argv)
+
+    def start_plan(self, name: str, plan: ServicePlan, argv: Sequence[str] = ()) -> ComposedService:
+        """Build the service ``plan`` says, here, and start its loop if it has one (``argv``: the
+        command line it came from, for the log)."""
         config = plan.config
         node, service = start_service(plan, self.session, self._shared, self.bus)
         composed = ComposedService(name, node, service, None)
@@ -82,7 +86,7 @@ class Composition:
             )
             composed.thread.start()
         self.services.append(composed)
-        log.info("started %s in this process: invent %s", name, " ".join(argv))
+        log.info("started %s in this process: invent %s", name, " ".join(argv) or plan.command.service)
         return composed
 
     def post(self, handle: Callable[[Any], None], item: Any) -> None:
@@ -141,3 +145,29 @@ class Composition:
         codes = {c.name: (c.finished() or 0) for c in self.services}
         self.services.clear()
         return codes
+
+
+def run_composed(
+    session: zenoh.Session, parse: ServiceParse, plans: Sequence[tuple[str, ServicePlan]], stop: threading.Event
+) -> int:
+    """Compose ``plans`` ((name, plan), started in this order: the clocked service last) on
+    ``session`` and run them until ``stop`` is set or one of them ends by itself, then stop them
+    all (``invent control``). The exit status: the code of the first to end by itself (the sim's 0
+    after ``--duration``, 1 for a crash), else the highest of their codes."""
+    composition = Composition(session, parse)
+    ended: dict[str, tuple[int, str]] = {}
+    try:
+        for name, plan in plans:
+            composition.start_plan(name, plan)
+        while not stop.wait(STOP_POLL_S):
+            composition.idle()
+            ended = composition.exits()
+            if ended:
+                name, (_, how) = next(iter(ended.items()))
+                log.warning("%s %s: stopping the others", name, how)
+                break
+    finally:
+        codes = composition.stop()
+    if ended:
+        return next(iter(ended.values()))[0]
+    return max(codes.values(), default=ExitStatus.OK)

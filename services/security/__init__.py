@@ -17,7 +17,9 @@ A **fleet** (several robots in one world, :func:`write_fleet_profile`) has one u
 each of :data:`PER_ROBOT_ROLES` (``rh1-motor``: the motor of ``rh1``, granted exactly what the
 motor role is granted on ``rh1`` and nothing on any other robot) and one user for the whole fleet
 for each of :data:`FLEET_ROLES` (``sim``: one simulator steps every robot; ``operator``,
-``observer``, ``ros_node``), granted what that role may on every robot of the fleet.
+``observer``, ``ros_node``), granted what that role may on every robot of the fleet. The
+``control`` role (``invent control``: the sim and the motor composed on one session, granted both
+their rights) is one robot's only (:data:`SINGLE_ROBOT_ROLES`): a fleet has none.
 
 Its rooms: :mod:`~services.security.roles` (who), :mod:`~services.security.grants` (what each may
 do: the access-control rules), :mod:`~services.security.profile` (the files) and
@@ -42,7 +44,15 @@ from services.security.profile import (
     write_fleet_profile,
     write_profile,
 )
-from services.security.roles import FLEET_ROLES, PER_ROBOT_ROLES, Identity, Role, fleet_identities, fleet_robots
+from services.security.roles import (
+    FLEET_ROLES,
+    PER_ROBOT_ROLES,
+    SINGLE_ROBOT_ROLES,
+    Identity,
+    Role,
+    fleet_identities,
+    fleet_robots,
+)
 from services.security.tls import (
     CA_CERTIFICATE,
     TLS_DIRECTORY,
@@ -55,6 +65,7 @@ __all__ = [
     "FLEET_ROLES",
     "PER_ROBOT_ROLES",
     "ROUTER_CONFIG",
+    "SINGLE_ROBOT_ROLES",
     "TLS_DIRECTORY",
     "Flow",
     "Identity",

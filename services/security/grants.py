@@ -29,7 +29,7 @@ from schemas.keys import (
 from services.config import Config
 from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, MOTOR_SERVICES, SUBSCRIPTIONS, BridgeGraph, bridge_graph
 from services.ros2.wire import ADMIN_SPACE
-from services.security.roles import FLEET_ROLES, Identity, Role
+from services.security.roles import FLEET_ROLES, SINGLE_ROBOT_ROLES, Identity, Role
 
 DEFAULT_ROS = bridge_graph(Config(), environ={})
 """The ROS graph the ROS roles are granted by default: domain 0, the bridge's default namespace and node."""
@@ -159,9 +159,15 @@ def _reading(keys: Keys) -> list[Grant]:
 
 def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant]:
     """Everything ``role`` may do on robot ``keys.robot`` (and, for the ROS roles, in the ROS domain
-    and namespace of ``ros``); the router denies anything else."""
+    and namespace of ``ros``); the router denies anything else. ``control`` gets the sim's and the
+    motor's grants merged (:func:`_merged`): exactly their union."""
     everything = (f"{ROOT}/**",)
     reading = _reading(keys)
+    if role is Role.CONTROL:
+        # `invent control` runs the sim and the motor in one process on one session, logged in as
+        # one user: it needs each one's rights (the sim's puts and bump queries, the motor's puts and
+        # its methods served), and no more than the two together.
+        return _merged([*grants(Role.SIM, keys, ros), *grants(Role.MOTOR, keys, ros)])
     if role is Role.OBSERVER:
         # `invent view` answers its own status; the queries on it are delivered, also as
         # invent/*/*/status (a rule lets through the key expressions it includes).
@@ -249,7 +255,10 @@ def fleet_grants(identity: Identity, robots: Sequence[str], bridges: Mapping[str
     """Everything ``identity`` may do in the fleet of ``robots``, whose ROS 2 bridges are
     ``bridges[robot]``: a per-robot role exactly what :func:`grants` gives its role on its own robot,
     nothing on any other; a fleet-wide role what :func:`grants` gives it on each robot of the fleet,
-    merged (one rule per message set and flow, on the union of their key expressions)."""
+    merged (one rule per message set and flow, on the union of their key expressions). ValueError
+    for :data:`SINGLE_ROBOT_ROLES` (a fleet has no control role)."""
+    if identity.role in SINGLE_ROBOT_ROLES:
+        raise ValueError(f"a fleet has no {identity.role} role (it is one robot's)")
     if (identity.robot is None) != (identity.role in FLEET_ROLES):
         raise ValueError(f"role {identity.role} is {'fleet-wide' if identity.role in FLEET_ROLES else 'per robot'}")
     if identity.robot is not None:

@@ -26,7 +26,7 @@ from services.security.grants import (
     robot_bridge,
     user_service_grants,
 )
-from services.security.roles import FLEET_ROLES, Identity, Role, fleet_identities, fleet_robots
+from services.security.roles import FLEET_ROLES, SINGLE_ROBOT_ROLES, Identity, Role, fleet_identities, fleet_robots
 from services.security.tls import CA_CERTIFICATE, ROUTER_CERTIFICATE, ROUTER_KEY, TLS_DIRECTORY, TLS_NAMES, certificates
 
 ROUTER_CONFIG = "router.json5"
@@ -90,11 +90,14 @@ class Profile:
 
     def identity(self, role: Role, robot: str | None = None) -> Identity:
         """Who runs ``role`` (for ``robot``, in a fleet): a fleet-wide role is one identity whatever
-        the robot; a per-robot role of a fleet needs one of its robots. ValueError otherwise."""
+        the robot; a per-robot role of a fleet needs one of its robots; a fleet has no control role
+        (:data:`SINGLE_ROBOT_ROLES`: it is one robot's). ValueError otherwise."""
         if not self.robots:
             if robot is not None:
                 raise ValueError(f"a single robot's profile has no per-robot users (asked for {robot!r})")
             return Identity(role)
+        if role in SINGLE_ROBOT_ROLES:
+            raise ValueError(f"a fleet has no {role} role (it is one robot's)")
         if robot is not None and robot not in self.robots:
             raise ValueError(f"robot {robot!r} is not in the fleet {', '.join(self.robots)}")
         if role in FLEET_ROLES:

@@ -11,7 +11,8 @@ from schemas.keys import Service, validate_robot_name
 
 
 class Role(StrEnum):
-    """Who a session is. The five services, plus two for people and their tools."""
+    """Who a session is. The services, the control path composed in one process, and the roles of
+    people and their tools."""
 
     SIM = Service.SIM.value
     MOTOR = Service.MOTOR.value
@@ -29,14 +30,23 @@ class Role(StrEnum):
     itself, which puts the run's summary (``up/run``) at the end of a run."""
     OBSERVER = "observer"
     """Watches: subscribes, gets ``status`` and liveliness, nothing else (no goals)."""
+    CONTROL = "control"
+    """The control path composed in one process (``invent control``: the sim and the motor on one
+    session): what the sim and the motor are granted, together. One robot's only: a fleet's sim is
+    fleet-wide and each robot's motor its own, so a fleet has no control role."""
 
 
 PER_ROBOT_ROLES: tuple[Role, ...] = (Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE, Role.ROS2)
 """In a fleet, each robot has its own user of each of these roles, allowed only that robot's keys."""
-FLEET_ROLES: tuple[Role, ...] = tuple(role for role in Role if role not in PER_ROBOT_ROLES)
+SINGLE_ROBOT_ROLES: tuple[Role, ...] = (Role.CONTROL,)
+"""Roles only a single robot's profile has: the control path (the sim and the motor on one session)
+is one robot's, since a fleet's sim steps every robot while each robot has its own motor."""
+FLEET_ROLES: tuple[Role, ...] = tuple(
+    role for role in Role if role not in PER_ROBOT_ROLES and role not in SINGLE_ROBOT_ROLES
+)
 """In a fleet, one user each for the whole fleet: the sim (one simulator steps every robot), ROS 2
 nodes, the operator (``invent up`` among them) and the observer, each allowed on every robot what
-its role is allowed on one."""
+its role is allowed on one. Not :data:`SINGLE_ROBOT_ROLES`: a fleet has no control role."""
 
 
 @dataclass(frozen=True)
@@ -70,7 +80,8 @@ def fleet_robots(robots: Iterable[str]) -> tuple[str, ...]:
 
 
 def fleet_identities(robots: Sequence[str]) -> tuple[Identity, ...]:
-    """Every user of a fleet's profile: the fleet-wide roles, then each robot's per-robot roles."""
+    """Every user of a fleet's profile: the fleet-wide roles, then each robot's per-robot roles
+    (never :data:`SINGLE_ROBOT_ROLES`)."""
     return (
         *(Identity(role) for role in FLEET_ROLES),
         *(Identity(role, robot) for robot in robots for role in PER_ROBOT_ROLES),

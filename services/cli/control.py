@@ -1,0 +1,62 @@
+"""``invent control``: the control path, the sim and the motor, composed in one process.
+
+Every step of the loop crosses between the sim and the motor twice (the wheel angles out, the
+torque back). As two processes, each crossing wakes a thread in the other and, through a router
+(a secure deployment, docker compose), twice more in the router. Composed on one session, as
+``invent up --composed`` composes the whole loop, the two hand each other their messages in the
+process (services/launch/composition.py) and only the observers' copies go out over zenoh: under
+docker compose on the 2-CPU VM, 0 late steps in 45,000 against 2-4 % as two containers
+(benchmarks/README.md, "Compose"). The other services (odometry, localization, the drive, the
+ROS 2 bridge, the view) keep their own processes. One robot's: a fleet's sim is the fleet's.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from services.cli.flags import session_from_args
+from services.cli.serve import plan_from_args
+from services.cli.services import service_cli, service_plan
+from services.config import ConfigError
+from services.launch.composition import run_composed
+from services.runtime.realtime import apply_realtime
+from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
+
+COMPOSED = ("motor", "sim")
+"""Started in this order: the sim's thread runs the loop and handles the motor's inputs."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    for name in COMPOSED:
+        service_cli(name).add_arguments(parser)
+    # what plan_from_args reads of invent up's own flags: a control path is not one of up's children
+    parser.set_defaults(journal=None, journal_share=1)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.fleet:
+        raise ConfigError(
+            "invent control --fleet: a fleet's simulator is the fleet's and each robot's motor its own; "
+            "compose a fleet with invent up --fleet FILE --composed, or run invent sim --fleet and the motors apart"
+        )
+    plans = [(name, plan_from_args(service_cli(name), args)) for name in COMPOSED]
+    rt = plans[-1][1].config.rt
+    # With --rt, the loop's thread alone goes on rt.cpus (pin_loop_thread), as in invent up --composed;
+    # without, rt.partition puts the whole process there, the control path's CPU.
+    apply_realtime(rt, "invent control", control_path=True, composed=rt.enabled)
+    stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
+    with open_session(session_from_args(args)) as session:
+        return run_composed(session, service_plan, plans, stop)
+
+
+HELP = "the control path, the sim and the motor, composed in one process (no network hop between them)"
+DESCRIPTION = (
+    "Runs invent sim and invent motor in one process on one zenoh session, as invent up --composed runs the "
+    "whole loop: each step's wheel angles and torque are handed over in the process, and only what others "
+    "subscribe to goes out over zenoh, under the same keys (sim/*, motor/*) and queryables (sim/status, "
+    "motor/status, motor/gui/*, motor/bump/*) as the two processes serve. Takes the flags of both. For a "
+    "deployment that runs each other service apart, over a router: docker compose's control container "
+    "(docs/deploy.md); with --zenoh-config, the control role's credentials (docs/security.md). "
+    "Ends when signalled, or when either ends by itself (the sim after --duration), with that one's exit status."
+)
+GROUPS: tuple[str, ...] = ("connection", "description", "rt")

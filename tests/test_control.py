@@ -1,0 +1,81 @@
+"""``invent control``: the sim and the motor composed in one process, over a router, as docker
+compose's control container runs them (real router, real processes)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+from schemas.codec import encode
+from schemas.keys import Keys, Method, MethodFamily, Service
+from schemas.messages import Time, TimedDoubleSeq, TimedVelocity
+from services.exits import ExitStatus
+from tests.harness import (
+    REPO,
+    Collector,
+    InventProcess,
+    call,
+    peer_session,
+    refused,
+    running_router,
+    wait_alive,
+    wait_until,
+)
+
+ROBOT = "ctl"
+KEYS = Keys(ROBOT)
+
+
+def _status(session, service: Service) -> dict:
+    replies = [reply.ok for reply in session.get(KEYS.status(service), timeout=5.0) if reply.ok is not None]
+    return json.loads(replies[0].payload.to_bytes()) if replies else {}
+
+
+def test_one_invent_control_process_serves_the_sim_and_the_motor_and_a_target_velocity_moves_the_robot(tmp_path):
+    with running_router() as endpoint, peer_session(endpoint) as session:
+        poses = Collector(session, KEYS.sim_body_pose, TimedDoubleSeq)
+        flags = ("--connect", endpoint, "--robot", ROBOT)
+        state = tmp_path / "motor.json"
+        with InventProcess("control", *flags, "--mode", "realtime", "--state", str(state), drain=True) as control:
+            wait_alive(session, KEYS.alive(Service.MOTOR))
+            wait_alive(session, KEYS.alive(Service.SIM))
+            start = poses.get(timeout=10.0).data
+            forward = encode(TimedVelocity(Time.from_nanoseconds(0), [], 0.2, 0.0, 0.0, []))
+
+            def moved() -> bool:
+                session.put(KEYS.drive_target_velocity, forward)
+                pose = poses.drain()
+                return bool(pose) and math.dist(pose[-1].data[:2], start[:2]) > 0.05
+
+            wait_until(moved, 20.0, "the robot to move 5 cm forward")
+            sim, motor = _status(session, Service.SIM), _status(session, Service.MOTOR)
+            stopped, _ = call(session, KEYS.method(MethodFamily.GUI, Method.STOP))
+            code, _, log = control.stop()
+        with InventProcess("control", *flags, "--mode", "realtime", "--state", str(state), drain=True) as again:
+            wait_alive(session, KEYS.alive(Service.SIM))
+            restarted = _status(session, Service.MOTOR)
+            again.stop()
+        poses.close()
+    assert sim["service"] == "sim" and motor["service"] == "motor"
+    assert motor["state"] == "running"
+    assert sim["counters"]["torques_applied"] > 0, "the motor's torques reached the sim in the process"
+    assert "started motor in this process" in log and "started sim in this process" in log
+    assert code == ExitStatus.OK, log
+    assert stopped and restarted["state"] == "stopped", "an operator's stop held across the restart"
+
+
+def test_invent_control_ends_with_the_sims_exit_status_when_its_duration_is_up(tmp_path):
+    with running_router() as endpoint, peer_session(endpoint) as session:
+        flags = ("--connect", endpoint, "--robot", ROBOT, "--state", str(tmp_path / "motor.json"))
+        with InventProcess("control", *flags, "--duration", "0.5", drain=True) as control:
+            control.process.wait(30.0)
+            code, _, log = control.stop()
+        assert not list(session.liveliness().get(KEYS.alive(Service.MOTOR), timeout=1.0)), "the motor went too"
+    assert code == ExitStatus.OK, log
+    assert "sim returned 0: stopping the others" in log
+
+
+def test_invent_control_refuses_a_fleet_naming_the_flag(capsys):
+    code, _, err = refused(capsys, "control", "--fleet", str(REPO / "examples" / "fleets" / "two_squares.toml"))
+    assert code == ExitStatus.CONFIG
+    assert "invent control --fleet" in err
