@@ -62,9 +62,9 @@ _USER_SERVICE_NAME = re.compile(r"[a-z][a-z0-9_]{0,31}")
 RESERVED_NAMES = frozenset(
     {"up", "view", "router", "all", "ros", "invent", "operator", "observer", "ros_node", "control"}
 )
-"""Chunks a user service may not take beside the built-ins': ``up/run``, ``view/status``, the
-secure profile's other users (a user service's credentials are ``<name>.json5`` beside theirs),
-and names the command line or the tools use for themselves."""
+"""Chunks a user service may not take beside the built-ins': ``up/run``, ``view/status``,
+``control/status``, the secure profile's other users (a user service's credentials are
+``<name>.json5`` beside theirs), and names the command line or the tools use for themselves."""
 
 
 class Topic(StrEnum):
@@ -180,6 +180,7 @@ GOAL_METHOD_TYPES: dict[GoalMethod, tuple[type[msgspec.Struct], type[msgspec.Str
 
 _STATUS = "status"
 VIEW = "view"
+CONTROL = "control"
 ALIVE = "alive"
 TICKS = "ticks"
 OBSERVES = "observes"
@@ -244,6 +245,11 @@ class Keys:
     def view_status(self) -> str:
         """The status of ``invent view`` (a tool, not a service of the loop)."""
         return f"{self.prefix}/{VIEW}/{_STATUS}"
+
+    @property
+    def control_status(self) -> str:
+        """The status of ``invent control``'s process (the sim and the motor composed), beside theirs."""
+        return f"{self.prefix}/{CONTROL}/{_STATUS}"
 
     def under(self, service: ServiceName) -> str:
         """Key expression matching every key under ``service``'s name (``invent/<robot>/drive/**``):

@@ -26,9 +26,13 @@ ROBOT = "ctl"
 KEYS = Keys(ROBOT)
 
 
-def _status(session, service: Service) -> dict:
-    replies = [reply.ok for reply in session.get(KEYS.status(service), timeout=5.0) if reply.ok is not None]
+def _reply(session, key: str) -> dict:
+    replies = [reply.ok for reply in session.get(key, timeout=5.0) if reply.ok is not None]
     return json.loads(replies[0].payload.to_bytes()) if replies else {}
+
+
+def _status(session, service: Service) -> dict:
+    return _reply(session, KEYS.status(service))
 
 
 def test_one_invent_control_process_serves_the_sim_and_the_motor_and_a_target_velocity_moves_the_robot(tmp_path):
@@ -49,6 +53,7 @@ def test_one_invent_control_process_serves_the_sim_and_the_motor_and_a_target_ve
 
             wait_until(moved, 20.0, "the robot to move 5 cm forward")
             sim, motor = _status(session, Service.SIM), _status(session, Service.MOTOR)
+            whole = _reply(session, KEYS.control_status)
             stopped, _ = call(session, KEYS.method(MethodFamily.GUI, Method.STOP))
             code, _, log = control.stop()
         with InventProcess("control", *flags, "--mode", "realtime", "--state", str(state), drain=True) as again:
@@ -59,6 +64,9 @@ def test_one_invent_control_process_serves_the_sim_and_the_motor_and_a_target_ve
     assert sim["service"] == "sim" and motor["service"] == "motor"
     assert motor["state"] == "running"
     assert sim["counters"]["torques_applied"] > 0, "the motor's torques reached the sim in the process"
+    assert whole["service"] == "control" and whole["state"] == "running", "the process's own status"
+    assert set(whole["services"]) == {"sim", "motor"} and whole["steps"] >= sim["steps"]
+    assert whole["internal_errors"] == 0
     assert "started motor in this process" in log and "started sim in this process" in log
     assert code == ExitStatus.OK, log
     assert stopped and restarted["state"] == "stopped", "an operator's stop held across the restart"

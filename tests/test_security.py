@@ -126,7 +126,8 @@ def test_only_the_motor_and_the_control_path_serve_the_methods_and_each_service_
             assert served == {KEYS.status(Service.MOTOR), KEYS.motor_state} | methods
         elif role is Role.CONTROL:
             sim = {KEYS.status(Service.SIM), KEYS.sim_world}
-            assert served == sim | {KEYS.status(Service.MOTOR), KEYS.motor_state} | methods, "the sim's and the motor's"
+            motor = {KEYS.status(Service.MOTOR), KEYS.motor_state} | methods
+            assert served == sim | motor | {KEYS.control_status}, "the sim's, the motor's and the process's status"
         elif role is Role.OPERATOR:
             assert served == set(), role
         elif role is Role.OBSERVER:
@@ -151,7 +152,8 @@ def test_sending_and_canceling_goals_is_the_operators_and_the_bridges_right_and_
 
 def test_the_control_role_is_granted_exactly_the_union_of_the_sims_and_the_motors():
     """``invent control`` runs the sim and the motor on one session: for every message and flow, the
-    key expressions granted to ``control`` are the sim's and the motor's together, nothing more."""
+    key expressions granted to ``control`` are the sim's and the motor's together, and nothing more
+    but the process's own status (``control/status``)."""
 
     def keys(role: Role, message: Message, flow: Flow) -> set[str]:
         return {key for g in grants(role, KEYS) if message in g.messages and g.flow is flow for key in g.key_exprs}
@@ -159,6 +161,8 @@ def test_the_control_role_is_granted_exactly_the_union_of_the_sims_and_the_motor
     for message in Message:
         for flow in Flow:
             union = keys(Role.SIM, message, flow) | keys(Role.MOTOR, message, flow)
+            if flow is Flow.INGRESS and message in (Message.DECLARE_QUERYABLE, Message.REPLY):
+                union.add(KEYS.control_status)
             assert keys(Role.CONTROL, message, flow) == union, (message, flow)
     assert KEYS.drive_target_velocity not in _put_keys(Role.CONTROL)
     assert not _queried_keys(Role.CONTROL) & (_methods(MethodFamily.GUI) | GOALS), "no gui methods, no goals"

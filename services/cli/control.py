@@ -13,17 +13,49 @@ ROS 2 bridge, the view) keep their own processes. One robot's: a fleet's sim is 
 from __future__ import annotations
 
 import argparse
+import time
+from collections.abc import Mapping
+from typing import Any
 
 from services.cli.flags import session_from_args
 from services.cli.serve import plan_from_args
 from services.cli.services import service_cli, service_plan
 from services.config import ConfigError
-from services.launch.composition import run_composed
+from services.launch.composition import Composition, run_composed
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 
 COMPOSED = ("motor", "sim")
 """Started in this order: the sim's thread runs the loop and handles the motor's inputs."""
+
+
+def control_status(robot: str, uptime_s: float, services: Mapping[str, dict[str, Any]]) -> dict[str, Any]:
+    """The process's own status (``control/status``): the motor's state, the sim's steps and late
+    fraction and both services' internal errors first, as a container's health check reads them,
+    then each service's whole status under its name (the same as ``sim/status`` and ``motor/status``)."""
+    sim, motor = services["sim"], services["motor"]
+    return {
+        "service": "control",
+        "robot": robot,
+        "uptime_s": round(uptime_s, 3),
+        "state": motor.get("state"),
+        "steps": sim.get("steps"),
+        "late_fraction": sim.get("late_fraction"),
+        "internal_errors": sum(status.get("internal_errors", 0) for status in services.values()),
+        "services": dict(services),
+    }
+
+
+def serve_status(composition: Composition) -> None:
+    """Answer ``control/status`` from the composition's thread, where both services' own run."""
+    node = composition.services[-1].node
+    since = time.monotonic()
+
+    def status(_payload: bytes) -> dict[str, Any]:
+        services = {composed.name: composed.node.status() for composed in composition.services}
+        return control_status(node.keys.robot, time.monotonic() - since, services)
+
+    node.queryable(node.keys.control_status, status)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     apply_realtime(rt, "invent control", control_path=True, composed=rt.enabled)
     stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args)) as session:
-        return run_composed(session, service_plan, plans, stop)
+        return run_composed(session, service_plan, plans, stop, serve_status)
 
 
 HELP = "the control path, the sim and the motor, composed in one process (no network hop between them)"
@@ -54,7 +86,8 @@ DESCRIPTION = (
     "Runs invent sim and invent motor in one process on one zenoh session, as invent up --composed runs the "
     "whole loop: each step's wheel angles and torque are handed over in the process, and only what others "
     "subscribe to goes out over zenoh, under the same keys (sim/*, motor/*) and queryables (sim/status, "
-    "motor/status, motor/gui/*, motor/bump/*) as the two processes serve. Takes the flags of both. For a "
+    "motor/status, motor/gui/*, motor/bump/*) as the two processes serve, and its own status on control/status "
+    "(the motor's state, the sim's steps and late fraction, then both statuses). Takes the flags of both. For a "
     "deployment that runs each other service apart, over a router: docker compose's control container "
     "(docs/deploy.md); with --zenoh-config, the control role's credentials (docs/security.md). "
     "Ends when signalled, or when either ends by itself (the sim after --duration), with that one's exit status."

@@ -148,17 +148,24 @@ class Composition:
 
 
 def run_composed(
-    session: zenoh.Session, parse: ServiceParse, plans: Sequence[tuple[str, ServicePlan]], stop: threading.Event
+    session: zenoh.Session,
+    parse: ServiceParse,
+    plans: Sequence[tuple[str, ServicePlan]],
+    stop: threading.Event,
+    started: Callable[[Composition], None] | None = None,
 ) -> int:
     """Compose ``plans`` ((name, plan), started in this order: the clocked service last) on
-    ``session`` and run them until ``stop`` is set or one of them ends by itself, then stop them
-    all (``invent control``). The exit status: the code of the first to end by itself (the sim's 0
-    after ``--duration``, 1 for a crash), else the highest of their codes."""
+    ``session``, call ``started`` with the composition, and run them until ``stop`` is set or one
+    of them ends by itself, then stop them all (``invent control``). The exit status: the code of
+    the first to end by itself (the sim's 0 after ``--duration``, 1 for a crash), else the highest
+    of their codes."""
     composition = Composition(session, parse)
     ended: dict[str, tuple[int, str]] = {}
     try:
         for name, plan in plans:
             composition.start_plan(name, plan)
+        if started is not None:
+            started(composition)
         while not stop.wait(STOP_POLL_S):
             composition.idle()
             ended = composition.exits()

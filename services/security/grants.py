@@ -160,14 +160,15 @@ def _reading(keys: Keys) -> list[Grant]:
 def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant]:
     """Everything ``role`` may do on robot ``keys.robot`` (and, for the ROS roles, in the ROS domain
     and namespace of ``ros``); the router denies anything else. ``control`` gets the sim's and the
-    motor's grants merged (:func:`_merged`): exactly their union."""
+    motor's grants merged (:func:`_merged`): exactly their union, and its own ``control/status``."""
     everything = (f"{ROOT}/**",)
     reading = _reading(keys)
     if role is Role.CONTROL:
         # `invent control` runs the sim and the motor in one process on one session, logged in as
         # one user: it needs each one's rights (the sim's puts and bump queries, the motor's puts and
-        # its methods served), and no more than the two together.
-        return _merged([*grants(Role.SIM, keys, ros), *grants(Role.MOTOR, keys, ros)])
+        # its methods served), and no more than the two together but the process's own status.
+        process_status = Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (keys.control_status,))
+        return _merged([*grants(Role.SIM, keys, ros), *grants(Role.MOTOR, keys, ros), process_status])
     if role is Role.OBSERVER:
         # `invent view` answers its own status; the queries on it are delivered, also as
         # invent/*/*/status (a rule lets through the key expressions it includes).
