@@ -57,8 +57,8 @@ def test_one_invent_control_process_serves_the_sim_and_the_motor_and_a_target_ve
             stopped, _ = call(session, KEYS.method(MethodFamily.GUI, Method.STOP))
             code, _, log = control.stop()
         with InventProcess("control", *flags, "--mode", "realtime", "--state", str(state), drain=True) as again:
-            wait_alive(session, KEYS.alive(Service.SIM))
-            restarted = _status(session, Service.MOTOR)
+            wait_alive(session, KEYS.alive(Service.MOTOR))
+            restarted = wait_until(lambda: _status(session, Service.MOTOR), 10.0, "the restarted motor's status")
             again.stop()
         poses.close()
     assert sim["service"] == "sim" and motor["service"] == "motor"
