@@ -3,7 +3,6 @@ compose's control container runs them (real router, real processes)."""
 
 from __future__ import annotations
 
-import json
 import math
 
 from schemas.codec import encode
@@ -27,12 +26,9 @@ KEYS = Keys(ROBOT)
 
 
 def _reply(session, key: str) -> dict:
-    replies = [reply.ok for reply in session.get(key, timeout=5.0) if reply.ok is not None]
-    return json.loads(replies[0].payload.to_bytes()) if replies else {}
-
-
-def _status(session, service: Service) -> dict:
-    return _reply(session, KEYS.status(service))
+    ok, reply = call(session, key)
+    assert ok, reply
+    return reply
 
 
 def test_one_invent_control_process_serves_the_sim_and_the_motor_and_a_target_velocity_moves_the_robot(tmp_path):
@@ -52,13 +48,13 @@ def test_one_invent_control_process_serves_the_sim_and_the_motor_and_a_target_ve
                 return bool(pose) and math.dist(pose[-1].data[:2], start[:2]) > 0.05
 
             wait_until(moved, 20.0, "the robot to move 5 cm forward")
-            sim, motor = _status(session, Service.SIM), _status(session, Service.MOTOR)
+            sim, motor = _reply(session, KEYS.status(Service.SIM)), _reply(session, KEYS.status(Service.MOTOR))
             whole = _reply(session, KEYS.control_status)
             stopped, _ = call(session, KEYS.method(MethodFamily.GUI, Method.STOP))
             code, _, log = control.stop()
         with InventProcess("control", *flags, "--mode", "realtime", "--state", str(state), drain=True) as again:
             wait_alive(session, KEYS.alive(Service.MOTOR))
-            restarted = wait_until(lambda: _status(session, Service.MOTOR), 10.0, "the restarted motor's status")
+            restarted = _reply(session, KEYS.status(Service.MOTOR))
             again.stop()
         poses.close()
     assert sim["service"] == "sim" and motor["service"] == "motor"

@@ -17,6 +17,7 @@ import time
 from collections.abc import Mapping
 from typing import Any
 
+from schemas.keys import Service
 from services.cli.flags import session_from_args
 from services.cli.serve import plan_from_args
 from services.cli.services import service_cli, service_plan
@@ -25,7 +26,7 @@ from services.launch.composition import Composition, run_composed
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 
-COMPOSED = ("motor", "sim")
+COMPOSED = (Service.MOTOR, Service.SIM)
 """Started in this order: the sim's thread runs the loop and handles the motor's inputs."""
 
 
@@ -33,7 +34,7 @@ def control_status(robot: str, uptime_s: float, services: Mapping[str, dict[str,
     """The process's own status (``control/status``): the motor's state, the sim's steps and late
     fraction and both services' internal errors first, as a container's health check reads them,
     then each service's whole status under its name (the same as ``sim/status`` and ``motor/status``)."""
-    sim, motor = services["sim"], services["motor"]
+    sim, motor = services[Service.SIM], services[Service.MOTOR]
     return {
         "service": "control",
         "robot": robot,

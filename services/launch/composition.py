@@ -167,7 +167,6 @@ def run_composed(
         if started is not None:
             started(composition)
         while not stop.wait(STOP_POLL_S):
-            composition.idle()
             ended = composition.exits()
             if ended:
                 name, (_, how) = next(iter(ended.items()))
