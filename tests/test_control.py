@@ -8,7 +8,10 @@ import math
 from schemas.codec import encode
 from schemas.keys import Keys, Method, MethodFamily, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedVelocity
+from services.config import SimMode
 from services.exits import ExitStatus
+from services.launch.plan import UpPlan
+from services.launch.up import composes_control_path
 from tests.harness import (
     REPO,
     Collector,
@@ -83,3 +86,14 @@ def test_invent_control_refuses_a_fleet_naming_the_flag(capsys):
     code, _, err = refused(capsys, "control", "--fleet", str(REPO / "examples" / "fleets" / "two_squares.toml"))
     assert code == ExitStatus.CONFIG
     assert "invent control --fleet" in err
+
+
+def test_invent_up_composes_the_control_path_in_realtime_runs_of_one_robot_only():
+    """Which runs of ``invent up`` start ``invent control`` in place of a sim and a motor apart:
+    realtime ones of one robot in separate processes, unless ``--split`` (docs/realtime.md)."""
+    realtime, lockstep = SimMode.REALTIME, SimMode.LOCKSTEP
+    assert composes_control_path(UpPlan(), realtime)
+    assert not composes_control_path(UpPlan(), lockstep), "a lockstep run has no late steps: as it was"
+    assert not composes_control_path(UpPlan(split=True), realtime)
+    assert not composes_control_path(UpPlan(composed=True), realtime), "the whole loop is one process already"
+    assert not composes_control_path(UpPlan(fleet="fleet.toml"), realtime), "a fleet's sim is the fleet's"

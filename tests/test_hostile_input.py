@@ -191,7 +191,8 @@ def test_forged_and_absurd_input_is_counted_and_the_square_still_comes_home(tmp_
             # Read while the run certainly goes on: the floods can take seconds on a loaded machine,
             # and once the drive has ended, ``up`` stops every service.
             statuses = _statuses_once_forgeries_are_handled(session)
-            rss_before, rss_after = _flood(session, clock, pids["motor"])
+            # realtime: the motor runs in invent control, composed with the sim (docs/realtime.md)
+            rss_before, rss_after = _flood(session, clock, pids["control"])
         process.wait(timeout=180)
     finally:
         if process.poll() is None:

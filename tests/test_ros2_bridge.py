@@ -114,6 +114,17 @@ def teleop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Loop]:
     assert up.returncode == 0, output.read_text()[-3000:]
 
 
+def test_a_realtime_run_composes_its_sim_and_motor_in_one_control_process(teleop):
+    """``invent up`` in realtime (here --teleop) starts ``invent control``, not a sim and a motor
+    apart (docs/realtime.md): one child, whose own status carries both services' statuses."""
+    ok, status = call(teleop.session, KEYS.control_status)
+    assert ok, status
+    assert set(status["services"]) == {str(Service.MOTOR), str(Service.SIM)}, status
+    assert status["state"] == teleop.status(Service.MOTOR)["state"]
+    log = teleop.output.read_text()
+    assert "started control (pid" in log and "started sim (pid" not in log and "started motor (pid" not in log
+
+
 def test_the_graph_shows_one_node_with_its_publishers_subscriptions_and_services(teleop):
     bridge = teleop.status(Service.ROS2)
     entities = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES) + len(ACTION)

@@ -253,12 +253,14 @@ def _started_pids(process: subprocess.Popen[str], output: list[str]) -> dict[str
 
 def test_a_realtime_run_with_a_stalled_motor_reports_its_degradation_and_strict_exits_1(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    # paced at twice the wall clock: the straight's 7.5 simulated seconds in under 4 s
+    # paced at twice the wall clock: the straight's 7.5 simulated seconds in under 4 s; --split: the
+    # motor a process of its own, to stall alone (composed with the sim, it would stall the sim too)
     process = start_up(
         "--scenario",
         "straight",
         "--mode",
         "realtime",
+        "--split",
         "--set",
         "sim.realtime_factor=2",
         "--strict",

@@ -62,8 +62,9 @@ def serve_status(composition: Composition) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     for name in COMPOSED:
         service_cli(name).add_arguments(parser)
-    # what plan_from_args reads of invent up's own flags: a control path is not one of up's children
-    parser.set_defaults(journal=None, journal_share=1)
+    # invent up's own, as every service has them (services/cli/serve.py): both services' journals go there
+    parser.add_argument("--journal", metavar="DIR", help=argparse.SUPPRESS)
+    parser.add_argument("--journal-share", type=int, default=1, help=argparse.SUPPRESS)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -61,6 +61,7 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
         goals=args.goals,
         goal_file=args.goal_file,
         composed=args.composed,
+        split=args.split,
         workers=args.workers,
         intra_process=not args.no_intra_process,
         with_services=tuple(args.with_services or ()),
@@ -183,6 +184,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="run the services in this one process on one zenoh session (no network hop between them; "
         "the session is the router, so outside zenoh tools still see every key)",
+    )
+    parser.add_argument(
+        "--split",
+        action="store_true",
+        help="in a realtime run, the sim and the motor as two processes; by default they are one, invent control "
+        "(no network hop between them: a step is not made late by the other services' load; docs/realtime.md). "
+        "A lockstep run keeps them apart anyway",
     )
     parser.add_argument(
         "--workers",

@@ -78,6 +78,8 @@ class UpPlan:
     goal_file: str | None = None
     """``--goal-file FILE``: goal mode with the goals of FILE (``invent drive --goal-file``), ending when the drive does."""
     composed: bool = False
+    split: bool = False
+    """``--split``: a realtime run's sim and motor as two processes, not composed in ``invent control``."""
     workers: int | None = None
     intra_process: bool = True
     with_services: tuple[str, ...] = ()

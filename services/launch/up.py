@@ -24,9 +24,10 @@ from __future__ import annotations
 
 import time
 from contextlib import ExitStack
+from pathlib import Path
 from typing import Any
 
-from schemas.keys import Keys, Service
+from schemas.keys import CONTROL, Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, Time
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import SimMode
@@ -71,6 +72,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         else plan.mode or (SimMode.REALTIME if plan.goals and plan.goal_file is None else first.config.sim.mode)
     )
     robot_services = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if plan.ros2 else ()))
+    control_path_composed = composes_control_path(plan, mode)
     # the journals: each robot's services', user services' and drive's, the sim's and up's own
     journals = len(robots.each) * (len(robot_services) + 1) + sum(len(r.extensions) for r in robots.each) + 2
     record = first.config.record
@@ -86,6 +88,14 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         directory = robot.folder(recorder.directory)
         directory.mkdir(exist_ok=True)
         return ["--journal", str(directory), *recorder.share]
+
+    if plan.teleop:  # no drive: the sim steps on until Ctrl-C, waiting for each robot's torque only
+        ending = ["--wait-for", str(Service.MOTOR)]
+    else:
+        ending = ["--until-drive-ends", "--wait-for", *(str(service) for service in LOOP_BEFORE_FIRST_STEP)]
+        # a user participant's name, where every robot has it (the sim waits for each name on every robot)
+        ending += sorted(set.intersection(*(set(robot.participants) for robot in robots.each)))
+    simulation = [*robots.sim_flags, "--mode", mode, *ending, *(["--gui"] if plan.gui else []), *rt_flags(plan)]
 
     try:
         with (
@@ -107,10 +117,17 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                 live_view.wait_serving(run)
             for robot in robots.each:
                 own = {
-                    Service.MOTOR: ["--state", str(robot.folder(report_dir) / MOTOR_STATE_FILE), *rt_flags(plan)],
+                    Service.MOTOR: [*_motor_flags(robot, report_dir), *rt_flags(plan)],
                     Service.ROS2: [*robot.bridge_flags, *(bag.flags if bag else [])],
                 }
                 for service in robot_services:
+                    if service == Service.MOTOR and control_path_composed:
+                        # invent control: the sim and the motor in one child, its sim waiting for the
+                        # drive's and the participants' tokens (--wait-for) before its first step
+                        control = [*common, *access.flags(Role.CONTROL), *(recorder.flags if recorder else [])]
+                        control += [*simulation, *_motor_flags(robot, report_dir)]
+                        launcher.start(CONTROL, [CONTROL, *control])
+                        continue
                     flags = [*common, *robot.credentials(access, Role(service)), *robot.flags, *journal(robot)]
                     launcher.start(robot.child(service), [str(service), *flags, *own.get(service, [])])
             for robot in robots.each:  # the user's own (--with), beside them, supervised as they are
@@ -130,16 +147,11 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                 drives[robot.name] = launcher.start(robot.child(Service.DRIVE), [str(Service.DRIVE), *flags])
             for tokens in robots.drive_waits(driven):
                 run.wait_tokens(tokens)
-            if plan.teleop:  # no drive: the sim steps on until Ctrl-C, waiting for each robot's torque only
-                ending = ["--wait-for", str(Service.MOTOR)]
+            if plan.teleop:
                 say(robots.teleop_line)
-            else:
-                ending = ["--until-drive-ends", "--wait-for", *(str(service) for service in LOOP_BEFORE_FIRST_STEP)]
-                # a user participant's name, where every robot has it (the sim waits for each name on every robot)
-                ending += sorted(set.intersection(*(set(robot.participants) for robot in robots.each)))
-            sim_session = [*common, *access.flags(Role.SIM), *(recorder.flags if recorder else [])]
-            simulation = [*robots.sim_flags, "--mode", mode, *ending, *(["--gui"] if plan.gui else []), *rt_flags(plan)]
-            launcher.start(str(Service.SIM), [str(Service.SIM), *sim_session, *simulation])
+            if not control_path_composed:
+                sim_session = [*common, *access.flags(Role.SIM), *(recorder.flags if recorder else [])]
+                launcher.start(str(Service.SIM), [str(Service.SIM), *sim_session, *simulation])
             sim_started = True
             started = time.monotonic()
             if started_line := robots.started_line(mode):
@@ -186,6 +198,20 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         return verdict(plan.strict, degraded, f"done; no recording, no report ({why})", outcome_code, not_completed)
     degraded, written = robots.report(report_dir)
     return verdict(plan.strict, degraded, written, outcome_code, not_completed)
+
+
+def composes_control_path(plan: UpPlan, mode: SimMode) -> bool:
+    """Whether the run's sim and motor are one child, ``invent control``, as docker compose runs
+    them: in a realtime run of one robot in separate processes, unless ``--split``. A step's
+    exchange then never leaves the process, and the other services' load (the ROS 2 bridge, the
+    view) cannot make a step late by delaying the other process's wake-up (docs/realtime.md). A
+    lockstep run has no late steps, and a fleet's sim is the fleet's."""
+    return mode == SimMode.REALTIME and not (plan.fleet or plan.composed or plan.split)
+
+
+def _motor_flags(robot: Robot, report_dir: Path) -> list[str]:
+    """The motor's own: where it keeps its latched stop across restarts (docs/protocol.md)."""
+    return ["--state", str(robot.folder(report_dir) / MOTOR_STATE_FILE)]
 
 
 def _drive_flags(plan: UpPlan, robot: Robot) -> list[str]:
