@@ -6,7 +6,8 @@ Each case runs alone: started, warmed up (``--warmup``), then the sim's ``realti
 over its steps for ``--window`` seconds of wall time; ``--repeats N`` runs the cases N times,
 interleaved (the machine's noise then falls on every case alike), and reports each case's median. Bare cases: ``invent up --mode realtime
 --loop`` with or without ``invent view``, the ROS 2 bridge, ``--secure`` (every service a client of
-the router with its role's credentials, as in compose), ``--rt``, and ``rt.partition`` off. Compose
+the router with its role's credentials, as in compose), ``--rt``, ``rt.partition`` off, and
+``--split`` (the sim and the motor as two processes, as before ``invent up`` composed them). Compose
 cases (when Docker is here; the section says so and is skipped when it is not): ``compose.yaml``'s
 default profile (the sim and the motor composed in its control container), and the same with one
 thing changed by an override file: ``compose.split.yaml`` (the sim and the motor a container each),
@@ -83,10 +84,12 @@ def _no_view(compose: dict[str, Any]) -> dict[str, Any]:
 
 
 CASES: dict[str, Bare | Compose] = {
-    "bare": Bare("the loop alone"),
+    "bare": Bare("the loop alone (the sim and the motor composed: invent control)"),
     "bare_view": Bare("the loop + invent view (compose's default services)", view=True),
+    "bare_split": Bare("the loop alone, the sim and the motor two processes (--split)", ("--split",)),
     "bare_view_no_partition": Bare("the loop + view, rt.partition off", NO_PARTITION, True, NO_PARTITION),
     "bare_ros2_view": Bare("the loop + ROS 2 bridge + view", ("--ros2",), view=True),
+    "bare_ros2_view_split": Bare("the loop + ROS 2 bridge + view, --split", ("--ros2", "--split"), view=True),
     "bare_ros2_view_no_partition": Bare(
         "the loop + ROS 2 bridge + view, rt.partition off", ("--ros2", *NO_PARTITION), True, NO_PARTITION
     ),
