@@ -35,6 +35,11 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
                 f"{'--goals' if args.goals else '--goal-file'} with {', '.join(conflicting)}: in goal mode each drive "
                 "takes goals (invent goto X Y [THETA], or the goal file) instead of running a scenario"
             )
+    if args.split and args.composed:
+        raise ConfigError(
+            "--split with --composed: --split runs a realtime run's sim and motor as two processes, --composed "
+            "every service in one"
+        )
     settings = [
         *description.settings,
         *([f"record.rate={RecordRate.EVERY_STEP}"] if args.record_full_rate else []),

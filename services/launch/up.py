@@ -3,7 +3,9 @@
 Starts the router, then motor, odometry, localization and the drive with the scenario, waits
 until they are alive and the drive and the localization hold their lockstep tokens, and
 starts the sim last, so a lockstep run steps the whole loop from its first step and starts the
-same way every time (services/clock/lockstep.py). Children's output is prefixed with their name. The
+same way every time (services/clock/lockstep.py). A realtime run of one robot starts the sim and
+the motor as one child, ``invent control``, in the motor's place (:func:`composes_control_path`):
+its sim waits for the same tokens before its first step. Children's output is prefixed with their name. The
 run ends when the drive ends its scenario, with an outcome (its exit code: completed, or given up,
 aborted or timed out; services/drive/outcome.py), and the sim holds at the step of its last
 command (``--until-drive-ends``): ``up`` then reads the services' status, publishes the
