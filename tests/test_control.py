@@ -1,5 +1,6 @@
 """``invent control``: the sim and the motor composed in one process, over a router, as docker
-compose's control container runs them (real router, real processes)."""
+compose's control container runs them (real router, real processes); and which runs of ``invent
+up`` start it in place of the two (a plain function, no zenoh)."""
 
 from __future__ import annotations
 
