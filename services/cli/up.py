@@ -224,7 +224,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 HELP = "run the whole loop (router, sim, motor, odometry, localization, drive) and write a report"
 DESCRIPTION = (
-    "Start every service as its own process in this terminal, drive a scenario, then stop "
+    "Start every service as its own process in this terminal (in a realtime run of one robot the sim and the "
+    "motor as one, invent control, unless --split), drive a scenario, then stop "
     "everything and write a run report (report.json, trajectory.png, wheel_speeds.png). "
     f"--listen sets where its router listens (default {DEFAULT_ENDPOINT}); --connect joins an existing router "
     "instead. Ctrl-C stops everything."
