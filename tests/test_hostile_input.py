@@ -21,7 +21,7 @@ import pytest
 import zenoh
 
 from schemas.codec import encode
-from schemas.keys import LOOP_SERVICES, Keys, Method, MethodFamily, Service
+from schemas.keys import CONTROL, LOOP_SERVICES, Keys, Method, MethodFamily, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition, TimedVelocity
 from services.config import DriveConfig, LocalizationConfig
 from tests.harness import call, free_port, peer_session, start_up, wait_until
@@ -192,7 +192,7 @@ def test_forged_and_absurd_input_is_counted_and_the_square_still_comes_home(tmp_
             # and once the drive has ended, ``up`` stops every service.
             statuses = _statuses_once_forgeries_are_handled(session)
             # realtime: the motor runs in invent control, composed with the sim (docs/realtime.md)
-            rss_before, rss_after = _flood(session, clock, pids["control"])
+            rss_before, rss_after = _flood(session, clock, pids[CONTROL])
         process.wait(timeout=180)
     finally:
         if process.poll() is None:

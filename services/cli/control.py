@@ -19,7 +19,7 @@ from typing import Any
 
 from schemas.keys import Service
 from services.cli.flags import session_from_args
-from services.cli.serve import plan_from_args
+from services.cli.serve import add_journal_arguments, plan_from_args
 from services.cli.services import service_cli, service_plan
 from services.config import ConfigError
 from services.launch.composition import Composition, run_composed
@@ -62,9 +62,7 @@ def serve_status(composition: Composition) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     for name in COMPOSED:
         service_cli(name).add_arguments(parser)
-    # invent up's own, as every service has them (services/cli/serve.py): both services' journals go there
-    parser.add_argument("--journal", metavar="DIR", help=argparse.SUPPRESS)
-    parser.add_argument("--journal-share", type=int, default=1, help=argparse.SUPPRESS)
+    add_journal_arguments(parser)  # both services' journals go there
 
 
 def run(args: argparse.Namespace) -> int:

@@ -49,10 +49,7 @@ def add_parser(commands: Commands, parents: Parents, cli: ServiceCli[Any]) -> No
         description=cli.description,
     )
     cli.add_arguments(sub)
-    # invent up's own: where a service keeps what it publishes, for the run's recording, and how
-    # many journals of the run share record.max_size
-    sub.add_argument("--journal", metavar="DIR", help=argparse.SUPPRESS)
-    sub.add_argument("--journal-share", type=int, default=1, help=argparse.SUPPRESS)
+    add_journal_arguments(sub)
     sub.set_defaults(handler=cli.run or serve, service_cli=cli)
 
 
@@ -60,6 +57,14 @@ def plan_from_args(cli: ServiceCli[OptionsT], args: argparse.Namespace) -> Servi
     """The service to start: its robot description (file, ``--set``, its flags), its options, its journal."""
     config = config_from_args(cli, args)
     return ServicePlan(cli.command, config, cli.options(args), journaling_from_args(args))
+
+
+def add_journal_arguments(parser: argparse.ArgumentParser) -> None:
+    """``invent up``'s own flags of every process it starts a service in (hidden): where a service
+    keeps what it publishes, for the run's recording, and how many journals of the run share
+    ``record.max_size``; :func:`journaling_from_args` reads them."""
+    parser.add_argument("--journal", metavar="DIR", help=argparse.SUPPRESS)
+    parser.add_argument("--journal-share", type=int, default=1, help=argparse.SUPPRESS)
 
 
 def journaling_from_args(args: argparse.Namespace) -> Journaling:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from services.cli.flags import config_from_args, session_from_args
-from services.cli.serve import journaling_from_args
+from services.cli.serve import add_journal_arguments, journaling_from_args
 from services.extension.hosting import UserOptions, command
 from services.extension.loader import load
 from services.runtime.realtime import apply_realtime
@@ -25,9 +25,7 @@ GROUPS: tuple[str, ...] = ("connection", "description", "rt")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("spec", metavar="FILE.py:NAME", help="the Python file and the UserService subclass in it")
-    # invent up's own, as for the built-in services: where it keeps what it publishes for the run's recording
-    parser.add_argument("--journal", metavar="DIR", help=argparse.SUPPRESS)
-    parser.add_argument("--journal-share", type=int, default=1, help=argparse.SUPPRESS)
+    add_journal_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
