@@ -29,7 +29,8 @@ In both modes the status reports the torque latency (wheel angles published -> t
 their ``tm`` received) as percentiles over the most recent steps (:mod:`sim_bridge.latency`).
 
 When the robot begins touching an obstacle it publishes ``sim/bump`` and calls
-``motor/bump/stop`` without waiting for the answer (the reply is only counted).
+``motor/bump/stop`` (the reply is only counted); in lockstep the next step waits until the call
+has finished, so the motor latches at the contact's step in every run.
 
 The service's rooms: this module (``SimService``: the world, its links, the run; ``SimOptions``),
 :mod:`sim_bridge.link` (one robot's keys, publishers and inputs), :mod:`sim_bridge.liveness`

@@ -132,6 +132,9 @@ class RobotLink:
         (in lockstep) and whether the step is observed. Encoded when they change, not at every step."""
         self.owed_changed()
         self.counters = dict.fromkeys(COUNTERS, 0)
+        self.bump_stops_open = 0
+        """``motor/bump/stop`` calls not yet finished (answered, refused or timed out): in lockstep
+        the next step waits for them (:meth:`sim_bridge.loops.Loop.run_lockstep`)."""
         self.clock: tuple[TimedDoubleSeq, bytes] | None = None
         """(wheel angles, mark) of an observed step published, while its ``sim/clock`` waits."""
         self.latency = TorqueLatency(step_ns)
@@ -234,7 +237,13 @@ class RobotLink:
         reason = "" if ok else result.payload.to_string()
         self.node.post(partial(self._record_bump_stop_reply, ok, reason))
 
+    def _on_bump_stop_done(self) -> None:
+        self.node.post(self._bump_stop_finished)
+
     # --- service thread ---
+
+    def _bump_stop_finished(self) -> None:
+        self.bump_stops_open -= 1
 
     def _record_bump_stop_reply(self, ok: bool, reason: str) -> None:
         if ok:
@@ -307,7 +316,10 @@ class RobotLink:
         )
         self.bump_publisher.put(BumpEvent(tm=tm, obstacle=contact.obstacle, x=contact.x, y=contact.y, z=contact.z))
         self.counters["bump_stop_calls"] += 1
-        self._bump_stop.get(self._on_bump_stop_reply, payload=_BUMP_STOP_PAYLOAD)
+        self.bump_stops_open += 1
+        self._bump_stop.get(
+            zenoh.handlers.Callback(self._on_bump_stop_reply, self._on_bump_stop_done), payload=_BUMP_STOP_PAYLOAD
+        )
 
     def owed_changed(self) -> None:
         owed = self.barrier.owed() if self._lockstep else None

@@ -71,12 +71,14 @@ class Loop:
         for link in self.links:
             link.after_torque(tm_ns)
 
-    def _step(self) -> None:
+    def _step(self) -> bool:
+        """Step the world; True if a bump began (its ``motor/bump/stop`` called)."""
         contacts = self.sim.step()
         if contacts:
             tm = Time.from_nanoseconds(self.sim.time_ns)
             for contact in contacts:
                 self.links[contact.robot].bump(contact, tm)
+        return bool(contacts)
 
     # --- lockstep ---
 
@@ -89,7 +91,8 @@ class Loop:
             self._lockstep_ticks(tm_ns, stop)
             if final or self.ended():
                 return
-            self._step()
+            if self._step():
+                self._lockstep_bump_stops(stop)
 
     def _lockstep_torques(self, tm_ns: int, stop: threading.Event, final: bool) -> None:
         """Set this step's torque of every robot: its motor's answer for ``tm_ns``, or zero."""
@@ -122,6 +125,18 @@ class Loop:
         else:
             self.node.drain()
             torque.not_awaited(final)
+
+    def _lockstep_bump_stops(self, stop: threading.Event) -> None:
+        """Wait until the step's ``motor/bump/stop`` calls have finished (answered, or past their
+        own timeout) before the next step's wheel angles: the motor latches at the contact's step,
+        the same in every run, not when the call happens to reach it."""
+        links = self.links
+
+        def finished() -> bool:
+            return not any(link.bump_stops_open for link in links)
+
+        while not finished() and not stop.is_set():
+            self.node.executor.spin_until(finished, STOP_POLL_S)
 
     def _lockstep_ticks(self, tm_ns: int, stop: threading.Event) -> None:
         """Wait for the outputs of the participants with a tick at ``tm_ns`` (or give up on them)."""

@@ -1,8 +1,8 @@
 """The loop on the kinematic engine (``invent up --engine kinematic``): the square closes, home within
 1 cm by the ground truth; two runs give the same samples bit for bit; in the bump world the
 collision monitor holds the robot short of the box its lidar sees, and with the monitor off the
-robot bumps into the box and stops against it; a fleet's two robots meeting head-on bump each other
-and stop touching. Every run is lockstep and ``--composed`` (one process: the fastest), shared by
+robot bumps into the box and stops against it, its motor latched at the contact's step; a fleet's
+two robots meeting head-on bump each other and stop touching. Every run is lockstep and ``--composed`` (one process: the fastest), shared by
 the tests that read it; the five runs take about 10 s."""
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ import pytest
 
 from schemas.codec import decode
 from schemas.keys import Keys, Service
-from schemas.messages import BumpEvent, LaserScan, TimedDoubleSeq
+from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, LaserScan, MotorStateReport, TimedDoubleSeq
+from services.config import SimConfig
 from services.exits import ExitStatus
 from services.recording.mcap_files import RecordedMessage, read_messages
 from tests.harness import REPO, invent_command
@@ -40,6 +41,7 @@ COMPARED = (
 BOX_FACE_X = 0.9
 BODY_RADIUS = 0.45
 AHEAD = 180
+STEP_NS = round(SimConfig().step * NANOSECONDS_PER_SECOND)
 
 
 @dataclass
@@ -136,6 +138,9 @@ def test_without_the_monitor_the_robot_bumps_into_the_box_and_stops_against_it(b
     assert "bumped into 'box'" in bumped.report["outcome"]["reason"], bumped.report["outcome"]
     bumps = bumped.decoded(KEYS.sim_bump, BumpEvent)
     assert len(bumps) == 1 and bumps[0].obstacle == "box" and bumps[0].x == pytest.approx(BOX_FACE_X)
+    stops = [state for state in bumped.decoded(KEYS.motor_state, MotorStateReport) if state.state == "stopped"]
+    latched_ns, bump_ns = stops[0].tm.to_nanoseconds(), bumps[0].tm.to_nanoseconds()
+    assert stops[0].stopped_by == "bump" and latched_ns == bump_ns - STEP_NS, "latched at the contact's step"
     x, y = final_pose(bumped)
     assert BOX_FACE_X - BODY_RADIUS - 0.01 < x <= BOX_FACE_X - BODY_RADIUS and y == pytest.approx(0.0, abs=1e-9)
 

@@ -154,9 +154,9 @@ class GiveUpRule:
         return None
 
     def _stop_start_ns(self) -> int | None:
-        """When the stop began: at the bump that caused it, a stamp of the simulation itself (the
-        motor latches a few steps later, as soon as the sim's call reaches it, which varies from run
-        to run: timing the stop from the contact keeps a lockstep run's end the same every time)."""
+        """When the stop began: at the bump that caused it, a stamp of the simulation itself (in
+        realtime the motor latches when the sim's call reaches it, which varies from run to run;
+        in lockstep at the contact's step, its state stamped a step before the bump's)."""
         return self.stop_bump[0] if self.stop_bump is not None else self.stopped_since_ns
 
     def _stop_reason(self, since_ns: int, now_ns: int) -> str:
@@ -174,8 +174,8 @@ class GiveUpRule:
 
 
 BUMP_NEAR_STOP_S = 0.5
-"""How far in simulation time a bump may be from the stop it caused (the sim calls the motor's
-``motor/bump/stop`` without waiting, so the motor latches a few steps after the contact)."""
+"""How far in simulation time a bump may be from the stop it caused (in realtime the sim calls the
+motor's ``motor/bump/stop`` without waiting, so the motor latches some steps after the contact)."""
 
 
 def _not_before(stamp_ns: int | None, earliest_ns: int | None) -> int | None:
