@@ -3,7 +3,9 @@
 import re
 import signal
 import subprocess
+import sys
 import threading
+from pathlib import Path
 
 import pytest
 import zenoh
@@ -57,3 +59,37 @@ def test_a_service_interrupted_while_it_starts_exits_without_a_traceback_of_its_
         # 0: it had started and stopped as usual; 130: interrupted while starting; killed by SIGINT:
         # the interpreter (seen under load, after the project's own line) ends so on an interrupt.
         assert process.returncode in (0, ExitStatus.INTERRUPTED, -signal.SIGINT), err
+
+
+IGNORING_SIGINT = (
+    "import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_IGN); os.execv(sys.argv[1], sys.argv[1:])"
+)
+"""A ``python -c`` that runs its arguments (the same process, after ``exec``) with SIGINT ignored."""
+
+
+def started_taking_sigint(pid: int) -> bool:
+    """Whether process ``pid`` is the service (past the ``exec``) and no longer ignores SIGINT."""
+    proc = Path(f"/proc/{pid}")
+    if (proc / "cmdline").read_bytes().split(b"\0")[1:3] != [b"-m", b"services.cli"]:
+        return False
+    ignored = re.search(r"^SigIgn:\s*([0-9a-f]+)$", (proc / "status").read_text(), re.MULTILINE)
+    return ignored is not None and not int(ignored.group(1), 16) & (1 << (signal.SIGINT - 1))
+
+
+def test_a_service_started_with_sigint_ignored_takes_it_back_at_once_and_an_early_sigint_interrupts_it(endpoint):
+    """A script's background job (or a test runner's worker) starts a service with SIGINT ignored,
+    which Python leaves so: the entry point takes it back before importing the project, so a
+    SIGINT sent as soon as it has (the service still starting) interrupts it (130), not only one
+    sent once the service has taken over its signals."""
+    command = invent_command("localization", "--connect", endpoint)
+    process = subprocess.Popen(
+        [sys.executable, "-c", IGNORING_SIGINT, *command], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True
+    )
+    try:
+        wait_until(lambda: started_taking_sigint(process.pid), 20, "the entry point to take SIGINT back")
+        process.send_signal(signal.SIGINT)
+        _out, err = process.communicate(timeout=20)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == ExitStatus.INTERRUPTED and "interrupted while starting" in err, err

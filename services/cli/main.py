@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
@@ -75,6 +76,11 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        # Started with SIGINT ignored (a script's background job, a test runner's worker): Python
+        # then leaves it ignored, and a SIGINT before the command takes over its signals would be
+        # lost, the service running on (seen: three early SIGINTs lost under pytest-xdist).
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         return _run(argv)
     except KeyboardInterrupt:
