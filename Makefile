@@ -15,11 +15,14 @@ $(STAMP): pyproject.toml
 run: $(STAMP)  ## the whole loop: router, sim, motor, odometry, localization, drive, then a report
 	$(BIN)/invent up
 
-test: $(STAMP)  ## the whole suite (but the benchmarks' own smoke: make bench-smoke)
-	$(BIN)/python -m pytest -m "not bench_smoke"
+TEST_WORKERS ?= 2
 
-test-fast: $(STAMP)  ## the suite without the end-to-end runs of the whole loop (the edit-test loop)
-	$(BIN)/python -m pytest -m "not slow and not bench_smoke"
+test: $(STAMP)  ## the whole suite (but the benchmarks' own smoke: make bench-smoke): test-fast, then the loop's runs one at a time
+	$(BIN)/python -m pytest -m "not slow and not bench_smoke" -n $(TEST_WORKERS)
+	$(BIN)/python -m pytest -m "slow and not bench_smoke"
+
+test-fast: $(STAMP)  ## the suite without the end-to-end runs of the whole loop (the edit-test loop), over TEST_WORKERS processes
+	$(BIN)/python -m pytest -m "not slow and not bench_smoke" -n $(TEST_WORKERS)
 
 test-kinematic: $(STAMP)  ## the loop's end-to-end tier on the kinematic engine (no physics): the square, determinism, bumps, a fleet
 	$(BIN)/python -m pytest -m kinematic
