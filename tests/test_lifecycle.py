@@ -77,8 +77,8 @@ def started_taking_sigint(pid: int) -> bool:
 
 
 def test_a_service_started_with_sigint_ignored_takes_it_back_at_once_and_an_early_sigint_interrupts_it(endpoint):
-    """A script's background job (or a test runner's worker) starts a service with SIGINT ignored,
-    which Python leaves so: the entry point takes it back before importing the project, so a
+    """A script's background job (a shell without job control) starts a service with SIGINT
+    ignored, which Python leaves so: the entry point takes it back before importing the project, so a
     SIGINT sent as soon as it has (the service still starting) interrupts it (130), not only one
     sent once the service has taken over its signals."""
     command = invent_command("localization", "--connect", endpoint)

@@ -77,9 +77,9 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
-        # Started with SIGINT ignored (a script's background job, a test runner's worker): Python
-        # then leaves it ignored, and a SIGINT before the command takes over its signals would be
-        # lost, the service running on (seen: three early SIGINTs lost under pytest-xdist).
+        # Started with SIGINT ignored (by a shell without job control: `invent motor &` in a
+        # script): Python then leaves it ignored, and a SIGINT before the command takes over its
+        # signals would be lost, the service running on (seen: a test suite run so).
         signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         return _run(argv)
