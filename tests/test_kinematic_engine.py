@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ast
 import math
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -216,11 +217,16 @@ def test_invent_sim_runs_the_kinematic_engine_where_pybullet_cannot_be_imported(
     assert "on the kinematic engine" in result.stderr and "200 steps" in result.stderr, result.stderr[-3000:]
 
 
-@pytest.mark.parametrize("command", ["sim", "up"])
-def test_gui_with_the_kinematic_engine_exits_2_naming_the_flag(capsys: pytest.CaptureFixture[str], command: str):
+@pytest.mark.parametrize("command", ["sim", "control", "up"])
+def test_gui_with_the_kinematic_engine_exits_2_naming_the_flag_before_anything_starts(
+    capsys: pytest.CaptureFixture[str], command: str
+):
+    handler = signal.getsignal(signal.SIGINT)
     code, _out, err = refused(capsys, command, "--engine", "kinematic", "--gui")
     assert code == ExitStatus.CONFIG == 2, err
     assert "--gui" in err and "kinematic" in err, err
+    assert signal.getsignal(signal.SIGINT) is handler, "refused before taking over the signals"
+    assert "rt.partition" not in err, "refused before choosing its CPUs"
 
 
 def test_the_engine_flag_sets_sim_engine_and_set_does_too():

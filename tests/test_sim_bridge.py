@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import queue
+import signal
 import subprocess
 import time
 from collections.abc import Callable
@@ -362,6 +363,8 @@ def test_gui_without_a_display_exits_2_naming_the_problem(endpoint):
 def test_a_bad_world_file_exits_2_naming_the_field(endpoint, tmp_path: Path, capsys):
     world = tmp_path / "bad.toml"
     world.write_text('[[boxes]]\nname = "b"\nx = "far"\ny = 0\nsize = [1, 1, 1]\n')
+    handler = signal.getsignal(signal.SIGINT)
     code, _out, err = refused(capsys, "sim", "--connect", endpoint, "--world", str(world))
     assert code == 2
     assert "boxes[0].x" in err
+    assert signal.getsignal(signal.SIGINT) is handler, "refused before taking over the signals"

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any, Generic
 
 from services.cli.flags import Commands, Parents, config_from_args, session_from_args
+from services.config import Config
 from services.runtime.realtime import CONTROL_PATH, apply_realtime
 from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 from services.service import Journaling, NoOptions, OptionsT, ServiceCommand, ServicePlan, run_service
@@ -22,6 +23,10 @@ def no_overrides(_args: argparse.Namespace) -> dict[str, Any]:
 
 def no_options(_args: argparse.Namespace) -> NoOptions:
     return NoOptions()
+
+
+def no_check(_config: Config, _options: Any) -> None:
+    return None
 
 
 @dataclass(frozen=True)
@@ -39,6 +44,9 @@ class ServiceCli(Generic[OptionsT]):
     """Maps the service's flags to config keys ({"motor.target_angle": args.target_angle}); None = unset."""
     run: Callable[[argparse.Namespace], int] | None = None
     """Its own handler, where it is more than :func:`serve` (``invent ros2 --fleet``)."""
+    check: Callable[[Config, OptionsT], None] = no_check
+    """Refuses (ConfigError: exit 2) what its description and its flags allow each alone but not
+    together (``invent sim --engine kinematic --gui``), before anything starts."""
 
 
 def add_parser(commands: Commands, parents: Parents, cli: ServiceCli[Any]) -> None:
@@ -56,7 +64,9 @@ def add_parser(commands: Commands, parents: Parents, cli: ServiceCli[Any]) -> No
 def plan_from_args(cli: ServiceCli[OptionsT], args: argparse.Namespace) -> ServicePlan[OptionsT]:
     """The service to start: its robot description (file, ``--set``, its flags), its options, its journal."""
     config = config_from_args(cli, args)
-    return ServicePlan(cli.command, config, cli.options(args), journaling_from_args(args))
+    options = cli.options(args)
+    cli.check(config, options)
+    return ServicePlan(cli.command, config, options, journaling_from_args(args))
 
 
 def add_journal_arguments(parser: argparse.ArgumentParser) -> None:

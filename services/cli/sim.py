@@ -11,8 +11,9 @@ from services.cli.serve import ServiceCli
 from services.config import Config, ConfigError, SimConfig, SimMode
 from services.fleet.description import load_fleet, robot_config
 from sim_bridge.bridge import COMMAND, SimOptions
+from sim_bridge.engine import check_gui
 from sim_bridge.handshakes import START_HANDSHAKE_TIMEOUT_S
-from sim_bridge.world import DEFAULT_WORLD, builtin_worlds
+from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, load_world
 
 
 def waited_service(text: str) -> ServiceName:
@@ -99,6 +100,12 @@ def options(args: argparse.Namespace) -> SimOptions:
     )
 
 
+def check(config: Config, options: SimOptions) -> None:
+    """A window the engine has not, a world file that does not load: exit 2 before anything starts."""
+    check_gui(config.sim, options.gui)
+    load_world(config.sim.world)
+
+
 CLI = ServiceCli(
     command=COMMAND,
     help="the simulator (PyBullet, or the kinematic engine): wheel angles and body pose out, wheel torques in",
@@ -112,4 +119,5 @@ CLI = ServiceCli(
     add_arguments=add_arguments,
     options=options,
     overrides=overrides,
+    check=check,
 )
