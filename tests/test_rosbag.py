@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 from pathlib import Path
 
 import msgspec
@@ -276,11 +277,15 @@ def test_the_live_recorder_keeps_bad_input_on_a_bridges_key_out_of_the_bag(tmp_p
         (("up", "--record-ros2", "--no-record"), "--record-ros2 without --ros2, with --no-record"),
         (("up", "--fleet", "examples/fleets/two_squares.toml", "--teleop"), "--teleop (--ros2)"),
         (("record", "--fleet", "examples/fleets/two_squares.toml"), "--fleet: it is an option of --ros2"),
+        (("record", "--ros2", "invent/rh0/**"), "--ros2 with invent/rh0/**: a bag records the bridges' topics"),
         (("ros2", "--fleet", "examples/fleets/two_squares.toml", "--namespace", "x"), "--fleet with --namespace"),
         (("export", "--ros2", "no/such/run.mcap", "-o", "bag"), "no/such/run.mcap: no such file"),
     ],
 )
 def test_ros2_flags_that_cannot_work_exit_2_naming_them(argv, named, capsys):
-    """In this process: each is refused before any session or process starts."""
+    """In this process: each is refused before any session or process starts (nor has it taken
+    over the signals or chosen its CPUs)."""
+    handler, cpus = signal.getsignal(signal.SIGINT), os.sched_getaffinity(0)
     assert main(list(argv)) == 2
     assert named in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGINT) is handler and os.sched_getaffinity(0) == cpus

@@ -51,11 +51,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     config = config_from_args(None, args)
+    if args.fleet and not args.ros2:
+        raise ConfigError("--fleet: it is an option of --ros2 (the bridges of a fleet)")
+    if args.ros2 and args.keyexprs:
+        raise ConfigError(f"--ros2 with {' '.join(args.keyexprs)}: a bag records the bridges' topics, not zenoh keys")
     apply_realtime(config.rt, "invent record", control_path=False)
     if args.ros2:
         return _run_ros2(args, config)
-    if args.fleet:
-        raise ConfigError("--fleet: it is an option of --ros2 (the bridges of a fleet)")
     stop = stop_on_signals()
     with open_session(session_from_args(args)) as session:
         return record.run_record(
@@ -70,8 +72,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_ros2(args: argparse.Namespace, config: Config) -> int:
-    if args.keyexprs:
-        raise ConfigError(f"--ros2 with {' '.join(args.keyexprs)}: a bag records the bridges' topics, not zenoh keys")
     configs = fleet_bridge_configs(args) if args.fleet else [config]
     bridges = [bridge_graph(robot) for robot in configs]
     output = new_bag_directory(args.output or datetime.datetime.now().strftime("rosbag2_%Y_%m_%d-%H_%M_%S"))
