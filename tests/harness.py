@@ -229,14 +229,21 @@ def run_invent(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess
 
 def refused(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
     """``invent ARGS`` run in this process, for arguments it refuses before anything starts (a
-    process of its own costs a second of imports): its exit status, and what it wrote on stdout and stderr."""
+    process of its own costs a second of imports): its exit status, and what it wrote on stdout and stderr.
+
+    Before anything starts means before the command takes over the signals or chooses its CPUs
+    (``rt.partition``): both are checked unchanged in this process, which a late refusal would
+    otherwise leave so for the rest of the suite."""
     from services.cli.main import main
 
+    handler, cpus = signal.getsignal(signal.SIGINT), os.sched_getaffinity(0)
     try:
         code = main(list(args))
     except SystemExit as exit_:
         code = exit_.code if isinstance(exit_.code, int) else 1
     captured = capsys.readouterr()
+    assert signal.getsignal(signal.SIGINT) is handler, f"invent {' '.join(args)} took over the signals first"
+    assert os.sched_getaffinity(0) == cpus, f"invent {' '.join(args)} chose its CPUs first"
     return code, captured.out, captured.err
 
 
