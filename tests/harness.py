@@ -233,10 +233,13 @@ def refused(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, s
 
     Before anything starts means before the command takes over the signals or chooses its CPUs
     (``rt.partition``): both are checked unchanged in this process, which a late refusal would
-    otherwise leave so for the rest of the suite."""
+    otherwise leave so for the rest of the suite. (An ignored SIGINT is the one change allowed:
+    the entry point takes it back, as for a suite run as a background job.)"""
     from services.cli.main import main
 
     handler, cpus = signal.getsignal(signal.SIGINT), os.sched_getaffinity(0)
+    if handler is signal.SIG_IGN:
+        handler = signal.default_int_handler
     try:
         code = main(list(args))
     except SystemExit as exit_:
