@@ -20,11 +20,13 @@ from schemas.messages import (
     GoalFeedback,
     GoalReply,
     GoalRequest,
+    GoalPlan,
     GoalTarget,
     ImuSample,
     LaserScan,
     MotorStateReport,
     NoArguments,
+    OccupancyGrid,
     PDGains,
     PlannedPath,
     RunSummary,
@@ -89,6 +91,9 @@ class Topic(StrEnum):
     DRIVE_OUTCOME = "drive/outcome"
     DRIVE_GOAL = "drive/goal"
     DRIVE_GOAL_FEEDBACK = "drive/goal/feedback"
+    DRIVE_MAP = "drive/map"
+    DRIVE_COSTMAP = "drive/costmap"
+    DRIVE_PLAN = "drive/plan"
     RUN_SUMMARY = "up/run"
 
 
@@ -105,6 +110,8 @@ TopicMessage = (
     | ScenarioOutcome
     | GoalTarget
     | GoalFeedback
+    | OccupancyGrid
+    | GoalPlan
     | RunSummary
 )
 """What a data key carries: every one has its ``tm`` stamp."""
@@ -129,10 +136,21 @@ TOPIC_TYPES: dict[Topic, type[TopicMessage]] = {
     Topic.DRIVE_OUTCOME: ScenarioOutcome,
     Topic.DRIVE_GOAL: GoalTarget,
     Topic.DRIVE_GOAL_FEEDBACK: GoalFeedback,
+    Topic.DRIVE_MAP: OccupancyGrid,
+    Topic.DRIVE_COSTMAP: OccupancyGrid,
+    Topic.DRIVE_PLAN: GoalPlan,
     Topic.RUN_SUMMARY: RunSummary,
 }
 
-LATCHED_TOPICS = (Topic.SIM_WORLD, Topic.DRIVE_PATH, Topic.MOTOR_STATE, Topic.DRIVE_OUTCOME, Topic.DRIVE_GOAL)
+LATCHED_TOPICS = (
+    Topic.SIM_WORLD,
+    Topic.DRIVE_PATH,
+    Topic.MOTOR_STATE,
+    Topic.DRIVE_OUTCOME,
+    Topic.DRIVE_GOAL,
+    Topic.DRIVE_MAP,
+    Topic.DRIVE_PLAN,
+)
 """Keys whose publisher also answers queries with its last message (a late viewer gets it at once)."""
 
 BODY_POSE_LENGTH = 12
@@ -333,6 +351,9 @@ class Keys:
     drive_outcome = property(lambda self: self.topic(Topic.DRIVE_OUTCOME))
     drive_goal = property(lambda self: self.topic(Topic.DRIVE_GOAL))
     drive_goal_feedback = property(lambda self: self.topic(Topic.DRIVE_GOAL_FEEDBACK))
+    drive_map = property(lambda self: self.topic(Topic.DRIVE_MAP))
+    drive_costmap = property(lambda self: self.topic(Topic.DRIVE_COSTMAP))
+    drive_plan = property(lambda self: self.topic(Topic.DRIVE_PLAN))
     drive_goal_send = property(lambda self: self.goal_method(GoalMethod.SEND))
     drive_goal_cancel = property(lambda self: self.goal_method(GoalMethod.CANCEL))
     run_summary = property(lambda self: self.topic(Topic.RUN_SUMMARY))

@@ -225,6 +225,56 @@ class PlannedPath(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         _require_finite(*(value for point in self.points for value in point))
 
 
+MAX_GRID_CELLS = 4_194_304
+"""The most cells an ``OccupancyGrid`` carries (2048 x 2048: 102 m square at 5 cm)."""
+OCCUPANCY_UNKNOWN = -1
+"""``OccupancyGrid.data``: a cell nobody has seen (stored as the byte 255)."""
+_OCCUPANCY_BYTES = bytes(range(101)) + bytes([255])
+
+
+class OccupancyGrid(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``drive/map`` and ``drive/costmap``: a grid of cells over the ``map`` frame (project extension;
+    nav_msgs/OccupancyGrid's fields). Cell (col, row) covers [origin_x + col·resolution, + resolution)
+    × [origin_y + row·resolution, + resolution); ``data`` is row-major from row 0 (the lowest y), one
+    signed byte a cell: 0 (free) to 100 (occupied, or a costmap's lethal cost), -1 unknown (the byte
+    255). JSON carries the bytes as base64."""
+
+    tm: Time
+    resolution: PositiveFloat
+    """Metres per cell side."""
+    width: Annotated[int, msgspec.Meta(ge=1)]
+    """Cells along x."""
+    height: Annotated[int, msgspec.Meta(ge=1)]
+    """Cells along y."""
+    origin_x: float
+    """The map-frame x of cell (0, 0)'s lower-left corner, m."""
+    origin_y: float
+    data: bytes
+
+    def __post_init__(self) -> None:
+        _require_finite(self.resolution, self.origin_x, self.origin_y)
+        cells = self.width * self.height
+        if cells > MAX_GRID_CELLS:
+            raise ValueError(f"{self.width} x {self.height} cells: more than {MAX_GRID_CELLS}")
+        if len(self.data) != cells:
+            raise ValueError(f"{len(self.data)} bytes of data for {self.width} x {self.height} cells")
+        if self.data.translate(None, _OCCUPANCY_BYTES):
+            raise ValueError("a cell is neither -1 (unknown) nor 0 to 100")
+
+
+class GoalPlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``drive/plan``: the path the drive's planner has for the running goal, from the robot to the
+    goal, (x, y) in m in ``map`` (project extension; nav_msgs/Path's poses), latched; published at
+    each plan and, empty, when the goal ends."""
+
+    tm: Time
+    goal_id: GoalId
+    points: Annotated[list[tuple[float, float]], msgspec.Meta(max_length=MAX_PATH_POINTS)]
+
+    def __post_init__(self) -> None:
+        _require_finite(*(value for point in self.points for value in point))
+
+
 class RunSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """``up/run``: what ``invent up`` knows of a run besides its data, published once at its end
     so that the recording holds everything its report is built from."""
@@ -425,4 +475,6 @@ MESSAGE_TYPES: tuple[type[msgspec.Struct], ...] = (
     CancelReply,
     GoalTarget,
     GoalFeedback,
+    OccupancyGrid,
+    GoalPlan,
 )

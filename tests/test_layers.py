@@ -53,6 +53,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.fleet\.(description|summary)", CORE),
     (r"services\.calibration\.(umbmark|measured|benchmark|settings)", CORE),
     (r"services\.goto\.core", CORE),
+    (r"services\.navigation\.(grid|map_file|rasterize|costmap|planner|tracker|navigator)", CORE),
     (r"services\.body\.geometry", CORE),
     (
         r"sim_bridge\.(simulator|robot|world|building|ray_world|sensors|latency|display|torque_policy|progress|status|"
@@ -70,7 +71,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.(cli|launch|recording)(\..*)?", TOOL),
     (r"services\.security(\..*)?", TOOL),
     (
-        r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration|body|goto|extension))",
+        r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration|body|goto|extension|navigation))",
         PACKAGE,
     ),
 )

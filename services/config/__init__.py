@@ -18,6 +18,7 @@ from services.config.loading import (
     parse_override,
     read_description,
 )
+from services.config.navigation import NavigationConfig
 from services.config.run_sections import (
     NAMESPACE,
     CpuChoice,
@@ -61,6 +62,7 @@ __all__ = [
     "GoalsConfig",
     "ImuConfig",
     "InputConfig",
+    "NavigationConfig",
     "LidarConfig",
     "LocalizationConfig",
     "MotorConfig",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import msgspec
 
-from services.config import run_sections, sections, sensors
+from services.config import navigation, run_sections, sections, sensors
 
 
 class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -21,6 +21,7 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     lidar: sensors.LidarConfig = msgspec.field(default_factory=sensors.LidarConfig)
     imu: sensors.ImuConfig = msgspec.field(default_factory=sensors.ImuConfig)
     collision_monitor: sensors.CollisionMonitorConfig = msgspec.field(default_factory=sensors.CollisionMonitorConfig)
+    navigation: navigation.NavigationConfig = msgspec.field(default_factory=navigation.NavigationConfig)
     ros2: run_sections.Ros2Config = msgspec.field(default_factory=run_sections.Ros2Config)
     record: run_sections.RecordConfig = msgspec.field(default_factory=run_sections.RecordConfig)
     rt: run_sections.RtConfig = msgspec.field(default_factory=run_sections.RtConfig)
