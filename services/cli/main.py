@@ -37,6 +37,7 @@ SUBCOMMANDS = (
     "replay",
     "up",
     "calibrate",
+    "map",
     "worker",
     "control",
     "service",

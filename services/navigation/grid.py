@@ -82,7 +82,9 @@ class GridGeometry:
             self.origin_y + (row + 0.5) * self.resolution,
         )
 
-    def cells_of(self, x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.intp], ...]:
+    def cells_of(
+        self, x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]
+    ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.bool_]]:
         """``(cols, rows, on_grid)`` of points given as arrays: their cells, and which lie on the grid
         (the cells of the others are clipped to the edge and mean nothing)."""
         cols = np.floor((x - self.origin_x) / self.resolution).astype(np.intp)
