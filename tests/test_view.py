@@ -40,6 +40,7 @@ from schemas.keys import Keys, Service, Topic, schema_for_key
 from schemas.messages import ImuSample, LaserScan, Time, TimedDoubleSeq
 from services.config import Config
 from services.exits import ExitStatus
+from services.recording.navigation_scene import COSTMAP_TOPIC, MAP_TOPIC
 from services.recording.scene import (
     LIDAR_FRAME,
     LOCALIZATION_TOPIC,
@@ -86,7 +87,16 @@ SUBSCRIBED = {
 """The channels the client subscribes to, and the schema each must have (None: schemaless)."""
 
 
-SCENE_TOPICS = (TRANSFORMS_TOPIC, ODOMETRY_TOPIC, LOCALIZATION_TOPIC, SCENE_TOPIC, WHEEL_SPEEDS_TOPIC, SCAN_TOPIC)
+SCENE_TOPICS = (
+    TRANSFORMS_TOPIC,
+    ODOMETRY_TOPIC,
+    LOCALIZATION_TOPIC,
+    SCENE_TOPIC,
+    WHEEL_SPEEDS_TOPIC,
+    SCAN_TOPIC,
+    MAP_TOPIC,
+    COSTMAP_TOPIC,
+)
 
 
 def served_topics(keys: Keys) -> frozenset[str]:
@@ -277,7 +287,15 @@ def test_the_layout_names_only_what_the_view_serves() -> None:
 
     three_d = _panel(layout, "3D")
     assert three_d["followTf"] == ROBOT_FRAME and three_d["fixedFrame"] == WORLD_FRAME
-    assert set(three_d["topics"]) == {SCENE_TOPIC, TRANSFORMS_TOPIC, ODOMETRY_TOPIC, LOCALIZATION_TOPIC, SCAN_TOPIC}
+    assert set(three_d["topics"]) == {
+        SCENE_TOPIC,
+        TRANSFORMS_TOPIC,
+        ODOMETRY_TOPIC,
+        LOCALIZATION_TOPIC,
+        SCAN_TOPIC,
+        MAP_TOPIC,
+        COSTMAP_TOPIC,
+    }
 
     served = served_topics(KEYS)
     paths = _layout_paths(layout)

@@ -9,7 +9,10 @@ opened in Foxglove shows the scene the live view showed:
 - ``/scene`` (``foxglove.SceneUpdate``): the robot (body, wheels, casters) on ``base_link``, the
   world's obstacles, the planned path, the trails of ground truth and odometry, and in goal mode
   the drive's goals: the running one's pose, tolerances and progress, the path driven to it, the
-  ended ones with their outcomes (:mod:`services.recording.goal_scene`);
+  ended ones with their outcomes (:mod:`services.recording.goal_scene`), and the running goal's
+  plan (``drive/plan``, entity ``plan``: drawn as the planned path is, in violet);
+- ``/map`` and ``/costmap`` (``foxglove.Grid`` in ``world``): the drive's map (``drive/map``) and
+  costmap (``drive/costmap``), one ``INT8`` field a cell (:mod:`services.recording.navigation_scene`);
 - ``/plot/wheel_speeds`` (JSON): commanded and measured wheel speeds, rad/s;
 - ``/scan`` (``foxglove.LaserScan``): every lidar scan (``sim/scan``, at ``lidar.rate``: 10 Hz)
   in the lidar's frame ``base_scan``, which ``/tf`` places on ``base_link`` at the ``[lidar]``
@@ -17,11 +20,15 @@ opened in Foxglove shows the scene the live view showed:
 
 Poses and transforms are shown at most every :data:`POSE_PERIOD_NS` of simulation time, the
 scene every :data:`SCENE_PERIOD_NS` (the loop publishes at its step rate, kHz, which no viewer
-needs); a scan is shown as it comes, at its own rate. A trail keeps a point every :data:`TRAIL_SPACING_M`, the newest :data:`TRAIL_POINTS`. Each
+needs); a scan is shown as it comes, at its own rate; the costmap as it comes, at most every
+:data:`~services.recording.navigation_scene.COSTMAP_PERIOD_NS`, and the map (published once) again
+every :data:`~services.recording.navigation_scene.MAP_PERIOD_NS`, for a client that joins a live
+view late. A trail keeps a point every :data:`TRAIL_SPACING_M`, the newest :data:`TRAIL_POINTS`. Each
 scene update carries the whole scene (a viewer that seeks, or joins late, needs only the last one),
 so what bounds a recording's growth is the trail's length: the scene costs at most about 30 kB per
 update however long the run (benchmarks/README.md, "What recording costs"), about 42 kB with a
-goal's path full and the ended goals drawn (tests/test_goal_scene.py).
+goal's path full and the ended goals drawn (tests/test_goal_scene.py); a goal's plan adds about
+29 bytes a point drawn, at most 15 kB (tests/test_navigation_scene.py).
 """
 
 from __future__ import annotations
@@ -55,6 +62,7 @@ from schemas.keys import Topic
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
     GoalFeedback,
+    GoalPlan,
     GoalTarget,
     ScenarioOutcome,
     SimWorld,
@@ -67,6 +75,7 @@ from schemas.messages import LaserScan as ScanMessage
 from services.body.geometry import robot_body
 from services.config import CalibratedGeometry, LidarConfig, OdometryConfig, RobotConfig, SimConfig
 from services.recording.goal_scene import GoalDrawing
+from services.recording.navigation_scene import COSTMAP_TOPIC, MAP_TOPIC, NavigationDrawing
 from services.recording.report import pose_from_body_pose
 
 WORLD_FRAME = "world"
@@ -105,6 +114,8 @@ _BODY = Color(r=0.85, g=0.85, b=0.9, a=0.8)
 _WHEEL = Color(r=0.15, g=0.15, b=0.15, a=1.0)
 _OBSTACLE = Color(r=0.8, g=0.4, b=0.2, a=0.9)
 _PATH = Color(r=0.2, g=0.5, b=1.0, a=1.0)
+PLAN_COLOR = Color(r=0.7, g=0.3, b=0.95, a=1.0)
+"""The running goal's plan (``drive/plan``): violet, where the scenario's planned path is blue."""
 _TRUTH = Color(r=0.1, g=0.7, b=0.2, a=1.0)
 _ODOMETRY = Color(r=0.9, g=0.2, b=0.2, a=1.0)
 _UPRIGHT = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
@@ -168,8 +179,9 @@ class Scene:
     """The Foxglove messages of one robot's loop; see the module docstring. In a fleet
     (``fleet=True``) every name is the robot's own, so several scenes share one recording or view:
     its frame ``<robot>/base_link``, its topics ``/<robot>/odometry/pose``, ... and its entities
-    ``<robot>/robot``, ``<robot>/planned_path``, ``<robot>/trails``, ``<robot>/goal``, ... (``/tf``
-    and ``/scene`` are shared; the obstacles are the world's, one entity)."""
+    ``<robot>/robot``, ``<robot>/planned_path``, ``<robot>/trails``, ``<robot>/goal``, ``<robot>/plan``,
+    ... and its grids ``/<robot>/map``, ``/<robot>/costmap`` (``/tf`` and ``/scene`` are shared;
+    the obstacles are the world's, one entity)."""
 
     def __init__(
         self,
@@ -191,11 +203,11 @@ class Scene:
         self._lidar = lidar or LidarConfig()
         self._ids = {
             entity: prefix + entity
-            for entity in ("robot", "planned_path", "trails", "goal", "goal_path", "goals_ended")
+            for entity in ("robot", "planned_path", "trails", "goal", "goal_path", "goals_ended", "plan")
         }
         self.topics = {
             topic: f"/{prefix}{topic.lstrip('/')}"
-            for topic in (ODOMETRY_TOPIC, LOCALIZATION_TOPIC, WHEEL_SPEEDS_TOPIC, SCAN_TOPIC)
+            for topic in (ODOMETRY_TOPIC, LOCALIZATION_TOPIC, WHEEL_SPEEDS_TOPIC, SCAN_TOPIC, MAP_TOPIC, COSTMAP_TOPIC)
         }
         self._robot_entity = _robot_entity(robot, sim)
         self._cylinders: list[CylinderPrimitive] = []
@@ -204,6 +216,7 @@ class Scene:
         self._truth = _Trail()
         self._odometry = _Trail()
         self.goals = GoalDrawing(self._ids, GOAL_PATH_SPACING_M, GOAL_PATH_POINTS)
+        self.navigation = NavigationDrawing(self.topics, WORLD_FRAME, timestamp)
         self._next_transform_ns = 0
         self._next_odometry_ns = 0
         self._next_scene_ns = 0
@@ -223,6 +236,10 @@ class Scene:
             return self._wheel_angles(message)
         if topic is Topic.SIM_SCAN:
             return self._scan(message)
+        if topic is Topic.DRIVE_MAP:
+            return self.navigation.map(message)
+        if topic is Topic.DRIVE_COSTMAP:
+            return self.navigation.costmap(message)
         if topic is Topic.DRIVE_TARGET_VELOCITY:
             self._target(message)
         elif topic is Topic.SIM_WORLD:
@@ -236,7 +253,14 @@ class Scene:
             self._goal_feedback(message)
         elif topic is Topic.DRIVE_OUTCOME:
             self._outcome(message)
+        elif topic is Topic.DRIVE_PLAN:
+            self._plan(message)
         return []
+
+    def _plan(self, message: GoalPlan) -> None:
+        """Drawn at once (with the next ground truth), as a new path is."""
+        self.navigation.set_plan(message.points)
+        self._scene_changed = True
 
     def _goal(self, message: GoalTarget) -> None:
         self.goals.start(message)
@@ -273,6 +297,7 @@ class Scene:
             self._next_scene_ns = stamp_ns + SCENE_PERIOD_NS
             self._scene_changed = False
             shown.append((SCENE_TOPIC, self._scene_update(message.tm)))
+        shown += self.navigation.tick(message.tm)
         return shown
 
     def _odometry_pose(self, message: TimedPosition) -> list[tuple[str, Any]]:
@@ -361,9 +386,23 @@ class Scene:
         ]
         self._scene_changed = True
 
+    def _path_entity(
+        self, stamp: Timestamp, entity: str, points: list[tuple[float, float]], color: Color
+    ) -> SceneEntity:
+        """A path on the ground of the world (the scenario's planned path, a goal's plan), 5 mm up;
+        no points, an empty entity (a viewer that seeks back before it shows none)."""
+        path = [Point3(x=x, y=y, z=0.005) for x, y in points]
+        return SceneEntity(
+            timestamp=stamp,
+            frame_id=WORLD_FRAME,
+            id=self._ids[entity],
+            lines=[LinePrimitive(pose=foxglove_pose(0.0, 0.0, 0.0), thickness=0.01, points=path, color=color)]
+            if path
+            else [],
+        )
+
     def _scene_update(self, tm: Time) -> SceneUpdate:
         stamp = timestamp(tm)
-        path = [Point3(x=x, y=y, z=0.005) for x, y in self._path]
         entities = [
             SceneEntity(
                 timestamp=stamp, frame_id=self.frame, id=self._ids["robot"], frame_locked=True, **self._robot_entity
@@ -371,14 +410,7 @@ class Scene:
             SceneEntity(
                 timestamp=stamp, frame_id=WORLD_FRAME, id="obstacles", cubes=self._cubes, cylinders=self._cylinders
             ),
-            SceneEntity(
-                timestamp=stamp,
-                frame_id=WORLD_FRAME,
-                id=self._ids["planned_path"],
-                lines=[LinePrimitive(pose=foxglove_pose(0.0, 0.0, 0.0), thickness=0.01, points=path, color=_PATH)]
-                if path
-                else [],
-            ),
+            self._path_entity(stamp, "planned_path", self._path, _PATH),
             SceneEntity(
                 timestamp=stamp,
                 frame_id=WORLD_FRAME,
@@ -386,6 +418,7 @@ class Scene:
                 lines=[self._truth.line(_TRUTH), self._odometry.line(_ODOMETRY)],
             ),
             *self.goals.entities(stamp, WORLD_FRAME),
+            self._path_entity(stamp, "plan", self.navigation.plan, PLAN_COLOR),
         ]
         return SceneUpdate(entities=entities)
 

@@ -55,10 +55,12 @@ ALWAYS_KEPT = tuple(
         Topic.SIM_WORLD,
         Topic.MOTOR_STATE,
         Topic.SIM_BUMP,
+        Topic.DRIVE_MAP,
     )
 )
 """Keys (by suffix) a stopped journal still keeps: a few samples per run, what says how it ended
-(each goal of a goal-mode run too: its outcome names it, ``drive/goal`` says where it was)."""
+(each goal of a goal-mode run too: its outcome names it, ``drive/goal`` says where it was), and the
+map goals navigate on."""
 MB = 1_000_000
 
 
