@@ -179,7 +179,9 @@ def test_the_stop_zone_lies_within_the_slow_down_zone(vx, w, x, y):
 
 
 def monitor(**settings: object) -> CollisionMonitor:
-    return CollisionMonitor(RobotConfig(), LidarConfig(), CollisionMonitorConfig(**settings), NS)
+    """A monitor that acts on any point (``min_points`` 1 unless given): these scans have one ray
+    (tests/test_collision_min_points.py tests the default)."""
+    return CollisionMonitor(RobotConfig(), LidarConfig(), CollisionMonitorConfig(**{"min_points": 1, **settings}), NS)
 
 
 def test_a_monitor_without_a_scan_never_holds():

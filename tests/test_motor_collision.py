@@ -1,6 +1,7 @@
 """``invent motor``'s collision monitor in its own process over real zenoh, with hand-fed scans
-(docs/protocol.md section 4.10): the hold, its release, the slow-down, the stale-scan hold, bad
-scans, the order of a step's scan and wheel angles, and the off switches (never a scan, disabled).
+(docs/protocol.md section 4.10): the hold, its release, the slow-down, ``min_points`` (one point
+fewer does not hold), the stale-scan hold, bad scans, the order of a step's scan and wheel angles,
+and the off switches (never a scan, disabled).
 
 The torques are checked against a mirror MotorCore whose own CollisionMonitor is fed the same
 scans, as tests/test_motor_service.py checks the control law.
@@ -28,6 +29,9 @@ ROBOT, DISABLED_ROBOT = "col1", "col2"
 CONFIG = load_config(overrides={"robot.name": ROBOT, **OVERRIDES})
 DISABLED = {**OVERRIDES, "collision_monitor.enabled": False}
 RAYS = 360
+MIN_POINTS = CONFIG.collision_monitor.min_points
+FACE_RAYS = MIN_POINTS + 1
+"""The rays a box's face ahead takes in these scans: more than the hold needs."""
 BOX_HELD_BY = "obstacle 'box' in the stop zone, 0.31 m ahead at (0.76, 0.00) in base_link"
 
 
@@ -38,21 +42,28 @@ def flags(overrides: dict[str, Any]) -> list[str]:
     )
 
 
-def ranges_ahead(distance: float | None) -> list[float | None]:
-    """A scan of :data:`RAYS` rays all round (ray 0 backwards) whose ray straight ahead sees ``distance``."""
+def ranges_ahead(distance: float | None, face: int = FACE_RAYS) -> list[float | None]:
+    """A scan of :data:`RAYS` rays all round (ray 0 backwards) whose ``face`` rays about straight
+    ahead see a box's face across the path ``distance`` ahead (the ray straight ahead first), and
+    whose 20 rays about straight behind see a wall 2 m behind, outside every zone here: the points
+    ahead are judged among more than ``min_points``."""
     ranges: list[float | None] = [None] * RAYS
-    ranges[RAYS // 2] = distance
+    for offset in range(-10, 10):
+        ranges[offset % RAYS] = 2.0 / math.cos(offset * 2 * math.pi / RAYS)
+    for k in range(face):  # rays 0, +1, -1, +2, -2, ... from straight ahead
+        offset = (k + 1) // 2 * (1 if k % 2 else -1)
+        ranges[RAYS // 2 + offset] = None if distance is None else distance / math.cos(offset * 2 * math.pi / RAYS)
     return ranges
 
 
-def laser_scan(stamp_ns: int, distance: float | None, **fields: Any) -> LaserScan:
+def laser_scan(stamp_ns: int, distance: float | None, face: int = FACE_RAYS, **fields: Any) -> LaserScan:
     return LaserScan(
         Time.from_nanoseconds(stamp_ns),
         angle_min=-math.pi,
         angle_increment=2 * math.pi / RAYS,
         range_min=0.12,
         range_max=3.5,
-        ranges=ranges_ahead(distance),
+        ranges=ranges_ahead(distance, face),
         bodies=["box"],
         hits=[0] * RAYS,
         **fields,
@@ -83,12 +94,15 @@ class ScanLink(MotorLink):
     def collision(self) -> dict[str, Any]:
         return self.status()["collision_monitor"]
 
-    def scan(self, distance: float | None, wait: bool = True, stamp_ns: int | None = None) -> None:
-        """Publish a scan stamped at the last wheel sample's time (or ``stamp_ns``); ``wait``: until taken."""
+    def scan(
+        self, distance: float | None, wait: bool = True, stamp_ns: int | None = None, face: int = FACE_RAYS
+    ) -> None:
+        """Publish a scan stamped at the last wheel sample's time (or ``stamp_ns``), a box's face of
+        ``face`` rays ``distance`` ahead; ``wait``: until taken."""
         if stamp_ns is None:  # after the last scan, as the service takes them
             stamp_ns = max(self.time_ns, self.last_scan_ns + 1)
         self.last_scan_ns = stamp_ns
-        message = laser_scan(stamp_ns, distance)
+        message = laser_scan(stamp_ns, distance, face)
         seen = self.collision()["counters"]["scans"] if wait else 0
         self.scan_publisher.put(encode(message))
         if wait:
@@ -179,6 +193,24 @@ def test_an_obstacle_in_the_stop_zone_holds_and_a_clear_scan_releases(link):
     cycles(link, 7, 2)
     assert link.status()["command"] == {"vx": 0.5, "w": 0.0}, "not latched: it drives on"
     assert last_state(link, "").state == "running"
+
+
+def test_one_point_fewer_than_min_points_in_the_stop_zone_does_not_hold_and_min_points_do(link):
+    assert MIN_POINTS > 1, "the default: a stray return does not hold"
+    link.reset(vx=0.5, w=0.0)
+    link.scan(None)
+    holds = link.collision()["counters"]["holds"]
+    link.scan(0.76, face=MIN_POINTS - 1)
+    cycles(link, 1, 3)
+    collision = link.collision()
+    assert link.status()["command"] == {"vx": 0.5, "w": 0.0}, "not held, not slowed"
+    assert collision["zone"] == "clear" and collision["held_by"] == "" and collision["counters"]["holds"] == holds
+    assert collision["min_points"] == MIN_POINTS
+    link.scan(0.76, face=MIN_POINTS)
+    cycles(link, 4, 3)
+    collision = link.collision()
+    assert link.status()["command"] == {"vx": 0.0, "w": 0.0}
+    assert collision["held_by"] == BOX_HELD_BY and collision["counters"]["holds"] == holds + 1
 
 
 def test_backing_away_from_the_obstacle_is_not_held(link):

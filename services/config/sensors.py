@@ -128,6 +128,17 @@ class CollisionMonitorConfig(Section, frozen=True):
     scan_timeout: Annotated[Positive, SIMULATED_SECONDS] = 0.5
     """Once scans have come, a scan older than this (against the wheel-angle time) holds the
     robot: no data, no motion."""
+    min_points: Annotated[int, msgspec.Meta(ge=1)] = 4
+    """How many of a scan's points must lie in a zone for it to act (Nav2's ``min_points``, whose
+    default is 4 too): fewer in the stop zone do not hold the robot, fewer in the slow-down zone do
+    not slow it, so that a stray return (range noise on something just outside the zone) does not
+    stop it; 1 acts on any point. Why 4: the stop zone reaches at most ``stop_distance`` + the
+    footprint's radius = 0.9 m from the default lidar (straight ahead), where its 360 rays are 1°,
+    16 mm, apart, so the thinnest obstacle a robot must see, a post 0.1 m across, takes 6 or 7 rays
+    there; 4 of them lie in the zone 1.2 cm of travel after the first does (2.4 cm for a post that
+    would just graze the body's side): the hold comes at most that much later than on one point,
+    within the 6 cm the defaults leave above. 5 or 6 would take up to 3.5 or 6 cm, all of it; a
+    thinner obstacle, sparser rays or a zone reaching further from the lidar need a smaller value."""
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -5,8 +5,9 @@ per control cycle.
 A scan becomes points in the base frame (:class:`ScanPoints`, through the lidar's mount); a
 commanded body velocity (vx, w) sweeps the footprint, a circle of radius ``body + margin`` about
 the axle centre, along the arc its centre follows for a given length (:func:`in_swept_zone`);
-:func:`judge` says whether a point lies in the stop zone (``stop_distance`` of sweep), else in the
-slow-down zone (``slow_distance``), else the way is clear.
+:func:`judge` says whether at least ``min_points`` points lie in the stop zone (``stop_distance`` of
+sweep), else in the slow-down zone (``slow_distance``), else the way is clear: fewer, a stray return
+or two, do not act (Nav2's ``min_points``).
 
 The swept zone is exact: a point is in it when its distance to the centre's path (an arc of
 radius ρ = vx/w about (0, ρ), or a segment when w ≈ 0) is at most the footprint's radius, i.e.
@@ -53,6 +54,13 @@ class MonitorGeometry:
     lidar_x: float = 0.0
     lidar_y: float = 0.0
     lidar_yaw: float = 0.0
+    min_points: int = 1
+    """How many points in a zone make it act (``collision_monitor.min_points``); 1, any point, in a
+    geometry built by hand."""
+
+    def __post_init__(self) -> None:
+        if self.min_points < 1:
+            raise ValueError(f"min_points = {self.min_points} must be at least 1")
 
     @classmethod
     def of(cls, robot: RobotConfig, lidar: LidarConfig, monitor: CollisionMonitorConfig) -> MonitorGeometry:
@@ -64,6 +72,7 @@ class MonitorGeometry:
             lidar.x,
             lidar.y,
             lidar.yaw,
+            monitor.min_points,
         )
 
     @property
@@ -156,7 +165,8 @@ def in_swept_zone(x: Floats, y: Floats, vx: float, w: float, radius: float, leng
 
 @dataclass(frozen=True)
 class Verdict:
-    """What the scan says of a command: its zone and, unless clear, the nearest point in that zone."""
+    """What the scan says of a command: its zone and, unless clear, the nearest of the points in
+    that zone (at least ``min_points`` of them)."""
 
     zone: Zone
     obstacle: Obstacle | None = None
@@ -178,16 +188,18 @@ CLEAR = Verdict(Zone.CLEAR)
 
 
 def judge(points: ScanPoints, vx: float, w: float, geometry: MonitorGeometry) -> Verdict:
-    """The zone of the command (vx, w) given the scan's ``points``: ``stop`` if a point lies in the
-    stop zone, else ``slow`` if one lies in the slow-down zone (when ``slow_distance`` > 0), else
-    ``clear``; a zero command is always clear (nothing moves)."""
-    if (vx == 0.0 and w == 0.0) or len(points) == 0:
+    """The zone of the command (vx, w) given the scan's ``points``: ``stop`` if at least
+    ``geometry.min_points`` points lie in the stop zone, else ``slow`` if as many lie in the
+    slow-down zone (when ``slow_distance`` > 0; it holds the stop zone, so the points in that count
+    too), else ``clear``; a zero command is always clear (nothing moves)."""
+    min_points = geometry.min_points
+    if (vx == 0.0 and w == 0.0) or len(points) < min_points:
         return CLEAR
     radius = geometry.footprint_radius
     for zone, length in ((Zone.STOP, geometry.stop_distance), (Zone.SLOW, geometry.slow_distance)):
         if zone is Zone.SLOW and length <= 0.0:
             break
         mask = in_swept_zone(points.x, points.y, vx, w, radius, length)
-        if mask.any():
+        if np.count_nonzero(mask) >= min_points:
             return Verdict(zone, points.nearest(mask))
     return CLEAR

@@ -2,8 +2,9 @@
 
 :class:`CollisionMonitor` takes the scans (:meth:`~CollisionMonitor.take_scan`, bad ones raise
 BadInput and change nothing; each applies from the first control cycle stamped after it) and, at every control cycle, gives the factor the command is
-multiplied by (:meth:`~CollisionMonitor.factor`): 0 while held (an obstacle in the stop zone, or
-no scan for ``scan_timeout``), ``slow_factor`` while an obstacle is in the slow-down zone, else 1.
+multiplied by (:meth:`~CollisionMonitor.factor`): 0 while held (``min_points`` of the scan's points
+in the stop zone, or no scan for ``scan_timeout``), ``slow_factor`` while as many are in the
+slow-down zone, else 1.
 The geometry (services/motor/collision.py, numpy) runs only when a scan arrives or the command
 changes; a cycle otherwise compares two floats and a stamp. A hold is not latched: it ends with its
 cause, and is not a state of the Motor state machine (the motor stays ``running``).
@@ -161,6 +162,7 @@ class CollisionMonitor:
             "slow_factor": settings.slow_factor,
             "margin": settings.margin,
             "scan_timeout": settings.scan_timeout,
+            "min_points": settings.min_points,
             "monitoring": self.scan_ns is not None,
             "held_by": self.held_by,
             "zone": str(self.verdict.zone),
