@@ -19,6 +19,7 @@ import json
 import os
 import queue
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -194,12 +195,12 @@ def _ros_names(value: Any) -> Any:
     return value
 
 
-def _action_typestore() -> Any:
-    """A rosbags typestore holding every type of :data:`ACTION_DESCRIPTIONS`, built from the
-    descriptions alone (not from the bridge's definitions), and the hashes ROS computed."""
+def _typestore(descriptions: tuple[Path, ...]) -> Any:
+    """A rosbags typestore holding every type of ``descriptions``, built from the descriptions
+    alone (not from the bridge's definitions), and the hashes ROS computed."""
     store = get_typestore(Stores.EMPTY)
     hashes: dict[str, str] = {}
-    for path in ACTION_DESCRIPTIONS:
+    for path in descriptions:
         content = json.loads(path.read_text())
         message = content["type_description_msg"]
         for description in (message["type_description"], *message["referenced_type_descriptions"]):
@@ -211,7 +212,7 @@ def _action_typestore() -> Any:
     return store, hashes
 
 
-ACTION_TYPESTORE, ROS_HASHES = _action_typestore()
+ACTION_TYPESTORE, ROS_HASHES = _typestore(ACTION_DESCRIPTIONS)
 """What a ROS node of Jazzy knows of NavigateToPose and action_msgs: their types and RIHS01 hashes."""
 NAVIGATE = "nav2_msgs/action/NavigateToPose"
 STATUS_CODES = {
@@ -370,15 +371,22 @@ def graph_tokens(session: zenoh.Session, domain: int) -> list[list[str]]:
     return [str(reply.ok.key_expr).split("/") for reply in replies if reply.ok is not None]
 
 
-def cached_samples(session: zenoh.Session, domain: int, topics: dict[str, str], timeout: float) -> dict[str, bytes]:
+def cached_samples(
+    session: zenoh.Session,
+    domain: int,
+    topics: dict[str, str],
+    timeout: float,
+    key_of: Callable[[int, str, str], str] = topic_key,
+) -> dict[str, bytes]:
     """The first sample of each transient-local topic (name -> its type), as a ROS node started
     after its only publication gets it: from the publisher's cache, rmw_zenoh's way (an advanced
-    subscriber that detects late publishers)."""
+    subscriber that detects late publishers). ``key_of(domain, topic, type)``: the topic's key
+    (:func:`nav_key` for ROS's shipped hashes)."""
     received: dict[str, list[bytes]] = {topic: [] for topic in topics}
     subscribers = [
         zenoh.ext.declare_advanced_subscriber(
             session,
-            topic_key(domain, topic, name),
+            key_of(domain, topic, name),
             lambda sample, t=topic: received[t].append(sample.payload.to_bytes()),
             history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
         )
@@ -390,6 +398,29 @@ def cached_samples(session: zenoh.Session, domain: int, topics: dict[str, str], 
         for subscriber in subscribers:
             subscriber.undeclare()
     return {topic: samples[0] for topic, samples in received.items()}
+
+
+# -- the map, costmap and plan: nav_msgs, from the type descriptions ROS ships -------------------
+
+NAV_DESCRIPTIONS = (
+    INTERFACES / "nav_msgs" / "msg" / "OccupancyGrid.json",
+    INTERFACES / "nav_msgs" / "msg" / "Path.json",
+)
+"""The type descriptions of nav_msgs/msg/OccupancyGrid and Path that ROS ships (the ``ros-nav-msgs``
+wheel: tests/data/ros2_interfaces/README.md)."""
+NAV_TYPESTORE, NAV_HASHES = _typestore(NAV_DESCRIPTIONS)
+"""What a ROS node of Jazzy knows of OccupancyGrid and Path (and the types they hold): their types
+and RIHS01 hashes, as RViz's Map and Path displays and Nav2's nodes subscribe them."""
+
+
+def nav_key(domain: int, topic: str, name: str) -> str:
+    """The key of ``topic`` of type ``name`` (``nav_msgs/msg/OccupancyGrid``) with ROS's shipped hash."""
+    package, kind, type_name = name.split("/")
+    return f"{domain}/{topic.strip('/')}/{package}::{kind}::dds_::{type_name}_/{NAV_HASHES[name]}"
+
+
+def nav_decode(data: bytes, name: str) -> Any:
+    return NAV_TYPESTORE.deserialize_cdr(data, name)
 
 
 def trigger_response(data: bytes) -> tuple[bool, str]:

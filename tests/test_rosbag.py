@@ -193,6 +193,9 @@ def test_a_namespaced_bridges_tf_is_in_its_namespace_or_prefixed_on_the_shared_t
         "robot_description": "/rh1/robot_description",
         "scan": "/rh1/scan",
         "imu": "/rh1/imu",
+        "map": "/rh1/map",
+        "costmap": "/rh1/global_costmap/costmap",
+        "plan": "/rh1/plan",
     }, "no /clock: another bridge publishes it; the sensors in the namespace"
     outputs = RosOutputs(config, bridge)
     prefix = "rh1/" if shared else ""

@@ -39,7 +39,15 @@ from ruamel.yaml import YAML
 
 from schemas.codec import BadInput, decode
 from schemas.keys import Keys, Topic, parse_data_key
-from schemas.messages import NANOSECONDS_PER_SECOND, ImuSample, LaserScan, TimedDoubleSeq, TimedPosition
+from schemas.messages import (
+    NANOSECONDS_PER_SECOND,
+    GoalPlan,
+    ImuSample,
+    LaserScan,
+    OccupancyGrid,
+    TimedDoubleSeq,
+    TimedPosition,
+)
 from services.config import Config, RecordConfig
 from services.recording.mcap_files import read_run
 from services.ros2 import interfaces, wire
@@ -88,7 +96,7 @@ def topic_of_key(key: str) -> BagTopic:
     BadInput for a key of another layout, type or hash, or a topic no bridge publishes."""
     _domain, name, interface, type_hash = wire.parse_data_key(key)
     entity = next(
-        (e for e in PUBLICATIONS.values() if e.interface == interface and name.rsplit("/", 1)[-1] == e.name.strip("/")),
+        (e for e in PUBLICATIONS.values() if e.interface == interface and name.endswith(f"/{e.name.strip('/')}")),
         None,
     )
     if entity is None:
@@ -371,6 +379,9 @@ def export_run(
             handlers[keys[name].motor_torque] = (name, bridge, TimedDoubleSeq, robot_outputs.take_torque)
             handlers[keys[name].sim_scan] = (name, bridge, LaserScan, robot_outputs.take_scan)
             handlers[keys[name].sim_imu] = (name, bridge, ImuSample, robot_outputs.take_imu)
+            handlers[keys[name].drive_map] = (name, bridge, OccupancyGrid, robot_outputs.take_map)
+            handlers[keys[name].drive_costmap] = (name, bridge, OccupancyGrid, robot_outputs.take_costmap)
+            handlers[keys[name].drive_plan] = (name, bridge, GoalPlan, robot_outputs.take_plan)
         for recorded in read.messages:
             handler = handlers.get(recorded.topic)
             if handler is None:

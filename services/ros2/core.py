@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from schemas.codec import BadInput
-from schemas.messages import NANOSECONDS_PER_SECOND, TimedDoubleSeq, TimedPosition
+from schemas.messages import NANOSECONDS_PER_SECOND, GoalPlan, OccupancyGrid, TimedDoubleSeq, TimedPosition
 from services.body.geometry import RobotBody
 from services.config import Config, Ros2Config
 from services.motor.core import check_target_velocity
@@ -82,6 +82,81 @@ def clock(stamp_ns: int) -> Any:
 
 def string(text: str) -> Any:
     return interfaces.message_class(interfaces.STRING)(data=text)
+
+
+def planar_pose(x: float, y: float, theta: float = 0.0) -> Any:
+    """geometry_msgs/Pose at (x, y, 0), turned by ``theta`` about z."""
+    return interfaces.message_class("geometry_msgs/msg/Pose")(
+        position=vector(x, y, 0.0, kind="Point"), orientation=yaw_rotation(theta)
+    )
+
+
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def occupancy_grid(grid: OccupancyGrid, frame: str, load_time_ns: int = 0) -> Any:
+    """nav_msgs/OccupancyGrid of ``grid`` in ``frame``, stamped with its ``tm``: ``info.origin`` at
+    (``origin_x``, ``origin_y``, 0) with the identity orientation, the cells as they are (row-major
+    from the lowest-y row, the byte 255 as -1: nav_msgs' order and int8), ``info.map_load_time``
+    ``load_time_ns`` (map_server's the map's; Nav2's costmap leaves it 0). BadInput for a resolution
+    that ROS's float32 holds as no positive number."""
+    resolution = grid.resolution
+    if not 0.0 < resolution <= _FLOAT32_MAX or np.float32(resolution) == 0.0:
+        raise BadInput(f"resolution {resolution} m is no positive float32")
+    stamp_ns = grid.tm.to_nanoseconds()
+    return interfaces.message_class(interfaces.OCCUPANCY_GRID)(
+        header=header(stamp_ns, frame),
+        info=interfaces.message_class("nav_msgs/msg/MapMetaData")(
+            map_load_time=ros_time(load_time_ns),
+            resolution=float(np.float32(resolution)),
+            width=grid.width,
+            height=grid.height,
+            origin=planar_pose(grid.origin_x, grid.origin_y),
+        ),
+        data=np.frombuffer(grid.data, dtype=np.int8),
+    )
+
+
+PATH_POINTS_APART = 1e-4
+"""m: two points of a plan closer than this along both x and y give no direction (Nav2's smoother's rule)."""
+
+
+def path_headings(points: list[tuple[float, float]]) -> list[float]:
+    """The heading along a path at each of its points, as Nav2's planners orient their plans: the
+    direction to the next point (one apart from it, :data:`PATH_POINTS_APART`), the last point's the
+    direction it is reached in (Nav2's ``use_final_approach_orientation``: a plan has no goal
+    heading here). 0 for a path with no two points apart."""
+    count = len(points)
+    headings: list[float | None] = [None] * count
+    following: float | None = None
+    for index in range(count - 2, -1, -1):
+        (x0, y0), (x1, y1) = points[index], points[index + 1]
+        if abs(x1 - x0) >= PATH_POINTS_APART or abs(y1 - y0) >= PATH_POINTS_APART:
+            following = math.atan2(y1 - y0, x1 - x0)
+        headings[index] = following
+    approach = 0.0
+    for index in range(count):
+        heading = headings[index]
+        if heading is None:
+            headings[index] = approach
+        else:
+            approach = heading
+    return [0.0 if heading is None else heading for heading in headings]
+
+
+def path(plan: GoalPlan, frame: str) -> Any:
+    """nav_msgs/Path of ``plan`` in ``frame``, stamped with its ``tm``: each point a
+    geometry_msgs/PoseStamped with the same header, oriented along the path
+    (:func:`path_headings`); no poses for an empty plan (the goal ended)."""
+    stamp_ns = plan.tm.to_nanoseconds()
+    stamped = interfaces.message_class("geometry_msgs/msg/PoseStamped")
+    return interfaces.message_class(interfaces.PATH)(
+        header=header(stamp_ns, frame),
+        poses=[
+            stamped(header=header(stamp_ns, frame), pose=planar_pose(x, y, heading))
+            for (x, y), heading in zip(plan.points, path_headings(plan.points), strict=True)
+        ],
+    )
 
 
 def compose(a: Pose, b: Pose) -> Pose:

@@ -39,8 +39,17 @@ PUBLICATIONS: dict[str, Entity] = {
     "robot_description": Entity("robot_description", interfaces.STRING, wire.LATCHED),
     "scan": Entity("scan", interfaces.LASER_SCAN, wire.SENSOR_DATA),
     "imu": Entity("imu", interfaces.IMU, wire.SENSOR_DATA),
+    "map": Entity("map", interfaces.OCCUPANCY_GRID, wire.LATCHED),
+    "costmap": Entity("global_costmap/costmap", interfaces.OCCUPANCY_GRID, wire.LATCHED),
+    "plan": Entity("plan", interfaces.PATH, wire.PLAN),
 }
 """Every topic a bridge may publish, by its short name; :attr:`BridgeGraph.publications` are one bridge's."""
+NAVIGATION_TOPICS = ("map", "costmap", "plan")
+"""The drive's map, costmap and plan (``drive/map``, ``drive/costmap``, ``drive/plan``), named as
+Nav2's map_server, global costmap and planner_server name theirs, in the bridge's namespace. Each is
+declared (its publisher and its token) when the drive first publishes its key: a bridge whose robot
+has no navigating drive (``--teleop``, a scenario) offers none of them, and leaves the names to a
+Nav2 of one's own."""
 SENSOR_TOPICS = ("scan", "imu")
 """Published only by the bridge of a robot with that sensor (``lidar.enabled``, ``imu.enabled``)."""
 TF_TOPICS = ("tf", "tf_static")
@@ -116,7 +125,8 @@ class BridgeGraph:
     @property
     def publications(self) -> dict[str, Entity]:
         """What this bridge publishes: :data:`PUBLICATIONS`, its TF topics where ``ros2.tf`` puts
-        them, ``/clock`` only if it publishes it, ``scan`` and ``imu`` only for the sensors the robot has."""
+        them, ``/clock`` only if it publishes it, ``scan`` and ``imu`` only for the sensors the robot has,
+        and :data:`NAVIGATION_TOPICS` (declared once the drive publishes what they come from)."""
         entities = {}
         for topic, entity in PUBLICATIONS.items():
             if (topic == "clock" and not self.publishes_clock) or (

@@ -8,6 +8,9 @@ Each wheel-angle sample of ``sim/clock`` is integrated into the continuous odome
 yields ``/clock``, and ``odom``, ``tf`` and ``joint_states``, each stamped with the sample's time;
 ``odometry/pose`` moves ``map -> odom``, ``motor/torque`` the wheels' efforts. Each ``sim/scan``
 and ``sim/imu`` is one ``scan`` and one ``imu`` (services/ros2/sensors.py), at the time it carries.
+Each of the drive's ``drive/map``, ``drive/costmap`` and ``drive/plan`` is one ``map``,
+``global_costmap/costmap`` and ``plan`` (nav_msgs OccupancyGrid, OccupancyGrid and Path in
+``ros2.map_frame``, services/ros2/core.py), at the time it carries.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from schemas.codec import BadInput
-from schemas.messages import ImuSample, LaserScan, TimedDoubleSeq, TimedPosition
+from schemas.messages import GoalPlan, ImuSample, LaserScan, OccupancyGrid, TimedDoubleSeq, TimedPosition
 from services.body.geometry import robot_body
 from services.clock.sim_time import PeriodicSchedule, StampClock
 from services.config import Config
@@ -58,6 +61,8 @@ class RosOutputs:
         self.body = robot_body(config.robot, config.sim)
         self.sensor_frames = sensors.sensor_frames(config)
         self.sensor_stamps = sensors.SensorStamps(config.input.stamp_horizon_ns)
+        self.navigation_stamps = sensors.SensorStamps(config.input.stamp_horizon_ns)
+        """Of the drive's map, costmap and plan: each in order, none far ahead of the clock."""
         self.clock = StampClock(config.input.stamp_horizon_ns)
         self.odometry = core.ContinuousOdometry(config)
         self.map_to_odom: tuple[int, Pose] | None = None
@@ -157,9 +162,38 @@ class RosOutputs:
             )
         ]
 
+    def take_map(self, message: OccupancyGrid) -> list[Outgoing]:
+        """A ``drive/map`` (the map the drive loaded): the ``map`` of it, in ``map`` as map_server's,
+        its ``map_load_time`` its stamp. BadInput for one stamped before the last map or that ROS's
+        OccupancyGrid cannot hold."""
+        return [self._grid("map", message, latched=True)]
+
+    def take_costmap(self, message: OccupancyGrid) -> list[Outgoing]:
+        """A ``drive/costmap``: the ``global_costmap/costmap`` of it, in ``map``, its
+        ``map_load_time`` 0 as Nav2's costmap publisher leaves it. BadInput for one not after the
+        last costmap or that ROS's OccupancyGrid cannot hold."""
+        return [self._grid("costmap", message, latched=False)]
+
+    def _grid(self, topic: str, message: OccupancyGrid, latched: bool) -> Outgoing:
+        """``latched`` (the map): its ``map_load_time`` its stamp, and taken again with the same
+        stamp (the latched message sent again); else (the costmap, periodic) each after the last."""
+        stamp_ns = message.tm.to_nanoseconds()
+        grid = core.occupancy_grid(message, self.settings.map_frame, stamp_ns if latched else 0)
+        self.navigation_stamps.check(topic, stamp_ns, self.clock.last_ns, repeat=latched)
+        return Outgoing(topic, grid, stamp_ns)
+
+    def take_plan(self, message: GoalPlan) -> list[Outgoing]:
+        """A ``drive/plan`` (the running goal's, at each replan; empty when it ends): the ``plan`` of
+        it, in ``map``, each pose oriented along the path. BadInput for one stamped before the last."""
+        stamp_ns = message.tm.to_nanoseconds()
+        plan = core.path(message, self.settings.map_frame)
+        self.navigation_stamps.check("plan", stamp_ns, self.clock.last_ns, repeat=True)
+        return [Outgoing("plan", plan, stamp_ns)]
+
     def _restart(self) -> None:
         """A new simulator, whose clock started again: ``odom`` starts again at the origin, the
-        sensors' stamps too."""
+        sensors' stamps too, and the drive's map, costmap and plan's."""
+        self.navigation_stamps.restart()
         self.sensor_stamps.restart()
         self.odometry.restart()
         self._schedules = None

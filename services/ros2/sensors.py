@@ -75,19 +75,22 @@ def static_transforms(stamp_ns: int, base_frame: str, frames: tuple[SensorFrame,
 
 
 class SensorStamps:
-    """Each sensor's last stamp taken: a sample of a sensor is newer than the one before."""
+    """Each sensor's last stamp taken: a sample of a sensor is newer than the one before (the
+    drive's map, costmap and plan are kept in order likewise, services/ros2/outputs.py)."""
 
     def __init__(self, horizon_ns: int) -> None:
         self.horizon_ns = horizon_ns
         self._last_ns: dict[str, int] = {}
 
-    def check(self, sensor: str, stamp_ns: int, clock_ns: int | None) -> None:
-        """BadInput when ``stamp_ns`` is not after the sensor's last, runs more than the horizon
-        ahead of the bridge's clock (``clock_ns``, None before its first sample), or is beyond ROS's
-        time; else it is the sensor's last."""
+    def check(self, sensor: str, stamp_ns: int, clock_ns: int | None, *, repeat: bool = False) -> None:
+        """BadInput when ``stamp_ns`` is not after the sensor's last (before it, with ``repeat``: a
+        latched message sent again keeps its stamp), runs more than the horizon ahead of the
+        bridge's clock (``clock_ns``, None before its first sample), or is beyond ROS's time; else it
+        is the sensor's last."""
         last_ns = self._last_ns.get(sensor)
-        if last_ns is not None and stamp_ns <= last_ns:
-            raise BadInput(f"stamp {_seconds(stamp_ns)} s is not after the last {sensor}'s, {_seconds(last_ns)} s")
+        if last_ns is not None and (stamp_ns < last_ns if repeat else stamp_ns <= last_ns):
+            relation = "before" if repeat else "not after"
+            raise BadInput(f"stamp {_seconds(stamp_ns)} s is {relation} the last {sensor}'s, {_seconds(last_ns)} s")
         if clock_ns is not None and stamp_ns - clock_ns > self.horizon_ns:
             raise BadInput(
                 f"stamp {_seconds(stamp_ns)} s is more than input.stamp_horizon ahead of the clock, {_seconds(clock_ns)} s"

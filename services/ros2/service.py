@@ -10,7 +10,10 @@ One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
   casters) and ``robot_description`` (the URDF); ``tf`` and ``tf_static`` in the namespace, or on
   the shared ``/tf`` and ``/tf_static`` with prefixed frames (``ros2.tf``, services/ros2/graph.py);
   ``scan`` and ``imu`` (sensor_msgs LaserScan and Imu, best-effort sensor QoS), one for each
-  ``sim/scan`` and ``sim/imu`` of a robot that has the sensor;
+  ``sim/scan`` and ``sim/imu`` of a robot that has the sensor; the drive's map, costmap and plan
+  as Nav2 names and offers them, ``map`` and ``global_costmap/costmap`` (nav_msgs/OccupancyGrid,
+  latched) and ``plan`` (nav_msgs/Path), one for each ``drive/map``, ``drive/costmap`` and
+  ``drive/plan``, each declared when the drive first publishes its key;
 - subscriptions: ``cmd_vel`` as geometry_msgs/Twist and as TwistStamped (diff_drive_controller's
   since Jazzy), each forwarded as ``drive/target_velocity`` stamped with the newest simulation time
   (at most ``ros2.cmd_vel_rate`` per simulated second, the newest kept between two), so the motor's
@@ -23,12 +26,14 @@ One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
 
 Its inputs from the loop: every sample of ``sim/clock`` (the clock, the wheels, and the continuous
 odometry: each observed step, so no tick is skipped), the newest of ``odometry/pose`` (``map``) and
-of ``motor/torque`` (the wheels' efforts), and every ``sim/scan`` and ``sim/imu``; what they become is the pure :class:`~services.ros2.outputs.RosOutputs`,
+of ``motor/torque`` (the wheels' efforts), every ``sim/scan`` and ``sim/imu``, every ``drive/map``
+and ``drive/plan`` (latched: the last one published before the bridge started too) and the newest
+``drive/costmap``; what they become is the pure :class:`~services.ros2.outputs.RosOutputs`,
 which ``invent export --ros2`` replays a recording through. ``sim/clock`` comes at the simulator's
 observed steps: the bridge holds an observer token for each of its rates (docs/protocol.md section
 2.7), so each of its ticks is one of them. Bad input (a sample without rmw_zenoh's attachment,
 malformed CDR, a twist not finite or implausible) is counted under its ROS key and dropped, a
-scan or IMU sample malformed, not finite or out of order under its key;
+scan, IMU sample, map, costmap or plan malformed, not finite or out of order under its key;
 nothing from ROS reaches the motor unchecked. Several bridges may share one session (a composed
 fleet): their nodes' and entities' ids come from one counter per session, as in one ROS context.
 """
@@ -51,8 +56,10 @@ from schemas.codec import BadInput
 from schemas.keys import Method, MethodFamily, Service
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
+    GoalPlan,
     ImuSample,
     LaserScan,
+    OccupancyGrid,
     Time,
     TimedDoubleSeq,
     TimedPosition,
@@ -192,9 +199,13 @@ class Ros2Bridge:
         self.outputs = outputs = RosOutputs(config, bridge)
         self.tokens = tokens = GraphTokens(node.session, bridge)
         self.bag_journal = _bag_journal(options, config)
+        self.entities = bridge.publications
         self.publishers = {
-            name: RosPublisher(tokens, entity, self.bag_journal) for name, entity in bridge.publications.items()
+            name: RosPublisher(tokens, entity, self.bag_journal)
+            for name, entity in self.entities.items()
+            if name not in graph.NAVIGATION_TOPICS
         }
+        """By topic; the navigation topics' once the drive published their first message."""
         self.target = node.publisher(node.keys.drive_target_velocity)
         self.clock = outputs.clock
         self.sim = sim = SimulatorWatch(node, self.clock.restart)
@@ -235,8 +246,21 @@ class Ros2Bridge:
             ("imu", node.keys.sim_imu, ImuSample, outputs.take_imu),
         ):
             if topic in bridge.publications:
-                handler = partial(self._on_sensor, take)
+                handler = partial(self._on_message, take)
                 node.subscribe(key, message_type, sim.stamped(key, handler, awaited=lambda: False), Delivery.EVERY)
+
+        # The drive's map and plan are latched: every one, and the last one published before this
+        # bridge started (asked of the drive's queryable). The costmap comes about once a simulated
+        # second and only its newest matters (taken when the clock wakes the thread, as the pose).
+        def each(key: str, take: Callable[[Any], list[Outgoing]]) -> Callable[..., None]:
+            return sim.stamped(key, partial(self._on_message, take), awaited=lambda: False)
+
+        keys = node.keys
+        node.subscribe_latched(keys.drive_map, OccupancyGrid, each(keys.drive_map, outputs.take_map))
+        node.subscribe_latched(keys.drive_plan, GoalPlan, each(keys.drive_plan, outputs.take_plan))
+        node.subscribe(
+            keys.drive_costmap, OccupancyGrid, each(keys.drive_costmap, outputs.take_costmap), Delivery.NEWEST
+        )
         self.cmd_vel_keys: dict[str, str] = {}
         for entity in graph.CMD_VEL_SUBSCRIPTIONS:
             key = self.cmd_vel_keys[entity.interface] = bridge.key(entity)
@@ -259,16 +283,26 @@ class Ros2Bridge:
         node.wait_with(lambda: Wait(self._clock_input))
         node.set_status(self.status)
         node.log.info(
-            "ROS 2 node %s in domain %d (zid %s): %s",
+            "ROS 2 node %s in domain %d (zid %s): %s; %s once the drive publishes them",
             wire.full_name(bridge.namespace, settings.node_name),
             bridge.domain,
             tokens.identity.zid,
             ", ".join(publisher.name for publisher in self.publishers.values()),
+            ", ".join(bridge.name(self.entities[topic]) for topic in graph.NAVIGATION_TOPICS),
         )
 
     def _publish(self, outgoing: list[Outgoing]) -> None:
         for message in outgoing:
-            self.publishers[message.topic].put(message.message, message.stamp_ns)
+            self._publisher(message.topic).put(message.message, message.stamp_ns)
+
+    def _publisher(self, topic: str) -> RosPublisher:
+        """The topic's publisher; a navigation topic's is declared (publisher and token) with its
+        first message."""
+        publisher = self.publishers.get(topic)
+        if publisher is None:
+            publisher = self.publishers[topic] = RosPublisher(self.tokens, self.entities[topic], self.bag_journal)
+            self.node.log.info("publishing %s", publisher.name)
+        return publisher
 
     # -- the loop's side ------------------------------------------------------------------------
 
@@ -283,7 +317,9 @@ class Ros2Bridge:
         self._publish(taken.outgoing)
         self._forward_twist()
 
-    def _on_sensor(self, take: Callable[[Any], list[Outgoing]], message: Any) -> None:
+    def _on_message(self, take: Callable[[Any], list[Outgoing]], message: Any) -> None:
+        """A sample that is a ROS message of its own: a ``sim/scan`` or ``sim/imu``, a
+        ``drive/map``, ``drive/costmap`` or ``drive/plan``."""
         self._publish(take(message))
 
     # -- ROS's side -----------------------------------------------------------------------------

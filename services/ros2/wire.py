@@ -95,7 +95,15 @@ SYSTEM_DEFAULT = Qos()
 TF = Qos(depth=100)
 """What tf2's broadcaster and listener use for ``/tf``."""
 LATCHED = Qos(depth=1, durability=Durability.TRANSIENT_LOCAL)
-"""``/tf_static`` and ``/robot_description``: a late subscriber still gets the last message."""
+"""Reliable, transient-local, keep-last 1: a late subscriber still gets the last message.
+``/tf_static`` and ``/robot_description``; ``map`` as Nav2's map_server offers it and
+``global_costmap/costmap`` as Nav2's costmap publisher does (both
+``rclcpp::QoS(rclcpp::KeepLast(1)).transient_local().reliable()``, navigation2's ``jazzy`` and
+``kilted``; ``nav2::qos::LatchedPublisherQoS()`` after them, the same)."""
+PLAN = Qos(depth=1)
+"""Nav2's planner_server's ``plan`` (``create_publisher<nav_msgs::msg::Path>("plan", 1)``, ``jazzy``
+and ``kilted``): reliable, volatile, keep-last 1 (navigation2's ``main`` keeps 10; a depth never
+decides whether a subscription matches)."""
 CLOCK = Qos(depth=1, reliability=Reliability.BEST_EFFORT)
 """rclcpp's ``ClockQoS``, what a node with ``use_sim_time`` subscribes ``/clock`` with."""
 SENSOR_DATA = Qos(depth=5, reliability=Reliability.BEST_EFFORT)
