@@ -1,4 +1,4 @@
-"""The fleet file, a scenario placed at a robot's start, and the fleet summary: pure, no zenoh."""
+"""The fleet file, a scenario placed at a robot's start, a robot's goal file, and the fleet summary: pure, no zenoh."""
 
 from __future__ import annotations
 
@@ -11,11 +11,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from services.config import ConfigError
+from services.drive.goal_file import load_goal_file
 from services.drive.scenarios import BUILTIN_SCENARIOS, ConstantSegment, is_builtin, load_scenario, placed
 from services.fleet import description
 from services.fleet.description import (
     bridge_configs,
     bridge_flags,
+    drive_flags,
     load_fleet,
     parse_fleet,
     robot_config,
@@ -23,6 +25,10 @@ from services.fleet.description import (
     robot_overrides,
 )
 from services.fleet.summary import bumps_between, closest_approach
+from services.launch.fleet import FleetRobots
+from services.launch.plan import UpPlan
+from services.launch.up import _drive_flags
+from services.launch.worker import robot_requests
 from services.planar import Pose
 
 ISSUE_EXAMPLE = description.__doc__.split("```toml\n")[1].split("```")[0]
@@ -70,6 +76,12 @@ def test_nested_overrides_are_the_dotted_ones():
         ('[[robots]]\nname = "rh0"\nnamespace = "1st"', "`robots[0].namespace`: '1st' is not a ROS namespace"),
         ('[[robots]]\nname = "rh0"\nset = { "ros2.namespace" = "a" }', "`robots[0].set`: 'ros2.namespace'"),
         ('[[robots]]\nname = "rh0"\nset = { "ros2.publish_clock" = true }', "'ros2.publish_clock' is the fleet's"),
+        (
+            '[[robots]]\nname = "rh0"\n[[robots]]\nname = "rh1"\nscenario = "square"\ngoals = "g.toml"',
+            "`robots[1].goals`: a robot runs a scenario or goals, not both (it has `scenario` = 'square')",
+        ),
+        ('[[robots]]\nname = "rh0"\ngoals = ""', "robots[0].goals"),
+        ('[[robots]]\nname = "rh0"\ngoals = 1', "robots[0].goals"),
     ],
 )
 def test_a_wrong_fleet_file_is_a_configuration_error_naming_the_field(text, names):
@@ -93,6 +105,19 @@ def test_a_robots_services_are_started_with_its_name_overrides_and_start():
     sets = dict(flag.split("=", 1) for flag in flags[3::2])
     assert sets["motor.p_gain_l"] == "6.0" and sets["odometry.initial_y"] == "3.0"
     assert len(sets) == len(robot_overrides(robot)) - 1  # all but the name, which is --robot
+
+
+def test_a_robot_names_a_goal_file_or_a_scenario_and_its_drive_is_started_with_it():
+    fleet = parse_fleet(
+        '[[robots]]\nname = "rh0"\ngoals = "examples/goals/swap_east.toml"\n'
+        '[[robots]]\nname = "rh1"\nscenario = "square"\n'
+        '[[robots]]\nname = "rh2"\n'
+    )
+    assert fleet.robot("rh0").goals == "examples/goals/swap_east.toml" and fleet.robot("rh0").scenario is None
+    assert drive_flags(fleet.robot("rh0")) == ["--goal-file", "examples/goals/swap_east.toml"]
+    assert drive_flags(fleet.robot("rh1")) == ["--scenario", "square"]
+    assert drive_flags(fleet.robot("rh2")) == []  # the run's --scenario
+    assert fleet.robot("rh1").goals is None
 
 
 def test_each_robots_bridge_is_in_its_namespace_and_only_the_first_publishes_clock():
@@ -166,10 +191,54 @@ def test_bumps_between_robots_leave_out_obstacles_and_are_in_time_order():
 @pytest.mark.parametrize(
     "path", sorted((Path(__file__).resolve().parent.parent / "examples" / "fleets").glob("*.toml"))
 )
-def test_the_example_fleets_load_with_their_scenarios(path, monkeypatch):
-    monkeypatch.chdir(path.parent.parent.parent)  # their scenario paths are from the repository's root
+def test_the_example_fleets_load_with_their_scenarios_or_goal_files(path, monkeypatch):
+    monkeypatch.chdir(path.parent.parent.parent)  # their scenario and goal paths are from the repository's root
     fleet = load_fleet(path)
     assert len(fleet.robots) >= 2
     for robot in fleet.robots:
         robot_config(robot, None, {})
-        load_scenario(robot.scenario or "square")
+        if robot.goals is not None:
+            load_goal_file(robot.goals)
+        else:
+            load_scenario(robot.scenario or "square")
+
+
+CORRIDOR_SWAP = Path(__file__).resolve().parent.parent / "examples" / "fleets" / "corridor_swap.toml"
+
+
+def test_up_checks_each_robots_goal_file_before_it_starts_anything_and_names_what_its_drive_runs(tmp_path, monkeypatch):
+    monkeypatch.chdir(CORRIDOR_SWAP.parent.parent.parent)  # the goal files' paths are from the repository's root
+    robots = FleetRobots(UpPlan(fleet=str(CORRIDOR_SWAP)), str(CORRIDOR_SWAP))
+    assert [(robot.name, robot.scenario) for robot in robots.each] == [
+        ("rh0", "examples/goals/swap_east.toml"),
+        ("rh1", "examples/goals/swap_west.toml"),
+    ]
+    fleet_file = tmp_path / "fleet.toml"
+    fleet_file.write_text('[[robots]]\nname = "rh0"\n[[robots]]\nname = "rh1"\ngoals = "none.toml"\n')
+    with pytest.raises(ConfigError, match="fleet robot 'rh1': goal file 'none.toml'"):
+        FleetRobots(UpPlan(fleet=str(fleet_file)), str(fleet_file))
+    (tmp_path / "bad.toml").write_text("[[goals]]\nat = 0.0\nx = 1.0\n")
+    fleet_file.write_text(f'[[robots]]\nname = "rh0"\ngoals = "{tmp_path / "bad.toml"}"\n')
+    with pytest.raises(ConfigError, match="fleet robot 'rh0': .*goals\\[0\\]: a goal needs `x` and `y`"):
+        FleetRobots(UpPlan(fleet=str(fleet_file)), str(fleet_file))
+    # with --goals every drive waits for goals: the fleet file's goal files are not played, nor read
+    fleet_file.write_text('[[robots]]\nname = "rh0"\ngoals = "none.toml"\n')
+    waiting = FleetRobots(UpPlan(fleet=str(fleet_file), goals=True), str(fleet_file))
+    assert [robot.scenario for robot in waiting.each] == ["goals"]
+    assert [_drive_flags(waiting.plan, robot) for robot in waiting.each] == [["--goals"]]
+
+
+def test_up_starts_a_robots_drive_with_its_goal_file_in_its_own_process_or_a_worker(monkeypatch):
+    monkeypatch.chdir(CORRIDOR_SWAP.parent.parent.parent)
+    plan = UpPlan(fleet=str(CORRIDOR_SWAP))
+    robots = FleetRobots(plan, str(CORRIDOR_SWAP))
+    assert [_drive_flags(plan, robot) for robot in robots.each] == [
+        ["--goal-file", "examples/goals/swap_east.toml"],
+        ["--goal-file", "examples/goals/swap_west.toml"],
+    ]
+    requests = {request[0]: request[1:] for request in robot_requests(robots.fleet, ["rh0", "rh1"], [])}
+    assert requests["rh1/drive"][-2:] == ["--goal-file", "examples/goals/swap_west.toml"]
+    assert "--goal-file" not in requests["rh1/motor"]
+    two_squares = str(CORRIDOR_SWAP.parent / "two_squares.toml")
+    squares = FleetRobots(UpPlan(fleet=two_squares), two_squares)
+    assert [_drive_flags(squares.plan, robot) for robot in squares.each] == [["--scenario", "square"]] * 2

@@ -1,4 +1,4 @@
-"""The fleet file: one world, several robots, each with its start pose, scenario and overrides.
+"""The fleet file: one world, several robots, each with its start pose, scenario (or goal file) and overrides.
 
 ```toml
 world = "empty"                      # as sim.world: a built-in name or a world file
@@ -14,6 +14,10 @@ namespace = "robot1"                 # its ROS 2 namespace (default: its name)
 set = { "motor.p_gain_l" = 6.0 }     # optional per-robot overrides of the robot description
 ```
 
+A robot may name a goal file instead of a scenario, ``goals = "examples/goals/swap_west.toml"``:
+its drive plays it (``invent drive --goal-file``) and ends by itself with its last goal's outcome.
+A robot has a scenario or goals, not both.
+
 Loading is strict, as for the robot description and world files: an unknown key, a wrong type, a
 duplicate or invalid robot name, an override that does not fit the robot description raises
 :class:`~services.config.ConfigError` naming the field, so the command exits with code 2. The world
@@ -27,7 +31,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import msgspec
 
@@ -58,7 +62,9 @@ class FleetRobot(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_onl
     name: str
     start: Start = msgspec.field(default_factory=Start)
     scenario: str | None = None
-    """A built-in scenario or a scenario file; None: the drive's default."""
+    """A built-in scenario or a scenario file; None: the drive's default (unless ``goals``)."""
+    goals: Annotated[str, msgspec.Meta(min_length=1)] | None = None
+    """A goal file (docs/drive.md, Goals) its drive plays instead of a scenario; not with ``scenario``."""
     namespace: str | None = None
     """Its ROS 2 namespace (``rh1``: ``/rh1/odom``, ``/rh1/cmd_vel``); None: its name."""
     set: dict[str, Any] = msgspec.field(default_factory=dict)
@@ -124,6 +130,10 @@ def _check(fleet: Fleet, source: str) -> Fleet:
         if robot.name in seen:
             raise ConfigError(f"{field}.name`: robot name {robot.name!r} is used twice")
         seen.add(robot.name)
+        if robot.goals is not None and robot.scenario is not None:
+            raise ConfigError(
+                f"{field}.goals`: a robot runs a scenario or goals, not both (it has `scenario` = {robot.scenario!r})"
+            )
         if robot.namespace is not None and not NAMESPACE.fullmatch(robot.namespace):
             raise ConfigError(
                 f"{field}.namespace`: {robot.namespace!r} is not a ROS namespace (names of letters, digits and "
@@ -233,3 +243,11 @@ def robot_flags(robot: FleetRobot) -> list[str]:
         if key != "robot.name":
             flags += ["--set", f"{key}={_toml(value)}"]
     return ["--robot", robot.name, *flags]
+
+
+def drive_flags(robot: FleetRobot) -> list[str]:
+    """What ``robot``'s drive runs as the fleet file says: its goal file (``--goal-file``), its
+    scenario (``--scenario``), or nothing (the run's own scenario)."""
+    if robot.goals is not None:
+        return ["--goal-file", robot.goals]
+    return ["--scenario", robot.scenario] if robot.scenario else []

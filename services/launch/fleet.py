@@ -2,20 +2,21 @@
 its own services (the sequence is services/launch/up.py's, the same as one robot's).
 
 Each robot's motor, odometry and localization are given ``--robot`` its name, its overrides and
-start pose as ``--set``, its drive its own scenario; ``up`` waits until every robot's services are
-alive and its drive and localization hold their lockstep tokens, and starts one ``invent sim --fleet
-FILE`` last: the sim steps when every robot's torque and every participant's tick output has
-arrived, so a fleet run repeats bit for bit as a one-robot run does.
+start pose as ``--set``, its drive its own scenario or its goal file (the fleet file's ``goals``);
+``up`` waits until every robot's services are alive and its drive and localization hold their
+lockstep tokens, and starts one ``invent sim --fleet FILE`` last: the sim steps when every robot's
+torque and every participant's tick output has arrived, so a fleet run repeats bit for bit as a
+one-robot run does.
 
 A robot whose service dies degrades only its own part of the run (:class:`FleetRun`): the sim steps
 on without waiting for what is gone (a dead motor's robot gets zero torque, a dead drive counts as
 ended), the other robots go on, and the report names the robot and the service. The run ends when
 every robot's drive has ended its scenario with an outcome (completed, aborted or timed out: each
-robot has its own) or lost a service; ``up`` exits 3 if any robot aborted, else 4 if any timed out,
-else as a one-robot run; ``run.mcap`` then holds every robot's keys, ``report.json`` each robot's
-report under ``robots.<name>`` (the one-robot report's fields) and a fleet summary (closest approach
-between two robots, their bumps into each other), and ``<report dir>/<robot>/`` its plots
-(:func:`fleet_report`).
+robot has its own; a goal file's drive ends by itself with its last goal's) or lost a service;
+``up`` exits 3 if any robot aborted, else 4 if any timed out, else as a one-robot run; ``run.mcap``
+then holds every robot's keys, ``report.json`` each robot's report under ``robots.<name>`` (the
+one-robot report's fields) and a fleet summary (closest approach between two robots, their bumps
+into each other), and ``<report dir>/<robot>/`` its plots (:func:`fleet_report`).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from schemas.codec import decode
 from schemas.keys import Keys, Service, ServiceName, UserServiceName
 from schemas.messages import BumpEvent
 from services.config import Config, ConfigError
+from services.drive.goal_file import load_goal_file
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.scenarios import load_scenario
 from services.errors import ChildDied, Interrupted
@@ -61,7 +63,7 @@ UNSUPPORTED = {
     "--loop": "a fleet runs each robot's scenario once",
     "--gui": "the PyBullet window is not offered for a fleet yet",
     "--connect": "a fleet run starts its own router",
-    "--goal-file": "a goal file is one robot's: send each robot its goals with `invent goto X Y --robot R`",
+    "--goal-file": "a goal file is one robot's: name each robot's in the fleet file (`goals = FILE`)",
 }
 
 
@@ -88,7 +90,10 @@ def check_fleet(plan: UpPlan, path: str) -> tuple[Fleet, dict[str, Config]]:
         fleet_bridges(fleet, description.config, description.overrides())
     for robot in fleet.robots if not (plan.teleop or plan.goal_mode) else ():
         try:
-            load_scenario(_scenario(robot, plan))
+            if robot.goals is not None:
+                load_goal_file(robot.goals)
+            else:
+                load_scenario(_scenario(robot, plan))
         except ConfigError as error:
             raise ConfigError(f"fleet robot {robot.name!r}: {error}") from None
     load_world(fleet.world or configs[fleet.robots[0].name].sim.world)
@@ -139,10 +144,11 @@ def _extensions(plan: UpPlan, fleet: Fleet, robot: str) -> tuple[Loaded, ...]:
 
 
 def _scenario(robot: FleetRobot, plan: UpPlan) -> str:
-    """A robot's scenario: its own, else ``--scenario``; in goal mode, goals (the fleet file's scenarios unused)."""
+    """What a robot's drive runs, as the run's summary names it: its goal file, its scenario, else
+    ``--scenario``; in goal mode, goals (the fleet file's scenarios and goal files unused)."""
     if plan.goal_mode:
         return plan.drive_runs
-    return robot.scenario or plan.scenario
+    return robot.goals or robot.scenario or plan.scenario
 
 
 class FleetRobots:
@@ -162,6 +168,7 @@ class FleetRobots:
                 tuple(robot_flags(robot)),
                 tuple(bridge_flags(fleet, robot)),
                 in_fleet=True,
+                goal_file=None if plan.goal_mode else robot.goals,
                 extensions=self.extensions[robot.name],
             )
             for robot in fleet.robots

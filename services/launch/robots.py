@@ -31,6 +31,8 @@ class Robot:
     bridge_flags: tuple[str, ...] = ()
     """What its ROS 2 bridge is given beyond those: a fleet robot's namespace and frames."""
     in_fleet: bool = False
+    goal_file: str | None = None
+    """A fleet robot's own goal file (the fleet file's ``goals``): its drive plays it instead of a scenario."""
     extensions: tuple[Loaded, ...] = ()
     """Its services of the user's own (``--with``; a fleet file's ``with``), run beside its loop."""
 

@@ -217,9 +217,12 @@ def _motor_flags(robot: Robot, report_dir: Path) -> list[str]:
 
 
 def _drive_flags(plan: UpPlan, robot: Robot) -> list[str]:
-    """What ``robot``'s drive runs: goals (``--goals``), a goal file, or its scenario (``--loop``: over and over)."""
+    """What ``robot``'s drive runs: goals (``--goals``), a goal file (``--goal-file``, or a fleet robot's
+    own), or its scenario (``--loop``: over and over)."""
     if plan.goal_file is not None:
         return ["--goal-file", plan.goal_file]
     if plan.goals:
         return ["--goals"]
+    if robot.goal_file is not None:
+        return ["--goal-file", robot.goal_file]
     return ["--scenario", robot.scenario, *(["--loop"] if plan.loop else [])]

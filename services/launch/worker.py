@@ -36,7 +36,7 @@ import zenoh
 
 from schemas.keys import Service
 from services.errors import ChildDied
-from services.fleet.description import Fleet, robot_flags
+from services.fleet.description import Fleet, drive_flags, robot_flags
 from services.launch.children import Supervisor, describe_exit
 from services.launch.composition import Composition
 from services.runtime.executor import STOP_POLL_S
@@ -69,9 +69,8 @@ def robot_requests(fleet: Fleet, robots: Sequence[str], connection: Sequence[str
     requests = []
     for name in robots:
         robot = fleet.robot(name)
-        scenario = ["--scenario", robot.scenario] if robot.scenario else []
         for service in ROBOT_SERVICES:
-            own = scenario if service is Service.DRIVE else []
+            own = drive_flags(robot) if service is Service.DRIVE else []
             requests.append([f"{name}/{service}", str(service), *connection, *robot_flags(robot), *own])
     return requests
 
