@@ -104,7 +104,8 @@ def test_each_robots_service_roles_get_exactly_the_single_robot_grants_on_their_
         RH1.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES
     } | _goals(RH1)
     assert _granted(Identity(Role.DRIVE, "rh1"), Message.DECLARE_QUERYABLE) == (
-        {RH1.status(Service.DRIVE), RH1.drive_path, RH1.drive_outcome, RH1.drive_goal} | _goals(RH1)
+        {RH1.status(Service.DRIVE), RH1.drive_path, RH1.drive_outcome, RH1.drive_goal, RH1.drive_map, RH1.drive_plan}
+        | _goals(RH1)
     )
 
 
