@@ -21,6 +21,9 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
 - ``engines`` (benchmarks/engines.py): the real-time factor of the lockstep square on PyBullet and
   on the kinematic engine (``--engine``), separate and composed, and kinematic / PyBullet; each
   engine's own µs per step in-process.
+- ``navigation`` (benchmarks/navigation.py): what the drive's navigation costs its thread, in ms and as
+  a share of the lidar's period: a costmap update per scan, a plan across a building of rooms (pure
+  Python A* and smoothing), and pyastar2d's search and plans against it where pyastar2d is installed.
 - ``machine`` (benchmarks/machine.py): where it ran.
 
 Loop figures are medians over ``--repeats`` runs (lockstep runs interleaved with the in-process
@@ -38,7 +41,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmarks import codec, engines, fleet_section, lockstep, loop, machine, realtime, ros2_fleet
+from benchmarks import codec, engines, fleet_section, lockstep, loop, machine, navigation, realtime, ros2_fleet
 from benchmarks.figures import timed
 from benchmarks.table import table
 from benchmarks.targets import check_targets, verdicts
@@ -79,10 +82,11 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-SECTIONS = ("loop", "codec", "fleet", "ros2_fleet", "engines")
+SECTIONS = ("loop", "codec", "fleet", "ros2_fleet", "engines", "navigation")
 """``loop``: the ``lockstep`` and ``realtime`` sections; ``fleet``: benchmarks/fleet.py; ``ros2_fleet``:
 the ROS 2 bridge of each robot of a fleet, benchmarks/ros2_fleet.py; ``engines``: the lockstep square
-on PyBullet and on the kinematic engine, benchmarks/engines.py."""
+on PyBullet and on the kinematic engine, benchmarks/engines.py; ``navigation``: the costmap's update
+and the planner, in-process, benchmarks/navigation.py."""
 FLEET_SIZES = (1, 2, 4, 8)
 QUICK_FLEET_SIZES = (2,)
 
@@ -133,6 +137,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     if "engines" in sections:
         results["engines"] = engines.run_section(args, failures)
+    if "navigation" in sections:
+        results["navigation"] = navigation.run_section(args, failures)
     results["targets"] = check_targets({**results, "codec": {"min_ratio": results.get("codec_min_ratio")}})
     results["settings"] = {
         key: getattr(args, key)
@@ -145,6 +151,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.out.write_text(json.dumps(results, indent=2) + "\n")
     print()
     print(table(results))
+    if "navigation" in results:
+        print()
+        print(navigation.table(results["navigation"]))
     print()
     for line in verdicts(results["targets"]):
         print(line)

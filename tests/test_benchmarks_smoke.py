@@ -1,6 +1,8 @@
 """``python -m benchmarks --quick`` runs every section and writes the result fields (no speed asserted)."""
 
+import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -8,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks import fleet, lateness
+from benchmarks import fleet, lateness, navigation
 from benchmarks.run import RESULTS
 from tests.harness import REPO
 
@@ -75,6 +77,12 @@ NUMBERS = (
         for field in ("steps_per_s", "robot_steps_per_s", "cpu_us_per_robot_step", "late_fraction")
     ),
     "fleet.separate.2.sim_share",
+    *(f"navigation.costmap.{layer}.{field}" for layer in ("no_map", "map") for field in ("ms", "share")),
+    *(
+        f"navigation.plan.{scenario}.{field}"
+        for scenario in ("building", "seen", "open")
+        for field in ("plan_ms", "share")
+    ),
     *(
         f"ros2_fleet.1.{field}"
         for field in (
@@ -168,6 +176,18 @@ def test_quick_bench_writes_every_field_and_prints_the_table(tmp_path):
     _fleet_written(result, results)
     assert "| lockstep, separate processes |" in result.stdout and f"wrote {out}" in result.stdout
     assert "| lockstep square | PyBullet | kinematic | kinematic / PyBullet |" in result.stdout
+
+
+def test_the_quick_navigation_section_writes_its_fields_and_its_table():
+    """In-process (no subprocess, a few seconds): the costmap's updates and the plans, timed but not judged."""
+    failures: list[str] = []
+    results = navigation.run_section(argparse.Namespace(quick=True), failures)
+    assert failures == []
+    _numbers_written({"navigation": results}, tuple(name for name in NUMBERS if name.startswith("navigation.")))
+    for entry in results["plan"].values():
+        assert entry["points"] >= 2
+        assert entry["length_m"] >= math.dist(navigation.START, navigation.GOAL) - 1e-9, "no shorter than the line"
+    assert "| costmap update per scan, no map |" in navigation.table(results)
 
 
 def test_the_spread_bound_is_amdahls_law_of_the_worlds_own_work():
