@@ -424,11 +424,13 @@ class GoalFeedback(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     theta: float
     """The robot's pose (``odometry/pose``, in ``map``)."""
     distance_remaining: float
-    """m, straight to the goal's position."""
+    """m along the plan while the goal navigates, else straight to the goal's position."""
     elapsed_s: float
     """Simulated seconds since the goal started."""
     estimated_remaining_s: float
     """Simulated seconds still needed by the drive's plan (turn, drive, turn) from here."""
+    recoveries: Annotated[int, msgspec.Meta(ge=0)] = 0
+    """Recoveries the goal's navigation has tried so far (NavigateToPose's ``number_of_recoveries``)."""
 
     def __post_init__(self) -> None:
         _require_finite(self.x, self.y, self.theta, self.distance_remaining, self.elapsed_s, self.estimated_remaining_s)

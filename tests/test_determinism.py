@@ -33,7 +33,7 @@ from mcap.reader import make_reader
 from benchmarks.loop import cpu_seconds
 from schemas.codec import decode
 from schemas.keys import Keys, Service, Topic, schema_for_key
-from schemas.messages import GoalTarget, ImuSample, LaserScan, ScenarioOutcome, TimedDoubleSeq
+from schemas.messages import GoalPlan, GoalTarget, ImuSample, LaserScan, ScenarioOutcome, TimedDoubleSeq
 from services.config import GoalsConfig
 from services.recording.mcap_files import read_messages
 from services.recording.scene import LOCALIZATION_TOPIC, ODOMETRY_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
@@ -387,6 +387,7 @@ GOAL_RECORDED = (
     KEYS.drive_goal,
     KEYS.drive_goal_feedback,
     KEYS.drive_outcome,
+    KEYS.drive_plan,
 )
 
 
@@ -418,6 +419,44 @@ def test_goals_sent_at_fixed_simulation_times_end_the_same_on_a_quiet_and_a_load
     home = decode(TimedDoubleSeq, quiet.samples[KEYS.sim_body_pose][-1]).data
     assert math.hypot(home[0], home[1]) <= GoalsConfig().position_tolerance, "the ground truth at the last goal"
     assert [decode(GoalTarget, sample).id for sample in quiet.samples[KEYS.drive_goal]] == ["g1", "corner", "g2"]
+    assert loaded.burner_shares is not None and min(loaded.burner_shares) >= BURNER_MIN_SHARE, loaded.burner_shares
+    assert loaded.returncode == quiet.returncode, loaded.output[-4000:]
+    _assert_same_samples(quiet, loaded)
+
+
+DETOUR_GOAL_FILE = REPO / "examples" / "goals" / "u_trap.toml"
+DETOUR_RECORDED = (
+    KEYS.sim_body_pose,
+    KEYS.sim_scan,
+    KEYS.drive_target_velocity,
+    KEYS.drive_plan,
+    KEYS.drive_costmap,
+    KEYS.drive_outcome,
+)
+
+
+@pytest.fixture(scope="module")
+def detour_runs(tmp_path_factory) -> dict[str, SquareRun]:
+    """``examples/goals/u_trap.toml``: a goal behind a U across the straight line, navigated (the lidar's
+    costmap, plans replaced as the U comes into view), composed on the kinematic engine (the navigation
+    is the point): quiet, then beside two CPU burners."""
+    base = tmp_path_factory.mktemp("detour")
+    flags = ("--goal-file", str(DETOUR_GOAL_FILE), "--composed", "--engine", "kinematic", "--set", "sim.world=u_trap")
+    quiet = _run(base / "quiet", DETOUR_RECORDED, *flags)
+    with _burning_cpus(BURNERS) as burner_shares:
+        loaded = _run(base / "loaded", DETOUR_RECORDED, *flags)
+    loaded.burner_shares = burner_shares
+    return {"quiet": quiet, "loaded": loaded}
+
+
+def test_a_goal_navigated_around_a_u_gives_the_same_plans_costmaps_and_outcome_quiet_and_loaded(detour_runs):
+    quiet, loaded = detour_runs["quiet"], detour_runs["loaded"]
+    (outcome,) = [decode(ScenarioOutcome, sample) for sample in quiet.samples[KEYS.drive_outcome]]
+    assert outcome.outcome == "completed" and quiet.returncode == 0, quiet.output[-4000:]
+    plans = [decode(GoalPlan, sample) for sample in quiet.samples[KEYS.drive_plan]]
+    assert len(plans) >= 2, "replanned as the U came into view"
+    assert any(abs(y) > 1.1 for plan in plans for _x, y in plan.points), "a plan round an arm of the U"
+    assert plans[-1].points == [], "the plan cleared as the goal ended"
     assert loaded.burner_shares is not None and min(loaded.burner_shares) >= BURNER_MIN_SHARE, loaded.burner_shares
     assert loaded.returncode == quiet.returncode, loaded.output[-4000:]
     _assert_same_samples(quiet, loaded)

@@ -5,8 +5,9 @@ simulation time), then ``invent goto``: a goal reached within its tolerance by t
 goal preempted by a second (the first exits 5, the second 0), a goal the drive rejects (exit 1 with
 its reason), and Ctrl-C of ``up``: exit 0, its ``run.mcap`` holding the goals, the feedback and the
 outcomes, and its report. One run serves those tests (in this order: each starts where the one
-before left the robot); a second, in the bump world, a goal behind the box (``aborted``, naming it,
-exit 3). A goal file run by ``invent up --goal-file``: lockstep, ending with the drive's last goal."""
+before left the robot); two more in the bump world, a goal behind the box: navigated around it
+(``completed``, no bump, no hold of the collision monitor: issue 51), and along the straight line
+(``navigation.enabled = false``: ``aborted``, naming the box, exit 3). A goal file run by ``invent up --goal-file``: lockstep, ending with the drive's last goal."""
 
 from __future__ import annotations
 
@@ -26,14 +27,14 @@ import pytest
 import zenoh
 
 from schemas.codec import decode
-from schemas.keys import Keys, Topic
+from schemas.keys import Keys, Service, Topic
 from schemas.messages import TimedDoubleSeq
 from services.config import DriveConfig, GoalsConfig
 from services.exits import ExitStatus
 from services.planar import Pose, wrap_angle
 from services.recording.mcap_files import read_run
 from services.recording.report import pose_from_body_pose
-from tests.harness import REPO, InventProcess, free_port, invent_command, peer_session, wait_until
+from tests.harness import REPO, InventProcess, call, free_port, invent_command, peer_session, wait_until
 
 pytestmark = pytest.mark.slow
 
@@ -231,8 +232,29 @@ def test_ctrl_c_ends_the_goals_run_with_exit_0_its_recording_of_the_goals_and_it
     assert all(goal["feedbacks"] > 0 for goal in report["goals"]), "each goal's progress recorded"
 
 
-def test_a_goal_behind_the_box_of_the_bump_world_ends_aborted_naming_it_and_goto_exits_3(tmp_path):
+def test_a_goal_behind_the_box_of_the_bump_world_is_reached_around_it_touching_nothing_and_goto_exits_0(tmp_path):
+    """Issue 51's first "Must show": the goal the straight line could not reach (below), navigated."""
     with goals_run(tmp_path, *FAST, "--set", "sim.world=bump", record=False) as run:
+        with run.goto("2.0", "0.0", "0.0") as goto:
+            code, lines, err = _ended(goto)
+        truth = run.ground_truth()
+        _, sim = call(run.session, KEYS.status(Service.SIM))
+        _, motor = call(run.session, KEYS.status(Service.MOTOR))
+        assert run.stop() == ExitStatus.OK, run.output.read_text()[-3000:]
+    assert code == ExitStatus.OK, "\n".join(lines) + err
+    assert lines[-1].startswith("outcome: completed (goal g1 after "), lines
+    assert math.hypot(truth.x - 2.0, truth.y) <= GOALS.position_tolerance, truth
+    assert abs(wrap_angle(truth.theta)) <= GOALS.heading_tolerance, truth
+    assert sim["counters"]["bumps"] == 0, "no bump"
+    assert motor["collision_monitor"]["counters"]["holds"] == 0, "the collision monitor never held the robot"
+
+
+def test_along_the_straight_line_a_goal_behind_the_box_ends_aborted_naming_it_and_goto_exits_3(tmp_path):
+    """``navigation.enabled = false``: the straight line, as before the navigation; the monitor holds
+    the robot short of the box, and the hold gives the goal up."""
+    with goals_run(
+        tmp_path, *FAST, "--set", "sim.world=bump", "--set", "navigation.enabled=false", record=False
+    ) as run:
         with run.goto("2.0", "0.0") as goto:
             code, lines, err = _ended(goto)
         truth = run.ground_truth()

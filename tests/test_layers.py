@@ -62,7 +62,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     ),
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph|outputs|sensors|navigate)", CORE),
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
-    (r"services\.drive\.goal_shell", SHELL),
+    (r"services\.drive\.(goal_shell|navigation_shell)", SHELL),
     (r"services\.ros2\.action_server", SHELL),
     (r"sim_bridge\.(bridge|link|liveness|loops|handshakes)", SHELL),
     (r"services\.service", SHELL_SUPPORT),

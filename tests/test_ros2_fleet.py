@@ -462,7 +462,8 @@ def goals(fleet: Fleet) -> Iterator[Goals]:
 
 def test_a_navigate_to_pose_goal_to_the_second_robot_is_reached_with_feedback_and_moves_only_it(goals):
     """A ROS client on ``/robot1/navigate_to_pose``: the goal accepted (the reply echoing the request's
-    sequence number and GID), feedback in ``map`` while it drives, the result SUCCEEDED with rh1 at
+    sequence number and GID), feedback in ``map`` while it drives, its plan on ``/robot1/plan``, the
+    result SUCCEEDED with rh1 at
     the goal within its tolerances and rh0 unmoved; the status ACCEPTED, EXECUTING, SUCCEEDED, also for
     a late subscriber; rh0's action, whose robot has no goal-mode drive, refuses a goal."""
     fleet = goals.fleet
@@ -490,6 +491,14 @@ def test_a_navigate_to_pose_goal_to_the_second_robot_is_reached_with_feedback_an
     assert all(f.number_of_recoveries == 0 and f.estimated_time_remaining.sec >= 0 for f in feedback)
     last = feedback[-1].current_pose.pose.position
     assert math.hypot(last.x - x, last.y - y) < 0.3, "the robot's pose, in map"
+    plans = [
+        ros_client.nav_decode(sample.payload, "nav_msgs/msg/Path")
+        for sample in fleet.recorder.of(f"{NAMESPACES[GOAL_ROBOT]}/plan")
+    ]
+    assert plans and plans[0].poses, "the goal's plan on /robot1/plan while it ran (nav_msgs/Path)"
+    assert plans[0].header.frame_id == "map" and plans[-1].poses == [], "cleared once the goal ended"
+    end = plans[0].poses[-1].pose.position
+    assert (end.x, end.y) == (pytest.approx(x), pytest.approx(y)), "the plan ends at the goal"
     navigate = fleet.status(GOAL_ROBOT, Service.ROS2)["navigate"]
     assert navigate["action"] == GOAL_ACTION and navigate["goals"][uuid.hex()] == "succeeded"
     assert fleet.status(GOAL_ROBOT, Service.DRIVE)["goals"]["accepted"] == 1, "rh1's drive got one goal, rh1's"

@@ -1,6 +1,8 @@
 """The wire contract: round trips, strict rejection, and the key space."""
 
+import json
 import math
+import re
 
 import msgspec
 import pytest
@@ -29,12 +31,14 @@ from schemas.messages import (
     CancelReply,
     CancelRequest,
     GoalFeedback,
+    GoalPlan,
     GoalReply,
     GoalRequest,
     GoalTarget,
     ImuSample,
     LaserScan,
     MotorStateReport,
+    OccupancyGrid,
     PlannedPath,
     RunSummary,
     ScenarioOutcome,
@@ -69,7 +73,27 @@ EXAMPLES = [
     CancelReply([], "no goal runs"),
     GoalTarget(Time(1, 0), "g1", 1.5, 0.5, None, "map", 0.05, 0.1, None),
     GoalFeedback(Time(2, 0), "g1", "executing", 0.3, 0.1, 0.2, 1.2, 1.0, 4.5),
+    GoalFeedback(Time(2, 0), "g1", "executing", 0.3, 0.1, 0.2, 1.2, 1.0, 4.5, recoveries=2),
+    OccupancyGrid(Time(0, 0), 0.05, 3, 2, -1.0, 2.5, bytes([0, 100, 255, 50, 0, 0])),
+    GoalPlan(Time(1, 0), "g1", [(0.0, 0.0), (1.5, 0.25)]),
+    GoalPlan(Time(1, 0), "g1", []),
 ]
+
+
+@pytest.mark.parametrize(
+    ("fields", "says"),
+    [
+        ({"data": "AAAA"}, "3 bytes of data for 2 x 2 cells"),
+        ({"data": "AGUAAA=="}, "neither -1 (unknown) nor 0 to 100"),
+        ({"width": 4096, "height": 4096, "data": ""}, "more than 4194304"),
+        ({"resolution": 0.0}, "Expected `float` > 0.0"),
+    ],
+)
+def test_an_occupancy_grid_that_does_not_hold_together_is_refused(fields, says):
+    grid = {"tm": {"sec": 0, "nsec": 0}, "resolution": 0.1, "width": 2, "height": 2, "origin_x": 0.0}
+    grid |= {"origin_y": 0.0, "data": "AAAAAA==", **fields}
+    with pytest.raises(BadMessage, match=re.escape(says)):
+        decode(OccupancyGrid, json.dumps(grid).encode())
 
 
 def test_a_goal_id_is_one_plain_word_of_at_most_64_characters():
@@ -219,6 +243,9 @@ def test_every_spec_data_key_has_its_schema():
         "drive/outcome": ScenarioOutcome,
         "drive/goal": GoalTarget,
         "drive/goal/feedback": GoalFeedback,
+        "drive/map": OccupancyGrid,
+        "drive/costmap": OccupancyGrid,
+        "drive/plan": GoalPlan,
         "up/run": RunSummary,
     }
     assert {str(topic): schema for topic, schema in TOPIC_TYPES.items()} == spec

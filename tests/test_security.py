@@ -86,7 +86,9 @@ def test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_tri
 
     ros = DEFAULT_ROS
     published = {ros.key(entity) for entity in (*PUBLICATIONS.values(), *ACTION_TOPICS.values())}
-    cache_keys = {f"{ros.key(PUBLICATIONS[name])}/@adv/**" for name in ("tf_static", "robot_description", "map", "costmap")}
+    cache_keys = {
+        f"{ros.key(PUBLICATIONS[name])}/@adv/**" for name in ("tf_static", "robot_description", "map", "costmap")
+    }
     cache_keys.add(f"{ros.key(ACTION_TOPICS[ActionTopic.STATUS])}/@adv/**")
     assert _put_keys(Role.ROS2) == published | cache_keys | {KEYS.drive_target_velocity}
     assert all(key.startswith("0/") for key in published)

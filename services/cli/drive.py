@@ -7,7 +7,7 @@ from typing import Any
 
 from services.cli.flags import finite_number, parsed_by, positive_seconds
 from services.cli.serve import ServiceCli
-from services.config import ConfigError, DriveConfig
+from services.config import Config, ConfigError, DriveConfig
 from services.drive.goal_file import load_goal_file
 from services.drive.scenarios import (
     BUILTIN_SCENARIOS,
@@ -18,6 +18,7 @@ from services.drive.scenarios import (
     parse_waypoints,
 )
 from services.drive.service import COMMAND, GOALS_MODE, TWIST_PASS_S, DriveOptions
+from services.navigation.map_file import read_map
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -72,6 +73,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--loop", action="store_true", help="start the scenario over when it ends, until a pass is given up"
     )
     parser.add_argument(
+        "--map",
+        metavar="MAP.yaml",
+        help="goal mode: navigate on this map (map_server's YAML and its PGM; invent map makes one from a world "
+        "file): its obstacles are the costmap's static layer, its extent the costmap's (navigation.map; "
+        "docs/navigation.md)",
+    )
+    parser.add_argument(
         "--rate",
         type=float,
         metavar="HZ",
@@ -80,7 +88,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def overrides(args: argparse.Namespace) -> dict[str, Any]:
-    return {"drive.rate": args.rate}
+    return {"drive.rate": args.rate, "navigation.map": args.map}
+
+
+def check(config: Config, options: DriveOptions) -> None:
+    """A map that goals navigate on must load (exit 2 naming the field before anything starts)."""
+    if options.mode == GOALS_MODE and config.navigation.enabled and config.navigation.map is not None:
+        read_map(config.navigation.map)
 
 
 def options(args: argparse.Namespace) -> DriveOptions:
@@ -120,4 +134,5 @@ CLI = ServiceCli(
     add_arguments=add_arguments,
     options=options,
     overrides=overrides,
+    check=check,
 )

@@ -14,6 +14,7 @@ from services.launch.plan import DEFAULT_SCENARIO, UpPlan
 from services.launch.ros2_run import BAG_DIRECTORY
 from services.launch.run import RECORDING_FILE, SECRETS_DIRECTORY
 from services.launch.up import run_up
+from services.navigation.map_file import read_map
 from services.recording import view
 from services.runtime.session import DEFAULT_ENDPOINT
 
@@ -40,8 +41,11 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
             "--split with --composed: --split runs a realtime run's sim and motor as two processes, --composed "
             "every service in one"
         )
+    if args.map is not None:
+        read_map(args.map)  # a map that does not load is refused before anything starts
     settings = [
         *description.settings,
+        *([f"navigation.map={Path(args.map).resolve()}"] if args.map is not None else []),
         *([f"record.rate={RecordRate.EVERY_STEP}"] if args.record_full_rate else []),
         *([f"ros2.tf={args.tf}"] if args.tf else []),
         *([f"sim.engine={args.engine}"] if args.engine else []),
@@ -91,6 +95,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="goal mode with goals (and cancels) sent at fixed simulation times from FILE (invent drive --goal-file; "
         "docs/drive.md, Goals): the run ends when the last goal has, with its outcome, in the configured mode "
         "(lockstep by default); one robot only",
+    )
+    parser.add_argument(
+        "--map",
+        metavar="MAP.yaml",
+        help="goals navigate on this map (map_server's YAML and PGM; invent map --world FILE -o MAP.yaml makes one): "
+        "its obstacles are the costmap's static layer, its extent the costmap's; published on drive/map and, "
+        "with --ros2, /map (the same as --set navigation.map=MAP.yaml; docs/navigation.md)",
     )
     fleet_flag(
         parser,

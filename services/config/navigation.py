@@ -78,7 +78,7 @@ class NavigationConfig(Section, frozen=True):
     scales linearly from 1 at no cost): slower near obstacles."""
     min_speed: Annotated[Positive, METRES_PER_SECOND] = 0.05
     """The slowest the regulations bring the tracker's speed to (but for the final approach)."""
-    rotate_to_heading_angle: Annotated[Positive, RADIANS] = math.radians(60.0)
+    rotate_to_heading_angle: Annotated[Positive, RADIANS] = math.radians(45.0)
     """When the path's direction lies further than this off the robot's heading, it turns in place first."""
     blocked_timeout: Annotated[Positive, SIMULATED_SECONDS] = 1.5
     """Held by the collision monitor, or making no progress along the plan, this long: blocked, a

@@ -31,6 +31,7 @@ from services.drive.goal_file import GoalFile, GoalSchedule
 from services.drive.goals import Ended, Goals, Started
 from services.drive.outcome import GiveUp, GiveUpRule, Outcome
 from services.drive.path_following import Command
+from services.navigation.costmap import Costmap
 from services.planar import Pose
 from services.runtime.node import Node
 
@@ -49,7 +50,9 @@ class GoalDrive:
         give_up: GiveUpRule,
         latest_pose: Callable[[], Pose | None],
         motor_stopped_by: Callable[[], str | None],
+        costmap: Costmap | None = None,
     ) -> None:
+        """``costmap``: goals navigate on it (``navigation.enabled``); None: the straight line."""
         self.node = node
         odometry = config.odometry
         self.goals = Goals(
@@ -57,6 +60,8 @@ class GoalDrive:
             config.goals,
             config.input,
             Pose(odometry.initial_x, odometry.initial_y, odometry.initial_theta),
+            costmap,
+            None if costmap is None else config.navigation,
         )
         self.give_up = give_up
         self._latest_pose = latest_pose
@@ -118,8 +123,9 @@ class GoalDrive:
             self.node.log.warning("cancel refused: %s", reply.reason)
         return reply
 
-    def tick(self, tick_ns: int, pose: Pose | None) -> Command:
-        """The command from ``tick_ns`` until the next tick, with ``pose`` the robot's (None: none fresh)."""
+    def tick(self, tick_ns: int, pose: Pose | None, costmap_updated: bool = False) -> Command:
+        """The command from ``tick_ns`` until the next tick, with ``pose`` the robot's (None: none
+        fresh); ``costmap_updated``: the costmap took scans since the last tick."""
         if self._start_ns is None:
             self._start_ns = tick_ns
             self._feedback_schedule = PeriodicSchedule(self._feedback_rate, 0)
@@ -132,7 +138,10 @@ class GoalDrive:
                     self._send(request, pose)
         dt = 0.0 if self._last_tick_ns is None else (tick_ns - self._last_tick_ns) / NANOSECONDS_PER_SECOND
         self._last_tick_ns = tick_ns
-        step = self.goals.step(tick_ns, pose, dt)
+        running = self.goals.running
+        if costmap_updated and running is not None and running.navigator is not None:
+            running.navigator.costmap_updated()
+        step = self.goals.step(tick_ns, pose, dt, self.give_up.held_by)
         for ended in step.ended:
             self._ended(tick_ns, ended)
         if step.started is not None:
@@ -140,7 +149,10 @@ class GoalDrive:
         command = step.command
         running = self.goals.running
         if running is not None:
-            given_up = self.give_up.check(tick_ns, tick_ns - running.start_ns, from_ns=running.start_ns)
+            # A navigated goal recovers from the collision monitor's holds itself (its navigator).
+            given_up = self.give_up.check(
+                tick_ns, tick_ns - running.start_ns, from_ns=running.start_ns, holds=self.goals.costmap is None
+            )
             if given_up is not None and (gone := self.goals.give_up(tick_ns, given_up.outcome, given_up.reason)):
                 self._ended(tick_ns, gone)
                 command = self.goals.command
@@ -210,6 +222,7 @@ class GoalDrive:
                 distance_remaining=progress.distance_remaining,
                 elapsed_s=progress.elapsed_s,
                 estimated_remaining_s=progress.estimated_remaining_s,
+                recoveries=progress.recoveries,
             )
         )
         self.feedback_published += 1

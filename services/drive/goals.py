@@ -18,10 +18,12 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from schemas.messages import NANOSECONDS_PER_SECOND, CancelReply, CancelRequest, GoalReply, GoalRequest
-from services.config import DriveConfig, GoalsConfig, InputConfig
+from services.config import DriveConfig, GoalsConfig, InputConfig, NavigationConfig
 from services.drive.outcome import Outcome
 from services.drive.path_following import STOPPED, Command, PathFollower, limit_rate
 from services.drive.scenarios import goal_duration
+from services.navigation.costmap import Costmap
+from services.navigation.navigator import Navigator, NavigatorPhase
 from services.planar import Pose, wrap_angle
 
 GOAL_FRAMES = ("map", "odom")
@@ -76,6 +78,8 @@ class RunningGoal:
     phase: Phase = Phase.APPROACH
     attempts: int = 1
     follower: PathFollower | None = None
+    navigator: Navigator | None = None
+    """The goal's navigation while it approaches (None: the straight line, or not approaching)."""
     settle_since_ns: int | None = None
     """Since when the pose has been still, with the command zero, while settling."""
     settle_pose: Pose | None = None
@@ -107,8 +111,11 @@ class Progress:
     goal: Goal
     canceling: bool
     distance_remaining: float
+    """Along the plan while the goal navigates, else straight to it."""
     elapsed_s: float
     estimated_remaining_s: float
+    recoveries: int = 0
+    """Recoveries the goal's navigation has tried so far."""
 
 
 @dataclass
@@ -134,7 +141,21 @@ def odom_to_map(origin: Pose, x: float, y: float, theta: float | None) -> tuple[
 class Goals:
     """The drive's goals: call :meth:`send` and :meth:`cancel` as requests come, :meth:`step` at every tick."""
 
-    def __init__(self, drive: DriveConfig, goals: GoalsConfig, bounds: InputConfig, odom_origin: Pose) -> None:
+    def __init__(
+        self,
+        drive: DriveConfig,
+        goals: GoalsConfig,
+        bounds: InputConfig,
+        odom_origin: Pose,
+        costmap: Costmap | None = None,
+        navigation: NavigationConfig | None = None,
+    ) -> None:
+        """``costmap`` (with ``navigation``, its settings): goals navigate on it (services/navigation/);
+        None: each goal is driven along the straight line to it."""
+        if (costmap is None) != (navigation is None):
+            raise ValueError("a costmap goes with its navigation settings")
+        self.costmap = costmap
+        self.navigation = navigation
         self.drive = drive
         self.defaults = goals
         self.bounds = bounds
@@ -198,6 +219,13 @@ class Goals:
         limit = self.bounds.max_coordinate
         if abs(x) > limit or abs(y) > limit:
             return f"the goal ({x:.6g}, {y:.6g}) in map is beyond input.max_coordinate = {limit:g} m"
+        if self.costmap is not None and not self.costmap.geometry.contains(x, y):
+            geometry = self.costmap.geometry
+            return (
+                f"the goal ({x:.6g}, {y:.6g}) in map is off the costmap (x {geometry.origin_x:.2f} to "
+                f"{geometry.max_x:.2f}, y {geometry.origin_y:.2f} to {geometry.max_y:.2f}): "
+                "a goal navigates on the map, or on navigation.size around the start"
+            )
         if len(self._preempted) >= MAX_WAITING:
             return f"{MAX_WAITING} goals already wait for the drive's next tick (is the simulation clock running?)"
         if request.id and (request.id in self._live_ids()):
@@ -276,9 +304,10 @@ class Goals:
 
     # --- the ticks ------------------------------------------------------------------------------
 
-    def step(self, now_ns: int, pose: Pose | None, dt: float) -> Tick:
+    def step(self, now_ns: int, pose: Pose | None, dt: float, held_by: str = "") -> Tick:
         """The command from ``now_ns`` until the next tick (``dt`` s after the previous one), given
-        the robot's ``pose`` (None: none fresh); the goals that ended and started at this tick."""
+        the robot's ``pose`` (None: none fresh) and why the collision monitor holds it (``held_by``,
+        "" while it does not); the goals that ended and started at this tick."""
         tick = Tick(STOPPED)
         for goal, reason in self._preempted:
             self._end(tick, goal, Outcome.CANCELED, reason, 0.0)
@@ -295,7 +324,13 @@ class Goals:
         if running is None:
             self.command = STOPPED
             return tick
-        command = self._drive(running, now_ns, pose, dt)
+        command = self._drive(running, now_ns, pose, dt, held_by)
+        navigator = running.navigator
+        if navigator is not None and navigator.phase is NavigatorPhase.FAILED:
+            self.command = command
+            self._end_running(tick, now_ns, Outcome.ABORTED, navigator.failure)
+            tick.command = command
+            return tick
         if running.phase is Phase.CANCELING and command == STOPPED:
             self._end_running(tick, now_ns, Outcome.CANCELED, running.cancel_reason)
         elif running.phase is Phase.SETTLE and pose is not None and self._settled(running, now_ns):
@@ -312,7 +347,7 @@ class Goals:
         self.running = RunningGoal(goal, now_ns, limit)
         return Started(goal, limit)
 
-    def _drive(self, running: RunningGoal, now_ns: int, pose: Pose | None, dt: float) -> Command:
+    def _drive(self, running: RunningGoal, now_ns: int, pose: Pose | None, dt: float, held_by: str) -> Command:
         params = self.drive
         if running.phase is Phase.CANCELING:
             return limit_rate(self.command, STOPPED, dt, params.max_acceleration, params.max_angular_acceleration)
@@ -321,6 +356,14 @@ class Goals:
                 running.follower.command = STOPPED
             return STOPPED
         goal = running.goal
+        if running.phase is Phase.APPROACH and self.costmap is not None:
+            assert self.navigation is not None
+            if running.navigator is None:
+                running.navigator = Navigator((goal.x, goal.y), self.costmap, params, self.navigation, self.command)
+            command = running.navigator.step(now_ns, pose, dt, held_by)
+            if running.navigator.phase is not NavigatorPhase.ARRIVED:
+                return command
+            running.phase = Phase.ALIGN if goal.theta is not None else Phase.SETTLE
         if running.phase is Phase.APPROACH:
             if running.follower is None:
                 running.follower = PathFollower([(goal.x, goal.y)], params, self.command)
@@ -376,6 +419,7 @@ class Goals:
             return
         running.attempts += 1
         running.settle_since_ns, running.settle_pose = None, None
+        running.navigator = None
         running.phase = Phase.APPROACH if distance > goal.position_tolerance else Phase.ALIGN
 
     def give_up(self, now_ns: int, outcome: Outcome, reason: str) -> Ended | None:
@@ -411,13 +455,32 @@ class Goals:
             return None
         goal = running.goal
         canceling = running.phase is Phase.CANCELING
+        distance = math.hypot(goal.x - pose.x, goal.y - pose.y)
+        estimate = goal_duration(pose, goal.x, goal.y, goal.theta, self.drive)
+        navigator = running.navigator
+        tracker = None if navigator is None else navigator.tracker
+        if tracker is not None:
+            along = math.dist((pose.x, pose.y), tracker.remaining_points()[0]) + tracker.remaining
+            estimate += (along - distance) / self.drive.cruise_speed
+            distance = along
         return Progress(
             goal=goal,
             canceling=canceling,
-            distance_remaining=math.hypot(goal.x - pose.x, goal.y - pose.y),
+            distance_remaining=distance,
             elapsed_s=(now_ns - running.start_ns) / NANOSECONDS_PER_SECOND,
-            estimated_remaining_s=0.0 if canceling else goal_duration(pose, goal.x, goal.y, goal.theta, self.drive),
+            estimated_remaining_s=0.0 if canceling else estimate,
+            recoveries=0 if navigator is None else navigator.recoveries,
         )
+
+    @property
+    def plan(self) -> tuple[str, int, tuple[tuple[float, float], ...]] | None:
+        """The running goal's plan as (goal id, version, points), the version increasing with every
+        new plan; None when no goal navigates or it has no plan yet."""
+        running = self.running
+        navigator = None if running is None else running.navigator
+        if running is None or navigator is None or navigator.plan is None:
+            return None
+        return running.goal.id, navigator.plan_version, navigator.plan.points
 
     def status(self) -> dict[str, object]:
         running = self.running
@@ -433,6 +496,7 @@ class Goals:
                 "theta": running.goal.theta,
                 "attempt": running.attempts,
                 "time_limit_s": running.time_limit_s,
+                "navigation": None if running.navigator is None else running.navigator.status(),
             },
             "pending": None if self.pending is None else self.pending.id,
             "last": None

@@ -131,13 +131,14 @@ class GiveUpRule:
         self.limit_s = limit_s
         self._limit_ns = None if limit_s is None else _ns(limit_s)
 
-    def check(self, now_ns: int, pass_elapsed_ns: int, from_ns: int | None = None) -> GiveUp | None:
+    def check(self, now_ns: int, pass_elapsed_ns: int, from_ns: int | None = None, holds: bool = True) -> GiveUp | None:
         """Whether to give the scenario (or goal) up at ``now_ns``, ``pass_elapsed_ns`` into its
-        current pass; a stop or hold counts from ``from_ns`` at the earliest (a goal's start)."""
+        current pass; a stop or hold counts from ``from_ns`` at the earliest (a goal's start);
+        ``holds``: whether a hold gives up (false: a navigated goal, which recovers from holds itself)."""
         since_ns = _not_before(self._stop_start_ns(), from_ns)
         if self._stop_ns is not None and since_ns is not None and now_ns - since_ns >= self._stop_ns:
             return GiveUp(Outcome.ABORTED, self._stop_reason(since_ns, now_ns))
-        held_ns = _not_before(self.held_since_ns, from_ns)
+        held_ns = _not_before(self.held_since_ns, from_ns) if holds else None
         if self._stop_ns is not None and held_ns is not None and now_ns - held_ns >= self._stop_ns:
             held_s = (now_ns - held_ns) / NANOSECONDS_PER_SECOND
             return GiveUp(

@@ -60,6 +60,7 @@ from services.clock.sim_watch import SimulatorWatch
 from services.config import Config
 from services.drive.goal_file import GoalFile
 from services.drive.goal_shell import GoalDrive
+from services.drive.navigation_shell import NavigationShell
 from services.drive.outcome import GiveUp, GiveUpRule, Outcome, time_limit
 from services.drive.path_following import STOPPED, Command
 from services.drive.scenarios import Scenario, ScenarioRunner, describe, is_builtin, placed, planned_path
@@ -133,6 +134,10 @@ class DriveService:
         self._outcome = node.latched_publisher(node.keys.drive_outcome)
         self.motor_stopped_by: str | None = None
         """Who latched the motor's stop (``motor/state``'s ``stopped_by``) while it is latched; else None."""
+        self.navigation = (
+            NavigationShell(node, config) if self.mode == GOALS_MODE and config.navigation.enabled else None
+        )
+        """Goals navigate on a costmap (docs/navigation.md); None: scenarios, or goals along the straight line."""
         self.goal_drive = (
             GoalDrive(
                 node,
@@ -141,6 +146,7 @@ class DriveService:
                 self.give_up,
                 lambda: self.pose if self.clock.last_ns is None else self._fresh_pose(self.clock.last_ns),
                 lambda: self.motor_stopped_by,
+                None if self.navigation is None else self.navigation.costmap,
             )
             if self.mode == GOALS_MODE
             else None
@@ -218,6 +224,8 @@ class DriveService:
             check_stamp_near(message.tm.to_nanoseconds(), self.clock.last_ns, self.clock.horizon_ns, math.inf, "pose")
         self.pose = Pose(message.x, message.y, message.theta)
         self.pose_stamp_ns = message.tm.to_nanoseconds()
+        if self.navigation is not None:
+            self.navigation.pose(self.pose_stamp_ns, self.pose)
         self._complete_tick()
 
     @property
@@ -247,6 +255,8 @@ class DriveService:
         self.give_up.restart(now_ns)
         if self.goal_drive is not None:
             self.goal_drive.restart(now_ns)
+        if self.navigation is not None:
+            self.navigation.restart()
         self.node.log.info(
             "simulation time went back to %.3f s (a new simulator): %r starts over",
             now_ns / NANOSECONDS_PER_SECOND,
@@ -347,7 +357,11 @@ class DriveService:
         """Goal mode's command at this tick, and whether a goal file's run is over."""
         goal_drive = self.goal_drive
         assert goal_drive is not None
-        command = goal_drive.tick(tick_ns, self._fresh_pose(tick_ns))
+        navigation = self.navigation
+        updated = navigation is not None and navigation.tick(tick_ns)
+        command = goal_drive.tick(tick_ns, self._fresh_pose(tick_ns), updated)
+        if navigation is not None:
+            navigation.show_plan(tick_ns, goal_drive.goals.plan)
         if goal_drive.finished and self.final_zeros == 0:
             self.outcome = goal_drive.outcome
             self.node.log.info(
@@ -366,6 +380,7 @@ class DriveService:
                 **self._common_status(),
                 "command": {"vx": command.vx, "w": command.w},
                 "goals": self.goal_drive.status(),
+                "navigation": None if self.navigation is None else self.navigation.status(),
             }
         return {
             **self._common_status(),

@@ -125,6 +125,8 @@ def loop_health(sim_status: dict[str, Any] | None, statuses: dict[str, dict[str,
     service's bad-input, internal-error and dropped-event counts."""
     counters = (sim_status or {}).get("counters", {})
     drive = statuses.get(str(Service.DRIVE)) or {}
+    motor = statuses.get(str(Service.MOTOR)) or {}
+    navigation = drive.get("navigation") or {}
     steps = (sim_status or {}).get("steps", 0)
     lockstep = (sim_status or {}).get("mode") == "lockstep"
     late = counters.get("late_torques" if lockstep else "realtime_late_steps", 0)
@@ -148,6 +150,14 @@ def loop_health(sim_status: dict[str, Any] | None, statuses: dict[str, dict[str,
             "pose_wait_timeouts": drive.get("pose_wait_timeouts", 0) if lockstep else 0,
         },
         "realtime": {"resyncs": counters.get("realtime_resyncs", 0)},
+        "safety": {
+            "bumps": counters.get("bumps", 0),
+            "collision_monitor_holds": ((motor.get("collision_monitor") or {}).get("counters") or {}).get("holds", 0),
+        },
+        "navigation": {
+            "scans": navigation.get("scans", 0),
+            "scans_late": navigation.get("scans_late", 0) if lockstep else 0,
+        },
         "services": {
             name: {
                 "bad_inputs": status["bad_input"]["total"],
@@ -181,6 +191,11 @@ def degradations(health: dict[str, Any]) -> list[str]:
         reasons.append(
             f"{pose_waits} drive ticks commanded from an older pose (odometry's pose "
             "of the tick did not come within sim.lockstep_timeout)"
+        )
+    # .get: recordings made before the navigation have no such field.
+    if late_scans := health.get("navigation", {}).get("scans_late", 0):
+        reasons.append(
+            f"{late_scans} scans reached the drive after the tick that should have taken them into its costmap"
         )
     for name, counts in health["services"].items():
         for counter in ("internal_errors", "dropped_events"):

@@ -166,7 +166,8 @@ def uuid_bytes(message: Any) -> bytes:
 
 def feedback_message(uuid: bytes, feedback: GoalFeedback, map_frame: str) -> Any:
     """``NavigateToPose_FeedbackMessage`` of the drive's feedback: the robot's pose in the map
-    frame, the time it has driven and the estimate of the rest, no recoveries, the distance left."""
+    frame, the time it has driven and the estimate of the rest, the recoveries its navigation has tried
+    (int16: capped at 32767), the distance left."""
     stamp_ns = feedback.tm.to_nanoseconds()
     pose = interfaces.message_class("geometry_msgs/msg/Pose")(
         position=core.vector(feedback.x, feedback.y, 0.0, kind="Point"), orientation=core.yaw_rotation(feedback.theta)
@@ -179,7 +180,7 @@ def feedback_message(uuid: bytes, feedback: GoalFeedback, map_frame: str) -> Any
             ),
             navigation_time=duration(feedback.elapsed_s),
             estimated_time_remaining=duration(feedback.estimated_remaining_s),
-            number_of_recoveries=0,
+            number_of_recoveries=min(feedback.recoveries, 32767),
             distance_remaining=float(feedback.distance_remaining),
         ),
     )
