@@ -10,12 +10,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from schemas.messages import CancelRequest, GoalRequest
-from services.config import ConfigError, DriveConfig, GoalsConfig, InputConfig
+from services.config import ConfigError, DriveConfig, GoalsConfig, InputConfig, NavigationConfig
 from services.drive.goal_file import GoalSchedule, parse_goal_file
 from services.drive.goals import MAX_ATTEMPTS, MAX_WAITING, Goals, Phase, Tick, odom_to_map
 from services.drive.outcome import Outcome
 from services.drive.path_following import STOPPED
 from services.drive.scenarios import goal_duration
+from services.navigation.costmap import Costmap
+from services.navigation.grid import GridGeometry
 from services.planar import Pose, wrap_angle
 from tests.test_path_following import unicycle
 
@@ -356,3 +358,12 @@ def test_a_bad_goal_file_is_a_configuration_error_naming_the_entry(text: str, me
     with pytest.raises(ConfigError, match="goal file") as error:
         parse_goal_file(text)
     assert message in str(error.value)
+
+
+def test_a_goal_off_the_costmap_is_rejected_naming_its_extent_while_goals_navigate() -> None:
+    navigation = NavigationConfig()
+    costmap = Costmap(GridGeometry.centred(0.0, 0.0, 4.0, 0.05), navigation, 0.45)
+    goals = Goals(DRIVE, GOALS, InputConfig(), ORIGIN, costmap, navigation)
+    reply = goals.send(GoalRequest(x=3.0, y=0.0), ORIGIN, None)
+    assert not reply.accepted and "off the costmap (x -2.00 to 2.00, y -2.00 to 2.00)" in reply.reason, reply
+    assert goals.send(GoalRequest(x=1.5, y=0.0), ORIGIN, None).accepted

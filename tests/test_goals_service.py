@@ -13,10 +13,18 @@ import zenoh
 
 from schemas.codec import encode
 from schemas.keys import Keys, Service
-from schemas.messages import GoalFeedback, GoalTarget, MotorStateReport, ScenarioOutcome, Time, TimedVelocity
+from schemas.messages import (
+    GoalFeedback,
+    GoalTarget,
+    LaserScan,
+    MotorStateReport,
+    ScenarioOutcome,
+    Time,
+    TimedVelocity,
+)
 from services.config import GoalsConfig
 from services.exits import ExitStatus
-from services.planar import wrap_angle
+from services.planar import Pose, wrap_angle
 from tests.harness import Collector, call, wait_alive, wait_until
 from tests.test_drive_service import TICK_NS, SyntheticLoop, drive
 
@@ -177,3 +185,44 @@ def test_a_goal_file_plays_the_same_commands_every_time_and_exits_with_its_last_
     assert commands[-1][1:] == (0.0, 0.0)
     assert [stamp for stamp, _, _ in commands] == [k * TICK_NS for k in range(len(commands))]
     assert _goal_file_run(endpoint, session, path) == (code, commands, outcomes), "the same, tick for tick"
+
+
+def _scan(stamp_ns: int, reach: float = 2.0) -> bytes:
+    """A full circle of 360 returns at ``reach`` m, stamped ``stamp_ns``."""
+    return encode(LaserScan(Time.from_nanoseconds(stamp_ns), -math.pi, math.tau / 360, 0.12, 3.5, [reach] * 360))
+
+
+def test_scans_with_wrong_stamps_or_off_the_costmap_are_dropped_counted_and_the_drive_navigates_on(
+    endpoint: str, session: zenoh.Session
+) -> None:
+    """``sim/scan`` as a buggy or hostile peer sends it to a goal-mode drive (a costmap of 4 m around
+    the start): a scan not after the last, one stamped beyond ``input.stamp_horizon``, one whose lidar
+    lies off the costmap: each dropped, counted under ``sim/scan``, the costmap unchanged by it; the
+    drive lives on and a goal then completes."""
+    commands = Collector(session, KEYS.drive_target_velocity, TimedVelocity)
+    outcomes = Collector(session, KEYS.drive_outcome, ScenarioOutcome)
+    with drive(endpoint, "--goals", "--set", "navigation.size=4") as process:
+        wait_alive(session, KEYS.alive(Service.DRIVE))
+        loop = SyntheticLoop(session, commands)
+        scans = session.declare_publisher(KEYS.sim_scan)
+        wait_until(lambda: scans.matching_status.matching, what="the drive's scan subscriber")
+        command = loop.first_command()
+        scans.put(_scan(loop.now_ns + TICK_NS))
+        command = loop.next_command(command)
+        scans.put(_scan(loop.now_ns))  # not after the last
+        scans.put(_scan(loop.now_ns + 10 * 10**9))  # 10 s ahead of the drive's tick
+        loop.pose = Pose(5.0, 0.0, 0.0)  # the lidar 3 m beyond the costmap's edge, from this tick on
+        command = loop.next_command(command)
+        scans.put(_scan(loop.now_ns + TICK_NS))
+        for _ in range(5):
+            command = loop.next_command(command)
+        status = drive_status(session)
+        assert status["bad_input"]["by_key"][KEYS.sim_scan]["count"] == 3, (status["bad_input"], status["navigation"])
+        assert status["navigation"]["scans"] == 1 and status["navigation"]["costmap"]["scans"] == 1
+        assert status["internal_errors"] == 0 and process.process.poll() is None
+
+        loop.pose = Pose(0.0, 0.0, 0.0)
+        ok, reply = call(session, KEYS.drive_goal_send, json.dumps({"x": 0.8, "y": 0.0}))
+        assert ok and reply["accepted"], reply
+        until(loop, command, lambda: not outcomes.samples.empty())
+        assert outcomes.get().outcome == "completed"
