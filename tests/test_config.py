@@ -155,6 +155,7 @@ OPTIONAL_FIELDS = (
     "record.max_duration",
     "record.split_size",
     "record.split_duration",
+    "navigation.map",
 )
 
 

@@ -322,6 +322,7 @@ def test_gui_without_a_display_exits_2_before_anything_starts():
         (("--goal-file", "nowhere.toml"), "goal file 'nowhere.toml'"),
         (("--fleet", "examples/fleets/two_squares.toml", "--goal-file", "g.toml"), "--fleet with --goal-file"),
         (("--mode", "realtime", "--split", "--composed"), "--split with --composed"),
+        (("--goals", "--map", "nowhere.yaml"), "nowhere.yaml"),
     ],
 )
 def test_a_scenario_or_world_a_service_would_refuse_exits_2_before_anything_starts(

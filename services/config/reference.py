@@ -29,7 +29,7 @@ MARKER = (
     "edit the types and their docstrings, then run it. -->"
 )
 INTRODUCTION = (
-    "Generated from the section types (`services/config/sections.py`, `sensors.py`, `run_sections.py`): each "
+    "Generated from the section types (`services/config/sections.py`, `sensors.py`, `navigation.py`, `run_sections.py`): each "
     "field's type, bounds, default and unit from its type, its meaning from the docstring under it; "
     "`python -m services.config.reference` rewrites it, and `tests/test_configuration_reference.py` "
     'fails while it and the types differ. An optional parameter takes `"none"` to turn it off.'
