@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import pytest
 import websockets
@@ -94,8 +94,18 @@ def _done(seen: Seen) -> bool:
     return any(label.startswith("g2 completed") for label in _labels(seen.scenes(), "goal"))
 
 
-async def _watch(url: str, seen: Seen, done: Callable[[Seen], bool]) -> None:
-    """Subscribe to each wanted channel as it is advertised, and take its messages until ``done``."""
+class Watched(Protocol):
+    """What a live view's client keeps: each advertised channel by topic, each wanted topic's messages."""
+
+    channels: dict[str, dict[str, Any]]
+    frames: dict[str, list[bytes]]
+
+
+WatchedT = TypeVar("WatchedT", bound=Watched)
+
+
+async def watch_view(url: str, seen: WatchedT, done: Callable[[WatchedT], bool], wanted: set[str]) -> None:
+    """Subscribe to each ``wanted`` channel as it is advertised, and take its messages until ``done``."""
     async with websockets.connect(
         url, subprotocols=SUBPROTOCOLS, open_timeout=10, close_timeout=1, max_size=None
     ) as client:
@@ -111,7 +121,7 @@ async def _watch(url: str, seen: Seen, done: Callable[[Seen], bool]) -> None:
                 new = {}
                 for channel in op["channels"]:
                     seen.channels[channel["topic"]] = channel
-                    if channel["topic"] in WANTED and channel["topic"] not in subscriptions.values():
+                    if channel["topic"] in wanted and channel["topic"] not in subscriptions.values():
                         index = len(subscriptions) + 1
                         subscriptions[index], new[index] = channel["topic"], channel["id"]
                 channel_ids.update(new)
@@ -170,7 +180,7 @@ def goal_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GoalRun]:
             feeding.set()
             feeder = threading.Thread(target=feed, daemon=True)
             feeder.start()
-            asyncio.run(asyncio.wait_for(_watch(match.group(1), seen, _done), WATCH_TIMEOUT_S))
+            asyncio.run(asyncio.wait_for(watch_view(match.group(1), seen, _done, WANTED), WATCH_TIMEOUT_S))
             wait_until(lambda: KEYS.run_summary in published, 30, "the script's end")
 
             def counted() -> dict[str, Any] | None:

@@ -41,23 +41,10 @@ def maps(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return made
 
 
-def navigate(world: str, report: Path, map_file: Path | None) -> tuple[int, dict[str, Any], str]:
-    """``invent up`` of the world's goal file; its exit status, report.json and output."""
-    flags = ["--map", str(map_file)] if map_file is not None else []
+def run_up(report: Path, *flags: str) -> tuple[int, dict[str, Any], str]:
+    """``invent up --composed --engine kinematic FLAGS`` into ``report``: its exit status, report.json, output."""
     result = subprocess.run(
-        invent_command(
-            "up",
-            "--composed",
-            "--engine",
-            "kinematic",
-            "--set",
-            f"sim.world={world}",
-            "--goal-file",
-            str(GOALS / f"{world}.toml"),
-            "--report",
-            str(report),
-            *flags,
-        ),
+        invent_command("up", "--composed", "--engine", "kinematic", "--report", str(report), *flags),
         cwd=REPO,
         capture_output=True,
         text=True,
@@ -68,6 +55,12 @@ def navigate(world: str, report: Path, map_file: Path | None) -> tuple[int, dict
     report_file = report / "report.json"
     assert report_file.exists(), output
     return result.returncode, json.loads(report_file.read_text()), output
+
+
+def navigate(world: str, report: Path, map_file: Path | None) -> tuple[int, dict[str, Any], str]:
+    """``invent up`` of the world's goal file, with its map or none."""
+    flags = ["--map", str(map_file)] if map_file is not None else []
+    return run_up(report, "--set", f"sim.world={world}", "--goal-file", str(GOALS / f"{world}.toml"), *flags)
 
 
 def assert_touched_nothing(report: dict[str, Any], output: str) -> None:
@@ -107,26 +100,8 @@ def test_two_robots_swapping_ends_of_a_corridor_3_m_wide_pass_each_other_touchin
     """``examples/fleets/corridor_swap.toml``: head-on on the corridor's centre line, each to the
     other's start. Each lidar sees the other robot, each costmap marks it (and forgets it as it
     passes), each plan goes round it: both goals complete, no bump, no hold, the bodies apart."""
-    result = subprocess.run(
-        invent_command(
-            "up",
-            "--composed",
-            "--engine",
-            "kinematic",
-            "--fleet",
-            "examples/fleets/corridor_swap.toml",
-            "--report",
-            str(tmp_path),
-        ),
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=300,
-        check=False,
-    )
-    output = result.stdout[-6000:] + result.stderr[-3000:]
-    assert result.returncode == ExitStatus.OK, output
-    report = json.loads((tmp_path / "report.json").read_text())
+    code, report, output = run_up(tmp_path, "--fleet", "examples/fleets/corridor_swap.toml")
+    assert code == ExitStatus.OK, output
     layout = load_world("corridor")
     for name, robot in report["robots"].items():
         assert_touched_nothing(robot, output)

@@ -10,17 +10,15 @@ drive's latched publishers do)."""
 from __future__ import annotations
 
 import asyncio
-import json
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-import websockets
 import zenoh
 from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.Grid_pb2 import Grid
@@ -50,7 +48,8 @@ from services.recording.scene import PLAN_COLOR, SCENE_TOPIC, WORLD_FRAME, Scene
 from services.runtime.journal import Journal, journal_path
 from services.runtime.logs import BadInputCounter
 from tests.harness import InventProcess, peer_session, running_router, wait_until
-from tests.test_view import HEADER, MESSAGE_DATA, STARTUP_TIMEOUT_S, SUBPROTOCOLS, UNKNOWN_CHANNEL, URL_LINE, _Process
+from tests.test_goal_view import watch_view
+from tests.test_view import STARTUP_TIMEOUT_S, URL_LINE, _Process
 
 CONFIG = Config()
 KEYS = Keys()
@@ -376,35 +375,6 @@ class Seen:
         ]
 
 
-async def _watch(url: str, seen: Seen, done: Callable[[Seen], bool]) -> None:
-    """Subscribe to each wanted channel as it is advertised, and take its messages until ``done``."""
-    async with websockets.connect(
-        url, subprotocols=SUBPROTOCOLS, open_timeout=10, close_timeout=1, max_size=None
-    ) as client:
-        assert json.loads(await client.recv())["op"] == "serverInfo"
-        subscriptions: dict[int, str] = {}
-        channel_ids: dict[int, int] = {}
-        while not done(seen):
-            message = await client.recv()
-            if isinstance(message, bytes) and message[0] == MESSAGE_DATA:
-                _opcode, subscription, _log_time_ns = HEADER.unpack_from(message)
-                seen.frames.setdefault(subscriptions[subscription], []).append(message[HEADER.size :])
-            elif isinstance(message, str) and (op := json.loads(message))["op"] == "advertise":
-                new = {}
-                for channel in op["channels"]:
-                    seen.channels[channel["topic"]] = channel
-                    if channel["topic"] in WANTED and channel["topic"] not in subscriptions.values():
-                        index = len(subscriptions) + 1
-                        subscriptions[index], new[index] = channel["topic"], channel["id"]
-                channel_ids.update(new)
-                if new:
-                    entries = [{"id": index, "channelId": channel} for index, channel in new.items()]
-                    await client.send(json.dumps({"op": "subscribe", "subscriptions": entries}))
-            elif isinstance(message, str) and (unknown := UNKNOWN_CHANNEL.search(message)):
-                again = [{"id": i, "channelId": c} for i, c in channel_ids.items() if c == int(unknown.group(1))]
-                await client.send(json.dumps({"op": "subscribe", "subscriptions": again}))
-
-
 @dataclass
 class LiveRun:
     seen: Seen
@@ -479,9 +449,9 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveRun]:
             feeder = threading.Thread(target=feed, daemon=True)
             feeder.start()
             url = match.group(1)
-            asyncio.run(asyncio.wait_for(_watch(url, seen, drawn), WATCH_TIMEOUT_S))
+            asyncio.run(asyncio.wait_for(watch_view(url, seen, drawn, WANTED), WATCH_TIMEOUT_S))
             latched[1].put(encode(_plan(10 * S, [])))  # the goal ended
-            asyncio.run(asyncio.wait_for(_watch(url, seen, lambda s: s.plans()[-1] == []), WATCH_TIMEOUT_S))
+            asyncio.run(asyncio.wait_for(watch_view(url, seen, lambda s: s.plans()[-1] == [], WANTED), WATCH_TIMEOUT_S))
         finally:
             feeding.clear()
             if feeder is not None:

@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from benchmarks.navigation import path_cost
 from services.config import RobotConfig
 from services.config.navigation import NavigationConfig
 from services.navigation.costmap import FREE, INSCRIBED, LETHAL, MAX_INFLATED, Costmap
@@ -250,16 +251,6 @@ def oracle(costs: np.ndarray, start: int, weight: float) -> np.ndarray:
     return dijkstra(graph, directed=True, indices=start)
 
 
-def grid_path_cost(costs: np.ndarray, cells: list[int], weight: float) -> float:
-    width = costs.shape[1]
-    flat = costs.reshape(-1)
-    total = 0.0
-    for before, cell in itertools.pairwise(cells):
-        diagonal = before % width != cell % width and before // width != cell // width
-        total += (math.sqrt(2.0) if diagonal else 1.0) * (1.0 + weight * int(flat[cell]) / MAX_INFLATED)
-    return total
-
-
 rectangles = st.lists(
     st.tuples(st.floats(-1.5, 1.5), st.floats(-1.25, 1.25), st.floats(0.05, 1.2), st.floats(0.05, 1.2)),
     max_size=6,
@@ -320,7 +311,7 @@ def test_every_plan_keeps_off_obstacles_and_ends_where_asked_and_exact_a_star_is
     assert_keeps_off_obstacles(costmap, result)
     assert exact is not None and exact[0] == start_cell and exact[-1] == goal_cell
     assert_legal(costs, exact)
-    assert grid_path_cost(costs, exact, weight) == pytest.approx(reachable, rel=1e-9), "exact A* finds the cheapest"
+    assert path_cost(costs, exact, weight) == pytest.approx(reachable, rel=1e-9), "exact A* finds the cheapest"
     cells = route(costs, start_cell, goal_cell, weight)
     assert cells is not None and cells[0] == start_cell and cells[-1] == goal_cell
     assert_legal(costs, cells)

@@ -43,6 +43,7 @@ from services.ros2.graph import bridge_graph
 from services.ros2.outputs import RosOutputs
 from tests import ros_client
 from tests.harness import InventProcess, call, peer_session, running_router, wait_until
+from tests.test_ros2_sensors import DOMAIN, FLEET, NAMESPACES
 
 SHIPPED = Path(__file__).parent / "data" / "ros2_interfaces"
 MS = 1_000_000
@@ -261,15 +262,6 @@ def test_an_occupancy_grid_whose_data_does_not_match_its_size_never_reaches_the_
 
 # -- the bridge on a zenoh network, fed by a stand-in drive -------------------------------------
 
-FLEET = """world = "empty"
-[[robots]]
-name = "rh0"
-[[robots]]
-name = "rh1"
-namespace = "robot1"
-"""
-NAMESPACES = {"rh0": "/rh0", "rh1": "/robot1"}
-DOMAIN = 0
 MAP_CELLS = bytes([0, 0, 100, 255, 0, 100, 0, 255, 50, 0, 0, 100])
 """A 4 x 3 map, its rows from the lowest y: what the ROS side must get in this order."""
 

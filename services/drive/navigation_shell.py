@@ -106,7 +106,9 @@ class NavigationShell:
         self._poses.append((stamp_ns, pose))
 
     def restart(self) -> None:
-        """A new simulator: its scans and poses start again."""
+        """A new simulator (a new run, the robot back at its start): its scans and poses start again,
+        and what the old run's lidar saw is forgotten (the map stays)."""
+        self.costmap.clear_obstacles()
         self._scans.clear()
         self._poses.clear()
         self._last_scan_ns = self._last_tick_ns = None
