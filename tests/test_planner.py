@@ -60,15 +60,20 @@ def costs_along(costmap: Costmap, plan: Plan) -> list[int]:
 
 
 def assert_keeps_off_obstacles(costmap: Costmap, plan: Plan) -> None:
-    """Every sampled point below INSCRIBED, but a contiguous prefix from a start that is not."""
-    along = costs_along(costmap, plan)
+    """Every sampled point below INSCRIBED, but along the escape from a start that is not: the points up
+    to the first one below INSCRIBED, where no sample is LETHAL but the start's own cell."""
     start_cost = costmap.cost_at(*plan.points[0])
-    prefix = 0
+    escape = 0
     if start_cost >= INSCRIBED:
-        while prefix < len(along) and along[prefix] >= INSCRIBED:
-            prefix += 1
-        assert all(cost == INSCRIBED for cost in along[:prefix] if cost != start_cost), "the escape: INSCRIBED"
-    assert all(cost < INSCRIBED for cost in along[prefix:]), along
+        while escape < len(plan.points) - 1 and costmap.cost_at(*plan.points[escape]) >= INSCRIBED:
+            escape += 1
+        way_out = Plan(plan.points[: escape + 1], 0.0)
+        start_cell = costmap.geometry.cell(*plan.points[0])
+        for x, y in samples(way_out.points, costmap.geometry.resolution / 4.0):
+            assert costmap.cost_at(x, y) < LETHAL or costmap.geometry.cell(x, y) == start_cell, "the escape: no obstacle"
+    rest = Plan(plan.points[escape:], 0.0)
+    along = costs_along(costmap, rest)
+    assert all(cost < INSCRIBED for cost in along), along
 
 
 def crossing_y(plan: Plan, x: float) -> list[float]:

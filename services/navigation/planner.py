@@ -139,7 +139,22 @@ def route(costs: npt.NDArray[np.uint8], start: int, goal: int, cost_weight: floa
         cells = search(costs, origin, goal, cost_weight)
         if cells is None:
             return None
-    return prefix[:-1] + cells
+    return _without_loops(prefix[:-1] + cells)
+
+
+def _without_loops(cells: list[int]) -> list[int]:
+    """The path with every loop cut out: a cell met again (a corner taken round onto a cell the path
+    visits next anyway) continues from its first visit, so each cell comes once and steps stay steps."""
+    out: list[int] = []
+    at: dict[int, int] = {}
+    for cell in cells:
+        if cell in at:
+            del out[at[cell] + 1 :]
+            at = {kept: index for index, kept in enumerate(out)}
+            continue
+        at[cell] = len(out)
+        out.append(cell)
+    return out
 
 
 def _round_corners(enterable: npt.NDArray[np.bool_], cells: list[int], width: int) -> list[int] | None:
@@ -288,7 +303,9 @@ def smooth(
         def holds(ends: npt.NDArray[np.intp], anchor: int = anchor, bound: npt.NDArray[np.uint8] = bound) -> Bools:
             count = ends.shape[0]
             worst = costmap.line_costs(np.full(count, xs[anchor]), np.full(count, ys[anchor]), xs[ends], ys[ends])
-            return worst <= bound[ends - anchor - 1]
+            # never into a cell where the body touches: the grid path's diagonal steps may graze the
+            # corner of one (a corner touched counts), which must not license a shortcut through it
+            return worst <= np.minimum(bound[ends - anchor - 1], INSCRIBED - 1)
 
         low, high = anchor + 1, last + 1  # the segment to low holds (the grid path's own step)
         probes = np.unique(np.minimum(anchor + (2 << np.arange(max(last - anchor, 1).bit_length())), last))
