@@ -70,7 +70,9 @@ def assert_keeps_off_obstacles(costmap: Costmap, plan: Plan) -> None:
         way_out = Plan(plan.points[: escape + 1], 0.0)
         start_cell = costmap.geometry.cell(*plan.points[0])
         for x, y in samples(way_out.points, costmap.geometry.resolution / 4.0):
-            assert costmap.cost_at(x, y) < LETHAL or costmap.geometry.cell(x, y) == start_cell, "the escape: no obstacle"
+            assert costmap.cost_at(x, y) < LETHAL or costmap.geometry.cell(x, y) == start_cell, (
+                "the escape: no obstacle"
+            )
     rest = Plan(plan.points[escape:], 0.0)
     along = costs_along(costmap, rest)
     assert all(cost < INSCRIBED for cost in along), along
