@@ -62,8 +62,8 @@ RECORDED = (
 )
 WALL_CLOCK_FIELDS = ("wall_time_s", "real_time_factor")
 SCHEMA_CHECKED = 500
-GOAL_TOPICS = (Topic.DRIVE_GOAL, Topic.DRIVE_GOAL_FEEDBACK)
-"""Published in goal mode only: a scenario's run has none."""
+GOAL_TOPICS = (Topic.DRIVE_GOAL, Topic.DRIVE_GOAL_FEEDBACK, Topic.DRIVE_MAP, Topic.DRIVE_COSTMAP, Topic.DRIVE_PLAN)
+"""Published in goal mode only (the navigation's too): a scenario's run has none."""
 BURNERS = 2
 PATIENT = ("--set", "sim.lockstep_timeout=5")
 """Every run's lockstep waits give up after 5 s, not the default 0.5 s: beside two burners (and
