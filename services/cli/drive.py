@@ -127,7 +127,9 @@ CLI = ServiceCli(
     "exits with it: 0 completed; 3 aborted (the motor stayed latched stopped for drive.give_up_after_stop); "
     "4 timed out (a pass past its time limit). --loop ends only when a pass is given up. "
     "--goals waits for goals (drive/goal/send, drive/goal/cancel; feedback on drive/goal/feedback, each result "
-    "on drive/outcome, 5 canceled) until Ctrl-C; --goal-file sends them at fixed simulation times. "
+    "on drive/outcome, 5 canceled) until Ctrl-C; --goal-file sends them at fixed simulation times. Goals navigate "
+    "(navigation.enabled): a costmap from sim/scan (and --map), a plan around what stands in the way, "
+    "recoveries when blocked (docs/navigation.md). "
     "Examples: invent drive --vx 0.3 --w 0.1 --for 5; invent drive --twist 0.2 0.5 (until Ctrl-C); "
     "invent drive --scenario square; invent drive --goals; "
     'invent drive --waypoints "1,0 1,1 0,1 0,0". See docs/drive.md.',
