@@ -30,7 +30,9 @@ scenario over from its first stamp: a new simulator is a new run, the robot back
 
 In goal mode (``--goals``, ``--goal-file``; services/drive/goal_shell.py) there is no scenario and
 no planned path: the drive answers ``drive/goal/send`` and ``drive/goal/cancel``, commands zero
-between goals, and a goal file's run ends as a scenario does, with its last goal's outcome.
+between goals, and a goal file's run ends as a scenario does, with its last goal's outcome. With
+``navigation.enabled`` (services/drive/navigation_shell.py) it keeps a costmap from ``sim/scan`` (and a
+map), and each goal navigates on it (services/navigation/): ``drive/map``, ``drive/costmap``, ``drive/plan``.
 """
 
 from __future__ import annotations
