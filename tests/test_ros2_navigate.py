@@ -16,6 +16,7 @@ import json
 import math
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 from hypothesis import given
@@ -139,6 +140,9 @@ def test_the_bridges_cdr_reads_back_with_ross_own_type_descriptions():
     assert (message.feedback.navigation_time.sec, message.feedback.navigation_time.nanosec) == (3, 500_000_000)
     assert message.feedback.estimated_time_remaining.sec == 4 and message.feedback.number_of_recoveries == 0
     assert message.feedback.distance_remaining == pytest.approx(1.25)
+    recovering = msgspec.structs.replace(feedback, recoveries=3)
+    again = _read(navigate.feedback_message(uuid, recovering, "map"), f"{interfaces.NAVIGATE_TO_POSE}_FeedbackMessage")
+    assert again.feedback.number_of_recoveries == 3, "the navigation's recoveries, counted"
 
 
 def test_a_ros_clients_requests_decode_and_malformed_ones_are_bad_input():
