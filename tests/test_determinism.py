@@ -379,6 +379,15 @@ def test_replaying_wheel_angles_and_fixes_into_a_fresh_odometry_reproduces_its_p
     assert differing is None, f"pose {differing}: {got[differing]!r} replayed, {recorded[differing]!r} recorded"
 
 
+def _quiet_and_loaded(base: Path, recorded: tuple[str, ...], *flags: str) -> dict[str, SquareRun]:
+    """The same run on a quiet machine, then beside :data:`BURNERS` CPU-burning processes."""
+    quiet = _run(base / "quiet", recorded, *flags)
+    with _burning_cpus(BURNERS) as burner_shares:
+        loaded = _run(base / "loaded", recorded, *flags)
+    loaded.burner_shares = burner_shares
+    return {"quiet": quiet, "loaded": loaded}
+
+
 GOAL_FILE = REPO / "examples" / "goals" / "errands.toml"
 GOAL_RECORDED = (
     KEYS.sim_body_pose,
@@ -397,13 +406,9 @@ def goal_runs(tmp_path_factory) -> dict[str, SquareRun]:
     sent by the drive at fixed simulation times, through the same path as ``drive/goal/send``, in
     lockstep: on a quiet machine and beside two CPU burners. Composed (the square's runs above show
     composed and separate processes give the same samples): the pair takes seconds, not half a minute."""
-    base = tmp_path_factory.mktemp("goals")
-    flags = ("--goals", "--goal-file", str(GOAL_FILE), "--composed")
-    quiet = _run(base / "quiet", GOAL_RECORDED, *flags)
-    with _burning_cpus(BURNERS) as burner_shares:
-        loaded = _run(base / "loaded", GOAL_RECORDED, *flags)
-    loaded.burner_shares = burner_shares
-    return {"quiet": quiet, "loaded": loaded}
+    return _quiet_and_loaded(
+        tmp_path_factory.mktemp("goals"), GOAL_RECORDED, "--goals", "--goal-file", str(GOAL_FILE), "--composed"
+    )
 
 
 def test_goals_sent_at_fixed_simulation_times_end_the_same_on_a_quiet_and_a_loaded_machine(goal_runs):
@@ -440,13 +445,8 @@ def detour_runs(tmp_path_factory) -> dict[str, SquareRun]:
     """``examples/goals/u_trap.toml``: a goal behind a U across the straight line, navigated (the lidar's
     costmap, plans replaced as the U comes into view), composed on the kinematic engine (the navigation
     is the point): quiet, then beside two CPU burners."""
-    base = tmp_path_factory.mktemp("detour")
     flags = ("--goal-file", str(DETOUR_GOAL_FILE), "--composed", "--engine", "kinematic", "--set", "sim.world=u_trap")
-    quiet = _run(base / "quiet", DETOUR_RECORDED, *flags)
-    with _burning_cpus(BURNERS) as burner_shares:
-        loaded = _run(base / "loaded", DETOUR_RECORDED, *flags)
-    loaded.burner_shares = burner_shares
-    return {"quiet": quiet, "loaded": loaded}
+    return _quiet_and_loaded(tmp_path_factory.mktemp("detour"), DETOUR_RECORDED, *flags)
 
 
 def test_a_goal_navigated_around_a_u_gives_the_same_plans_costmaps_and_outcome_quiet_and_loaded(detour_runs):
