@@ -311,7 +311,7 @@ class Drive:
     def costmap(self, robot: str, message: OccupancyGrid | bytes) -> None:
         """A ``drive/costmap``, then a clock sample (the bridge takes the newest costmap when it ticks)."""
         self.session.put(Keys(robot).drive_costmap, message if isinstance(message, bytes) else encode(message))
-        time.sleep(0.02)
+        time.sleep(0.02)  # a pace: the bridge reads its newest-only costmap after the clock, so the clock comes later
         self.tick(robot)
 
     def status(self, robot: str) -> dict[str, Any]:
@@ -451,13 +451,13 @@ def test_a_bad_map_costmap_or_plan_is_counted_and_dropped_and_the_bridge_lives_o
     for key, payload, reason in forgeries:
         counted = drive.status("rh1")["bad_input"]["by_key"].get(key, {}).get("count", 0)
         drive.session.put(key, payload)
-        time.sleep(0.02)
-        drive.tick("rh1")
-        entry = wait_until(
-            lambda k=key, c=counted: (e := drive.status("rh1")["bad_input"]["by_key"].get(k)) and e["count"] > c and e,
-            10.0,
-            f"{key}: {reason}",
-        )
+
+        def counted_once_more(k: str = key, c: int = counted) -> dict[str, Any] | None:
+            drive.tick("rh1")  # the bridge takes a newest-only costmap at its clock's ticks
+            entry = drive.status("rh1")["bad_input"]["by_key"].get(k)
+            return entry if entry and entry["count"] > c else None
+
+        entry = wait_until(counted_once_more, 10.0, f"{key}: {reason}")
         assert reason is None or reason in entry["last_reason"], entry
     status = drive.status("rh1")
     assert status["internal_errors"] == 0
