@@ -251,9 +251,7 @@ def odometry_message(stamp_ns: int, odometry: ContinuousOdometry, settings: Ros2
         header=header(stamp_ns, prefix + settings.odom_frame),
         child_frame_id=prefix + settings.base_frame,
         pose=interfaces.message_class("geometry_msgs/msg/PoseWithCovariance")(
-            pose=interfaces.message_class("geometry_msgs/msg/Pose")(
-                position=vector(pose.x, pose.y, 0.0, kind="Point"), orientation=yaw_rotation(pose.theta)
-            ),
+            pose=planar_pose(pose.x, pose.y, pose.theta),
             covariance=_covariance(settings.pose_covariance),
         ),
         twist=interfaces.message_class("geometry_msgs/msg/TwistWithCovariance")(

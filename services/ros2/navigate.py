@@ -169,9 +169,7 @@ def feedback_message(uuid: bytes, feedback: GoalFeedback, map_frame: str) -> Any
     frame, the time it has driven and the estimate of the rest, the recoveries its navigation has tried
     (int16: capped at 32767), the distance left."""
     stamp_ns = feedback.tm.to_nanoseconds()
-    pose = interfaces.message_class("geometry_msgs/msg/Pose")(
-        position=core.vector(feedback.x, feedback.y, 0.0, kind="Point"), orientation=core.yaw_rotation(feedback.theta)
-    )
+    pose = core.planar_pose(feedback.x, feedback.y, feedback.theta)
     return interfaces.message_class(interfaces.NAVIGATE_TO_POSE_FEEDBACK_MESSAGE)(
         goal_id=uuid_message(uuid),
         feedback=interfaces.message_class(interfaces.NAVIGATE_TO_POSE_FEEDBACK)(
