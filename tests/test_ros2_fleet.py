@@ -482,7 +482,10 @@ def test_a_navigate_to_pose_goal_to_the_second_robot_is_reached_with_feedback_an
     rh0_after = goals.ground_truth("rh0")
     assert math.hypot(rh0_after.x - rh0_before.x, rh0_after.y - rh0_before.y) < 0.005, "rh0 did not move"
     statuses = goals.wait_status(uuid, 4)
-    assert statuses[0] == 1 and 2 in statuses and statuses[-1] == 4, "accepted, executing, then succeeded"
+    # ACCEPTED is published only if the drive's reply reaches the bridge before the goal's start
+    # (drive/goal): a drive that starts it at its very next tick may win the race, and the goal is
+    # EXECUTING first (tests/test_ros2_navigate.py: its events never move a goal back)
+    assert statuses[0] in (1, 2) and 2 in statuses and statuses[-1] == 4, "(accepted,) executing, then succeeded"
     feedback = wait_until(lambda: len(goals.feedback(uuid)) >= 5 and goals.feedback(uuid), 10.0, "feedback")
     assert {f.current_pose.header.frame_id for f in feedback} == {"map"}
     times = [f.navigation_time.sec + f.navigation_time.nanosec / 1e9 for f in feedback]
