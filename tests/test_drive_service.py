@@ -38,6 +38,8 @@ class SyntheticLoop:
         wait_until(lambda: self.clock.matching_status.matching, what="the drive's clock subscriber")
         wait_until(lambda: self.odometry.matching_status.matching, what="the drive's pose subscriber")
         self.now_ns = 0
+        self.clock_attachment: bytes | None = None
+        """The clock's attachment: a lockstep mark makes the drive wait for each tick's pose."""
         self.odometry_running = True
         self.pose = Pose(0.0, 0.0, 0.0)
         self.trajectory = [self.pose]
@@ -48,7 +50,7 @@ class SyntheticLoop:
         if self.odometry_running:
             x, y, theta = self.pose
             self.odometry.put(encode(TimedPosition(tm=tm, id=[], x=x, y=y, theta=theta, error=[])))
-        self.clock.put(encode(TimedDoubleSeq(tm=tm, data=[0.0, 0.0])))
+        self.clock.put(encode(TimedDoubleSeq(tm=tm, data=[0.0, 0.0])), attachment=self.clock_attachment)
 
     def first_command(self) -> TimedVelocity:
         """Tick until the drive starts (it waits until its own publisher matches ours)."""

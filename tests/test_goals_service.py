@@ -22,6 +22,7 @@ from schemas.messages import (
     Time,
     TimedVelocity,
 )
+from services.clock.lockstep import encode_mark
 from services.config import GoalsConfig
 from services.exits import ExitStatus
 from services.planar import Pose, wrap_angle
@@ -152,16 +153,18 @@ cancel = true
 
 
 def _goal_file_run(endpoint: str, session: zenoh.Session, path: Path) -> tuple[int, list, list]:
-    """The goal file played against the synthetic loop, along the straight line: this loop's clock
-    carries no lockstep mark, so the drive takes the newest pose it has when a tick's clock comes, and
-    a navigated goal's plans keep it busy long enough that which pose that is varies from run to run.
-    Navigated goal files are compared in lockstep, on the whole loop (tests/test_determinism.py)."""
+    """The goal file played against the synthetic loop in lockstep: the clock carries a lockstep mark
+    and an odometry token is alive, so the drive commands each tick from that tick's pose (without
+    them it takes the newest pose it has when the clock comes, which varies with the machine's load)."""
     commands = Collector(session, KEYS.drive_target_velocity, TimedVelocity)
     outcomes = Collector(session, KEYS.drive_outcome, ScenarioOutcome)
+    odometry = session.liveliness().declare_token(KEYS.alive(Service.ODOMETRY))
     try:
-        with drive(endpoint, "--goal-file", str(path), "--set", "navigation.enabled=false") as process:
+        with drive(endpoint, "--goal-file", str(path)) as process:
             wait_alive(session, KEYS.alive(Service.DRIVE))
+            wait_until(lambda: drive_status(session)["odometry_alive"], what="the drive to see odometry")
             loop = SyntheticLoop(session, commands)
+            loop.clock_attachment = encode_mark({}, observed=True)
             first = loop.first_command()
             received = loop.until_final_zeros(first)
             code = process.process.wait(timeout=10)
@@ -172,6 +175,7 @@ def _goal_file_run(endpoint: str, session: zenoh.Session, path: Path) -> tuple[i
             [(o.goal_id, o.outcome, o.reason, o.tm.to_nanoseconds() - start_ns) for o in outcomes.drain()],
         )
     finally:
+        odometry.undeclare()
         commands.close()
         outcomes.close()
 
