@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from services.config import DriveConfig, NavigationConfig
@@ -81,10 +81,24 @@ def test_it_slows_down_near_obstacles_and_in_tight_turns() -> None:
     assert all(c.vx < DRIVE.cruise_speed for c in turning)
 
 
+def test_repeated_points_do_not_hold_the_projection_back() -> None:
+    # Found by CI's hypothesis run: five points at the start left the projection's window on
+    # zero-length segments, so the robot circled the goal without ever being done.
+    plan = [(0.0, 0.0)] * 5 + [(0.0, 1.0)]
+    tracker, poses, _ = drive_along(plan, Pose(0.0, 0.0, 0.0))
+    assert tracker.points == [(0.0, 0.0), (0.0, 1.0)]
+    assert math.hypot(poses[-1].x, poses[-1].y - 1.0) <= DRIVE.goal_tolerance
+
+
 points = st.tuples(st.floats(-4.0, 4.0), st.floats(-4.0, 4.0))
 
 
 @given(plan=st.lists(points, min_size=1, max_size=5), heading=st.floats(-math.pi, math.pi))
+# Found by hypothesis: a plan that doubles back within a lookahead, behind a point a hair from the
+# start, put the carrot under the robot; a hairpin made the carrot jump between its two sides. The
+# robot turned in place for ever.
+@example(plan=[(0.0, 2e-27), (0.0, 0.0), (0.125, 0.0), (0.0, 0.0), (-1.0, 0.0)], heading=0.0)
+@example(plan=[(-2.0, 2.0), (0.25, 0.0), (0.0, 0.0), (-1.0, 2.0)], heading=0.0)
 @settings(max_examples=60, deadline=None)
 def test_the_limits_hold_on_any_plan(plan: list[tuple[float, float]], heading: float) -> None:
     start = Pose(0.0, 0.0, heading)

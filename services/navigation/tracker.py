@@ -1,7 +1,7 @@
 """The path tracker: regulated pure pursuit along a plan (pure, no zenoh; docs/navigation.md).
 
-As Nav2's Regulated Pure Pursuit: the carrot lies a lookahead ahead of the robot's projection on the
-plan, the lookahead grows with the speed (``lookahead_time`` × |vx|, within [``min_lookahead``,
+As Nav2's Regulated Pure Pursuit: the carrot is the first point of the plan, ahead of the robot's
+projection on it, a lookahead away from the robot; the lookahead grows with the speed (``lookahead_time`` × |vx|, within [``min_lookahead``,
 ``max_lookahead``]); the curvature to the carrot is κ = 2·sin(α)/L (α: the carrot's bearing, L: its
 distance), w = vx·κ. The speed is regulated:
 
@@ -36,9 +36,20 @@ Point = tuple[float, float]
 INSCRIBED_COST = 253
 """The costmap's cost where the body would touch (services/navigation/costmap.py's ``INSCRIBED``):
 the speed regulation's scale ends below it."""
-PROJECTION_WINDOW = 4
-"""Segments ahead of the current one searched for the robot's projection: it never jumps further
-along the plan (a plan that passes near itself is not short-cut)."""
+PROJECTION_REACH = 2.0
+"""How far along the plan, in lookaheads (``max_lookahead``), the search for the robot's projection
+reaches ahead of where it was: it never jumps further (a plan that passes near itself is not
+short-cut), however short the segments in between."""
+
+
+def _without_repeats(points: Sequence[Point]) -> list[Point]:
+    """The plan without a point equal to the one before it: a zero-length segment would take a place
+    in the projection's search window and could hold the projection back from the plan's end."""
+    kept = [(float(points[0][0]), float(points[0][1]))]
+    for x, y in points[1:]:
+        if (float(x), float(y)) != kept[-1]:
+            kept.append((float(x), float(y)))
+    return kept
 
 
 class TrackerPhase(StrEnum):
@@ -58,7 +69,7 @@ class PathTracker:
     ) -> None:
         if not points:
             raise ValueError("a plan has at least one point")
-        self.points = [(float(x), float(y)) for x, y in points]
+        self.points = _without_repeats(points)
         self.drive = drive
         self.settings = settings
         self.command = command
@@ -69,6 +80,8 @@ class PathTracker:
         self._along = 0.0
         """How far along that segment."""
         self.remaining = sum(self._lengths)
+        self._carrot_at = (0, 0.0)
+        """Where the last carrot was along the plan (segment, metres along it)."""
         """Metres along the plan from the robot's projection to its end."""
 
     @property
@@ -95,7 +108,7 @@ class PathTracker:
         if math.dist((pose.x, pose.y), goal) <= self.drive.goal_tolerance or self._passed_end(pose):
             self.phase = TrackerPhase.STOP
             return STOPPED
-        carrot = self._carrot(self._lookahead())
+        carrot = self._carrot(pose, self._lookahead())
         distance = math.hypot(carrot[0] - pose.x, carrot[1] - pose.y)
         bearing = wrap_angle(math.atan2(carrot[1] - pose.y, carrot[0] - pose.x) - pose.theta)
         if self.phase is TrackerPhase.ROTATE and abs(bearing) <= self.drive.heading_tolerance:
@@ -129,21 +142,23 @@ class PathTracker:
         return min(max(abs(self.command.vx) * settings.lookahead_time, settings.min_lookahead), settings.max_lookahead)
 
     def _project(self, pose: Pose) -> None:
-        """Move the projection to the point of the plan nearest the robot, searching a few segments
-        ahead of where it was, never back."""
+        """Move the projection to the point of the plan nearest the robot, searching up to
+        ``PROJECTION_REACH`` lookaheads along the plan ahead of where it was, never back."""
+        if not self._lengths:
+            return
         best: tuple[float, int, float] | None = None
-        last = min(len(self._lengths), self._index + PROJECTION_WINDOW)
-        for index in range(self._index, last):
+        reach = PROJECTION_REACH * self.settings.max_lookahead + self._along
+        for index in range(self._index, len(self._lengths)):
+            if index > self._index and reach < 0.0:
+                break
+            reach -= self._lengths[index]
             (ax, ay), (bx, by) = self.points[index], self.points[index + 1]
-            length = self._lengths[index]
-            if length == 0.0:
-                along = 0.0
-            else:
-                along = ((pose.x - ax) * (bx - ax) + (pose.y - ay) * (by - ay)) / length
-                along = min(max(along, 0.0), length)
+            length = self._lengths[index]  # never 0: repeated points were dropped
+            along = ((pose.x - ax) * (bx - ax) + (pose.y - ay) * (by - ay)) / length
+            along = min(max(along, 0.0), length)
             if index == self._index:
                 along = max(along, self._along)
-            fraction = along / length if length else 0.0
+            fraction = along / length
             gap = math.hypot(ax + (bx - ax) * fraction - pose.x, ay + (by - ay) * fraction - pose.y)
             if best is None or gap < best[0] - 1e-9:
                 best = (gap, index, along)
@@ -157,7 +172,7 @@ class PathTracker:
             return [self.points[0]]
         (ax, ay), (bx, by) = self.points[self._index], self.points[self._index + 1]
         length = self._lengths[self._index]
-        fraction = self._along / length if length else 0.0
+        fraction = self._along / length
         return [(ax + (bx - ax) * fraction, ay + (by - ay) * fraction), *self.points[self._index + 1 :]]
 
     def _passed_end(self, pose: Pose) -> bool:
@@ -166,18 +181,32 @@ class PathTracker:
             return not self._lengths
         (ax, ay), (bx, by) = self.points[-2], self.points[-1]
         length = self._lengths[-1]
-        return length > 0.0 and ((pose.x - ax) * (bx - ax) + (pose.y - ay) * (by - ay)) / length >= length
+        return ((pose.x - ax) * (bx - ax) + (pose.y - ay) * (by - ay)) / length >= length
 
-    def _carrot(self, lookahead: float) -> Point:
-        """The point ``lookahead`` metres along the plan from the robot's projection (the plan's end
-        when less is left)."""
-        index, along, left = self._index, self._along, lookahead
+    def _carrot(self, pose: Pose, lookahead: float) -> Point:
+        """As Nav2's: the first point of the plan ahead of the robot's projection that lies
+        ``lookahead`` metres or more from the robot (on the segment that crosses that circle), or the
+        plan's end when all of it is nearer. Measured from the robot, not along the plan, so a plan
+        that doubles back never puts the carrot under the robot; and never behind the last carrot, so
+        a hairpin cannot make it jump from one side to the other and back."""
+        index, along = max((self._index, self._along), self._carrot_at)
         while index < len(self._lengths):
+            (ax, ay), (bx, by) = self.points[index], self.points[index + 1]
             length = self._lengths[index]
-            if along + left <= length:
-                (ax, ay), (bx, by) = self.points[index], self.points[index + 1]
-                fraction = (along + left) / length
-                return ax + (bx - ax) * fraction, ay + (by - ay) * fraction
-            left -= length - along
+            dx, dy = (bx - ax) / length, (by - ay) / length
+            fx, fy = ax + dx * along - pose.x, ay + dy * along - pose.y
+            if math.hypot(fx, fy) >= lookahead:
+                break
+            if math.hypot(bx - pose.x, by - pose.y) >= lookahead:
+                # |f + s·d| = lookahead, s ≥ 0 along the unit direction d: f is inside, b is not.
+                half_b = fx * dx + fy * dy
+                along += -half_b + math.sqrt(max(half_b * half_b - (fx * fx + fy * fy - lookahead * lookahead), 0.0))
+                along = min(along, length)
+                break
             index, along = index + 1, 0.0
-        return self.points[-1]
+        else:
+            return self.points[-1]
+        self._carrot_at = (index, along)
+        (ax, ay), (bx, by) = self.points[index], self.points[index + 1]
+        fraction = along / self._lengths[index]
+        return ax + (bx - ax) * fraction, ay + (by - ay) * fraction
