@@ -26,7 +26,10 @@ from schemas.messages import (
     LaserScan,
     MotorStateReport,
     NoArguments,
+    InitialPose,
+    LocalizationReply,
     OccupancyGrid,
+    ParticleCloud,
     PDGains,
     PlannedPath,
     RunSummary,
@@ -85,6 +88,7 @@ class Topic(StrEnum):
     DRIVE_TARGET_VELOCITY = "drive/target_velocity"
     ODOMETRY_POSE = "odometry/pose"
     LOCALIZATION_POSE = "localization/pose"
+    LOCALIZATION_PARTICLES = "localization/particles"
     SIM_WORLD = "sim/world"
     DRIVE_PATH = "drive/path"
     MOTOR_STATE = "motor/state"
@@ -113,6 +117,7 @@ TopicMessage = (
     | OccupancyGrid
     | GoalPlan
     | RunSummary
+    | ParticleCloud
 )
 """What a data key carries: every one has its ``tm`` stamp."""
 
@@ -130,6 +135,7 @@ TOPIC_TYPES: dict[Topic, type[TopicMessage]] = {
     Topic.DRIVE_TARGET_VELOCITY: TimedVelocity,
     Topic.ODOMETRY_POSE: TimedPosition,
     Topic.LOCALIZATION_POSE: TimedPosition,
+    Topic.LOCALIZATION_PARTICLES: ParticleCloud,
     Topic.SIM_WORLD: SimWorld,
     Topic.DRIVE_PATH: PlannedPath,
     Topic.MOTOR_STATE: MotorStateReport,
@@ -196,6 +202,19 @@ GOAL_METHOD_TYPES: dict[GoalMethod, tuple[type[msgspec.Struct], type[msgspec.Str
 }
 """Each goal method's payload and reply."""
 
+class LocalizationMethod(StrEnum):
+    """The localization's queryables (docs/protocol.md section 7.1): ``localization/<method>``."""
+
+    INITIAL_POSE = "initial_pose"
+    GLOBAL_LOCALIZATION = "global_localization"
+
+
+LOCALIZATION_METHOD_TYPES: dict[LocalizationMethod, tuple[type[msgspec.Struct], type[msgspec.Struct]]] = {
+    LocalizationMethod.INITIAL_POSE: (InitialPose, LocalizationReply),
+    LocalizationMethod.GLOBAL_LOCALIZATION: (NoArguments, LocalizationReply),
+}
+"""Each localization method's payload and reply."""
+
 _STATUS = "status"
 VIEW = "view"
 CONTROL = "control"
@@ -255,6 +274,10 @@ class Keys:
     def goal_method(self, method: GoalMethod) -> str:
         """``invent/<robot>/drive/goal/send`` or ``.../cancel``: the drive's goal queryables."""
         return f"{self.prefix}/{Topic.DRIVE_GOAL}/{method}"
+
+    def localization_method(self, method: LocalizationMethod) -> str:
+        """``invent/<robot>/localization/initial_pose`` or ``.../global_localization``."""
+        return f"{self.prefix}/{Service.LOCALIZATION}/{method}"
 
     def status(self, service: ServiceName) -> str:
         return f"{self.prefix}/{service}/{_STATUS}"
@@ -345,6 +368,11 @@ class Keys:
     drive_target_velocity = property(lambda self: self.topic(Topic.DRIVE_TARGET_VELOCITY))
     odometry_pose = property(lambda self: self.topic(Topic.ODOMETRY_POSE))
     localization_pose = property(lambda self: self.topic(Topic.LOCALIZATION_POSE))
+    localization_particles = property(lambda self: self.topic(Topic.LOCALIZATION_PARTICLES))
+    localization_initial_pose = property(lambda self: self.localization_method(LocalizationMethod.INITIAL_POSE))
+    localization_global_localization = property(
+        lambda self: self.localization_method(LocalizationMethod.GLOBAL_LOCALIZATION)
+    )
     sim_world = property(lambda self: self.topic(Topic.SIM_WORLD))
     drive_path = property(lambda self: self.topic(Topic.DRIVE_PATH))
     motor_state = property(lambda self: self.topic(Topic.MOTOR_STATE))

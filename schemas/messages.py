@@ -455,6 +455,59 @@ class NoArguments(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Payload of the argument-less Motor methods: ``{}`` (an empty payload is accepted too)."""
 
 
+MAX_PARTICLES = 20_000
+"""The most particles a ``localization/particles`` message carries (``amcl.max_particles`` is at most this)."""
+COVARIANCE_LENGTH = 6
+"""A planar pose's covariance as sent: the upper triangle of the 3 × 3 matrix over (x, y, θ), row by
+row: xx, xy, xθ, yy, yθ, θθ (m², m², m·rad, m², m·rad, rad²)."""
+Covariance = Annotated[list[float], msgspec.Meta(max_length=COVARIANCE_LENGTH)]
+
+
+class InitialPose(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """Payload of ``localization/initial_pose``: where the robot is, about (RViz's "2D Pose Estimate",
+    ROS's ``/initialpose``). The filter is seeded again around it, whenever it comes."""
+
+    x: float
+    y: float
+    theta: float
+    covariance: Covariance = msgspec.field(default_factory=list)
+    """:data:`COVARIANCE_LENGTH` values (xx, xy, xθ, yy, yθ, θθ), or none: ``amcl.initial_sigma_xy``
+    and ``amcl.initial_sigma_theta``."""
+
+    def __post_init__(self) -> None:
+        _require_finite(self.x, self.y, self.theta, *self.covariance)
+        if self.covariance and len(self.covariance) != COVARIANCE_LENGTH:
+            raise ValueError(f"covariance has {len(self.covariance)} values, not {COVARIANCE_LENGTH} (or none)")
+
+
+class LocalizationReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Reply of ``localization/initial_pose`` and ``localization/global_localization``: taken, or
+    refused and why."""
+
+    accepted: bool
+    reason: str = ""
+    """Why it was refused; ``""`` when accepted."""
+
+
+ParticleValues = Annotated[list[float], msgspec.Meta(max_length=MAX_PARTICLES)]
+
+
+class ParticleCloud(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """``localization/particles``: the filter's particles in the ``map`` frame (project extension;
+    nav2_amcl's ``/particle_cloud``), one entry per particle in each list; the weights sum to 1."""
+
+    tm: Time
+    x: ParticleValues
+    y: ParticleValues
+    theta: ParticleValues
+    weight: ParticleValues
+
+    def __post_init__(self) -> None:
+        _require_finite(*self.x, *self.y, *self.theta, *self.weight)
+        if not len(self.x) == len(self.y) == len(self.theta) == len(self.weight):
+            raise ValueError("x, y, theta and weight must have one entry per particle")
+
+
 MESSAGE_TYPES: tuple[type[msgspec.Struct], ...] = (
     Time,
     TimedDoubleSeq,
@@ -479,4 +532,7 @@ MESSAGE_TYPES: tuple[type[msgspec.Struct], ...] = (
     GoalFeedback,
     OccupancyGrid,
     GoalPlan,
+    InitialPose,
+    LocalizationReply,
+    ParticleCloud,
 )

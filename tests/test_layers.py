@@ -45,6 +45,8 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.config(\..*)?", CONFIG),
     (r"services\.runtime(\..*)?", RUNTIME),
     (r"services\.(motor|odometry|localization)\.core", CORE),
+    (r"services\.localization\.(amcl|likelihood)", CORE),
+    (r"services\.mapping\.(occupancy|matcher|builder)", CORE),
     (r"services\.motor\.state", CORE),
     (r"services\.motor\.(sim_pose|speed_limiter|collision|monitor)", CORE),
     (r"services\.drive\.(scenarios|path_following|outcome|goals|goal_file)", CORE),
@@ -63,6 +65,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.ros2\.(core|wire|interfaces|urdf|graph|outputs|sensors|navigate)", CORE),
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
     (r"services\.drive\.(goal_shell|navigation_shell)", SHELL),
+    (r"services\.localization\.amcl_shell", SHELL),
     (r"services\.ros2\.action_server", SHELL),
     (r"sim_bridge\.(bridge|link|liveness|loops|handshakes)", SHELL),
     (r"services\.service", SHELL_SUPPORT),
@@ -71,7 +74,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.(cli|launch|recording)(\..*)?", TOOL),
     (r"services\.security(\..*)?", TOOL),
     (
-        r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration|body|goto|extension|navigation))",
+        r"(services|sim_bridge|services\.(motor|odometry|localization|drive|clock|ros2|fleet|calibration|body|goto|extension|navigation|mapping))",
         PACKAGE,
     ),
 )
@@ -295,7 +298,7 @@ def test_each_service_room_holds_its_shell_and_its_core():
     for service, cores in {
         "motor": ("core", "state", "sim_pose", "speed_limiter", "collision", "monitor"),
         "odometry": ("core",),
-        "localization": ("core",),
+        "localization": ("core", "amcl", "likelihood"),
         "drive": ("scenarios", "path_following", "outcome", "goals", "goal_file"),
     }.items():
         room = ROOT / "services" / service

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import msgspec
 
-from services.config import navigation, run_sections, sections, sensors
+from services.config import amcl, navigation, run_sections, sections, sensors
 
 
 class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -15,6 +15,7 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     odometry: sections.OdometryConfig = msgspec.field(default_factory=sections.OdometryConfig)
     sim: sections.SimConfig = msgspec.field(default_factory=sections.SimConfig)
     localization: sections.LocalizationConfig = msgspec.field(default_factory=sections.LocalizationConfig)
+    amcl: amcl.AmclConfig = msgspec.field(default_factory=amcl.AmclConfig)
     drive: sections.DriveConfig = msgspec.field(default_factory=sections.DriveConfig)
     goals: sections.GoalsConfig = msgspec.field(default_factory=sections.GoalsConfig)
     input: sections.InputConfig = msgspec.field(default_factory=sections.InputConfig)
@@ -31,6 +32,8 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
         for name in ("p_gain_l", "p_gain_r", "d_gain_l", "d_gain_r"):
             if getattr(motor, name) > ceiling:
                 raise ValueError(f"`motor.{name}` = {getattr(motor, name)} is above `input.max_gain` = {ceiling}")
+        if self.localization.mode == "amcl" and self.navigation.map is None:
+            raise ValueError('`localization.mode` = "amcl" localizes on a map: give `navigation.map` (--map FILE)')
 
     @property
     def geometry(self) -> sections.CalibratedGeometry:

@@ -228,9 +228,19 @@ class SimConfig(Section, frozen=True):
     """How long without contact before touching the same obstacle again is a new bump."""
 
 
-class LocalizationConfig(StartPose, frozen=True):
-    """The localization: its starting pose, its rate of fixes and their noise."""
+LocalizationMode = Literal["stub", "amcl", "none"]
+"""``localization.mode``: the seeds' stub (the simulator's pose, plus noise), a particle filter on the
+map from the lidar and the wheels (``[amcl]``), or no fixes after the start (odometry alone)."""
 
+
+class LocalizationConfig(StartPose, frozen=True):
+    """The localization (docs/localization.md): where the robot starts, how it is localized, how
+    often a fix is published and, for the stub, its noise."""
+
+    mode: LocalizationMode = "stub"
+    """``stub``: the simulator's ground truth plus noise (the seeds'); ``amcl``: a particle filter on
+    the map of ``navigation.map`` from the lidar's scans and the wheel angles, reading no ground
+    truth (``[amcl]``); ``none``: the initial pose once, then no fix (the odometry alone, drifting)."""
     rate: Annotated[Positive, PER_SIMULATED_SECOND] = 1.0
     """Fixes per second of simulation time."""
     noise_x: Annotated[NonNegative, METRES] = 0.0
@@ -240,7 +250,11 @@ class LocalizationConfig(StartPose, frozen=True):
     noise_theta: Annotated[NonNegative, RADIANS] = 0.0
     """Standard deviation of the noise on theta."""
     seed: Annotated[int, msgspec.Meta(ge=0)] | None = None
-    """Random seed for the noise; None (``"none"``) draws one from the OS (shown in status)."""
+    """Random seed for the noise (the stub's) or the particles (amcl's); None (``"none"``) draws one
+    from the OS (shown in status)."""
+    particles_rate: Annotated[NonNegative, PER_SIMULATED_SECOND] = 1.0
+    """How often ``amcl`` publishes its particles (``localization/particles``), per simulated second;
+    0: never."""
 
 
 class DriveConfig(Section, frozen=True):

@@ -1,6 +1,8 @@
-"""``invent localization``: the localization stub (the seed's LocalizationRTC), docs/protocol.md section 7.
+"""``invent localization``: the localization in its three modes (``localization.mode``,
+docs/localization.md): the stub (here), the particle filter (:mod:`services.localization.amcl_shell`),
+and none (here: the initial pose once, then nothing).
 
-Subscribes ``motor/sim_pose/localization`` ([x, y, z, θ] stamped with simulation time) and
+The stub (the seed's LocalizationRTC, docs/protocol.md section 7) subscribes ``motor/sim_pose/localization`` ([x, y, z, θ] stamped with simulation time) and
 publishes ``localization/pose``: first the configured initial pose, stamped with the first
 simulation time seen once someone (odometry) subscribes, then every 1/rate seconds of
 simulation time the latest simulated pose plus optional Gaussian noise
@@ -23,8 +25,10 @@ from schemas.keys import Service
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config
+from services.localization.amcl_shell import AmclLocalization
 from services.localization.core import Fix, Localizer, resolve_seed
-from services.runtime.inputs import Delivery
+from services.planar import Pose
+from services.runtime.inputs import Delivery, NodeInput
 from services.runtime.node import Node, Wait
 from services.service import NoOptions, ServiceCommand
 
@@ -35,7 +39,7 @@ def _pose_dict(fix: Fix | None) -> dict[str, Any] | None:
     return {"t": fix.stamp_ns / NANOSECONDS_PER_SECOND, **fix.pose._asdict(), "initial": fix.initial}
 
 
-class LocalizationService:
+class StubLocalization:
     finished = False
     """It serves until stopped."""
     exit_code = 0
@@ -88,6 +92,7 @@ class LocalizationService:
             state = "waiting_for_sim_pose" if self.localizer.last_sim_pose is None else "waiting_for_subscriber"
         return {
             "state": state,
+            "mode": "stub",
             "fixes_published": self.localizer.fixes,
             "time_base_restarts": self.localizer.time_base_restarts,
             "sim_alive": self.sim.alive,
@@ -105,4 +110,67 @@ class LocalizationService:
         """Nothing beyond the node to release."""
 
 
-COMMAND = ServiceCommand(service=Service.LOCALIZATION, factory=LocalizationService)
+class NoLocalization:
+    """``localization.mode = "none"``: the odometry alone. The initial pose is published once, at
+    the first wheel-angle sample after someone listens, if that is within one fix period of time 0
+    (the pose at the start, as the stub's first fix); then nothing: the odometry's drift shows. It
+    reads no ground truth and takes no part in lockstep (no fix is owed)."""
+
+    finished = False
+    exit_code = 0
+
+    def __init__(self, node: Node, config: Config) -> None:
+        self.node = node
+        self.config = config.localization
+        self.initial = Pose(self.config.initial_x, self.config.initial_y, self.config.initial_theta)
+        self.initial_published_at: int | None = None
+        self.skipped_initial = False
+        self._until_ns = round(NANOSECONDS_PER_SECOND / self.config.rate)
+        self.publisher = node.publisher(node.keys.localization_pose)
+        self._wheels: NodeInput | None = node.subscribe(
+            node.keys.motor_wheel_angles, TimedDoubleSeq, self._on_wheel_angles, Delivery.SAMPLED, wakes=True
+        )
+        node.set_status(self.status)
+        node.log.info("no localization: the initial pose once, then the odometry alone")
+
+    def _on_wheel_angles(self, sample: TimedDoubleSeq) -> None:
+        if self.initial_published_at is not None or self.skipped_initial or not self.publisher.matched:
+            return
+        stamp_ns = sample.tm.to_nanoseconds()
+        if stamp_ns > self._until_ns:
+            self.skipped_initial = True
+            self.node.log.info("simulation time is already %.3f s: no initial pose", stamp_ns / NANOSECONDS_PER_SECOND)
+            return
+        x, y, theta = self.initial
+        self.publisher.put(TimedPosition(tm=sample.tm, id=[], x=x, y=y, theta=theta, error=[]))
+        self.initial_published_at = stamp_ns
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "state": "running",
+            "mode": "none",
+            "initial_pose": self.initial._asdict(),
+            "initial_published_at": None
+            if self.initial_published_at is None
+            else self.initial_published_at / NANOSECONDS_PER_SECOND,
+            "initial_skipped": self.skipped_initial,
+            "lockstep_participant": False,
+        }
+
+    def close(self) -> None:
+        """Nothing beyond the node to release."""
+
+
+def localization_service(
+    node: Node, config: Config, _options: NoOptions
+) -> StubLocalization | AmclLocalization | NoLocalization:
+    """The localization of ``localization.mode``."""
+    mode = config.localization.mode
+    if mode == "amcl":
+        return AmclLocalization(node, config)
+    if mode == "none":
+        return NoLocalization(node, config)
+    return StubLocalization(node, config, _options)
+
+
+COMMAND = ServiceCommand(service=Service.LOCALIZATION, factory=localization_service)
