@@ -13,6 +13,8 @@ opened in Foxglove shows the scene the live view showed:
   plan (``drive/plan``, entity ``plan``: drawn as the planned path is, in violet);
 - ``/map`` and ``/costmap`` (``foxglove.Grid`` in ``world``): the drive's map (``drive/map``) and
   costmap (``drive/costmap``), one ``INT8`` field a cell (:mod:`services.recording.navigation_scene`);
+- ``/localization/particles`` and ``/localization/covariance`` (``foxglove.SceneUpdate``): the particle
+  filter's particles and its estimate's 2σ ellipse and heading wedge (:mod:`services.recording.localization_scene`);
 - ``/plot/wheel_speeds`` (JSON): commanded and measured wheel speeds, rad/s;
 - ``/scan`` (``foxglove.LaserScan``): every lidar scan (``sim/scan``, at ``lidar.rate``: 10 Hz)
   in the lidar's frame ``base_scan``, which ``/tf`` places on ``base_link`` at the ``[lidar]``
@@ -75,6 +77,7 @@ from schemas.messages import LaserScan as ScanMessage
 from services.body.geometry import robot_body
 from services.config import CalibratedGeometry, LidarConfig, OdometryConfig, RobotConfig, SimConfig
 from services.recording.goal_scene import GoalDrawing
+from services.recording.localization_scene import COVARIANCE_TOPIC, PARTICLES_TOPIC, LocalizationDrawing
 from services.recording.navigation_scene import COSTMAP_TOPIC, MAP_TOPIC, NavigationDrawing
 from services.recording.report import pose_from_body_pose
 
@@ -203,11 +206,15 @@ class Scene:
         self._lidar = lidar or LidarConfig()
         self._ids = {
             entity: prefix + entity
-            for entity in ("robot", "planned_path", "trails", "goal", "goal_path", "goals_ended", "plan")
+            for entity in (
+                *("robot", "planned_path", "trails", "goal", "goal_path", "goals_ended", "plan"),
+                *("particles", "covariance"),
+            )
         }
         self.topics = {
             topic: f"/{prefix}{topic.lstrip('/')}"
             for topic in (ODOMETRY_TOPIC, LOCALIZATION_TOPIC, WHEEL_SPEEDS_TOPIC, SCAN_TOPIC, MAP_TOPIC, COSTMAP_TOPIC)
+            + (PARTICLES_TOPIC, COVARIANCE_TOPIC)
         }
         self._robot_entity = _robot_entity(robot, sim)
         self._cylinders: list[CylinderPrimitive] = []
@@ -217,6 +224,7 @@ class Scene:
         self._odometry = _Trail()
         self.goals = GoalDrawing(self._ids, GOAL_PATH_SPACING_M, GOAL_PATH_POINTS)
         self.navigation = NavigationDrawing(self.topics, WORLD_FRAME, timestamp)
+        self.localization = LocalizationDrawing(self.topics, self._ids, WORLD_FRAME, timestamp)
         self._next_transform_ns = 0
         self._next_odometry_ns = 0
         self._next_scene_ns = 0
@@ -231,7 +239,9 @@ class Scene:
         if topic is Topic.ODOMETRY_POSE:
             return self._odometry_pose(message)
         if topic is Topic.LOCALIZATION_POSE:
-            return self._localization_pose(message)
+            return [*self.localization.pose(message), (self.topics[LOCALIZATION_TOPIC], _pose_in_world(message))]
+        if topic is Topic.LOCALIZATION_PARTICLES:
+            return self.localization.particles(message)
         if topic is Topic.MOTOR_WHEEL_ANGLES:
             return self._wheel_angles(message)
         if topic is Topic.SIM_SCAN:
@@ -307,9 +317,6 @@ class Scene:
             return []
         self._next_odometry_ns = stamp_ns + POSE_PERIOD_NS
         return [(self.topics[ODOMETRY_TOPIC], _pose_in_world(message))]
-
-    def _localization_pose(self, message: TimedPosition) -> list[tuple[str, Any]]:
-        return [(self.topics[LOCALIZATION_TOPIC], _pose_in_world(message))]
 
     def _target(self, message: TimedVelocity) -> None:
         left_radius, right_radius, b = self._geometry

@@ -22,7 +22,15 @@ from typing import Any
 import numpy as np
 
 from schemas.codec import BadInput
-from schemas.messages import NANOSECONDS_PER_SECOND, GoalPlan, OccupancyGrid, TimedDoubleSeq, TimedPosition
+from schemas.messages import (
+    COVARIANCE_LENGTH,
+    NANOSECONDS_PER_SECOND,
+    GoalPlan,
+    OccupancyGrid,
+    ParticleCloud,
+    TimedDoubleSeq,
+    TimedPosition,
+)
 from services.body.geometry import RobotBody
 from services.config import Config, Ros2Config
 from services.motor.core import check_target_velocity
@@ -240,6 +248,66 @@ def map_to_odom(localized: TimedPosition, odometry: ContinuousOdometry) -> Pose 
 def _covariance(diagonal: tuple[float, ...]) -> np.ndarray:
     """A row-major 6x6 ``float64[36]`` with ``diagonal`` on its diagonal."""
     return np.diag(np.array(diagonal, dtype=np.float64)).reshape(36)
+
+
+PLANAR_AXES = (0, 1, 5)
+"""Where x, y and yaw sit among a ROS pose covariance's six axes (x, y, z, roll, pitch, yaw)."""
+_UPPER_TRIANGLE = tuple((row, col) for row in range(3) for col in range(row, 3))
+"""The 3 × 3 planar covariance's entries as ``localization/pose`` sends them: xx, xy, xθ, yy, yθ, θθ."""
+
+
+def pose_covariance(values: list[float]) -> np.ndarray:
+    """A ROS pose covariance (row-major 6 × 6 ``float64[36]``) from the planar one's upper triangle
+    (xx, xy, xθ, yy, yθ, θθ): the x, y and yaw rows and columns filled, symmetric; z, roll and pitch
+    zero, as nav2_amcl leaves them."""
+    matrix = np.zeros((6, 6), dtype=np.float64)
+    for (row, col), value in zip(_UPPER_TRIANGLE, values, strict=True):
+        a, b = PLANAR_AXES[row], PLANAR_AXES[col]
+        matrix[a, b] = matrix[b, a] = value
+    return matrix.reshape(36)
+
+
+def planar_covariance(covariance: Any) -> np.ndarray:
+    """The 3 × 3 covariance over (x, y, yaw) of a ROS pose covariance (36 values, row-major 6 × 6);
+    BadInput for one of another length or not finite."""
+    values = np.asarray(covariance, dtype=np.float64)
+    if values.shape != (36,):
+        raise BadInput(f"a pose covariance of {values.size} values, not 36")
+    if not np.all(np.isfinite(values)):
+        raise BadInput("the pose covariance is not finite")
+    return values.reshape(6, 6)[np.ix_(PLANAR_AXES, PLANAR_AXES)]
+
+
+def upper_triangle(matrix: np.ndarray) -> list[float]:
+    """A 3 × 3 covariance as ``localization/pose`` and ``localization/initial_pose`` carry it."""
+    return [float(matrix[row, col]) for row, col in _UPPER_TRIANGLE]
+
+
+def amcl_pose(message: TimedPosition, frame: str) -> Any | None:
+    """geometry_msgs/PoseWithCovarianceStamped of a ``localization/pose`` in ``frame``, stamped with
+    its ``tm``, as nav2_amcl publishes ``amcl_pose``: None for a pose without a covariance (the
+    stub's, the ``none`` mode's: ``error`` empty); BadInput for an ``error`` that is neither empty
+    nor the covariance's :data:`~schemas.messages.COVARIANCE_LENGTH` values."""
+    if not message.error:
+        return None
+    if len(message.error) != COVARIANCE_LENGTH:
+        raise BadInput(f"error has {len(message.error)} values, neither none nor a covariance's {COVARIANCE_LENGTH}")
+    return interfaces.message_class(interfaces.POSE_WITH_COVARIANCE_STAMPED)(
+        header=header(message.tm.to_nanoseconds(), frame),
+        pose=interfaces.message_class("geometry_msgs/msg/PoseWithCovariance")(
+            pose=planar_pose(message.x, message.y, message.theta), covariance=pose_covariance(message.error)
+        ),
+    )
+
+
+def particle_poses(cloud: ParticleCloud, frame: str) -> Any:
+    """geometry_msgs/PoseArray of the particles (``localization/particles``) in ``frame``, stamped
+    with the cloud's ``tm``: one pose a particle, at (x, y, 0) turned by its heading (PoseArray has
+    no weights: nav2_msgs/ParticleCloud's has)."""
+    return interfaces.message_class(interfaces.POSE_ARRAY)(
+        header=header(cloud.tm.to_nanoseconds(), frame),
+        poses=[planar_pose(x, y, theta) for x, y, theta in zip(cloud.x, cloud.y, cloud.theta, strict=True)],
+    )
 
 
 def odometry_message(stamp_ns: int, odometry: ContinuousOdometry, settings: Ros2Config, prefix: str = "") -> Any:

@@ -43,13 +43,25 @@ PUBLICATIONS: dict[str, Entity] = {
     "costmap": Entity("global_costmap/costmap", interfaces.OCCUPANCY_GRID, wire.LATCHED),
     "plan": Entity("plan", interfaces.PATH, wire.PLAN),
 }
-"""Every topic a bridge may publish, by its short name; :attr:`BridgeGraph.publications` are one bridge's."""
+"""Every topic a bridge may publish, by its short name, but the particle filter's
+(:data:`LOCALIZATION_PUBLICATIONS`); :attr:`BridgeGraph.publications` are one bridge's."""
 NAVIGATION_TOPICS = ("map", "costmap", "plan")
 """The drive's map, costmap and plan (``drive/map``, ``drive/costmap``, ``drive/plan``), named as
 Nav2's map_server, global costmap and planner_server name theirs, in the bridge's namespace. Each is
 declared (its publisher and its token) when the drive first publishes its key: a bridge whose robot
 has no navigating drive (``--teleop``, a scenario) offers none of them, and leaves the names to a
 Nav2 of one's own."""
+LOCALIZATION_PUBLICATIONS: dict[str, Entity] = {
+    "amcl_pose": Entity("amcl_pose", interfaces.POSE_WITH_COVARIANCE_STAMPED, wire.LATCHED),
+    "particle_cloud": Entity("particle_cloud", interfaces.POSE_ARRAY, wire.SENSOR_DATA),
+}
+LOCALIZATION_TOPICS = tuple(LOCALIZATION_PUBLICATIONS)
+"""The particle filter's estimate and particles (``localization/pose`` with a covariance,
+``localization/particles``), named and offered as nav2_amcl's: ``amcl_pose``
+(geometry_msgs/PoseWithCovarianceStamped, reliable, transient local, keep-last 1) and
+``particle_cloud`` (rclcpp's SensorDataQoS; nav2_amcl's type is nav2_msgs/ParticleCloud, which no
+typestore here holds: geometry_msgs/PoseArray, what nav2_amcl published before it, docs/ros2.md).
+Published only by the bridge of a robot whose ``localization.mode`` is ``amcl``."""
 SENSOR_TOPICS = ("scan", "imu")
 """Published only by the bridge of a robot with that sensor (``lidar.enabled``, ``imu.enabled``)."""
 TF_TOPICS = ("tf", "tf_static")
@@ -61,7 +73,12 @@ CMD_VEL_SUBSCRIPTIONS = (
 )
 GOAL_POSE = Entity("goal_pose", interfaces.POSE_STAMPED, wire.SYSTEM_DEFAULT)
 """What RViz's "2D Goal Pose" tool publishes (``/goal_pose``; in the namespace, as ``cmd_vel`` is)."""
-SUBSCRIPTIONS = (*CMD_VEL_SUBSCRIPTIONS, GOAL_POSE)
+INITIAL_POSE = Entity("initialpose", interfaces.POSE_WITH_COVARIANCE_STAMPED, wire.SYSTEM_DEFAULT)
+"""What RViz's "2D Pose Estimate" tool publishes (``/initialpose``, in the namespace), subscribed as
+nav2_amcl subscribes it (ROS's default QoS), by the bridge of a robot whose localization is ``amcl``:
+each becomes a query of ``localization/initial_pose``."""
+SUBSCRIPTIONS = (*CMD_VEL_SUBSCRIPTIONS, GOAL_POSE, INITIAL_POSE)
+"""Every subscription a bridge may hold (``initialpose`` only with ``localization.mode = "amcl"``)."""
 NAVIGATE_TO_POSE = "navigate_to_pose"
 """The NavigateToPose action's name, as Nav2's bt_navigator serves it (in the namespace)."""
 
@@ -121,14 +138,18 @@ class BridgeGraph:
     publishes_clock: bool = True
     sensors: frozenset[str] = frozenset(SENSOR_TOPICS)
     """Of :data:`SENSOR_TOPICS`, those of the sensors the robot has."""
+    localization: bool = False
+    """``localization.mode = "amcl"``: :data:`LOCALIZATION_TOPICS` published, :data:`INITIAL_POSE` subscribed."""
 
     @property
     def publications(self) -> dict[str, Entity]:
         """What this bridge publishes: :data:`PUBLICATIONS`, its TF topics where ``ros2.tf`` puts
         them, ``/clock`` only if it publishes it, ``scan`` and ``imu`` only for the sensors the robot has,
-        and :data:`NAVIGATION_TOPICS` (declared once the drive publishes what they come from)."""
+        :data:`NAVIGATION_TOPICS` (declared once the drive publishes what they come from), and
+        :data:`LOCALIZATION_TOPICS` only with the particle filter."""
         entities = {}
-        for topic, entity in PUBLICATIONS.items():
+        offered = {**PUBLICATIONS, **(LOCALIZATION_PUBLICATIONS if self.localization else {})}
+        for topic, entity in offered.items():
             if (topic == "clock" and not self.publishes_clock) or (
                 topic in SENSOR_TOPICS and topic not in self.sensors
             ):
@@ -136,6 +157,11 @@ class BridgeGraph:
             shared = topic in TF_TOPICS and self.tf_shared
             entities[topic] = dataclasses.replace(entity, name=f"/{entity.name}") if shared else entity
         return entities
+
+    @property
+    def subscriptions(self) -> tuple[Entity, ...]:
+        """What this bridge subscribes: :data:`SUBSCRIPTIONS`, ``initialpose`` only with the particle filter."""
+        return tuple(entity for entity in SUBSCRIPTIONS if entity is not INITIAL_POSE or self.localization)
 
     @property
     def frame_prefix(self) -> str:
@@ -182,4 +208,5 @@ def bridge_graph(config: Config, environ: Mapping[str, str] = os.environ) -> Bri
         sensors=frozenset(
             topic for topic, enabled in zip(SENSOR_TOPICS, (config.lidar.enabled, config.imu.enabled)) if enabled
         ),
+        localization=config.localization.mode == "amcl",
     )

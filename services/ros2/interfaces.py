@@ -51,6 +51,8 @@ TRIGGER_RESPONSE = f"{TRIGGER}_Response"
 _TRIGGER_SRV = ("", "bool success   # indicate successful run of triggered service\nstring message # informational")
 """std_srvs/srv/Trigger.srv: an empty request, then ``bool success`` and ``string message``."""
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+POSE_WITH_COVARIANCE_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
+POSE_ARRAY = "geometry_msgs/msg/PoseArray"
 UUID = "unique_identifier_msgs/msg/UUID"
 GOAL_INFO = "action_msgs/msg/GoalInfo"
 GOAL_STATUS = "action_msgs/msg/GoalStatus"

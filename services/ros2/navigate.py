@@ -9,6 +9,10 @@ them (services/ros2/action_server.py is the shell; docs/ros2.md "Navigate" the w
   ``odom`` (docs/ros2.md "Frames": where the bridge started integrating, not the drive's): it is
   turned into ``map`` with the bridge's current ``map -> odom`` and sent in ``map``. Any other frame,
   a number not finite, or an orientation that is no rotation is refused.
+- A pose estimate on ``initialpose`` (RViz's "2D Pose Estimate", ``geometry_msgs/PoseWithCovarianceStamped``)
+  becomes the localization's ``localization/initial_pose`` the same way, in ``map``, with its
+  covariance's x, y and yaw entries (:func:`initial_pose_request`); the bridge's service thread
+  sends it (services/ros2/service.py).
 - Status codes, cancel policy and return codes are rcl_action's (``action_msgs/msg/GoalStatus``,
   ``action_msgs/srv/CancelGoal``; ``rcl_action_process_cancel_request``).
 """
@@ -24,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from schemas.codec import BadInput
-from schemas.messages import NANOSECONDS_PER_SECOND, GoalFeedback, GoalRequest, ScenarioOutcome
+from schemas.messages import NANOSECONDS_PER_SECOND, GoalFeedback, GoalRequest, InitialPose, ScenarioOutcome
 from services.planar import Pose
 from services.ros2 import core, interfaces
 
@@ -135,16 +139,65 @@ def goal_request(
     if max(abs(x), abs(y)) > max_coordinate:
         raise BadInput(f"goal position ({x}, {y}) is beyond input.max_coordinate {max_coordinate:g} m")
     theta = yaw_of(pose_stamped.pose.orientation)
-    frame = pose_stamped.header.frame_id
-    if frame == frames.map:
-        pose = Pose(x, y, theta)
-    elif frame == frames.odom:
-        if map_to_odom is None:
-            raise BadInput(f"a goal in {frame!r} before the bridge has map -> odom (no localized pose yet)")
-        pose = core.compose(map_to_odom, Pose(x, y, theta))
-    else:
-        raise BadInput(f"frame {frame!r} is neither {frames.map!r} nor {frames.odom!r}")
+    pose = _in_map(Pose(x, y, theta), pose_stamped.header.frame_id, frames, map_to_odom, "a goal")
     return GoalRequest(x=pose.x, y=pose.y, theta=pose.theta, frame="map", id=goal_id)
+
+
+def _in_map(pose: Pose, frame: str, frames: GoalFrames, map_to_odom: Pose | None, what: str) -> Pose:
+    """``pose``, given in ``frame``, in ``map``; BadInput for a frame neither ``frames.map`` nor
+    ``frames.odom``, or ``odom`` before the bridge has a ``map -> odom``."""
+    if frame == frames.map:
+        return pose
+    if frame == frames.odom:
+        if map_to_odom is None:
+            raise BadInput(f"{what} in {frame!r} before the bridge has map -> odom (no localized pose yet)")
+        return core.compose(map_to_odom, pose)
+    raise BadInput(f"frame {frame!r} is neither {frames.map!r} nor {frames.odom!r}")
+
+
+MAX_TILT = 1e-3
+"""The most a pose estimate's orientation may lean off a turn about z: ``sqrt(x² + y²)`` of the
+normalised quaternion (a tilt of about 0.11°)."""
+
+
+def initial_pose_request(
+    message: Any, frames: GoalFrames, map_to_odom: Pose | None, max_coordinate: float
+) -> InitialPose:
+    """The localization's ``localization/initial_pose`` payload for a ROS pose estimate
+    (``geometry_msgs/PoseWithCovarianceStamped``: RViz's "2D Pose Estimate" on ``initialpose``), in
+    ``map``: its position, its heading, and its covariance's x, y and yaw entries (turned with the
+    pose when it is given in ``odom``; none when they are all zero: the localization's own initial
+    spread). BadInput (naming why) for a frame neither ``frames.map`` nor ``frames.odom``, an odom pose
+    before the bridge has a ``map -> odom``, a number not finite, a position beyond
+    ``max_coordinate`` (in either frame), an orientation that is no turn about z (more than
+    :data:`MAX_TILT`), or a negative variance."""
+    position = message.pose.pose.position
+    x, y = float(position.x), float(position.y)
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise BadInput(f"initial pose position ({x}, {y}) is not finite")
+    if max(abs(x), abs(y)) > max_coordinate:
+        raise BadInput(f"initial pose position ({x}, {y}) is beyond input.max_coordinate {max_coordinate:g} m")
+    orientation = message.pose.pose.orientation
+    theta = yaw_of(orientation)
+    qx, qy, qz, qw = (float(orientation.x), float(orientation.y), float(orientation.z), float(orientation.w))
+    tilt = math.hypot(qx, qy) / math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    if tilt > MAX_TILT:
+        raise BadInput(f"orientation ({qx}, {qy}, {qz}, {qw}) is not a turn about z")
+    covariance = core.planar_covariance(message.pose.covariance)
+    if np.any(np.diag(covariance) < 0.0):
+        raise BadInput(f"the covariance's variances {np.diag(covariance).tolist()} are not all non-negative")
+    frame = message.header.frame_id
+    pose = _in_map(Pose(x, y, theta), frame, frames, map_to_odom, "an initial pose")
+    if frame != frames.map and map_to_odom is not None:
+        cos, sin = math.cos(map_to_odom.theta), math.sin(map_to_odom.theta)
+        turn = np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]])
+        covariance = turn @ covariance @ turn.T
+        if max(abs(pose.x), abs(pose.y)) > max_coordinate:
+            raise BadInput(
+                f"initial pose ({pose.x:g}, {pose.y:g}) in {frames.map!r} is beyond input.max_coordinate {max_coordinate:g} m"
+            )
+    values = core.upper_triangle(covariance) if np.any(covariance != 0.0) else []
+    return InitialPose(x=pose.x, y=pose.y, theta=pose.theta, covariance=values)
 
 
 def duration(seconds: float) -> Any:

@@ -10,7 +10,10 @@ yields ``/clock``, and ``odom``, ``tf`` and ``joint_states``, each stamped with 
 and ``sim/imu`` is one ``scan`` and one ``imu`` (services/ros2/sensors.py), at the time it carries.
 Each of the drive's ``drive/map``, ``drive/costmap`` and ``drive/plan`` is one ``map``,
 ``global_costmap/costmap`` and ``plan`` (nav_msgs OccupancyGrid, OccupancyGrid and Path in
-``ros2.map_frame``, services/ros2/core.py), at the time it carries.
+``ros2.map_frame``, services/ros2/core.py), at the time it carries. With the particle filter
+(``localization.mode = "amcl"``), each ``localization/pose`` with a covariance is one ``amcl_pose``
+(geometry_msgs/PoseWithCovarianceStamped) and each ``localization/particles`` one ``particle_cloud``
+(geometry_msgs/PoseArray), both in ``map``, as nav2_amcl publishes them.
 """
 
 from __future__ import annotations
@@ -19,7 +22,15 @@ from dataclasses import dataclass
 from typing import Any
 
 from schemas.codec import BadInput
-from schemas.messages import GoalPlan, ImuSample, LaserScan, OccupancyGrid, TimedDoubleSeq, TimedPosition
+from schemas.messages import (
+    GoalPlan,
+    ImuSample,
+    LaserScan,
+    OccupancyGrid,
+    ParticleCloud,
+    TimedDoubleSeq,
+    TimedPosition,
+)
 from services.body.geometry import robot_body
 from services.clock.sim_time import PeriodicSchedule, StampClock
 from services.config import Config
@@ -63,6 +74,8 @@ class RosOutputs:
         self.sensor_stamps = sensors.SensorStamps(config.input.stamp_horizon_ns)
         self.navigation_stamps = sensors.SensorStamps(config.input.stamp_horizon_ns)
         """Of the drive's map, costmap and plan: each in order, none far ahead of the clock."""
+        self.localization_stamps = sensors.SensorStamps(config.input.stamp_horizon_ns)
+        """Of the particle filter's estimate and particles, likewise."""
         self.clock = StampClock(config.input.stamp_horizon_ns)
         self.odometry = core.ContinuousOdometry(config)
         self.map_to_odom: tuple[int, Pose] | None = None
@@ -190,10 +203,33 @@ class RosOutputs:
         self.navigation_stamps.check("plan", stamp_ns, self.clock.last_ns, repeat=True)
         return [Outgoing("plan", plan, stamp_ns)]
 
+    def take_amcl_pose(self, message: TimedPosition) -> list[Outgoing]:
+        """A ``localization/pose``: the ``amcl_pose`` of it, in ``map``, if it carries a covariance
+        (the particle filter's; none for the stub's or for a bridge without the particle filter).
+        BadInput for one stamped before the last or whose ``error`` is no covariance."""
+        if "amcl_pose" not in self.topics:
+            return []
+        estimate = core.amcl_pose(message, self.settings.map_frame)
+        if estimate is None:
+            return []
+        stamp_ns = message.tm.to_nanoseconds()
+        self.localization_stamps.check("amcl_pose", stamp_ns, self.clock.last_ns, repeat=True)
+        return [Outgoing("amcl_pose", estimate, stamp_ns)]
+
+    def take_particles(self, message: ParticleCloud) -> list[Outgoing]:
+        """A ``localization/particles``: the ``particle_cloud`` of it, in ``map`` (none for a bridge
+        without the particle filter). BadInput for one stamped before the last."""
+        if "particle_cloud" not in self.topics:
+            return []
+        stamp_ns = message.tm.to_nanoseconds()
+        self.localization_stamps.check("particle_cloud", stamp_ns, self.clock.last_ns, repeat=True)
+        return [Outgoing("particle_cloud", core.particle_poses(message, self.settings.map_frame), stamp_ns)]
+
     def _restart(self) -> None:
         """A new simulator, whose clock started again: ``odom`` starts again at the origin, the
         sensors' stamps too, and the drive's map, costmap and plan's."""
         self.navigation_stamps.restart()
+        self.localization_stamps.restart()
         self.sensor_stamps.restart()
         self.odometry.restart()
         self._schedules = None

@@ -22,7 +22,13 @@ One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
   each calling the Motor method of that name (``motor/gui/<method>``, as an operator would);
 - the action ``navigate_to_pose`` (nav2_msgs/NavigateToPose: its three services and two topics)
   and the subscription ``goal_pose`` (RViz's 2D Goal Pose), each goal sent to the drive's
-  ``drive/goal/send`` (services/ros2/action_server.py).
+  ``drive/goal/send`` (services/ros2/action_server.py);
+- with the particle filter (``localization.mode = "amcl"``), as nav2_amcl: ``amcl_pose``
+  (geometry_msgs/PoseWithCovarianceStamped, latched) from each ``localization/pose`` with a
+  covariance, ``particle_cloud`` (geometry_msgs/PoseArray, sensor QoS) from each
+  ``localization/particles``, and the subscription ``initialpose`` (RViz's 2D Pose Estimate), each
+  pose estimate sent, from the service thread, as a query of ``localization/initial_pose``; the
+  localization's refusal is logged and counted (``initial_pose`` in the status).
 
 Its inputs from the loop: every sample of ``sim/clock`` (the clock, the wheels, and the continuous
 odometry: each observed step, so no tick is skipped), the newest of ``odometry/pose`` (``map``) and
@@ -41,6 +47,7 @@ fleet): their nodes' and entities' ids come from one counter per session, as in 
 from __future__ import annotations
 
 import itertools
+import logging
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -52,14 +59,16 @@ import msgspec
 import zenoh
 import zenoh.ext
 
-from schemas.codec import BadInput
+from schemas.codec import BadInput, decode, encode
 from schemas.keys import Method, MethodFamily, Service
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
     GoalPlan,
     ImuSample,
     LaserScan,
+    LocalizationReply,
     OccupancyGrid,
+    ParticleCloud,
     Time,
     TimedDoubleSeq,
     TimedPosition,
@@ -67,11 +76,12 @@ from schemas.messages import (
 )
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, ConfigError
-from services.ros2 import core, graph, interfaces, wire
+from services.ros2 import core, graph, interfaces, navigate, wire
 from services.ros2.action_server import NavigateServer
 from services.ros2.outputs import Outgoing, RosOutputs
 from services.runtime.inputs import Delivery
 from services.runtime.journal import Journal, journal_path
+from services.runtime.logs import RateLimitedLog
 from services.runtime.node import Node, Wait
 from services.service import ServiceCommand, journal_limits
 
@@ -81,6 +91,13 @@ PENDING_CALLS = 16
 """Service calls waiting for the motor at once; beyond, a call is answered ``success: false`` at once."""
 MAX_REQUEST_PAYLOAD = 64
 """Bytes: a Trigger request is 5 (CDR header, one byte); a larger one is bad input."""
+INITIAL_POSE_TIMEOUT_S = 2.0
+"""How long an ``initialpose`` waits for the localization's reply."""
+PENDING_INITIAL_POSES = 4
+"""``initialpose`` samples waiting for the localization at once; beyond, one is bad input."""
+MAX_INITIAL_POSE_PAYLOAD = 4096
+"""Bytes: an ``initialpose`` larger than this is bad input, refused before it is decoded (one is 344
+bytes of CDR with a frame id of a few characters)."""
 SPORADIC_HEARTBEAT_S = 1.0
 """rmw_zenoh's heartbeat period for a reliable transient-local publisher's sample-miss detection."""
 
@@ -261,6 +278,24 @@ class Ros2Bridge:
         node.subscribe(
             keys.drive_costmap, OccupancyGrid, each(keys.drive_costmap, outputs.take_costmap), Delivery.NEWEST
         )
+        # The particle filter's: every estimate (each one /amcl_pose), the newest particles.
+        self.initial_pose = {"received": 0, "accepted": 0, "refused": 0, "unanswered": 0}
+        self.last_initial_pose_refusal = ""
+        self._pending_initial_poses: dict[int, str] = {}
+        self._refusals = RateLimitedLog(node.log)
+        self.initial_pose_key: str | None = None
+        self._localization: Any = None
+        if bridge.localization:
+            pose = keys.localization_pose
+            node.subscribe(pose, TimedPosition, each(pose, outputs.take_amcl_pose), Delivery.EVERY)
+            particles = keys.localization_particles
+            node.subscribe(particles, ParticleCloud, each(particles, outputs.take_particles), Delivery.NEWEST)
+            self.initial_pose_key = bridge.key(graph.INITIAL_POSE)
+            tokens.declare(wire.EntityKind.SUBSCRIPTION, graph.INITIAL_POSE)
+            node.subscribe_bytes(self.initial_pose_key, self._on_initial_pose, Delivery.QUEUED)
+            self._localization = node.session.declare_querier(
+                keys.localization_initial_pose, timeout=INITIAL_POSE_TIMEOUT_S
+            )
         self.cmd_vel_keys: dict[str, str] = {}
         for entity in graph.CMD_VEL_SUBSCRIPTIONS:
             key = self.cmd_vel_keys[entity.interface] = bridge.key(entity)
@@ -349,6 +384,67 @@ class Ros2Bridge:
         self._last_forward_ns = now_ns
         self.cmd_vel["forwarded"] += 1
 
+    def _on_initial_pose(self, payload: bytes, attachment: bytes | None) -> None:
+        """An ``initialpose`` (the service thread: a queued input): checked, turned into ``map``
+        and sent to the localization's ``localization/initial_pose``, its reply posted back to this
+        thread. BadInput for a sample without rmw_zenoh's attachment, malformed or oversized, a
+        pose estimate refused (navigate.py) or too many waiting for the localization."""
+        wire.Attachment.decode(attachment)
+        if len(payload) > MAX_INITIAL_POSE_PAYLOAD:
+            raise BadInput(f"{len(payload)} bytes, more than a pose estimate's {MAX_INITIAL_POSE_PAYLOAD}")
+        message = interfaces.deserialize(payload, interfaces.POSE_WITH_COVARIANCE_STAMPED)
+        correction = self.outputs.map_to_odom
+        request = navigate.initial_pose_request(
+            message,
+            self.navigate.frames,
+            None if correction is None else correction[1],
+            self.config.input.max_coordinate,
+        )
+        if len(self._pending_initial_poses) >= PENDING_INITIAL_POSES:
+            raise BadInput(f"{PENDING_INITIAL_POSES} pose estimates already wait for the localization's reply")
+        self.initial_pose["received"] += 1
+        call_id = next(self._call_ids)
+        self._pending_initial_poses[call_id] = f"({request.x:g}, {request.y:g}, {request.theta:g})"
+        key = self.node.keys.localization_initial_pose
+        post, guard = self.node.executor.post, self.node.guard
+        self._localization.get(
+            zenoh.handlers.Callback(
+                lambda reply: post(
+                    partial(guard, key, self._localization_replied), (call_id, _localization_reply(reply))
+                ),
+                lambda: post(partial(guard, key, self._localization_done), call_id),
+            ),
+            payload=encode(request),
+        )
+
+    def _localization_replied(self, answer: tuple[int, LocalizationReply]) -> None:
+        call_id, reply = answer
+        pose = self._pending_initial_poses.pop(call_id, None)
+        if pose is None:
+            return
+        if reply.accepted:
+            self.initial_pose["accepted"] += 1
+            self.node.log.info("initial pose %s taken by the localization", pose)
+            return
+        self.initial_pose["refused"] += 1
+        self.last_initial_pose_refusal = reply.reason
+        self._refusals(
+            "refused", logging.WARNING, "the localization refused the initial pose %s: %s", pose, reply.reason
+        )
+
+    def _localization_done(self, call_id: int) -> None:
+        """The query ended: a pose estimate still pending got no reply (no particle filter serves it)."""
+        pose = self._pending_initial_poses.pop(call_id, None)
+        if pose is not None:
+            self.initial_pose["unanswered"] += 1
+            self._refusals(
+                "unanswered",
+                logging.WARNING,
+                "no localization answered the initial pose %s (is `invent localization` running with "
+                'localization.mode = "amcl"?)',
+                pose,
+            )
+
     def _on_query(self, method: Method, key: str, query: zenoh.Query) -> None:
         """zenoh's thread: a call on a Motor service's exact key goes to the service thread; any
         other query that reaches the queryable (a wildcard) is dropped, unanswered: looking never acts."""
@@ -418,6 +514,17 @@ class Ros2Bridge:
             "cmd_vel": dict(self.cmd_vel),
             "service_calls": {**self.calls, "waiting": len(self._pending_calls)},
             "navigate": self.navigate.status(),
+            **(
+                {
+                    "initial_pose": {
+                        **self.initial_pose,
+                        "waiting": len(self._pending_initial_poses),
+                        "last_refusal": self.last_initial_pose_refusal,
+                    }
+                }
+                if self._localization is not None
+                else {}
+            ),
             "odom": self.outputs.odometry.pose._asdict(),
         }
 
@@ -426,6 +533,8 @@ class Ros2Bridge:
         for pending in self._pending_calls.values():
             pending.query.drop()
         self._pending_calls.clear()
+        if self._localization is not None:
+            self._localization.undeclare()
         for entity in (*self._queryables, *self._motor_methods.values(), *self.publishers.values()):
             entity.undeclare()
         self.tokens.close()
@@ -445,6 +554,18 @@ def _bag_journal(options: Ros2Options, config: Config) -> Journal | None:
         )
     except OSError as error:
         raise ConfigError(f"--bag-journal {directory}: {error.strerror}") from None
+
+
+def _localization_reply(reply: zenoh.Reply) -> LocalizationReply:
+    """zenoh's thread: the localization's reply to an initial pose (a refusal naming why, for an
+    error reply or one that does not decode)."""
+    if reply.ok is None:
+        text = reply.err.payload.to_bytes().decode(errors="replace") if reply.err is not None else ""
+        return LocalizationReply(False, f"the localization answered an error: {text}")
+    try:
+        return decode(LocalizationReply, reply.ok.payload.to_bytes())
+    except BadInput as error:
+        return LocalizationReply(False, f"the localization's reply does not decode: {error}")
 
 
 def _reply_text(reply: zenoh.Reply) -> tuple[bool, str]:

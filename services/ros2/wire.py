@@ -99,7 +99,8 @@ LATCHED = Qos(depth=1, durability=Durability.TRANSIENT_LOCAL)
 ``/tf_static`` and ``/robot_description``; ``map`` as Nav2's map_server offers it and
 ``global_costmap/costmap`` as Nav2's costmap publisher does (both
 ``rclcpp::QoS(rclcpp::KeepLast(1)).transient_local().reliable()``, navigation2's ``jazzy`` and
-``kilted``; ``nav2::qos::LatchedPublisherQoS()`` after them, the same)."""
+``kilted``; ``nav2::qos::LatchedPublisherQoS()`` after them, the same); ``amcl_pose`` as nav2_amcl
+offers it (``rclcpp::QoS(rclcpp::KeepLast(1)).transient_local().reliable()``)."""
 PLAN = Qos(depth=1)
 """Nav2's planner_server's ``plan`` (``create_publisher<nav_msgs::msg::Path>("plan", 1)``, ``jazzy``
 and ``kilted``): reliable, volatile, keep-last 1 (navigation2's ``main`` keeps 10; a depth never
@@ -108,7 +109,8 @@ CLOCK = Qos(depth=1, reliability=Reliability.BEST_EFFORT)
 """rclcpp's ``ClockQoS``, what a node with ``use_sim_time`` subscribes ``/clock`` with."""
 SENSOR_DATA = Qos(depth=5, reliability=Reliability.BEST_EFFORT)
 """rclcpp's ``SensorDataQoS`` (best effort, volatile, keep-last 5): ``scan`` and ``imu``, what
-Nav2, slam_toolbox and robot_localization subscribe sensors with."""
+Nav2, slam_toolbox and robot_localization subscribe sensors with; ``particle_cloud``, as nav2_amcl
+offers it."""
 SERVICES = Qos()
 """ROS's services default (reliable, volatile, keep-last 10)."""
 ACTION_STATUS = Qos(depth=1, durability=Durability.TRANSIENT_LOCAL)
