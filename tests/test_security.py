@@ -92,9 +92,9 @@ def test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_tri
     cache_keys.add(f"{ros.key(ACTION_TOPICS[ActionTopic.STATUS])}/@adv/**")
     assert _put_keys(Role.ROS2) == published | cache_keys | {KEYS.drive_target_velocity}
     assert all(key.startswith("0/") for key in published)
-    assert {KEYS.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES} | GOALS == (
-        _queried_keys(Role.ROS2) - {all_robots_status()} - LATCHED
-    )
+    assert {KEYS.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES} | GOALS | {
+        KEYS.localization_initial_pose
+    } == (_queried_keys(Role.ROS2) - {all_robots_status()} - LATCHED)
     assert KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN) not in _queried_keys(Role.ROS2)
     served = _granted(Role.ROS2, Message.DECLARE_QUERYABLE)
     services = (*MOTOR_SERVICES.values(), *ACTION_SERVICES.values())
@@ -113,10 +113,13 @@ def test_the_ros_roles_are_granted_the_domain_and_namespace_they_are_written_for
 
 def test_only_the_operator_the_sim_the_control_path_and_the_ros2_bridge_query_motor_methods():
     status = {all_robots_status()} | LATCHED
-    assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI) | GOALS
+    localize = {KEYS.localization_initial_pose, KEYS.localization_global_localization}
+    assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI) | GOALS | localize
     assert _queried_keys(Role.SIM) == _queried_keys(Role.CONTROL) == status | _methods(MethodFamily.BUMP)
-    for role in (Role.OBSERVER, Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE):
+    for role in (Role.OBSERVER, Role.MOTOR, Role.ODOMETRY, Role.DRIVE):
         assert _queried_keys(role) == status, role
+    # the localization reads no ground truth: no sim/status, no latched keys (tests/test_security_localization.py)
+    assert _queried_keys(Role.LOCALIZATION) == {KEYS.status(s) for s in Service if s is not Service.SIM}
     assert _queried_keys(Role.ROS_NODE) == status | {"0/**", "0/**/@adv/**", "@ros2_lv/0/**"}
 
 

@@ -17,7 +17,16 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from schemas.keys import LATCHED_TOPICS, Keys, Method, MethodFamily, Service, Topic, all_robots_status
+from schemas.keys import (
+    LATCHED_TOPICS,
+    Keys,
+    LocalizationMethod,
+    Method,
+    MethodFamily,
+    Service,
+    Topic,
+    all_robots_status,
+)
 from services.cli.flags import robot_names
 from services.cli.tools import run_secrets
 from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, BridgeGraph
@@ -102,7 +111,7 @@ def test_each_robots_service_roles_get_exactly_the_single_robot_grants_on_their_
     ros2_calls = _granted(Identity(Role.ROS2, "rh1"), Message.QUERY) - {all_robots_status()}
     assert ros2_calls - {RH1.topic(topic) for topic in LATCHED_TOPICS} == {
         RH1.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES
-    } | _goals(RH1)
+    } | _goals(RH1) | {RH1.localization_initial_pose}
     assert _granted(Identity(Role.DRIVE, "rh1"), Message.DECLARE_QUERYABLE) == (
         {RH1.status(Service.DRIVE), RH1.drive_path, RH1.drive_outcome, RH1.drive_goal, RH1.drive_map, RH1.drive_plan}
         | _goals(RH1)
@@ -175,7 +184,13 @@ def test_the_fleet_operator_and_observer_reach_every_robot_and_the_observer_puts
     }
     assert _granted(operator, Message.QUERY) - {all_robots_status()} - {
         keys.topic(topic) for keys in (RH0, RH1) for topic in LATCHED_TOPICS
-    } == (_methods(RH0, MethodFamily.GUI) | _methods(RH1, MethodFamily.GUI) | _goals(RH0) | _goals(RH1))
+    } == (
+        _methods(RH0, MethodFamily.GUI)
+        | _methods(RH1, MethodFamily.GUI)
+        | _goals(RH0)
+        | _goals(RH1)
+        | {k.localization_method(m) for k in (RH0, RH1) for m in LocalizationMethod}
+    )
     assert _granted(observer, Message.PUT) == set()
     assert not _granted(observer, Message.QUERY) & (_goals(RH0) | _goals(RH1)), "the observer sends no goal"
     assert _granted(observer, Message.DECLARE_QUERYABLE) == {RH0.view_status, RH1.view_status}
@@ -337,6 +352,15 @@ def test_router_lets_one_robots_credentials_put_only_on_that_robots_keys(tmp_pat
         witness.declare_subscriber("invent/**", lambda s: received.put((str(s.key_expr), s.payload.to_string())))
         barrier = RH0.view_status
         witness.declare_queryable(barrier, lambda query: query.reply(barrier, b"{}"))
+        # The localization may query no view status (it reads no more than it needs): its barrier is
+        # its robot's drive/status, served by a witness logged in as that robot's drive.
+        barriers = {robot: Keys(robot).status(Service.DRIVE) for robot in ROBOTS}
+        for robot, key in barriers.items():
+            drive_witness = open_as(Identity(Role.DRIVE, robot))
+            drive_witness.declare_subscriber(
+                "invent/**", lambda s: received.put((str(s.key_expr), s.payload.to_string()))
+            )
+            drive_witness.declare_queryable(key, lambda query, key=key: query.reply(key, b"{}"))
         sessions = {identity: open_as(identity) for identity in profile.identities}
         data_keys = [keys.topic(topic) for keys in (RH0, RH1) for topic in Topic]
         publishers = [
@@ -346,7 +370,8 @@ def test_router_lets_one_robots_credentials_put_only_on_that_robots_keys(tmp_pat
         for identity, publisher in publishers:
             publisher.put(identity.user)
         for identity, session in sessions.items():
-            assert len([reply.ok for reply in session.get(barrier, timeout=5.0) if reply.ok]) == 1, identity
+            own = barriers[identity.robot] if identity.role is Role.LOCALIZATION and identity.robot else barrier
+            assert len([reply.ok for reply in session.get(own, timeout=5.0) if reply.ok]) == 1, identity
         delivered = set()
         while not received.empty():
             delivered.add(received.get())

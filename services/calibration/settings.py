@@ -9,20 +9,6 @@ from typing import Any
 
 from services.config import Config
 
-SIM_BODY_KEYS = (
-    "robot.radius_of_left_wheel",
-    "robot.radius_of_right_wheel",
-    "robot.length_of_axle",
-    "robot.radius_of_body_area",
-    "sim.body_mass",
-    "sim.body_height",
-    "sim.wheel_mass",
-    "sim.wheel_width",
-    "sim.caster_mass",
-    "sim.wheel_friction",
-    "sim.max_wheel_torque",
-)
-"""What ``--sim-set`` may change: the simulated body, not the loop."""
 DEFAULT_PASSES = 2
 
 
@@ -40,7 +26,7 @@ class UmbmarkSettings:
     passes: int
     """At most this many corrections (``--passes``)."""
     sim_set: dict[str, Any]
-    """``--sim-set``: the simulated body's keys (of :data:`SIM_BODY_KEYS`) and values."""
+    """``--sim-set``: the simulated body's keys (of :data:`services.config.SIM_BODY_KEYS`) and values."""
     measured: Path | None
     """``--measured``: the file of return positions measured by hand; None: in the simulator."""
     description: dict[str, Any]

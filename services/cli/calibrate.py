@@ -7,11 +7,17 @@ import argparse
 import functools
 from pathlib import Path
 
-from services.calibration.settings import DEFAULT_PASSES, SIM_BODY_KEYS, UmbmarkSettings
+from services.calibration.settings import DEFAULT_PASSES, UmbmarkSettings
 from services.calibration.umbmark import CONVERGED, DEFAULT_RUNS, DEFAULT_SIDE
 from services.cli.flags import LOG_LEVELS, description_flags, overrides_from_args, positive_int, positive_length
 from services.cli.services import service_plan
-from services.config import ConfigError, config_from_description, parse_override, read_description
+from services.config import (
+    SIM_BODY_KEYS,
+    ConfigError,
+    config_from_description,
+    parse_sim_set,
+    read_description,
+)
 from services.launch.calibrate import run_umbmark
 from services.launch.composition import Composition
 from services.launch.run import default_report_dir
@@ -114,17 +120,7 @@ def settings_from_args(args: argparse.Namespace) -> UmbmarkSettings:
         ]
         if given:
             raise ConfigError(f"{', '.join(given)}: --measured computes from a file, with no simulator to run")
-    sim_set = {}
-    for text in args.sim_set or ():
-        try:
-            key, value = parse_override(text)
-        except ConfigError:
-            raise ConfigError(f"--sim-set {text!r} must be KEY=VALUE") from None
-        if key not in SIM_BODY_KEYS:
-            raise ConfigError(
-                f"--sim-set {key}: only the simulated body may differ from the description: " + ", ".join(SIM_BODY_KEYS)
-            )
-        sim_set[key] = value
+    sim_set = parse_sim_set(args.sim_set or ())
     output = Path(args.output) if args.output else None
     if output is not None and not output.parent.is_dir():
         raise ConfigError(f"-o {output}: no directory {output.parent} to write it in")

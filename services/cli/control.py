@@ -21,10 +21,11 @@ from schemas.keys import Service
 from services.cli.flags import session_from_args
 from services.cli.serve import add_journal_arguments, plan_from_args
 from services.cli.services import service_cli, service_plan
-from services.config import ConfigError
+from services.config import SIM_BODY_KEYS, ConfigError, parse_sim_set
 from services.launch.composition import Composition, run_composed
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
+from services.service import ServicePlan
 
 COMPOSED = (Service.MOTOR, Service.SIM)
 """Started in this order: the sim's thread runs the loop and handles the motor's inputs."""
@@ -63,6 +64,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for name in COMPOSED:
         service_cli(name).add_arguments(parser)
     add_journal_arguments(parser)  # both services' journals go there
+    parser.add_argument(
+        "--sim-set",
+        metavar="SECTION.KEY=VALUE",
+        action="append",
+        help="the sim's description alone differs from the motor's by this (repeatable, after every --set): the "
+        "simulated body and its sensors' noise (invent up --sim-set). Keys: " + ", ".join(SIM_BODY_KEYS),
+    )
+
+
+def composed_plans(args: argparse.Namespace) -> list[tuple[str, ServicePlan[Any]]]:
+    """The motor's and the sim's plans, in :data:`COMPOSED`'s order: the sim's description is the
+    motor's with ``--sim-set`` after every ``--set`` (the later value of a key wins); ConfigError
+    naming a ``--sim-set`` key that is not of the simulated body."""
+    parse_sim_set(args.sim_set or ())
+    sim_args = argparse.Namespace(**{**vars(args), "set": [*(args.set or ()), *(args.sim_set or ())]})
+    return [(name, plan_from_args(service_cli(name), sim_args if name == Service.SIM else args)) for name in COMPOSED]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -71,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
             "invent control --fleet: a fleet's simulator is the fleet's and each robot's motor its own; "
             "compose a fleet with invent up --fleet FILE --composed, or run invent sim --fleet and the motors apart"
         )
-    plans = [(name, plan_from_args(service_cli(name), args)) for name in COMPOSED]
+    plans = composed_plans(args)
     rt = plans[-1][1].config.rt
     # With --rt, the loop's thread alone goes on rt.cpus (pin_loop_thread), as in invent up --composed;
     # without, rt.partition puts the whole process there, the control path's CPU.

@@ -29,6 +29,7 @@ SUBCOMMANDS = (
     "call",
     "status",
     "goto",
+    "localize",
     "config",
     "record",
     "export",

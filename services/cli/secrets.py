@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import get_args
 
 from schemas.keys import DEFAULT_ROBOT, Keys
 from services.cli import tools
 from services.cli.flags import robot_names
 from services.config import TfLayout, load_config
+from services.config.sections import LocalizationMode
 from services.extension.loader import load_all
 from services.ros2.graph import bridge_graph
 from services.runtime.session import DEFAULT_ENDPOINT
 from services.security import UserServiceGrant
+from services.security.grants import DEFAULT_LOCALIZATION
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -73,7 +76,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the TF layout of the bridges the ros2 roles are granted (ros2.tf; default namespaced: each robot's "
         "tf in its namespace; prefixed: every robot's bridge may put on the shared /tf and /tf_static)",
     )
-
+    parser.add_argument(
+        "--localization-mode",
+        choices=get_args(LocalizationMode),
+        default=DEFAULT_LOCALIZATION,
+        help=f"the localization.mode the localization role is granted for (default {DEFAULT_LOCALIZATION}): what "
+        "it may subscribe (stub: motor/sim_pose/localization, the ground truth; amcl: sim/scan and "
+        "motor/wheel_angles; none: motor/wheel_angles) and serve (amcl: localization/initial_pose and "
+        "global_localization); amcl and none may not read sim/body_pose nor motor/sim_pose/* (docs/security.md)",
+    )
     parser.add_argument(
         "--with",
         dest="with_services",
@@ -98,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         ros=bridge_graph(load_config(overrides={"ros2.namespace": args.ros_namespace, "ros2.tf": args.ros_tf})),
         robots=args.robots,
         user_services=users,
+        localization=args.localization_mode,
     )
 
 

@@ -21,11 +21,13 @@ import zenoh
 from schemas.codec import ENCODING, BadMessage, decode
 from schemas.keys import Keys, all_robots_alive, schema_for_key
 from services.config import ConfigError
+from services.config.sections import LocalizationMode
 from services.exits import ExitStatus
 from services.ros2.graph import BridgeGraph
 from services.runtime.discovery import payload_value, service_statuses
 from services.runtime.session import ROUTER_LISTENING, has_match
 from services.security import UserServiceGrant, write_fleet_profile, write_profile
+from services.security.grants import DEFAULT_LOCALIZATION
 
 
 def _print_json(value: Any, stream=sys.stdout) -> None:
@@ -72,13 +74,15 @@ def run_secrets(
     ros: BridgeGraph,
     robots: Sequence[str] = (),
     user_services: Sequence[UserServiceGrant] = (),
+    localization: LocalizationMode = DEFAULT_LOCALIZATION,
 ) -> int:
     """Write a secure deployment's profile (:func:`services.security.write_profile`) and say what is where;
     ``user_services`` (``--with``) get credentials of their own (one robot's profile only).
 
     With ``robots`` (``--robots``), a fleet's profile (:func:`services.security.write_fleet_profile`)
     for those robots in place of ``keys``'s one; ``ros`` then places each robot's bridge in the
-    namespace ``<ros.namespace>/<robot>``."""
+    namespace ``<ros.namespace>/<robot>``. ``localization`` (``--localization-mode``): the mode the
+    localization role (each robot's) is granted for."""
     try:
         base = _router_plugins(router_base) if router_base else None
         options: dict[str, Any] = {
@@ -93,9 +97,10 @@ def run_secrets(
         if robots:
             if user_services:
                 raise ConfigError("--with with --robots: a fleet's profile has no user services yet")
-            profile = write_fleet_profile(directory, robots, **options)
+            modes = dict.fromkeys(robots, localization)
+            profile = write_fleet_profile(directory, robots, localization=modes, **options)
         else:
-            profile = write_profile(directory, keys, user_services=user_services, **options)
+            profile = write_profile(directory, keys, user_services=user_services, localization=localization, **options)
     except ValueError as error:
         raise ConfigError(str(error)) from None
     fleet = f" for the fleet {', '.join(profile.robots)}" if profile.robots else ""

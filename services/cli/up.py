@@ -9,7 +9,7 @@ from pathlib import Path
 
 from services.cli.flags import connection_from_args, description_from_args, engine_flag, fleet_flag, port_number
 from services.cli.services import service_plan
-from services.config import ConfigError, RecordRate, SimMode, TfLayout
+from services.config import SIM_BODY_KEYS, ConfigError, RecordRate, SimMode, TfLayout, parse_sim_set
 from services.launch.plan import DEFAULT_SCENARIO, UpPlan
 from services.launch.ros2_run import BAG_DIRECTORY
 from services.launch.run import RECORDING_FILE, SECRETS_DIRECTORY
@@ -40,6 +40,13 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
         raise ConfigError(
             "--split with --composed: --split runs a realtime run's sim and motor as two processes, --composed "
             "every service in one"
+        )
+    sim_set = tuple(args.sim_set or ())
+    parse_sim_set(sim_set)  # a key outside SIM_BODY_KEYS, or not KEY=VALUE: exit 2 naming it
+    if sim_set and args.fleet:
+        raise ConfigError(
+            "--sim-set with --fleet: a fleet's simulated robots are described by the fleet file; --sim-set changes "
+            "one robot's simulated body"
         )
     if args.map is not None:
         read_map(args.map)  # a map that does not load is refused before anything starts
@@ -74,6 +81,7 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
         workers=args.workers,
         intra_process=not args.no_intra_process,
         with_services=tuple(args.with_services or ()),
+        sim_set=sim_set,
     )
 
 
@@ -222,6 +230,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="with --composed: the services' messages go through the zenoh session, not handed over as they are "
         "(intra-process delivery, the default: zenoh then carries a message only to subscribers outside the "
         "process); for measuring and debugging",
+    )
+    parser.add_argument(
+        "--sim-set",
+        metavar="SECTION.KEY=VALUE",
+        action="append",
+        help="the simulated robot differs from the description the other services read by this (repeatable; "
+        "after every --set, for the sim alone), e.g. --sim-set robot.radius_of_right_wheel=0.105 (the true "
+        "wheel 5 %% larger than the odometry believes) --sim-set lidar.noise=0.01; a key not of the body or "
+        "its sensors' noise, or a value the sim's description refuses, exits 2 before anything starts "
+        "(not with --fleet). Keys: " + ", ".join(SIM_BODY_KEYS),
     )
     parser.add_argument(
         "--with",

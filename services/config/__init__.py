@@ -44,6 +44,7 @@ from services.config.sections import (
     TargetAngleMode,
 )
 from services.config.sensors import CollisionMonitorConfig, ImuConfig, LidarConfig
+from services.config.sim_body import SIM_BODY_KEYS, SIM_SET_FLAG, parse_sim_set
 from services.config.writing import description_toml
 from services.errors import ConfigError
 
@@ -52,6 +53,8 @@ __all__ = [
     "NONE",
     "SECTIONS",
     "SEED_NAMES",
+    "SIM_BODY_KEYS",
+    "SIM_SET_FLAG",
     "CalibratedGeometry",
     "CollisionMonitorConfig",
     "Config",
@@ -86,6 +89,7 @@ __all__ = [
     "load_config",
     "optional_fields",
     "parse_override",
+    "parse_sim_set",
     "read_description",
     "require_finite_fields",
 ]

@@ -101,7 +101,11 @@ def check_fleet(plan: UpPlan, path: str) -> tuple[Fleet, dict[str, Config]]:
 
 
 def fleet_access(
-    plan: UpPlan, fleet: Fleet, report_dir: Path, extensions: Mapping[str, Sequence[Loaded]] | None = None
+    plan: UpPlan,
+    fleet: Fleet,
+    report_dir: Path,
+    extensions: Mapping[str, Sequence[Loaded]] | None = None,
+    configs: Mapping[str, Config] | None = None,
 ) -> Access:
     """The run's :class:`Access`; with ``--secure`` a fresh fleet profile (``write_fleet_profile``): a
     user per robot and service, each allowed only its own robot's keys, written before anything starts."""
@@ -124,6 +128,8 @@ def fleet_access(
             robot: [UserServiceGrant(user.name, user.service.calls) for user in users]
             for robot, users in (extensions or {}).items()
         },
+        # each robot's localization granted what its mode reads (only the stub reads a ground truth)
+        localization={name: config.localization.mode for name, config in (configs or {}).items()},
     )
     say(f"secure: a user per robot and service, credentials in {profile.directory}/")
     return Access(profile, None)
@@ -180,7 +186,7 @@ class FleetRobots:
         self.teleop_line = "teleop: each robot follows ROS 2's /<namespace>/cmd_vel until Ctrl-C; see docs/ros2.md"
 
     def access(self, report_dir: Path) -> Access:
-        return fleet_access(self.plan, self.fleet, report_dir, self.extensions)
+        return fleet_access(self.plan, self.fleet, report_dir, self.extensions, self.configs)
 
     def assignment(self) -> dict[str, int] | None:
         return assign(self.fleet.names, self.plan.workers or 1) if self.plan.composed else None

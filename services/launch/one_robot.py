@@ -74,6 +74,7 @@ def one_robot_access(plan: UpPlan, config: Config, report_dir: Path, extensions:
         tls=plan.tls,
         ros=bridge_graph(config),
         user_services=[UserServiceGrant(user.name, user.service.calls) for user in extensions],
+        localization=config.localization.mode,
     )
     say(
         f"secure: usrpwd and access control on the router{', TLS' if profile.tls else ''}; every service a client; "
@@ -89,6 +90,8 @@ class OneRobot:
         self.plan = plan
         self.config = plan.description.load()
         check_before_start(plan, self.config)
+        if plan.sim_set:
+            plan.sim_config()  # the simulated robot's description, refused (exit 2) before anything starts
         self.extensions = load_all(plan.with_services)
         self.each: tuple[Robot, ...] = (
             Robot(self.config.robot.name, self.config, plan.drive_runs, extensions=self.extensions),

@@ -4,11 +4,12 @@ children load it themselves from the same flags), and the run's own choices."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from services.config import Config, SimMode, load_config, parse_override
+from services.config import Config, ConfigError, SimMode, load_config, parse_override
 
 GOALS = "goals"
 """What a ``--goals`` run's summary names as its scenario (the drive's ``drive/outcome`` says the same)."""
@@ -84,6 +85,25 @@ class UpPlan:
     intra_process: bool = True
     with_services: tuple[str, ...] = ()
     """``--with FILE.py:NAME``, each a user service run beside the loop (services/extension/)."""
+    sim_set: tuple[str, ...] = ()
+    """``--sim-set SECTION.KEY=VALUE``, as given (keys of :data:`services.config.SIM_BODY_KEYS`): the
+    simulated body's own settings, given to the sim alone after the common ``--set``."""
+
+    def sim_flags(self, flag: str = "--set") -> list[str]:
+        """The sim's own overrides as flags: ``--set K=V`` for ``invent sim``, ``--sim-set K=V`` for
+        ``invent control`` (whose motor keeps the description)."""
+        return [part for text in self.sim_set for part in (flag, text)]
+
+    def sim_config(self) -> Config:
+        """The sim's description: the robot's, then :attr:`sim_set`; ConfigError naming the ``--sim-set``
+        that makes it invalid."""
+        description = self.description
+        try:
+            return dataclasses.replace(description, settings=(*description.settings, *self.sim_set)).load()
+        except ConfigError as error:
+            raise ConfigError(
+                f"--sim-set {' '.join(self.sim_set)}: the simulated robot's description: {error}"
+            ) from None
 
     @property
     def goal_mode(self) -> bool:

@@ -98,6 +98,10 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         # a user participant's name, where every robot has it (the sim waits for each name on every robot)
         ending += sorted(set.intersection(*(set(robot.participants) for robot in robots.each)))
     simulation = [*robots.sim_flags, "--mode", mode, *ending, *(["--gui"] if plan.gui else []), *rt_flags(plan)]
+    if plan.sim_set:
+        say(
+            f"sim-set: the simulated robot differs from the description the other services read: {', '.join(plan.sim_set)}"
+        )
 
     try:
         with (
@@ -127,7 +131,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                         # invent control: the sim and the motor in one child, its sim waiting for the
                         # drive's and the participants' tokens (--wait-for) before its first step
                         control = [*common, *access.flags(Role.CONTROL), *(recorder.flags if recorder else [])]
-                        control += [*simulation, *_motor_flags(robot, report_dir)]
+                        control += [*simulation, *plan.sim_flags("--sim-set"), *_motor_flags(robot, report_dir)]
                         launcher.start(CONTROL, [CONTROL, *control])
                         continue
                     flags = [*common, *robot.credentials(access, Role(service)), *robot.flags, *journal(robot)]
@@ -153,7 +157,8 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                 say(robots.teleop_line)
             if not control_path_composed:
                 sim_session = [*common, *access.flags(Role.SIM), *(recorder.flags if recorder else [])]
-                launcher.start(str(Service.SIM), [str(Service.SIM), *sim_session, *simulation])
+                # the sim's own --set after the common ones: the later value of a key wins
+                launcher.start(str(Service.SIM), [str(Service.SIM), *sim_session, *simulation, *plan.sim_flags()])
             sim_started = True
             started = time.monotonic()
             if started_line := robots.started_line(mode):

@@ -19,6 +19,7 @@ from schemas.keys import (
     ROOT,
     GoalMethod,
     Keys,
+    LocalizationMethod,
     Method,
     MethodFamily,
     Service,
@@ -27,10 +28,21 @@ from schemas.keys import (
     all_robots_status,
 )
 from services.config import Config
+from services.config.sections import LocalizationMode
 from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, MOTOR_SERVICES, SUBSCRIPTIONS, BridgeGraph, bridge_graph
 from services.ros2.wire import ADMIN_SPACE
 from services.security.roles import FLEET_ROLES, SINGLE_ROBOT_ROLES, Identity, Role
 
+DEFAULT_LOCALIZATION: LocalizationMode = "stub"
+"""The localization mode a profile is granted for when none is said (``localization.mode``'s default)."""
+LOCALIZATION_INPUTS: dict[LocalizationMode, tuple[Topic, ...]] = {
+    "stub": (Topic.MOTOR_SIM_POSE_LOCALIZATION,),
+    "amcl": (Topic.SIM_SCAN, Topic.MOTOR_WHEEL_ANGLES),
+    "none": (Topic.MOTOR_WHEEL_ANGLES,),
+}
+"""What the localization subscribes in each mode; it is granted no other data key. Only the stub reads
+a ground truth (``motor/sim_pose/localization``, the sim's pose); amcl and none may not subscribe
+``sim/body_pose`` nor ``motor/sim_pose/*`` (docs/security.md)."""
 DEFAULT_ROS = bridge_graph(Config(), environ={})
 """The ROS graph the ROS roles are granted by default: domain 0, the bridge's default namespace and node."""
 
@@ -87,6 +99,46 @@ def _goal_methods(keys: Keys) -> tuple[str, ...]:
     canceling goals is a right of its own (docs/protocol.md section 8.8), the operator's and the
     robot's ROS 2 bridge's; only the drive serves them."""
     return tuple(keys.goal_method(method) for method in GoalMethod)
+
+
+def _localization_methods(keys: Keys) -> tuple[str, ...]:
+    """The localization's queryables, ``localization/initial_pose`` and ``.../global_localization``
+    (amcl's): where the robot is, a right of the operator (``invent localize``) and the robot's ROS 2
+    bridge (ROS's ``/initialpose``: ``initial_pose`` only)."""
+    return tuple(keys.localization_method(method) for method in LocalizationMethod)
+
+
+def _localization_grants(keys: Keys, mode: LocalizationMode) -> list[Grant]:
+    """The localization's rights in ``mode``, least privilege: not :func:`_reading` (every key), but
+    the data keys of :data:`LOCALIZATION_INPUTS` (subscribed, and sent to it), liveliness (the sim's
+    token, the lockstep's), the status of the services other than the sim and the control path (their
+    status holds the sim's pose); it serves its status and, in amcl mode, its two queryables, and puts
+    ``localization/*`` (``pose``, ``particles``)."""
+    everything = (f"{ROOT}/**",)
+    inputs = tuple(keys.topic(topic) for topic in LOCALIZATION_INPUTS[mode])
+    statuses = tuple(keys.status(service) for service in Service if service is not Service.SIM)
+    served = (keys.status(Service.LOCALIZATION), *(_localization_methods(keys) if mode == "amcl" else ()))
+    return [
+        Grant((Message.DECLARE_SUBSCRIBER,), Flow.INGRESS, inputs),
+        Grant((Message.DECLARE_LIVELINESS_SUBSCRIBER, Message.LIVELINESS_QUERY), Flow.INGRESS, everything),
+        # What it is sent: its inputs' samples, its status queries' replies, tokens, and the
+        # declarations that tell its publishers and queriers that someone matches (no data).
+        Grant((Message.PUT,), Flow.EGRESS, inputs),
+        Grant((Message.REPLY,), Flow.EGRESS, statuses),
+        Grant(
+            (Message.LIVELINESS_TOKEN, Message.DECLARE_SUBSCRIBER, Message.DECLARE_QUERYABLE), Flow.EGRESS, everything
+        ),
+        Grant((Message.QUERY,), Flow.INGRESS, statuses),
+        Grant(
+            (Message.LIVELINESS_TOKEN,),
+            Flow.INGRESS,
+            (keys.alive(Service.LOCALIZATION), keys.ticks_at_any_rate(Service.LOCALIZATION)),
+        ),
+        Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, served),
+        # Queries reach a queryable only if the querier was let in; this lets them be delivered.
+        Grant((Message.QUERY,), Flow.EGRESS, everything),
+        Grant((Message.PUT,), Flow.INGRESS, _published_by(Service.LOCALIZATION, keys)),
+    ]
 
 
 def _ros_grants(role: Role, keys: Keys, ros: BridgeGraph) -> list[Grant]:
@@ -157,12 +209,18 @@ def _reading(keys: Keys) -> list[Grant]:
     ]
 
 
-def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant]:
+def grants(
+    role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS, localization: LocalizationMode = DEFAULT_LOCALIZATION
+) -> list[Grant]:
     """Everything ``role`` may do on robot ``keys.robot`` (and, for the ROS roles, in the ROS domain
     and namespace of ``ros``); the router denies anything else. ``control`` gets the sim's and the
-    motor's grants merged (:func:`_merged`): exactly their union, and its own ``control/status``."""
+    motor's grants merged (:func:`_merged`): exactly their union, and its own ``control/status``.
+    ``localization`` (``localization.mode``) is what the localization reads and serves
+    (:func:`_localization_grants`): every other role reads everything, the localization only its inputs."""
     everything = (f"{ROOT}/**",)
     reading = _reading(keys)
+    if role is Role.LOCALIZATION:
+        return _localization_grants(keys, localization)
     if role is Role.CONTROL:
         # `invent control` runs the sim and the motor in one process on one session, logged in as
         # one user: it needs each one's rights (the sim's puts and bump queries, the motor's puts and
@@ -190,8 +248,12 @@ def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant
                 (keys.alive(Service.ROS2), keys.observes_at_any_rate(Service.ROS2)),
             )
         ]
-        # the bridge sends and cancels its robot's goals (ROS's NavigateToPose); a ROS node does not
-        own_goals = [Grant((Message.QUERY,), Flow.INGRESS, _goal_methods(keys))]
+        # the bridge sends and cancels its robot's goals (ROS's NavigateToPose) and gives its localization
+        # an initial pose (ROS's /initialpose); a ROS node does neither
+        own_goals = [
+            Grant((Message.QUERY,), Flow.INGRESS, _goal_methods(keys)),
+            Grant((Message.QUERY,), Flow.INGRESS, (keys.localization_initial_pose,)),
+        ]
         service_own = [*own_status, *own_token, *own_goals] if role is Role.ROS2 else []
         return [*reading, *service_own, *_ros_grants(role, keys, ros)]
     if role is Role.OPERATOR:
@@ -200,6 +262,7 @@ def grants(role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> list[Grant
             Grant((Message.PUT,), Flow.INGRESS, (keys.drive_target_velocity, keys.run_summary)),
             Grant((Message.QUERY,), Flow.INGRESS, _methods(keys, MethodFamily.GUI)),
             Grant((Message.QUERY,), Flow.INGRESS, _goal_methods(keys)),
+            Grant((Message.QUERY,), Flow.INGRESS, _localization_methods(keys)),  # invent localize
         ]
     service = Service(role.value)
     served = (keys.status(service),) + tuple(
@@ -252,12 +315,19 @@ def user_service_grants(user: UserServiceGrant, keys: Keys) -> list[Grant]:
     return granted
 
 
-def fleet_grants(identity: Identity, robots: Sequence[str], bridges: Mapping[str, BridgeGraph]) -> list[Grant]:
+def fleet_grants(
+    identity: Identity,
+    robots: Sequence[str],
+    bridges: Mapping[str, BridgeGraph],
+    localization: Mapping[str, LocalizationMode] | None = None,
+) -> list[Grant]:
     """Everything ``identity`` may do in the fleet of ``robots``, whose ROS 2 bridges are
     ``bridges[robot]``: a per-robot role exactly what :func:`grants` gives its role on its own robot,
     nothing on any other; a fleet-wide role what :func:`grants` gives it on each robot of the fleet,
     merged (one rule per message set and flow, on the union of their key expressions). ValueError
-    for :data:`SINGLE_ROBOT_ROLES` (a fleet has no control role)."""
+    for :data:`SINGLE_ROBOT_ROLES` (a fleet has no control role). ``localization[robot]`` is robot's
+    ``localization.mode`` (default :data:`DEFAULT_LOCALIZATION`)."""
+    modes = localization or {}
     if identity.role in SINGLE_ROBOT_ROLES:
         raise ValueError(f"a fleet has no {identity.role} role (it is one robot's)")
     if (identity.robot is None) != (identity.role in FLEET_ROLES):
@@ -265,8 +335,13 @@ def fleet_grants(identity: Identity, robots: Sequence[str], bridges: Mapping[str
     if identity.robot is not None:
         if identity.robot not in robots:
             raise ValueError(f"robot {identity.robot!r} is not in the fleet {', '.join(robots)}")
-        return grants(identity.role, Keys(identity.robot), bridges[identity.robot])
-    return _merged(grant for robot in robots for grant in grants(identity.role, Keys(robot), bridges[robot]))
+        robot = identity.robot
+        return grants(identity.role, Keys(robot), bridges[robot], modes.get(robot, DEFAULT_LOCALIZATION))
+    return _merged(
+        grant
+        for robot in robots
+        for grant in grants(identity.role, Keys(robot), bridges[robot], modes.get(robot, DEFAULT_LOCALIZATION))
+    )
 
 
 def _merged(many: Iterable[Grant]) -> list[Grant]:
@@ -278,18 +353,27 @@ def _merged(many: Iterable[Grant]) -> list[Grant]:
     return [Grant(messages, flow, tuple(key_exprs)) for (messages, flow), key_exprs in merged.items()]
 
 
-def access_control(users: dict[Role, str], keys: Keys, ros: BridgeGraph = DEFAULT_ROS) -> dict[str, Any]:
-    """The router's ``access_control`` section: one subject per role (by username), its grants."""
-    return _access_control((str(role), user, grants(role, keys, ros)) for role, user in users.items())
+def access_control(
+    users: dict[Role, str],
+    keys: Keys,
+    ros: BridgeGraph = DEFAULT_ROS,
+    localization: LocalizationMode = DEFAULT_LOCALIZATION,
+) -> dict[str, Any]:
+    """The router's ``access_control`` section: one subject per role (by username), its grants (the
+    localization's for ``localization.mode`` ``localization``)."""
+    return _access_control((str(role), user, grants(role, keys, ros, localization)) for role, user in users.items())
 
 
 def fleet_access_control(
-    users: Mapping[Identity, str], robots: Sequence[str], bridges: Mapping[str, BridgeGraph]
+    users: Mapping[Identity, str],
+    robots: Sequence[str],
+    bridges: Mapping[str, BridgeGraph],
+    localization: Mapping[str, LocalizationMode] | None = None,
 ) -> dict[str, Any]:
     """The router's ``access_control`` section for a fleet: one subject per identity (by username),
-    its :func:`fleet_grants`."""
+    its :func:`fleet_grants` (each robot's localization for its mode in ``localization``)."""
     return _access_control(
-        (identity.user, user, fleet_grants(identity, robots, bridges)) for identity, user in users.items()
+        (identity.user, user, fleet_grants(identity, robots, bridges, localization)) for identity, user in users.items()
     )
 
 

@@ -16,8 +16,10 @@ from pathlib import Path
 from typing import Any, Required, TypedDict, Unpack
 
 from schemas.keys import Keys
+from services.config.sections import LocalizationMode
 from services.ros2.graph import BridgeGraph
 from services.security.grants import (
+    DEFAULT_LOCALIZATION,
     DEFAULT_ROS,
     UserServiceGrant,
     access_control,
@@ -137,15 +139,17 @@ def write_profile(
     *,
     ros: BridgeGraph = DEFAULT_ROS,
     user_services: Sequence[UserServiceGrant] = (),
+    localization: LocalizationMode = DEFAULT_LOCALIZATION,
     **where: Unpack[Deployment],
 ) -> Profile:
     """Write a fresh profile for robot ``keys.robot`` into ``directory`` (created 0700; every file
     0600), placed as ``where`` says (:class:`Deployment`). ``ros`` is the ROS domain and the
     bridge's namespace the ROS roles are granted; each of ``user_services`` gets a user and a
     client file of its own (``<name>.json5``), granted :func:`user_service_grants`. ValueError for
-    a bad endpoint."""
+    a bad endpoint. ``localization`` is the robot's ``localization.mode``: the localization is granted
+    what that mode reads and serves (only the stub reads a ground truth)."""
     credentials = fresh_credentials()
-    rules = access_control({role: c.user for role, c in credentials.items()}, keys, ros)
+    rules = access_control({role: c.user for role, c in credentials.items()}, keys, ros, localization)
     users: dict[str, Credentials] = {user.name: Credentials(user.name, _fresh_password()) for user in user_services}
     for user in user_services:
         _add_subject(rules, user.name, users[user.name].user, user_service_grants(user, keys))
@@ -168,6 +172,7 @@ def write_fleet_profile(
     ros: BridgeGraph = DEFAULT_ROS,
     bridges: Mapping[str, BridgeGraph] | None = None,
     user_services: Mapping[str, Sequence[UserServiceGrant]] | None = None,
+    localization: Mapping[str, LocalizationMode] | None = None,
     **where: Unpack[Deployment],
 ) -> Profile:
     """Write a fresh profile for the fleet of ``robots`` (several robots in one world) into
@@ -179,8 +184,9 @@ def write_fleet_profile(
     beside ``router.json5`` (:meth:`Profile.client_config`). Robot ``r``'s ROS 2 bridge is granted
     ``bridges[r]``, by default :func:`robot_bridge` of ``ros`` (namespace ``/<r>``; ``/clock`` for the
     first robot's only); ``ros_node`` the domains of them all. Each of ``user_services[r]`` gets the
-    user ``<r>-<name>``, granted :func:`user_service_grants` on robot ``r``. ValueError for a bad
-    fleet (:func:`fleet_robots`) or endpoint.
+    user ``<r>-<name>``, granted :func:`user_service_grants` on robot ``r``. Robot ``r``'s
+    localization is granted for ``localization[r]``, its ``localization.mode`` (default the stub's).
+    ValueError for a bad fleet (:func:`fleet_robots`) or endpoint.
     """
     fleet = fleet_robots(robots)
     graphs = {
@@ -188,7 +194,7 @@ def write_fleet_profile(
         for index, robot in enumerate(fleet)
     }
     credentials = {identity: Credentials(identity.user, _fresh_password()) for identity in fleet_identities(fleet)}
-    rules = fleet_access_control({identity: c.user for identity, c in credentials.items()}, fleet, graphs)
+    rules = fleet_access_control({identity: c.user for identity, c in credentials.items()}, fleet, graphs, localization)
     users: dict[str, Credentials] = {}
     for robot, granted in (user_services or {}).items():
         for user in granted:
