@@ -33,7 +33,7 @@ from mcap.reader import make_reader
 from benchmarks.loop import cpu_seconds
 from schemas.codec import decode
 from schemas.keys import Keys, Service, Topic, schema_for_key
-from schemas.messages import GoalPlan, GoalTarget, ImuSample, LaserScan, ScenarioOutcome, TimedDoubleSeq
+from schemas.messages import GoalPlan, GoalTarget, ImuSample, LaserScan, ScenarioOutcome, TimedDoubleSeq, TimedPosition
 from services.config import GoalsConfig
 from services.recording.mcap_files import read_messages
 from services.recording.scene import LOCALIZATION_TOPIC, ODOMETRY_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
@@ -457,6 +457,43 @@ def test_a_goal_navigated_around_a_u_gives_the_same_plans_costmaps_and_outcome_q
     assert len(plans) >= 2, "replanned as the U came into view"
     assert any(abs(y) > 1.1 for plan in plans for _x, y in plan.points), "a plan round an arm of the U"
     assert plans[-1].points == [], "the plan cleared as the goal ended"
+    assert loaded.burner_shares is not None and min(loaded.burner_shares) >= BURNER_MIN_SHARE, loaded.burner_shares
+    assert loaded.returncode == quiet.returncode, loaded.output[-4000:]
+    _assert_same_samples(quiet, loaded)
+
+
+AMCL_RECORDED = (
+    KEYS.sim_body_pose,
+    KEYS.localization_pose,
+    KEYS.localization_particles,
+    KEYS.odometry_pose,
+    KEYS.drive_target_velocity,
+    KEYS.drive_outcome,
+)
+
+
+@pytest.fixture(scope="module")
+def amcl_runs(tmp_path_factory) -> dict[str, SquareRun]:
+    """The goal round the U again, localized by the particle filter on the world's map (seeded, the
+    lidar noisy, the fixes at the lidar's rate): quiet, then beside two CPU burners."""
+    base = tmp_path_factory.mktemp("amcl")
+    map_file = base / "u_trap.yaml"
+    made = run_invent("map", "--world", "u_trap", "-o", str(map_file))
+    assert made.returncode == 0, made.stderr
+    flags = (
+        *("--goal-file", str(DETOUR_GOAL_FILE), "--composed", "--engine", "kinematic", "--set", "sim.world=u_trap"),
+        *("--map", str(map_file), "--set", "localization.mode=amcl", "--set", "localization.seed=3"),
+        *("--set", "localization.rate=10", "--set", "lidar.noise=0.01", "--set", "lidar.seed=5"),
+    )
+    return _quiet_and_loaded(base, AMCL_RECORDED, *flags)
+
+
+def test_a_seeded_particle_filter_gives_the_same_estimates_quiet_and_loaded(amcl_runs):
+    quiet, loaded = amcl_runs["quiet"], amcl_runs["loaded"]
+    assert quiet.returncode == 0, quiet.output[-4000:]
+    estimates = [decode(TimedPosition, sample) for sample in quiet.samples[KEYS.localization_pose]]
+    assert len(estimates) > 100 and all(len(estimate.error) == 6 for estimate in estimates), "amcl's, with covariance"
+    assert quiet.samples[KEYS.localization_particles], "the particles were published"
     assert loaded.burner_shares is not None and min(loaded.burner_shares) >= BURNER_MIN_SHARE, loaded.burner_shares
     assert loaded.returncode == quiet.returncode, loaded.output[-4000:]
     _assert_same_samples(quiet, loaded)

@@ -256,6 +256,11 @@ class LocalizationConfig(StartPose, frozen=True):
     """How often ``amcl`` publishes its particles (``localization/particles``), per simulated second;
     0: never."""
 
+    @property
+    def participates(self) -> bool:
+        """Whether it takes part in lockstep (a fix at every tick): every mode but ``none``."""
+        return self.mode != "none"
+
 
 class DriveConfig(Section, frozen=True):
     """The drive: its rate, the path follower's speeds and limits, and when it gives a scenario up."""

@@ -196,11 +196,9 @@ class FleetRobots:
         tokens = []
         for robot in driven:
             keys, config = Keys(robot.name), robot.config
-            tokens += [
-                keys.alive(Service.DRIVE),
-                keys.ticks(Service.DRIVE, config.drive.rate),
-                keys.ticks(Service.LOCALIZATION, config.localization.rate),
-            ]
+            tokens += [keys.alive(Service.DRIVE), keys.ticks(Service.DRIVE, config.drive.rate)]
+            if config.localization.participates:
+                tokens.append(keys.ticks(Service.LOCALIZATION, config.localization.rate))
         return [tokens]
 
     def started_line(self, mode: str) -> str:

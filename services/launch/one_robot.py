@@ -115,10 +115,9 @@ class OneRobot:
         if not driven:
             return []
         keys, config = Keys(self.config.robot.name), self.config
-        ticks = [
-            keys.ticks(Service.DRIVE, config.drive.rate),
-            keys.ticks(Service.LOCALIZATION, config.localization.rate),
-        ]
+        ticks = [keys.ticks(Service.DRIVE, config.drive.rate)]
+        if config.localization.participates:
+            ticks.append(keys.ticks(Service.LOCALIZATION, config.localization.rate))
         return [[keys.alive(Service.DRIVE)], ticks]
 
     def started_line(self, mode: str) -> None:

@@ -94,7 +94,14 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     if plan.teleop:  # no drive: the sim steps on until Ctrl-C, waiting for each robot's torque only
         ending = ["--wait-for", str(Service.MOTOR)]
     else:
-        ending = ["--until-drive-ends", "--wait-for", *(str(service) for service in LOOP_BEFORE_FIRST_STEP)]
+        # a localization without fixes (mode none) holds no ticks token: nothing to wait for
+        waited = [
+            service
+            for service in LOOP_BEFORE_FIRST_STEP
+            if service is not Service.LOCALIZATION
+            or all(robot.config.localization.participates for robot in robots.each)
+        ]
+        ending = ["--until-drive-ends", "--wait-for", *(str(service) for service in waited)]
         # a user participant's name, where every robot has it (the sim waits for each name on every robot)
         ending += sorted(set.intersection(*(set(robot.participants) for robot in robots.each)))
     simulation = [*robots.sim_flags, "--mode", mode, *ending, *(["--gui"] if plan.gui else []), *rt_flags(plan)]
