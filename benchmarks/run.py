@@ -24,6 +24,9 @@ Sections (benchmarks/README.md explains each number and what was tried to push t
 - ``navigation`` (benchmarks/navigation.py): what the drive's navigation costs its thread, in ms and as
   a share of the lidar's period: a costmap update per scan, a plan across a building of rooms (pure
   Python A* and smoothing), and pyastar2d's search and plans against it where pyastar2d is installed.
+- ``localization`` (benchmarks/localization.py): the particle filter's update per scan with the default
+  particles (converged, and at ``max_particles``) and a map made from a run per simulated minute, each
+  as a share of the lidar's period.
 - ``machine`` (benchmarks/machine.py): where it ran.
 
 Loop figures are medians over ``--repeats`` runs (lockstep runs interleaved with the in-process
@@ -41,7 +44,18 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmarks import codec, engines, fleet_section, lockstep, loop, machine, navigation, realtime, ros2_fleet
+from benchmarks import (
+    codec,
+    engines,
+    fleet_section,
+    localization,
+    lockstep,
+    loop,
+    machine,
+    navigation,
+    realtime,
+    ros2_fleet,
+)
 from benchmarks.figures import timed
 from benchmarks.table import table
 from benchmarks.targets import check_targets, verdicts
@@ -82,11 +96,12 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-SECTIONS = ("loop", "codec", "fleet", "ros2_fleet", "engines", "navigation")
+SECTIONS = ("loop", "codec", "fleet", "ros2_fleet", "engines", "navigation", "localization")
 """``loop``: the ``lockstep`` and ``realtime`` sections; ``fleet``: benchmarks/fleet.py; ``ros2_fleet``:
 the ROS 2 bridge of each robot of a fleet, benchmarks/ros2_fleet.py; ``engines``: the lockstep square
 on PyBullet and on the kinematic engine, benchmarks/engines.py; ``navigation``: the costmap's update
-and the planner, in-process, benchmarks/navigation.py."""
+and the planner, in-process, benchmarks/navigation.py; ``localization``: the particle filter's update and
+a map from a run, in-process, benchmarks/localization.py."""
 FLEET_SIZES = (1, 2, 4, 8)
 QUICK_FLEET_SIZES = (2,)
 
@@ -139,6 +154,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         results["engines"] = engines.run_section(args, failures)
     if "navigation" in sections:
         results["navigation"] = navigation.run_section(args, failures)
+    if "localization" in sections:
+        results["localization"] = localization.run_section(args, failures)
     results["targets"] = check_targets({**results, "codec": {"min_ratio": results.get("codec_min_ratio")}})
     results["settings"] = {
         key: getattr(args, key)
@@ -154,6 +171,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if "navigation" in results:
         print()
         print(navigation.table(results["navigation"]))
+    if "localization" in results:
+        print()
+        print(localization.table(results["localization"]))
     print()
     for line in verdicts(results["targets"]):
         print(line)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks import fleet, lateness, navigation
+from benchmarks import fleet, lateness, localization, navigation
 from benchmarks.run import RESULTS
 from tests.harness import REPO
 
@@ -78,6 +78,12 @@ NUMBERS = (
     ),
     "fleet.separate.2.sim_share",
     *(f"navigation.costmap.{layer}.{field}" for layer in ("no_map", "map") for field in ("ms", "share")),
+    *(f"localization.amcl.{count}.{field}" for count in ("converged", "max_particles") for field in ("ms", "share")),
+    "localization.amcl.field_build_ms",
+    *(
+        f"localization.mapping.{field}"
+        for field in ("ms_per_scan_median", "period_share", "wall_s_per_simulated_minute")
+    ),
     *(
         f"navigation.plan.{scenario}.{field}"
         for scenario in ("building", "seen", "open")
@@ -188,6 +194,16 @@ def test_the_quick_navigation_section_writes_its_fields_and_its_table():
         assert entry["points"] >= 2
         assert entry["length_m"] >= math.dist(navigation.START, navigation.GOAL) - 1e-9, "no shorter than the line"
     assert "| costmap update per scan, no map |" in navigation.table(results)
+
+
+def test_the_quick_localization_section_writes_its_fields_and_its_table():
+    """In-process: the particle filter's updates and a map from a synthetic run, timed but not judged."""
+    failures: list[str] = []
+    results = localization.run_section(argparse.Namespace(quick=True), failures)
+    assert failures == []
+    _numbers_written({"localization": results}, tuple(name for name in NUMBERS if name.startswith("localization.")))
+    table = localization.table(results)
+    assert "| amcl update per scan, converged |" in table and "| map from a run, per scan |" in table
 
 
 def test_the_spread_bound_is_amdahls_law_of_the_worlds_own_work():

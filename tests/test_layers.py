@@ -46,7 +46,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.runtime(\..*)?", RUNTIME),
     (r"services\.(motor|odometry|localization)\.core", CORE),
     (r"services\.localization\.(amcl|likelihood)", CORE),
-    (r"services\.mapping\.(occupancy|matcher|builder)", CORE),
+    (r"services\.mapping\.(occupancy|matcher|builder|from_recording)", CORE),
     (r"services\.motor\.state", CORE),
     (r"services\.motor\.(sim_pose|speed_limiter|collision|monitor)", CORE),
     (r"services\.drive\.(scenarios|path_following|outcome|goals|goal_file)", CORE),

@@ -48,11 +48,16 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
             "--sim-set with --fleet: a fleet's simulated robots are described by the fleet file; --sim-set changes "
             "one robot's simulated body"
         )
+    if args.mapping and not goal_mode:
+        raise ConfigError("--mapping builds the map as goals are driven: give --goals or --goal-file")
+    if args.mapping and args.map is not None:
+        raise ConfigError("--mapping with --map: --mapping builds the map, --map loads one (give one or the other)")
     if args.map is not None:
         read_map(args.map)  # a map that does not load is refused before anything starts
     settings = [
         *description.settings,
         *([f"navigation.map={Path(args.map).resolve()}"] if args.map is not None else []),
+        *(["navigation.mapping=true"] if args.mapping else []),
         *([f"record.rate={RecordRate.EVERY_STEP}"] if args.record_full_rate else []),
         *([f"ros2.tf={args.tf}"] if args.tf else []),
         *([f"sim.engine={args.engine}"] if args.engine else []),
@@ -110,6 +115,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="goals navigate on this map (map_server's YAML and PGM; invent map --world FILE -o MAP.yaml makes one): "
         "its obstacles are the costmap's static layer, its extent the costmap's; published on drive/map and, "
         "with --ros2, /map (the same as --set navigation.map=MAP.yaml; docs/navigation.md)",
+    )
+    parser.add_argument(
+        "--mapping",
+        action="store_true",
+        help="goal mode on a new floor: the drive builds a map from the lidar as the robot drives (each scan "
+        "matched to the map so far, correcting the odometry's drift) and publishes it on drive/map (with --ros2, "
+        "/map) as it grows (the same as --set navigation.mapping=true; docs/localization.md); "
+        "invent map --from run.mcap makes the map file after the run",
     )
     fleet_flag(
         parser,

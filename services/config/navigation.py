@@ -37,8 +37,12 @@ class NavigationConfig(Section, frozen=True):
     """A map in map_server's format (a YAML file beside its PGM image; ``invent map`` makes one from a
     world file): its obstacles are the costmap's static layer and its extent the costmap's. None
     (``"none"``): no map, a costmap of ``size`` around the start, unknown but what the lidar has seen."""
+    mapping: bool = False
+    """Build a map from the lidar as the robot drives (``invent up --mapping``; services/mapping/: each
+    scan matched to the map so far, correcting the odometry's drift) and publish it on ``drive/map`` as
+    it grows, at ``costmap_rate``; only without ``map`` (the costmap is the lidar's, as with no map)."""
     resolution: Annotated[Positive, METRES] = 0.05
-    """The costmap's cell side without a map (a map brings its own)."""
+    """The costmap's cell side without a map (a map brings its own), and the built map's."""
     size: Annotated[Positive, METRES] = 20.0
     """The side of the square costmap without a map, centred on the robot's initial pose: goals
     beyond it are rejected."""
@@ -110,6 +114,8 @@ class NavigationConfig(Section, frozen=True):
                 f"`size` / `resolution` = {self.size / self.resolution:.0f} cells a side: more than "
                 f"{MAX_COSTMAP_CELLS_PER_SIDE}"
             )
+        if self.mapping and self.map is not None:
+            raise ValueError("`mapping` builds a map: it takes no `map` (give one or the other)")
         if self.obstacle_range > self.raytrace_range:
             raise ValueError(
                 f"`obstacle_range` = {self.obstacle_range} must not exceed `raytrace_range` = {self.raytrace_range}"

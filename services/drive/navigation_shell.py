@@ -15,6 +15,7 @@ and taken at the next tick: a run that shows any is not deterministic.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from typing import Any
@@ -23,6 +24,7 @@ from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND, GoalPlan, LaserScan, Time
 from services.clock.sim_time import PeriodicSchedule, check_stamp_near
 from services.config import Config
+from services.mapping.builder import LidarMount, MapBuilder
 from services.navigation.costmap import Costmap
 from services.navigation.grid import Grid, GridGeometry
 from services.navigation.map_file import read_map
@@ -60,6 +62,8 @@ class NavigationShell:
         )
         lidar = config.lidar
         self._mount = (lidar.x, lidar.y, lidar.yaw)
+        self.builder = MapBuilder(settings.resolution, LidarMount.of(lidar)) if settings.mapping else None
+        """``navigation.mapping``: the map built from the scans as the robot drives."""
         self._horizon_ns = config.input.stamp_horizon_ns
         self._pose_timeout_ns = round(config.drive.pose_timeout * NANOSECONDS_PER_SECOND)
         self._costmap_rate = settings.costmap_rate
@@ -69,6 +73,8 @@ class NavigationShell:
         self._last_scan_ns: int | None = None
         self._last_tick_ns: int | None = None
         self._map_published = False
+        self._built_until_ns = -1
+        """The newest pose the map builder has (a restarted simulator's poses go on from there)."""
         self._plan_shown: tuple[str, int] | None = None
         self.counters = dict.fromkeys(("scans", "scans_dropped", "scans_late", "scans_without_pose"), 0)
         self._map = node.latched_publisher(node.keys.drive_map)
@@ -104,6 +110,9 @@ class NavigationShell:
         if self._poses and stamp_ns <= self._poses[-1][0]:
             self._poses.clear()  # a new time base (a restarted simulator): older poses place nothing
         self._poses.append((stamp_ns, pose))
+        if self.builder is not None and stamp_ns > self._built_until_ns:
+            self.builder.add_odometry(stamp_ns, pose)
+            self._built_until_ns = stamp_ns
 
     def restart(self) -> None:
         """A new simulator (a new run, the robot back at its start): its scans and poses start again,
@@ -134,6 +143,8 @@ class NavigationShell:
             self._costmap_schedule = PeriodicSchedule(self._costmap_rate, 0)
         if self._costmap_schedule.due(tick_ns):
             self._costmap.put(self.costmap.occupancy().message(tm))
+            if self.builder is not None and self.builder.counters.scans:
+                self._map.put(self.builder.grid().message(tm))
         return updated
 
     def _mark(self, scan: LaserScan) -> None:
@@ -146,6 +157,8 @@ class NavigationShell:
         cos, sin = math.cos(pose.theta), math.sin(pose.theta)
         self.costmap.mark_scan(scan, pose.x + cos * x - sin * y, pose.y + sin * x + cos * y, pose.theta + yaw)
         self.counters["scans"] += 1
+        if self.builder is not None:
+            self.builder.add_scan(scan)
 
     def _pose_at(self, stamp_ns: int) -> Pose | None:
         """The latest pose at or before ``stamp_ns``, if it is within ``drive.pose_timeout`` of it."""
@@ -167,4 +180,5 @@ class NavigationShell:
             self._plan_shown = None
 
     def status(self) -> dict[str, Any]:
-        return {"map": self._map_file, **self.counters, "costmap": self.costmap.status()}
+        mapping = None if self.builder is None else dataclasses.asdict(self.builder.counters)
+        return {"map": self._map_file, **self.counters, "costmap": self.costmap.status(), "mapping": mapping}
