@@ -23,11 +23,11 @@ from schemas.messages import (
     GoalRequest,
     GoalTarget,
     ImuSample,
+    InitialPose,
     LaserScan,
+    LocalizationReply,
     MotorStateReport,
     NoArguments,
-    InitialPose,
-    LocalizationReply,
     OccupancyGrid,
     ParticleCloud,
     PDGains,
@@ -201,6 +201,7 @@ GOAL_METHOD_TYPES: dict[GoalMethod, tuple[type[msgspec.Struct], type[msgspec.Str
     GoalMethod.CANCEL: (CancelRequest, CancelReply),
 }
 """Each goal method's payload and reply."""
+
 
 class LocalizationMethod(StrEnum):
     """The localization's queryables (docs/protocol.md section 7.1): ``localization/<method>``."""
