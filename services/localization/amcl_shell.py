@@ -6,7 +6,8 @@ truth (docs/localization.md).
 
 At every tick of ``localization.rate`` (simulation time, as the stub's) it publishes the estimate on
 ``localization/pose`` with its covariance in ``error`` (xx, xy, xθ, yy, yθ, θθ); the odometry resets
-from it, as from the stub's fixes. The first fix is the initial pose the filter was seeded around.
+from it, as from the stub's fixes. The particles start around the initial pose; the first fix (at
+time 0) has already taken the first scan.
 Its particles go on ``localization/particles`` at ``localization.particles_rate``.
 
 Lockstep: a tick is published once the scans due by then (the lidar's grid, anchored at 0, as the
