@@ -141,8 +141,8 @@ def test_the_initial_pose_then_estimates_with_their_covariance_and_the_particles
         cloud = particles.get(timeout=5.0)
         assert len(cloud.x) >= AmclConfig().min_particles
         assert math.isclose(sum(cloud.weight), 1.0, rel_tol=1e-6)
-        report = status(session)
-        assert report["mode"] == "amcl" and report["filter"]["updates"] >= 1 and report["counters"]["scans"] >= 30
+        report = wait_until(lambda: (r := status(session))["counters"]["scans"] >= 30 and r, 10, "every scan taken")
+        assert report["mode"] == "amcl" and report["filter"]["updates"] >= 1 and report["internal_errors"] == 0
 
 
 def test_an_initial_pose_takes_at_any_time_and_bad_ones_are_refused_and_counted(endpoint, session, map_file):
