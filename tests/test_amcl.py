@@ -14,15 +14,9 @@ from hypothesis import strategies as st
 
 from schemas.codec import BadInput
 from services.config.amcl import AmclConfig
-from services.localization.amcl import (
-    ParticleFilter,
-    compose,
-    kld_limit,
-    relative_motion,
-    systematic_resample,
-)
+from services.localization.amcl import ParticleFilter, kld_limit, systematic_resample
 from services.localization.likelihood import LikelihoodField
-from services.planar import Pose, wrap_angle
+from services.planar import Pose, compose, relative_motion, wrap_angle
 from tests import amcl_world as world
 
 LIDAR = world.LIDAR

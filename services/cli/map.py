@@ -128,7 +128,7 @@ def _from_recording(args: argparse.Namespace) -> Grid:
         f"robot {run.robot}: {counters.scans} of {run.scans} scans mapped ({counters.matched} corrected by "
         f"scan matching, {dropped} dropped: {counters.before_odometry} before the odometry, "
         f"{counters.after_odometry} after it, {counters.outside} past the map's bound, {counters.empty} empty), "
-        f"{run.odometry_poses} odometry poses"
+        f"{run.odometry_poses} odometry poses ({counters.odometry_resets} resets taken out)"
     )
     return run.builder.grid()
 

@@ -59,7 +59,7 @@ from schemas.codec import BadInput
 from services.config.amcl import AmclConfig
 from services.config.sensors import LidarConfig
 from services.localization.likelihood import LikelihoodField
-from services.planar import Pose, wrap_angle
+from services.planar import Pose, compose, relative_motion, wrap_angle
 
 Floats = npt.NDArray[np.float64]
 
@@ -82,23 +82,6 @@ class Estimate:
 def wrap_angles(angles: Floats) -> Floats:
     """Angles wrapped into [−π, π)."""
     return np.asarray((angles + math.pi) % (2.0 * math.pi) - math.pi, dtype=np.float64)
-
-
-def relative_motion(start: Pose, end: Pose) -> Pose:
-    """``end`` seen from ``start``: the motion between two poses in ``start``'s frame."""
-    cos, sin = math.cos(start.theta), math.sin(start.theta)
-    dx, dy = end.x - start.x, end.y - start.y
-    return Pose(cos * dx + sin * dy, -sin * dx + cos * dy, wrap_angle(end.theta - start.theta))
-
-
-def compose(pose: Pose, motion: Pose) -> Pose:
-    """``pose`` moved by ``motion`` (given in ``pose``'s frame)."""
-    cos, sin = math.cos(pose.theta), math.sin(pose.theta)
-    return Pose(
-        pose.x + cos * motion.x - sin * motion.y,
-        pose.y + sin * motion.x + cos * motion.y,
-        wrap_angle(pose.theta + motion.theta),
-    )
 
 
 def kld_limit(bins: npt.NDArray[np.int64], settings: AmclConfig) -> npt.NDArray[np.int64]:

@@ -27,12 +27,21 @@ from services.config.sensors import LidarConfig
 from services.mapping.matcher import Match, MatcherSettings, SurfaceField, match, transform
 from services.mapping.occupancy import LogOddsGrid
 from services.navigation.grid import Grid
-from services.planar import Pose, wrap_angle
+from services.planar import Pose, compose, inverse, relative_motion, wrap_angle
 
 Floats = npt.NDArray[np.float64]
 
 DEFAULT_RESOLUTION = 0.05
 """m: a map's cell by default (the navigation's)."""
+MAX_ODOMETRY_SPEED = 0.6
+"""m/s: faster than the drive's wheels take the robot (``drive.cruise_speed`` 0.3); an odometry step
+faster than this (beyond :data:`ODOMETRY_STEP_SLACK`) is a reset, not motion."""
+ODOMETRY_STEP_SLACK = 0.005
+"""m: a step's allowance beyond :data:`MAX_ODOMETRY_SPEED` (the poses' stamps are rounded)."""
+MAX_ODOMETRY_TURN_RATE = 2.0
+"""rad/s: likewise for turns (``drive.max_turn_rate`` 1 rad/s)."""
+ODOMETRY_TURN_SLACK = 0.01
+"""rad: a turn's allowance beyond :data:`MAX_ODOMETRY_TURN_RATE`."""
 MAX_ODOMETRY_GAP_S = 0.5
 """s: a scan later than the last odometry pose by up to this takes that pose; later, it is dropped
 (the odometry stopped)."""
@@ -81,22 +90,42 @@ class Counters:
     """Scans dropped: the grid would pass its bound on cells a side to hold them."""
     empty: int = 0
     """Scans with no usable ray."""
+    odometry_resets: int = 0
+    """Odometry steps no robot drives (a localization's fix), taken out of the priors' motion."""
 
 
 @dataclass
 class _Odometry:
-    """The odometry's poses so far, by stamp."""
+    """The odometry's poses so far, by stamp, made continuous: a step no robot drives in the time
+    between two poses (a localization fix the odometry was reset to) is taken out, the poses after
+    it moved back by it, so that a scan's prior is the wheels' motion and not the fix's correction."""
 
     stamps: list[int] = field(default_factory=list)
     poses: list[Pose] = field(default_factory=list)
+    jumps: int = 0
+    """Steps taken out as resets."""
+    _offset: Pose = Pose(0.0, 0.0, 0.0)
+    """What the resets so far moved the odometry by: a pose as given, composed after it."""
 
     def add(self, stamp_ns: int, pose: Pose) -> None:
         if self.stamps and stamp_ns < self.stamps[-1]:
             raise ValueError(
                 f"odometry pose at {stamp_ns} ns after one at {self.stamps[-1]} ns: feed them in time order"
             )
+        continuous = compose(self._offset, pose)
+        if self.poses:
+            previous = self.poses[-1]
+            seconds = (stamp_ns - self.stamps[-1]) / 1e9
+            step = relative_motion(previous, continuous)
+            if (
+                math.hypot(step.x, step.y) > MAX_ODOMETRY_SPEED * seconds + ODOMETRY_STEP_SLACK
+                or abs(step.theta) > MAX_ODOMETRY_TURN_RATE * seconds + ODOMETRY_TURN_SLACK
+            ):
+                self._offset = compose(previous, inverse(pose))
+                continuous = previous
+                self.jumps += 1
         self.stamps.append(stamp_ns)
-        self.poses.append(pose)
+        self.poses.append(continuous)
 
     def at(self, stamp_ns: int) -> Pose:
         """The pose at ``stamp_ns`` within the poses' span, interpolated linearly (the heading the short way)."""
@@ -140,6 +169,7 @@ class MapBuilder:
     def add_odometry(self, stamp_ns: int, pose: Pose) -> None:
         """An odometry pose (the axle centre's, in ``odom``); traces the scans it lets through."""
         self._odometry.add(stamp_ns, pose)
+        self.counters.odometry_resets = self._odometry.jumps
         while self._pending and self._pending[0].tm.to_nanoseconds() <= stamp_ns:
             self._trace(self._pending.pop(0))
 

@@ -35,7 +35,7 @@ from services.body.geometry import RobotBody
 from services.config import Config, Ros2Config
 from services.motor.core import check_target_velocity
 from services.odometry.core import Odometry
-from services.planar import Pose, wrap_angle
+from services.planar import Pose, compose, inverse
 from services.ros2 import interfaces
 
 POSE_HISTORY = 4096
@@ -165,17 +165,6 @@ def path(plan: GoalPlan, frame: str) -> Any:
             for (x, y), heading in zip(plan.points, path_headings(plan.points), strict=True)
         ],
     )
-
-
-def compose(a: Pose, b: Pose) -> Pose:
-    """``a * b``: the pose ``b`` (given in ``a``'s frame) in the frame ``a`` is given in."""
-    cos, sin = math.cos(a.theta), math.sin(a.theta)
-    return Pose(a.x + cos * b.x - sin * b.y, a.y + sin * b.x + cos * b.y, wrap_angle(a.theta + b.theta))
-
-
-def inverse(pose: Pose) -> Pose:
-    cos, sin = math.cos(pose.theta), math.sin(pose.theta)
-    return Pose(-(cos * pose.x + sin * pose.y), sin * pose.x - cos * pose.y, wrap_angle(-pose.theta))
 
 
 @dataclass(frozen=True)
