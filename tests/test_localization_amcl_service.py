@@ -28,7 +28,7 @@ from services.config import LidarConfig
 from services.config.amcl import AmclConfig
 from services.navigation.grid import FREE, OCCUPIED, Grid, GridGeometry
 from services.navigation.map_file import write_map
-from tests.harness import Collector, InventProcess, call, wait_alive, wait_until
+from tests.harness import Collector, InventProcess, call, run_invent, wait_alive, wait_until
 
 KEYS = Keys()
 LIDAR = LidarConfig()
@@ -185,3 +185,11 @@ def test_none_publishes_the_initial_pose_once_and_no_more(endpoint, session, map
         assert fixes.drain() == [], "no fix after the initial pose"
         report = status(session)
         assert report["mode"] == "none" and report["initial_published_at"] is not None
+
+
+def test_an_initial_pose_off_the_map_is_a_configuration_error(map_file):
+    result = run_invent(
+        "localization", "--set", "localization.mode=amcl", "--set", f"navigation.map={map_file}",
+        "--initial", "30", "0", "0",
+    )  # fmt: skip
+    assert result.returncode == 2 and "localization.initial_x" in result.stderr and "off the map" in result.stderr

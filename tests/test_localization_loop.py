@@ -323,7 +323,7 @@ def test_a_map_made_from_a_run_lies_on_the_walls(
 
 MADE_MAP_RMS_M = 0.10
 """What localizing on a map made from a run holds to, against the ground truth: not yet issue 52's 5 cm
-(measured here: 6.7 to 7.7 cm RMS, 11 to 12 cm at worst). The made map lies a few cm short along
+(measured here: 8.1 cm RMS, 10.5 cm at worst). The made map lies a few cm short along
 the rooms (the map builder's cell-edge bias and what is left of its losses at doors: the matcher's
 docstring), and the estimate with it."""
 

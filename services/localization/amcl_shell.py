@@ -43,7 +43,7 @@ from schemas.messages import (
 )
 from services.clock.sim_time import PeriodicSchedule, StampClock
 from services.clock.sim_watch import SimulatorWatch
-from services.config import Config
+from services.config import Config, ConfigError
 from services.localization.amcl import ParticleFilter
 from services.localization.core import resolve_seed
 from services.localization.likelihood import LikelihoodField
@@ -94,7 +94,10 @@ class AmclLocalization:
             np.random.default_rng(self.seed),
         )
         self.initial = Pose(self.config.initial_x, self.config.initial_y, self.config.initial_theta)
-        self.filter.seed(self.initial, None)
+        try:
+            self.filter.seed(self.initial, None)
+        except BadInput as error:
+            raise ConfigError(f"localization.initial_x, initial_y: {error}") from None
         self.odometry = Odometry(config.robot, config.odometry, start=self.initial, limits=config.input)
         self._max_coordinate = config.input.max_coordinate
         self._clock = StampClock(config.input.stamp_horizon_ns)
