@@ -54,6 +54,11 @@ class RunRecorder:
         if self._statuses is not None:
             self._statuses.poll()
 
+    def last_statuses(self) -> None:
+        """The services' status as the run ends, before they stop (:meth:`StatusPoll.last`)."""
+        if self._statuses is not None:
+            self._statuses.last()
+
     def write(self, path: Path, config: Config, fleet: Sequence[Config] = ()) -> RunRecording:
         """``run.mcap`` with the scene of ``config``'s robot, or of every robot of ``fleet``."""
         self._statuses = None

@@ -173,6 +173,8 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
             watch = robots.watch(run, drives)
             watch.supervise(started, recorder.during if recorder else None, plan.until_interrupted)
             wall_time_s = time.monotonic() - started
+            if recorder:
+                recorder.last_statuses()
             for robot in robots.each:
                 sim_status, health[robot.name] = watch.health(robot.name)
                 if recorder:

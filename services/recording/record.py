@@ -162,6 +162,13 @@ class StatusPoll:
             self._next = now + STATUS_PERIOD_S
             self._replies = self._session.get(self._key, timeout=STATUS_PERIOD_S)
 
+    def last(self) -> None:
+        """Ask once more and take every reply (at most :data:`STATUS_PERIOD_S`): the services' status at
+        the end of the run, which a run shorter than a period would otherwise not hold at all."""
+        for reply in self._session.get(self._key, timeout=STATUS_PERIOD_S):
+            if reply.ok is not None:
+                self._record(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.time_ns())
+
 
 class Observer:
     """Takes every sample of ``key_exprs`` and every status reply of ``keys.robot``'s services into
