@@ -24,7 +24,7 @@ from schemas.keys import Keys, Service
 from schemas.messages import LocalizationReply
 from services.config.sections import LocalizationMode
 from services.security import Flow, Message, Profile, Role, grants, write_profile
-from tests.harness import free_port, run_invent, wait_until
+from tests.harness import call, free_port, run_invent, wait_until
 
 KEYS = Keys("secured")
 GROUND_TRUTH = (KEYS.sim_body_pose, KEYS.motor_sim_pose_localization, KEYS.motor_sim_pose_gui, KEYS.status(Service.SIM))
@@ -192,9 +192,12 @@ def test_through_the_router_amcls_localization_receives_no_ground_truth_while_th
             if mode == "amcl":  # the scan, put after the ground truth on the same session, closes it
                 seen += _until(received, KEYS.sim_scan)
         if mode == "stub":
-            # the stub may not read the scan either: its own input, put last, then a grace for the rest
+            # the stub may not read the scan either: its own input, put last; then a query of the sim's,
+            # which reaches the localization after everything the sim's session put before it
             seen += _until(received, KEYS.motor_sim_pose_localization)
-            time.sleep(0.5)
+            barrier = KEYS.status(Service.LOCALIZATION)
+            localization.declare_queryable(barrier, lambda query: query.reply(barrier, b"{}"))
+            assert call(sim, barrier)[0], "the barrier answered"
         while not received.empty():
             seen.append(received.get_nowait())
     assert KEYS.sim_body_pose not in seen, "the localization may not subscribe the ground truth"

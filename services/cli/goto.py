@@ -36,7 +36,7 @@ from schemas.messages import (
     ScenarioOutcome,
 )
 from services.cli.flags import finite_number, positive_seconds, robot_name, session_from_args
-from services.cli.tools import no_answer
+from services.cli.tools import no_answer, typed_reply
 from services.config import GoalsConfig
 from services.exits import ExitStatus
 from services.goto.core import Progress, accepted_line, cancel_line, goal_request, rejected_line
@@ -195,16 +195,9 @@ class Goto:
             replies = list(querier.get(payload=encode(request), encoding=zenoh.Encoding(ENCODING)))
         finally:
             querier.undeclare()
-        for reply in replies:
-            result = reply.result
-            if not isinstance(result, zenoh.Sample):
-                _error(f"{key} replied with an error: {result.payload.to_string()}")
-                return ExitStatus.FAILURE
-            try:
-                return decode(GoalReply, result.payload.to_bytes())
-            except BadMessage as error:
-                _error(f"{key} replied with what is not a GoalReply ({error})")
-                return ExitStatus.FAILURE
+        answer = typed_reply(replies, key, GoalReply, _error)
+        if answer is not None:
+            return answer
         hint = (
             "; in a secure deployment only the operator and the ROS 2 bridge may send goals (the router drops "
             "the others' unanswered)"

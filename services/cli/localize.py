@@ -14,11 +14,11 @@ import sys
 
 import zenoh
 
-from schemas.codec import ENCODING, BadMessage, decode, encode
+from schemas.codec import ENCODING, encode
 from schemas.keys import DEFAULT_ROBOT, Keys, Service
 from schemas.messages import InitialPose, LocalizationReply, NoArguments
 from services.cli.flags import finite_number, non_negative_float, positive_seconds, robot_name, session_from_args
-from services.cli.tools import no_answer, wait_for_match
+from services.cli.tools import no_answer, typed_reply, wait_for_match
 from services.exits import ExitStatus
 from services.runtime.session import open_session
 
@@ -145,16 +145,9 @@ def _ask(
         replies = list(querier.get(payload=encode(request), encoding=zenoh.Encoding(ENCODING)))
     finally:
         querier.undeclare()
-    for reply in replies:
-        result = reply.result
-        if not isinstance(result, zenoh.Sample):
-            _error(f"{key} replied with an error: {result.payload.to_string()}")
-            return ExitStatus.FAILURE
-        try:
-            return decode(LocalizationReply, result.payload.to_bytes())
-        except BadMessage as error:
-            _error(f"{key} replied with what is not a LocalizationReply ({error})")
-            return ExitStatus.FAILURE
+    answer = typed_reply(replies, key, LocalizationReply, _error)
+    if answer is not None:
+        return answer
     _error(no_answer(session, key, matched, wait_s) + _hint(session, keys, matched))
     return ExitStatus.FAILURE
 

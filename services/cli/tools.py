@@ -11,9 +11,9 @@ import queue
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import msgspec
 import zenoh
@@ -28,6 +28,8 @@ from services.runtime.discovery import payload_value, service_statuses
 from services.runtime.session import ROUTER_LISTENING, has_match
 from services.security import UserServiceGrant, write_fleet_profile, write_profile
 from services.security.grants import DEFAULT_LOCALIZATION
+
+MessageT = TypeVar("MessageT", bound=msgspec.Struct)
 
 
 def _print_json(value: Any, stream=sys.stdout) -> None:
@@ -150,6 +152,24 @@ def wait_for_match(querier: zenoh.Querier, timeout: float) -> bool:
             return False
         time.sleep(0.005)
     return True
+
+
+def typed_reply(
+    replies: Sequence[zenoh.Reply], key: str, message_type: type[MessageT], error: Callable[[str], None]
+) -> MessageT | ExitStatus | None:
+    """The first of ``replies`` to a method's query on ``key`` as a ``message_type``; FAILURE (said
+    through ``error``) for an error reply or one that does not decode; None when nothing replied."""
+    for reply in replies:
+        result = reply.result
+        if not isinstance(result, zenoh.Sample):
+            error(f"{key} replied with an error: {result.payload.to_string()}")
+            return ExitStatus.FAILURE
+        try:
+            return decode(message_type, result.payload.to_bytes())
+        except BadMessage as bad:
+            error(f"{key} replied with what is not a {message_type.__name__} ({bad})")
+            return ExitStatus.FAILURE
+    return None
 
 
 def no_answer(session: zenoh.Session, key: str, matched: bool, timeout: float) -> str:
