@@ -2,10 +2,10 @@
 docs/localization.md): the stub (here), the particle filter (:mod:`services.localization.amcl_shell`),
 and none (here: the initial pose once, then nothing).
 
-The stub (the seed's LocalizationRTC, docs/protocol.md section 7) subscribes ``motor/sim_pose/localization`` ([x, y, z, θ] stamped with simulation time) and
-publishes ``localization/pose``: first the configured initial pose, stamped with the first
-simulation time seen once someone (odometry) subscribes, then every 1/rate seconds of
-simulation time the latest simulated pose plus optional Gaussian noise
+The stub (the seed's LocalizationRTC, docs/protocol.md section 7) subscribes
+``motor/sim_pose/localization`` ([x, y, z, θ] stamped with simulation time) and publishes
+``localization/pose``: first the configured initial pose, stamped with the first simulation time
+seen once someone (odometry) subscribes, then every 1/rate seconds of simulation time the latest simulated pose plus optional Gaussian noise
 (:mod:`services.localization.core`). Odometry resets its pose on every fix. When the
 simulator's liveliness token appears and the next stamp is not after the last one (a restarted
 simulator's clock starts again at 0), that sample starts a new time base and takes a fix at once.
@@ -28,7 +28,7 @@ from services.config import Config
 from services.localization.amcl_shell import AmclLocalization
 from services.localization.core import Fix, Localizer, resolve_seed
 from services.planar import Pose
-from services.runtime.inputs import Delivery, NodeInput
+from services.runtime.inputs import Delivery
 from services.runtime.node import Node, Wait
 from services.service import NoOptions, ServiceCommand
 
@@ -127,7 +127,7 @@ class NoLocalization:
         self.skipped_initial = False
         self._until_ns = round(NANOSECONDS_PER_SECOND / self.config.rate)
         self.publisher = node.publisher(node.keys.localization_pose)
-        self._wheels: NodeInput | None = node.subscribe(
+        node.subscribe(
             node.keys.motor_wheel_angles, TimedDoubleSeq, self._on_wheel_angles, Delivery.SAMPLED, wakes=True
         )
         node.set_status(self.status)
