@@ -153,15 +153,17 @@ def goal_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GoalRun]:
     feeder: threading.Thread | None = None
     with running_router() as endpoint, peer_session(endpoint) as session:
         recorder = InventProcess("record", "--connect", endpoint, "--output", str(output), drain=True)
-        view = _Process("view", "--connect", endpoint, "--port", "0", "--log-level", "info")
+        view: _Process | None = None
         try:
             publishers = {
                 key: session.declare_publisher(key) for key in (KEYS.sim_body_pose, *GOAL_KEYS, KEYS.run_summary)
             }
-            # the recorder first: its subscription alone matches until the view has started
+            # the view starts once the recorder's subscription has matched, so the match is the recorder's
+            # (a view started beside it may match first on a loaded machine, and the recorder miss goals)
             wait_until(
                 lambda: publishers[KEYS.sim_body_pose].matching_status.matching, 30, "the recorder's subscription"
             )
+            view = _Process("view", "--connect", endpoint, "--port", "0", "--log-level", "info")
             match = wait_until(lambda: URL_LINE.search(view.output), STARTUP_TIMEOUT_S, "the view's URL")
 
             def feed() -> None:
@@ -193,9 +195,10 @@ def goal_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GoalRun]:
             feeding.clear()
             if feeder is not None:
                 feeder.join(5)
-            view_code = view.stop()
+            view_code = view.stop() if view is not None else -1
             record_code, _out, err = recorder.stop(30)
     assert record_code == 0, err[-3000:]
+    assert view is not None
     yield GoalRun(seen, view_status, view_code, view.output, output, record_code, published)
 
 

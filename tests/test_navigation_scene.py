@@ -422,13 +422,16 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveRun]:
         costmaps = session.declare_publisher(KEYS.drive_costmap)
         poses = session.declare_publisher(KEYS.sim_body_pose)
         recorder = InventProcess("record", "--connect", endpoint, "--output", str(output), drain=True)
-        view = _Process("view", "--connect", endpoint, "--port", "0", "--log-level", "info")
+        view: _Process | None = None
         try:
             wait_until(
                 lambda: poses.matching_status.matching and costmaps.matching_status.matching,
                 30,
                 "the recorder's subscription",
             )
+            view = _Process(
+                "view", "--connect", endpoint, "--port", "0", "--log-level", "info"
+            )  # after: no other match
             match = wait_until(lambda: URL_LINE.search(view.output), STARTUP_TIMEOUT_S, "the view's URL")
 
             def feed() -> None:
@@ -456,11 +459,12 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveRun]:
             feeding.clear()
             if feeder is not None:
                 feeder.join(5)
-            view_code = view.stop()
+            view_code = view.stop() if view is not None else -1
             record_code, _out, err = recorder.stop(30)
             for key in latched:
                 key.close()
     assert record_code == 0, err[-3000:]
+    assert view is not None
     yield LiveRun(seen, output, view_code, view.output, map_payload, plan_payload)
 
 
