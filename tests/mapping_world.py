@@ -21,6 +21,8 @@ Segments = Floats
 
 AXLE = 0.441
 """m: the default robot's axle (services/config/sections.py's ``length_of_axle``)."""
+WHEEL_RADIUS = 0.1
+"""m: the default robot's wheels (``radius_of_left_wheel``, ``radius_of_right_wheel``)."""
 ODOMETRY_PERIOD_NS = 20_000_000
 SCAN_PERIOD_NS = 100_000_000
 
@@ -99,6 +101,8 @@ class Step:
     stamp_ns: int
     truth: Pose
     odometry: Pose
+    wheel_angles: tuple[float, float] = (0.0, 0.0)
+    """rad: what the encoders read (left, right), the left as long as the odometry takes it."""
 
 
 def drive(
@@ -113,6 +117,7 @@ def drive(
     truth = odometry = Pose(waypoints[0][0], waypoints[0][1], 0.0)
     dt = ODOMETRY_PERIOD_NS / 1e9
     stamp = 0
+    angle_left = angle_right = 0.0
     yield Step(stamp, truth, odometry)
     for target in [w for _ in range(laps) for w in waypoints[1:]]:
         while True:
@@ -128,8 +133,10 @@ def drive(
             left, right = (v - w * AXLE / 2) * dt, (v + w * AXLE / 2) * dt
             truth = _integrate(truth, left, right)
             odometry = _integrate(odometry, left * left_scale, right)
+            angle_left += left * left_scale / WHEEL_RADIUS
+            angle_right += right / WHEEL_RADIUS
             stamp += ODOMETRY_PERIOD_NS
-            yield Step(stamp, truth, odometry)
+            yield Step(stamp, truth, odometry, (angle_left, angle_right))
 
 
 def _integrate(pose: Pose, left: float, right: float) -> Pose:

