@@ -20,9 +20,10 @@ from schemas.messages import RunSummary, Time
 from services.config import RecordConfig, load_config
 from services.planar import Pose
 from services.recording.goal_report import goal_lines, goal_results
-from services.recording.mcap_files import read_messages, write_run_report
+from services.recording.mcap_files import read_messages
 from services.recording.record import write_run_recording
 from services.recording.report import loop_health, summary
+from services.recording.run_report import write_run_report
 from services.recording.scene import SCENE_TOPIC
 from services.runtime.journal import Journal, journal_path
 from tests.test_goal_scene import S, body_pose, feedback, outcome, target

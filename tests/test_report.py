@@ -1,7 +1,19 @@
 """The run's health in the report: the sim's torque figures and each service's counters, and
-when a run counts as degraded."""
+when a run counts as degraded; the outcome of a run that ended early, what a report lacks, and the
+health rebuilt from recorded status replies, whatever they hold."""
 
-from services.recording.report import DEGRADED_FRACTION, degradations, loop_health
+from hypothesis import given
+from hypothesis import strategies as st
+
+from services.recording.report import (
+    DEGRADED_FRACTION,
+    degradations,
+    early_outcome,
+    loop_health,
+    missing_parts,
+    readable_statuses,
+    recorded_health,
+)
 
 
 def _service(bad: int = 0, internal: int = 0, dropped: int = 0) -> dict:
@@ -67,3 +79,67 @@ def test_a_health_recorded_before_the_drive_was_reported_still_reads():
     health = loop_health(_sim("lockstep", 20_000), {})
     del health["lockstep"]["pose_wait_timeouts"]
     assert degradations(health) == []
+
+
+def test_the_outcome_of_a_run_a_service_ended_says_which_and_how():
+    killed = early_outcome("service_died", "odometer", -9, 2.5)
+    assert (killed["reason"], killed["signal"], killed["exit_code"], killed["t_s"]) == (
+        "odometer killed by SIGKILL",
+        "SIGKILL",
+        None,
+        2.5,
+    )
+    exited = early_outcome("service_died", "control", 1, 0.0)
+    assert (exited["reason"], exited["signal"], exited["exit_code"]) == ("control exited with code 1", None, 1)
+    assert early_outcome("service_died", "sim", -999, 0.0)["reason"] == "sim killed by signal 999"
+    interrupted = early_outcome("interrupted", "", None, 1.0)
+    assert interrupted == {
+        "outcome": "interrupted",
+        "reason": "Ctrl-C or SIGTERM before the scenario ended",
+        "t_s": 1.0,
+    }
+
+
+def test_what_a_report_lacks_is_said_once_each_and_nothing_for_a_whole_run():
+    whole = {"complete": True, "summary": True, "outcome": True, "statuses": False, "ground_truth": True}
+    assert missing_parts(**whole) == []
+    cut = missing_parts(**{**whole, "complete": False, "summary": False, "outcome": False})
+    assert cut[0].startswith("the file was cut short")
+    assert cut[1] == (
+        "no run summary: the run did not end cleanly; outcome unknown, wall time unknown, the loop's health unknown"
+    )
+    assert missing_parts(**{**whole, "ground_truth": False}) == [
+        "no ground truth (sim/body_pose): no final pose, no odometry or path error"
+    ]
+
+
+json_values = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=5),
+    lambda children: st.lists(children, max_size=3) | st.dictionaries(st.text(max_size=12), children, max_size=4),
+    max_leaves=12,
+)
+
+
+@given(
+    st.dictionaries(
+        st.sampled_from(["sim", "motor", "drive", "odometer"]),
+        st.fixed_dictionaries(
+            {"bad_input": st.one_of(json_values, st.fixed_dictionaries({"total": json_values}))},
+            optional={
+                "internal_errors": json_values,
+                "steps": json_values,
+                "mode": json_values,
+                "counters": json_values,
+                "navigation": json_values,
+                "collision_monitor": json_values,
+                "pose_wait_timeouts": json_values,
+            },
+        )
+        | json_values,
+    )
+)
+def test_recorded_status_replies_never_break_the_health_only_the_readable_count(statuses):
+    readable = readable_statuses(statuses)
+    health = recorded_health(readable)
+    degradations(health)
+    assert set(health["services"]) <= set(readable) <= set(statuses)

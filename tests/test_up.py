@@ -70,7 +70,7 @@ def test_killing_the_motor_mid_run_stops_everything_exits_non_zero_and_leaves_th
     assert process.returncode != 0
     assert "motor exited unexpectedly (killed by SIGKILL)" in text
     wait_until(lambda: not [pid for pid in pids.values() if pid_alive(pid)], 15, "every child to be gone")
-    assert not (tmp_path / "report.json").exists()
+    assert json.loads((tmp_path / "report.json").read_text())["outcome"]["service"] == "motor", "its report names it"
     assert "motor.journal was cut short" in text
     recorded = read_messages(tmp_path / "run.mcap")
     assert recorded.complete, "the run up to the motor's death, in a whole file"

@@ -6,8 +6,8 @@ import argparse
 from pathlib import Path
 
 from services.cli.flags import config_from_args, existing_file
-from services.recording.mcap_files import write_run_report
 from services.recording.report import summary
+from services.recording.run_report import write_run_report
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,6 +29,9 @@ HELP = "rebuild report.json and the plots from the recording of a run (run.mcap)
 DESCRIPTION = (
     "Read a recording of `invent up` (its run.mcap) and write report.json, trajectory.png and "
     "wheel_speeds.png, as `invent up` does at the end of a run, into --output-dir (default: the "
-    "recording's directory). --robot and --config must match the run's."
+    "recording's directory). --robot and --config must match the run's. Any run's recording is "
+    "reported, cut short or not (a file cut mid-chunk, a run with no summary): the report and "
+    "its `missing:` lines say what it lacks. Exit 2 only for a file that is not a recording, or "
+    "that holds other robots' keys but none of --robot's."
 )
 GROUPS: tuple[str, ...] = ("description",)

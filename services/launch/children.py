@@ -44,6 +44,16 @@ def describe_exit(code: int) -> str:
     return f"exit code {code}"
 
 
+class ServiceDied(ChildDied):
+    """A service of the run ended before the run did: which (its child's name) and how (its exit
+    code, or minus the signal that killed it), for the run's summary and report."""
+
+    def __init__(self, service: str, exit_code: int, how: str) -> None:
+        super().__init__(f"{service} exited unexpectedly ({how})")
+        self.service = service
+        self.exit_code = exit_code
+
+
 @dataclass
 class Child:
     name: str
@@ -138,12 +148,12 @@ class Supervisor:
             if ready_line is not None and ready_line in line:
                 ready.set()
 
-    def exited(self, exclude: str | None = None) -> tuple[str, str] | None:
-        """(name, reason) of a child other than ``exclude`` that has exited, or None."""
+    def exited(self, exclude: str | None = None) -> tuple[str, int, str] | None:
+        """(name, exit code, how it ended) of a child other than ``exclude`` that has exited, or None."""
         for child in self.children:
             code = child.process.poll()
             if child.name != exclude and code is not None:
-                return child.name, describe_exit(code)
+                return child.name, code, describe_exit(code)
         return None
 
     def exits(self) -> dict[str, tuple[int, str]]:
@@ -181,7 +191,7 @@ class Launcher(Protocol):
 
     def start(self, name: str, argv: Sequence[str]) -> Any: ...
 
-    def exited(self, exclude: str | None = None) -> tuple[str, str] | None: ...
+    def exited(self, exclude: str | None = None) -> tuple[str, int, str] | None: ...
 
     def exits(self) -> dict[str, tuple[int, str]]: ...
 

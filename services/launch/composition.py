@@ -115,13 +115,13 @@ class Composition:
             composed.error = error
             log.exception("%s crashed", composed.name)
 
-    def exited(self, exclude: str | None = None) -> tuple[str, str] | None:
-        """(name, reason) of a service other than ``exclude`` whose loop ended, or None."""
+    def exited(self, exclude: str | None = None) -> tuple[str, int, str] | None:
+        """(name, exit code, reason) of a service other than ``exclude`` whose loop ended, or None."""
         for composed in self.services:
             code = composed.finished()
             if composed.name != exclude and code is not None:
                 reason = f"crashed: {composed.error!r}" if composed.error else f"returned {code}"
-                return composed.name, reason
+                return composed.name, code, reason
         return None
 
     def exits(self) -> dict[str, tuple[int, str]]:

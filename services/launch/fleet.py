@@ -33,11 +33,11 @@ from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.scenarios import load_scenario
-from services.errors import ChildDied, Interrupted
+from services.errors import Interrupted
 from services.extension.loader import Loaded, load_all
 from services.fleet.description import Fleet, FleetRobot, bridge_flags, fleet_configs, load_fleet, robot_flags
 from services.fleet.summary import bumps_between, closest_approach
-from services.launch.children import say
+from services.launch.children import ServiceDied, say
 from services.launch.plan import UpPlan
 from services.launch.robots import Robot, robot_degradations
 from services.launch.ros2_run import check_ros2_flags, fleet_bridge_graphs, fleet_bridges
@@ -53,8 +53,9 @@ from services.launch.run import (
     secure_listen,
 )
 from services.launch.worker import assign
-from services.recording.mcap_files import read_run, robot_report
+from services.recording.mcap_files import read_run
 from services.recording.report import loop_health, summary, write_plots, write_report
+from services.recording.run_report import robot_report
 from services.security import UserServiceGrant, write_fleet_profile
 from sim_bridge.world import load_world
 
@@ -245,14 +246,14 @@ class FleetRun:
         """The sim's last status while it ran."""
 
     def look(self) -> None:
-        """Ctrl-C raises Interrupted, a dead router or sim ChildDied; a robot's dead service is noted
+        """Ctrl-C raises Interrupted, a dead router or sim ServiceDied; a robot's dead service is noted
         (once) for that robot only, and a drive that ended its scenario (with any outcome) is not dead."""
         if self.run.interrupted.is_set():
             raise Interrupted
         for name, (code, how) in self.launcher.exits().items():
             robot, _, service = name.partition("/")
             if not service:
-                raise ChildDied(f"{name} exited unexpectedly ({how})")
+                raise ServiceDied(name, code, how)
             if name in self._drives and code in OUTCOME_OF_EXIT_CODE:
                 self.outcomes_of[robot] = OUTCOME_OF_EXIT_CODE[code]
                 continue
@@ -341,12 +342,13 @@ def fleet_report(report_dir: Path, fleet: Fleet, configs: dict[str, Config]) -> 
     """``report.json`` of a fleet run from its ``run.mcap``: each robot's report (and plots in its
     folder), the fleet summary, and what degraded, each reason prefixed with its robot."""
     path = report_dir / RECORDING_FILE
-    messages = read_run(path).messages
+    read = read_run(path)
+    messages = read.messages
     robots: dict[str, dict[str, Any]] = {}
     tracks: dict[str, list[tuple[float, float, float]]] = {}
     bumps: dict[str, list[tuple[float, str]]] = {}
     for name in fleet.names:
-        report, recording = robot_report(path, messages, configs[name])
+        report, recording = robot_report(path, read, configs[name])
         report["degraded"] = robot_degradations(report["health"])
         robots[name] = report
         (report_dir / name).mkdir(parents=True, exist_ok=True)

@@ -19,8 +19,8 @@ from services.launch.plan import UpPlan
 from services.launch.robots import Robot
 from services.launch.ros2_run import check_ros2_flags
 from services.launch.run import RECORDING_FILE, SECRETS_DIRECTORY, Access, Outcomes, Run, secure_listen
-from services.recording.mcap_files import write_run_report
 from services.recording.report import health_lines, loop_health, summary
+from services.recording.run_report import write_run_report
 from services.ros2.graph import bridge_graph
 from services.security import Role, UserServiceGrant, write_profile
 from sim_bridge.display import require_display
@@ -145,24 +145,22 @@ class OneRobotWatch:
         self.drive = drive
         self.user_services = user_services
         """The names of its services of the user's own (``--with``)."""
-        self.sim_status: dict[str, Any] | None = None
-        self.drive_status: dict[str, Any] | None = None
-        """The drive's last status, taken while it runs: it exits at the end of its scenario."""
         self.outcome: Outcome | None = None
 
     def supervise(self, started: float, between_looks: Callable[[], None] | None, until_interrupted: bool) -> None:
-        self.sim_status, self.drive_status, self.outcome = self.run.supervise(
-            self.drive, started, between_looks, until_interrupted=until_interrupted
-        )
+        self.outcome = self.run.supervise(self.drive, started, between_looks, until_interrupted=until_interrupted)
 
     def health(self, robot: str) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+        """From the services' status now, the sim's and the drive's last while they ran where they
+        do not answer (the drive has exited at its end; a run that ended early, its dead service)."""
         statuses = {str(service): self.run.status(service) for service in Service if service != Service.DRIVE}
-        statuses[str(Service.DRIVE)] = self.drive_status
+        statuses[str(Service.DRIVE)] = self.run.drive_status
+        sim_status = statuses[str(Service.SIM)] or self.run.sim_status
         users = {str(name): self.run.status(name) for name in self.user_services}
-        health = loop_health(self.sim_status, {**statuses, **users})
+        health = loop_health(sim_status, {**statuses, **users})
         if users:
             health["user_services"] = users
-        return self.sim_status, health
+        return sim_status, health
 
     def outcomes(self, published: Outcomes) -> dict[str, Outcome]:
         return {} if self.outcome is None else {self.run.keys.robot: self.outcome}

@@ -26,7 +26,7 @@ from services.config import ConfigError
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.errors import ChildDied, Interrupted
 from services.exits import ExitStatus
-from services.launch.children import Launcher, Supervisor, describe_exit, say
+from services.launch.children import Launcher, ServiceDied, Supervisor, describe_exit, say
 from services.launch.composition import Composition
 from services.launch.plan import UpPlan
 from services.launch.worker import Workers
@@ -105,6 +105,13 @@ def ended_early(error: ChildDied | Interrupted) -> int:
         return ExitStatus.INTERRUPTED
     say(f"{error}; stopped everything")
     return ExitStatus.FAILURE
+
+
+def early_end(error: ServiceDied | Interrupted) -> dict[str, Any]:
+    """The run summary's fields (``RunSummary``) saying why the run ended before its scenario did."""
+    if isinstance(error, Interrupted):
+        return {"ended_early": "interrupted"}
+    return {"ended_early": "service_died", "service": error.service, "exit_code": error.exit_code}
 
 
 def run_endpoint(plan: UpPlan, access: Access) -> str:
@@ -203,20 +210,24 @@ def launch_services(
 
 @dataclass
 class Run:
-    """One ``invent up`` run: the launcher, its session, and Ctrl-C."""
+    """One ``invent up`` run: the launcher, its session, Ctrl-C, and the sim's and the drive's last
+    status while it ran (kept however it ends)."""
 
     launcher: Launcher
     session: zenoh.Session
     keys: Keys
     interrupted: threading.Event
+    sim_status: dict[str, Any] | None = None
+    drive_status: dict[str, Any] | None = None
+    """The drive's, taken at every look while it runs: it exits at the end of its scenario."""
 
     def check(self, expected_to_finish: str | None = None) -> None:
-        """Raise Interrupted on Ctrl-C, ChildDied when a service other than ``expected_to_finish`` ended."""
+        """Raise Interrupted on Ctrl-C, ServiceDied when a service other than ``expected_to_finish`` ended."""
         if self.interrupted.is_set():
             raise Interrupted
         exited = self.launcher.exited(exclude=expected_to_finish)
         if exited is not None:
-            raise ChildDied(f"{exited[0]} exited unexpectedly ({exited[1]})")
+            raise ServiceDied(*exited)
 
     def wait_alive(self, services: Sequence[Service]) -> None:
         self.wait_tokens([self.keys.alive(service) for service in services])
@@ -251,17 +262,16 @@ class Run:
                 return json.loads(reply.ok.payload.to_bytes())
         return None
 
-    def sim_at_end(self, sim_status: dict[str, Any] | None) -> dict[str, Any] | None:
-        """The sim's status once it holds at the drive's last command (``--until-drive-ends``)."""
+    def sim_at_end(self) -> None:
+        """Until the sim holds at the drive's last command (``--until-drive-ends``), its status kept."""
         deadline = time.monotonic() + END_TIMEOUT_S
         while time.monotonic() < deadline:
             self.check(expected_to_finish=str(Service.DRIVE))
-            sim_status = self.status(Service.SIM) or sim_status
-            if sim_status and sim_status.get("state") == "finished":
-                return sim_status
+            self.sim_status = self.status(Service.SIM) or self.sim_status
+            if self.sim_status and self.sim_status.get("state") == "finished":
+                return
             time.sleep(0.02)
         say(f"the sim did not stop at the drive's last command within {END_TIMEOUT_S} s")
-        return sim_status
 
     def supervise(
         self,
@@ -269,31 +279,32 @@ class Run:
         started: float,
         between_looks: Callable[[], None] | None,
         until_interrupted: bool = False,
-    ) -> tuple[dict[str, Any] | None, dict[str, Any] | None, Outcome | None]:
+    ) -> Outcome | None:
         """Wait for the drive to end its scenario, with an outcome (its exit code), or, with
         ``until_interrupted``, for Ctrl-C too (a ``--loop`` run ends when the drive gives a pass up,
-        a ``--teleop`` run, which has no drive, only on Ctrl-C), printing progress and calling
-        ``between_looks``; return the sim's last status, the drive's (taken at every look while it
-        runs: it exits at the end) and the outcome (None: interrupted)."""
-        sim_status: dict[str, Any] | None = None
-        drive_status: dict[str, Any] | None = None
+        a ``--teleop`` run, which has no drive, only on Ctrl-C), printing progress, calling
+        ``between_looks`` and keeping the sim's and the drive's last status; return the outcome
+        (None: interrupted). ServiceDied or Interrupted when the run ends before that."""
         next_progress = time.monotonic()
         while True:
             if until_interrupted and self.interrupted.is_set():
-                return self.status(Service.SIM) or sim_status, self.status(Service.DRIVE) or drive_status, None
+                self.sim_status = self.status(Service.SIM) or self.sim_status
+                self.drive_status = self.status(Service.DRIVE) or self.drive_status
+                return None
             self.check(expected_to_finish=drive.name if drive else None)
             code = drive.finished() if drive else None
             if drive and code is None:
-                drive_status = self.status(Service.DRIVE) or drive_status
+                self.drive_status = self.status(Service.DRIVE) or self.drive_status
             if time.monotonic() >= next_progress or code is not None:
-                sim_status = self.status(Service.SIM) or sim_status
+                self.sim_status = self.status(Service.SIM) or self.sim_status
                 next_progress = time.monotonic() + PROGRESS_INTERVAL_S
-                if sim_status:
-                    _progress(sim_status, time.monotonic() - started)
+                if self.sim_status:
+                    _progress(self.sim_status, time.monotonic() - started)
             if code in OUTCOME_OF_EXIT_CODE:
-                return self.sim_at_end(sim_status), drive_status, OUTCOME_OF_EXIT_CODE[code]
+                self.sim_at_end()
+                return OUTCOME_OF_EXIT_CODE[code]
             if code is not None:
-                raise ChildDied(f"drive exited unexpectedly ({describe_exit(code)})")
+                raise ServiceDied(str(Service.DRIVE), code, describe_exit(code))
             if between_looks:
                 between_looks()
             time.sleep(LOOK_INTERVAL_S)

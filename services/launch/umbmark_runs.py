@@ -185,7 +185,8 @@ class Simulation:
                 if outcome is not Outcome.COMPLETED:
                     reason = outcomes.line(self._keys.robot, outcome) if outcome else f"exit code {code}"
                     raise RunFailed(f"{name}: the drive did not complete the square ({reason})")
-                sim_status = run.sim_at_end(None)
+                run.sim_at_end()
+                sim_status = run.sim_status
                 statuses = {str(service): run.status(service) for service in (Service.MOTOR, Service.ODOMETRY)}
                 odometry = statuses[str(Service.ODOMETRY)]
                 if not sim_status or not odometry:

@@ -12,8 +12,9 @@ command (``--until-drive-ends``): ``up`` then reads the services' status, publis
 run's summary (``up/run``), stops every child with SIGINT, makes ``run.mcap`` of what they
 published (:class:`RunRecorder`) and builds the report from it, as ``invent report run.mcap``
 does (``--no-record``: no recording, no report, for long runs and benchmarks). A child that dies
-early makes ``up`` say which one, stop the others and exit 1. Ctrl-C stops everything cleanly
-(exit 130). Either way ``run.mcap`` holds the run up to then. ``up`` exits with the outcome's
+early makes ``up`` say which one and how, stop the others and exit 1. Ctrl-C stops everything cleanly
+(exit 130). Either way, once the sim has started, the run's summary says why it ended early
+(``ended_early``) and ``run.mcap`` and the report hold the run up to then. ``up`` exits with the outcome's
 code (0, 3 aborted, 4 timed out; docs/protocol.md section 8.5). With ``--composed`` the same
 services run in this one process instead (``services/launch/composition.py``).
 
@@ -34,7 +35,7 @@ from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, Time
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import SimMode
 from services.errors import ChildDied, Interrupted
-from services.launch.children import say
+from services.launch.children import ServiceDied, say
 from services.launch.fleet import FleetRobots
 from services.launch.one_robot import OneRobot
 from services.launch.plan import UpPlan
@@ -48,6 +49,7 @@ from services.launch.run import (
     Outcomes,
     Run,
     ViewProcess,
+    early_end,
     ended_early,
     launch_services,
     outcome_exit_code,
@@ -83,6 +85,8 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     recorder = RunRecorder(report_dir, record, journals) if recording else None
     health: dict[str, dict[str, Any]] = {}
     sim_started = False
+    early: ServiceDied | Interrupted | None = None
+    """Why a recorded run ended before its end, once the sim had started: it still leaves its report."""
 
     def journal(robot: Robot) -> list[str]:
         if recorder is None:
@@ -171,7 +175,14 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
             if started_line := robots.started_line(mode):
                 say(started_line)
             watch = robots.watch(run, drives)
-            watch.supervise(started, recorder.during if recorder else None, plan.until_interrupted)
+            try:
+                watch.supervise(started, recorder.during if recorder else None, plan.until_interrupted)
+            except (ServiceDied, Interrupted) as error:
+                if recorder is None:
+                    raise
+                # a run that ends early still ends as one that did not: its summary (saying why), its report
+                say(f"{str(error) or 'interrupted'}: the run ends here, with its report")
+                early = error
             wall_time_s = time.monotonic() - started
             if recorder:
                 recorder.last_statuses()
@@ -189,10 +200,13 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                             wall_time_s=wall_time_s,
                             steps=int(sim_status["steps"]) if sim_status else 0,
                             health=health[robot.name],
+                            **(early_end(early) if early is not None else {}),
                         )
                     )
             ended = watch.outcomes(outcomes)
-            unclean = {name: code for name, code in launcher.stop().items() if code != 0 and not watch.ended(name)}
+            died = early.service if isinstance(early, ServiceDied) else None
+            stopped = launcher.stop().items()
+            unclean = {name: code for name, code in stopped if code != 0 and not watch.ended(name) and name != died}
             if unclean:
                 say(f"services that did not exit cleanly: {unclean}")
             named = {robot.name: robot for robot in robots.each}
@@ -213,6 +227,9 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         why = "--teleop" if plan.teleop else "--loop" if plan.loop else "--no-record"
         return verdict(plan.strict, degraded, f"done; no recording, no report ({why})", outcome_code, not_completed)
     degraded, written = robots.report(report_dir)
+    if early is not None:
+        say(written)
+        return ended_early(early)
     return verdict(plan.strict, degraded, written, outcome_code, not_completed)
 
 

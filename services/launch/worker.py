@@ -205,10 +205,10 @@ class Workers:
             ended.update(worker.exits())
         return ended
 
-    def exited(self, exclude: str | None = None) -> tuple[str, str] | None:
-        for name, (_code, how) in self.exits().items():
+    def exited(self, exclude: str | None = None) -> tuple[str, int, str] | None:
+        for name, (code, how) in self.exits().items():
             if name != exclude:
-                return name, how
+                return name, code, how
         return None
 
     def idle(self) -> None:

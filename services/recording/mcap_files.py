@@ -1,5 +1,5 @@
-"""Runs as MCAP files: writing what zenoh delivers, reading it back, and a run's report from it
-(no zenoh here).
+"""Runs as MCAP files: writing what zenoh delivers and reading it back (a run's report from it:
+services/recording/run_report.py; no zenoh here).
 
 A recording has one channel per zenoh key, named by the key, message encoding ``json``: the
 payloads as they were published. A key of the project's key space (``schemas/keys.py``) has a
@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import io
 import json
-from collections.abc import Callable, Collection, Iterator
+import struct
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -29,37 +30,14 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
-from mcap.writer import CompressionType, Writer
+from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
 if TYPE_CHECKING:
     from _typeshed import ReadableBuffer
 
-from schemas.codec import BadInput, decode
-from schemas.keys import Keys, Topic, parse_data_key, schema_for_key
-from schemas.messages import (
-    NANOSECONDS_PER_SECOND,
-    GoalFeedback,
-    GoalTarget,
-    PlannedPath,
-    RunSummary,
-    ScenarioOutcome,
-    Time,
-    TimedDoubleSeq,
-    TimedPosition,
-    TimedVelocity,
-)
-from services.config import Config, ConfigError, InputConfig, RobotConfig
-from services.drive.scenarios import planned_path_for
-from services.planar import Pose, check_coordinates
-from services.recording.goal_report import goal_results
-from services.recording.report import (
-    Point,
-    Recording,
-    build_report,
-    pose_from_body_pose,
-    write_plots,
-    write_report,
-)
+from schemas.keys import Topic, parse_data_key, schema_for_key
+from schemas.messages import NANOSECONDS_PER_SECOND, Time
+from services.config import ConfigError
 
 CHUNK_SIZE = 256 * 1024
 """Bytes of messages per chunk: about a fifth of a second of the loop in lockstep."""
@@ -197,7 +175,11 @@ def recording_parts(path: Path) -> list[Path]:
 
 
 def read_run(path: Path) -> ReadResult:
-    """Every message of the recording ``path`` and of the files it was split into, in order."""
+    """Every message of the recording ``path`` and of the files it was split into, in order.
+    ConfigError when ``path`` is not an MCAP file at all."""
+    with open(path, "rb") as file:
+        if file.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+            raise ConfigError(f"{path}: not an MCAP recording (a run's recording is its run.mcap)")
     results = [read_messages(part) for part in recording_parts(path)]
     return ReadResult([m for result in results for m in result.messages], all(r.complete for r in results))
 
@@ -209,7 +191,7 @@ def read_messages(path: Path) -> ReadResult:
             reader = make_reader(file)
             messages = [_recorded(schema, channel, message) for schema, channel, message in reader.iter_messages()]
             return ReadResult(messages, complete=True)
-        except (McapError, EOFError, ValueError, KeyError):
+        except (McapError, EOFError, ValueError, KeyError, struct.error):
             file.seek(0)
             return ReadResult(sorted(_stream_messages(file), key=lambda m: m.log_time_ns), complete=False)
 
@@ -234,7 +216,7 @@ def _stream_messages(file: IO[bytes]) -> Iterator[RecordedMessage]:
                 elif isinstance(inner, Message):
                     channel = channels[inner.channel_id]
                     yield _recorded(schemas.get(channel.schema_id), channel, inner)
-    except (McapError, EOFError, ValueError, KeyError):
+    except (McapError, EOFError, ValueError, KeyError, struct.error):
         return
 
 
@@ -272,125 +254,6 @@ def replay_schedule(messages: list[RecordedMessage], topics: Collection[Topic] =
     return robots[0], schedule
 
 
-def run_summary(messages: list[RecordedMessage], keys: Keys) -> RunSummary | None:
-    """The last ``up/run`` summary of ``keys.robot`` in a recording, if it has one."""
-    summaries = [m for m in messages if m.topic == keys.run_summary]
-    return decode(RunSummary, summaries[-1].data) if summaries else None
-
-
-def recording_from(
-    messages: list[RecordedMessage], keys: Keys, robot: RobotConfig, limits: InputConfig, until_s: float | None
-) -> Recording:
-    """The series a report is built from, sorted by time, cut at ``until_s`` simulated seconds when given.
-    A message that does not decode, or an implausible pose (someone's bad input on a recorded key,
-    which the services refuse too), is not part of the run."""
-
-    def series(topic: Topic, message_type: type[Any], convert: Any) -> list[Any]:
-        key = keys.topic(topic)
-        items = []
-        for recorded in messages:
-            if recorded.topic != key:
-                continue
-            try:
-                message = decode(message_type, recorded.data)
-                item = (message.tm.to_seconds(), convert(message))
-            except (BadInput, IndexError):
-                continue
-            if until_s is None or item[0] <= until_s:
-                items.append(item)
-        items.sort(key=lambda item: item[0])
-        return items
-
-    def position(message: TimedPosition) -> Pose:
-        check_coordinates(message.x, message.y, limits.max_coordinate)
-        return Pose(message.x, message.y, message.theta)
-
-    def wheels(message: TimedDoubleSeq) -> tuple[float, float]:
-        return message.data[robot.left_wheel_id], message.data[robot.right_wheel_id]
-
-    def command(message: TimedVelocity) -> tuple[float, float]:
-        return message.vx, message.w
-
-    return Recording(
-        ground_truth=series(Topic.SIM_BODY_POSE, TimedDoubleSeq, lambda m: pose_from_body_pose(m.data)),
-        odometry=series(Topic.ODOMETRY_POSE, TimedPosition, position),
-        localization=series(Topic.LOCALIZATION_POSE, TimedPosition, position),
-        commands=[(t, *c) for t, c in series(Topic.DRIVE_TARGET_VELOCITY, TimedVelocity, command)],
-        wheel_angles=[(t, *w) for t, w in series(Topic.MOTOR_WHEEL_ANGLES, TimedDoubleSeq, wheels)],
-    )
-
-
-def _planned_path(
-    summary: RunSummary, messages: list[RecordedMessage], keys: Keys, recording: Recording
-) -> list[Point] | None:
-    """The scenario's path from the ground truth's start (as the drive planned it from its own
-    pose), or, for a scenario file no longer there, the path the drive published."""
-    try:
-        return planned_path_for(summary.scenario, recording.ground_truth[0][1] if recording.ground_truth else None)
-    except ConfigError:
-        paths = [m for m in messages if m.topic == keys.drive_path]
-        return decode(PlannedPath, paths[-1].data).points if paths else None
-
-
-def write_run_report(path: Path, report_dir: Path, config: Config) -> tuple[dict[str, Any], Path, list[Path]]:
-    """``report.json`` and the plots of the run recorded in ``path`` (``invent up`` writes that
-    file; ``invent report`` reads any): (report, its path, the plots' paths). ConfigError when the
-    file holds no run (no ``up/run`` summary of ``config.robot.name``)."""
-    report, recording = robot_report(path, read_run(path).messages, config)
-    report_path = write_report(report, report_dir)
-    plots = write_plots(recording, report.get("planned_path"), config.geometry, report_dir, report["goals"])
-    return report, report_path, plots
-
-
-def robot_report(path: Path, messages: list[RecordedMessage], config: Config) -> tuple[dict[str, Any], Recording]:
-    """The report of robot ``config.robot.name`` in the run recorded in ``path`` (its ``messages``),
-    and the series it is built from. ConfigError when the file holds no run of that robot."""
-    keys = Keys(config.robot.name)
-    summary = run_summary(messages, keys)
-    if summary is None:
-        raise ConfigError(
-            f"{path}: no run summary on {keys.run_summary}: not a recording of `invent up` for robot "
-            f"{keys.robot!r} (or it was cut short; --robot names another robot)"
-        )
-    recording = recording_from(messages, keys, config.robot, config.input, summary.tm.to_seconds())
-    targets = decoded(messages, keys.drive_goal, GoalTarget)
-    report = build_report(
-        recording,
-        scenario=summary.scenario,
-        mode=summary.mode,
-        # goal mode: no one planned path (each goal's is the straight line to it: its path_error_max_m)
-        planned_path=None if targets else _planned_path(summary, messages, keys, recording),
-        wall_time_s=summary.wall_time_s,
-        steps=summary.steps,
-        health=summary.health,
-    )
-    report["composed"] = summary.composed
-    report["outcome"] = scenario_outcome(messages, keys)
-    report["goals"] = goal_results(
-        targets,
-        decoded(messages, keys.drive_goal_feedback, GoalFeedback),
-        decoded(messages, keys.drive_outcome, ScenarioOutcome),
-        recording.ground_truth,
-    )
-    report["recording"] = recording_bounds(messages)
-    return report, recording
-
-
-def decoded(
-    messages: list[RecordedMessage], key: str, message_type: type[Any], check: Callable[[Any], Any] = lambda m: m
-) -> list[Any]:
-    """Every message recorded on ``key`` that decodes as ``message_type`` and passes ``check``, in
-    recorded order (one that does not is someone's bad input, not part of the run)."""
-    found = []
-    for message in messages:
-        if message.topic == key:
-            try:
-                found.append(check(decode(message_type, message.data)))
-            except BadInput:
-                continue
-    return found
-
-
 RECORDING_STOPPED_TOPIC = "/recording/stopped"
 """The message a recording ends with when it stopped before its run (a limit of ``[record]``)."""
 RECORDING_STOPPED_SCHEMA = {
@@ -402,30 +265,3 @@ RECORDING_STOPPED_SCHEMA = {
         "stopped_at_s": {"type": ["number", "null"], "description": "the simulation time of the last sample kept"},
     },
 }
-
-
-def recording_bounds(messages: list[RecordedMessage]) -> dict[str, Any] | None:
-    """Why the recording stopped before its run ended (None: it holds the whole run)."""
-    stops = [m for m in messages if m.topic == RECORDING_STOPPED_TOPIC]
-    return json.loads(stops[0].data) if stops else None
-
-
-def scenario_outcome(messages: list[RecordedMessage], keys: Keys) -> dict[str, Any] | None:
-    """How the robot's scenario ended, from the drive's last ``drive/outcome`` (None: the run was
-    interrupted, or has no scenario: ``--teleop``); in goal mode, the last goal's outcome, with its
-    ``goal_id`` (every goal's is in ``report.json``'s ``goals``)."""
-    outcomes = [m for m in messages if m.topic == keys.drive_outcome]
-    if not outcomes:
-        return None
-    try:
-        outcome = decode(ScenarioOutcome, outcomes[-1].data)
-    except BadInput:
-        return None
-    return {
-        "outcome": outcome.outcome,
-        "reason": outcome.reason,
-        "t_s": outcome.tm.to_seconds(),
-        "iteration": outcome.iteration,
-        "elapsed_s": outcome.elapsed_s,
-        **({"goal_id": outcome.goal_id} if outcome.goal_id else {}),
-    }

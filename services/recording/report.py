@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+import signal
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -74,13 +75,14 @@ def wheel_speeds(
 def build_report(
     recording: Recording,
     *,
-    scenario: str,
-    mode: str,
+    scenario: str | None,
+    mode: str | None,
     planned_path: list[Point] | None,
-    wall_time_s: float,
-    steps: int,
+    wall_time_s: float | None,
+    steps: int | None,
     health: dict[str, Any],
 ) -> dict[str, Any]:
+    """``report.json``'s metrics; None for what the recording does not say (a run without its summary)."""
     sim_time_s = recording.ground_truth[-1][0] if recording.ground_truth else 0.0
     errors = odometry_errors(recording)
     report: dict[str, Any] = {
@@ -88,7 +90,7 @@ def build_report(
         "mode": mode,
         "sim_time_s": sim_time_s,
         "wall_time_s": wall_time_s,
-        "real_time_factor": sim_time_s / wall_time_s if wall_time_s > 0 else None,
+        "real_time_factor": sim_time_s / wall_time_s if wall_time_s else None,
         "steps": steps,
         "final": {
             name: _pose_dict(series[-1][1] if series else None)
@@ -119,7 +121,7 @@ DEGRADED_FRACTION = 0.01
 """A run whose late or missing torques exceed this fraction of its steps degraded."""
 
 
-def loop_health(sim_status: dict[str, Any] | None, statuses: dict[str, dict[str, Any] | None]) -> dict[str, Any]:
+def loop_health(sim_status: dict[str, Any] | None, statuses: Mapping[str, dict[str, Any] | None]) -> dict[str, Any]:
     """What the loop actually did, from the services' last status replies: the sim's torque
     figures, the lockstep waits that timed out (the sim's, the drive's for its poses) and each
     service's bad-input, internal-error and dropped-event counts."""
@@ -168,6 +170,83 @@ def loop_health(sim_status: dict[str, Any] | None, statuses: dict[str, dict[str,
             if status
         },
     }
+
+
+def readable_statuses(statuses: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The status replies, by service, that :func:`loop_health` can read (a recorded reply that it
+    cannot is someone's bad input on a status key, not the service's)."""
+
+    def readable(name: str, status: Any) -> bool:
+        if not isinstance(status, dict):
+            return False
+        if name == Service.SIM and not (
+            isinstance(status.get("steps", 0), int) and isinstance(status.get("mode", ""), str)
+        ):
+            return False
+        try:
+            degradations(loop_health(status if name == Service.SIM else None, {name: status}))
+        except (TypeError, KeyError, AttributeError, ValueError, OverflowError):
+            return False
+        return True
+
+    return {name: status for name, status in statuses.items() if readable(name, status)}
+
+
+def recorded_health(statuses: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The loop's health as ``up`` takes it at a run's end, from the last status replies a recording
+    holds (:func:`readable_statuses`): for a run without its summary. A service of one's own's
+    status (not one of :class:`Service`) is also under ``user_services``, as ``up`` puts it."""
+    health = loop_health(statuses.get(Service.SIM), statuses)
+    users = {name: status for name, status in statuses.items() if name not in Service._value2member_map_}
+    if users:
+        health["user_services"] = users
+    return health
+
+
+EARLY_ENDS = {
+    "service_died": "a service died",
+    "interrupted": "Ctrl-C or SIGTERM before the scenario ended",
+}
+"""The outcomes of a run that ended before its scenario did (``RunSummary.ended_early``), and what each means."""
+
+
+def early_outcome(ended_early: str, service: str, exit_code: int | None, t_s: float) -> dict[str, Any]:
+    """``report.json``'s ``outcome`` of a run that ended before its scenario did: which service
+    died and how (its exit code, or the signal that killed it: negative ``exit_code``), or Ctrl-C."""
+    if ended_early != "service_died":
+        return {"outcome": ended_early, "reason": EARLY_ENDS.get(ended_early, ended_early), "t_s": t_s}
+    killed_by = None
+    if exit_code is not None and exit_code < 0:
+        try:
+            killed_by = signal.Signals(-exit_code).name
+        except ValueError:  # no such signal here
+            killed_by = f"signal {-exit_code}"
+    how = f"killed by {killed_by}" if killed_by else f"exited with code {exit_code}"
+    return {
+        "outcome": ended_early,
+        "reason": f"{service} {how}",
+        "t_s": t_s,
+        "service": service,
+        "exit_code": None if killed_by else exit_code,
+        "signal": killed_by,
+    }
+
+
+def missing_parts(*, complete: bool, summary: bool, outcome: bool, statuses: bool, ground_truth: bool) -> list[str]:
+    """What a report lacks, one line each, from what its recording holds (empty: nothing)."""
+    missing = []
+    if not complete:
+        missing.append("the file was cut short: its last, unfinished chunk of messages (and its index) is lost")
+    if not summary:
+        known = [
+            "the outcome is the drive's last" if outcome else "outcome unknown",
+            "wall time unknown",
+            "the loop's health from the last status replies recorded" if statuses else "the loop's health unknown",
+        ]
+        missing.append(f"no run summary: the run did not end cleanly; {', '.join(known)}")
+    if not ground_truth:
+        missing.append("no ground truth (sim/body_pose): no final pose, no odometry or path error")
+    return missing
 
 
 def degradations(health: dict[str, Any]) -> list[str]:
@@ -230,12 +309,20 @@ def summary(report: dict[str, Any]) -> str:
         return "n/a" if value is None else f"{value * 100:.1f} cm"
 
     final, start = report["final"]["ground_truth"], report["start"]
+    wall = report["wall_time_s"]
     lines = [
         (
-            f"scenario {report['scenario']} ({report['mode']}): {report['sim_time_s']:.2f} s simulated in "
-            f"{report['wall_time_s']:.2f} s wall, {report['real_time_factor'] or 0:.2f}x real time, {report['steps']} steps"
+            f"scenario {report['scenario'] or '(unknown)'} ({report['mode'] or 'mode unknown'}): "
+            f"{report['sim_time_s']:.2f} s simulated in "
+            + (
+                f"{wall:.2f} s wall, {report['real_time_factor'] or 0:.2f}x real time"
+                if wall is not None
+                else "an unknown wall time"
+            )
+            + f", {report['steps'] if report['steps'] is not None else 'unknown'} steps"
         ),
     ]
+    lines += [f"missing: {line}" for line in report.get("missing") or ()]
     if outcome := report.get("outcome"):
         lines.append(f"outcome: {outcome['outcome']}" + (f" ({outcome['reason']})" if outcome["reason"] else ""))
     lines += goal_lines(report.get("goals") or [])
