@@ -364,6 +364,38 @@ def goal_statuses(payload: bytes) -> dict[bytes, int]:
     return {bytes(bytearray(s.goal_info.goal_id.uuid)): int(s.status) for s in array.status_list}
 
 
+GOAL_STATE_MACHINE = {(1, 2), (1, 3), (2, 3), (2, 4), (2, 6), (3, 4), (3, 5), (3, 6)}
+"""rcl_action's goal state machine (``rcl_action/src/rcl_action/goal_state_machine.c``): from
+accepted, execute or cancel; from executing, cancel, succeed or abort; from canceling, succeed,
+canceled or abort. A goal is listed first as accepted (1); a terminal state is never left."""
+
+
+def status_paths(payloads: list[bytes]) -> list[tuple[bytes, list[int]]]:
+    """Each goal's statuses in a run of ``_action/status`` samples, in order, repeats left out; a
+    goal that leaves the list (its result no longer kept) and comes back (its UUID taken again) is
+    a new goal."""
+    paths: list[tuple[bytes, list[int]]] = []
+    listed: dict[bytes, list[int]] = {}
+    for payload in payloads:
+        statuses = goal_statuses(payload)
+        listed = {uuid: path for uuid, path in listed.items() if uuid in statuses}
+        for uuid, status in statuses.items():
+            path = listed.get(uuid)
+            if path is None:
+                path = listed[uuid] = []
+                paths.append((uuid, path))
+            if not path or path[-1] != status:
+                path.append(status)
+    return paths
+
+
+def state_machine_deviations(path: list[int]) -> list[str]:
+    """What in one goal's statuses (as :func:`status_paths` gives them) rcl_action never does."""
+    deviations = [] if path[:1] == [1] else [f"listed first as {path[:1]}, not accepted (1)"]
+    deviations += [f"{a} -> {b}" for a, b in itertools.pairwise(path) if (a, b) not in GOAL_STATE_MACHINE]
+    return deviations
+
+
 def graph_tokens(session: zenoh.Session, domain: int) -> list[list[str]]:
     """Every rmw_zenoh graph liveliness token of ``domain`` (nodes, publishers, subscriptions,
     services), each split into its key's chunks."""

@@ -7,9 +7,9 @@ it and not the first; the first robot's ``motor/stop`` stops only it; each names
 ``cmd_vel`` is counted and the bridge lives on; ``invent record --ros2 --fleet`` records the graph
 into a bag. Then, with rh1's drive in goal mode (``invent drive --goals --robot rh1``), each robot's
 NavigateToPose action: a goal on ``/robot1/navigate_to_pose`` reached with feedback and SUCCEEDED,
-rh0 unmoved (rh0's action refuses goals: its robot has no goal-mode drive); goals canceled by id,
-preempted and canceled all, CANCELED in the status; ``/robot1/goal_pose`` in odom; hostile requests
-refused while a goal runs. One fleet run serves every test of the module. (What each robot's bridge
+rh0 unmoved (rh0's action refuses goals: its robot has no goal-mode drive); goals canceled by id
+and canceled all CANCELED in the status, a preempted one ABORTED (Nav2's); ``/robot1/goal_pose``
+in odom; hostile requests refused while a goal runs. One fleet run serves every test of the module. (What each robot's bridge
 may do with its robot's credentials in a secure fleet is tests/test_security_fleet.py's.)
 """
 
@@ -525,7 +525,7 @@ def _at_rest(goals: Goals) -> bool:
     return math.hypot(after.x - before.x, after.y - before.y) < 0.001
 
 
-def test_goals_canceled_by_id_preempted_and_canceled_all_end_canceled_in_the_status(goals):
+def test_goals_canceled_by_id_and_canceled_all_end_canceled_and_a_preempted_one_aborted(goals):
     second, reply = goals.client.send_goal(*goals.ahead(3.0))
     assert reply.response.accepted
     goals.wait_status(second, 2)
@@ -544,7 +544,7 @@ def test_goals_canceled_by_id_preempted_and_canceled_all_end_canceled_in_the_sta
     fourth, reply = goals.client.send_goal(*goals.ahead(3.0))
     assert reply.response.accepted
     preempted = goals.client.get_result(third, timeout=30.0).response
-    assert preempted.status == 5 and fourth.hex() in preempted.result.error_msg, "preempted by the newer goal"
+    assert preempted.status == 6 and fourth.hex() in preempted.result.error_msg, "preempted by the newer goal"
     goals.wait_status(fourth, 2)
     everything = goals.client.cancel()
     assert everything.response.return_code == 0, "a zero id and stamp: cancel all"
@@ -596,10 +596,6 @@ def test_hostile_requests_are_refused_in_the_reply_counted_and_the_running_goal_
     goal_pose_key = ros_client.topic_key(DOMAIN, f"{NAMESPACES[GOAL_ROBOT]}/goal_pose", "geometry_msgs/msg/PoseStamped")
     refused_goals = [
         (ros_client.send_goal_request(os.urandom(16), ros_client.pose_stamped(math.nan, 0.0, 0.0)), "not finite"),
-        (
-            ros_client.send_goal_request(os.urandom(16), ros_client.pose_stamped(1.0, 0.0, 0.0, "base_link")),
-            "frame 'base_link'",
-        ),
         (ros_client.send_goal_request(running, ros_client.pose_stamped(1.0, 0.0, 0.0)), "exists already"),
         (b"\x00\x01\x00\x00" + b"\x07" * 9, "malformed CDR"),
         (good + bytes(5000), "more than a send_goal request's"),
@@ -608,7 +604,7 @@ def test_hostile_requests_are_refused_in_the_reply_counted_and_the_running_goal_
         answer = goals.client.call("send_goal", payload)
         assert answer.response is not None and not answer.response.accepted, reason
         assert reason in fleet.status(GOAL_ROBOT, Service.ROS2)["navigate"]["last_rejection"]
-    assert goals.bad_inputs(send_key) >= 4
+    assert goals.bad_inputs(send_key) >= 3
     unattached = goals.client.call("send_goal", good, with_attachment=False)
     assert unattached.error is not None and "no attachment" in unattached.error, "an error reply: nothing to echo"
     assert goals.client.call("cancel_goal", b"\x00\x01\x00\x00\x01").response.return_code == 1
@@ -618,7 +614,6 @@ def test_hostile_requests_are_refused_in_the_reply_counted_and_the_running_goal_
     for payload, attached in (
         (b"\x00\x01\x00\x00\x02", True),
         (ros_client.cdr(ros_client.pose_stamped(math.inf, 0.0, 0.0, "map", ros_client.TYPESTORE)), True),
-        (ros_client.cdr(ros_client.pose_stamped(1.0, 0.0, 0.0, "earth", ros_client.TYPESTORE)), True),
         (ros_client.cdr(ros_client.pose_stamped(1.0, 0.0, 0.0, "map", ros_client.TYPESTORE)), False),
         (bytes(5000), True),
     ):

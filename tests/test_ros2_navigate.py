@@ -4,10 +4,12 @@ The pure parts, no zenoh: every action type's RIHS01 hash, as the bridge compute
 definitions, equals the one ROS's own generator wrote (tests/data/ros2_interfaces/nav2_msgs, made
 by generate.py there) and, for action_msgs and unique_identifier_msgs, the type descriptions ROS
 ships; the keys and QoS the bridge announces; the CDR it writes, read back with a typestore built
-from ROS's type descriptions alone (tests/ros_client.py); UUIDs, frames, and the goals' states and
-cancel policy as rcl_action keeps them.
+from ROS's type descriptions alone (tests/ros_client.py); UUIDs, and goals in any frame of the
+bridge's TF tree (services/ros2/tf_tree.py) turned into ``map``. The goals' states:
+tests/test_ros2_goal_book.py.
 
-End to end, against a fleet's bridges and a drive in goal mode: tests/test_ros2_fleet.py.
+End to end, against a fleet's bridges and a drive in goal mode: tests/test_ros2_fleet.py; each of
+rcl_action's and Nav2's rules over the wire: tests/test_ros2_action_rules.py.
 """
 
 from __future__ import annotations
@@ -23,12 +25,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
-from schemas.messages import GoalFeedback, ScenarioOutcome, Time
+from schemas.messages import GoalFeedback, Time
 from services.config import load_config
 from services.planar import Pose
-from services.ros2 import core, graph, interfaces, navigate
+from services.ros2 import core, goal_book, graph, interfaces, navigate
+from services.ros2.goal_book import CancelCode, ErrorCode, Goal, GoalStatus
 from services.ros2.graph import ActionService, ActionTopic, bridge_graph
-from services.ros2.navigate import CancelCode, GoalBook, GoalStatus
+from services.ros2.tf_tree import Rigid, TfTree, TransformError
 from tests import ros_client
 
 DATA = Path(__file__).parent / "data" / "ros2_interfaces"
@@ -122,15 +125,17 @@ def test_the_bridges_cdr_reads_back_with_ross_own_type_descriptions():
         navigate.send_goal_response(True, 2_500_000_000), f"{interfaces.NAVIGATE_TO_POSE_SEND_GOAL}_Response"
     )
     assert response.accepted and (response.stamp.sec, response.stamp.nanosec) == (2, 500_000_000)
-    goal = navigate.Goal(uuid, 1_000, GoalStatus.ABORTED, navigate.ErrorCode.TIMEOUT, "past its time limit")
+    goal = Goal(uuid, 1_000, GoalStatus.ABORTED, ErrorCode.TIMEOUT, "past its time limit")
     result = _read(navigate.result_response(goal), f"{interfaces.NAVIGATE_TO_POSE_GET_RESULT}_Response")
     assert (result.status, result.result.error_code, result.result.error_msg) == (6, 9003, "past its time limit")
     unknown = _read(navigate.result_response(None), f"{interfaces.NAVIGATE_TO_POSE_GET_RESULT}_Response")
     assert unknown.status == 0
     cancel = _read(navigate.cancel_response(CancelCode.NONE, [goal]), interfaces.CANCEL_GOAL_RESPONSE)
     assert cancel.return_code == 0 and bytes(bytearray(cancel.goals_canceling[0].goal_id.uuid)) == uuid
-    array = navigate.status_array([goal, navigate.Goal(bytes(16), 5, GoalStatus.EXECUTING)])
+    array = navigate.status_array([goal, Goal(bytes(16), 5, GoalStatus.EXECUTING)])
     assert ros_client.goal_statuses(interfaces.serialize(array)) == {uuid: 6, bytes(16): 2}
+    shown = navigate.status_array([goal], {uuid: GoalStatus.EXECUTING})
+    assert ros_client.goal_statuses(interfaces.serialize(shown)) == {uuid: 2}, "a step it passes through"
     feedback = GoalFeedback(Time(3, 0), uuid.hex(), "executing", 1.0, 2.0, 0.5, 1.25, 3.5, 4.75)
     message = _read(navigate.feedback_message(uuid, feedback, "map"), f"{interfaces.NAVIGATE_TO_POSE}_FeedbackMessage")
     current = message.feedback.current_pose
@@ -159,38 +164,103 @@ def test_a_ros_clients_requests_decode_and_malformed_ones_are_bad_input():
 
 @given(st.binary(min_size=16, max_size=16))
 def test_a_goal_uuid_is_the_drives_goal_id_in_32_hex_digits_and_back(uuid):
-    goal_id = navigate.goal_id_of(uuid)
-    assert len(goal_id) == 32 and goal_id == goal_id.lower() and navigate.uuid_of(goal_id) == uuid
+    goal_id = goal_book.goal_id_of(uuid)
+    assert len(goal_id) == 32 and goal_id == goal_id.lower() and goal_book.uuid_of(goal_id) == uuid
     assert navigate.uuid_bytes(navigate.uuid_message(uuid)) == uuid
 
 
 @pytest.mark.parametrize("goal_id", ["", "g3", "0" * 31, "z" * 32, "0" * 33])
 def test_a_drive_goal_id_that_is_no_uuid_names_no_ros_goal(goal_id):
-    assert navigate.uuid_of(goal_id) is None
+    assert goal_book.uuid_of(goal_id) is None
 
 
-FRAMES = navigate.GoalFrames("map", "odom")
 coordinates = st.floats(-50.0, 50.0)
 angles = st.floats(-math.pi, math.pi)
+poses = st.builds(Pose, coordinates, coordinates, angles)
+
+
+def _tree(map_to_odom: Pose | None = None, odom_to_base: Pose | None = None) -> TfTree:
+    """The bridge's tree: map -> odom -> base_link -> base_scan (0.1 m ahead, 0.2 up) and a wheel
+    turned by 1 rad about its axle (+y), each edge only if given."""
+    tree = TfTree()
+    for parent, child, pose in (("map", "odom", map_to_odom), ("odom", "base_link", odom_to_base)):
+        if pose is not None:
+            tree.set(
+                parent,
+                child,
+                Rigid.of((pose.x, pose.y, 0.0), (0.0, 0.0, math.sin(pose.theta / 2), math.cos(pose.theta / 2))),
+            )
+    tree.set("base_link", "base_scan", Rigid.of((0.1, 0.0, 0.2), (0.0, 0.0, 0.0, 1.0)))
+    tree.set("base_link", "wheel_left_link", Rigid.of((0.0, 0.15, 0.0), (0.0, math.sin(0.5), 0.0, math.cos(0.5))))
+    return tree
+
+
+def _goal(x: float, y: float, theta: float, frame: str, tree: TfTree) -> object:
+    return navigate.goal_request(
+        ros_client.pose_stamped(x, y, theta, frame, interfaces.messages()), tree, "map", "a", 1e3
+    )
+
+
+def _close(goal: object, expected: Pose) -> bool:
+    return (
+        math.isclose(goal.x, expected.x, abs_tol=1e-9)  # type: ignore[attr-defined]
+        and math.isclose(goal.y, expected.y, abs_tol=1e-9)  # type: ignore[attr-defined]
+        and abs(math.remainder(goal.theta - expected.theta, math.tau)) < 1e-9  # type: ignore[attr-defined]
+    )
 
 
 @given(coordinates, coordinates, angles)
 def test_a_goal_in_map_is_sent_as_it_is_with_its_heading(x, y, theta):
-    goal = navigate.goal_request(
-        ros_client.pose_stamped(x, y, theta, "map", interfaces.messages()), FRAMES, None, "a", 1e3
-    )
-    assert (goal.x, goal.y, goal.frame, goal.id) == (x, y, "map", "a")
-    assert abs(math.remainder(goal.theta - theta, math.tau)) < 1e-9
+    goal = _goal(x, y, theta, "map", TfTree())
+    assert (goal.x, goal.y, goal.frame, goal.id) == (x, y, "map", "a")  # type: ignore[attr-defined]
+    assert _close(goal, Pose(x, y, theta))
 
 
-@given(st.builds(Pose, coordinates, coordinates, angles), coordinates, coordinates, angles)
+@given(poses, coordinates, coordinates, angles)
 def test_a_goal_in_odom_is_sent_in_map_through_the_bridges_map_to_odom(correction, x, y, theta):
-    pose = ros_client.pose_stamped(x, y, theta, "odom", interfaces.messages())
-    goal = navigate.goal_request(pose, FRAMES, correction, "a", 1e3)
-    expected = core.compose(correction, Pose(x, y, theta))
-    assert goal.frame == "map" and math.isclose(goal.x, expected.x, abs_tol=1e-9)
-    assert math.isclose(goal.y, expected.y, abs_tol=1e-9)
-    assert goal.theta is not None and abs(math.remainder(goal.theta - expected.theta, math.tau)) < 1e-9
+    goal = _goal(x, y, theta, "odom", _tree(correction))
+    assert goal.frame == "map" and _close(goal, core.compose(correction, Pose(x, y, theta)))  # type: ignore[attr-defined]
+
+
+@given(poses, poses, st.floats(-5.0, 5.0), st.floats(-5.0, 5.0), angles)
+def test_a_goal_in_base_link_is_relative_to_the_robot_through_odom_and_map(correction, robot, x, y, theta):
+    """Nav2's relative goal: ``base_link`` (1, 0) is a metre ahead of the robot, wherever it is."""
+    goal = _goal(x, y, theta, "base_link", _tree(correction, robot))
+    assert _close(goal, core.compose(core.compose(correction, robot), Pose(x, y, theta)))
+
+
+def test_a_goal_in_a_sensors_or_a_turned_wheels_frame_goes_through_its_3d_transform():
+    robot = Pose(1.0, 2.0, math.pi / 2)
+    scan = _goal(1.0, 0.0, 0.0, "base_scan", _tree(Pose(0.0, 0.0, 0.0), robot))
+    assert _close(scan, Pose(1.0, 2.0 + 1.1, math.pi / 2)), "the lidar 0.1 m ahead: 1.1 m ahead of the robot"
+    wheel = _goal(1.0, 0.0, 0.0, "wheel_left_link", _tree(Pose(0.0, 0.0, 0.0), Pose(0.0, 0.0, 0.0)))
+    assert math.isclose(wheel.x, math.cos(1.0), abs_tol=1e-9), "its x axis turned 1 rad about the axle"  # type: ignore[attr-defined]
+    assert math.isclose(wheel.y, 0.15, abs_tol=1e-9) and abs(wheel.theta) < 1e-9  # type: ignore[attr-defined]
+
+
+@given(poses, poses, st.floats(-1.0, 1.0), st.floats(-1.0, 1.0))
+def test_a_lookup_and_its_reverse_are_inverses_and_compose_through_any_frame(correction, robot, lift, tilt):
+    tree = _tree(correction, robot)
+    tree.set("base_link", "tilted", Rigid.of((0.0, 0.0, lift), (math.sin(tilt), 0.0, 0.0, math.cos(tilt))))
+    there, back = tree.lookup("map", "tilted"), tree.lookup("tilted", "map")
+    identity = there.compose(back)
+    assert np.allclose(identity.translation, 0.0, atol=1e-9) and abs(abs(identity.rotation[3]) - 1.0) < 1e-9
+    through = tree.lookup("map", "odom").compose(tree.lookup("odom", "tilted"))
+    assert np.allclose(through.translation, there.translation, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("frame", "tree", "reason"),
+    [
+        ("earth", _tree(Pose(0, 0, 0), Pose(0, 0, 0)), "frame 'earth' is not in the bridge's TF tree"),
+        ("", _tree(Pose(0, 0, 0), Pose(0, 0, 0)), "frame '' is not in"),
+        ("base_link", _tree(None, Pose(0, 0, 0)), "frame 'base_link' is not connected to 'map'"),
+        ("odom", _tree(None, Pose(0, 0, 0)), "frame 'odom' is not connected to 'map'"),
+    ],
+)
+def test_a_goal_in_a_frame_the_tree_cannot_turn_into_map_is_a_transform_error_naming_why(frame, tree, reason):
+    with pytest.raises(TransformError, match=reason):
+        _goal(1.0, 0.0, 0.0, frame, tree)
 
 
 def _pose(x: float = 1.0, y: float = 0.0, frame: str = "map", q: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0)) -> object:
@@ -201,170 +271,24 @@ def _pose(x: float = 1.0, y: float = 0.0, frame: str = "map", q: tuple[float, ..
 
 
 @pytest.mark.parametrize(
-    ("pose", "correction", "reason"),
+    ("pose", "reason"),
     [
-        (_pose(frame="base_link"), None, "frame 'base_link' is neither 'map' nor 'odom'"),
-        (_pose(frame=""), None, "frame '' is neither"),
-        (_pose(frame="rh0/odom"), Pose(0.0, 0.0, 0.0), "frame 'rh0/odom' is neither"),
-        (_pose(frame="odom"), None, "before the bridge has map -> odom"),
-        (_pose(x=math.nan), None, "not finite"),
-        (_pose(y=math.inf), None, "not finite"),
-        (_pose(x=1e9), None, "beyond input.max_coordinate"),
-        (_pose(q=(0.0, 0.0, math.nan, 1.0)), None, "orientation .* is not finite"),
-        (_pose(q=(0.0, 0.0, 0.0, 0.0)), None, "no rotation"),
+        (_pose(x=math.nan), "not finite"),
+        (_pose(y=math.inf), "not finite"),
+        (_pose(x=1e9), "beyond input.max_coordinate"),
+        (_pose(x=900.0, frame="odom"), "in 'map' is beyond input.max_coordinate"),
+        (_pose(q=(0.0, 0.0, math.nan, 1.0)), "orientation .* is not finite"),
+        (_pose(q=(0.0, 0.0, 0.0, 0.0)), "no rotation"),
     ],
 )
-def test_a_goal_in_another_frame_not_finite_or_absurd_is_refused_naming_why(pose, correction, reason):
+def test_a_goal_not_finite_or_absurd_is_refused_naming_why(pose, reason):
     with pytest.raises(BadInput, match=reason):
-        navigate.goal_request(pose, FRAMES, correction, "a", 1e3)
+        navigate.goal_request(pose, _tree(Pose(500.0, 0.0, 0.0)), "map", "a", 1e3)
 
 
 def test_an_unnormalised_quaternion_gives_its_heading():
     heading = navigate.yaw_of(_pose(q=(0.0, 0.0, 2.0, 2.0)).pose.orientation)  # type: ignore[attr-defined]
     assert math.isclose(heading, math.pi / 2)
-
-
-def _outcome(goal_id: str, outcome: str, reason: str = "") -> ScenarioOutcome:
-    return ScenarioOutcome(Time(1, 0), "goal", outcome, reason, 0, 1.0, goal_id=goal_id)  # type: ignore[arg-type]
-
-
-def _uuid(k: int) -> bytes:
-    return bytes([k]) * 16
-
-
-def test_a_goal_goes_accepted_executing_succeeded_and_ends_with_its_result():
-    book = GoalBook()
-    book.send(_uuid(1))
-    assert book.status_list() == [], "not listed while the drive has not answered"
-    assert book.accepted(_uuid(1), 100)
-    assert [goal.status for goal in book.status_list()] == [GoalStatus.ACCEPTED]
-    assert book.executing(_uuid(1).hex()) and not book.executing(_uuid(1).hex())
-    ended = book.ended(_outcome(_uuid(1).hex(), "completed"))
-    assert ended is not None and (ended.status, ended.error_code) == (GoalStatus.SUCCEEDED, navigate.ErrorCode.NONE)
-    assert book.ended(_outcome(_uuid(1).hex(), "aborted")) is None, "an ended goal ends once"
-    assert not book.executing(_uuid(1).hex()) and not book.canceling(_uuid(1).hex())
-
-
-@pytest.mark.parametrize(
-    ("outcome", "status", "code"),
-    [
-        ("completed", GoalStatus.SUCCEEDED, 0),
-        ("canceled", GoalStatus.CANCELED, 0),
-        ("aborted", GoalStatus.ABORTED, 9000),
-        ("timed_out", GoalStatus.ABORTED, 9003),
-    ],
-)
-def test_each_drive_outcome_is_a_final_status_and_error_code(outcome, status, code):
-    book = GoalBook()
-    book.send(_uuid(1))
-    book.accepted(_uuid(1), 1)
-    goal = book.ended(_outcome(_uuid(1).hex(), outcome, "why"))
-    assert goal is not None and (goal.status, int(goal.error_code)) == (status, code)
-    assert goal.error_msg == "why"
-
-
-def test_the_drives_events_may_come_before_its_reply_and_never_move_a_goal_back():
-    book = GoalBook()
-    book.send(_uuid(1))
-    assert not book.executing(_uuid(1).hex()), "not listed yet: no status to publish"
-    book.ended(_outcome(_uuid(1).hex(), "canceled"))
-    assert book.accepted(_uuid(1), 5)
-    assert [goal.status for goal in book.status_list()] == [GoalStatus.CANCELED]
-    book.send(_uuid(2))
-    book.accepted(_uuid(2), 6)
-    assert book.canceling(_uuid(2).hex()) and not book.executing(_uuid(2).hex())
-    assert book.get(_uuid(2)).status is GoalStatus.CANCELING  # type: ignore[union-attr]
-
-
-def test_a_refused_goal_is_forgotten_and_a_known_uuid_is_refused():
-    book = GoalBook()
-    book.send(_uuid(1))
-    with pytest.raises(BadInput, match="exists already"):
-        book.send(_uuid(1))
-    book.rejected(_uuid(1))
-    assert _uuid(1) not in book
-    book.send(_uuid(1))
-
-
-def _book_with(*statuses: GoalStatus) -> GoalBook:
-    """Goals 1, 2, ... accepted at 10, 20, ... with the given statuses."""
-    book = GoalBook()
-    for k, status in enumerate(statuses, start=1):
-        book.send(_uuid(k))
-        book.accepted(_uuid(k), 10 * k)
-        book.get(_uuid(k)).status = status  # type: ignore[union-attr]
-    return book
-
-
-def test_cancel_follows_rcl_actions_policy():
-    running, done = GoalStatus.EXECUTING, GoalStatus.SUCCEEDED
-    code, goals = _book_with(running, done, running).cancel(bytes(16), 0)
-    assert code is CancelCode.NONE and [g.uuid for g in goals] == [_uuid(1), _uuid(3)], "zero id and stamp: all"
-    code, goals = _book_with(running, running, running).cancel(bytes(16), 20)
-    assert code is CancelCode.NONE and [g.uuid for g in goals] == [_uuid(1), _uuid(2)], "at or before the stamp"
-    code, goals = _book_with(running, running, running).cancel(_uuid(3), 10)
-    assert [g.uuid for g in goals] == [_uuid(1), _uuid(3)], "the id and those before the stamp"
-    book = _book_with(running, done)
-    code, goals = book.cancel(_uuid(1), 0)
-    assert code is CancelCode.NONE and [g.uuid for g in goals] == [_uuid(1)]
-    assert book.get(_uuid(1)).status is GoalStatus.CANCELING  # type: ignore[union-attr]
-    assert book.cancel(_uuid(2), 0) == (CancelCode.GOAL_TERMINATED, [])
-    assert book.cancel(_uuid(9), 0) == (CancelCode.UNKNOWN_GOAL_ID, [])
-    assert book.cancel(_uuid(1), 0) == (CancelCode.GOAL_TERMINATED, []), "canceling already: rcl says terminated"
-    assert _book_with(done).cancel(bytes(16), 0) == (CancelCode.NONE, []), "nothing to cancel: none, and no goal"
-    pending = GoalBook()
-    pending.send(_uuid(1))
-    assert pending.cancel(_uuid(1), 0) == (CancelCode.UNKNOWN_GOAL_ID, []), "not accepted yet: unknown to ROS"
-
-
-events = st.lists(
-    st.tuples(
-        st.sampled_from(["send", "accept", "reject", "start", "cancel", "canceling", "end", "cancel_all"]),
-        st.integers(1, 30),
-        st.sampled_from(["completed", "canceled", "aborted", "timed_out"]),
-    ),
-    max_size=200,
-)
-
-
-def _apply(book: GoalBook, event: str, k: int, outcome: str) -> None:
-    uuid, goal_id = _uuid(k), _uuid(k).hex()
-    if event == "send":
-        book.send(uuid)
-    elif event == "accept":
-        book.accepted(uuid, k)
-    elif event == "reject":
-        book.rejected(uuid)
-    elif event == "start":
-        book.executing(goal_id)
-    elif event == "canceling":
-        book.canceling(goal_id)
-    elif event == "end":
-        book.ended(_outcome(goal_id, outcome))
-    else:
-        book.cancel(uuid if event == "cancel" else bytes(16), 0)
-
-
-@given(events)
-def test_the_book_stays_bounded_and_no_goal_ever_moves_back(sequence):
-    book = GoalBook(max_goals=12, max_ended=4)
-    seen: dict[bytes, GoalStatus] = {}
-    for event, k, outcome in sequence:
-        try:
-            _apply(book, event, k, outcome)
-        except BadInput:
-            assert event == "send"
-        listed = book.status_list()
-        assert sum(goal.status.terminal for goal in listed) <= 4
-        assert len(listed) <= 12
-        for goal in listed:
-            before = seen.get(goal.uuid)
-            if before is not None:
-                assert goal.status >= before, (before, goal.status)
-                assert not before.terminal or goal.status is before
-            seen[goal.uuid] = goal.status
-        for forgotten in [uuid for uuid in seen if uuid not in book]:
-            del seen[forgotten]
 
 
 def test_durations_are_whole_seconds_and_nanoseconds_never_negative():

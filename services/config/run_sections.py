@@ -79,6 +79,22 @@ class Ros2Config(Section, frozen=True):
     """``/odom`` pose covariance diagonal (diff_drive_controller's default)."""
     twist_covariance: Covariance = (0.001, 0.001, 0.001, 0.001, 0.001, 0.01)
     """``/odom`` twist covariance diagonal (diff_drive_controller's default)."""
+    enable_odom_tf: bool = True
+    """Whether the bridge publishes ``odom_frame -> base_frame`` on TF (diff_drive_controller's
+    ``enable_odom_tf``); off, a node of one's own (robot_localization's ekf_node fusing ``/odom``)
+    publishes it. ``/odom`` is published either way."""
+    enable_map_odom_tf: bool = True
+    """Whether the bridge publishes ``map_frame -> odom_frame`` on TF (from ``odometry/pose``); off,
+    a localization of one's own (slam_toolbox, nav2_amcl, robot_localization) publishes it."""
+    enable_wheel_tf: bool = True
+    """Whether the bridge publishes ``base_frame -> <wheel>`` on TF; off, robot_state_publisher
+    publishes them from ``/robot_description`` and ``/joint_states`` (both published either way)."""
+    navigate_to_pose: bool = True
+    """Whether the bridge serves the ``navigate_to_pose`` action and subscribes ``goal_pose``; off,
+    neither is declared (no token either), and Nav2's bt_navigator may serve both."""
+    result_timeout: Annotated[Positive, SIMULATED_SECONDS] = 900.0
+    """How long an ended NavigateToPose goal's status and result are kept (rcl_action's
+    ``result_timeout``, Nav2's 900 s): its ``get_result`` answered, its UUID not taken again."""
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -15,34 +15,39 @@ liveliness token.
   bridge refuses itself, or that the drive refuses or leaves unanswered (no drive serves goals: at
   once; the status's ``drive_serves_goals`` says whether one does), is answered ``accepted: false``
   and counted (the reason in the log and the status: SendGoal's response has no field for it).
+  A goal in a frame the bridge's TF tree cannot turn into ``map`` is accepted and aborted at once
+  (TF_ERROR, the reason in the result's ``error_msg``), as Nav2's navigator does.
 - ``cancel_goal``: rcl_action's policy on the goals this server knows; each that moves to
   ``canceling`` is canceled in the drive (``drive/goal/cancel``).
-- ``get_result``: answered once the goal has ended (held until then, at most
-  :data:`WAITING_RESULTS` at once), at once for an ended or unknown goal.
+- ``get_result``: answered once the goal has ended (each call held until then, within the bounds of
+  services/ros2/goal_book.py; beyond, an error reply), at once for an ended or unknown goal.
 - ``goal_pose`` (RViz's "2D Goal Pose", ``geometry_msgs/PoseStamped``): a goal with a UUID of the
   bridge's making, sent the same way; only ``status`` and ``feedback`` show how it goes.
+- ``status``: published at each change, one sample per step of rcl_action's state machine a goal
+  takes (goal_book.transitions), and when ended goals are forgotten (``ros2.result_timeout``).
 
-Bad input (a request without rmw_zenoh's attachment, malformed or oversized CDR, a pose not finite,
-an unknown frame) is counted under its key and refused in the reply (an error reply without an
-attachment to echo; else ``accepted: false``, return code 1 or status 0); nothing reaches the drive
-and the running goal goes on.
+Bad input (a request without rmw_zenoh's attachment, malformed or oversized CDR, a pose not finite)
+is counted under its key and refused in the reply (an error reply without an attachment to echo;
+else ``accepted: false``, return code 1 or status 0); nothing reaches the drive and the running goal
+goes on. With ``ros2.navigate_to_pose`` off, none of this is declared (services/ros2/service.py).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
-import time
+import logging
 import uuid as uuid_module
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from schemas.codec import BadInput, decode, encode
+from schemas.codec import BadInput, encode
 from schemas.messages import (
+    NANOSECONDS_PER_SECOND,
     CancelReply,
     CancelRequest,
     GoalFeedback,
@@ -53,40 +58,33 @@ from schemas.messages import (
 )
 from services.config import Config
 from services.ros2 import graph, interfaces, navigate, wire
+from services.ros2.action_calls import Caller, Publisher, Tokens, cancel_reply, goal_reply
+from services.ros2.goal_book import (
+    CancelCode,
+    ErrorCode,
+    Goal,
+    GoalBook,
+    GoalStatus,
+    HeldResults,
+    goal_id_of,
+    transitions,
+)
 from services.ros2.graph import ActionService, ActionTopic
+from services.ros2.tf_tree import TransformError
 from services.runtime.inputs import Delivery
+from services.runtime.logs import RateLimitedLog
 from services.runtime.node import Node
 from services.runtime.session import has_match
-
-ReplyT = TypeVar("ReplyT", GoalReply, CancelReply)
 
 if TYPE_CHECKING:
     from services.clock.sim_time import StampClock
     from services.ros2.outputs import RosOutputs
 
 
-class Tokens(Protocol):
-    """The bridge's node in the ROS graph (services/ros2/service.py's ``GraphTokens``)."""
-
-    bridge: graph.BridgeGraph
-
-    def declare(self, kind: wire.EntityKind, entity: graph.Entity) -> str: ...
-
-
-class Publisher(Protocol):
-    """One ROS topic's publisher (services/ros2/service.py's ``RosPublisher``)."""
-
-    def put(self, message: Any, stamp_ns: int) -> None: ...
-
-    def undeclare(self) -> None: ...
-
-
 GOAL_CALL_TIMEOUT_S = 2.0
 """How long a goal's send or cancel waits for the drive's reply."""
 PENDING_SENDS = 16
 """Goals waiting for the drive's reply at once; beyond, a goal is refused at once."""
-WAITING_RESULTS = 16
-"""``get_result`` calls held until their goals end, at once; beyond, one is answered at once, status 0."""
 MAX_REQUEST_PAYLOAD: dict[ActionService, int] = {
     ActionService.SEND_GOAL: 4096,
     ActionService.CANCEL_GOAL: 64,
@@ -96,22 +94,6 @@ MAX_REQUEST_PAYLOAD: dict[ActionService, int] = {
 a pose, a frame id and a behaviour tree's name."""
 MAX_GOAL_POSE_PAYLOAD = 4096
 """Bytes: a ``goal_pose`` larger than this is bad input, refused before it is decoded."""
-
-
-@dataclass
-class Caller:
-    """A ROS service call to answer: its query, the key it came on, its attachment (to echo)."""
-
-    query: zenoh.Query
-    key: str
-    attachment: wire.Attachment
-
-    def reply(self, message: Any) -> None:
-        attachment = wire.Attachment(self.attachment.sequence_number, time.time_ns(), self.attachment.gid)
-        try:
-            self.query.reply(self.key, interfaces.serialize(message), attachment=attachment.encode())
-        finally:
-            self.query.drop()
 
 
 @dataclass
@@ -141,13 +123,14 @@ class NavigateServer:
         self.outputs = outputs
         self.clock: StampClock = outputs.clock
         settings = config.ros2
-        self.frames = navigate.GoalFrames(settings.map_frame, outputs.prefix + settings.odom_frame)
+        self.map_frame = settings.map_frame
         self.action = wire.full_name(bridge.namespace, graph.NAVIGATE_TO_POSE)
-        self.book = navigate.GoalBook()
+        self.book = GoalBook(round(settings.result_timeout * NANOSECONDS_PER_SECOND))
         self.counters = navigate.Counters()
         self._pending: dict[int, PendingSend] = {}
         self._call_ids = itertools.count(1)
-        self._waiting_results: dict[bytes, list[Caller]] = {}
+        self.results: HeldResults[Caller] = HeldResults()
+        self._frame_errors = RateLimitedLog(node.log)
         self.publishers = {topic: publisher(entity) for topic, entity in graph.ACTION_TOPICS.items()}
         self.service_keys: dict[ActionService, str] = {}
         self._declarations: list[Any] = []
@@ -222,17 +205,21 @@ class NavigateServer:
             self._rejected(reason)
             caller.reply(navigate.send_goal_response(False, self.now_ns))
         elif service is ActionService.CANCEL_GOAL:
-            caller.reply(navigate.cancel_response(navigate.CancelCode.REJECTED, []))
+            caller.reply(navigate.cancel_response(CancelCode.REJECTED, []))
         else:
             caller.reply(navigate.result_response(None))
 
     def _send_goal(self, request: Any, caller: Caller) -> None:
         uuid = navigate.uuid_bytes(request.goal_id)
+        pose = request.goal.pose
         try:
-            goal = self._goal_request(uuid, request.goal.pose)
+            goal = self._goal_request(uuid, pose)
         except BadInput as error:
             self.node.bad_inputs.record(caller.key, str(error))
             self._refuse(ActionService.SEND_GOAL, caller, str(error))
+            return
+        except TransformError as error:
+            self._abort_untransformable(uuid, pose.header.frame_id, str(error), caller)
             return
         self._send_to_drive(uuid, goal, caller, caller.key)
 
@@ -249,17 +236,41 @@ class NavigateServer:
         except BadInput as error:
             self._rejected(str(error))
             raise
+        except TransformError as error:
+            self._abort_untransformable(uuid, pose.header.frame_id, str(error), None)
+            return
         self._send_to_drive(uuid, goal, None, self.goal_pose_key)
 
     def _goal_request(self, uuid: bytes, pose: Any) -> GoalRequest:
-        correction = self.outputs.map_to_odom
         return navigate.goal_request(
-            pose,
-            self.frames,
-            None if correction is None else correction[1],
-            navigate.goal_id_of(uuid),
-            self.config.input.max_coordinate,
+            pose, self.outputs.tree, self.map_frame, goal_id_of(uuid), self.config.input.max_coordinate
         )
+
+    def _abort_untransformable(self, uuid: bytes, frame: str, reason: str, caller: Caller | None) -> None:
+        """As Nav2's navigator: a goal whose frame cannot be turned into ``map`` is accepted, then
+        aborted (TF_ERROR, the reason in ``error_msg``); it never reaches the drive."""
+        try:
+            self.book.send(uuid)
+        except BadInput as error:
+            self._rejected(str(error))
+            if caller is not None:
+                caller.reply(navigate.send_goal_response(False, self.now_ns))
+            return
+        now_ns = self.now_ns
+        self.book.accepted(uuid, now_ns)
+        self.counters.accepted += 1
+        self.counters.frame_errors += 1
+        if caller is not None:
+            caller.reply(navigate.send_goal_response(True, now_ns))
+        message = (
+            f"Failed to transform a goal pose provided with frame_id '{frame}' to the global frame "
+            f"'{self.map_frame}': {reason}"
+        )
+        goal = self.book.end(uuid, GoalStatus.ABORTED, ErrorCode.TF_ERROR, message, now_ns)
+        if goal is not None:
+            self.counters.ended(goal.status)
+            self._publish_steps(goal, GoalStatus.UNKNOWN)
+        self._frame_errors("frame", logging.WARNING, "goal %s aborted: %s", goal_id_of(uuid), message)
 
     def _send_to_drive(self, uuid: bytes, goal: GoalRequest, caller: Caller | None, source: str) -> None:
         """Send ``goal`` to the drive (a zenoh get from the service thread; its reply posted back)."""
@@ -278,7 +289,7 @@ class NavigateServer:
         key = self.node.keys.drive_goal_send
 
         def on_reply(reply: zenoh.Reply) -> None:
-            self._post(key, self._drive_replied, (call_id, _goal_reply(reply)))
+            self._post(key, self._drive_replied, (call_id, goal_reply(reply)))
 
         def on_done() -> None:
             self._post(key, self._drive_done, call_id)
@@ -290,7 +301,7 @@ class NavigateServer:
         pending = self._pending.pop(call_id, None)
         if pending is None:
             return
-        goal_id = navigate.goal_id_of(pending.uuid)
+        goal_id = goal_id_of(pending.uuid)
         if reply.accepted and reply.id == goal_id:
             stamp_ns = self.now_ns
             self.book.accepted(pending.uuid, stamp_ns)
@@ -298,10 +309,9 @@ class NavigateServer:
             self.node.log.info("goal %s from %s accepted by the drive", goal_id, pending.source)
             if pending.caller is not None:
                 pending.caller.reply(navigate.send_goal_response(True, stamp_ns))
-            self._publish_status()
             goal = self.book.get(pending.uuid)
-            if goal is not None and goal.status.terminal:
-                self._answer_results(goal)
+            if goal is not None:
+                self._publish_steps(goal, GoalStatus.UNKNOWN)
             return
         self.book.rejected(pending.uuid)
         reason = reply.reason if not reply.accepted else f"the drive accepted it as {reply.id!r}, not {goal_id!r}"
@@ -331,7 +341,7 @@ class NavigateServer:
         for goal in goals:
 
             def on_reply(reply: zenoh.Reply, goal_id: str = goal.id) -> None:
-                self._post(key, self._cancel_replied, (goal_id, _cancel_reply(reply)))
+                self._post(key, self._cancel_replied, (goal_id, cancel_reply(reply)))
 
             self._cancel.get(on_reply, payload=encode(CancelRequest(id=goal.id)))
         if goals:
@@ -343,71 +353,89 @@ class NavigateServer:
             self.node.log.info("%s: the drive did not cancel goal %s: %s", self.action, goal_id, reply.reason)
 
     def _get_result(self, request: Any, caller: Caller) -> None:
+        """rcl_action's: an unknown goal's (or one whose result is no longer kept) at once, status 0;
+        an ended goal's at once; a running goal's held until it ends (beyond the bounds, an error)."""
         self.counters.result_requests += 1
         goal = self.book.get(navigate.uuid_bytes(request.goal_id))
         if goal is None or goal.stamp_ns is None or goal.status.terminal:
             caller.reply(navigate.result_response(goal if goal is not None and goal.stamp_ns is not None else None))
             return
-        if sum(len(callers) for callers in self._waiting_results.values()) >= WAITING_RESULTS:
-            caller.reply(navigate.result_response(None))
-            return
-        self._waiting_results.setdefault(goal.uuid, []).append(caller)
+        try:
+            self.results.hold(goal.uuid, caller)
+        except BadInput as error:
+            self.counters.results_refused += 1
+            caller.refuse(str(error))
 
     # -- the drive's side -----------------------------------------------------------------------
 
     def _on_started(self, target: GoalTarget) -> None:
-        if self.book.executing(target.id):
-            self._publish_status()
+        goal = self.book.by_id(target.id)
+        if goal is not None:
+            before = goal.status
+            if self.book.executing(target.id):
+                self._publish_steps(goal, before)
 
     def _on_feedback(self, feedback: GoalFeedback) -> None:
         goal = self.book.by_id(feedback.id)
         if goal is None or goal.status.terminal:
             return
+        before = goal.status
         changed = (
             self.book.canceling(feedback.id) if feedback.state == "canceling" else self.book.executing(feedback.id)
         )
         if changed:
-            self._publish_status()
+            self._publish_steps(goal, before)
         if goal.stamp_ns is not None:
-            message = navigate.feedback_message(goal.uuid, feedback, self.frames.map)
+            message = navigate.feedback_message(goal.uuid, feedback, self.map_frame)
             self.publishers[ActionTopic.FEEDBACK].put(message, feedback.tm.to_nanoseconds())
 
     def _on_outcome(self, outcome: ScenarioOutcome) -> None:
-        goal = self.book.ended(outcome)
+        known = self.book.by_id(outcome.goal_id)
+        before = known.status if known is not None else GoalStatus.UNKNOWN
+        goal = self.book.ended(outcome, self.now_ns)
         if goal is None:
             return
         self.counters.ended(goal.status)
         self.node.log.info(
-            "goal %s ended %s%s", goal.id, outcome.outcome, f": {outcome.reason}" if outcome.reason else ""
+            "goal %s ended %s%s", goal.id, goal.status.name.lower(), f": {outcome.reason}" if outcome.reason else ""
         )
         if goal.stamp_ns is not None:
+            self._publish_steps(goal, before)
+
+    def _publish_steps(self, goal: Goal, before: GoalStatus) -> None:
+        """The status at each step ``goal`` took since ``before`` (UNKNOWN: not listed yet); once it
+        has ended, the results held for it answered."""
+        for step in transitions(before, goal.status):
+            self._publish_status({goal.uuid: step})
+        if goal.status.terminal:
+            for caller in self.results.release(goal.uuid):
+                caller.reply(navigate.result_response(goal))
+
+    def _publish_status(self, shown: dict[bytes, GoalStatus] | None = None) -> None:
+        self.publishers[ActionTopic.STATUS].put(navigate.status_array(self.book.status_list(), shown), self.now_ns)
+
+    def tick(self, now_ns: int, restarted: bool) -> None:
+        """A new simulation time (the service thread, at each ``sim/clock``): after a new simulator,
+        ended goals are kept a whole ``result_timeout`` again; those kept that long are forgotten."""
+        if restarted:
+            self.book.restart(now_ns)
+        expired = self.book.expire(now_ns)
+        if expired:
+            self.counters.expired += len(expired)
             self._publish_status()
-            self._answer_results(goal)
-
-    def _answer_results(self, goal: navigate.Goal) -> None:
-        for caller in self._waiting_results.pop(goal.uuid, []):
-            caller.reply(navigate.result_response(goal))
-
-    def _publish_status(self) -> None:
-        self.publishers[ActionTopic.STATUS].put(navigate.status_array(self.book.status_list()), self.now_ns)
 
     def status(self) -> dict[str, Any]:
         return {
             "action": self.action,
             "drive_serves_goals": has_match(self._send),
             **dataclasses.asdict(self.counters),
-            "waiting": {
-                "sends": len(self._pending),
-                "results": sum(len(callers) for callers in self._waiting_results.values()),
-            },
+            "waiting": {"sends": len(self._pending), "results": len(self.results)},
             "goals": {goal.id: goal.status.name.lower() for goal in self.book.status_list()},
         }
 
     def close(self) -> None:
-        for callers in self._waiting_results.values():
-            for caller in callers:
-                caller.query.drop()
-        self._waiting_results.clear()
+        for caller in self.results.drain():
+            caller.query.drop()
         for pending in self._pending.values():
             if pending.caller is not None:
                 pending.caller.query.drop()
@@ -417,23 +445,3 @@ class NavigateServer:
         self._declarations.clear()
         for publisher in self.publishers.values():
             publisher.undeclare()
-
-
-def _goal_reply(reply: zenoh.Reply) -> GoalReply:
-    """zenoh's thread: the drive's reply to a goal (a refusal naming why, for an error reply or
-    one that does not decode)."""
-    return _drive_reply(reply, GoalReply, lambda why: GoalReply(False, "", why))
-
-
-def _cancel_reply(reply: zenoh.Reply) -> CancelReply:
-    return _drive_reply(reply, CancelReply, lambda why: CancelReply([], why))
-
-
-def _drive_reply(reply: zenoh.Reply, reply_type: type[ReplyT], refused: Callable[[str], ReplyT]) -> ReplyT:
-    if reply.ok is None:
-        text = reply.err.payload.to_bytes().decode(errors="replace") if reply.err is not None else ""
-        return refused(f"the drive answered an error: {text}")
-    try:
-        return decode(reply_type, reply.ok.payload.to_bytes())
-    except BadInput as error:
-        return refused(f"the drive's reply does not decode: {error}")

@@ -140,18 +140,26 @@ class BridgeGraph:
     """Of :data:`SENSOR_TOPICS`, those of the sensors the robot has."""
     localization: bool = False
     """``localization.mode = "amcl"``: :data:`LOCALIZATION_TOPICS` published, :data:`INITIAL_POSE` subscribed."""
+    publishes_tf: bool = True
+    """Whether any of ``odom -> base_link``, ``map -> odom`` and the wheels goes on ``tf``
+    (``ros2.enable_odom_tf``, ``enable_map_odom_tf``, ``enable_wheel_tf``); none: no ``tf`` publisher."""
+    navigate_to_pose: bool = True
+    """``ros2.navigate_to_pose``: the action (:data:`ACTION_SERVICES`, :data:`ACTION_TOPICS`) served
+    and :data:`GOAL_POSE` subscribed; off, neither declared."""
 
     @property
     def publications(self) -> dict[str, Entity]:
         """What this bridge publishes: :data:`PUBLICATIONS`, its TF topics where ``ros2.tf`` puts
-        them, ``/clock`` only if it publishes it, ``scan`` and ``imu`` only for the sensors the robot has,
+        them (``tf`` only if it carries a transform), ``/clock`` only if it publishes it, ``scan`` and ``imu`` only for the sensors the robot has,
         :data:`NAVIGATION_TOPICS` (declared once the drive publishes what they come from), and
         :data:`LOCALIZATION_TOPICS` only with the particle filter."""
         entities = {}
         offered = {**PUBLICATIONS, **(LOCALIZATION_PUBLICATIONS if self.localization else {})}
         for topic, entity in offered.items():
-            if (topic == "clock" and not self.publishes_clock) or (
-                topic in SENSOR_TOPICS and topic not in self.sensors
+            if (
+                (topic == "clock" and not self.publishes_clock)
+                or (topic in SENSOR_TOPICS and topic not in self.sensors)
+                or (topic == "tf" and not self.publishes_tf)
             ):
                 continue
             shared = topic in TF_TOPICS and self.tf_shared
@@ -160,8 +168,13 @@ class BridgeGraph:
 
     @property
     def subscriptions(self) -> tuple[Entity, ...]:
-        """What this bridge subscribes: :data:`SUBSCRIPTIONS`, ``initialpose`` only with the particle filter."""
-        return tuple(entity for entity in SUBSCRIPTIONS if entity is not INITIAL_POSE or self.localization)
+        """What this bridge subscribes: :data:`SUBSCRIPTIONS`, ``initialpose`` only with the particle
+        filter, ``goal_pose`` only with the action."""
+        return tuple(
+            entity
+            for entity in SUBSCRIPTIONS
+            if (entity is not INITIAL_POSE or self.localization) and (entity is not GOAL_POSE or self.navigate_to_pose)
+        )
 
     @property
     def frame_prefix(self) -> str:
@@ -209,4 +222,6 @@ def bridge_graph(config: Config, environ: Mapping[str, str] = os.environ) -> Bri
             topic for topic, enabled in zip(SENSOR_TOPICS, (config.lidar.enabled, config.imu.enabled)) if enabled
         ),
         localization=config.localization.mode == "amcl",
+        publishes_tf=settings.enable_odom_tf or settings.enable_map_odom_tf or settings.enable_wheel_tf,
+        navigate_to_pose=settings.navigate_to_pose,
     )

@@ -6,7 +6,10 @@ Each wheel-angle sample of ``sim/clock`` is integrated into the continuous odome
 (:class:`~services.ros2.core.ContinuousOdometry`), and on the grids of ``ros2.clock_rate`` and
 ``ros2.publish_rate`` (simulation time anchored at 0, as the simulator's observed steps are) it
 yields ``/clock``, and ``odom``, ``tf`` and ``joint_states``, each stamped with the sample's time;
-``odometry/pose`` moves ``map -> odom``, ``motor/torque`` the wheels' efforts. Each ``sim/scan``
+``odometry/pose`` moves ``map -> odom``, ``motor/torque`` the wheels' efforts. ``tf`` carries
+``odom -> base_link``, ``map -> odom`` and the wheels, each unless its ``ros2.enable_*_tf`` switch
+hands it to a node of ROS's own; every transform the bridge computes, published or not, is kept in
+its TF tree (:attr:`RosOutputs.tree`), in which NavigateToPose goals are given. Each ``sim/scan``
 and ``sim/imu`` is one ``scan`` and one ``imu`` (services/ros2/sensors.py), at the time it carries.
 Each of the drive's ``drive/map``, ``drive/costmap`` and ``drive/plan`` is one ``map``,
 ``global_costmap/costmap`` and ``plan`` (nav_msgs OccupancyGrid, OccupancyGrid and Path in
@@ -37,6 +40,7 @@ from services.config import Config
 from services.planar import Pose
 from services.ros2 import core, sensors
 from services.ros2.graph import BridgeGraph
+from services.ros2.tf_tree import TfTree
 from services.ros2.urdf import robot_urdf
 
 
@@ -81,6 +85,9 @@ class RosOutputs:
         self.map_to_odom: tuple[int, Pose] | None = None
         """(stamp of the localized pose it comes from, ``map -> odom``)."""
         self.efforts: tuple[float, float] | None = None
+        self.tree = TfTree()
+        """Every transform the bridge computes, the newest of each (``tf`` and ``tf_static``'s, and
+        those the ``ros2.enable_*_tf`` switches keep off ``tf``)."""
         self._schedules: tuple[PeriodicSchedule, PeriodicSchedule] | None = None
         self._wheel_ids = (config.robot.left_wheel_id, config.robot.right_wheel_id)
 
@@ -92,10 +99,10 @@ class RosOutputs:
         """What is published once, for late subscribers too: ``tf_static`` (the casters and the
         sensors' frames) and ``robot_description`` (the URDF, its links named as in the body,
         unprefixed: RViz's RobotModel and robot_state_publisher add a TF prefix themselves)."""
-        static = core.tf_message(
-            core.static_transforms(stamp_ns, self.base_frame, self.body, self.prefix)
-            + sensors.static_transforms(stamp_ns, self.base_frame, self.sensor_frames, self.prefix)
-        )
+        transforms = core.static_transforms(stamp_ns, self.base_frame, self.body, self.prefix)
+        transforms += sensors.static_transforms(stamp_ns, self.base_frame, self.sensor_frames, self.prefix)
+        self.tree.update(transforms)
+        static = core.tf_message(transforms)
         urdf = robot_urdf(self.config.robot.name, self.settings.base_frame, self.body, self.sensor_frames)
         return [Outgoing("tf_static", static, stamp_ns), Outgoing("robot_description", core.string(urdf), stamp_ns)]
 
@@ -124,16 +131,22 @@ class RosOutputs:
     def _state(self, now_ns: int, wheels: core.WheelSample) -> list[Outgoing]:
         settings, prefix = self.settings, self.prefix
         odom_frame = prefix + settings.odom_frame
-        transforms = [
-            core.planar_transform(now_ns, odom_frame, self.base_frame, self.odometry.pose),
-            *core.wheel_transforms(now_ns, self.base_frame, self.body, wheels.angles, prefix),
-        ]
+        odom_to_base = [core.planar_transform(now_ns, odom_frame, self.base_frame, self.odometry.pose)]
+        wheel_transforms = core.wheel_transforms(now_ns, self.base_frame, self.body, wheels.angles, prefix)
+        map_to_odom = []
         if self.map_to_odom is not None:
             stamp_ns, correction = self.map_to_odom
-            transforms.append(core.planar_transform(stamp_ns, settings.map_frame, odom_frame, correction))
+            map_to_odom.append(core.planar_transform(stamp_ns, settings.map_frame, odom_frame, correction))
+        computed = (
+            (odom_to_base, settings.enable_odom_tf),
+            (wheel_transforms, settings.enable_wheel_tf),
+            (map_to_odom, settings.enable_map_odom_tf),
+        )
+        transforms = [transform for group, enabled in computed if enabled for transform in group]
+        self.tree.update(transform for group, _ in computed for transform in group)
         return [
             Outgoing("odom", core.odometry_message(now_ns, self.odometry, settings, prefix), now_ns),
-            Outgoing("tf", core.tf_message(transforms), now_ns),
+            *([Outgoing("tf", core.tf_message(transforms), now_ns)] if "tf" in self.topics else []),
             Outgoing("joint_states", core.joint_state(now_ns, self.body, wheels, self.efforts), now_ns),
         ]
 
@@ -234,4 +247,5 @@ class RosOutputs:
         self.odometry.restart()
         self._schedules = None
         self.map_to_odom = None
+        self.tree.forget(self.prefix + self.settings.odom_frame)
         self.efforts = None

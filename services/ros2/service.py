@@ -5,7 +5,8 @@ One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
 
 - publishers: ``/clock`` (the simulation time, at ``ros2.clock_rate`` per simulated second; unless
   ``ros2.publish_clock`` is off: one bridge of a fleet publishes it), ``odom`` and ``tf``
-  (``map -> odom -> base_link`` and the wheels) and ``joint_states`` (at ``ros2.publish_rate``),
+  (``map -> odom -> base_link`` and the wheels, each unless its ``ros2.enable_*_tf`` switch leaves it
+  to a node of ROS's own) and ``joint_states`` (at ``ros2.publish_rate``),
   and, latched (transient-local, zenoh-ext advanced publishers with a cache), ``tf_static`` (the
   casters) and ``robot_description`` (the URDF); ``tf`` and ``tf_static`` in the namespace, or on
   the shared ``/tf`` and ``/tf_static`` with prefixed frames (``ros2.tf``, services/ros2/graph.py);
@@ -22,7 +23,7 @@ One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
   each calling the Motor method of that name (``motor/gui/<method>``, as an operator would);
 - the action ``navigate_to_pose`` (nav2_msgs/NavigateToPose: its three services and two topics)
   and the subscription ``goal_pose`` (RViz's 2D Goal Pose), each goal sent to the drive's
-  ``drive/goal/send`` (services/ros2/action_server.py);
+  ``drive/goal/send`` (services/ros2/action_server.py), unless ``ros2.navigate_to_pose`` is off;
 - with the particle filter (``localization.mode = "amcl"``), as nav2_amcl: ``amcl_pose``
   (geometry_msgs/PoseWithCovarianceStamped, latched) from each ``localization/pose`` with a
   covariance, ``particle_cloud`` (geometry_msgs/PoseArray, sensor QoS) from each
@@ -313,7 +314,13 @@ class Ros2Bridge:
             self._motor_methods[method] = node.session.declare_querier(
                 node.keys.method(MethodFamily.GUI, method), timeout=SERVICE_CALL_TIMEOUT_S
             )
-        self.navigate = NavigateServer(node, config, tokens, outputs, partial(RosPublisher, tokens))
+        self.frames = navigate.GoalFrames(settings.map_frame, outputs.prefix + settings.odom_frame)
+        """The frames an ``initialpose`` may be given in."""
+        self.navigate = (
+            NavigateServer(node, config, tokens, outputs, partial(RosPublisher, tokens))
+            if bridge.navigate_to_pose
+            else None
+        )
         self._publish(outputs.latched())
         node.wait_with(lambda: Wait(self._clock_input))
         node.set_status(self.status)
@@ -350,6 +357,8 @@ class Ros2Bridge:
                 message.tm.to_nanoseconds() / NANOSECONDS_PER_SECOND,
             )
         self._publish(taken.outgoing)
+        if self.navigate is not None:
+            self.navigate.tick(message.tm.to_nanoseconds(), taken.restarted)
         self._forward_twist()
 
     def _on_message(self, take: Callable[[Any], list[Outgoing]], message: Any) -> None:
@@ -396,7 +405,7 @@ class Ros2Bridge:
         correction = self.outputs.map_to_odom
         request = navigate.initial_pose_request(
             message,
-            self.navigate.frames,
+            self.frames,
             None if correction is None else correction[1],
             self.config.input.max_coordinate,
         )
@@ -513,7 +522,7 @@ class Ros2Bridge:
             "published": {publisher.name: publisher.published for publisher in self.publishers.values()},
             "cmd_vel": dict(self.cmd_vel),
             "service_calls": {**self.calls, "waiting": len(self._pending_calls)},
-            "navigate": self.navigate.status(),
+            **({"navigate": self.navigate.status()} if self.navigate is not None else {}),
             **(
                 {
                     "initial_pose": {
@@ -529,7 +538,8 @@ class Ros2Bridge:
         }
 
     def close(self) -> None:
-        self.navigate.close()
+        if self.navigate is not None:
+            self.navigate.close()
         for pending in self._pending_calls.values():
             pending.query.drop()
         self._pending_calls.clear()
