@@ -174,7 +174,12 @@ def test_the_graph_shows_one_node_with_its_publishers_subscriptions_and_services
 
 
 def test_every_sample_decodes_with_rosbags_and_carries_rmw_zenohs_attachment(teleop):
-    wait_until(lambda: len(teleop.recorder.of("joint_states")) >= 20, 30.0, "20 /joint_states")
+    # every topic at least once (/scan comes at 10 Hz, later than the first 20 /joint_states on a loaded machine)
+    wait_until(
+        lambda: len(teleop.recorder.of("joint_states")) >= 20 and all(teleop.recorder.of(topic) for topic in PUBLISHED),
+        30.0,
+        "20 /joint_states and every published topic",
+    )
     samples = teleop.recorder.take()
     by_key: dict[str, list[ros_client.Received]] = {}
     for sample in samples:
