@@ -244,8 +244,10 @@ def test_router_lets_each_role_put_only_its_own_keys_and_refuses_strangers(tmp_p
         barrier = KEYS.status(Service.ODOMETRY)
         witness.declare_queryable(barrier, lambda query: query.reply(barrier, b"{}"))
         sessions = {role: open_as(role) for role in Role}
+        # BLOCK, not zenoh's default DROP: hundreds of puts at once on a link just opened, on a loaded
+        # machine, must not be dropped in transport (a flake once delivered none of them)
         publishers = [
-            (role, session.declare_publisher(KEYS.topic(topic)))
+            (role, session.declare_publisher(KEYS.topic(topic), congestion_control=zenoh.CongestionControl.BLOCK))
             for role, session in sessions.items()
             for topic in Topic
         ]
