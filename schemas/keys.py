@@ -82,6 +82,7 @@ class Topic(StrEnum):
     SIM_SCAN = "sim/scan"
     SIM_IMU = "sim/imu"
     MOTOR_TORQUE = "motor/torque"
+    MOTOR_WHEEL_VELOCITY = "motor/wheel_velocity"
     MOTOR_WHEEL_ANGLES = "motor/wheel_angles"
     MOTOR_SIM_POSE_GUI = "motor/sim_pose/gui"
     MOTOR_SIM_POSE_LOCALIZATION = "motor/sim_pose/localization"
@@ -129,6 +130,7 @@ TOPIC_TYPES: dict[Topic, type[TopicMessage]] = {
     Topic.SIM_SCAN: LaserScan,
     Topic.SIM_IMU: ImuSample,
     Topic.MOTOR_TORQUE: TimedDoubleSeq,
+    Topic.MOTOR_WHEEL_VELOCITY: TimedDoubleSeq,
     Topic.MOTOR_WHEEL_ANGLES: TimedDoubleSeq,
     Topic.MOTOR_SIM_POSE_GUI: TimedDoubleSeq,
     Topic.MOTOR_SIM_POSE_LOCALIZATION: TimedDoubleSeq,
@@ -363,6 +365,7 @@ class Keys:
     sim_scan = property(lambda self: self.topic(Topic.SIM_SCAN))
     sim_imu = property(lambda self: self.topic(Topic.SIM_IMU))
     motor_torque = property(lambda self: self.topic(Topic.MOTOR_TORQUE))
+    motor_wheel_velocity = property(lambda self: self.topic(Topic.MOTOR_WHEEL_VELOCITY))
     motor_wheel_angles = property(lambda self: self.topic(Topic.MOTOR_WHEEL_ANGLES))
     motor_sim_pose_gui = property(lambda self: self.topic(Topic.MOTOR_SIM_POSE_GUI))
     motor_sim_pose_localization = property(lambda self: self.topic(Topic.MOTOR_SIM_POSE_LOCALIZATION))

@@ -288,6 +288,12 @@ class RunSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     steps: int
     health: dict[str, Any]
     """The loop's health from the services' status replies (``report.json``'s ``health``)."""
+    ended_early: Literal["", "service_died", "interrupted"] = ""
+    """Why the run ended before its scenario did (a service died, Ctrl-C); empty when it did not."""
+    service: str = ""
+    """With ``service_died``: the service that died, as ``up`` named its child (``odometer``, ``control``)."""
+    exit_code: int | None = None
+    """With ``service_died``: its exit code, or minus the signal that killed it (-9: SIGKILL)."""
 
 
 MotorStateName = Literal["idle", "running", "stopped", "finished"]

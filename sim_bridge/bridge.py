@@ -59,7 +59,7 @@ from sim_bridge.handshakes import (
     await_participants,
     await_services,
 )
-from sim_bridge.link import RobotLink
+from sim_bridge.link import MotorSeam, RobotLink
 from sim_bridge.loops import Loop
 from sim_bridge.progress import RunProgress
 from sim_bridge.status import RunStatus
@@ -136,6 +136,10 @@ class SimService:
                     )
                 )
         lidar, imu = sensors(config)
+        seams = [
+            MotorSeam(description.motor.output, description.input.max_wheel_speed)
+            for description in (options.fleet_robots if self.fleet is not None else (config,))
+        ]
         self.sim = build_engine(config, self.world, options.gui, placements, lidar, imu)
         self.run_status = RunStatus(
             sim=self.sim,
@@ -169,6 +173,7 @@ class SimService:
                         progress=self.progress,
                         prefix=f"{body.name}: " if self.fleet is not None else "",
                         world_status=self.world_status,
+                        seam=seams[index],
                     )
                 )
         except BaseException:

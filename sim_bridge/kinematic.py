@@ -56,6 +56,9 @@ class KinematicRobot:
         self.forces = [0.0, 0.0]
         """Left and right torque of the next step, after saturation."""
         self.braking = False
+        self.velocity_targets: tuple[float, float] | None = None
+        """Left and right wheel speed targets (rad/s) of the next step, which the plant follows
+        within the torque limit; None: the torques apply."""
         self.applied_torques = [0.0] * self.wheel_count
         self.lidar = None if placement.lidar is None else Lidar(placement.lidar, self.reach, index)
         self.imu = None if placement.imu is None else Imu(placement.imu, index)
@@ -101,11 +104,24 @@ class KinematicRobot:
         self.forces[0] = self.applied_torques[self._left] = left
         self.forces[1] = self.applied_torques[self._right] = right
         self.braking = False
+        self.velocity_targets = None
+
+    def set_wheel_velocities(self, targets: Sequence[float]) -> None:
+        """Wheel speed targets in rad/s by wheel id for the next step (BadInput: wrong length)."""
+        if len(targets) != self.wheel_count:
+            raise BadInput(f"{len(targets)} wheel speed targets, expected {self.wheel_count} (one per wheel id)")
+        self.velocity_targets = (targets[self._left], targets[self._right])
+        self.braking = False
+
+    def show_applied(self) -> None:
+        """After a step that followed wheel speed targets: the torques the plant chose, for the status."""
+        self.applied_torques[self._left], self.applied_torques[self._right] = self.plant.applied
 
     def set_zero_torques(self) -> None:
         self.forces[0] = self.forces[1] = 0.0
         self.applied_torques[self._left] = self.applied_torques[self._right] = 0.0
         self.braking = False
+        self.velocity_targets = None
 
     def brake(self) -> None:
         self.set_zero_torques()
@@ -145,9 +161,14 @@ class KinematicSimulator(WorldOfRobots[KinematicRobot]):
         for body in self.robots:
             plant = body.plant
             before = (plant.x, plant.y, plant.theta, plant.wheel_angles)
+            targets = body.velocity_targets
             if body.braking:
                 plant.brake()
+            elif targets is not None:
+                plant.follow(*targets)
             plant.step(body.forces[0], body.forces[1], self.step_s)
+            if targets is not None:
+                body.show_applied()
             if self._blocked(body, before[0], before[1], touches):
                 plant.x, plant.y, plant.theta, plant.wheel_angles = before
                 plant.wheel_velocities = (0.0, 0.0)

@@ -134,6 +134,8 @@ class StepMatrices:
     angle_from_torque: Array
     torque_to_rest: Array
     """K such that τ = −K φ̇₀ brings φ̇₁ to 0."""
+    torque_to_rate: Array
+    """G⁻¹: τ = G⁻¹ φ̇₁ − K φ̇₀ brings φ̇₁ to the target φ̇₁ (a velocity loop's step, the brakes' at 0)."""
 
     @classmethod
     def of(cls, model: DriveModel, dt: float) -> StepMatrices:
@@ -154,12 +156,14 @@ class StepMatrices:
             return result
 
         rate_from_torque = matrix(once * inverse_mass)
+        torque_to_rate = np.asarray(np.linalg.inv(rate_from_torque), dtype=np.float64)
         return cls(
             rate_from_rate=matrix(decay),
             rate_from_torque=rate_from_torque,
             angle_from_rate=matrix(once),
             angle_from_torque=matrix(twice * inverse_mass),
             torque_to_rest=np.asarray(np.linalg.solve(rate_from_torque, matrix(decay)), dtype=np.float64),
+            torque_to_rate=torque_to_rate,
         )
 
 
@@ -175,6 +179,7 @@ class _Coefficients:
     angle_from_rate: Row
     angle_from_torque: Row
     torque_to_rest: Row
+    torque_to_rate: Row
 
     @classmethod
     def of(cls, matrices: StepMatrices) -> _Coefficients:
@@ -188,6 +193,7 @@ class _Coefficients:
             row(matrices.angle_from_rate),
             row(matrices.angle_from_torque),
             row(matrices.torque_to_rest),
+            row(matrices.torque_to_rate),
         )
 
 
@@ -207,8 +213,9 @@ class DiffDrivePlant:
     """One robot's drive and pose on the floor: :meth:`step` applies the wheels' torques (saturated
     at the model's limit) for ``dt``, :meth:`brake` makes the next step brake the wheels to rest
     instead, each wheel's torque at most the limit (as a motor driver's brake, and as
-    :meth:`sim_bridge.simulator.SimulatedRobot.brake`). Deterministic: the same calls give the same
-    floats."""
+    :meth:`sim_bridge.simulator.SimulatedRobot.brake`), and :meth:`follow` makes it bring them to
+    target speeds the same way (a motor driver's velocity loop). Deterministic: the same calls give
+    the same floats."""
 
     model: DriveModel
     x: float = 0.0
@@ -220,12 +227,20 @@ class DiffDrivePlant:
     """Left, right, rad/s."""
     braking: bool = False
     """The next :meth:`step` brakes to rest (its torques are ignored); cleared by that step."""
+    target: tuple[float, float] | None = None
+    """Wheel speeds (rad/s) the next :meth:`step` brings the wheels to, within the torque limit
+    (its torques are ignored); cleared by that step. None: the torques apply."""
     applied: tuple[float, float] = (0.0, 0.0)
     """The torques the latest step applied (after saturation, or the brakes')."""
     _steps: dict[float, _Coefficients] = field(default_factory=dict, repr=False)
 
     def brake(self) -> None:
         self.braking = True
+
+    def follow(self, left_rate: float, right_rate: float) -> None:
+        """The next step's torques are those that bring the wheels to these speeds (rad/s) by its
+        end, each at most the limit: what a velocity loop as fast as the step would apply."""
+        self.target = (left_rate, right_rate)
 
     def step(self, left_torque: float, right_torque: float, dt: float) -> None:
         """Advance ``dt`` s with the wheels' torques held (or braking, after :meth:`brake`)."""
@@ -235,18 +250,21 @@ class DiffDrivePlant:
         # plain floats, not numpy: a 2×2 product in numpy costs a microsecond, and this runs every step
         vl, vr = self.wheel_velocities
         limit = self.model.max_torque
-        at_rest = False
-        if self.braking:
-            k = step.torque_to_rest
-            needed_l, needed_r = -(k[0] * vl + k[1] * vr), -(k[2] * vl + k[3] * vr)
+        target = (0.0, 0.0) if self.braking else self.target
+        reached = False
+        if target is not None:
+            k, h = step.torque_to_rest, step.torque_to_rate
+            goal_l, goal_r = target
+            needed_l = h[0] * goal_l + h[1] * goal_r - (k[0] * vl + k[1] * vr)
+            needed_r = h[2] * goal_l + h[3] * goal_r - (k[2] * vl + k[3] * vr)
             tl, tr = min(max(needed_l, -limit), limit), min(max(needed_r, -limit), limit)
-            # within the limit, the brakes stop the wheels in this step: exactly 0, not a rounding of it
-            at_rest = tl == needed_l and tr == needed_r
-            self.braking = False
+            # within the limit, the wheels reach the target in this step: exactly, not a rounding of it
+            reached = tl == needed_l and tr == needed_r
+            self.braking, self.target = False, None
         else:
             tl, tr = min(max(left_torque, -limit), limit), min(max(right_torque, -limit), limit)
-        if at_rest:
-            self.wheel_velocities = (0.0, 0.0)
+        if reached:
+            self.wheel_velocities = target  # type: ignore[assignment]
         else:
             a, g = step.rate_from_rate, step.rate_from_torque
             self.wheel_velocities = (

@@ -9,6 +9,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
@@ -28,6 +29,7 @@ from schemas.messages import (
 from services.clock.lockstep import OUTPUTS, StampedOutput, TickBarrier, encode_mark
 from services.clock.observation import ObservedSteps
 from services.config import SimConfig, SimMode
+from services.config.sections import MotorOutput
 from services.runtime.inputs import Delivery, NodeInput
 from services.runtime.logs import RateLimitedLog
 from services.runtime.node import Node
@@ -97,6 +99,15 @@ class TorqueLog:
         )
 
 
+@dataclass(frozen=True)
+class MotorSeam:
+    """What a robot's motor sends (its ``motor.output``) and the bound on wheel speed targets
+    (its ``input.max_wheel_speed``): the link takes that key and nothing else."""
+
+    output: MotorOutput = "torque"
+    max_wheel_speed: float = math.inf
+
+
 class RobotLink:
     """One robot of the world as the bridge serves it: its node (keys, liveliness token, status),
     publishers and inputs, its lockstep barrier and observed steps, its counters and torque
@@ -114,8 +125,10 @@ class RobotLink:
         progress: RunProgress,
         prefix: str,
         world_status: Callable[[], dict[str, Any]],
+        seam: MotorSeam = MotorSeam(),
     ) -> None:
         self.node = node
+        self.seam = seam
         self.body = body
         self.name = body.name
         self.prefix = prefix
@@ -153,6 +166,7 @@ class RobotLink:
             latency=self.latency,
             events=TorqueLog(node.log, warn, parameters, prefix),
             now_ns=time.perf_counter_ns,
+            max_wheel_speed=seam.max_wheel_speed,
         )
         self.liveness = Liveness(
             barrier=self.barrier,
@@ -183,8 +197,14 @@ class RobotLink:
         # interrupt.
         lockstep = self._lockstep
         delivery = Delivery.EVERY if lockstep else Delivery.QUEUED
+        velocity = self.seam.output == "velocity"
         self.torque_input = node.subscribe(
-            keys.motor_torque, TimedDoubleSeq, self.torque.on_torque, delivery, wakes=lockstep, with_attachment=True
+            keys.motor_wheel_velocity if velocity else keys.motor_torque,
+            TimedDoubleSeq,
+            self.torque.on_wheel_velocity if velocity else self.torque.on_torque,
+            delivery,
+            wakes=lockstep,
+            with_attachment=True,
         )
         for service, message_type in ((Service.DRIVE, TimedVelocity), (Service.LOCALIZATION, TimedPosition)):
             self.outputs[service] = node.subscribe(

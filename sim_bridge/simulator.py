@@ -56,8 +56,12 @@ class SimulatedRobot:
         """Left and right torque of the next step, after saturation."""
         self.braking = False
         """The next step brakes the wheels to rest (at most ``max_torque``) instead of applying ``forces``."""
-        self._brakes_on = False
-        """Whether the wheels' velocity motors are on (they brake), in the physics client."""
+        self.velocity_targets: tuple[float, float] | None = None
+        """Left and right wheel speed targets (rad/s) of the next step, for the wheels' velocity
+        motors (at most ``max_torque``); None: the torques apply."""
+        self._motor_targets: tuple[float, float] | None = None
+        """The targets the wheels' velocity motors hold in the physics client (braking: zero);
+        None: they are off."""
         self.applied_torques = [0.0] * self.wheel_count
         """The torques applied during the next step, by wheel id (after saturation)."""
         self.index = index
@@ -74,6 +78,9 @@ class SimulatedRobot:
         angles = [0.0] * self.wheel_count
         angles[self._left] = left[0]
         angles[self._right] = right[0]
+        if self._motor_targets is not None and not self.braking:
+            # the torques the velocity motors applied in the last step, for the status
+            self.applied_torques[self._left], self.applied_torques[self._right] = left[3], right[3]
         return angles
 
     def body_pose(self) -> list[float]:
@@ -109,11 +116,21 @@ class SimulatedRobot:
         self.forces[0] = self.applied_torques[self._left] = left
         self.forces[1] = self.applied_torques[self._right] = right
         self.braking = False
+        self.velocity_targets = None
+
+    def set_wheel_velocities(self, targets: Sequence[float]) -> None:
+        """Wheel speed targets in rad/s by wheel id for the next step: PyBullet's velocity motors
+        (VELOCITY_CONTROL) follow them with at most ``sim.max_wheel_torque`` (BadInput: wrong length)."""
+        if len(targets) != self.wheel_count:
+            raise BadInput(f"{len(targets)} wheel speed targets, expected {self.wheel_count} (one per wheel id)")
+        self.velocity_targets = (targets[self._left], targets[self._right])
+        self.braking = False
 
     def set_zero_torques(self) -> None:
         self.forces[0] = self.forces[1] = 0.0
         self.applied_torques[self._left] = self.applied_torques[self._right] = 0.0
         self.braking = False
+        self.velocity_targets = None
 
     def brake(self) -> None:
         """Brake the wheels to rest in the next step, as a motor driver does when its commands stop."""
@@ -121,17 +138,18 @@ class SimulatedRobot:
         self.braking = True
 
     def apply(self) -> None:
-        """Set this step's wheel motors in the physics client: the torques, or the brakes."""
+        """Set this step's wheel motors in the physics client: the torques, the velocity targets, or the brakes."""
         client, body, wheels = self.client, self.body, self.wheels
-        if self.braking != self._brakes_on:
-            # PyBullet's velocity motors brake; force 0 turns them off again, for torque control.
-            limit = self.max_torque if self.braking else 0.0
+        targets = (0.0, 0.0) if self.braking else self.velocity_targets
+        if targets != self._motor_targets:
+            # PyBullet's velocity motors brake and follow targets; force 0 turns them off again, for torque control.
+            limit = 0.0 if targets is None else self.max_torque
             p.setJointMotorControlArray(
-                body, wheels, p.VELOCITY_CONTROL, targetVelocities=(0.0, 0.0), forces=(limit, limit),
+                body, wheels, p.VELOCITY_CONTROL, targetVelocities=targets or (0.0, 0.0), forces=(limit, limit),
                 physicsClientId=client,
             )  # fmt: skip
-            self._brakes_on = self.braking
-        if not self.braking:
+            self._motor_targets = targets
+        if targets is None:
             # PyBullet clears applied joint torques after every step: they must be set again each time.
             p.setJointMotorControlArray(body, wheels, p.TORQUE_CONTROL, forces=self.forces, physicsClientId=client)
 

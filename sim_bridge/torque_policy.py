@@ -16,10 +16,16 @@ loop asks it at each step; it applies its choice to the robot's :class:`Wheels` 
   (bad input). A step whose own torque has not arrived when it is stepped counts as late.
 - **no torque**: zero torque, or the brakes once there has been none for ``sim.brake_after``
   (the motor control gone, silent, or cut off by a link down).
+
+A motor with ``motor.output = "velocity"`` answers with wheel speed targets
+(``motor/wheel_velocity``, :meth:`TorquePolicy.on_wheel_velocity`) instead: the same rules, the
+targets handed to the wheels' own velocity loop (:meth:`Wheels.set_wheel_velocities`); a target
+not finite or beyond ``input.max_wheel_speed`` is bad input.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import Protocol
 
@@ -47,6 +53,8 @@ class Wheels(Protocol):
     braking: bool
 
     def set_torques(self, torques: Sequence[float]) -> None: ...
+
+    def set_wheel_velocities(self, targets: Sequence[float]) -> None: ...
 
     def set_zero_torques(self) -> None: ...
 
@@ -94,8 +102,11 @@ class TorquePolicy:
         latency: TorqueLatency,
         events: TorqueEvents,
         now_ns: Callable[[], int],
+        max_wheel_speed: float = math.inf,
     ) -> None:
         self._wheels = wheels
+        self.max_wheel_speed = max_wheel_speed
+        """rad/s: a wheel speed target beyond it is bad input (``input.max_wheel_speed``)."""
         self._progress = progress
         self._counters = counters
         """Holds (at least) :data:`TORQUE_COUNTERS`: the link's status counters."""
@@ -120,6 +131,8 @@ class TorquePolicy:
         self.awaited_ns = -1
         self.answered = False
         self.newest_torque: Sequence[float] | None = None
+        """The newest answer (torques, or wheel speed targets: :attr:`newest_apply` says which)."""
+        self.newest_apply: Callable[[Sequence[float]], None] = wheels.set_torques
         self.newest_ns = -1
         self.torque_step = 0
         """The step at which a torque of the motor control was last applied (or the run began)."""
@@ -129,6 +142,20 @@ class TorquePolicy:
         wheels = self._wheels
         if len(torque.data) != wheels.wheel_count:
             raise BadInput(f"{len(torque.data)} torques, expected {wheels.wheel_count} (one per wheel id)")
+        self._answer(torque, wheels.set_torques)
+
+    def on_wheel_velocity(self, targets: TimedDoubleSeq, _attachment: bytes | None) -> None:
+        """A ``motor/wheel_velocity``: the step's answer, as a torque is, but wheel speed targets."""
+        wheels = self._wheels
+        if len(targets.data) != wheels.wheel_count:
+            raise BadInput(f"{len(targets.data)} wheel speed targets, expected {wheels.wheel_count} (one per wheel id)")
+        limit = self.max_wheel_speed
+        for target in targets.data:
+            if not abs(target) <= limit:  # a NaN fails it too
+                raise BadInput(f"wheel speed target {target!r} rad/s beyond input.max_wheel_speed = {limit:g} rad/s")
+        self._answer(targets, wheels.set_wheel_velocities)
+
+    def _answer(self, torque: TimedDoubleSeq, apply: Callable[[Sequence[float]], None]) -> None:
         tm_ns = torque.tm.to_nanoseconds()
         self._latency.answered(tm_ns, self._now_ns())
         if self.lockstep:
@@ -137,7 +164,7 @@ class TorquePolicy:
             if tm_ns != self.awaited_ns or self.answered:
                 self._counters["stale_torques"] += 1
                 return
-            wheels.set_torques(torque.data)
+            apply(torque.data)
             self.answered = True
         elif tm_ns > self._progress.published_ns:
             published_ns = self._progress.published_ns
@@ -146,7 +173,7 @@ class TorquePolicy:
                 f"(t = {published_ns / NANOSECONDS_PER_SECOND:.6f} s): from the future"
             )
         elif tm_ns > self.newest_ns:
-            self.newest_torque, self.newest_ns = torque.data, tm_ns
+            self.newest_torque, self.newest_ns, self.newest_apply = torque.data, tm_ns, apply
 
     def set_motor_alive(self, alive: bool) -> None:
         """A motor control came or went: either way it is not silent (yet)."""
@@ -216,7 +243,7 @@ class TorquePolicy:
             self._counters["realtime_late_steps"] += 1
         newest = self.newest_torque
         if newest is not None and 0 <= tm_ns - self.newest_ns <= self.max_age_ns:
-            self._wheels.set_torques(newest)
+            self.newest_apply(newest)
             self._counters["torques_applied"] += 1
             self.torque_step = step_index
         else:

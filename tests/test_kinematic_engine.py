@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from schemas.codec import BadInput
 from schemas.messages import Time
 from services.config import ImuConfig, LidarConfig, RobotConfig, SimConfig, SimEngine, load_config
 from services.exits import ExitStatus
@@ -233,3 +234,54 @@ def test_the_engine_flag_sets_sim_engine_and_set_does_too():
     assert overrides(args)["sim.engine"] == "kinematic"
     assert load_config(None, {"sim.engine": "kinematic"}).sim.engine == SimEngine.KINEMATIC
     assert SimConfig().engine == SimEngine.PYBULLET
+
+
+def follow(sim: KinematicSimulator | Simulator, left: float, right: float, steps: int) -> None:
+    for _ in range(steps):
+        sim.robots[0].set_wheel_velocities([left, right])
+        sim.step()
+
+
+@pytest.mark.parametrize(("left", "right"), [(3.0, 3.0), (-2.0, 2.0), (4.0, 2.0)])
+def test_both_engines_follow_wheel_speed_targets_alike(left: float, right: float):
+    """The velocity seam (``motor.output = "velocity"``): PyBullet's velocity motors and the kinematic
+    plant's loop bring the wheels to the targets, within the torque limit, and move the robot alike."""
+    world = load_world(None)
+    with (
+        Simulator(RobotConfig(), SimConfig(), world) as physics,
+        KinematicSimulator(RobotConfig(), SimConfig(), world) as model,
+    ):
+        follow(physics, left, right, 1000)
+        follow(model, left, right, 1000)
+        assert model.robots[0].plant.wheel_velocities == (left, right), "the plant reaches its targets exactly"
+        x, y, theta = planar(physics.body_pose())
+        mx, my, mtheta = planar(model.body_pose())
+        assert math.hypot(mx - x, my - y) < 0.01, "within 1 cm after 1 s"
+        assert mtheta == pytest.approx(theta, abs=0.02), "PyBullet's wheels slip a little on the turn"
+        for sim in (physics, model):
+            robot = sim.robots[0]
+            assert all(abs(torque) <= SimConfig().max_wheel_torque for torque in robot.applied_torques)
+
+
+def test_pybullets_velocity_motors_report_the_torque_they_applied_at_most_the_limit():
+    with Simulator(RobotConfig(), SimConfig(), load_world(None)) as sim:
+        follow(sim, 50.0, -50.0, 1)
+        sim.wheel_angles()  # read with the joints' state
+        limit = SimConfig().max_wheel_torque
+        assert sim.robots[0].applied_torques == pytest.approx([limit, -limit])
+
+
+def test_a_target_beyond_the_torque_limit_is_approached_at_the_limit_and_torques_take_over_again():
+    with KinematicSimulator(RobotConfig(), SimConfig(), load_world(None)) as sim:
+        robot = sim.robots[0]
+        follow(sim, 50.0, 50.0, 1)
+        limit = SimConfig().max_wheel_torque
+        assert robot.applied_torques == [limit, limit] and 0.0 < robot.plant.wheel_velocities[0] < 50.0
+        speed = robot.plant.wheel_velocities[0]
+        drive(sim, 0.0, 0.0, 10)
+        assert robot.velocity_targets is None and robot.plant.wheel_velocities[0] == pytest.approx(speed), "coasting"
+
+
+def test_wheel_speed_targets_of_the_wrong_length_are_bad_input():
+    with KinematicSimulator(RobotConfig(), SimConfig(), load_world(None)) as sim, pytest.raises(BadInput):
+        sim.robots[0].set_wheel_velocities([1.0, 1.0, 1.0])

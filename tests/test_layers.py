@@ -48,7 +48,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.localization\.(amcl|likelihood)", CORE),
     (r"services\.mapping\.(occupancy|matcher|builder|from_recording)", CORE),
     (r"services\.motor\.state", CORE),
-    (r"services\.motor\.(sim_pose|speed_limiter|collision|monitor)", CORE),
+    (r"services\.motor\.(sim_pose|speed_limiter|wheel_velocity|collision|monitor)", CORE),
     (r"services\.drive\.(scenarios|path_following|outcome|goals|goal_file)", CORE),
     (r"services\.clock\.(sim_time|lockstep|observation)", CORE),
     (r"services\.planar", CORE),
@@ -62,11 +62,11 @@ LAYERS: tuple[tuple[str, str], ...] = (
         + r"kinematic_model|kinematic_world|kinematic|engine)",
         CORE,
     ),
-    (r"services\.ros2\.(core|wire|interfaces|urdf|graph|outputs|sensors|navigate)", CORE),
+    (r"services\.ros2\.(core|wire|interfaces|urdf|graph|outputs|sensors|navigate|goal_book|tf_tree)", CORE),
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
     (r"services\.drive\.(goal_shell|navigation_shell)", SHELL),
     (r"services\.localization\.amcl_shell", SHELL),
-    (r"services\.ros2\.action_server", SHELL),
+    (r"services\.ros2\.(action_server|action_calls)", SHELL),
     (r"sim_bridge\.(bridge|link|liveness|loops|handshakes)", SHELL),
     (r"services\.service", SHELL_SUPPORT),
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
@@ -296,7 +296,7 @@ def test_a_room_holding_a_launcher_beside_its_cores_is_found():
 
 def test_each_service_room_holds_its_shell_and_its_core():
     for service, cores in {
-        "motor": ("core", "state", "sim_pose", "speed_limiter", "collision", "monitor"),
+        "motor": ("core", "state", "sim_pose", "speed_limiter", "wheel_velocity", "collision", "monitor"),
         "odometry": ("core",),
         "localization": ("core", "amcl", "likelihood"),
         "drive": ("scenarios", "path_following", "outcome", "goals", "goal_file"),

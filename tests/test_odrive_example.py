@@ -2,7 +2,8 @@
 the driver process against a device on a pseudo-terminal (bad serial lines, its watchdog, idle axes
 at exit); and the loop closed through it, realtime, with no simulator: ``invent motor``,
 ``invent odometry`` and ``invent drive --scenario square`` against the emulator, whose true pose
-must end near home."""
+must end near home, with the motor sending torques and with it sending wheel speed targets
+(``motor.output = "velocity"``: the axes in the ODrive's own velocity control)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import threading
 import time
 import tty
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -91,10 +93,14 @@ def test_lines_are_bounded_and_do_not_depend_on_how_the_bytes_arrive(chunks):
     assert all(0 < len(line) <= protocol.MAX_LINE_BYTES and not set(line) & set(b"\r\n!") for line in lines)
 
 
-def test_a_mirrored_geared_wheel_maps_turns_and_torques():
+def test_a_mirrored_geared_wheel_maps_turns_torques_and_speeds():
     wheel = Wheel(axis=1, sign=-1, gear_ratio=10.0)
     assert wheel.wheel_angle(-10.0) == pytest.approx(2 * math.pi)  # ten motor turns backward: one wheel turn forward
     assert wheel.motor_torque(2.0) == pytest.approx(-0.2)
+    assert wheel.motor_velocity(2 * math.pi) == pytest.approx(-10.0)  # a wheel turn a second: ten motor turns back
+    assert protocol.velocity_command(0, 1.5) == protocol.line("v 0 1.500000 0")
+    with pytest.raises(ValueError):
+        protocol.velocity_command(0, math.nan)
     with pytest.raises(ValueError):
         Wheel(axis=2)
 
@@ -136,6 +142,22 @@ def test_torque_applies_in_closed_loop_only_and_is_cut_near_vel_limit():
     assert left > 0 > right and left_rate == pytest.approx(-right_rate, rel=1e-3)
     assert left_rate == pytest.approx(2.0, abs=0.05)  # held at the default vel_limit, 2 turns/s
     assert device.plant.x > 0.0 and abs(device.plant.theta) < 1e-6
+
+
+def test_velocity_control_brings_the_motors_to_their_setpoints():
+    device = _device(offsets=(0.0, 0.0))
+    for axis in (0, 1):
+        device.receive(protocol.write_property(f"axis{axis}.requested_state", CLOSED_LOOP), 0.0)
+    _replies(device, "v 0 1.5 0")
+    _replies(device, "v 1 -1.5 0")  # the right motor is mirrored: this drives it forward
+    device.advance(2.0)
+    (_, left_rate), (_, right_rate) = (protocol.parse_feedback(_replies(device, f"f {a}", 2.0)[0]) for a in (0, 1))
+    assert left_rate == pytest.approx(1.5, abs=0.01) and right_rate == pytest.approx(-1.5, abs=0.01)
+    assert device.axes[0].values["controller.config.control_mode"] == 2
+    assert device.plant.x > 0.0 and abs(device.plant.theta) < 1e-6
+    _replies(device, "v 0 50 0", 2.0)  # beyond vel_limit (2 turns/s): held at it
+    device.advance(4.0)
+    assert protocol.parse_feedback(_replies(device, "f 0", 4.0)[0])[1] == pytest.approx(2.0, abs=0.02)
 
 
 def test_the_devices_watchdog_idles_an_axis_not_fed():
@@ -266,14 +288,16 @@ def test_the_driver_survives_bad_lines_zeroes_a_silent_motor_rearms_after_a_stal
 # --- the loop closed through the driver: motor, odometry and drive against the emulator ---
 
 
-@pytest.fixture(scope="module")
-def square_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+@pytest.fixture(scope="module", params=["torque", "velocity"])
+def square_run(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     """One square against the emulated ODrive, in real time, shared by the tests that read it: what
     the drive said, what odometry and the driver report at the end, and the emulator's report (its
     true pose and the axes' states after the driver stopped). Real time costs 21 s; at twice wall
     time (the emulator's ``--time-scale 2``, ``sim.realtime_factor=2``: 11 s) the late cycles went
-    from none to hundreds with the machine's load at 5 to 9, and about 6 runs in 25 failed (README.md)."""
-    tmp = tmp_path_factory.mktemp("odrive")
+    from none to hundreds with the machine's load at 5 to 9, and about 6 runs in 25 failed (README.md).
+    Run once with each ``motor.output``, given to the motor and the driver alike."""
+    tmp = tmp_path_factory.mktemp(f"odrive_{request.param}")
+    output = ("--set", f"motor.output={request.param}")
     emulator = subprocess.Popen(
         [sys.executable, "-m", "examples.odrive.emulator", "--report", str(tmp / "truth.json")],
         cwd=REPO,
@@ -288,18 +312,22 @@ def square_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, A
             outcomes = Collector(session, KEYS.drive_outcome, ScenarioOutcome)
             with (
                 # as they are: no sim/body_pose, no lidar, no setting of the plant's
-                InventProcess("motor", *connect, "--state", str(tmp / "motor.state"), drain=True) as motor,
+                InventProcess("motor", *connect, "--state", str(tmp / "motor.state"), *output, drain=True) as motor,
                 InventProcess("odometry", *connect, drain=True),
                 InventProcess("drive", *connect, "--scenario", "square", drain=True) as drive,
             ):
                 for service in (Service.MOTOR, Service.ODOMETRY, Service.DRIVE):
                     wait_alive(session, KEYS.alive(service))
-                command = ("-m", "examples.odrive.driver", "--port", port, *connect, *REALTIME, *WATCHDOG)
+                command = ("-m", "examples.odrive.driver", "--port", port, *connect, *REALTIME, *WATCHDOG, *output)
                 plant = subprocess.Popen([sys.executable, *command], cwd=REPO, stderr=subprocess.PIPE, text=True)
                 try:
                     outcome = outcomes.get(timeout=90)
                     # the motor brakes once the drive's commands stop (its command timeout): at rest, compare
                     odometry = wait_until(lambda: _at_rest(session), 30, "the robot at rest")
+                    # the truth beside it: once the driver stops, the axes go idle and the frictionless
+                    # emulator's wheels roll on at what speed they had (in velocity control the ODrive's
+                    # PI loop passes zero by about 5 mm/s and settles over about a second)
+                    truth_at_rest = _truth_now(emulator, tmp / "truth.json")
                     driver_status = _status(session)
                 finally:
                     plant.send_signal(signal.SIGINT)
@@ -313,9 +341,11 @@ def square_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, A
         if emulator.poll() is None:
             emulator.kill()
     yield {
+        "output": request.param,
         "outcome": outcome,
         "drive_exit": drive.process.returncode,
         "odometry": odometry,
+        "truth_at_rest": truth_at_rest,
         "driver": driver_status,
         "driver_exit": plant.returncode,
         "driver_log": driver_log,
@@ -331,6 +361,19 @@ def _at_rest(session: Any) -> dict[str, Any] | None:
     return status if abs(velocity["v"]) < 2e-3 and abs(velocity["omega"]) < 1e-2 else None
 
 
+def _truth_now(emulator: subprocess.Popen[str], report: Path) -> dict[str, Any]:
+    """The emulator's true pose now (SIGUSR1), while the driver still holds the axes."""
+    emulator.send_signal(signal.SIGUSR1)
+
+    def written() -> dict[str, Any] | None:
+        try:
+            return json.loads(report.read_text())  # type: ignore[no-any-return]
+        except (OSError, ValueError):
+            return None
+
+    return wait_until(written, 10, "the emulator's report")
+
+
 @pytest.mark.slow
 def test_the_square_closes_against_the_emulated_odrive(square_run):
     outcome, truth = square_run["outcome"], square_run["truth"]
@@ -340,6 +383,8 @@ def test_the_square_closes_against_the_emulated_odrive(square_run):
     # five runs (1.4 cm once at twice wall time under load); PyBullet's realtime square, with the
     # localization stub's fixes: 0.1 cm. Heading the last leg's -90° within 2° (measured -89.8° to -89.9°).
     said = (truth, square_run["driver"], square_run["odometry"]["pose"])
+    home_cm, heading = 100 * math.hypot(truth["x"], truth["y"]), math.remainder(truth["theta"], 2 * math.pi)
+    print(f"{square_run['output']}: {home_cm:.2f} cm from home, heading {math.degrees(heading):.1f} deg")
     assert math.hypot(truth["x"], truth["y"]) < 0.025, said
     assert abs(math.remainder(truth["theta"] + math.pi / 2, 2 * math.pi)) < math.radians(2), said
 
@@ -349,7 +394,7 @@ def test_odometry_from_the_drivers_wheel_angles_is_the_emulators_truth(square_ru
     # Ideal rolling in the emulator: odometry is off only by the encoder's counts and its arcs' chords,
     # if the driver maps axes, signs and the gear right (a wrong sign or ratio misses by metres).
     # Measured 0.05 to 0.07 mm in five runs.
-    pose, truth = square_run["odometry"]["pose"], square_run["truth"]
+    pose, truth = square_run["odometry"]["pose"], square_run["truth_at_rest"]
     assert math.hypot(pose["x"] - truth["x"], pose["y"] - truth["y"]) < 0.002, (pose, truth)
     assert abs(math.remainder(pose["theta"] - truth["theta"], 2 * math.pi)) < math.radians(0.2)
 
@@ -358,6 +403,11 @@ def test_odometry_from_the_drivers_wheel_angles_is_the_emulators_truth(square_ru
 def test_the_driver_served_the_run_and_left_the_axes_idle(square_run):
     counters = square_run["driver"]["counters"]
     assert square_run["driver_exit"] == 0, square_run["driver_log"]
+    assert square_run["driver"]["output"] == square_run["output"]
+    written = "wheel_velocities_written" if square_run["output"] == "velocity" else "torques_written"
+    assert counters[written] >= 0.9 * counters["steps"] and counters[written] == max(
+        counters["torques_written"], counters["wheel_velocities_written"]
+    ), counters
     assert counters["steps"] >= 0.9 * square_run["driver"]["time_s"] / 0.01, counters  # published its cycles
     # none measured in five runs (4% once, at twice wall time with the machine's load at 10)
     assert counters["serial_errors"] <= 0.01 * counters["steps"], counters

@@ -229,6 +229,7 @@ def test_every_spec_data_key_has_its_schema():
         "sim/clock": TimedDoubleSeq,
         "sim/body_pose": TimedDoubleSeq,
         "motor/torque": TimedDoubleSeq,
+        "motor/wheel_velocity": TimedDoubleSeq,
         "motor/wheel_angles": TimedDoubleSeq,
         "motor/sim_pose/gui": TimedDoubleSeq,
         "motor/sim_pose/localization": TimedDoubleSeq,

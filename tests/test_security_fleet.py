@@ -98,6 +98,7 @@ def test_each_robots_service_roles_get_exactly_the_single_robot_grants_on_their_
                 assert not any(key.startswith(f"{other.prefix}/") for key in named), (identity, message)
     assert _granted(Identity(Role.MOTOR, "rh1"), Message.PUT) == {
         RH1.motor_torque,
+        RH1.motor_wheel_velocity,
         RH1.motor_wheel_angles,
         RH1.motor_sim_pose_gui,
         RH1.motor_sim_pose_localization,

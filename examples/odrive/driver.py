@@ -10,6 +10,10 @@ time). Every ``sim.step`` of wall time (divided by ``sim.realtime_factor``) a cy
 positions (``f 0``, ``f 1``), publishes them as ``sim/wheel_angles`` stamped with the cycle's
 time (k·step: a real base's clock is its cycle count), and at the observed steps ``sim/clock``
 once the cycle's torque is in; each ``motor/torque`` goes to the axes at once (``c 0``, ``c 1``).
+With ``--set motor.output=velocity`` (the motor's setting, read from the same description) it
+takes ``motor/wheel_velocity`` instead and the axes run the ODrive's own velocity control: each
+target goes to them at once (``v 0``, ``v 1``); a target not finite or beyond
+``input.max_wheel_speed`` is bad input, never sent.
 It holds ``sim/alive`` and answers ``sim/status``. Not served: ``sim/body_pose`` (nobody knows
 the true pose of a real base), ``sim/bump`` (an ODrive has no bumper), ``sim/world``, the sensors.
 
@@ -58,6 +62,7 @@ COUNTERS = (
     "late_cycles",
     "resyncs",
     "torques_written",
+    "wheel_velocities_written",
     "late_torques",
     "stale_torques",
     "watchdog_zero_steps",
@@ -77,6 +82,8 @@ class Driver:
         self.max_age_ns = round(sim.torque_max_age * NANOSECONDS_PER_SECOND)
         self.ids = robot.left_wheel_id, robot.right_wheel_id
         self.width = max(self.ids) + 1
+        self.velocity = config.motor.output == "velocity"
+        self.max_wheel_speed = config.input.max_wheel_speed
         self.observation = ObservedSteps(sim.observe_every)
         self.marks = (encode_mark(None, observed=False), encode_mark(None, observed=True))
         self.counters = dict.fromkeys(COUNTERS, 0)
@@ -88,7 +95,10 @@ class Driver:
         keys = node.keys
         self._angles = node.publisher(keys.sim_wheel_angles)
         self._clock = node.publisher(keys.sim_clock)
-        node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, Delivery.QUEUED)
+        if self.velocity:
+            node.subscribe(keys.motor_wheel_velocity, TimedDoubleSeq, self._on_wheel_velocity, Delivery.QUEUED)
+        else:
+            node.subscribe(keys.motor_torque, TimedDoubleSeq, self._on_torque, Delivery.QUEUED)
         # Who takes ticks (the drive's clock at each of its ticks) or observes: their steps are observed.
         liveliness = node.session.liveliness()
         self._watches = [
@@ -113,18 +123,38 @@ class Driver:
     def _on_torque(self, torque: TimedDoubleSeq) -> None:
         if len(torque.data) != self.width:
             raise BadInput(f"{len(torque.data)} torques, expected {self.width} (one per wheel id)")
-        tm_ns = torque.tm.to_nanoseconds()
+        if self._fresh(torque):
+            # at once, not at the next cycle: the ODrive holds a torque until told otherwise
+            self.odrive.set_torques(torque.data[self.ids[0]], torque.data[self.ids[1]])
+            self.counters["torques_written"] += 1
+            self._answered(torque)
+
+    def _on_wheel_velocity(self, targets: TimedDoubleSeq) -> None:
+        if len(targets.data) != self.width:
+            raise BadInput(f"{len(targets.data)} wheel speed targets, expected {self.width} (one per wheel id)")
+        if not all(abs(target) <= self.max_wheel_speed for target in targets.data):
+            raise BadInput(f"wheel speed targets {targets.data} beyond input.max_wheel_speed = {self.max_wheel_speed}")
+        if self._fresh(targets):
+            self.odrive.set_wheel_velocities(targets.data[self.ids[0]], targets.data[self.ids[1]])
+            self.counters["wheel_velocities_written"] += 1
+            self._answered(targets)
+
+    def _fresh(self, answer: TimedDoubleSeq) -> bool:
+        """Whether a torque (or target) is to be sent: not from the future (bad input), not older
+        than the one sent nor than ``sim.torque_max_age`` (stale, counted)."""
+        tm_ns = answer.tm.to_nanoseconds()
         if tm_ns > self.published_ns:
             raise BadInput(
-                f"torque stamped {tm_ns} ns, after the latest step ({self.published_ns} ns): from the future"
+                f"answer stamped {tm_ns} ns, after the latest step ({self.published_ns} ns): from the future"
             )
         if (self.newest_ns is not None and tm_ns <= self.newest_ns) or self.published_ns - tm_ns > self.max_age_ns:
             self.counters["stale_torques"] += 1  # older than the one applied, or too old to apply
-            return
+            return False
+        return True
+
+    def _answered(self, answer: TimedDoubleSeq) -> None:
+        tm_ns = answer.tm.to_nanoseconds()
         self.newest_ns = tm_ns
-        # at once, not at the next cycle: the ODrive holds a torque until told otherwise
-        self.odrive.set_torques(torque.data[self.ids[0]], torque.data[self.ids[1]])
-        self.counters["torques_written"] += 1
         if tm_ns == self.published_ns:
             self._publish_clock()
 
@@ -161,7 +191,11 @@ class Driver:
         if self.newest_ns != tm_ns:
             self.counters["late_torques"] += 1
         if self.newest_ns is None or tm_ns - self.newest_ns > self.max_age_ns:
-            self.odrive.set_torques(0.0, 0.0)  # every cycle: it also feeds the ODrive's own watchdog
+            # every cycle: it also feeds the ODrive's own watchdog (in velocity control: zero speed, held)
+            if self.velocity:
+                self.odrive.set_wheel_velocities(0.0, 0.0)
+            else:
+                self.odrive.set_torques(0.0, 0.0)
             self.counters["watchdog_zero_steps"] += 1
 
     def _poll_states(self) -> None:
@@ -214,6 +248,7 @@ class Driver:
         return {
             "state": "running",
             "plant": "odrive",
+            "output": "velocity" if self.velocity else "torque",
             "time_s": max(self.published_ns, 0) / NANOSECONDS_PER_SECOND,
             "rate_hz": NANOSECONDS_PER_SECOND / self.step_ns,
             "counters": dict(self.counters),
@@ -288,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as error:
         log.error("cannot open %s: %s", args.port, error.strerror or error)
         return 1
-    odrive = ODrive(port, axes, START_REPLY_TIMEOUT_S, args.max_motor_torque)
+    odrive = ODrive(port, axes, START_REPLY_TIMEOUT_S, args.max_motor_torque, config.motor.output == "velocity")
     try:
         # before anything is announced: is there an ODrive, speaking ASCII, on this port?
         log.info("ODrive on %s: vbus %.1f V", args.port, odrive.read("vbus_voltage"))

@@ -12,13 +12,15 @@ ground truth the driver never sees, and the axes' states) at exit and on SIGUSR1
 What a driver meets here as on a board: positions in turns of the motor's encoder (quantised to
 its counts per revolution, from an arbitrary start), a gearbox between motor and wheel, one motor
 mounted mirrored, torques in N·m of the motor, limited by ``current_lim`` times
-``torque_constant`` and, in torque mode, cut near ``vel_limit`` (2 turns/s by default); an axis
+``torque_constant`` and, in torque mode, cut near ``vel_limit`` (2 turns/s by default); velocity
+control (``v``: the firmware's PI loop on the encoder's speed, ``vel_gain`` and
+``vel_integrator_gain``, the setpoint clamped to ``vel_limit``, run at each substep); an axis
 that takes torque only in closed-loop control (``requested_state`` 8); the ODrive's own watchdog;
 checksums; and the firmware's answers to what it does not know (``unknown command``,
 ``invalid property``, ...). What it leaves out: calibration, motor and encoder errors, the
 rotor's inertia and the gearbox's backlash and losses, friction (an idle wheel rolls on), the
-current loop (a torque applies at once), the encoder's velocity filter, and position and velocity
-control (``p``, ``q``, ``v``, ``t`` answer ``not implemented``, as a board would not).
+current loop (a torque applies at once), the encoder's velocity filter, the input filters, and
+position control (``p``, ``q``, ``t`` answer ``not implemented``, as a board would not).
 """
 
 from __future__ import annotations
@@ -46,6 +48,8 @@ RESPONSE_BYTES = 64
 PROPERTY_CHARS = 9
 """``r`` prints a value into a 10-byte buffer: at most 9 characters of it."""
 IDLE, CLOSED_LOOP = 1, 8
+TORQUE_CONTROL, VELOCITY_CONTROL = 1, 2
+"""``controller.config.control_mode`` values (``c`` sets the first, ``v`` the second)."""
 WATCHDOG_TIMER_EXPIRED = 0x800
 """``axis.error`` bit of firmware 0.5."""
 FEEDS_WATCHDOG = "pqvctu"
@@ -61,9 +65,12 @@ class Axis:
             "current_state": IDLE,
             "error": 0,
             "controller.input_torque": 0.0,
+            "controller.input_vel": 0.0,
+            "controller.vel_integrator_torque": 0.0,
             "controller.config.control_mode": 3,
             "controller.config.vel_limit": 2.0,
             "controller.config.vel_gain": 1.0 / 6.0,
+            "controller.config.vel_integrator_gain": 1.0 / 3.0,
             "controller.config.enable_torque_mode_vel_limit": 1,
             "motor.config.torque_constant": 0.04,
             "motor.config.current_lim": 10.0,
@@ -88,16 +95,33 @@ class Axis:
     read_only: ClassVar[frozenset[str]] = frozenset({"current_state", "encoder.pos_estimate", "encoder.vel_estimate"})
     fed_at: float = 0.0
 
-    def motor_torque(self, velocity_turns: float) -> float:
-        """N·m the motor gives now, as the firmware's controller computes it in torque mode."""
+    def motor_torque(self, velocity_turns: float, dt: float) -> float:
+        """N·m the motor gives now, as the firmware's controller computes it (``Controller::update``)
+        in torque mode, or in velocity mode over a control period of ``dt`` s."""
         v = self.values
         if v["current_state"] != CLOSED_LOOP:
             return 0.0
         limit = v["motor.config.current_lim"] * v["motor.config.torque_constant"]
+        if v["controller.config.control_mode"] == VELOCITY_CONTROL:
+            return self._velocity_control(velocity_turns, dt, limit)
         torque = min(max(v["controller.input_torque"], -limit), limit)
         if v["controller.config.enable_torque_mode_vel_limit"]:
             vel_limit, gain = v["controller.config.vel_limit"], v["controller.config.vel_gain"]
             torque = min(max(torque, (-vel_limit - velocity_turns) * gain), (vel_limit - velocity_turns) * gain)
+        return min(max(torque, -limit), limit)
+
+    def _velocity_control(self, velocity_turns: float, dt: float, limit: float) -> float:
+        """The PI loop: the integrator grows while the torque is within the limit, decays while not."""
+        v = self.values
+        vel_limit = v["controller.config.vel_limit"]
+        error = min(max(v["controller.input_vel"], -vel_limit), vel_limit) - velocity_turns
+        torque = v["controller.input_torque"] + v["controller.config.vel_gain"] * error
+        torque += v["controller.vel_integrator_torque"]
+        limited = abs(torque) > limit
+        if limited:
+            v["controller.vel_integrator_torque"] *= 0.99
+        else:
+            v["controller.vel_integrator_torque"] += v["controller.config.vel_integrator_gain"] * dt * error
         return min(max(torque, -limit), limit)
 
 
@@ -150,7 +174,8 @@ class Device:
                     v["current_state"], v["error"] = IDLE, int(v["error"]) | WATCHDOG_TIMER_EXPIRED
                     self.counters["watchdog_expiries"] += 1
                 velocity = self.motor_turns(number)[1]
-                wheel_torque = axis.motor_torque(velocity) * self.mechanics.gear_ratio * self._sign(number)
+                motor_torque = axis.motor_torque(velocity, self.substep)
+                wheel_torque = motor_torque * self.mechanics.gear_ratio * self._sign(number)
                 torques[self._wheel_of(number)] = wheel_torque
             self.plant.step(torques[0], torques[1], self.substep)
             self.time += self.substep
@@ -223,13 +248,14 @@ class Device:
         return ["unknown command"]  # the empty line too, as 0.5's switch reads
 
     def _axis_command(self, letter: str, fields: list[str], now: float) -> list[str]:
-        needed = 3 if letter == "c" else 2
+        needed = 3 if letter in "cv" else 2
         try:
             number = int(fields[1])
-            torque = float(fields[2]) if letter == "c" else 0.0
+            setpoint = float(fields[2]) if letter in "cv" else 0.0
+            feed_forward = float(fields[3]) if letter == "v" and len(fields) > 3 else 0.0
         except (IndexError, ValueError):
             return ["invalid command format"]
-        if len(fields) < needed or number < 0 or not math.isfinite(torque):
+        if len(fields) < needed or number < 0 or not (math.isfinite(setpoint) and math.isfinite(feed_forward)):
             return ["invalid command format"]
         if number >= len(self.axes):
             return [f"invalid motor {number}"]
@@ -239,10 +265,13 @@ class Device:
             counts = axis.values["encoder.config.cpr"]
             return [f"{math.floor(position * counts) / counts:f} {velocity:f}"]
         if letter == "c":
-            axis.values["controller.input_torque"] = torque
-            axis.values["controller.config.control_mode"] = 1
+            axis.values["controller.input_torque"] = setpoint
+            axis.values["controller.config.control_mode"] = TORQUE_CONTROL
+        elif letter == "v":
+            axis.values["controller.input_vel"], axis.values["controller.input_torque"] = setpoint, feed_forward
+            axis.values["controller.config.control_mode"] = VELOCITY_CONTROL
         elif letter != "u":
-            return ["not implemented"]  # position and velocity control: not emulated
+            return ["not implemented"]  # position control: not emulated
         axis.fed_at = now
         return []
 

@@ -1,7 +1,7 @@
 """The driver's serial side, no zenoh: a serial port opened raw (:class:`SerialPort`, plain ``os`` and
 ``termios``: Linux, a USB CDC device such as ``/dev/ttyACM0``, a UART, or the emulator's
 pseudo-terminal) and the two axes of an ODrive on it (:class:`ODrive`): their feedback as wheel
-angles, torques to them, arming and disarming.
+angles, torques or wheel speeds to them (torque or velocity control), arming and disarming.
 
 Every exchange is bounded in time: a reply that does not come within ``reply_timeout`` raises
 :class:`LinkError`, and so does a reply that does not parse. The driver counts those and goes on;
@@ -10,6 +10,7 @@ the port itself failing (unplugged) is an ``OSError``.
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import termios
@@ -28,6 +29,7 @@ from examples.odrive.protocol import (
     parse_number,
     read_property,
     torque_command,
+    velocity_command,
     write_property,
 )
 
@@ -118,12 +120,19 @@ class Axes:
 
 
 class ODrive:
-    """An ODrive's two axes over a :class:`SerialPort`, in wheel units: rad and N·m at the wheel."""
+    """An ODrive's two axes over a :class:`SerialPort`, in wheel units: rad, rad/s and N·m at the
+    wheel. ``velocity``: the axes run the firmware's velocity control (``v``), not torque control
+    (``c``): zero, arming and disarming say so in that mode."""
 
-    def __init__(self, port: SerialPort, axes: Axes, reply_timeout: float, max_motor_torque: float) -> None:
+    def __init__(
+        self, port: SerialPort, axes: Axes, reply_timeout: float, max_motor_torque: float, velocity: bool = False
+    ) -> None:
         self.port, self.axes = port, axes
         self.reply_timeout = reply_timeout
         self.max_motor_torque = max_motor_torque
+        self.velocity = velocity
+        self.vel_limit = math.inf
+        """turns/s of the motor, each velocity command clamped (what :meth:`arm` wrote)."""
         self.stray_lines = 0
         """Lines that came unasked (dropped before an exchange)."""
 
@@ -157,6 +166,19 @@ class ODrive:
             commands += torque_command(wheel.axis, max(-limit, min(limit, wheel.motor_torque(torque))))
         self.port.write(commands)
 
+    def set_wheel_velocities(self, left_radians_per_second: float, right_radians_per_second: float) -> None:
+        """Wheel speeds (rad/s, positive forward) as the motors' velocity setpoints, clamped to the
+        ``vel_limit`` written at :meth:`arm`; ``v`` answers nothing, and feeds the ODrive's own watchdog."""
+        limit = self.vel_limit
+        commands = b""
+        for wheel, speed in ((self.axes.left, left_radians_per_second), (self.axes.right, right_radians_per_second)):
+            commands += velocity_command(wheel.axis, max(-limit, min(limit, wheel.motor_velocity(speed))))
+        self.port.write(commands)
+
+    def zero(self, axis: int) -> bytes:
+        """The line that zeroes an axis in its mode: zero torque, or zero speed (the wheel held)."""
+        return velocity_command(axis, 0.0) if self.velocity else torque_command(axis, 0.0)
+
     def read(self, name: str) -> float:
         (reply,) = self._ask(read_property(name), 1)
         try:
@@ -172,8 +194,9 @@ class ODrive:
             raise LinkError(f"w {name} {value}: it reads back otherwise")
 
     def arm(self, vel_limit: float, watchdog_timeout: float | None) -> None:
-        """Set what the driver relies on, then closed-loop control on both axes (torque mode comes
-        with the first ``c``). Raises LinkError naming what did not take."""
+        """Set what the driver relies on, then closed-loop control on both axes (torque or velocity
+        control comes with the first ``c`` or ``v``). Raises LinkError naming what did not take."""
+        self.vel_limit = vel_limit
         for wheel in (self.axes.left, self.axes.right):
             axis = f"axis{wheel.axis}"
             # In torque mode the firmware cuts the torque as the motor nears vel_limit (2 turns/s by
@@ -183,7 +206,7 @@ class ODrive:
                 # The ODrive's own watchdog: if this process dies, the axis goes idle by itself.
                 self.write_checked(f"{axis}.config.watchdog_timeout", watchdog_timeout)
                 self.write_checked(f"{axis}.config.enable_watchdog", 1)
-            self.port.write(torque_command(wheel.axis, 0.0))
+            self.port.write(self.zero(wheel.axis))
             self.port.write(write_property(f"{axis}.requested_state", AXIS_STATE_CLOSED_LOOP_CONTROL))
         deadline = time.monotonic() + ARM_TIMEOUT_S
         while (states := self.states()) != (AXIS_STATE_CLOSED_LOOP_CONTROL,) * 2:
@@ -203,16 +226,16 @@ class ODrive:
 
     def rearm(self) -> None:
         """After the ODrive's own watchdog idled the axes (this process was late feeding it): clear
-        the errors (``sc``), zero torque, closed-loop control again. The next poll says if it took."""
+        the errors (``sc``), zero torque (or speed), closed-loop control again. The next poll says if it took."""
         self.port.write(line("sc"))
         for wheel in (self.axes.left, self.axes.right):
-            self.port.write(torque_command(wheel.axis, 0.0))
+            self.port.write(self.zero(wheel.axis))
             self.port.write(write_property(f"axis{wheel.axis}.requested_state", AXIS_STATE_CLOSED_LOOP_CONTROL))
 
     def disarm(self) -> None:
-        """Zero torque, then both axes idle (the motors unpowered: the wheels roll freely)."""
+        """Zero torque (or speed), then both axes idle (the motors unpowered: the wheels roll freely)."""
         for wheel in (self.axes.left, self.axes.right):
-            self.port.write(torque_command(wheel.axis, 0.0))
+            self.port.write(self.zero(wheel.axis))
             self.port.write(write_property(f"axis{wheel.axis}.requested_state", AXIS_STATE_IDLE))
 
 

@@ -6,7 +6,8 @@ line, ``command *checksum ; comment``, a line ending at ``\\r``, ``\\n`` or ``!`
 the XOR of every byte before the ``*``, in decimal; given one, the device checks it (a line whose
 checksum is wrong is ignored: no reply at all) and puts one on its replies (``text*N\\r\\n``).
 ``f <axis>`` answers ``<pos> <vel>`` in turns and turns/s of the motor's encoder; ``c <axis> <Nm>``
-sets the motor's torque setpoint and answers nothing; ``r <property>`` answers the value,
+sets the motor's torque setpoint (torque control) and ``v <axis> <turns/s> <Nm>`` its velocity
+setpoint and feed-forward torque (velocity control: the firmware's own loop), both answering nothing; ``r <property>`` answers the value,
 ``w <property> <value>`` nothing when it worked. Errors are text: ``unknown command``,
 ``invalid motor 2``, ``invalid command format``, ``invalid property``, ``not implemented``.
 
@@ -60,6 +61,13 @@ def torque_command(axis: int, newton_metres: float) -> bytes:
     if not math.isfinite(newton_metres):
         raise ValueError(f"torque {newton_metres} is not finite")
     return line(f"c {axis} {newton_metres:.6f}")
+
+
+def velocity_command(axis: int, turns_per_second: float) -> bytes:
+    """The motor's velocity setpoint (no feed-forward torque); non-finite values are refused here."""
+    if not math.isfinite(turns_per_second):
+        raise ValueError(f"velocity {turns_per_second} is not finite")
+    return line(f"v {axis} {turns_per_second:.6f} 0")
 
 
 def read_property(name: str) -> bytes:
@@ -171,3 +179,7 @@ class Wheel:
     def motor_torque(self, wheel_newton_metres: float) -> float:
         """N·m the motor must give for the wheel's torque (positive forward)."""
         return self.sign * wheel_newton_metres / self.gear_ratio
+
+    def motor_velocity(self, wheel_radians_per_second: float) -> float:
+        """turns/s of the motor for the wheel's speed in rad/s (positive forward)."""
+        return self.sign * wheel_radians_per_second * self.gear_ratio / (2.0 * math.pi)

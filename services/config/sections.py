@@ -75,8 +75,22 @@ class TargetAngleMode(StrEnum):
     INTEGRATED = "integrated"
 
 
+MotorOutput = Literal["torque", "velocity"]
+"""What the motor sends the plant (``motor.output``): wheel torques or wheel speed targets."""
+
+
 class MotorConfig(Section, frozen=True):
-    """The motor control: PD gains, the simulated model's offsets, the command timeout and limits."""
+    """The motor control: its output, PD gains, the simulated model's offsets, the command timeout and limits."""
+
+    output: MotorOutput = "torque"
+    """What answers each wheel-angle sample: ``torque``, the PD law's wheel torques on
+    ``motor/torque``; ``velocity``, wheel speed targets (rad/s) on ``motor/wheel_velocity`` that the
+    plant's own velocity loop follows (ODrive's velocity mode, RoboClaw speed commands; docs/plant.md)."""
+    velocity_rate: Annotated[Positive, PER_SIMULATED_SECOND] = 100.0
+    """With ``output = "velocity"``: how often the wheel speed targets change, on the wheel-angle
+    time (a plant's velocity loop takes new targets at 50 to 100 Hz); between two, the last is sent
+    again. A stop or a finish sends zero at once; a command timeout brakes through the limits, as with
+    torques."""
 
     p_gain_l: Annotated[NonNegative, P_GAIN] = 5.0
     """P gain of the left wheel; changeable at run time with set_pd_gain."""

@@ -30,6 +30,7 @@ from services.config import CalibratedGeometry, InputConfig, MotorConfig, Odomet
 from services.motor.monitor import CollisionMonitor
 from services.motor.sim_pose import SimPoseConverter
 from services.motor.speed_limiter import SpeedLimiter
+from services.motor.wheel_velocity import WheelVelocityOutput
 from services.planar import check_coordinates
 
 
@@ -92,6 +93,10 @@ class MotorCore:
         self._max_wheel_speed = limits.max_wheel_speed
         self.gains = PDGains(motor.p_gain_l, motor.p_gain_r, motor.d_gain_l, motor.d_gain_r)
         self._pose = SimPoseConverter.from_config(motor)
+        self.velocity_output: WheelVelocityOutput | None = (
+            WheelVelocityOutput(motor.velocity_rate, limits.max_wheel_speed) if motor.output == "velocity" else None
+        )
+        """``motor.output = "velocity"``: :meth:`step` returns wheel speed targets, not torques."""
         self.vx_limiter = SpeedLimiter(motor.max_vx, motor.max_ax)
         self.w_limiter = SpeedLimiter(motor.max_w, motor.max_aw)
         self._limited = self.vx_limiter.enabled or self.w_limiter.enabled
@@ -130,7 +135,7 @@ class MotorCore:
         self.targets_ignored = 0
         self.command_timeouts = 0
         self.nonfinite_torques = 0
-        """Cycles whose torque came out non-finite: zero torque was sent instead."""
+        """Cycles whose torque (or wheel speed target) came out non-finite: zero was sent instead."""
 
         self.cycle_state = MotorState.IDLE
         self.dq: tuple[float, float] | None = None
@@ -155,7 +160,9 @@ class MotorCore:
         """One control cycle for the wheel angles ``angles`` stamped ``stamp_ns`` (nanoseconds).
 
         Returns the torque vector: same length and order as ``angles``, zero except at the two
-        wheel ids, all zero on the first sample and in states ``idle`` and ``finished``.
+        wheel ids, all zero on the first sample and in states ``idle`` and ``finished``. With
+        ``motor.output = "velocity"`` the vector holds wheel speed targets (rad/s) instead, zero
+        in the same cycles and while stopped (:class:`~services.motor.wheel_velocity.WheelVelocityOutput`).
         """
         count = len(angles)
         if count < self._min_length:
@@ -196,6 +203,15 @@ class MotorCore:
         b = self._half_axle
         dq_ref_l = (vx - b * w) / self._radius_l
         dq_ref_r = (vx + b * w) / self._radius_r
+        velocity = self.velocity_output
+        if velocity is not None:
+            self.dq_ref, self.q_ref = (dq_ref_l, dq_ref_r), None
+            targets = velocity.follow(stamp_ns, dq_ref_l, dq_ref_r, now=state is MotorState.STOPPED)
+            if targets is None:
+                self.nonfinite_torques += 1  # unreachable with the input bounds, as for torques
+            else:
+                torques[self._left], torques[self._right] = targets
+            return torques
         half_dt = 0.5 * dt
         if self._integrated and self._anchored:
             old_q_ref_l, old_q_ref_r = self.q_ref  # type: ignore[misc]
@@ -252,6 +268,8 @@ class MotorCore:
         """Leave torque control: the next controlled cycle starts from rest and re-anchors."""
         self.command = (0.0, 0.0)
         self._anchored = False
+        if self.velocity_output is not None:
+            self.velocity_output.rest()
 
     def _command_velocity(self, stamp_ns: int, dt: float, state: MotorState) -> tuple[float, float]:
         monitor = self.monitor
@@ -387,6 +405,8 @@ class MotorCore:
         robot, motor = self.robot, self.motor
         return {
             "state": str(self.state),
+            "output": motor.output,
+            "velocity_rate": motor.velocity_rate if self.velocity_output is not None else None,
             "target_angle": motor.target_angle,
             "gains": {
                 "p_gain_l": self.gains.p_gain_l,

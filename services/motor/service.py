@@ -1,7 +1,8 @@
 """``invent motor``: MotorControl over zenoh (docs/protocol.md section 4), a thin shell around MotorCore.
 
 Every ``sim/wheel_angles`` sample gets exactly one ``motor/torque`` with the sample's own
-``tm``, then ``motor/wheel_angles`` (the input, same ``tm``). A wheel-angle sample that is bad
+``tm`` (``motor/wheel_velocity``, wheel speed targets, with ``motor.output = "velocity"``), then
+``motor/wheel_angles`` (the input, same ``tm``). A wheel-angle sample that is bad
 input (undecodable, a wheel id out of range, dt <= 0) is dropped and gets no torque.
 A ``sim/body_pose`` of an observed step (its mark says so, docs/protocol.md section 2.7) becomes
 ``motor/sim_pose/localization``, and ``motor/sim_pose/gui`` while someone subscribes to it; a
@@ -59,7 +60,8 @@ class TraceRecord(msgspec.Struct, frozen=True):
     ``state`` is the state the cycle was computed in; ``target`` the last accepted target
     (vx, w); ``command`` the (vx, w) controlled towards after stop, timeout and limits;
     ``dq``, ``dq_ref``, ``q_ref`` are (left, right) or null when the cycle computed none
-    (first sample, ``idle``, ``finished``).
+    (first sample, ``idle``, ``finished``); ``torque`` is the vector published: with
+    ``motor.output = "velocity"``, the wheel speed targets (rad/s).
     """
 
     tm: Time
@@ -100,7 +102,9 @@ class MotorService:
                 config.robot, config.lidar, config.collision_monitor, config.input.stamp_horizon_ns
             )
             self.core.monitor = self.monitor
-        self.torques_published = 0
+        self.velocity_output = config.motor.output == "velocity"
+        self.outputs_published = 0
+        """``motor/torque`` (or ``motor/wheel_velocity``) messages sent."""
         # Lockstep: a wheel-angle sample waits for the drive's target it is owed (the sim took it).
         self.target_hold: Hold[HeldSample] = Hold(
             Topic.DRIVE_TARGET_VELOCITY,
@@ -122,7 +126,7 @@ class MotorService:
         self._state = node.latched_publisher(keys.motor_state)
         self._state_published: tuple[str, StopCause, str] = ("", "", "")
         self._publish_state()
-        self._torque = node.publisher(keys.motor_torque)
+        self._output = node.publisher(keys.motor_wheel_velocity if self.velocity_output else keys.motor_torque)
         self._wheel_angles = node.publisher(keys.motor_wheel_angles)
         self._sim_pose_gui = node.publisher(keys.motor_sim_pose_gui)
         self._sim_pose_localization = node.publisher(keys.motor_sim_pose_localization)
@@ -172,7 +176,8 @@ class MotorService:
         node.wait_with(self._next_wait)
         node.set_status(self.status)
         node.log.info(
-            "motor control: target_angle %s, command_timeout %g s, wheel ids %d/%d",
+            "motor control: output %s, target_angle %s, command_timeout %g s, wheel ids %d/%d",
+            config.motor.output if not self.velocity_output else f"velocity at {config.motor.velocity_rate:g} Hz",
             config.motor.target_angle,
             config.motor.command_timeout,
             config.robot.left_wheel_id,
@@ -217,9 +222,9 @@ class MotorService:
         # A run recorded at the observed steps keeps the control path's samples of those only.
         node = self.node
         keep = node.recording and (node.recording_every_step or observed(mark))
-        self._torque.put(TimedDoubleSeq(tm, torques), keep=keep)
+        self._output.put(TimedDoubleSeq(tm, torques), keep=keep)
         self._wheel_angles.put(angles, attachment, keep=keep)
-        self.torques_published += 1
+        self.outputs_published += 1
         monitor = self.monitor
         if core.state != self._state_published[0] or (
             monitor is not None and monitor.held_by != self._state_published[2]
@@ -233,7 +238,8 @@ class MotorService:
             self._warn(
                 "nonfinite_torque",
                 logging.ERROR,
-                "the torque for t = %.6f s came out non-finite (gains %s, angles %s): sent zero instead",
+                "the %s for t = %.6f s came out non-finite (gains %s, angles %s): sent zero instead",
+                "wheel speed target" if self.velocity_output else "torque",
                 tm.to_seconds(),
                 msgspec.to_builtins(core.gains),
                 angles.data,
@@ -356,7 +362,8 @@ class MotorService:
             **status,
             "collision_monitor": collision,
             "sim_alive": self.sim.alive,
-            "torques_published": self.torques_published,
+            "torques_published": 0 if self.velocity_output else self.outputs_published,
+            "wheel_velocities_published": self.outputs_published if self.velocity_output else 0,
             "lockstep_holds": {"held": self.target_hold.holds, "released_unanswered": self.target_hold.overflows},
             "trace": None if self._trace is None else self._trace.path,
             "state_file": str(self._state_file.path),
