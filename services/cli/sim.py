@@ -108,11 +108,13 @@ def check(config: Config, options: SimOptions) -> None:
 
 CLI = ServiceCli(
     command=COMMAND,
-    help="the simulator (PyBullet, or the kinematic engine): wheel angles and body pose out, wheel torques in",
+    help="the simulator (PyBullet, or the kinematic engine): wheel angles and body pose out, wheel torques "
+    "(or wheel speed targets) in",
     description="Plays OpenHRP3 and its controller bridge with PyBullet (or, with --engine kinematic, a model of the "
     "wheels' motors and the robot's inertia with ideal rolling, no PyBullet): each step publishes sim/wheel_angles and "
-    "sim/body_pose stamped with simulation time, applies the motor/torque answer and steps. Lockstep (default) "
-    "waits for the torque of each step while a motor control is alive; realtime paces steps to the wall clock. "
+    "sim/body_pose stamped with simulation time, applies the motor/torque answer (motor/wheel_velocity with "
+    "motor.output = velocity: the wheels' own loop follows its targets) and steps. Lockstep (default) "
+    "waits for the motor's answer of each step while a motor control is alive; realtime paces steps to the wall clock. "
     "A contact with an obstacle publishes sim/bump and calls motor/bump/stop. Each robot's 2D lidar publishes "
     "sim/scan (10 Hz) and its IMU sim/imu (100 Hz) of simulation time. Parameters: [robot] geometry, [sim], "
     "[lidar] and [imu] in the robot description; worlds are TOML files (docs/sim.md).",
