@@ -308,26 +308,31 @@ def test_the_map_built_live_on_a_new_floor_lies_on_the_walls(new_floor_run: Run)
     assert cells > 500 and near >= 0.90
 
 
+@pytest.fixture(scope="module")
+def made_maps(amcl_run: Run, new_floor_run: Run, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """``invent map --from`` of each run's recording, once for the tests that read them."""
+    made = {}
+    for source, run in (("amcl", amcl_run), ("new_floor", new_floor_run)):
+        path = tmp_path_factory.mktemp(f"made_{source}") / "made.yaml"
+        result = run_invent("map", "--from", str(run.report / "run.mcap"), "-o", str(path), timeout=300)
+        assert result.returncode == 0, result.stderr
+        assert "to lie where the run started" in result.stdout, result.stdout
+        made[source] = path
+    return made
+
+
 @pytest.mark.parametrize("source", ["amcl", "new_floor"])
-def test_a_map_made_from_a_run_lies_on_the_walls(
-    source: str, amcl_run: Run, new_floor_run: Run, tmp_path: Path
-) -> None:
-    run = amcl_run if source == "amcl" else new_floor_run
-    made = tmp_path / "made.yaml"
-    result = run_invent("map", "--from", str(run.report / "run.mcap"), "-o", str(made), timeout=300)
-    assert result.returncode == 0, result.stderr
-    cells, near = occupied_near_walls(read_map(made))
+def test_a_map_made_from_a_run_lies_on_the_walls(source: str, made_maps: dict[str, Path]) -> None:
+    cells, near = occupied_near_walls(read_map(made_maps[source]))
     print(f"map from the {source} run: {cells} occupied cells, {near * 100:.1f} % within 10 cm of a wall")
     assert cells > 500 and near >= 0.90
 
 
 def test_localizing_on_the_map_made_from_the_run_is_within_5_cm_rms_and_15_cm_at_worst(
-    amcl_run: Run, tmp_path: Path
+    made_maps: dict[str, Path], tmp_path: Path
 ) -> None:
-    made = tmp_path / "made.yaml"
-    assert run_invent("map", "--from", str(amcl_run.report / "run.mcap"), "-o", str(made), timeout=300).returncode == 0
     (tmp_path / "on_made_map").mkdir()
-    run = tour(tmp_path / "on_made_map", "amcl", made, goals=THERE_AND_BACK)
+    run = tour(tmp_path / "on_made_map", "amcl", made_maps["amcl"], goals=THERE_AND_BACK)
     every = errors(run, run.localized, round(SETTLE_S * NANOSECONDS_PER_SECOND))
     rms, worst = float(np.sqrt(np.mean(every**2))), float(every.max())
     print(f"amcl on the map made from the run: error RMS {rms * 100:.2f} cm, worst {worst * 100:.2f} cm")
