@@ -1,5 +1,5 @@
 """``FILE.py:NAME``: a user service's class loaded from its file, and its declarations checked
-(its name, the queryables it calls, its lockstep), before anything runs. A bad one is a
+(its name, the queryables it calls, its lockstep, whether it drives), before anything runs. A bad one is a
 :class:`~services.errors.ConfigError` naming the file and what is wrong: exit 2."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 from schemas.keys import UserServiceName, user_service_name, validate_own_key
 from services.errors import ConfigError
-from services.extension.api import Lockstep, UserService
+from services.extension.api import Drives, Lockstep, UserService
 
 
 @dataclass(frozen=True)
@@ -46,11 +46,12 @@ def load(spec: str) -> Loaded:
         if module_spec is None or module_spec.loader is None:
             raise ConfigError(f"{spec}: {path} cannot be imported as Python")
         module = importlib.util.module_from_spec(module_spec)
+        sys.modules[module_name] = module  # before it runs: a dataclass of the file looks its module up
         try:
             module_spec.loader.exec_module(module)
         except Exception as error:  # noqa: BLE001 (any error in the user's file is the file's, named)
+            del sys.modules[module_name]
             raise ConfigError(f"{spec}: importing {path} failed: {type(error).__name__}: {error}") from None
-        sys.modules[module_name] = module
     service = getattr(module, attribute, None)
     if service is None:
         raise ConfigError(f"{spec}: {path} defines no {attribute}")
@@ -60,7 +61,7 @@ def load(spec: str) -> Loaded:
 
 
 def check_declarations(spec: str, service: type[UserService]) -> UserServiceName:
-    """Its name, calls and lockstep as the class declares them; ConfigError naming the first wrong one."""
+    """Its name, calls, lockstep and drives as the class declares them; ConfigError naming the first wrong one."""
     name = getattr(service, "name", None)
     if not isinstance(name, str):
         raise ConfigError(f"{spec}: {service.__name__}.name must be set to the service's name (a str)")
@@ -76,13 +77,36 @@ def check_declarations(spec: str, service: type[UserService]) -> UserServiceName
     if lockstep is not None:
         if not isinstance(lockstep, Lockstep):
             raise ConfigError(f"{spec}: {service.__name__}.lockstep must be a Lockstep(output, rate_hz) or None")
-        if not (isinstance(lockstep.rate_hz, int | float) and math.isfinite(lockstep.rate_hz) and lockstep.rate_hz > 0):
-            raise ConfigError(f"{spec}: lockstep.rate_hz must be a finite number > 0, got {lockstep.rate_hz!r}")
+        _check_rate(spec, "lockstep", lockstep.rate_hz)
         try:
             validate_own_key(lockstep.output)
         except ValueError as error:
             raise ConfigError(f"{spec}: lockstep.output: {error}") from None
+    drives = service.drives
+    if drives is not None:
+        if not isinstance(drives, Drives):
+            raise ConfigError(f"{spec}: {service.__name__}.drives must be a Drives(rate_hz) or None")
+        _check_rate(spec, "drives", drives.rate_hz)
+        # it runs as the drive, with exactly the drive's rights: no keys, queryables or calls of its own
+        if lockstep is not None or service.calls:
+            what = "lockstep" if lockstep is not None else "calls"
+            raise ConfigError(
+                f"{spec}: {service.__name__}.drives with {what}: a service that drives is the drive's participant and has the drive's rights only"
+            )
     return checked
+
+
+def _check_rate(spec: str, attribute: str, rate_hz: object) -> None:
+    if not (isinstance(rate_hz, int | float) and math.isfinite(rate_hz) and rate_hz > 0):
+        raise ConfigError(f"{spec}: {attribute}.rate_hz must be a finite number > 0, got {rate_hz!r}")
+
+
+def driving(loaded: Sequence[Loaded]) -> Loaded | None:
+    """The one of ``loaded`` that drives, if any; ConfigError naming both when two do."""
+    drivers = [one for one in loaded if one.service.drives is not None]
+    if len(drivers) > 1:
+        raise ConfigError(f"{drivers[0].spec} and {drivers[1].spec} both drive: one velocity source per robot")
+    return drivers[0] if drivers else None
 
 
 def load_all(specs: Sequence[str], taken: Sequence[str] = ()) -> tuple[Loaded, ...]:

@@ -13,7 +13,7 @@ from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
 from services.drive.outcome import Outcome
 from services.drive.scenarios import load_scenario
-from services.extension.loader import Loaded, load_all
+from services.extension.loader import Loaded, driving, load_all
 from services.launch.children import say
 from services.launch.plan import UpPlan
 from services.launch.robots import Robot
@@ -53,6 +53,25 @@ def check_before_start(plan: UpPlan, config: Config) -> None:
         bridge_graph(config)  # $ROS_DOMAIN_ID
 
 
+def check_driver(plan: UpPlan, driver: Loaded | None) -> None:
+    """Refuse (ConfigError: exit 2) a service that drives beside what gives the robot the built-in drive."""
+    if driver is None:
+        return
+    given = {
+        "--scenario": plan.scenario_given,
+        "--loop": plan.loop,
+        "--goals": plan.goals,
+        "--goal-file": plan.goal_file is not None,
+        "--teleop": plan.teleop,
+    }
+    conflicting = [flag for flag, value in given.items() if value]
+    if conflicting:
+        raise ConfigError(
+            f"{driver.spec} drives the robot in the built-in drive's place, and {', '.join(conflicting)} "
+            "gives the robot the built-in drive: one velocity source per robot"
+        )
+
+
 def one_robot_access(plan: UpPlan, config: Config, report_dir: Path, extensions: tuple[Loaded, ...] = ()) -> Access:
     """The run's :class:`Access`; with ``--secure``, the profile is written before anything starts."""
     listen = secure_listen(plan)
@@ -73,7 +92,10 @@ def one_robot_access(plan: UpPlan, config: Config, report_dir: Path, extensions:
         router_listen=listen,
         tls=plan.tls,
         ros=bridge_graph(config),
-        user_services=[UserServiceGrant(user.name, user.service.calls) for user in extensions],
+        # a service that drives connects with the drive's credentials: exactly the drive's rights
+        user_services=[
+            UserServiceGrant(user.name, user.service.calls) for user in extensions if user.service.drives is None
+        ],
         localization=config.localization.mode,
     )
     say(
@@ -89,13 +111,15 @@ class OneRobot:
     def __init__(self, plan: UpPlan) -> None:
         self.plan = plan
         self.config = plan.description.load()
+        self.extensions = load_all(plan.with_services)
+        self.driver = driving(self.extensions)
+        """The service of the user's own that drives in the built-in drive's place, if any."""
+        check_driver(plan, self.driver)
         check_before_start(plan, self.config)
         if plan.sim_set:
             plan.sim_config()  # the simulated robot's description, refused (exit 2) before anything starts
-        self.extensions = load_all(plan.with_services)
-        self.each: tuple[Robot, ...] = (
-            Robot(self.config.robot.name, self.config, plan.drive_runs, extensions=self.extensions),
-        )
+        runs = plan.drive_runs if self.driver is None else self.driver.name
+        self.each: tuple[Robot, ...] = (Robot(self.config.robot.name, self.config, runs, extensions=self.extensions),)
         self.scene: tuple[Config, ...] = ()
         self.records_statuses = True
         self.view_flags: list[str] = []
@@ -111,11 +135,13 @@ class OneRobot:
         return None
 
     def drive_waits(self, driven: Sequence[Robot]) -> list[list[str]]:
-        """Its drive alive, then the drive and the localization holding their lockstep tokens."""
+        """Its drive (or the service that drives in its place) alive, then it and the localization
+        holding their lockstep tokens."""
         if not driven:
             return []
         keys, config = Keys(self.config.robot.name), self.config
-        ticks = [keys.ticks(Service.DRIVE, config.drive.rate)]
+        drives = None if self.driver is None else self.driver.service.drives
+        ticks = [keys.ticks(Service.DRIVE, config.drive.rate if drives is None else drives.rate_hz)]
         if config.localization.participates:
             ticks.append(keys.ticks(Service.LOCALIZATION, config.localization.rate))
         return [[keys.alive(Service.DRIVE)], ticks]
@@ -124,7 +150,8 @@ class OneRobot:
         return None
 
     def watch(self, run: Run, drives: dict[str, Any]) -> OneRobotWatch:
-        return OneRobotWatch(run, drives.get(self.config.robot.name), [user.name for user in self.extensions])
+        users = [user.name for user in self.extensions if user is not self.driver]
+        return OneRobotWatch(run, drives.get(self.config.robot.name), users)
 
     def health_lines(self, health: dict[str, dict[str, Any]]) -> list[str]:
         return health_lines(health[self.config.robot.name])
@@ -166,5 +193,6 @@ class OneRobotWatch:
         return {} if self.outcome is None else {self.run.keys.robot: self.outcome}
 
     def ended(self, child: str) -> bool:
-        """A drive that ended its scenario with an outcome exited as it should, whatever its code."""
-        return child == str(Service.DRIVE) and self.outcome is not None
+        """A drive (or the service that drives in its place) that ended with an outcome exited as it
+        should, whatever its code."""
+        return self.drive is not None and child == self.drive.name and self.outcome is not None

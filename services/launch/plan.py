@@ -60,6 +60,8 @@ class UpPlan:
     connection: Connection = field(default_factory=Connection)
     description: Description = field(default_factory=Description)
     scenario: str = DEFAULT_SCENARIO
+    scenario_given: bool = False
+    """Whether ``--scenario`` was given (a service that drives refuses it: one velocity source per robot)."""
     fleet: str | None = None
     mode: SimMode | None = None
     report: Path | None = None

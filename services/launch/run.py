@@ -262,11 +262,12 @@ class Run:
                 return json.loads(reply.ok.payload.to_bytes())
         return None
 
-    def sim_at_end(self) -> None:
-        """Until the sim holds at the drive's last command (``--until-drive-ends``), its status kept."""
+    def sim_at_end(self, drive: str = str(Service.DRIVE)) -> None:
+        """Until the sim holds at the last command of ``drive`` (the drive's child, or the service that
+        drives in its place: ``--until-drive-ends``), its status kept."""
         deadline = time.monotonic() + END_TIMEOUT_S
         while time.monotonic() < deadline:
-            self.check(expected_to_finish=str(Service.DRIVE))
+            self.check(expected_to_finish=drive)
             self.sim_status = self.status(Service.SIM) or self.sim_status
             if self.sim_status and self.sim_status.get("state") == "finished":
                 return
@@ -300,11 +301,11 @@ class Run:
                 next_progress = time.monotonic() + PROGRESS_INTERVAL_S
                 if self.sim_status:
                     _progress(self.sim_status, time.monotonic() - started)
-            if code in OUTCOME_OF_EXIT_CODE:
-                self.sim_at_end()
+            if drive is not None and code in OUTCOME_OF_EXIT_CODE:
+                self.sim_at_end(drive.name)
                 return OUTCOME_OF_EXIT_CODE[code]
-            if code is not None:
-                raise ServiceDied(str(Service.DRIVE), code, describe_exit(code))
+            if drive is not None and code is not None:
+                raise ServiceDied(drive.name, code, describe_exit(code))
             if between_looks:
                 between_looks()
             time.sleep(LOOK_INTERVAL_S)

@@ -33,8 +33,9 @@ from typing import Any
 from schemas.keys import CONTROL, Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, Time
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
-from services.config import SimMode
+from services.config import ConfigError, SimMode
 from services.errors import ChildDied, Interrupted
+from services.extension.loader import Loaded, driving
 from services.launch.children import ServiceDied, say
 from services.launch.fleet import FleetRobots
 from services.launch.one_robot import OneRobot
@@ -66,6 +67,12 @@ from services.service import ServiceParse
 def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     """``invent up``: the run ``plan`` asks for, of one robot or (``plan.fleet``) of a fleet; its exit status."""
     robots: Robots = FleetRobots(plan, plan.fleet) if plan.fleet else OneRobot(plan)
+    drivers = {robot.name: driving(robot.extensions) for robot in robots.each}
+    """Each robot's service of the user's own that drives in the built-in drive's place, if any."""
+    if plan.fleet and any(drivers.values()):
+        raise ConfigError("--fleet with a service that drives (its class's drives): one robot's run only")
+    # a service that drives runs until Ctrl-C, or until it gives up or finishes, as the drive does
+    until_interrupted = plan.until_interrupted or any(drivers.values())
     begun = start(plan, robots.access)
     report_dir, access, endpoint, common = begun.report_dir, begun.access, begun.endpoint, begun.common
     first = robots.each[0]
@@ -78,7 +85,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     robot_services = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if plan.ros2 else ()))
     control_path_composed = composes_control_path(plan, mode)
     # the journals: each robot's services', user services' and drive's, the sim's and up's own
-    journals = len(robots.each) * (len(robot_services) + 1) + sum(len(r.extensions) for r in robots.each) + 2
+    journals = len(robots.each) * (len(robot_services) + 1) + sum(len(_beside(r.extensions)) for r in robots.each) + 2
     record = first.config.record
     bag = BagRecording(report_dir, record, len(robots.each), first.config.ros2.distro) if plan.record_ros2 else None
     recording = not (plan.no_record or plan.loop or plan.teleop)
@@ -148,18 +155,22 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                     flags = [*common, *robot.credentials(access, Role(service)), *robot.flags, *journal(robot)]
                     launcher.start(robot.child(service), [str(service), *flags, *own.get(service, [])])
             for robot in robots.each:  # the user's own (--with), beside them, supervised as they are
-                for user in robot.extensions:
+                for user in _beside(robot.extensions):
                     flags = [*common, *robot.user_credentials(access, user.name), *robot.flags, *journal(robot)]
                     launcher.start(robot.child(user.name), ["service", user.spec, *flags])
             # Until the sim starts, any service that ends ends the run.
             run.wait_tokens(
                 [Keys(robot.name).alive(service) for robot in robots.each for service in robot_services]
-                + [Keys(robot.name).alive(user.name) for robot in robots.each for user in robot.extensions]
+                + [Keys(robot.name).alive(user.name) for robot in robots.each for user in _beside(robot.extensions)]
             )
             driven = () if plan.teleop else robots.each
             drives = {}
             for robot in driven:
                 flags = [*common, *robot.credentials(access, Role.DRIVE), *robot.flags, *journal(robot)]
+                driver = drivers[robot.name]
+                if driver is not None:  # in the drive's place, with the drive's credentials
+                    drives[robot.name] = launcher.start(robot.child(driver.name), ["service", driver.spec, *flags])
+                    continue
                 flags += _drive_flags(plan, robot)
                 drives[robot.name] = launcher.start(robot.child(Service.DRIVE), [str(Service.DRIVE), *flags])
             for tokens in robots.drive_waits(driven):
@@ -176,7 +187,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                 say(started_line)
             watch = robots.watch(run, drives)
             try:
-                watch.supervise(started, recorder.during if recorder else None, plan.until_interrupted)
+                watch.supervise(started, recorder.during if recorder else None, until_interrupted)
             except (ServiceDied, Interrupted) as error:
                 if recorder is None:
                     raise
@@ -231,6 +242,11 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         say(written)
         return ended_early(early)
     return verdict(plan.strict, degraded, written, outcome_code, not_completed)
+
+
+def _beside(extensions: tuple[Loaded, ...]) -> tuple[Loaded, ...]:
+    """The services of the user's own that run beside the loop: all but the one that drives."""
+    return tuple(user for user in extensions if user.service.drives is None)
 
 
 def composes_control_path(plan: UpPlan, mode: SimMode) -> bool:
