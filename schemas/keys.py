@@ -34,6 +34,8 @@ from schemas.messages import (
     PlannedPath,
     RunSummary,
     ScenarioOutcome,
+    SetOdometry,
+    SetOdometryReply,
     SimWorld,
     TimedDoubleSeq,
     TimedPosition,
@@ -218,6 +220,18 @@ LOCALIZATION_METHOD_TYPES: dict[LocalizationMethod, tuple[type[msgspec.Struct], 
 }
 """Each localization method's payload and reply."""
 
+
+class OdometryMethod(StrEnum):
+    """The odometry's queryables (docs/protocol.md section 5): ``odometry/<method>``."""
+
+    SET_POSE = "set_pose"
+
+
+ODOMETRY_METHOD_TYPES: dict[OdometryMethod, tuple[type[msgspec.Struct], type[msgspec.Struct]]] = {
+    OdometryMethod.SET_POSE: (SetOdometry, SetOdometryReply),
+}
+"""Each odometry method's payload and reply."""
+
 _STATUS = "status"
 VIEW = "view"
 CONTROL = "control"
@@ -281,6 +295,10 @@ class Keys:
     def localization_method(self, method: LocalizationMethod) -> str:
         """``invent/<robot>/localization/initial_pose`` or ``.../global_localization``."""
         return f"{self.prefix}/{Service.LOCALIZATION}/{method}"
+
+    def odometry_method(self, method: OdometryMethod) -> str:
+        """``invent/<robot>/odometry/set_pose``."""
+        return f"{self.prefix}/{Service.ODOMETRY}/{method}"
 
     def status(self, service: ServiceName) -> str:
         return f"{self.prefix}/{service}/{_STATUS}"
@@ -371,6 +389,7 @@ class Keys:
     motor_sim_pose_localization = property(lambda self: self.topic(Topic.MOTOR_SIM_POSE_LOCALIZATION))
     drive_target_velocity = property(lambda self: self.topic(Topic.DRIVE_TARGET_VELOCITY))
     odometry_pose = property(lambda self: self.topic(Topic.ODOMETRY_POSE))
+    odometry_set_pose = property(lambda self: self.odometry_method(OdometryMethod.SET_POSE))
     localization_pose = property(lambda self: self.topic(Topic.LOCALIZATION_POSE))
     localization_particles = property(lambda self: self.topic(Topic.LOCALIZATION_PARTICLES))
     localization_initial_pose = property(lambda self: self.localization_method(LocalizationMethod.INITIAL_POSE))

@@ -214,6 +214,19 @@ def _typestore(descriptions: tuple[Path, ...]) -> Any:
 
 ACTION_TYPESTORE, ROS_HASHES = _typestore(ACTION_DESCRIPTIONS)
 """What a ROS node of Jazzy knows of NavigateToPose and action_msgs: their types and RIHS01 hashes."""
+ODOMETRY_SERVICES_TYPESTORE, ODOMETRY_SERVICES_HASHES = _typestore(
+    (INTERFACES / "std_srvs" / "srv" / "Empty.json", INTERFACES / "control_msgs" / "srv" / "SetOdometry.json")
+)
+"""ros2_controllers' odometry services as ROS describes them: std_srvs/srv/Empty (as ROS ships it) and
+control_msgs/srv/SetOdometry (as ROS's generator writes it): their types and RIHS01 hashes."""
+
+
+def odometry_service_key_type(name: str) -> str:
+    """``std_srvs/srv/Empty`` -> ``std_srvs::srv::dds_::Empty_/RIHS01_<ROS's hash>``."""
+    package, kind, type_name = name.split("/")
+    return f"{package}::{kind}::dds_::{type_name}_/{ODOMETRY_SERVICES_HASHES[name]}"
+
+
 NAVIGATE = "nav2_msgs/action/NavigateToPose"
 STATUS_CODES = {
     "unknown": 0,

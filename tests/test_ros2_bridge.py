@@ -50,6 +50,11 @@ SUBSCRIBED = {
     ("goal_pose", "geometry_msgs/msg/PoseStamped"),
 }
 SERVICES = ("motor/stop", "motor/clear", "motor/start", "motor/finish")
+ODOMETRY_SERVICES = {
+    "invent_bridge/reset_odometry": "std_srvs/srv/Empty",
+    "invent_bridge/set_odometry": "control_msgs/srv/SetOdometry",
+}
+"""ros2_controllers' odometry services, private names of the node (tests/test_ros2_odometry_services.py)."""
 ACTION = {
     "send_goal": ("SS", "::,10:,:,:,,"),
     "cancel_goal": ("SS", "::,10:,:,:,,"),
@@ -127,7 +132,7 @@ def test_a_realtime_run_composes_its_sim_and_motor_in_one_control_process(teleop
 
 def test_the_graph_shows_one_node_with_its_publishers_subscriptions_and_services(teleop):
     bridge = teleop.status(Service.ROS2)
-    entities = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES) + len(ACTION)
+    entities = len(PUBLISHED) + len(SUBSCRIBED) + len(SERVICES) + len(ODOMETRY_SERVICES) + len(ACTION)
     tokens = wait_until(
         lambda: (found := ros_client.graph_tokens(teleop.session, DOMAIN)) and len(found) > entities and found,
         10.0,
@@ -167,6 +172,14 @@ def test_the_graph_shows_one_node_with_its_publishers_subscriptions_and_services
         == {
             ("%" + service.replace("/", "%"), *ros_client.TRIGGER_KEY_TYPE.split("/"), "::,10:,:,:,,")
             for service in SERVICES
+        }
+        | {
+            (
+                "%" + service.replace("/", "%"),
+                *ros_client.odometry_service_key_type(interface).split("/"),
+                "::,10:,:,:,,",
+            )
+            for service, interface in ODOMETRY_SERVICES.items()
         }
         | action["SS"]
     )

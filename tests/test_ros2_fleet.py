@@ -143,7 +143,7 @@ def _mangled(name: str) -> str:
 
 
 def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_types_and_one_clock(fleet):
-    per_node = len(PUBLISHED) + len(SUBSCRIBED) + 1 + len(SERVICES) + len(ACTION_ENDPOINTS) + 1
+    per_node = len(PUBLISHED) + len(SUBSCRIBED) + 1 + len(SERVICES) + 2 + len(ACTION_ENDPOINTS) + 1
     tokens = wait_until(
         lambda: (found := ros_client.graph_tokens(fleet.session, DOMAIN)) and len(found) >= 2 * per_node + 1 and found,
         10.0,
@@ -161,6 +161,10 @@ def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_type
         expected = {("MP", _mangled(f"{namespace}/{t}"), ros_client.key_type(i)) for t, i in PUBLISHED.items()}
         expected |= {("MS", _mangled(f"{namespace}/cmd_vel"), ros_client.key_type(i)) for i in SUBSCRIBED}
         expected |= {("SS", _mangled(f"{namespace}/{s}"), ros_client.TRIGGER_KEY_TYPE) for s in SERVICES}
+        expected |= {
+            ("SS", _mangled(f"{namespace}/invent_bridge/{s}"), ros_client.odometry_service_key_type(i))
+            for s, i in (("reset_odometry", "std_srvs/srv/Empty"), ("set_odometry", "control_msgs/srv/SetOdometry"))
+        }
         expected.add(("MS", _mangled(f"{namespace}/{GOAL_POSE[0]}"), ros_client.key_type(GOAL_POSE[1])))
         expected |= {
             (
@@ -636,7 +640,7 @@ def test_invent_ros2_fleet_runs_a_node_per_robot_on_one_session_each_with_ids_of
     (tmp_path / "fleet.toml").write_text(FLEET)
     with running_router() as endpoint, peer_session(endpoint) as session:
         with InventProcess("ros2", "--fleet", str(tmp_path / "fleet.toml"), "--connect", endpoint) as bridges:
-            per_node = len(PUBLISHED) + len(SUBSCRIBED) + 1 + len(SERVICES) + len(ACTION_ENDPOINTS) + 1
+            per_node = len(PUBLISHED) + len(SUBSCRIBED) + 1 + len(SERVICES) + 2 + len(ACTION_ENDPOINTS) + 1
             tokens = wait_until(
                 lambda: (
                     (found := ros_client.graph_tokens(session, DOMAIN)) and len(found) == 2 * per_node + 1 and found

@@ -97,7 +97,7 @@ def test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_tri
     } == (_queried_keys(Role.ROS2) - {all_robots_status()} - LATCHED)
     assert KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN) not in _queried_keys(Role.ROS2)
     served = _granted(Role.ROS2, Message.DECLARE_QUERYABLE)
-    services = (*MOTOR_SERVICES.values(), *ACTION_SERVICES.values())
+    services = (*MOTOR_SERVICES.values(), *ACTION_SERVICES.values(), *ros.odometry_services.values())
     assert served == {KEYS.status(Service.ROS2)} | {ros.key(e) for e in services} | cache_keys
 
 
@@ -114,7 +114,9 @@ def test_the_ros_roles_are_granted_the_domain_and_namespace_they_are_written_for
 def test_only_the_operator_the_sim_the_control_path_and_the_ros2_bridge_query_motor_methods():
     status = {all_robots_status()} | LATCHED
     localize = {KEYS.localization_initial_pose, KEYS.localization_global_localization}
-    assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI) | GOALS | localize
+    assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI) | GOALS | localize | {
+        KEYS.odometry_set_pose
+    }
     assert _queried_keys(Role.SIM) == _queried_keys(Role.CONTROL) == status | _methods(MethodFamily.BUMP)
     for role in (Role.OBSERVER, Role.MOTOR, Role.ODOMETRY, Role.DRIVE):
         assert _queried_keys(role) == status, role
@@ -143,7 +145,7 @@ def test_only_the_motor_and_the_control_path_serve_the_methods_and_each_service_
             continue  # test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_trigger_methods
         else:
             service = Service(role.value)
-            own = GOALS if role is Role.DRIVE else set()
+            own = GOALS if role is Role.DRIVE else {KEYS.odometry_set_pose} if role is Role.ODOMETRY else set()
             assert served == {KEYS.status(service)} | {key for key in LATCHED if f"/{service}/" in key} | own, role
 
 

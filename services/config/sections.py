@@ -21,12 +21,14 @@ from services.config.fields import (
     KILOGRAMS,
     METRES,
     METRES_PER_SECOND,
+    METRES_PER_SECOND_CUBED,
     METRES_PER_SECOND_SQUARED,
     NEWTON_METRES,
     P_GAIN,
     PER_SIMULATED_SECOND,
     RADIANS,
     RADIANS_PER_SECOND,
+    RADIANS_PER_SECOND_CUBED,
     RADIANS_PER_SECOND_SQUARED,
     SIMULATED_SECONDS,
     STEPS,
@@ -113,15 +115,74 @@ class MotorConfig(Section, frozen=True):
     cycle (docs/protocol.md section 4 step 3); ``integrated``, q_ref accumulates from the previous
     target angle, so the P term corrects drift (docs/motor.md)."""
     max_vx: Annotated[Positive, METRES_PER_SECOND] | None = 1.0
-    """Limit on |vx| (as ros2's diff_drive_controller users expect); None (``"none"`` in a file or
-    ``--set``) = no limit, the seed's behaviour. The defaults fit the default robot and sit above
-    what the drive commands."""
+    """Limit on |vx| (as ros2's diff_drive_controller users expect; its ``linear.x.max_velocity``),
+    backward too unless ``max_vx_reverse`` says otherwise; None (``"none"`` in a file or ``--set``)
+    = no velocity limit, the seed's behaviour. The defaults fit the default robot and sit above
+    what the drive commands. Every limit is a magnitude (docs/motor.md maps them to
+    diff_drive_controller's signed parameters)."""
+    max_vx_reverse: Annotated[Positive, METRES_PER_SECOND] | None = None
+    """Limit on backward speed (−vx; ``linear.x.min_velocity``); None = ``max_vx``. Needs ``max_vx``."""
     max_ax: Annotated[Positive, METRES_PER_SECOND_SQUARED] | None = 2.0
-    """Limit on the rate of change of vx (a step in wheel speed slips: docs/motor.md)."""
+    """Limit on how fast vx rises from rest or while forward (``linear.x.max_acceleration``; a step
+    in wheel speed slips: docs/motor.md), and every rate of change of vx not set apart below; None
+    = no acceleration limit."""
+    max_ax_reverse: Annotated[Positive, METRES_PER_SECOND_SQUARED] | None = None
+    """Limit on how fast vx falls from rest or while backward: speeding up backward
+    (``linear.x.max_acceleration_reverse``); None = ``max_ax``. Needs ``max_ax``."""
+    max_decel_x: Annotated[Positive, METRES_PER_SECOND_SQUARED] | None = None
+    """Limit on how fast vx falls while forward: slowing down forward (``linear.x.max_deceleration``);
+    None = ``max_ax_reverse`` (as upstream's RateLimiter resolves it). Needs ``max_ax``."""
+    max_decel_x_reverse: Annotated[Positive, METRES_PER_SECOND_SQUARED] | None = None
+    """Limit on how fast vx rises while backward: slowing down backward
+    (``linear.x.max_deceleration_reverse``); None = ``max_ax``. Needs ``max_ax``."""
+    max_jerk_x: Annotated[Positive, METRES_PER_SECOND_CUBED] | None = None
+    """Limit on how fast vx's rate of rise grows while vx rises (``linear.x.max_jerk``), applied only
+    while that rate grows, as upstream; None = no jerk limit."""
+    max_jerk_x_falling: Annotated[Positive, METRES_PER_SECOND_CUBED] | None = None
+    """Limit on how fast vx's rate of fall grows while vx falls (``linear.x.min_jerk``); None =
+    ``max_jerk_x``. Needs ``max_jerk_x``."""
     max_w: Annotated[Positive, RADIANS_PER_SECOND] | None = 3.0
-    """Limit on |w|."""
+    """Limit on |w| (``angular.z.max_velocity``), clockwise too unless ``max_w_reverse`` says otherwise."""
+    max_w_reverse: Annotated[Positive, RADIANS_PER_SECOND] | None = None
+    """Limit on clockwise turning (−w; ``angular.z.min_velocity``); None = ``max_w``. Needs ``max_w``."""
     max_aw: Annotated[Positive, RADIANS_PER_SECOND_SQUARED] | None = 8.0
-    """Limit on the rate of change of w."""
+    """Limit on how fast w rises from rest or while counter-clockwise (``angular.z.max_acceleration``),
+    and every rate of change of w not set apart below; None = no angular acceleration limit."""
+    max_aw_reverse: Annotated[Positive, RADIANS_PER_SECOND_SQUARED] | None = None
+    """Limit on how fast w falls from rest or while clockwise (``angular.z.max_acceleration_reverse``);
+    None = ``max_aw``. Needs ``max_aw``."""
+    max_decel_w: Annotated[Positive, RADIANS_PER_SECOND_SQUARED] | None = None
+    """Limit on how fast w falls while counter-clockwise (``angular.z.max_deceleration``); None =
+    ``max_aw_reverse``. Needs ``max_aw``."""
+    max_decel_w_reverse: Annotated[Positive, RADIANS_PER_SECOND_SQUARED] | None = None
+    """Limit on how fast w rises while clockwise (``angular.z.max_deceleration_reverse``); None =
+    ``max_aw``. Needs ``max_aw``."""
+    max_jerk_w: Annotated[Positive, RADIANS_PER_SECOND_CUBED] | None = None
+    """Limit on how fast w's rate of rise grows while w rises (``angular.z.max_jerk``); None = no
+    angular jerk limit."""
+    max_jerk_w_falling: Annotated[Positive, RADIANS_PER_SECOND_CUBED] | None = None
+    """Limit on how fast w's rate of fall grows while w falls (``angular.z.min_jerk``); None =
+    ``max_jerk_w``. Needs ``max_jerk_w``."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        # Upstream ignores a limit set beside a base left NaN; a setting that does nothing is refused here.
+        for base, dependents in LIMIT_BASES.items():
+            if getattr(self, base) is None:
+                for name in dependents:
+                    if getattr(self, name) is not None:
+                        raise ValueError(f"`{name}` needs `{base}`, which is none")
+
+
+LIMIT_BASES = {
+    "max_vx": ("max_vx_reverse",),
+    "max_ax": ("max_ax_reverse", "max_decel_x", "max_decel_x_reverse"),
+    "max_jerk_x": ("max_jerk_x_falling",),
+    "max_w": ("max_w_reverse",),
+    "max_aw": ("max_aw_reverse", "max_decel_w", "max_decel_w_reverse"),
+    "max_jerk_w": ("max_jerk_w_falling",),
+}
+"""``[motor]``'s limits that take effect only beside another (their base)."""
 
 
 class StartPose(Section, frozen=True):

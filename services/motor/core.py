@@ -4,7 +4,7 @@
 the angle difference, target wheel speeds from the commanded body velocity, a target angle
 (mode ``seed`` or ``integrated``), and a PD law per wheel. It also holds the Motor
 interface's state machine (``idle``, ``running``, ``finished``, ``stopped``), the command
-timeout, and the bounds on its input; the velocity and acceleration limits are a
+timeout, and the bounds on its input; the velocity, acceleration and jerk limits are a
 :class:`~services.motor.speed_limiter.SpeedLimiter` per speed, the body pose's conversion a
 :class:`~services.motor.sim_pose.SimPoseConverter`.
 
@@ -29,7 +29,7 @@ from services.clock.sim_time import StampGap, check_stamp_near
 from services.config import CalibratedGeometry, InputConfig, MotorConfig, OdometryConfig, RobotConfig, TargetAngleMode
 from services.motor.monitor import CollisionMonitor
 from services.motor.sim_pose import SimPoseConverter
-from services.motor.speed_limiter import SpeedLimiter
+from services.motor.speed_limiter import SpeedLimiter, limits_status
 from services.motor.wheel_velocity import WheelVelocityOutput
 from services.planar import check_coordinates
 
@@ -97,8 +97,8 @@ class MotorCore:
             WheelVelocityOutput(motor.velocity_rate, limits.max_wheel_speed) if motor.output == "velocity" else None
         )
         """``motor.output = "velocity"``: :meth:`step` returns wheel speed targets, not torques."""
-        self.vx_limiter = SpeedLimiter(motor.max_vx, motor.max_ax)
-        self.w_limiter = SpeedLimiter(motor.max_w, motor.max_aw)
+        self.vx_limiter = SpeedLimiter.of(motor, "vx")
+        self.w_limiter = SpeedLimiter.of(motor, "w")
         self._limited = self.vx_limiter.enabled or self.w_limiter.enabled
         self._integrated = motor.target_angle == TargetAngleMode.INTEGRATED
         self._timeout_ns = round(motor.command_timeout * NANOSECONDS_PER_SECOND)
@@ -119,6 +119,8 @@ class MotorCore:
         self._timed_out = False
         self.command: tuple[float, float] = (0.0, 0.0)
         """The (vx, w) the last cycle controlled towards, after stop, timeout and limits."""
+        self._command_before = self.command
+        """The cycle before's: the jerk limits' second previous command."""
 
         self._anchored = False
         """Integrated mode: q_ref and dq_ref of the last cycle are the base of the next one."""
@@ -266,7 +268,7 @@ class MotorCore:
 
     def _release(self) -> None:
         """Leave torque control: the next controlled cycle starts from rest and re-anchors."""
-        self.command = (0.0, 0.0)
+        self.command = self._command_before = (0.0, 0.0)
         self._anchored = False
         if self.velocity_output is not None:
             self.velocity_output.rest()
@@ -276,7 +278,7 @@ class MotorCore:
         if state is MotorState.STOPPED:
             if monitor is not None:
                 monitor.factor(stamp_ns, 0.0, 0.0)  # keeps held_by true (a scan gone stale holds)
-            self.command = (0.0, 0.0)
+            self.command = self._command_before = (0.0, 0.0)  # braked: the limits resume from rest
             return self.command
         vx, w = self.target
         # A timed-out command stays so until a new target, even across a restart of the time base.
@@ -291,11 +293,12 @@ class MotorCore:
             factor = monitor.factor(stamp_ns, vx, w)  # held: 0, slowed: slow_factor, clear: 1
             if factor != 1.0:
                 vx, w = vx * factor, w * factor
+        previous = self.command
         if self._limited:
-            previous_vx, previous_w = self.command
-            vx = self.vx_limiter.limit(vx, previous_vx, dt)
-            w = self.w_limiter.limit(w, previous_w, dt)
-        self.command = (vx, w)
+            before = self._command_before
+            vx = self.vx_limiter.limit(vx, previous[0], before[0], dt)
+            w = self.w_limiter.limit(w, previous[1], before[1], dt)
+        self._command_before, self.command = previous, (vx, w)
         return self.command
 
     def set_target(self, vx: float, w: float, stamp_ns: int | None = None) -> bool:
@@ -427,12 +430,7 @@ class MotorCore:
                 "simulated_offset_y": motor.simulated_offset_y,
                 "simulated_offset_angle": motor.simulated_offset_angle,
             },
-            "limits": {
-                "max_vx": motor.max_vx,
-                "max_ax": motor.max_ax,
-                "max_w": motor.max_w,
-                "max_aw": motor.max_aw,
-            },
+            "limits": limits_status(motor),
             "command_timeout": motor.command_timeout,
             "target": {"vx": self.target[0], "w": self.target[1]},
             "command": {"vx": self.command[0], "w": self.command[1]},

@@ -23,7 +23,7 @@ RotationAngleBorder²/24 (1.3e-5 at the default).
 
 The first sample only initialises (the robot is taken to be at rest: V_old = 0, which only the
 seed's trapezoid reads). A localized pose (:meth:`Odometry.reset`) overwrites (x_old, y_old,
-θ_old) before the next step.
+θ_old) before the next step, and so does a pose set at runtime (:meth:`Odometry.set_pose`).
 :meth:`Odometry.restart_time_base` (a restarted simulator, whose clock started again) makes the
 next sample initialise again, keeping the pose. The hot path runs thousands of times a second:
 plain floats, no allocation beyond the returned step.
@@ -31,6 +31,7 @@ plain floats, no allocation beyond the returned step.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -90,6 +91,8 @@ class Step(NamedTuple):
 
 FIX_HISTORY_STEPS = 4096
 """Poses kept for fixes that arrive late: about 4 s of 1 ms steps."""
+PENDING_POSES = 16
+"""Poses stamped ahead of the last sample (fixes, set poses) that may wait for their stamps."""
 
 
 class Odometry:
@@ -106,7 +109,7 @@ class Odometry:
         "_max_wheel_speed",
         "_needed",
         "_omega",
-        "_pending_fix",
+        "_pending",
         "_q_left",
         "_q_right",
         "_r_left",
@@ -151,7 +154,8 @@ class Odometry:
         self._v = self._omega = 0.0
         self._x, self._y, self._theta = 0.0, 0.0, 0.0
         self._history: deque[tuple[int, float, float, float]] = deque(maxlen=FIX_HISTORY_STEPS)
-        self._pending_fix: tuple[int, float, float, float] | None = None
+        self._pending: list[tuple[int, float, float, float]] = []
+        """Poses stamped ahead of the last sample (fixes, set poses), in stamp order."""
         self.reset(*start)
 
     @property
@@ -195,20 +199,20 @@ class Odometry:
 
         BadInput (nothing changes) for a fix older than the history (:data:`FIX_HISTORY_STEPS`
         samples: applying it "now" would be wrong by all the motion since), further ahead than
-        the stamp horizon, or not plausible (:meth:`reset`).
+        the stamp horizon, not plausible (:meth:`reset`), or beyond :data:`PENDING_POSES` waiting.
         """
         if not math.isfinite(theta):
             raise BadInput(f"pose ({x}, {y}, {theta}) is not finite")
         check_coordinates(x, y, self._max_coordinate)
         if self._time_ns is None:
-            self._pending_fix = (stamp_ns, x, y, theta)
+            self._wait(stamp_ns, x, y, theta)
             return self.pose
         if stamp_ns == self._time_ns:
             return self.reset(x, y, theta)
         oldest_ns = self._history[0][0]
         check_stamp_near(stamp_ns, self._time_ns, self._horizon_ns, self._time_ns - oldest_ns, "fix")
         if stamp_ns > self._time_ns:
-            self._pending_fix = (stamp_ns, x, y, theta)
+            self._wait(stamp_ns, x, y, theta)
             return self.pose
         base = next(entry for entry in reversed(self._history) if entry[0] <= stamp_ns)
         _t, base_x, base_y, base_theta = base
@@ -222,6 +226,28 @@ class Odometry:
             theta + (self._theta - base_theta),
         )
 
+    def set_pose(self, x: float, y: float, theta: float, stamp_ns: int | None = None) -> int | None:
+        """Set the pose at runtime (diff_drive_controller's ``set_odometry``; a reset is (0, 0, 0)):
+        as a localized pose stamped ``stamp_ns`` (:meth:`reset_at`), so that it lands on the same
+        sample whenever it arrives; None stamps it with the last sample's time (before any sample:
+        the starting pose). Returns the stamp it applies at (None: the starting pose). BadInput
+        (nothing changes) as :meth:`reset_at`."""
+        if stamp_ns is None:
+            stamp_ns = self._time_ns
+            if stamp_ns is None:
+                self.reset(x, y, theta)
+                return None
+        self.reset_at(stamp_ns, x, y, theta)
+        return stamp_ns
+
+    def _wait(self, stamp_ns: int, x: float, y: float, theta: float) -> None:
+        """Keep a pose stamped ahead until the first sample after its stamp; each applies in stamp
+        order (one arriving later does not replace one due earlier). BadInput beyond
+        :data:`PENDING_POSES` waiting."""
+        if len(self._pending) >= PENDING_POSES:
+            raise BadInput(f"{PENDING_POSES} poses already wait for their stamps")
+        bisect.insort(self._pending, (stamp_ns, x, y, theta), key=lambda pending: pending[0])
+
     def restart_time_base(self) -> None:
         """Forget the last sample's time and angles: the next sample initialises, like the first.
 
@@ -232,7 +258,7 @@ class Odometry:
         self._time_ns = None
         self._v = self._omega = 0.0
         self._history.clear()
-        self._pending_fix = None
+        self._pending.clear()
 
     def step(self, time_ns: int, wheel_angles: Sequence[float]) -> Step:
         """Integrate one sample taken at ``time_ns`` (nanoseconds); the wheels are picked by id.
@@ -249,10 +275,9 @@ class Odometry:
         q_right = wheel_angles[self._right_id]
         if not (math.isfinite(q_left) and math.isfinite(q_right)):
             raise BadInput(f"wheel angles ({q_left}, {q_right}) are not finite")
-        pending = self._pending_fix
-        if pending is not None and time_ns > pending[0]:
-            self._pending_fix = None
-            self.reset(*pending[1:])
+        pending = self._pending
+        while pending and time_ns > pending[0][0]:
+            self.reset(*pending.pop(0)[1:])
         if self._time_ns is None:
             self._time_ns, self._q_left, self._q_right = time_ns, q_left, q_right
             self._history.append((time_ns, self._x, self._y, self._theta))

@@ -3,7 +3,9 @@
 Subscribes ``motor/wheel_angles`` and ``localization/pose``; integrates every accepted sample and
 publishes ``odometry/pose`` (with the ``tm`` of the wheel-angle sample) for those of observed
 steps (their mark says so, docs/protocol.md section 2.7), for every sample without a mark (a
-replayed or hand-made stream), and for every sample in a recorded run. A localized pose overwrites the pose the next step starts from. ``--trace FILE`` writes one JSON
+replayed or hand-made stream), and for every sample in a recorded run. A localized pose overwrites the pose the next step starts from,
+and so does a pose set at runtime on the queryable ``odometry/set_pose`` (diff_drive_controller's
+``set_odometry``, applied at its stamp as a fix is). ``--trace FILE`` writes one JSON
 line per accepted wheel-angle sample (docs/odometry.md describes the fields). When the
 simulator's liveliness token appears and the next wheel-angle sample is not after the last one,
 that sample starts a new time base (the stamps are the simulator's, and a restarted simulator's
@@ -18,8 +20,9 @@ from typing import Any
 
 import msgspec
 
+from schemas.codec import BadInput, BadMessage, decode
 from schemas.keys import Service, Topic
-from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+from schemas.messages import SetOdometry, SetOdometryReply, Time, TimedDoubleSeq, TimedPosition
 from services.clock.lockstep import Hold, observed
 from services.clock.sim_time import ClockRestart
 from services.clock.sim_watch import HeldSample, SimulatorWatch
@@ -55,6 +58,8 @@ class OdometryService:
         self.odometry = Odometry(config.robot, odometry, start=start, limits=config.input)
         self.samples = 0
         self.localization_resets = 0
+        self.pose_sets = 0
+        self.last_pose_set: dict[str, Any] | None = None
         self.sim = SimulatorWatch(node, ClockRestart(config.input.stamp_horizon_ns))
         self.branches = dict.fromkeys(Branch, 0)
         self.last_tm: Time | None = None
@@ -83,6 +88,7 @@ class OdometryService:
             ),
             Delivery.QUEUED,
         )
+        node.queryable(node.keys.odometry_set_pose, self._on_set_pose, mutates=True)
         node.set_status(self.status)
 
     def _integrate(self, held: HeldSample) -> None:
@@ -102,6 +108,23 @@ class OdometryService:
         self.localization_resets += 1
         self.fix_hold.took(stamp_ns)
 
+    def _on_set_pose(self, payload: bytes) -> SetOdometryReply:
+        """``odometry/set_pose``: the pose set at its stamp (or the last sample's), as a fix is."""
+        try:
+            request = decode(SetOdometry, payload)
+            stamp_ns = None if request.tm is None else request.tm.to_nanoseconds()
+            applied_ns = self.odometry.set_pose(request.x, request.y, request.theta, stamp_ns)
+        except BadInput as error:
+            self.node.bad_inputs.record(self.node.keys.odometry_set_pose, str(error))
+            kind = "not a SetOdometry" if isinstance(error, BadMessage) else "refused"
+            return SetOdometryReply(False, f"{kind}: {error}")
+        self.pose_sets += 1
+        tm = None if applied_ns is None else Time.from_nanoseconds(applied_ns)
+        self.last_pose_set = {"x": request.x, "y": request.y, "theta": request.theta, "tm": tm}
+        when = "as the starting pose" if tm is None else f"at {tm.to_seconds():.3f} s"
+        self.node.log.info("pose set to (%g, %g, %g) %s", request.x, request.y, request.theta, when)
+        return SetOdometryReply(True, tm=tm)
+
     def status(self) -> dict[str, Any]:
         pose = self.odometry.pose
         v, omega = self.odometry.velocity
@@ -112,9 +135,11 @@ class OdometryService:
             "pose": pose._asdict(),
             "velocity": {"v": v, "omega": omega},
             "last_wheel_angles_tm": self.last_tm,
+            "last_pose_set": self.last_pose_set,
             "counters": {
                 "wheel_angle_samples": self.samples,
                 "localization_resets": self.localization_resets,
+                "pose_sets": self.pose_sets,
                 "time_base_restarts": self.sim.restart.restarts,
                 "lockstep_holds": {"held": self.fix_hold.holds, "released_unanswered": self.fix_hold.overflows},
                 "branches": {str(branch): count for branch, count in self.branches.items()},

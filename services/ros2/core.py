@@ -35,7 +35,7 @@ from services.body.geometry import RobotBody
 from services.config import Config, Ros2Config
 from services.motor.core import check_target_velocity
 from services.odometry.core import Odometry
-from services.planar import Pose, compose, inverse
+from services.planar import Pose, check_coordinates, compose, inverse
 from services.ros2 import interfaces
 
 POSE_HISTORY = 4096
@@ -186,6 +186,10 @@ class ContinuousOdometry:
         self._left, self._right = config.robot.left_wheel_id, config.robot.right_wheel_id
         self._poses: deque[tuple[int, Pose]] = deque(maxlen=POSE_HISTORY)
         self.wheels: WheelSample | None = None
+        self._max_coordinate = config.input.max_coordinate
+        self._requested: Pose | None = None
+        self.moved: Pose | None = None
+        """The change of frame a pose set made at the last sample taken (new ``odom`` from old), or None."""
 
     @property
     def pose(self) -> Pose:
@@ -207,8 +211,24 @@ class ContinuousOdometry:
             dt = (stamp_ns - previous.stamp_ns) / NANOSECONDS_PER_SECOND
             velocities = ((pair[0] - previous.angles[0]) / dt, (pair[1] - previous.angles[1]) / dt)
         self.wheels = WheelSample(stamp_ns, pair, velocities)
+        self.moved = None
+        if self._requested is not None:
+            before, requested, self._requested = self._odometry.pose, self._requested, None
+            self.moved = compose(self._odometry.reset(*requested), inverse(before))
+            # The poses kept, in the new frame: a localized pose of an earlier stamp meets them there.
+            self._poses = deque(((stamp, compose(self.moved, pose)) for stamp, pose in self._poses), POSE_HISTORY)
         self._poses.append((stamp_ns, self._odometry.pose))
         return self.wheels
+
+    def set_pose(self, x: float, y: float, theta: float) -> None:
+        """``~/set_odometry`` (``~/reset_odometry``: (0, 0, 0)): ``odom -> base_link`` is this pose at the
+        next sample taken (a tick of the bridge), the motion from there on top of it. BadInput for a
+        pose not finite or beyond ``input.max_coordinate``; a second request before that sample
+        replaces the first."""
+        if not math.isfinite(theta):
+            raise BadInput(f"pose ({x}, {y}, {theta}) is not finite")
+        check_coordinates(x, y, self._max_coordinate)
+        self._requested = Pose(x, y, theta)
 
     def restart(self) -> None:
         """A new simulator: its clock starts again, and so does ``odom`` (at the origin)."""

@@ -123,6 +123,21 @@ MOTOR_SERVICES: dict[Method, Entity] = {
 """The Motor methods ROS calls, as std_srvs/Trigger services (``set_pd_gain`` takes arguments Trigger has not)."""
 
 
+class OdometryService(StrEnum):
+    """The odometry services ros2_controllers offers, private names of the bridge's node (``~/``)."""
+
+    RESET = "reset_odometry"
+    """ros2_controllers' (tricycle_controller's) reset: the pose (0, 0, 0)."""
+    SET = "set_odometry"
+    """diff_drive_controller's: the pose given (x, y, yaw)."""
+
+
+ODOMETRY_SERVICE_TYPES: dict[OdometryService, str] = {
+    OdometryService.RESET: interfaces.EMPTY,
+    OdometryService.SET: interfaces.SET_ODOMETRY,
+}
+
+
 @dataclass(frozen=True)
 class BridgeGraph:
     """The bridge's node and entities in one ROS domain and namespace."""
@@ -175,6 +190,15 @@ class BridgeGraph:
             for entity in SUBSCRIPTIONS
             if (entity is not INITIAL_POSE or self.localization) and (entity is not GOAL_POSE or self.navigate_to_pose)
         )
+
+    @property
+    def odometry_services(self) -> dict[OdometryService, Entity]:
+        """``~/reset_odometry`` and ``~/set_odometry``: under the node's name, in its namespace
+        (``/invent_bridge/set_odometry``), as rclcpp expands ``~``."""
+        return {
+            service: Entity(f"{self.node_name}/{service}", interface, wire.SERVICES)
+            for service, interface in ODOMETRY_SERVICE_TYPES.items()
+        }
 
     @property
     def frame_prefix(self) -> str:

@@ -25,13 +25,15 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Any
-
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from rosbags.typesys.base import Nodetype
-from rosbags.typesys.store import Typestore
+from typing import TYPE_CHECKING, Any
 
 from schemas.codec import BadInput
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
+
+# rosbags (the [ros2] extra) is imported by the functions that use it: the security grants import
+# the ROS graph's names from here, and every service imports the grants.
 
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
@@ -50,6 +52,18 @@ TRIGGER_RESPONSE = f"{TRIGGER}_Response"
 
 _TRIGGER_SRV = ("", "bool success   # indicate successful run of triggered service\nstring message # informational")
 """std_srvs/srv/Trigger.srv: an empty request, then ``bool success`` and ``string message``."""
+EMPTY = "std_srvs/srv/Empty"
+EMPTY_REQUEST = f"{EMPTY}_Request"
+EMPTY_RESPONSE = f"{EMPTY}_Response"
+SET_ODOMETRY = "control_msgs/srv/SetOdometry"
+SET_ODOMETRY_REQUEST = f"{SET_ODOMETRY}_Request"
+SET_ODOMETRY_RESPONSE = f"{SET_ODOMETRY}_Response"
+_SET_ODOMETRY_SRV = (
+    "float64 x\nfloat64 y\nfloat64 z\nfloat64 roll\nfloat64 pitch\nfloat64 yaw",
+    "bool success\nstring message",
+)
+"""control_msgs/srv/SetOdometry.srv (ros-controls/control_msgs, ``master`` and ``jazzy``), what
+diff_drive_controller's ``~/set_odometry`` takes."""
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 POSE_WITH_COVARIANCE_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
 POSE_ARRAY = "geometry_msgs/msg/PoseArray"
@@ -119,6 +133,8 @@ class Interface:
 @functools.cache
 def messages() -> Typestore:
     """rosbags' typestore of ROS 2 Jazzy: every message type the bridge publishes or takes."""
+    from rosbags.typesys import Stores, get_typestore
+
     return get_typestore(Stores.ROS2_JAZZY)
 
 
@@ -127,6 +143,8 @@ def services() -> Typestore:
     """A typestore of the services and actions (REP 2011 describes each for hashing), and of the
     messages they refer to: ``std_srvs/srv/Trigger``, ``action_msgs/srv/CancelGoal`` and
     ``nav2_msgs/action/NavigateToPose`` with every type derived from them."""
+    from rosbags.typesys import Stores, get_typestore
+
     store = get_typestore(Stores.EMPTY)
     jazzy = messages()
     consts, fields = jazzy.fielddefs[_SERVICE_EVENT_INFO]
@@ -137,6 +155,8 @@ def services() -> Typestore:
         }
     )
     store.register(_service(TRIGGER, *_TRIGGER_SRV))
+    store.register(_service(EMPTY, "", ""))
+    store.register(_service(SET_ODOMETRY, *_SET_ODOMETRY_SRV))
     store.register(_service(CANCEL_GOAL, *_CANCEL_GOAL_SRV))
     store.register(_action(NAVIGATE_TO_POSE, NAVIGATE_TO_POSE_ACTION))
     return store
@@ -157,6 +177,8 @@ def _with_dependencies(store: Typestore, names: tuple[str, ...]) -> dict[str, An
 
 def _referred(fields: list[tuple[str, Any]]) -> list[str]:
     """The message types a type's fields refer to (in arrays and sequences too)."""
+    from rosbags.typesys.base import Nodetype
+
     names = []
     for _name, (kind, detail) in fields:
         if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
@@ -212,6 +234,8 @@ def _action(action: str, text: str) -> dict[str, Any]:
 
 def _uint8_for_char(field: Any) -> Any:
     """``char[N]`` as ROS's type description has it: ``uint8[N]``."""
+    from rosbags.typesys.base import Nodetype
+
     kind, detail = field
     if kind is Nodetype.ARRAY and detail[0] == (Nodetype.BASE, ("char", 0)):
         return (Nodetype.ARRAY, ((Nodetype.BASE, ("uint8", 0)), detail[1]))
@@ -222,6 +246,8 @@ def _types(base: str, parts: dict[str, str]) -> dict[str, Any]:
     """rosbags' field definitions of ``<base>_<part>`` (``<base>`` for the part ``""``) from ``.msg``
     text. rosbags files any type under ``msg``; a service's parts keep ROS's name
     (``std_srvs/srv/Trigger_Request``), an action's are ROS's already (``nav2_msgs/action/...``)."""
+    from rosbags.typesys import get_types_from_msg
+
     types: dict[str, Any] = {}
     for part, text in parts.items():
         name = f"{base}_{part}" if part else base
@@ -245,10 +271,40 @@ def _store(name: str) -> Typestore:
     return messages() if "/msg/" in name and name != _SERVICE_EVENT_INFO else services()
 
 
+TYPE_HASHES = {
+    CLOCK: "RIHS01_692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564",
+    ODOMETRY: "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
+    TF_MESSAGE: "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
+    JOINT_STATE: "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e",
+    STRING: "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
+    LASER_SCAN: "RIHS01_64c191398013af96509d518dac71d5164f9382553fce5c1f8cca5be7924bd828",
+    IMU: "RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b",
+    OCCUPANCY_GRID: "RIHS01_8d348150c12913a31ee0ec170fbf25089e4745d17035792a1ba94d6f0bc0cfc7",
+    PATH: "RIHS01_1957a5bb3cee5da65c4e52e52b65a93df227efce4c20f8458b36e73066ca334b",
+    POSE_ARRAY: "RIHS01_af0cc36d190e104d546d168d6b39df04fa4b4ccecf59cb4c9ed328d3d5004aa0",
+    POSE_STAMPED: "RIHS01_10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8",
+    POSE_WITH_COVARIANCE_STAMPED: "RIHS01_26432f9803e43727d3c8f668d1fdb3c630f548af631e2f4e31382371bfea3b6e",
+    TWIST: "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a",
+    TWIST_STAMPED: "RIHS01_5f0fcd4f81d5d06ad9b4c4c63e3ea51b82d6ae4d0558f1d475229b1121db6f64",
+    TRIGGER: "RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f",
+    EMPTY: "RIHS01_5888399dedec5ccc85ea6451949fd2c9f97bfdf963f9a588821639fcd31b5d19",
+    SET_ODOMETRY: "RIHS01_cf3fe2bf6627a67b4883ba6e876a7b46cdd991417ece9f4f4dac5452fbfdea48",
+    GOAL_STATUS_ARRAY: "RIHS01_6c1684b00f177d37438febe6e709fc4e2b0d4248dca4854946f9ed8b30cda83e",
+    CANCEL_GOAL: "RIHS01_573d8b0a534451d7bc2ac8c5ffde8ac14b8593b7001175d0cd6516dcbeb8689a",
+    NAVIGATE_TO_POSE_SEND_GOAL: "RIHS01_a4fcb3bee1bf32e21a0e541a943b221aa0826996e2c98f079b47022b256f48b5",
+    NAVIGATE_TO_POSE_GET_RESULT: "RIHS01_c407920357d566771e8882b4ef4d1f1a84ee922d609920ccd57faa6d6e391dc5",
+    NAVIGATE_TO_POSE_FEEDBACK_MESSAGE: "RIHS01_9d1f6fa2eb975ce733b419ac2e97b134d8ff92b6478b6559feed9a50bdfd82b3",
+}
+"""The hash of every interface of the bridge's graph (services/ros2/graph.py), as rosbags computes it
+(tests/test_extras.py checks each, and that the graph names no other): the secure profiles' grants
+hold the bridge's keys, with these, and `invent secrets` runs where rosbags (the [ros2] extra) is not."""
+
+
 def interface(name: str) -> Interface:
     """A message (``pkg/msg/Type``), service (``pkg/srv/Type``) or action type
     (``pkg/action/Type_SendGoal``, ...) with its RIHS01 hash."""
-    return Interface(name, _store(name).hash_rihs01(name))
+    known = TYPE_HASHES.get(name)
+    return Interface(name, known if known is not None else _store(name).hash_rihs01(name))
 
 
 def message_class(name: str) -> Any:

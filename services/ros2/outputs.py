@@ -37,7 +37,7 @@ from schemas.messages import (
 from services.body.geometry import robot_body
 from services.clock.sim_time import PeriodicSchedule, StampClock
 from services.config import Config
-from services.planar import Pose
+from services.planar import Pose, compose, inverse
 from services.ros2 import core, sensors
 from services.ros2.graph import BridgeGraph
 from services.ros2.tf_tree import TfTree
@@ -114,6 +114,10 @@ class RosOutputs:
         if restarted:
             self._restart()
         wheels = self.odometry.take(message)
+        moved = self.odometry.moved
+        if moved is not None and self.map_to_odom is not None:
+            # odom was set: map -> odom takes the change, so map -> base_link does not move.
+            self.map_to_odom = (now_ns, compose(self.map_to_odom[1], inverse(moved)))
         if self._schedules is None:
             # On the simulator's grid (anchored at 0), whose observed steps the observer tokens ask for.
             self._schedules = (

@@ -79,6 +79,7 @@ from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, ConfigError
 from services.ros2 import core, graph, interfaces, navigate, wire
 from services.ros2.action_server import NavigateServer
+from services.ros2.odometry_services import OdometryServices
 from services.ros2.outputs import Outgoing, RosOutputs
 from services.runtime.inputs import Delivery
 from services.runtime.journal import Journal, journal_path
@@ -314,6 +315,7 @@ class Ros2Bridge:
             self._motor_methods[method] = node.session.declare_querier(
                 node.keys.method(MethodFamily.GUI, method), timeout=SERVICE_CALL_TIMEOUT_S
             )
+        self.odometry_services = OdometryServices(node, tokens, outputs.odometry)
         self.frames = navigate.GoalFrames(settings.map_frame, outputs.prefix + settings.odom_frame)
         """The frames an ``initialpose`` may be given in."""
         self.navigate = (
@@ -522,6 +524,7 @@ class Ros2Bridge:
             "published": {publisher.name: publisher.published for publisher in self.publishers.values()},
             "cmd_vel": dict(self.cmd_vel),
             "service_calls": {**self.calls, "waiting": len(self._pending_calls)},
+            "odometry_services": self.odometry_services.status(),
             **({"navigate": self.navigate.status()} if self.navigate is not None else {}),
             **(
                 {
@@ -540,6 +543,7 @@ class Ros2Bridge:
     def close(self) -> None:
         if self.navigate is not None:
             self.navigate.close()
+        self.odometry_services.close()
         for pending in self._pending_calls.values():
             pending.query.drop()
         self._pending_calls.clear()
@@ -584,7 +588,7 @@ def _reply_text(reply: zenoh.Reply) -> tuple[bool, str]:
         return False, f"the motor refused: {reply.err.payload.to_bytes().decode(errors='replace') if reply.err else ''}"
     try:
         state = msgspec.json.decode(reply.ok.payload.to_bytes()).get("state", "?")
-    except (msgspec.DecodeError, AttributeError):
+    except (msgspec.DecodeError, UnicodeDecodeError, AttributeError):
         state = "?"
     return True, f"motor state: {state}"
 

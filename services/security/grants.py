@@ -165,7 +165,8 @@ def _ros_grants(role: Role, keys: Keys, ros: BridgeGraph) -> list[Grant]:
     latched = tuple(ros.key(entity) for entity in topics if entity.qos.transient_local)
     advanced = tuple(f"{key}/@adv/**" for key in latched)
     subscribed = tuple(ros.key(entity) for entity in SUBSCRIPTIONS)
-    served = tuple(ros.key(entity) for entity in (*MOTOR_SERVICES.values(), *ACTION_SERVICES.values()))
+    services = (*MOTOR_SERVICES.values(), *ACTION_SERVICES.values(), *ros.odometry_services.values())
+    served = tuple(ros.key(entity) for entity in services)
     return [
         Grant((Message.PUT,), Flow.INGRESS, (*published, *advanced, keys.drive_target_velocity)),
         Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (*served, *advanced)),
@@ -263,6 +264,7 @@ def grants(
             Grant((Message.QUERY,), Flow.INGRESS, _methods(keys, MethodFamily.GUI)),
             Grant((Message.QUERY,), Flow.INGRESS, _goal_methods(keys)),
             Grant((Message.QUERY,), Flow.INGRESS, _localization_methods(keys)),  # invent localize
+            Grant((Message.QUERY,), Flow.INGRESS, (keys.odometry_set_pose,)),  # invent call odometry/set_pose
         ]
     service = Service(role.value)
     served = (keys.status(service),) + tuple(
@@ -272,6 +274,8 @@ def grants(
         served += _methods(keys, MethodFamily.GUI) + _methods(keys, MethodFamily.BUMP)
     if service is Service.DRIVE:
         served += _goal_methods(keys)
+    if service is Service.ODOMETRY:
+        served += (keys.odometry_set_pose,)
     own = [
         Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (keys.alive(service), keys.ticks_at_any_rate(service))),
         Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, served),
