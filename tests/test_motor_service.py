@@ -421,7 +421,9 @@ def test_status_reports_locked_parameters_and_counters(link):
         "half_axle": CONFIG.robot.length_of_axle / 2.0,
     }
     assert status["offsets"]["simulated_offset_y"] == 0.045795
-    assert status["limits"] == {name: OVERRIDES[f"motor.{name}"] for name in ("max_vx", "max_ax", "max_w", "max_aw")}
+    limits = ("max_vx", "max_ax", "max_w", "max_aw")
+    assert {name: status["limits"][name] for name in limits} == {name: OVERRIDES[f"motor.{name}"] for name in limits}
+    assert status["limits"]["max_jerk_x"] is None, "every limit listed, those not set None"
     assert status["target"] == {"vx": 0.2, "w": -0.1}
     assert status["torques_published"] == published + 1
 

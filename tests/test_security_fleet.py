@@ -191,6 +191,7 @@ def test_the_fleet_operator_and_observer_reach_every_robot_and_the_observer_puts
         | _goals(RH0)
         | _goals(RH1)
         | {k.localization_method(m) for k in (RH0, RH1) for m in LocalizationMethod}
+        | {k.odometry_set_pose for k in (RH0, RH1)}
     )
     assert _granted(observer, Message.PUT) == set()
     assert not _granted(observer, Message.QUERY) & (_goals(RH0) | _goals(RH1)), "the observer sends no goal"
