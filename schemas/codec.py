@@ -35,7 +35,8 @@ def encode(message: msgspec.Struct) -> bytes:
 
 def decode(message_type: type[MessageT], payload: bytes) -> MessageT:
     """Decode ``payload`` as ``message_type`` (one of the project's, or a user service's own
-    msgspec Struct: its decoder made once); raise BadMessage with msgspec's reason."""
+    msgspec Struct: its decoder made once); raise BadMessage with msgspec's reason, for a string
+    that is not UTF-8 too."""
     decoder = _decoders.get(message_type)
     if decoder is None:
         decoder = _decoders[message_type] = msgspec.json.Decoder(message_type)
@@ -45,3 +46,5 @@ def decode(message_type: type[MessageT], payload: bytes) -> MessageT:
         raise BadMessage(str(error)) from None
     except msgspec.DecodeError as error:
         raise BadMessage(f"not JSON: {error}") from None
+    except UnicodeDecodeError as error:  # what msgspec raises for a string that is not UTF-8
+        raise BadMessage(f"not UTF-8: {error}") from None

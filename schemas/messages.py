@@ -342,13 +342,19 @@ class ScenarioOutcome(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 
 MAX_GOAL_ID_LENGTH = 64
-GoalId = Annotated[str, msgspec.Meta(max_length=MAX_GOAL_ID_LENGTH, pattern=r"^[A-Za-z0-9_.\-]*$")]
+GoalId = Annotated[str, msgspec.Meta(max_length=MAX_GOAL_ID_LENGTH, pattern=r"\A[A-Za-z0-9_.\-]*\Z")]
 """A goal's id: letters, digits, ``_``, ``.``, ``-``; at most 64 (a ROS goal's UUID is 32 hex digits)."""
 PositiveFloat = Annotated[float, msgspec.Meta(gt=0.0)]
 GoalFrame = Literal["map", "odom"]
 """The frame of a goal's pose (docs/protocol.md section 7.3): ``map`` is the world frame of
 ``odometry/pose`` and the simulator; ``odom`` is the frame in which the robot started at the origin
 facing +x (the configured initial pose is ``odom``'s origin in ``map``)."""
+
+
+MAX_GOAL_SECONDS = 1e9
+"""The most simulated seconds a goal's ``time_limit`` (and a goal file's ``at``, a scenario file's
+time limit and durations) may say, about 32 years: its nanoseconds stay within int64 and its
+seconds within a ROS Duration's int32, where ``1e308`` s overflowed the drive's conversion to nanoseconds."""
 
 
 class GoalRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -365,7 +371,8 @@ class GoalRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_on
     heading_tolerance: float | None = None
     """rad; > 0; None: ``goals.heading_tolerance``."""
     time_limit: float | None = None
-    """Simulated seconds the goal may take; > 0; None: the drive's rule (as for a scenario)."""
+    """Simulated seconds the goal may take; > 0, at most :data:`MAX_GOAL_SECONDS`; None: the drive's
+    rule (as for a scenario)."""
     id: GoalId = ""
     """The caller's id for the goal (a ROS goal's UUID); ``""``: the drive makes one."""
 
@@ -495,6 +502,33 @@ class LocalizationReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True)
     """Why it was refused; ``""`` when accepted."""
 
 
+class SetOdometry(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """Payload of ``odometry/set_pose``: the pose the odometry is at (as control_msgs' SetOdometry
+    of diff_drive_controller's ``~/set_odometry``; a reset is (0, 0, 0)), at simulation time ``tm``."""
+
+    x: float
+    y: float
+    theta: float
+    tm: Time | None = None
+    """When the robot was at the pose: applied as a localized pose of that stamp is (the motion
+    integrated since kept on top; a stamp ahead waits for its sample); None: the last wheel-angle
+    sample integrated."""
+
+    def __post_init__(self) -> None:
+        _require_finite(self.x, self.y, self.theta)
+
+
+class SetOdometryReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Reply of ``odometry/set_pose``: taken (at stamp ``tm``), or refused and why."""
+
+    accepted: bool
+    reason: str = ""
+    """Why it was refused; ``""`` when accepted."""
+    tm: Time | None = None
+    """The stamp it applies at; None when refused, or taken before any wheel-angle sample (then
+    the pose the first sample starts from)."""
+
+
 ParticleValues = Annotated[list[float], msgspec.Meta(max_length=MAX_PARTICLES)]
 
 
@@ -541,4 +575,6 @@ MESSAGE_TYPES: tuple[type[msgspec.Struct], ...] = (
     InitialPose,
     LocalizationReply,
     ParticleCloud,
+    SetOdometry,
+    SetOdometryReply,
 )

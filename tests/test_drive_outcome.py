@@ -10,10 +10,18 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from services.config import DriveConfig
+from schemas.messages import MAX_GOAL_SECONDS
+from services.config import ConfigError, DriveConfig
 from services.drive.outcome import EXIT_CODES, OUTCOME_OF_EXIT_CODE, GiveUpRule, Outcome, time_limit
 from services.drive.path_following import STOPPED
-from services.drive.scenarios import BUILTIN_SCENARIOS, ConstantSegment, Scenario, ScenarioRunner, planned_duration
+from services.drive.scenarios import (
+    BUILTIN_SCENARIOS,
+    ConstantSegment,
+    Scenario,
+    ScenarioRunner,
+    parse_scenario,
+    planned_duration,
+)
 from services.planar import Pose
 
 ORIGIN = Pose(0.0, 0.0, 0.0)
@@ -44,6 +52,31 @@ def test_the_default_time_limit_is_three_times_the_plan_and_ten_seconds_and_a_fi
     own = msgspec.structs.replace(straight, time_limit=5.0)
     assert time_limit(own, ORIGIN, PARAMS) == 5.0
     assert time_limit(straight, ORIGIN, msgspec.structs.replace(PARAMS, time_limit_factor=None)) is None
+
+
+SCENARIO_FILE = """time_limit = {limit}
+[[segments]]
+type = "constant"
+vx = 0.1
+w = 0.0
+duration = {duration}
+"""
+
+
+@pytest.mark.parametrize(("limit", "duration", "field"), [(1e308, 1.0, "time_limit"), (1.0, 1e308, "duration")])
+def test_a_scenario_file_whose_seconds_overflow_nanoseconds_is_a_configuration_error_naming_the_field(
+    limit: float, duration: float, field: str
+) -> None:
+    """1e308 s overflowed the drive's conversion to nanoseconds as it started (an OverflowError)."""
+    with pytest.raises(ConfigError, match=f"<= 1000000000.0 - at `.*{field}`"):
+        parse_scenario(SCENARIO_FILE.format(limit=limit, duration=duration))
+
+
+def test_the_longest_time_limit_a_scenario_or_goal_may_say_converts_to_nanoseconds() -> None:
+    scenario = parse_scenario(SCENARIO_FILE.format(limit=MAX_GOAL_SECONDS, duration=MAX_GOAL_SECONDS))
+    rule = GiveUpRule(DriveConfig(), time_limit(scenario, Pose(0.0, 0.0, 0.0), DriveConfig()))
+    assert rule.check(0, round(MAX_GOAL_SECONDS * 1e9)) is None
+    assert rule.check(0, round(MAX_GOAL_SECONDS * 1e9) + 1) is not None
 
 
 def test_a_motor_stopped_by_a_bump_is_given_up_after_the_configured_time_naming_the_obstacle() -> None:

@@ -9,11 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from schemas.messages import CancelRequest, GoalRequest
+from schemas.messages import MAX_GOAL_SECONDS, CancelRequest, GoalRequest
 from services.config import ConfigError, DriveConfig, GoalsConfig, InputConfig, NavigationConfig
 from services.drive.goal_file import GoalSchedule, parse_goal_file
 from services.drive.goals import MAX_ATTEMPTS, MAX_WAITING, Goals, Phase, Tick, odom_to_map
-from services.drive.outcome import Outcome
+from services.drive.outcome import GiveUpRule, Outcome
 from services.drive.path_following import STOPPED
 from services.drive.scenarios import goal_duration
 from services.navigation.costmap import Costmap
@@ -182,6 +182,8 @@ def test_two_goals_sent_between_ticks_the_first_never_starts_and_ends_canceled()
         (GoalRequest(x=1.0, y=0.0, position_tolerance=0.0), "`position_tolerance` must be > 0"),
         (GoalRequest(x=1.0, y=0.0, heading_tolerance=-0.1), "`heading_tolerance` must be > 0"),
         (GoalRequest(x=1.0, y=0.0, time_limit=0.0), "`time_limit` must be > 0"),
+        (GoalRequest(x=1.0, y=0.0, time_limit=1e308), "`time_limit` must be at most 1e+09 s, got 1e+308"),
+        (GoalRequest(x=1.0, y=0.0, time_limit=MAX_GOAL_SECONDS * 1.001), "`time_limit` must be at most 1e+09 s"),
         (GoalRequest(x=1.0, y=0.0, frame="base_link"), "unknown frame 'base_link'"),
         (GoalRequest(x=2e4, y=0.0), "beyond input.max_coordinate"),
         (GoalRequest(x=500.0, y=0.0), "beyond goals.max_distance"),
@@ -295,6 +297,19 @@ def test_the_time_limit_of_a_goal_is_its_own_or_the_drives_rule_from_where_it_st
     assert ruled.time_limit_s == pytest.approx(DRIVE.time_limit_factor * planned + DRIVE.time_limit_margin)
 
 
+def test_a_goal_with_the_longest_time_limit_starts_and_the_drives_rule_takes_it() -> None:
+    """The bound is where the goal enters: at it, the limit converts to nanoseconds and the goal runs."""
+    goals = make_goals()
+    plant = Plant(goals)
+    assert goals.send(GoalRequest(x=1.0, y=0.0, time_limit=MAX_GOAL_SECONDS), plant.pose, None).accepted
+    started = plant.tick().started
+    assert started is not None and started.time_limit_s == MAX_GOAL_SECONDS
+    rule = GiveUpRule(DRIVE, None)
+    rule.limit(started.time_limit_s)
+    assert rule.check(TICK_NS, round(MAX_GOAL_SECONDS * 1e9)) is None
+    assert rule.check(TICK_NS, round(MAX_GOAL_SECONDS * 1e9) + 1) is not None
+
+
 def test_the_feedback_counts_the_distance_down_and_the_estimate_shrinks() -> None:
     goals = make_goals()
     plant = Plant(goals)
@@ -351,6 +366,8 @@ def test_a_goal_file_sends_each_entry_at_the_first_tick_at_or_after_its_time() -
         ("[[goals]]\nat = 0.0\nx = 1.0\n", "needs `x` and `y`"),
         ("[[goals]]\nat = 0.0\nx = 1.0\ny = 0.0\nspeed = 2\n", "unknown field `speed`"),
         ("[[goals]]\nat = -1.0\nx = 1.0\ny = 0.0\n", "goals[0].at"),
+        ("[[goals]]\nat = 1e308\nx = 1.0\ny = 0.0\n", "<= 1000000000.0 - at `goals[0].at`"),
+        ("[[goals]]\nat = 0.0\nx = 1.0\ny = 0.0\ntime_limit = 1e308\n", "<= 1000000000.0 - at `goals[0].time_limit`"),
         ("goals = []\n", "goals"),
     ],
 )

@@ -31,8 +31,9 @@ from services.planar import Pose
 from services.ros2 import core, goal_book, graph, interfaces, navigate
 from services.ros2.goal_book import CancelCode, ErrorCode, Goal, GoalStatus
 from services.ros2.graph import ActionService, ActionTopic, bridge_graph
-from services.ros2.tf_tree import Rigid, TfTree, TransformError
+from services.ros2.tf_tree import Rigid, TfTree, TransformError, unit_quaternion
 from tests import ros_client
+from tests.test_ros2_localization import pose_estimate
 
 DATA = Path(__file__).parent / "data" / "ros2_interfaces"
 GENERATED = DATA / "nav2_msgs" / "action" / "NavigateToPose.json"
@@ -291,8 +292,41 @@ def test_an_unnormalised_quaternion_gives_its_heading():
     assert math.isclose(heading, math.pi / 2)
 
 
+HUGE_AND_TINY_TURNS = [(0.0, 0.0, 1e300, 1e300), (0.0, 0.0, 1e-300, 1e-300), (0.0, 0.0, 5e-324, 5e-324)]
+"""A turn of pi/2 about z whose squares overflow, underflow, or are subnormal."""
+
+
+@pytest.mark.parametrize("q", HUGE_AND_TINY_TURNS)
+def test_a_goal_whose_quaternion_squares_overflow_keeps_its_heading(q):
+    """(0, 0, 1e300, 1e300) is a valid quaternion of yaw pi/2: normalised before use, never NaN."""
+    goal = navigate.goal_request(_pose(q=q), TfTree(), "map", "a", 1e3)
+    assert goal.theta is not None and math.isclose(goal.theta, math.pi / 2)
+    odom = navigate.goal_request(_pose(frame="odom", q=q), _tree(Pose(1.0, 2.0, 0.5)), "map", "a", 1e3)
+    assert odom.theta is not None and math.isclose(odom.theta, math.pi / 2 + 0.5)
+
+
+@pytest.mark.parametrize("q", HUGE_AND_TINY_TURNS)
+def test_a_pose_estimate_whose_quaternion_squares_overflow_keeps_its_heading(q):
+    request = navigate.initial_pose_request(
+        pose_estimate(1.0, 2.0, 0.0, orientation=q), navigate.GoalFrames("map", "odom"), None, 50.0
+    )
+    assert math.isclose(request.theta, math.pi / 2)
+
+
+@given(
+    st.tuples(*[st.floats(-1.0, 1.0)] * 4).filter(lambda q: max(map(abs, q)) > 1e-3),
+    st.sampled_from([1e-300, 1e-150, 1.0, 1e150, 1e300]),
+)
+def test_a_quaternion_of_any_finite_length_is_normalised_as_its_unit_one(q, scale):
+    unit = unit_quaternion(q)
+    assert math.isclose(float(unit @ unit), 1.0)
+    assert np.allclose(unit_quaternion(tuple(value * scale for value in q)), unit, atol=1e-12)
+
+
 def test_durations_are_whole_seconds_and_nanoseconds_never_negative():
     assert (navigate.duration(1.25).sec, navigate.duration(1.25).nanosec) == (1, 250_000_000)
     for value in (-1.0, math.nan, math.inf):
         assert (navigate.duration(value).sec, navigate.duration(value).nanosec) == (0, 0)
+    for value in (1e300, 3e9):  # a peer's feedback: an int32's most seconds, never an overflow
+        assert (navigate.duration(value).sec, navigate.duration(value).nanosec) == (navigate.MAX_DURATION_S, 0)
     assert np.array_equal(navigate.uuid_message(bytes(range(16))).uuid, np.arange(16, dtype=np.uint8))

@@ -10,6 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas import (
+    BadInput,
     BadMessage,
     BumpEvent,
     Keys,
@@ -28,6 +29,7 @@ from schemas import (
 )
 from schemas.keys import TOPIC_TYPES
 from schemas.messages import (
+    MESSAGE_TYPES,
     CancelReply,
     CancelRequest,
     GoalFeedback,
@@ -46,6 +48,7 @@ from schemas.messages import (
     SimWorld,
 )
 from schemas.tokens import parse_alive_key
+from services.clock.lockstep import decode_mark
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 times = st.builds(Time, st.integers(0, 2**40), st.integers(0, 999_999_999))
@@ -102,6 +105,42 @@ def test_a_goal_id_is_one_plain_word_of_at_most_64_characters():
     for bad in (b'{"id": "a/b"}', b'{"id": "' + b"x" * 65 + b'"}', b'{"id": "**"}'):
         with pytest.raises(BadMessage):
             decode(CancelRequest, bad)
+
+
+def test_a_goal_id_ending_in_a_newline_is_refused_it_is_matched_whole():
+    """``$`` matches before a trailing newline: the id's pattern is anchored with ``\\A`` and ``\\Z``."""
+    for payload in (b'{"id": "g1\\n"}', b'{"id": "\\ng1"}', b'{"id": "\\n"}'):
+        with pytest.raises(BadMessage, match="matching regex"):
+            decode(CancelRequest, payload)
+        with pytest.raises(BadMessage, match="matching regex"):
+            decode(GoalRequest, b'{"x": 1.0, "y": 0.0, "id": ' + payload[7:])
+
+
+@pytest.mark.parametrize("message_type", MESSAGE_TYPES, ids=lambda t: t.__name__)
+def test_a_string_that_is_not_utf_8_is_bad_input_for_every_message_type(message_type):
+    """msgspec raises UnicodeDecodeError, not a DecodeError, for it: the codec refuses it as any bad payload."""
+    with pytest.raises(BadMessage, match="not UTF-8"):
+        decode(message_type, b'{"\xff": 1}')
+
+
+@pytest.mark.parametrize(
+    ("message_type", "payload"),
+    [
+        (GoalRequest, b'{"x": 1.0, "y": 0.0, "id": "g\xff"}'),
+        (GoalRequest, b'{"x": 1.0, "y": 0.0, "frame": "\xc3("}'),
+        (CancelRequest, b'{"id": "\xed\xa0\x80"}'),
+        (ScenarioOutcome, b'{"tm": {"sec": 0, "nsec": 0}, "scenario": "\xfe", "outcome": "completed"}'),
+    ],
+)
+def test_invalid_utf_8_inside_a_string_value_is_bad_input(message_type, payload):
+    with pytest.raises(BadMessage, match="not UTF-8"):
+        decode(message_type, payload)
+
+
+def test_a_lockstep_attachment_that_is_not_utf_8_is_bad_input():
+    """The step's mark rides every wheel-angle sample: decoded apart from the codec, with the same hole once."""
+    with pytest.raises(BadInput, match="step attachment"):
+        decode_mark(b'{"owed": {"drive/target_velocity\xff": 1}}', 10)
 
 
 @pytest.mark.parametrize("message", EXAMPLES, ids=lambda m: type(m).__name__)

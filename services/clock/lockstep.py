@@ -126,7 +126,7 @@ def _parse_mark(attachment: bytes) -> tuple[StepMark, int]:
     Callers must not mutate it."""
     try:
         mark = _MARK_DECODER.decode(attachment)
-    except msgspec.DecodeError as error:
+    except (msgspec.DecodeError, UnicodeDecodeError) as error:  # msgspec raises the latter for a string not UTF-8
         raise BadInput(f"step attachment: {error}") from None
     owed = mark.owed or {}
     if len(owed) > _MAX_OWED:

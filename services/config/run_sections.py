@@ -21,10 +21,10 @@ from services.config.fields import (
 
 Covariance = tuple[NonNegative, NonNegative, NonNegative, NonNegative, NonNegative, NonNegative]
 """The diagonal of a 6x6 covariance (x, y, z, roll, pitch, yaw), as diff_drive_controller takes it."""
-FrameId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_/]*$")]
+FrameId = Annotated[str, msgspec.Meta(pattern=r"\A[A-Za-z0-9_][A-Za-z0-9_/]*\Z")]
 
 
-NAMESPACE = re.compile(r"^(/?[A-Za-z][A-Za-z0-9_]*)*/?$")
+NAMESPACE = re.compile(r"\A(/?[A-Za-z][A-Za-z0-9_]*)*/?\Z")
 """A ROS namespace: "" (none), or names of letters, digits and underscores, each starting with a
 letter, joined by ``/`` (a leading or trailing ``/`` is the same namespace)."""
 
@@ -42,7 +42,7 @@ class Ros2Config(Section, frozen=True):
     namespace: Annotated[str, msgspec.Meta(pattern=NAMESPACE.pattern)] = ""
     """ROS namespace of the bridge's node, topics and services (``--namespace``): "" = none, or
     names of letters, digits and underscores (each starting with a letter) joined by ``/``."""
-    node_name: Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z][A-Za-z0-9_]*$")] = "invent_bridge"
+    node_name: Annotated[str, msgspec.Meta(pattern=r"\A[A-Za-z][A-Za-z0-9_]*\Z")] = "invent_bridge"
     """Name of the bridge's node in the ROS graph (in ``namespace``)."""
     tf: TfLayout = TfLayout.NAMESPACED
     """How a bridge in a namespace publishes TF (with no namespace both are ``/tf`` and ``/tf_static``,

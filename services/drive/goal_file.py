@@ -14,9 +14,10 @@ section 7.3), so a lockstep run of a goal file is as deterministic as a scenario
     at = 4.0
     cancel = true     # cancels whatever runs (or `id = "..."`)
 
-A file is loaded strictly: an unknown key, a wrong type, ``at`` out of order, or a goal without
-``x`` and ``y`` is a ConfigError naming the entry. What a goal says is checked when it is sent,
-as a query's would be: a goal the drive rejects is logged with the reason and the file goes on.
+A file is loaded strictly: an unknown key, a wrong type, ``at`` out of order, an ``at`` or
+``time_limit`` beyond ``MAX_GOAL_SECONDS`` (schemas/messages.py), or a goal without ``x`` and ``y``
+is a ConfigError naming the entry. What a goal says is checked when it is sent, as a query's would
+be: a goal the drive rejects is logged with the reason and the file goes on.
 """
 
 from __future__ import annotations
@@ -26,14 +27,14 @@ from typing import Annotated
 
 import msgspec
 
-from schemas.messages import NANOSECONDS_PER_SECOND, CancelRequest, GoalId, GoalRequest
+from schemas.messages import MAX_GOAL_SECONDS, NANOSECONDS_PER_SECOND, CancelRequest, GoalId, GoalRequest
 from services.config import ConfigError, convert_toml
 
 MAX_GOAL_FILE_ENTRIES = 10_000
 
 
 class GoalFileEntry(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    at: Annotated[float, msgspec.Meta(ge=0.0)]
+    at: Annotated[float, msgspec.Meta(ge=0.0, le=MAX_GOAL_SECONDS)]
     """Simulated seconds from the start of the run."""
     cancel: bool = False
     x: float | None = None
@@ -42,7 +43,7 @@ class GoalFileEntry(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_
     frame: str = "map"
     position_tolerance: float | None = None
     heading_tolerance: float | None = None
-    time_limit: float | None = None
+    time_limit: Annotated[float, msgspec.Meta(le=MAX_GOAL_SECONDS)] | None = None
     id: GoalId = ""
 
     def request(self) -> GoalRequest | CancelRequest:

@@ -17,7 +17,14 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-from schemas.messages import NANOSECONDS_PER_SECOND, CancelReply, CancelRequest, GoalReply, GoalRequest
+from schemas.messages import (
+    MAX_GOAL_SECONDS,
+    NANOSECONDS_PER_SECOND,
+    CancelReply,
+    CancelRequest,
+    GoalReply,
+    GoalRequest,
+)
 from services.config import DriveConfig, GoalsConfig, InputConfig, NavigationConfig
 from services.drive.outcome import Outcome
 from services.drive.path_following import STOPPED, Command, PathFollower, limit_rate
@@ -213,6 +220,8 @@ class Goals:
             value = numbers[name]
             if value is not None and value <= 0.0:
                 return f"`{name}` must be > 0, got {value}"
+        if request.time_limit is not None and request.time_limit > MAX_GOAL_SECONDS:
+            return f"`time_limit` must be at most {MAX_GOAL_SECONDS:g} s, got {request.time_limit}"
         if request.frame not in GOAL_FRAMES:
             return f"unknown frame {request.frame!r}: a goal is in {' or '.join(GOAL_FRAMES)}"
         x, y, _ = self._in_map(request)

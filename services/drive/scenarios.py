@@ -37,12 +37,12 @@ from typing import Annotated
 
 import msgspec
 
-from schemas.messages import NANOSECONDS_PER_SECOND
+from schemas.messages import MAX_GOAL_SECONDS, NANOSECONDS_PER_SECOND
 from services.config import ConfigError, DriveConfig, convert_toml
 from services.drive.path_following import STOPPED, Command, PathFollower, Phase, Point
 from services.planar import Pose, wrap_angle
 
-PositiveSeconds = Annotated[float, msgspec.Meta(gt=0.0)]
+PositiveSeconds = Annotated[float, msgspec.Meta(gt=0.0, le=MAX_GOAL_SECONDS)]  # 1e308 overflowed the drive's ns
 PATH_SAMPLE_S = 0.05
 """Time step at which :func:`planned_path` samples a constant-velocity segment."""
 PATH_SEGMENT_SAMPLES = 1000

@@ -31,7 +31,7 @@ from schemas.messages import NANOSECONDS_PER_SECOND, GoalFeedback, GoalRequest, 
 from services.planar import Pose
 from services.ros2 import core, interfaces
 from services.ros2.goal_book import CancelCode, Goal, GoalStatus
-from services.ros2.tf_tree import Rigid, TfTree
+from services.ros2.tf_tree import Rigid, TfTree, unit_quaternion
 
 
 @dataclass(frozen=True)
@@ -42,14 +42,18 @@ class GoalFrames:
     odom: str
 
 
+def unit_orientation(orientation: Any) -> np.ndarray:
+    """A peer's ``geometry_msgs/Quaternion`` (any length) normalised before any use
+    (:func:`~services.ros2.tf_tree.unit_quaternion`); BadInput for one not finite or zero, which is no rotation."""
+    try:
+        return unit_quaternion((orientation.x, orientation.y, orientation.z, orientation.w))
+    except ValueError as error:
+        raise BadInput(str(error)) from None
+
+
 def yaw_of(orientation: Any) -> float:
-    """The heading of a quaternion (any length: it is normalised); BadInput for one that is not
-    finite or is (nearly) zero, which is no rotation."""
-    x, y, z, w = (float(orientation.x), float(orientation.y), float(orientation.z), float(orientation.w))
-    if not all(math.isfinite(value) for value in (x, y, z, w)):
-        raise BadInput(f"orientation ({x}, {y}, {z}, {w}) is not finite")
-    if x * x + y * y + z * z + w * w < 1e-12:
-        raise BadInput("orientation (0, 0, 0, 0) is no rotation")
+    """The heading of a quaternion of any length (:func:`unit_orientation`: BadInput for no rotation)."""
+    x, y, z, w = unit_orientation(orientation)
     return math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
 
 
@@ -64,9 +68,7 @@ def goal_request(pose_stamped: Any, tree: TfTree, map_frame: str, goal_id: str, 
         raise BadInput(f"goal position ({x}, {y}, {z}) is not finite")
     if max(abs(x), abs(y), abs(z)) > max_coordinate:
         raise BadInput(f"goal position ({x}, {y}) is beyond input.max_coordinate {max_coordinate:g} m")
-    orientation = pose_stamped.pose.orientation
-    yaw_of(orientation)
-    in_frame = Rigid.of((x, y, z), (orientation.x, orientation.y, orientation.z, orientation.w))
+    in_frame = Rigid(np.array([x, y, z]), unit_orientation(pose_stamped.pose.orientation))
     in_map = tree.lookup(map_frame, pose_stamped.header.frame_id).compose(in_frame)
     map_x, map_y = (float(value) for value in in_map.translation[:2])
     if max(abs(map_x), abs(map_y)) > max_coordinate:
@@ -111,11 +113,12 @@ def initial_pose_request(
     if max(abs(x), abs(y)) > max_coordinate:
         raise BadInput(f"initial pose position ({x}, {y}) is beyond input.max_coordinate {max_coordinate:g} m")
     orientation = message.pose.pose.orientation
+    qx, qy, _, _ = unit_orientation(orientation)
+    if math.hypot(qx, qy) > MAX_TILT:
+        raise BadInput(
+            f"orientation ({orientation.x}, {orientation.y}, {orientation.z}, {orientation.w}) is not a turn about z"
+        )
     theta = yaw_of(orientation)
-    qx, qy, qz, qw = (float(orientation.x), float(orientation.y), float(orientation.z), float(orientation.w))
-    tilt = math.hypot(qx, qy) / math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-    if tilt > MAX_TILT:
-        raise BadInput(f"orientation ({qx}, {qy}, {qz}, {qw}) is not a turn about z")
     covariance = core.planar_covariance(message.pose.covariance)
     if np.any(np.diag(covariance) < 0.0):
         raise BadInput(f"the covariance's variances {np.diag(covariance).tolist()} are not all non-negative")
@@ -133,9 +136,15 @@ def initial_pose_request(
     return InitialPose(x=pose.x, y=pose.y, theta=pose.theta, covariance=values)
 
 
+MAX_DURATION_S = 2**31 - 1
+"""A ``builtin_interfaces/Duration``'s most whole seconds (its ``sec`` is an int32)."""
+
+
 def duration(seconds: float) -> Any:
-    """builtin_interfaces/Duration of ``seconds`` (negative or not finite: 0)."""
-    total_ns = round(seconds * NANOSECONDS_PER_SECOND) if math.isfinite(seconds) and seconds > 0 else 0
+    """builtin_interfaces/Duration of ``seconds`` (negative or not finite: 0; beyond
+    :data:`MAX_DURATION_S`, as a peer's feedback may say: that, not an overflow)."""
+    within = min(seconds, MAX_DURATION_S)
+    total_ns = round(within * NANOSECONDS_PER_SECOND) if math.isfinite(seconds) and seconds > 0 else 0
     sec, nanosec = divmod(total_ns, NANOSECONDS_PER_SECOND)
     return interfaces.message_class("builtin_interfaces/msg/Duration")(sec=sec, nanosec=nanosec)
 

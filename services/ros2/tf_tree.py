@@ -34,6 +34,20 @@ def _multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def unit_quaternion(rotation: Iterable[float]) -> np.ndarray:
+    """``rotation`` (x, y, z, w) of any length scaled to length 1: divided by its largest component
+    first, so that squares of components as large as 1e300 cannot overflow (nor those of 1e-300
+    vanish). ValueError naming it for one not finite or zero (no rotation)."""
+    quaternion = np.array(list(rotation), dtype=float)
+    if not np.all(np.isfinite(quaternion)):
+        raise ValueError(f"orientation {tuple(quaternion.tolist())} is not finite")
+    largest = float(np.max(np.abs(quaternion)))
+    if largest == 0.0:
+        raise ValueError("orientation (0, 0, 0, 0) is no rotation")
+    scaled = quaternion / largest
+    return scaled / math.sqrt(float(scaled @ scaled))
+
+
 @dataclass(frozen=True)
 class Rigid:
     """A rigid transform ``parent_T_child``: ``translation`` (m) and unit ``rotation`` (x, y, z, w)."""
@@ -47,9 +61,8 @@ class Rigid:
 
     @staticmethod
     def of(translation: Iterable[float], rotation: Iterable[float]) -> Rigid:
-        """From a translation and any non-zero quaternion (normalised here)."""
-        quaternion = np.array(list(rotation), dtype=float)
-        return Rigid(np.array(list(translation), dtype=float), quaternion / np.linalg.norm(quaternion))
+        """From a translation and any finite non-zero quaternion (:func:`unit_quaternion`)."""
+        return Rigid(np.array(list(translation), dtype=float), unit_quaternion(rotation))
 
     def rotate(self, vector: np.ndarray) -> np.ndarray:
         u, w = self.rotation[:3], self.rotation[3]
