@@ -66,6 +66,7 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
         connection=connection_from_args(args),
         description=dataclasses.replace(description, settings=tuple(settings)),
         scenario=args.scenario if args.scenario is not None else DEFAULT_SCENARIO,
+        scenario_given=args.scenario is not None,
         fleet=args.fleet,
         mode=args.mode,
         report=Path(args.report) if args.report else None,
@@ -260,7 +261,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         metavar="FILE.py:NAME",
         help="also run this service of your own (a UserService subclass; docs/extending.md) beside the loop, "
-        "supervised as the built-ins are (repeatable; not with --composed; a fleet file says it with `with`)",
+        "supervised as the built-ins are (repeatable; not with --composed; a fleet file says it with `with`); one whose "
+        "class drives runs in the built-in drive's place until Ctrl-C (not with --scenario, --loop, --goals, "
+        "--goal-file, --teleop)",
     )
 
 

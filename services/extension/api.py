@@ -3,7 +3,7 @@
 
 A user service is a subclass of :class:`UserService` in a Python file. Its class attributes say
 what the launcher needs to know before it starts (its ``name``, the queryables it ``calls``, its
-``lockstep`` participation); its ``__init__(ctx)`` declares its inputs, outputs, queryables and
+``lockstep`` participation, or that it ``drives`` the robot); its ``__init__(ctx)`` declares its inputs, outputs, queryables and
 timers on the :class:`Context`; everything it declares is handled on the service's one thread.
 ``invent service FILE.py:NAME`` runs one alone; ``invent up --with FILE.py:NAME`` beside the loop.
 """
@@ -26,6 +26,7 @@ from schemas.keys import Keys, Service, UserServiceName, service_name, user_serv
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq
 from services.clock.sim_time import PeriodicSchedule
 from services.config import Config
+from services.extension.drive_output import DriveOutput
 from services.runtime.inputs import Delivery as _RuntimeDelivery
 from services.runtime.node import Node, Wait
 
@@ -33,6 +34,7 @@ __all__ = [
     "BadInput",
     "Context",
     "Delivery",
+    "Drives",
     "Keys",
     "Lockstep",
     "Output",
@@ -67,6 +69,16 @@ class Lockstep:
     own name, declared with :meth:`Context.output`) stamped with the tick's stamp (``tm``)."""
 
     output: str
+    rate_hz: float
+
+
+@dataclass(frozen=True)
+class Drives:
+    """Being the robot's velocity source in place of the built-in drive (docs/extending.md, A
+    service that drives): its commands (:meth:`Context.drive`) at ``rate_hz`` ticks per second of
+    simulation time, on the drive's keys, with the drive's lockstep part, limits, give-up rule and
+    outcome; ``invent up --with`` then starts no built-in drive."""
+
     rate_hz: float
 
 
@@ -117,6 +129,9 @@ class UserService:
     :meth:`Context.call` refuses any other, and a ``--secure`` run lets it query only these."""
     lockstep: ClassVar[Lockstep | None] = None
     """Its lockstep participation, or None (it is never waited for)."""
+    drives: ClassVar[Drives | None] = None
+    """``Drives(rate_hz)``: it commands the robot's velocity in place of the built-in drive
+    (:meth:`Context.drive`), as the drive, with exactly the drive's rights; None: it does not."""
 
     def __init__(self, ctx: Context) -> None:
         self.ctx = ctx
@@ -140,7 +155,7 @@ class Context:
         self._node = node
         self._on_finish = on_finish
         self._service_type = service
-        self.name: UserServiceName = user_service_name(str(node.service))
+        self.name: UserServiceName = user_service_name(service.name)
         self.keys: Keys = node.keys
         """The robot's keys: ``ctx.keys.odometry_pose``, ``ctx.keys.drive_goal_send``, ..."""
         self.robot = node.keys.robot
@@ -154,6 +169,7 @@ class Context:
         self._sim_alive = False
         self._schedule: PeriodicSchedule | None = None
         self._calls = {"sent": 0, "replied": 0, "failed": 0}
+        self._driving: DriveOutput | None = None
         node.watch(Service.SIM, self._on_sim)
         node.subscribe(node.keys.sim_clock, TimedDoubleSeq, self._on_clock, _RuntimeDelivery.SAMPLED)
         node.wait_with(self._next_wait)
@@ -180,7 +196,9 @@ class Context:
     # --- outputs and queryables ---
 
     def output(self, key: str, message_type: type[MessageT]) -> Output[MessageT]:
-        """A publisher on ``invent/<robot>/<name>/<key>`` (``key``: ``"distance"``, ``"progress/leg"``)."""
+        """A publisher on ``invent/<robot>/<name>/<key>`` (``key``: ``"distance"``, ``"progress/leg"``).
+        ValueError for a service that drives: it has the drive's keys only."""
+        self._refuse_if_driving("an output")
         if key in self._outputs:
             raise ValueError(f"output {key!r} declared twice")
         output = Output(self._node, self.keys.own(self.name, key), message_type)
@@ -198,7 +216,9 @@ class Context:
         """Answer queries on ``invent/<robot>/<name>/<key>``: ``handler(request)`` (the payload
         decoded as ``request_type``) returns the reply (a msgspec Struct or anything JSON-encodable;
         None: no reply), or raises :class:`BadInput` (an error reply naming the reason). ``acts``: it
-        changes something, so it answers only a query on exactly its key, never a wildcard's."""
+        changes something, so it answers only a query on exactly its key, never a wildcard's.
+        ValueError for a service that drives: it has the drive's keys only."""
+        self._refuse_if_driving("a queryable")
 
         def answer(payload: bytes) -> Any:
             return handler(decode(request_type, payload or b"{}"))
@@ -285,11 +305,29 @@ class Context:
             raise ValueError(f"{self._service_type.__name__} has no lockstep (its class attribute)")
         return self._schedule.due(stamp.to_nanoseconds())
 
+    # --- driving ---
+
+    def drive(self, stamp: Time, vx: float, w: float) -> bool:
+        """For a service that ``drives``: command the robot at ``stamp`` (the stamp of the input the
+        command comes from, in simulation time; call it with every such input's stamp, in order).
+        When ``stamp`` takes its next tick, ``(vx, w)`` (m/s, rad/s), held to the drive's speed, turn
+        rate and accelerations, goes out on ``drive/target_velocity`` stamped ``stamp``: True; else
+        nothing: False. Once it gives up or finishes, zero goes out instead. :class:`BadInput` for a
+        velocity that is not finite (nothing goes out); ValueError for a service that does not drive."""
+        if self._driving is None:
+            raise ValueError(f"{self._service_type.__name__} does not drive (its class attribute drives)")
+        return self._driving.drive(stamp, vx, w)
+
     # --- its end ---
 
     def finish(self, exit_code: int = 0) -> None:
         """End the service by itself: it stops after this handler; its process exits ``exit_code``
-        (in ``invent up``, a service that ends ends the run, as a built-in's death does)."""
+        (in ``invent up``, a service that ends ends the run, as a built-in's death does). A service
+        that drives and finishes with 0 ends as the drive does: zero on its next ticks, the outcome
+        ``completed``, then exit 0."""
+        if self._driving is not None and exit_code == 0:
+            self._driving.core.finish(f"{self.name} finished")
+            return
         self._on_finish(exit_code)
 
     # --- the runtime's side ---
@@ -303,15 +341,25 @@ class Context:
         self._schedule = PeriodicSchedule(lockstep.rate_hz, 0)
         self._node.participate(output._publisher, lockstep.rate_hz, lockstep.output)
 
+    def _start_driving(self, drives: Drives) -> None:
+        self._driving = DriveOutput(self._node, self.config, self.name, drives.rate_hz, self._on_finish)
+
+    def _refuse_if_driving(self, what: str) -> None:
+        if self._service_type.drives is not None:
+            raise ValueError(f"{what}: a service that drives publishes and serves only the drive's keys")
+
     def _runtime_status(self) -> dict[str, Any]:
         lockstep = self._service_type.lockstep
         participating = None
         if lockstep is not None:
             output = self._outputs[lockstep.output]
             participating = {"output": output.key, "rate_hz": lockstep.rate_hz, "matched": output.matched}
+        driving = self._driving
+        matched = participating is None or participating["matched"]
         return {
+            **({} if driving is None else driving.status()),
             # the simulator's start handshake: a participant sees it, and its output has a subscriber
-            "sim_alive": self._sim_alive and (participating is None or participating["matched"]),
+            "sim_alive": self._sim_alive and matched and (driving is None or driving.publisher.matched),
             "sim_time_s": None if self._sim_ns is None else self._sim_ns / NANOSECONDS_PER_SECOND,
             "lockstep": participating,
             "outputs": {key: output.published for key, output in self._outputs.items()},
