@@ -5,5 +5,5 @@ COPY pyproject.toml README.md ./
 COPY schemas ./schemas
 COPY services ./services
 COPY sim_bridge ./sim_bridge
-RUN pip install --no-cache-dir .
+RUN pip install --no-cache-dir '.[all]'
 ENTRYPOINT ["invent"]

@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test,lint]'
+	$(BIN)/python -m pip install --quiet -e '.[all,test,lint]'
 	touch $(STAMP)
 
 run: $(STAMP)  ## the whole loop: router, sim, motor, odometry, localization, drive, then a report
@@ -31,9 +31,9 @@ lint: $(STAMP)  ## ruff (lint and format) on everything, mypy on schemas/ servic
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-fuzz: $(STAMP)  ## 10^4 generated bad payloads per consumed key and queryable into the running services -> runs/fuzz.json
+fuzz: $(STAMP)  ## 10^4 generated bad payloads per consumed key and queryable into the running services, the goal, sensor and ROS action surfaces too -> runs/fuzz.json, runs/fuzz-goals.json
 	mkdir -p runs
-	INVENT_FUZZ_PAYLOADS=10000 INVENT_FUZZ_FIGURES=runs/fuzz.json $(BIN)/python -m pytest tests/test_fuzz.py -q -s -p no:cacheprovider
+	INVENT_FUZZ_PAYLOADS=10000 INVENT_FUZZ_FIGURES=runs/fuzz.json $(BIN)/python -m pytest tests/test_fuzz.py tests/test_fuzz_goals.py -q -s -p no:cacheprovider
 
 bench: $(STAMP)  ## benchmarks/ -> benchmarks/results/latest.json, not committed (never part of `make test`)
 	$(BIN)/python -m benchmarks

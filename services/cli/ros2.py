@@ -11,7 +11,6 @@ from services.cli.flags import fleet_flag, overrides_from_args, session_from_arg
 from services.cli.serve import ServiceCli, journaling_from_args, serve
 from services.config import ConfigError, TfLayout
 from services.fleet.description import load_fleet
-from services.launch import ros2_run
 from services.ros2 import graph
 from services.ros2.service import COMMAND, Ros2Options
 from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
@@ -57,6 +56,10 @@ def run(args: argparse.Namespace) -> int:
 
 def serve_fleet(args: argparse.Namespace) -> int:
     """``invent ros2 --fleet FILE``: a bridge per robot, each in its namespace, in this process."""
+    # Imported here: ros2_run writes bags (rosbags, mcap), and composition imports this module
+    # for the flags of every service, also where the [ros2] extra is not installed.
+    from services.launch import ros2_run
+
     given = {"--robot": args.robot, "--namespace": args.namespace}
     wrong = [flag for flag, value in given.items() if value]
     if wrong:

@@ -31,10 +31,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from io import StringIO
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
-from rosbags.rosbag2 import StoragePlugin, Writer
 from ruamel.yaml import YAML
 
 from schemas.codec import BadInput, decode
@@ -57,12 +55,18 @@ from services.runtime.journal import MB, STOPPED_KEY, JournalEntry, JournalReade
 from services.runtime.journal import SUFFIX as JOURNAL_SUFFIX
 from services.runtime.logs import RateLimitedLog
 
+if TYPE_CHECKING:
+    from rosbags.interfaces import Qos
+
+# rosbags (the [ros2] extra) is imported where a bag is written: `invent up` imports this module
+# (through services/launch/ros2_run.py) also where it runs without the ROS 2 bridge.
+
 log = logging.getLogger("invent.rosbag")
 
 BAG_VERSION: Literal[8] = 8
 """rosbag2's metadata version that Jazzy's ``ros2 bag`` writes and every later release reads."""
-INFINITE = QosTime(9_223_372_036, 854_775_807)
-"""rmw's infinite duration (``INT64_MAX`` ns) as rosbag2 writes a QoS's deadline, lifespan and lease."""
+INFINITE = (9_223_372_036, 854_775_807)
+"""rmw's infinite duration (``INT64_MAX`` ns: seconds, nanoseconds) as rosbag2 writes a QoS's deadline, lifespan and lease."""
 DISK_CHECK_BYTES = MB
 """How often (bytes of messages) a bag looks at its disk's free space."""
 STOPPED_DATA = "invent.recording_stopped"
@@ -108,15 +112,18 @@ def topic_of_key(key: str) -> BagTopic:
 
 def offered_qos(qos: wire.Qos) -> Qos:
     """A topic's QoS as rosbag2 keeps it in ``offered_qos_profiles``."""
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+    infinite = QosTime(*INFINITE)
     return Qos(
         history=QosHistory(int(qos.history)),
         depth=qos.depth,
         reliability=QosReliability(int(qos.reliability)),
         durability=QosDurability(int(qos.durability)),
-        deadline=INFINITE,
-        lifespan=INFINITE,
+        deadline=infinite,
+        lifespan=infinite,
         liveliness=QosLiveliness.AUTOMATIC,
-        liveliness_lease_duration=INFINITE,
+        liveliness_lease_duration=infinite,
         avoid_ros_namespace_conventions=False,
     )
 
@@ -138,6 +145,8 @@ class _Part:
     """One file of the bag, written by rosbags' writer in a folder of its own until it is closed."""
 
     def __init__(self, bag: Path, index: int) -> None:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
         self.name = f"{bag.name}_{index}"
         self.folder = bag / self.name
         self.writer = Writer(self.folder, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
