@@ -55,6 +55,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.fleet\.(description|summary)", CORE),
     (r"services\.calibration\.(umbmark|measured|benchmark|settings)", CORE),
     (r"services\.goto\.core", CORE),
+    (r"services\.extension\.driving", CORE),
     (r"services\.navigation\.(grid|map_file|rasterize|costmap|planner|tracker|navigator)", CORE),
     (r"services\.body\.geometry", CORE),
     (
@@ -66,11 +67,11 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.(motor|odometry|localization|drive|ros2)\.service", SHELL),
     (r"services\.drive\.(goal_shell|navigation_shell)", SHELL),
     (r"services\.localization\.amcl_shell", SHELL),
-    (r"services\.ros2\.(action_server|action_calls)", SHELL),
+    (r"services\.ros2\.(action_server|action_calls|odometry_services)", SHELL),
     (r"sim_bridge\.(bridge|link|liveness|loops|handshakes)", SHELL),
     (r"services\.service", SHELL_SUPPORT),
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
-    (r"services\.extension\.(api|loader|hosting)", SHELL_SUPPORT),
+    (r"services\.extension\.(api|loader|hosting|drive_output)", SHELL_SUPPORT),
     (r"services\.(cli|launch|recording)(\..*)?", TOOL),
     (r"services\.security(\..*)?", TOOL),
     (
