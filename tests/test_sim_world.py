@@ -111,5 +111,7 @@ def test_invalid_toml_is_a_config_error():
 
 
 def test_an_unknown_world_names_sim_world_and_the_built_in_worlds(tmp_path: Path):
-    with pytest.raises(ConfigError, match=r"`sim\.world`.*bump, corridor, empty, living_room, pen, room, three_rooms, u_trap"):
+    with pytest.raises(
+        ConfigError, match=r"`sim\.world`.*bump, corridor, empty, living_room, pen, room, three_rooms, u_trap"
+    ):
         load_world(str(tmp_path / "missing.toml"))
