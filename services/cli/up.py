@@ -7,10 +7,26 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from services.cli.flags import connection_from_args, description_from_args, engine_flag, fleet_flag, port_number
+from services.cli.flags import (
+    connection_from_args,
+    description_from_args,
+    engine_flag,
+    fleet_flag,
+    port_number,
+    positive_int,
+    positive_seconds,
+)
 from services.cli.services import service_plan
 from services.config import SIM_BODY_KEYS, ConfigError, RecordRate, SimMode, TfLayout, parse_sim_set
 from services.launch.plan import DEFAULT_SCENARIO, UpPlan
+from services.launch.restart import (
+    DEFAULT_FIRST_DELAY_S,
+    DEFAULT_LIMIT,
+    MAX_DELAY_S,
+    STABLE_AFTER_S,
+    RestartPlan,
+    parse_restarts,
+)
 from services.launch.ros2_run import BAG_DIRECTORY
 from services.launch.run import RECORDING_FILE, SECRETS_DIRECTORY
 from services.launch.up import run_up
@@ -41,6 +57,7 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
             "--split with --composed: --split runs a realtime run's sim and motor as two processes, --composed "
             "every service in one"
         )
+    restarts = restart_plan(args)
     sim_set = tuple(args.sim_set or ())
     parse_sim_set(sim_set)  # a key outside SIM_BODY_KEYS, or not KEY=VALUE: exit 2 naming it
     if sim_set and args.fleet:
@@ -87,8 +104,22 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
         workers=args.workers,
         intra_process=not args.no_intra_process,
         with_services=tuple(args.with_services or ()),
+        restarts=restarts,
         sim_set=sim_set,
     )
+
+
+def restart_plan(args: argparse.Namespace) -> RestartPlan:
+    """``--restart``, ``--restart-limit`` and ``--restart-backoff`` as the run's :class:`RestartPlan`;
+    ConfigError (exit 2) naming a policy that is neither, or ``--restart`` with ``--composed``."""
+    default, by_service = parse_restarts(args.restart or ())
+    plan = RestartPlan(default, by_service, args.restart_limit, args.restart_backoff)
+    if plan.restarts_any and args.composed:
+        raise ConfigError(
+            "--restart with --composed: the services run as threads of this one process and share its session; "
+            "one that fails cannot be started again alone (run them as processes, without --composed)"
+        )
+    return plan
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -254,6 +285,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "wheel 5 %% larger than the odometry believes) --sim-set lidar.noise=0.01; a key not of the body or "
         "its sensors' noise, or a value the sim's description refuses, exits 2 before anything starts "
         "(not with --fleet). Keys: " + ", ".join(SIM_BODY_KEYS),
+    )
+    parser.add_argument(
+        "--restart",
+        action="append",
+        metavar="POLICY|SERVICE=POLICY",
+        help="restart policy, as docker's (repeatable): on-failure, every service that fails (exits non-zero "
+        "other than 2, or is killed) is started again with the same flags, taking its state back (the motor's "
+        "latched stop from its state file), within --restart-limit and after --restart-backoff; SERVICE=POLICY "
+        "for one service (motor=on-failure; router, control, a --with service's name too), over the other; never "
+        "the drive (the sim ends the run's steps when its token goes); "
+        "never (the default): a service that ends ends the run. The report names every restart "
+        "(docs/deploy.md, Restarts); not with --composed",
+    )
+    parser.add_argument(
+        "--restart-limit",
+        type=positive_int,
+        default=DEFAULT_LIMIT,
+        metavar="N",
+        help=f"with --restart: at most N restarts of each service; past them it ends the run as without a policy "
+        f"(default {DEFAULT_LIMIT})",
+    )
+    parser.add_argument(
+        "--restart-backoff",
+        type=positive_seconds,
+        default=DEFAULT_FIRST_DELAY_S,
+        metavar="SECONDS",
+        help=f"with --restart: the delay before a service's first restart, doubled at each restart in a row, at "
+        f"most {MAX_DELAY_S:g} s, back to this one after the service ran {STABLE_AFTER_S:g} s (default {DEFAULT_FIRST_DELAY_S:g} s, "
+        "as docker's)",
     )
     parser.add_argument(
         "--with",

@@ -1,5 +1,6 @@
 """The services of a run as child processes: starting them, their prefixed output, how they ended,
-and their orderly stop (:class:`Supervisor`); :class:`Launcher` is what a run needs of them, which
+starting again those that failed as the run's restart policy says (:class:`Restarting`), and their
+orderly stop (:class:`Supervisor`); :class:`Launcher` is what a run needs of them, which
 ``services/launch/composition.py`` provides too, for services composed in one process."""
 
 from __future__ import annotations
@@ -15,7 +16,9 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from schemas.keys import Service
+from schemas.messages import ServiceRestart
 from services.errors import ChildDied
+from services.launch.restart import History, RestartPlan, RestartPolicy, RestartRule
 from services.runtime.intraprocess import LocalBus
 
 STOP_TIMEOUT_S = 10.0
@@ -63,6 +66,8 @@ class Child:
     """Its last lines of output (at most :data:`LINES_KEPT`): what it said before it died."""
     ready: threading.Event
     """Set once it has printed the line it was started to wait for (:meth:`Supervisor.start`)."""
+    restarts: Restarting | None = None
+    """How it is started again when it fails (``invent up --restart``); None: never."""
 
     def wait_ready(self, timeout: float) -> None:
         """Until it has said it is ready; ChildDied, with its last line, if it exits first or is
@@ -78,7 +83,12 @@ class Child:
                 raise ChildDied(f"{self.name} not ready within {timeout} s")
 
     def finished(self) -> int | None:
-        return self.process.poll()
+        """Its exit code once it has ended for good; None while it runs, or waits to be started
+        again (its restart policy then starts it once its delay is over)."""
+        code = self.process.poll()
+        if code is None or self.restarts is None:
+            return code
+        return None if self.restarts.restarting(self, code) else code
 
     def check_running(self, unless_exit_code: int | None = None) -> None:
         """Raise ChildDied if it has ended (with any exit code other than ``unless_exit_code``)."""
@@ -87,13 +97,66 @@ class Child:
             raise ChildDied(f"{self.name} exited unexpectedly ({describe_exit(code)})")
 
 
+class Restarting:
+    """One child's restart policy at work (services/launch/restart.py): once it has failed, it is
+    started again when its delay is over, each restart said and appended to ``done``."""
+
+    def __init__(
+        self,
+        rule: RestartRule,
+        launch: Callable[[], tuple[subprocess.Popen[str], threading.Thread]],
+        done: list[ServiceRestart],
+        began: float,
+    ) -> None:
+        self.rule = rule
+        self._launch = launch
+        self._done = done
+        self._began = began
+        self._history = History()
+        self._started = time.monotonic()
+        self._due: float | None = None
+        """When it is started again, once it has failed; None while it runs (or has ended for good)."""
+        self._exit_code = 0
+        self._given_up = False
+
+    def restarting(self, child: Child, exit_code: int) -> bool:
+        """Whether ``child``, ended with ``exit_code``, is (or is about to be) started again: when
+        its delay is over, it is, here."""
+        now = time.monotonic()
+        if self._due is None:
+            following = self.rule.next_restart(self._history, exit_code, now - self._started)
+            if following is None:
+                if self.rule.is_failure(exit_code) and self._history.restarts and not self._given_up:
+                    self._given_up = True
+                    say(f"{child.name} {describe_exit(exit_code)}: not started again (the limit, {self.rule.limit})")
+                return False
+            self._history, self._due, self._exit_code = following, now + following.delay_s, exit_code
+            say(
+                f"{child.name} {describe_exit(exit_code)}: starting it again in {following.delay_s:g} s "
+                f"(restart {following.restarts} of at most {self.rule.limit}, --restart {self.rule.policy})"
+            )
+        if now < self._due:
+            return True
+        child.pump.join(timeout=1.0)
+        child.process, child.pump = self._launch()
+        self._due, self._started = None, time.monotonic()
+        restarted = ServiceRestart(child.name, self._exit_code, self._started - self._began, self._history.delay_s)
+        self._done.append(restarted)
+        return True
+
+
 class Supervisor:
-    """The children of one ``invent up`` run, their prefixed output, and their orderly stop."""
+    """The children of one ``invent up`` run, their prefixed output, their restarts (``restarts``:
+    the run's policy; None: a child that ends stays ended), and their orderly stop."""
 
     bus: LocalBus | None = None
 
-    def __init__(self) -> None:
+    def __init__(self, restarts: RestartPlan | None = None) -> None:
         self.children: list[Child] = []
+        self._restarts = restarts
+        self.restarted: list[ServiceRestart] = []
+        """Every restart so far, in order."""
+        self._began = time.monotonic()
 
     def start(
         self,
@@ -106,26 +169,38 @@ class Supervisor:
     ) -> Child:
         """Start ``invent <argv>`` as ``name``; with ``ready_line``, its :attr:`Child.ready` is set
         once it prints a line containing it. ``on_line(line)`` sees each line first and returns
-        True for one it took (not printed); ``stdin``: the child's standard input is a pipe."""
-        process = subprocess.Popen(
-            [sys.executable, "-m", "services.cli", *argv],
-            stdin=subprocess.PIPE if stdin else None,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-            start_new_session=True,
-            # prctl only, no Python objects: the hazard of preexec_fn with threads does not arise.
-            preexec_fn=_die_with_parent if sys.platform == "linux" else None,  # noqa: PLW1509
-        )
+        True for one it took (not printed); ``stdin``: the child's standard input is a pipe. Its
+        restarts (if its policy has any) run the same command again."""
         said: list[str] = []
         ready = threading.Event()
-        if ready_line is None:
-            ready.set()
-        pump = threading.Thread(target=self._pump, args=(name, process, said, ready, ready_line, on_line), daemon=True)
+
+        def launch() -> tuple[subprocess.Popen[str], threading.Thread]:
+            process = subprocess.Popen(
+                [sys.executable, "-m", "services.cli", *argv],
+                stdin=subprocess.PIPE if stdin else None,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+                start_new_session=True,
+                # prctl only, no Python objects: the hazard of preexec_fn with threads does not arise.
+                preexec_fn=_die_with_parent if sys.platform == "linux" else None,  # noqa: PLW1509
+            )
+            if ready_line is None:
+                ready.set()
+            else:
+                ready.clear()
+            pump = threading.Thread(
+                target=self._pump, args=(name, process, said, ready, ready_line, on_line), daemon=True
+            )
+            pump.start()
+            say(f"started {name} (pid {process.pid}): invent {' '.join(argv)}")
+            return process, pump
+
+        process, pump = launch()
         child = Child(name, process, pump, said, ready)
-        pump.start()
+        if self._restarts is not None and (rule := self._restarts.rule(name)).policy is not RestartPolicy.NEVER:
+            child.restarts = Restarting(rule, launch, self.restarted, self._began)
         self.children.append(child)
-        say(f"started {name} (pid {process.pid}): invent {' '.join(argv)}")
         return child
 
     def _pump(
@@ -151,7 +226,7 @@ class Supervisor:
     def exited(self, exclude: str | None = None) -> tuple[str, int, str] | None:
         """(name, exit code, how it ended) of a child other than ``exclude`` that has exited, or None."""
         for child in self.children:
-            code = child.process.poll()
+            code = child.finished()
             if child.name != exclude and code is not None:
                 return child.name, code, describe_exit(code)
         return None
@@ -159,9 +234,7 @@ class Supervisor:
     def exits(self) -> dict[str, tuple[int, str]]:
         """Every child that has exited: its (exit code, how it ended), by name."""
         return {
-            child.name: (code, describe_exit(code))
-            for child in self.children
-            if (code := child.process.poll()) is not None
+            child.name: (code, describe_exit(code)) for child in self.children if (code := child.finished()) is not None
         }
 
     def stop(self) -> dict[str, int]:

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from services.config import Config, ConfigError, SimMode, load_config, parse_override
+from services.launch.restart import RestartPlan
 
 GOALS = "goals"
 """What a ``--goals`` run's summary names as its scenario (the drive's ``drive/outcome`` says the same)."""
@@ -87,6 +88,9 @@ class UpPlan:
     intra_process: bool = True
     with_services: tuple[str, ...] = ()
     """``--with FILE.py:NAME``, each a user service run beside the loop (services/extension/)."""
+    restarts: RestartPlan = field(default_factory=RestartPlan)
+    """``--restart``, ``--restart-limit``, ``--restart-backoff``: which services are started again when
+    they fail (default: none; services/launch/restart.py)."""
     sim_set: tuple[str, ...] = ()
     """``--sim-set SECTION.KEY=VALUE``, as given (keys of :data:`services.config.SIM_BODY_KEYS`): the
     simulated body's own settings, given to the sim alone after the common ``--set``."""

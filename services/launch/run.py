@@ -160,11 +160,13 @@ def launch_services(
     parse: ServiceParse,
     access: Access,
     assignment: dict[str, int] | None = None,
+    supervisor: Supervisor | None = None,
 ) -> Iterator[tuple[Launcher, zenoh.Session]]:
     """The launcher and the session ``up`` watches through: separate processes around a router
-    child (or the router at ``--connect``), or one composed process whose session is itself the
-    router (so outside zenoh tools still see every key); a composed fleet's robots spread over
-    worker processes as ``assignment`` says (services/launch/worker.py)."""
+    child (or the router at ``--connect``), ``supervisor``'s (with the run's restart policy), or one
+    composed process whose session is itself the router (so outside zenoh tools still see every
+    key); a composed fleet's robots spread over worker processes as ``assignment`` says
+    (services/launch/worker.py)."""
     connection = plan.connection
     if plan.composed:
         # One process runs the whole loop: it is the control path.
@@ -186,7 +188,7 @@ def launch_services(
             finally:
                 launcher.stop()
         return
-    supervisor = Supervisor()
+    supervisor = supervisor or Supervisor()
     try:
         if not connection.connect:
             settings = plan.description.settings

@@ -12,7 +12,9 @@ command (``--until-drive-ends``): ``up`` then reads the services' status, publis
 run's summary (``up/run``), stops every child with SIGINT, makes ``run.mcap`` of what they
 published (:class:`RunRecorder`) and builds the report from it, as ``invent report run.mcap``
 does (``--no-record``: no recording, no report, for long runs and benchmarks). A child that dies
-early makes ``up`` say which one and how, stop the others and exit 1. Ctrl-C stops everything cleanly
+early makes ``up`` say which one and how, stop the others and exit 1, unless the run's restart
+policy (``--restart``, services/launch/restart.py) starts it again: then the run goes on, and its
+summary and report name each restart (past the policy's limit, the run ends so). Ctrl-C stops everything cleanly
 (exit 130). Either way, once the sim has started, the run's summary says why it ended early
 (``ended_early``) and ``run.mcap`` and the report hold the run up to then. ``up`` exits with the outcome's
 code (0, 3 aborted, 4 timed out; docs/protocol.md section 8.5). With ``--composed`` the same
@@ -31,16 +33,17 @@ from pathlib import Path
 from typing import Any
 
 from schemas.keys import CONTROL, Keys, Service
-from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, Time
+from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, ServiceRestart, Time
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import ConfigError, SimMode
 from services.errors import ChildDied, Interrupted
 from services.extension.loader import Loaded, driving
-from services.launch.children import ServiceDied, say
+from services.launch.children import ServiceDied, Supervisor, say
 from services.launch.fleet import FleetRobots
 from services.launch.one_robot import OneRobot
 from services.launch.plan import UpPlan
 from services.launch.recorder import RunRecorder
+from services.launch.restart import RestartPlan
 from services.launch.robots import Robot, Robots, robot_degradations
 from services.launch.ros2_run import BagRecording
 from services.launch.run import (
@@ -58,7 +61,8 @@ from services.launch.run import (
     start,
     verdict,
 )
-from services.recording.report import degradation_line
+from services.recording.report import degradation_line, restart_degradation, restarts_line
+from services.recording.run_report import restart_entries
 from services.runtime.inputs import Publisher
 from services.security import Role
 from services.service import ServiceParse
@@ -73,6 +77,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         raise ConfigError("--fleet with a service that drives (its class's drives): one robot's run only")
     # a service that drives runs until Ctrl-C, or until it gives up or finishes, as the drive does
     until_interrupted = plan.until_interrupted or any(drivers.values())
+    supervisor = Supervisor(_restart_plan(plan, robots, drivers))
     begun = start(plan, robots.access)
     report_dir, access, endpoint, common = begun.report_dir, begun.access, begun.endpoint, begun.common
     first = robots.each[0]
@@ -123,7 +128,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
 
     try:
         with (
-            launch_services(plan, endpoint, parse, access, robots.assignment()) as (launcher, session),
+            launch_services(plan, endpoint, parse, access, robots.assignment(), supervisor) as (launcher, session),
             ExitStack() as closing,
         ):
             run = Run(launcher, session, Keys(first.name), begun.interrupted)
@@ -212,6 +217,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
                             steps=int(sim_status["steps"]) if sim_status else 0,
                             health=health[robot.name],
                             **(early_end(early) if early is not None else {}),
+                            restarts=_restarts_of(robot, supervisor.restarted),
                         )
                     )
             ended = watch.outcomes(outcomes)
@@ -232,8 +238,11 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     outcome_code = outcome_exit_code(list(ended.values()))
     not_completed = "the last goal did not complete" if plan.goal_mode else "the scenario was given up"
     if recorder is None:
+        restarts = restart_entries(supervisor.restarted)
         degraded = [robot.label(reason) for robot in robots.each for reason in robot_degradations(health[robot.name])]
-        for line in [*outcome_lines, *robots.health_lines(health), *map(degradation_line, degraded)]:
+        degraded += map(restart_degradation, restarts)
+        restarted = [restarts_line(restarts)] if restarts else []
+        for line in [*outcome_lines, *robots.health_lines(health), *restarted, *map(degradation_line, degraded)]:
             print(line, flush=True)
         why = "--teleop" if plan.teleop else "--loop" if plan.loop else "--no-record"
         return verdict(plan.strict, degraded, f"done; no recording, no report ({why})", outcome_code, not_completed)
@@ -242,6 +251,25 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         say(written)
         return ended_early(early)
     return verdict(plan.strict, degraded, written, outcome_code, not_completed)
+
+
+def _restart_plan(plan: UpPlan, robots: Robots, drivers: dict[str, Loaded | None]) -> RestartPlan:
+    """The run's restart policy, each ``--restart SERVICE=`` checked against its services (ConfigError:
+    exit 2). A drive (or the service that drives in its place) is never started again: the sim ends
+    the run's steps when its token goes (``--until-drive-ends``), so a new one would drive nothing."""
+    drives = {str(Service.DRIVE), *(driver.name for driver in drivers.values() if driver is not None)}
+    users = {user.name for robot in robots.each for user in robot.extensions}
+    plan.restarts.check_services({"router", CONTROL, *Service, *users})
+    return plan.restarts.never(drives, "the sim ends the run's steps when the drive's token goes (--until-drive-ends)")
+
+
+def _restarts_of(robot: Robot, restarted: list[ServiceRestart]) -> tuple[ServiceRestart, ...]:
+    """The restarts a robot's summary names: its own services' and the run's (a fleet's router and sim)."""
+    return tuple(
+        restart
+        for restart in restarted
+        if not robot.in_fleet or "/" not in restart.service or restart.service.startswith(f"{robot.name}/")
+    )
 
 
 def _beside(extensions: tuple[Loaded, ...]) -> tuple[Loaded, ...]:
