@@ -275,6 +275,19 @@ class GoalPlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         _require_finite(*(value for point in self.points for value in point))
 
 
+class ServiceRestart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One restart of a service by ``invent up``'s restart policy (``--restart``; ``RunSummary.restarts``)."""
+
+    service: str
+    """The service started again, as ``up`` names its child (``motor``, ``rh1/odometry``)."""
+    exit_code: int
+    """How it had ended: its exit code, or minus the signal that killed it (-9: SIGKILL)."""
+    wall_s: float
+    """Wall seconds from the start of ``up``'s services to its new start."""
+    delay_s: float
+    """The delay waited before starting it again (the policy's backoff)."""
+
+
 class RunSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """``up/run``: what ``invent up`` knows of a run besides its data, published once at its end
     so that the recording holds everything its report is built from."""
@@ -294,6 +307,8 @@ class RunSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """With ``service_died``: the service that died, as ``up`` named its child (``odometer``, ``control``)."""
     exit_code: int | None = None
     """With ``service_died``: its exit code, or minus the signal that killed it (-9: SIGKILL)."""
+    restarts: tuple[ServiceRestart, ...] = ()
+    """Each restart of a service by the restart policy, in order (none: no policy, or no failure)."""
 
 
 MotorStateName = Literal["idle", "running", "stopped", "finished"]
@@ -562,6 +577,7 @@ MESSAGE_TYPES: tuple[type[msgspec.Struct], ...] = (
     SimWorld,
     PlannedPath,
     RunSummary,
+    ServiceRestart,
     MotorStateReport,
     ScenarioOutcome,
     GoalRequest,

@@ -166,7 +166,8 @@ def _journal(journaling: Journaling, service: ServiceName, record: RecordConfig)
 def journal_limits(record: RecordConfig, share: int) -> JournalLimits:
     """A journal's limits under ``record``, ``share`` journals of a run sharing ``record.max_size``."""
     return JournalLimits(
-        max_bytes=None if record.max_size is None else round(record.max_size * MB / share),
+        max_bytes=record.journal_max_bytes(share),
+        file_bytes=record.journal_file_bytes(share),
         max_stamp_ns=None if record.max_duration is None else round(record.max_duration * NANOSECONDS_PER_SECOND),
         min_free_bytes=round(record.min_free_disk * MB),
     )

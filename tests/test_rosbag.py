@@ -20,10 +20,12 @@ from hypothesis import strategies as st
 from rosbags.rosbag2 import Reader
 
 from schemas.codec import BadInput
-from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+from schemas.messages import LaserScan, Time, TimedDoubleSeq, TimedPosition
 from services.config import Config, RecordConfig, load_config
+from services.config.run_sections import RecordKeep
 from services.recording.ros2_record import GraphRecorder
 from services.recording.rosbag import (
+    DROPPED_DATA,
     STOPPED_AT_DATA,
     STOPPED_DATA,
     BagWriter,
@@ -34,6 +36,7 @@ from services.recording.rosbag import (
 from services.ros2 import core, interfaces, wire
 from services.ros2.graph import PUBLICATIONS, bridge_graph
 from services.ros2.outputs import RosOutputs
+from services.ros2.sensors import laser_scan
 from services.runtime.journal import STOPPED_KEY, Journal, journal_path
 from services.runtime.session import free_port, open_session, session_config
 from tests import ros_client
@@ -287,3 +290,24 @@ def test_ros2_flags_that_cannot_work_exit_2_naming_them(argv, named, capsys):
     """In this process: each is refused before any session or process starts."""
     code, _out, err = refused(capsys, *argv)
     assert code == 2 and named in err, err
+
+
+def test_a_bag_keeping_the_newest_removes_its_oldest_files_and_its_metadata_lists_those_left(tmp_path):
+    scan_topic = next(topic for topic in bag_topics(_bridge()).values() if topic.name == "/scan")
+    path = tmp_path / "bag"
+    writer = BagWriter(path, RecordConfig(keep=RecordKeep.NEWEST, max_size=3, split_size=1))
+    stamps = [index * 100 * MS for index in range(300)]
+    for stamp_ns in stamps:
+        scan = LaserScan(Time.from_nanoseconds(stamp_ns), 0.0, 0.001, 0.1, 10.0, [1.0] * 4096)
+        writer.write(scan_topic, interfaces.serialize(laser_scan(scan, "base_scan", 10.0)), stamp_ns)
+    result = writer.close()
+
+    metadata = _metadata(path)
+    dropped = json.loads(metadata["custom_data"][DROPPED_DATA])
+    assert dropped[:2] == ["bag_0.mcap", "bag_1.mcap"], "the oldest first"
+    assert metadata["relative_file_paths"] == [file.name for file in result.files]
+    assert sorted(p.name for p in path.iterdir()) == sorted([*metadata["relative_file_paths"], "metadata.yaml"])
+    assert sum(file.stat().st_size for file in result.files) <= 3e6
+    with Reader(path) as reader:
+        kept = [timestamp for _c, timestamp, _raw in reader.messages()]
+    assert kept == stamps[-len(kept) :], "the newest, in order, read by rosbags"

@@ -13,6 +13,8 @@ from pathlib import Path
 import pytest
 
 from schemas.keys import Keys, Service
+from services.cli.main import build_parser
+from services.cli.up import plan_from_args
 from services.config import DriveConfig
 from services.drive.outcome import Outcome
 from services.drive.scenarios import BUILTIN_SCENARIOS, planned_duration
@@ -401,3 +403,17 @@ def test_loop_repeats_the_scenario_until_ctrl_c_with_flat_memory(tmp_path):
 def _rss_mb(pid: int) -> float:
     line = next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines() if line.startswith("VmRSS"))
     return int(line.split()[1]) / 1024
+
+
+@pytest.mark.parametrize(
+    ("flags", "keep"),
+    [
+        (["--goals"], "newest"),
+        (["--loop"], "newest"),
+        (["--goals", "--set", "record.keep=until_full"], "until_full"),
+        (["--scenario", "square"], "until_full"),
+    ],
+)
+def test_a_deployments_run_keeps_the_newest_of_its_recording_unless_told_otherwise(flags, keep):
+    plan = plan_from_args(build_parser("up").parse_args(["up", *flags]))
+    assert str(plan.description.load().record.keep) == keep

@@ -72,6 +72,8 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
     if args.map is not None:
         read_map(args.map)  # a map that does not load is refused before anything starts
     settings = [
+        # a deployment's run keeps the newest of its recording (a --set record.keep given overrides it)
+        *(["record.keep=newest"] if goal_mode or args.loop else []),
         *description.settings,
         *([f"navigation.map={Path(args.map).resolve()}"] if args.map is not None else []),
         *(["navigation.mapping=true"] if args.mapping else []),

@@ -110,6 +110,22 @@ class RecordRate(StrEnum):
     EVERY_STEP = "every_step"
 
 
+class RecordKeep(StrEnum):
+    """What a recording keeps once ``record.max_size`` is written (``record.keep``)."""
+
+    UNTIL_FULL = "until_full"
+    """The oldest: the recording stops there (but for what says how the run ended), the run goes on."""
+    NEWEST = "newest"
+    """The newest: its oldest files are removed, whole, as new ones are written."""
+
+
+MIN_ROTATED_FILE_MB = 1.0
+"""The smallest file a recording that keeps the newest rotates (``record.split_size``): a few of
+the journals' batches and the MCAP file's chunks."""
+ROTATED_FILES = 8
+"""With ``record.keep = "newest"`` and no ``split_size``: ``max_size`` in this many files."""
+
+
 class RecordConfig(Section, frozen=True):
     """What ``invent up`` records (its ``run.mcap``, and the journals the services keep meanwhile:
     docs/recording.md, "Rates and bounds")."""
@@ -119,7 +135,13 @@ class RecordConfig(Section, frozen=True):
     them, what the report, plots and views need; ``every_step``: the control path and the poses at
     every simulation step too, for debugging the loop (about ten times the size)."""
     max_size: Annotated[Positive, MEGABYTES] | None = 1024.0
-    """The recording stops here (the run goes on), the journals of the run sharing it."""
+    """The most a recording holds: what ``keep`` keeps then; the journals of the run share it
+    (equally with ``until_full``, by what each writes with ``newest``)."""
+    keep: RecordKeep = RecordKeep.UNTIL_FULL
+    """At ``max_size``: ``until_full`` stops the recording there (the run goes on); ``newest``
+    removes the recording's oldest files, whole, to stay within it (its files split at
+    ``split_size``, or in eight if none): a run left going for days keeps its last hours.
+    ``invent up --goals``, ``--goal-file`` and ``--loop`` set ``newest`` unless told otherwise."""
     max_duration: Annotated[Positive, SIMULATED_SECONDS] | None = None
     """Nothing stamped later is recorded."""
     split_size: Annotated[Positive, MEGABYTES] | None = None
@@ -129,9 +151,50 @@ class RecordConfig(Section, frozen=True):
     min_free_disk: Annotated[NonNegative, MEGABYTES] = 256.0
     """The recording stops when less than this is free on its disk (the run goes on)."""
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.keep != RecordKeep.NEWEST:
+            return
+        if self.max_size is None:
+            raise ValueError('`max_size` must be set with `keep = "newest"`: the oldest files go past it')
+        if self.rotation_size < MIN_ROTATED_FILE_MB:
+            raise ValueError(
+                f"`split_size` ({self.rotation_size:g} MB) must be at least {MIN_ROTATED_FILE_MB:g} MB with "
+                '`keep = "newest"`: the smallest file it rotates'
+            )
+        if self.max_size < 2 * self.rotation_size:
+            raise ValueError(
+                f"`max_size` ({self.max_size:g} MB) cannot hold two files of `split_size` ({self.rotation_size:g} MB) "
+                'with `keep = "newest"`: one whole file kept while the next is written'
+            )
+
     @property
     def every_step(self) -> bool:
         return self.rate is RecordRate.EVERY_STEP
+
+    @property
+    def keeps_newest(self) -> bool:
+        return self.keep == RecordKeep.NEWEST
+
+    @property
+    def rotation_size(self) -> float:
+        """MB of messages per file when the newest are kept: ``split_size``, or ``max_size`` in
+        :data:`ROTATED_FILES` files."""
+        if self.split_size is not None:
+            return self.split_size
+        return (self.max_size or 0.0) / ROTATED_FILES
+
+    def journal_max_bytes(self, share: int) -> int | None:
+        """What one of ``share`` journals of a run may hold: its equal share with ``until_full``; with
+        ``newest`` the whole budget, which the journals' files share by what each writes."""
+        if self.max_size is None:
+            return None
+        return round(self.max_size * 1_000_000 / (1 if self.keeps_newest else share))
+
+    def journal_file_bytes(self, share: int) -> int | None:
+        """With ``newest``: where one of ``share`` journals goes on in a new file (together, one
+        ``rotation_size``); None otherwise."""
+        return round(self.rotation_size * 1_000_000 / share) if self.keeps_newest else None
 
 
 class GcPolicy(StrEnum):

@@ -15,6 +15,7 @@ from schemas.keys import Keys
 from services.config import Config, ConfigError, RecordConfig
 from services.launch.children import say
 from services.recording.record import RunRecording, StatusPoll, write_run_recording
+from services.recording.report import rotated_line
 from services.runtime.journal import Journal, journal_path
 from services.service import journal_limits
 
@@ -27,7 +28,8 @@ class RunRecorder:
     keeps what it publishes in a journal in ``<report dir>/journals/``, and this, in ``up``'s own
     journal, the services' status replies and the run's summary. :meth:`write` makes ``run.mcap``
     of them once every service has stopped (and closed its journal). ``record`` bounds it all:
-    the ``journals`` journals of the run (the services' and this one) share ``record.max_size``."""
+    the ``journals`` journals of the run (the services' and this one) share ``record.max_size``
+    (equally, or, keeping the newest, by what each writes: services/runtime/journal.py)."""
 
     def __init__(self, report_dir: Path, record: RecordConfig, journals: int) -> None:
         self.record = record
@@ -69,6 +71,8 @@ class RunRecorder:
             say(f"{journal.name} was cut short (its service was killed): {path} lacks its last samples")
         if written.stopped is not None:
             say(f"the recording stopped before the run did ({written.stopped['reason']}); the robot went on")
+        if written.rotated is not None:
+            say(rotated_line(written.rotated))
         if len(written.parts) > 1:
             say(f"the recording is split into {len(written.parts)} files: {', '.join(p.name for p in written.parts)}")
         shutil.rmtree(self.directory)

@@ -35,9 +35,14 @@ from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 if TYPE_CHECKING:
     from _typeshed import ReadableBuffer
 
-from schemas.keys import Topic, parse_data_key, schema_for_key
+from schemas.keys import LATCHED_TOPICS, Topic, parse_data_key, schema_for_key
 from schemas.messages import NANOSECONDS_PER_SECOND, Time
-from services.config import ConfigError
+from services.config import ConfigError, RecordConfig
+from services.runtime.journal import ALWAYS_KEPT
+
+MB = 1_000_000
+LATCHED_SUFFIXES = tuple(f"/{topic}" for topic in LATCHED_TOPICS)
+"""Keys (by suffix) whose last sample each file of a recording that keeps the newest begins with."""
 
 CHUNK_SIZE = 256 * 1024
 """Bytes of messages per chunk: about a fifth of a second of the loop in lockstep."""
@@ -165,23 +170,39 @@ class ReadResult:
     """False when the file ends before its summary (the recorder was killed): every whole chunk was read."""
 
 
+def part_path(path: Path, number: int) -> Path:
+    """The file ``number`` of the recording ``path``: ``path`` itself (0), ``<stem>_<number>.mcap``."""
+    return path if number == 0 else path.with_name(f"{path.stem}_{number}{path.suffix}")
+
+
 def recording_parts(path: Path) -> list[Path]:
     """The files of the recording ``path`` in order: ``path`` itself, then, for a recording split
     by ``record.split_size`` or ``record.split_duration``, ``<stem>_1.mcap``, ``<stem>_2.mcap``, ..."""
     parts = [path]
-    while (part := path.with_name(f"{path.stem}_{len(parts)}{path.suffix}")).exists():
+    while (part := part_path(path, len(parts))).exists():
         parts.append(part)
     return parts
 
 
 def read_run(path: Path) -> ReadResult:
-    """Every message of the recording ``path`` and of the files it was split into, in order.
-    ConfigError when ``path`` is not an MCAP file at all."""
+    """Every message of the recording ``path`` and of the files it was split into, in order (the
+    latched samples a file of a rotated recording begins with, once). ConfigError when ``path`` is
+    not an MCAP file at all."""
     with open(path, "rb") as file:
         if file.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
             raise ConfigError(f"{path}: not an MCAP recording (a run's recording is its run.mcap)")
     results = [read_messages(part) for part in recording_parts(path)]
-    return ReadResult([m for result in results for m in result.messages], all(r.complete for r in results))
+    seen: set[tuple[str, int, bytes]] = set()
+    messages = []
+    for result in results:
+        for message in result.messages:
+            if message.topic.endswith(LATCHED_SUFFIXES):
+                latched = (message.topic, message.log_time_ns, message.data)
+                if latched in seen:
+                    continue
+                seen.add(latched)
+            messages.append(message)
+    return ReadResult(messages, all(r.complete for r in results))
 
 
 def read_messages(path: Path) -> ReadResult:
@@ -265,3 +286,136 @@ RECORDING_STOPPED_SCHEMA = {
         "stopped_at_s": {"type": ["number", "null"], "description": "the simulation time of the last sample kept"},
     },
 }
+
+
+RECORDING_ROTATED_TOPIC = "/recording/rotated"
+"""The message the last file of a recording that kept the newest (``record.keep``) ends with."""
+RECORDING_ROTATED_SCHEMA = {
+    "title": "invent.RecordingRotated",
+    "type": "object",
+    "properties": {
+        "dropped_files": {"type": "array", "items": {"type": "string"}, "description": "removed, oldest first"},
+        "dropped_mb": {"type": "number", "description": "what they held"},
+        "from_s": {"type": ["number", "null"], "description": "the simulation time of the first sample kept"},
+        "to_s": {"type": ["number", "null"], "description": "the simulation time of the last sample kept"},
+    },
+}
+
+
+_NOT_SPANNED = LATCHED_SUFFIXES + ALWAYS_KEPT
+"""What a file of a rotated recording (or a journal's) begins with, from before its span."""
+
+
+@dataclass
+class _Part:
+    path: Path
+    message_bytes: int = 0
+    first_stamp_ns: int | None = None
+    first_data_ns: int | None = None
+    """The first stamp of a key kept whole (not :data:`LATCHED_SUFFIXES` nor ``ALWAYS_KEPT``):
+    where the span the file covers begins."""
+
+
+class SplitWriter:
+    """An :class:`McapWriter` that goes on in a new file at ``record.split_size`` or every
+    ``record.split_duration`` of simulation time (sizes are of the messages, uncompressed: a file is
+    smaller, by its chunks' compression). With ``record.keep = "until_full"`` it says when
+    ``record.max_size`` is written (:attr:`full`); with ``"newest"`` it splits at
+    ``record.rotation_size`` too, begins each file with the last sample of each latched key (so
+    that each is readable alone), removes the oldest files while they hold more than ``max_size``,
+    and at :meth:`close` names those left ``<stem>.mcap``, ``<stem>_1.mcap``, ... in order."""
+
+    def __init__(self, output: Path, record: RecordConfig) -> None:
+        self._output = output
+        self._newest = record.keeps_newest
+        split_mb = record.rotation_size if self._newest else record.split_size
+        self._split_bytes = None if split_mb is None else split_mb * MB
+        self._split_ns = (
+            None if record.split_duration is None else round(record.split_duration * NANOSECONDS_PER_SECOND)
+        )
+        self._max_bytes = None if record.max_size is None else record.max_size * MB
+        self._kept = [_Part(output)]
+        self._numbered = 1
+        self.dropped: list[_Part] = []
+        self._latched: dict[str, tuple[bytes, int, int | None]] = {}
+        self._writer = McapWriter(output)
+        self.latest_stamp_ns: int | None = None
+
+    @property
+    def parts(self) -> list[Path]:
+        return [part.path for part in self._kept]
+
+    @property
+    def messages(self) -> int:
+        return self._writer.messages
+
+    @property
+    def full(self) -> bool:
+        if self._newest or self._max_bytes is None:
+            return False
+        return sum(part.message_bytes for part in self._kept[:-1]) + self._writer.message_bytes >= self._max_bytes
+
+    @property
+    def first_stamp_ns(self) -> int | None:
+        """Where the span the recording covers begins (its first file's :attr:`_Part.first_data_ns`)."""
+        return self._kept[0].first_data_ns
+
+    def _next_part(self, stamp_ns: int | None) -> None:
+        """Before a message stamped ``stamp_ns``: a new file if this one is full or its time is up."""
+        current = self._kept[-1]
+        if stamp_ns is not None:
+            self.latest_stamp_ns = stamp_ns if self.latest_stamp_ns is None else max(self.latest_stamp_ns, stamp_ns)
+            if current.first_stamp_ns is None:
+                current.first_stamp_ns = stamp_ns
+        by_size = self._split_bytes is not None and self._writer.message_bytes >= self._split_bytes
+        by_time = (
+            self._split_ns is not None
+            and stamp_ns is not None
+            and current.first_stamp_ns is not None
+            and stamp_ns >= current.first_stamp_ns + self._split_ns
+        )
+        if by_size or by_time:
+            self._writer.close()
+            current.message_bytes = self._writer.message_bytes
+            self._kept.append(_Part(part_path(self._output, self._numbered), first_stamp_ns=stamp_ns))
+            self._numbered += 1
+            self._writer = McapWriter(self._kept[-1].path)
+            if self._newest:
+                self._drop_oldest()
+                for key, (payload, log_time_ns, publish_time_ns) in self._latched.items():
+                    self._writer.write_sample(key, payload, log_time_ns, publish_time_ns)
+
+    def _drop_oldest(self) -> None:
+        """Remove the oldest whole files while the closed ones hold more than ``max_size`` with room
+        for the one begun."""
+        assert self._max_bytes is not None and self._split_bytes is not None  # RecordConfig checks it
+        while (
+            len(self._kept) > 1 and sum(p.message_bytes for p in self._kept[:-1]) + self._split_bytes > self._max_bytes
+        ):
+            oldest = self._kept.pop(0)
+            oldest.path.unlink()
+            self.dropped.append(oldest)
+
+    def write_sample(self, key: str, payload: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+        self._next_part(publish_time_ns)
+        self._writer.write_sample(key, payload, log_time_ns, publish_time_ns)
+        if key.endswith(_NOT_SPANNED):
+            if self._newest:
+                self._latched[key] = (payload, log_time_ns, publish_time_ns)
+        elif self._kept[-1].first_data_ns is None:
+            self._kept[-1].first_data_ns = publish_time_ns
+
+    def write_json(self, topic: str, value: Any, schema: dict[str, Any], stamp_ns: int, log_time_ns: int) -> None:
+        self._writer.write_json(topic, value, schema, stamp_ns, log_time_ns)
+
+    def write_foxglove(self, topic: str, message: Any, stamp_ns: int, log_time_ns: int) -> None:
+        self._writer.write_foxglove(topic, message, stamp_ns, log_time_ns)
+
+    def close(self) -> None:
+        """The last file closed, and, when older ones were removed, those left named from ``<stem>.mcap`` on."""
+        self._writer.close()
+        if self.dropped:
+            for number, part in enumerate(self._kept):
+                renamed = part_path(self._output, number)
+                part.path.rename(renamed)
+                part.path = renamed

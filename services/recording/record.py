@@ -38,12 +38,16 @@ from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import Config, RecordConfig
 from services.recording.mcap_files import (
     LATEST_STAMP_NS,
+    MB,
+    RECORDING_ROTATED_SCHEMA,
+    RECORDING_ROTATED_TOPIC,
     RECORDING_STOPPED_SCHEMA,
     RECORDING_STOPPED_TOPIC,
     McapWriter,
+    SplitWriter,
 )
 from services.recording.scene import WHEEL_SPEEDS_SCHEMA, WHEEL_SPEEDS_TOPIC, Scene
-from services.runtime.journal import ALWAYS_KEPT, MB, STOPPED_KEY, JournalEntry, JournalReader
+from services.runtime.journal import ALWAYS_KEPT, DROPPED_KEY, STOPPED_KEY, JournalEntry, JournalReader
 from services.runtime.journal import SUFFIX as JOURNAL_SUFFIX
 from services.runtime.logs import BadInputCounter, RateLimitedLog
 from services.runtime.session import has_match
@@ -324,6 +328,9 @@ class RunRecording:
     """The journals whose publisher was killed (they lack their last samples)."""
     stopped: dict[str, Any] | None
     """Why the recording stopped before the run ended (a limit of ``[record]``), or None."""
+    rotated: dict[str, Any] | None = None
+    """With ``record.keep = "newest"``, once older files were removed: which, and the span kept
+    (:data:`RECORDING_ROTATED_SCHEMA`); None when nothing was."""
 
 
 def write_run_recording(
@@ -335,15 +342,28 @@ def write_run_recording(
     ``record``'s bounds: split into ``<stem>_1.mcap``, ... by ``split_size`` and ``split_duration``;
     stopped (but for what says how the run ended, :data:`ALWAYS_KEPT`) at ``max_size``, or where the
     first journal stopped (its limit, or a disk running low), which the last file then says on
-    :data:`RECORDING_STOPPED_TOPIC`."""
+    :data:`RECORDING_STOPPED_TOPIC`. With ``record.keep = "newest"`` the oldest files are removed
+    instead (the journals' during the run, the recording's here), which the last file says on
+    :data:`RECORDING_ROTATED_TOPIC`."""
     record = record or RecordConfig()
     readers = [JournalReader(path) for path in sorted(journals.rglob(f"*{JOURNAL_SUFFIX}"))]
-    writer = _SplitWriter(output, record)
+    writer = SplitWriter(output, record)
     stopped: dict[str, Any] | None = None
     latest_stamp_ns: int | None = None
+    dropped_journals: list[dict[str, Any]] = []
+    last_kept: dict[str, bytes] = {}
+    """Each journal file begins with the last of each :data:`ALWAYS_KEPT` key: taken once."""
+    rotated: dict[str, Any] | None = None
     try:
         builder = SceneBuilder(config, writer_sink(writer), fleet)
         for key, payload, published_ns in heapq.merge(*readers, key=_publication_time):
+            if key == DROPPED_KEY:
+                dropped_journals.append(json.loads(payload))
+                continue
+            if key.endswith(ALWAYS_KEPT):
+                if last_kept.get(key) == payload:
+                    continue
+                last_kept[key] = payload
             if stopped is None:
                 if key == STOPPED_KEY:
                     stopped = json.loads(payload)
@@ -357,70 +377,29 @@ def write_run_recording(
         if stopped is not None:
             stopped["stopped_at_s"] = None if latest_stamp_ns is None else latest_stamp_ns / NANOSECONDS_PER_SECOND
             writer.write_json(RECORDING_STOPPED_TOPIC, stopped, RECORDING_STOPPED_SCHEMA, latest_stamp_ns or 0, 0)
+        if dropped_journals or writer.dropped:
+            rotated = _rotation(writer, dropped_journals)
+            writer.write_json(
+                RECORDING_ROTATED_TOPIC, rotated, RECORDING_ROTATED_SCHEMA, writer.latest_stamp_ns or 0, 0
+            )
     finally:
         writer.close()
-    return RunRecording(writer.parts, [reader.path for reader in readers if not reader.complete], stopped)
+    cut_short = [reader.path for reader in readers if not reader.complete]
+    return RunRecording(writer.parts, cut_short, stopped, rotated)
 
 
-class _SplitWriter:
-    """An :class:`McapWriter` that goes on in a new file at ``record.split_size`` or every
-    ``record.split_duration`` of simulation time, and says when ``record.max_size`` is written
-    (sizes are of the messages, uncompressed: a file is smaller, by its chunks' compression)."""
-
-    def __init__(self, output: Path, record: RecordConfig) -> None:
-        self._output = output
-        self._split_bytes = None if record.split_size is None else record.split_size * MB
-        self._split_ns = (
-            None if record.split_duration is None else round(record.split_duration * NANOSECONDS_PER_SECOND)
-        )
-        self._max_bytes = None if record.max_size is None else record.max_size * MB
-        self._written_before = 0
-        self.parts = [output]
-        self._writer = McapWriter(output)
-        self._part_start_ns: int | None = None
-        self.latest_stamp_ns: int | None = None
-
-    @property
-    def messages(self) -> int:
-        return self._writer.messages
-
-    @property
-    def full(self) -> bool:
-        return self._max_bytes is not None and self._written_before + self._writer.message_bytes >= self._max_bytes
-
-    def _next_part(self, stamp_ns: int | None) -> None:
-        """Before a message stamped ``stamp_ns``: a new file if this one is full or its time is up."""
-        if stamp_ns is not None:
-            self.latest_stamp_ns = stamp_ns if self.latest_stamp_ns is None else max(self.latest_stamp_ns, stamp_ns)
-            if self._part_start_ns is None:
-                self._part_start_ns = stamp_ns
-        by_size = self._split_bytes is not None and self._writer.message_bytes >= self._split_bytes
-        by_time = (
-            self._split_ns is not None
-            and stamp_ns is not None
-            and self._part_start_ns is not None
-            and stamp_ns >= self._part_start_ns + self._split_ns
-        )
-        if by_size or by_time:
-            self._writer.close()
-            self._written_before += self._writer.message_bytes
-            part = self._output.with_name(f"{self._output.stem}_{len(self.parts)}{self._output.suffix}")
-            self.parts.append(part)
-            self._writer = McapWriter(part)
-            self._part_start_ns = stamp_ns
-
-    def write_sample(self, key: str, payload: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
-        self._next_part(publish_time_ns)
-        self._writer.write_sample(key, payload, log_time_ns, publish_time_ns)
-
-    def write_json(self, topic: str, value: Any, schema: dict[str, Any], stamp_ns: int, log_time_ns: int) -> None:
-        self._writer.write_json(topic, value, schema, stamp_ns, log_time_ns)
-
-    def write_foxglove(self, topic: str, message: Any, stamp_ns: int, log_time_ns: int) -> None:
-        self._writer.write_foxglove(topic, message, stamp_ns, log_time_ns)
-
-    def close(self) -> None:
-        self._writer.close()
+def _rotation(writer: SplitWriter, dropped_journals: list[dict[str, Any]]) -> dict[str, Any]:
+    """What a recording that keeps the newest removed (the journals' files during the run, the
+    recording's own here, as each was named then) and the span it still covers."""
+    files = [name for dropped in dropped_journals for name in dropped["files"]] + [p.path.name for p in writer.dropped]
+    dropped_bytes = sum(dropped["bytes"] for dropped in dropped_journals) + sum(p.message_bytes for p in writer.dropped)
+    first, last = writer.first_stamp_ns, writer.latest_stamp_ns
+    return {
+        "dropped_files": files,
+        "dropped_mb": round(dropped_bytes / MB, 3),
+        "from_s": None if first is None else first / NANOSECONDS_PER_SECOND,
+        "to_s": None if last is None else last / NANOSECONDS_PER_SECOND,
+    }
 
 
 def _publication_time(entry: JournalEntry) -> int:

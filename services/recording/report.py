@@ -283,6 +283,16 @@ def degradations(health: dict[str, Any]) -> list[str]:
     return reasons
 
 
+def restart_degradation(restart: dict[str, Any]) -> str:
+    """A restart (``report.json``'s ``restarts``) as a reason the run degraded: a service failed."""
+    return f"{restart['service']} was started again ({restart['reason']}, {restart['wall_s']:.1f} s into the run)"
+
+
+def restarts_line(restarts: Sequence[dict[str, Any]]) -> str:
+    """``restarts: 2 (motor, motor)``: how many, and which service each started again."""
+    return f"restarts: {len(restarts)} ({', '.join(restart['service'] for restart in restarts)})"
+
+
 def degradation_line(reason: str) -> str:
     return f"WARNING: the run degraded: {reason}"
 
@@ -300,6 +310,14 @@ def health_lines(health: dict[str, Any]) -> list[str]:
         "bad inputs: " + ", ".join(f"{name} {counts['bad_inputs']}" for name, counts in services.items()),
         "internal errors: " + ", ".join(f"{name} {counts['internal_errors']}" for name, counts in services.items()),
     ]
+
+
+def rotated_line(rotated: dict[str, Any]) -> str:
+    """What a recording that kept the newest removed, and the span it covers (``report.json``'s ``rotated``)."""
+    return (
+        f"record.keep = newest: {len(rotated['dropped_files'])} older files removed ({rotated['dropped_mb']} MB); "
+        f"the recording covers {rotated['from_s'] or 0:.1f} s to {rotated['to_s'] or 0:.1f} s of simulation time"
+    )
 
 
 def summary(report: dict[str, Any]) -> str:
@@ -323,9 +341,13 @@ def summary(report: dict[str, Any]) -> str:
         ),
     ]
     lines += [f"missing: {line}" for line in report.get("missing") or ()]
+    if rotated := report.get("rotated"):
+        lines.append(rotated_line(rotated))
     if outcome := report.get("outcome"):
         lines.append(f"outcome: {outcome['outcome']}" + (f" ({outcome['reason']})" if outcome["reason"] else ""))
     lines += goal_lines(report.get("goals") or [])
+    if restarts := report.get("restarts"):
+        lines.append(restarts_line(restarts))
     if final and start:
         lines.append(
             f"ground truth ends at ({final['x']:.3f}, {final['y']:.3f}, {math.degrees(final['theta']):.1f} deg), "

@@ -13,6 +13,8 @@ bag too.
 does: a new file at ``split_size`` MB or every ``split_duration`` simulated seconds; the bag stops
 (the robot never does) at ``max_size`` MB, after ``max_duration`` simulated seconds, or when its
 disk has less than ``min_free_disk`` MB free, and ``metadata.yaml`` says why in its ``custom_data``.
+With ``record.keep = "newest"`` it splits at ``record.rotation_size`` and removes its oldest files
+at ``max_size`` instead, ``metadata.yaml`` listing those left and saying how many were removed.
 
 Three sources fill one: the journals the bridges of ``invent up --record-ros2`` kept of what they
 published (:func:`write_bag_from_journals`); a recording of the loop, replayed through the bridge's
@@ -51,7 +53,7 @@ from services.recording.mcap_files import read_run
 from services.ros2 import interfaces, wire
 from services.ros2.graph import PUBLICATIONS, BridgeGraph, Entity
 from services.ros2.outputs import RosOutputs, WheelsTaken
-from services.runtime.journal import MB, STOPPED_KEY, JournalEntry, JournalReader
+from services.runtime.journal import DROPPED_KEY, MB, STOPPED_KEY, JournalEntry, JournalReader
 from services.runtime.journal import SUFFIX as JOURNAL_SUFFIX
 from services.runtime.logs import RateLimitedLog
 
@@ -72,6 +74,8 @@ DISK_CHECK_BYTES = MB
 STOPPED_DATA = "invent.recording_stopped"
 STOPPED_AT_DATA = "invent.recording_stopped_at_s"
 """``custom_data`` keys of ``metadata.yaml`` when the bag stopped before its run (a bound of ``[record]``)."""
+DROPPED_DATA = "invent.recording_dropped_files"
+"""``custom_data``: the files a bag that keeps the newest removed (JSON list, oldest first)."""
 
 
 @dataclass(frozen=True)
@@ -200,7 +204,13 @@ class BagWriter:
         self._max_bytes = None if record.max_size is None else record.max_size * MB
         self._max_stamp_ns = None if record.max_duration is None else round(record.max_duration * 1e9)
         self._min_free_bytes = record.min_free_disk * MB
+        self._newest = record.keeps_newest
+        if self._newest:
+            self._split_bytes = record.rotation_size * MB
         self._parts: list[dict[str, Any]] = []
+        self._part_bytes: list[int] = []
+        self.dropped: list[str] = []
+        """With ``record.keep = "newest"``: the files removed, oldest first."""
         self._part = _Part(path, 0)
         self._written = 0
         self._next_disk_check = 0
@@ -217,7 +227,7 @@ class BagWriter:
         if self._max_stamp_ns is not None and stamp_ns > self._max_stamp_ns:
             self.stop(f"record.max_duration: nothing stamped after {self._max_stamp_ns / 1e9:.3f} s is recorded")
             return False
-        if self._max_bytes is not None and self._written + len(payload) > self._max_bytes:
+        if not self._newest and self._max_bytes is not None and self._written + len(payload) > self._max_bytes:
             self.stop(f"record.max_size: {self.record.max_size} MB written")
             return False
         if self._written >= self._next_disk_check:
@@ -242,7 +252,21 @@ class BagWriter:
         )
         if by_size or by_time:
             self._parts.append(part.close())
-            self._part = _Part(self.path, len(self._parts))
+            self._part_bytes.append(part.message_bytes)
+            self._part = _Part(self.path, len(self._parts) + len(self.dropped))
+            if self._newest:
+                self._drop_oldest()
+
+    def _drop_oldest(self) -> None:
+        """Remove the oldest files while the closed ones hold more than ``max_size`` with room for the one begun."""
+        assert self._max_bytes is not None and self._split_bytes is not None  # RecordConfig checks it
+        while self._parts and sum(self._part_bytes) + self._split_bytes > self._max_bytes:
+            oldest = self._parts.pop(0)
+            self._part_bytes.pop(0)
+            for file in oldest["files"]:
+                (self.path / file["path"]).unlink()
+                self.dropped.append(file["path"])
+                log.info("record.keep = newest: the bag %s removed %s", self.path, file["path"])
 
     def _check_disk(self) -> bool:
         if self._min_free_bytes <= 0:
@@ -269,7 +293,7 @@ class BagWriter:
         """The last file closed, and ``metadata.yaml`` of them all."""
         self._parts.append(self._part.close())
         (self.path / "metadata.yaml").write_text(self._metadata())
-        files = [self.path / f"{self.path.name}_{index}.mcap" for index in range(len(self._parts))]
+        files = [self.path / file["path"] for part in self._parts for file in part["files"]]
         return BagResult(self.path, files, self.messages, self.stopped, dict(self.counts))
 
     def _metadata(self) -> str:
@@ -291,8 +315,10 @@ class BagWriter:
         custom = (
             {STOPPED_DATA: self.stopped["reason"], STOPPED_AT_DATA: json.dumps(self.stopped["stopped_at_s"])}
             if self.stopped
-            else None
+            else {}
         )
+        if self.dropped:
+            custom[DROPPED_DATA] = json.dumps(self.dropped)
         information = {
             "version": BAG_VERSION,
             "storage_identifier": "mcap",
@@ -304,7 +330,7 @@ class BagWriter:
             "compression_format": "",
             "compression_mode": "",
             "files": files,
-            "custom_data": custom,
+            "custom_data": custom or None,
             "ros_distro": self.distro,
         }
         text = StringIO()
@@ -323,6 +349,9 @@ def write_bag_from_journals(journals: Path, output: Path, record: RecordConfig, 
         for key, payload, stamp_ns in heapq.merge(*readers, key=_stamp):
             if key == STOPPED_KEY:
                 writer.stop(json.loads(payload)["reason"])
+                continue
+            if key == DROPPED_KEY:  # the bridges' journal files removed (record.keep = "newest")
+                writer.dropped.extend(json.loads(payload)["files"])
                 continue
             try:
                 topic = topic_of_key(key)

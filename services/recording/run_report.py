@@ -11,7 +11,7 @@ of ``invent record``) has its health from the last status replies recorded; the 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +23,7 @@ from schemas.messages import (
     PlannedPath,
     RunSummary,
     ScenarioOutcome,
+    ServiceRestart,
     TimedDoubleSeq,
     TimedPosition,
     TimedVelocity,
@@ -31,7 +32,13 @@ from services.config import Config, ConfigError, InputConfig, RobotConfig
 from services.drive.scenarios import planned_path_for
 from services.planar import Pose, check_coordinates
 from services.recording.goal_report import goal_results
-from services.recording.mcap_files import RECORDING_STOPPED_TOPIC, ReadResult, RecordedMessage, read_run
+from services.recording.mcap_files import (
+    RECORDING_ROTATED_TOPIC,
+    RECORDING_STOPPED_TOPIC,
+    ReadResult,
+    RecordedMessage,
+    read_run,
+)
 from services.recording.report import (
     Point,
     Recording,
@@ -41,6 +48,7 @@ from services.recording.report import (
     pose_from_body_pose,
     readable_statuses,
     recorded_health,
+    restart_degradation,
     write_plots,
     write_report,
 )
@@ -143,6 +151,8 @@ def robot_report(path: Path, read: ReadResult, config: Config) -> tuple[dict[str
         health=summary.health if summary else recorded_health(statuses),
     )
     report["composed"] = summary.composed if summary else None
+    report["restarts"] = restart_entries(summary.restarts if summary else ())
+    report["degraded"] += [restart_degradation(restart) for restart in report["restarts"]]
     report["outcome"] = (
         early_outcome(summary.ended_early, summary.service, summary.exit_code, summary.tm.to_seconds())
         if summary and summary.ended_early
@@ -155,6 +165,7 @@ def robot_report(path: Path, read: ReadResult, config: Config) -> tuple[dict[str
         recording.ground_truth,
     )
     report["recording"] = recording_bounds(messages)
+    report["rotated"] = recording_rotation(messages)
     report["missing"] = missing_parts(
         complete=read.complete,
         summary=summary is not None,
@@ -163,6 +174,17 @@ def robot_report(path: Path, read: ReadResult, config: Config) -> tuple[dict[str
         ground_truth=bool(recording.ground_truth),
     )
     return report, recording
+
+
+def restart_entries(restarts: Sequence[ServiceRestart]) -> list[dict[str, Any]]:
+    """``report.json``'s ``restarts``: each service the restart policy started again, how it had
+    ended (as a service that died is named) and when."""
+    entries = []
+    for restart in restarts:
+        died = early_outcome("service_died", restart.service, restart.exit_code, 0.0)
+        how = {key: died[key] for key in ("service", "reason", "exit_code", "signal")}
+        entries.append({**how, "wall_s": restart.wall_s, "delay_s": restart.delay_s})
+    return entries
 
 
 def _check_robot_recorded(path: Path, messages: list[RecordedMessage], keys: Keys) -> None:
@@ -207,6 +229,12 @@ def recording_bounds(messages: list[RecordedMessage]) -> dict[str, Any] | None:
     """Why the recording stopped before its run ended (None: it holds the whole run)."""
     stops = [m for m in messages if m.topic == RECORDING_STOPPED_TOPIC]
     return json.loads(stops[0].data) if stops else None
+
+
+def recording_rotation(messages: list[RecordedMessage]) -> dict[str, Any] | None:
+    """What a recording that kept the newest removed and the span it covers (None: nothing removed)."""
+    rotations = [m for m in messages if m.topic == RECORDING_ROTATED_TOPIC]
+    return json.loads(rotations[-1].data) if rotations else None
 
 
 def scenario_outcome(messages: list[RecordedMessage], keys: Keys) -> dict[str, Any] | None:
