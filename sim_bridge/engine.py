@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Generic, Protocol, Self, TypeVar
 
+from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND, ImuSample, LaserScan, Time
 from services.config import ConfigError, ImuConfig, LidarConfig, RobotConfig, SimConfig, SimEngine
 from sim_bridge.sensors import Imu, Lidar
@@ -112,6 +113,56 @@ class Engine(Protocol):
 
 
 RobotT = TypeVar("RobotT", bound=RobotPlant)
+
+
+class WheelCommands:
+    """What a robot's wheels take in its next step, as both engines' robots hold it: torques (saturated
+    at ``max_torque``), wheel speed targets the plant's own loop follows, or the brakes; by wheel id in,
+    left and right kept."""
+
+    def __init__(self, left_wheel_id: int, right_wheel_id: int, max_torque: float) -> None:
+        self.wheel_count = max(left_wheel_id, right_wheel_id) + 1
+        self.max_torque = max_torque
+        self._left, self._right = left_wheel_id, right_wheel_id
+        self.forces = [0.0, 0.0]
+        """Left and right torque of the next step, after saturation."""
+        self.braking = False
+        """The next step brakes the wheels to rest (at most ``max_torque``) instead of applying ``forces``."""
+        self.velocity_targets: tuple[float, float] | None = None
+        """Left and right wheel speed targets (rad/s) of the next step, followed within ``max_torque``;
+        None: the torques apply."""
+        self.applied_torques = [0.0] * self.wheel_count
+        """The torques applied during the next step, by wheel id (after saturation)."""
+
+    def set_torques(self, torques: Sequence[float]) -> None:
+        """Wheel torques in N·m by wheel id for the next step, each saturated at ``max_torque``."""
+        if len(torques) != self.wheel_count:
+            raise BadInput(f"{len(torques)} torques, expected {self.wheel_count} (one per wheel id)")
+        limit = self.max_torque
+        left = min(max(torques[self._left], -limit), limit)
+        right = min(max(torques[self._right], -limit), limit)
+        self.forces[0] = self.applied_torques[self._left] = left
+        self.forces[1] = self.applied_torques[self._right] = right
+        self.braking = False
+        self.velocity_targets = None
+
+    def set_wheel_velocities(self, targets: Sequence[float]) -> None:
+        """Wheel speed targets in rad/s by wheel id for the next step (BadInput: wrong length)."""
+        if len(targets) != self.wheel_count:
+            raise BadInput(f"{len(targets)} wheel speed targets, expected {self.wheel_count} (one per wheel id)")
+        self.velocity_targets = (targets[self._left], targets[self._right])
+        self.braking = False
+
+    def set_zero_torques(self) -> None:
+        self.forces[0] = self.forces[1] = 0.0
+        self.applied_torques[self._left] = self.applied_torques[self._right] = 0.0
+        self.braking = False
+        self.velocity_targets = None
+
+    def brake(self) -> None:
+        """Brake the wheels to rest in the next step, as a motor driver does when its commands stop."""
+        self.set_zero_torques()
+        self.braking = True
 
 
 class WorldOfRobots(Generic[RobotT]):

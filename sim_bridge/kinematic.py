@@ -22,11 +22,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND, ImuSample, LaserScan, Time
 from services.body.geometry import robot_body
 from services.config import ImuConfig, LidarConfig, RobotConfig, SimConfig
-from sim_bridge.engine import Contact, Placement, WorldOfRobots
+from sim_bridge.engine import Contact, Placement, WheelCommands, WorldOfRobots
 from sim_bridge.kinematic_model import DiffDrivePlant, DriveModel
 from sim_bridge.kinematic_world import RayCaster, footprint_gap, world_shapes
 from sim_bridge.sensors import Imu, Lidar
@@ -35,7 +34,7 @@ from sim_bridge.world import World
 _NO_CONTACTS: tuple[Contact, ...] = ()
 
 
-class KinematicRobot:
+class KinematicRobot(WheelCommands):
     """One robot of the kinematic world: its plant, sensors and the torques of its next step (the
     surface of :class:`sim_bridge.simulator.SimulatedRobot`)."""
 
@@ -43,9 +42,7 @@ class KinematicRobot:
         robot = placement.robot
         self.name = placement.name
         self.index = index
-        self.wheel_count = max(robot.left_wheel_id, robot.right_wheel_id) + 1
-        self.max_torque = sim.max_wheel_torque
-        self._left, self._right = robot.left_wheel_id, robot.right_wheel_id
+        super().__init__(robot.left_wheel_id, robot.right_wheel_id, sim.max_wheel_torque)
         body = robot_body(robot, sim)
         self.axle_height = body.axle_height
         self.reach = body.reach
@@ -53,13 +50,6 @@ class KinematicRobot:
         self.body_top = body.axle_height + body.body_height
         pose = placement.pose
         self.plant = DiffDrivePlant(DriveModel.from_description(robot, sim), pose.x, pose.y, pose.theta)
-        self.forces = [0.0, 0.0]
-        """Left and right torque of the next step, after saturation."""
-        self.braking = False
-        self.velocity_targets: tuple[float, float] | None = None
-        """Left and right wheel speed targets (rad/s) of the next step, which the plant follows
-        within the torque limit; None: the torques apply."""
-        self.applied_torques = [0.0] * self.wheel_count
         self.lidar = None if placement.lidar is None else Lidar(placement.lidar, self.reach, index)
         self.imu = None if placement.imu is None else Imu(placement.imu, index)
         self.world: KinematicSimulator | None = None
@@ -95,37 +85,9 @@ class KinematicRobot:
         orientation = (0.0, 0.0, math.sin(half), math.cos(half))
         return self.imu.sample(tm, orientation, self.rotation(), plant.linear_velocity, plant.angular_velocity)
 
-    def set_torques(self, torques: Sequence[float]) -> None:
-        if len(torques) != self.wheel_count:
-            raise BadInput(f"{len(torques)} torques, expected {self.wheel_count} (one per wheel id)")
-        limit = self.max_torque
-        left = min(max(torques[self._left], -limit), limit)
-        right = min(max(torques[self._right], -limit), limit)
-        self.forces[0] = self.applied_torques[self._left] = left
-        self.forces[1] = self.applied_torques[self._right] = right
-        self.braking = False
-        self.velocity_targets = None
-
-    def set_wheel_velocities(self, targets: Sequence[float]) -> None:
-        """Wheel speed targets in rad/s by wheel id for the next step (BadInput: wrong length)."""
-        if len(targets) != self.wheel_count:
-            raise BadInput(f"{len(targets)} wheel speed targets, expected {self.wheel_count} (one per wheel id)")
-        self.velocity_targets = (targets[self._left], targets[self._right])
-        self.braking = False
-
     def show_applied(self) -> None:
         """After a step that followed wheel speed targets: the torques the plant chose, for the status."""
         self.applied_torques[self._left], self.applied_torques[self._right] = self.plant.applied
-
-    def set_zero_torques(self) -> None:
-        self.forces[0] = self.forces[1] = 0.0
-        self.applied_torques[self._left] = self.applied_torques[self._right] = 0.0
-        self.braking = False
-        self.velocity_targets = None
-
-    def brake(self) -> None:
-        self.set_zero_torques()
-        self.braking = True
 
 
 class KinematicSimulator(WorldOfRobots[KinematicRobot]):

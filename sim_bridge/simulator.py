@@ -16,13 +16,12 @@ from collections.abc import Sequence
 import numpy as np
 import pybullet as p
 
-from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND, ImuSample, LaserScan, Time
 from services.body.geometry import robot_body
 from services.config import ConfigError, ImuConfig, LidarConfig, RobotConfig, SimConfig
 from sim_bridge.building import build_ground, build_obstacles
 from sim_bridge.display import require_display
-from sim_bridge.engine import Contact, Placement, WorldOfRobots
+from sim_bridge.engine import Contact, Placement, WheelCommands, WorldOfRobots
 from sim_bridge.ray_world import RayWorld
 from sim_bridge.robot import RobotModel, build_robot
 from sim_bridge.sensors import Imu, Lidar
@@ -39,31 +38,20 @@ _CONTACT_DISTANCE = 8
 Position = tuple[float, float, float]
 
 
-class SimulatedRobot:
+class SimulatedRobot(WheelCommands):
     """One robot's body in the world: its wheel angles, body pose and the torques of its next step."""
 
     def __init__(self, client: int, placement: Placement, sim: SimConfig, index: int) -> None:
         robot = placement.robot
         self.name = placement.name
         self.client = client
-        self.wheel_count = max(robot.left_wheel_id, robot.right_wheel_id) + 1
-        self.max_torque = sim.max_wheel_torque
-        self._left, self._right = robot.left_wheel_id, robot.right_wheel_id
+        super().__init__(robot.left_wheel_id, robot.right_wheel_id, sim.max_wheel_torque)
         self.model: RobotModel = build_robot(client, robot, sim, placement.pose)
         self.body = self.model.body
         self.wheels = self.model.wheel_joints
-        self.forces = [0.0, 0.0]
-        """Left and right torque of the next step, after saturation."""
-        self.braking = False
-        """The next step brakes the wheels to rest (at most ``max_torque``) instead of applying ``forces``."""
-        self.velocity_targets: tuple[float, float] | None = None
-        """Left and right wheel speed targets (rad/s) of the next step, for the wheels' velocity
-        motors (at most ``max_torque``); None: the torques apply."""
         self._motor_targets: tuple[float, float] | None = None
         """The targets the wheels' velocity motors hold in the physics client (braking: zero);
         None: they are off."""
-        self.applied_torques = [0.0] * self.wheel_count
-        """The torques applied during the next step, by wheel id (after saturation)."""
         self.index = index
         """The robot's index in the world's placements."""
         reach = robot_body(robot, sim).reach
@@ -105,37 +93,6 @@ class SimulatedRobot:
         linear, angular = p.getBaseVelocity(self.body, physicsClientId=client)
         x, y, z, w = orientation
         return self.imu.sample(tm, (x, y, z, w), p.getMatrixFromQuaternion(orientation), linear, angular)
-
-    def set_torques(self, torques: Sequence[float]) -> None:
-        """Wheel torques in N·m by wheel id for the next step, each saturated at ``sim.max_wheel_torque``."""
-        if len(torques) != self.wheel_count:
-            raise BadInput(f"{len(torques)} torques, expected {self.wheel_count} (one per wheel id)")
-        limit = self.max_torque
-        left = min(max(torques[self._left], -limit), limit)
-        right = min(max(torques[self._right], -limit), limit)
-        self.forces[0] = self.applied_torques[self._left] = left
-        self.forces[1] = self.applied_torques[self._right] = right
-        self.braking = False
-        self.velocity_targets = None
-
-    def set_wheel_velocities(self, targets: Sequence[float]) -> None:
-        """Wheel speed targets in rad/s by wheel id for the next step: PyBullet's velocity motors
-        (VELOCITY_CONTROL) follow them with at most ``sim.max_wheel_torque`` (BadInput: wrong length)."""
-        if len(targets) != self.wheel_count:
-            raise BadInput(f"{len(targets)} wheel speed targets, expected {self.wheel_count} (one per wheel id)")
-        self.velocity_targets = (targets[self._left], targets[self._right])
-        self.braking = False
-
-    def set_zero_torques(self) -> None:
-        self.forces[0] = self.forces[1] = 0.0
-        self.applied_torques[self._left] = self.applied_torques[self._right] = 0.0
-        self.braking = False
-        self.velocity_targets = None
-
-    def brake(self) -> None:
-        """Brake the wheels to rest in the next step, as a motor driver does when its commands stop."""
-        self.set_zero_torques()
-        self.braking = True
 
     def apply(self) -> None:
         """Set this step's wheel motors in the physics client: the torques, the velocity targets, or the brakes."""
