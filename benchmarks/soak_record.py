@@ -1,10 +1,11 @@
 """A recording that keeps the newest, left running (``python -m benchmarks.soak_record``; never part of
-``make test``): ``invent up --goals --mode lockstep --set record.keep=newest`` with the robot
-description's other defaults (and ``--ros2 --record-ros2`` unless ``--no-ros2``) until ``--sim-hours`` of
-simulation time, then Ctrl-C. Every ``--sample-every`` seconds it sums the run's journals (both
+``make test``): ``invent up --loop`` (``--goals --mode lockstep`` with ``--goals``), which keeps the newest
+by default, with the robot description's other defaults (and ``--ros2 --record-ros2`` unless
+``--no-ros2``) until ``--sim-hours`` of simulation time, then Ctrl-C. Every ``--sample-every`` seconds it sums the run's journals (both
 budgets: ``journals/`` and ``bag-journals/``); at the end it checks that ``run.mcap``'s files and the
 bag's stay within ``record.max_size``, that each file opens alone in ``mcap``'s reader, that the bag
-opens in rosbags' reader, and that ``report.json`` says which span the recording covers. Writes
+opens in rosbags' reader, that ``report.json`` says which span the recording covers, and that
+``invent report`` reads the split recording again. Writes
 ``benchmarks/results/soak_record.json``; docs/recording.md, "Keeping the newest", quotes it.
 """
 
@@ -55,10 +56,11 @@ def _bag_messages(bag: Path) -> int:
         return sum(1 for _ in reader.messages())
 
 
-def soak(sim_hours: float, sample_every_s: float, ros2: bool, report_dir: Path, up_args: list[str]) -> dict[str, Any]:
+def soak(
+    sim_hours: float, sample_every_s: float, ros2: bool, report_dir: Path, commander: list[str], up_args: list[str]
+) -> dict[str, Any]:
     max_size = load_config(None, {"record.keep": "newest"}).record.max_size or 0.0
-    command = [sys.executable, "-m", "services.cli", "up", "--goals", "--mode", "lockstep"]
-    command += ["--set", "record.keep=newest", "--report", str(report_dir), *up_args]
+    command = [sys.executable, "-m", "services.cli", "up", *commander, "--report", str(report_dir), *up_args]
     command += ["--listen", f"tcp/127.0.0.1:{free_port()}", *(["--ros2", "--record-ros2"] if ros2 else [])]
     started = time.monotonic()
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -81,6 +83,21 @@ def soak(sim_hours: float, sample_every_s: float, ros2: bool, report_dir: Path, 
     parts = sorted(report_dir.glob("run*.mcap"))
     report = json.loads((report_dir / "report.json").read_text())
     bag = report_dir / "rosbag2"
+    again = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "report",
+            str(report_dir / "run.mcap"),
+            "--output-dir",
+            str(report_dir / "again"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=END_TIMEOUT_S,
+        check=False,
+    )
     return {
         "command": " ".join(command[2:]),
         "exit_code": process.returncode,
@@ -94,6 +111,10 @@ def soak(sim_hours: float, sample_every_s: float, ros2: bool, report_dir: Path, 
         "bag_mb": round(_size(bag) / MB, 1) if ros2 else None,
         "bag_messages": _bag_messages(bag) if ros2 else None,
         "rotated": report["rotated"],
+        "report_again": {
+            "exit_code": again.returncode,
+            "covers": [line for line in again.stdout.splitlines() if "covers" in line],
+        },
         "last_lines": (("".join(lines) + rest).splitlines())[-12:],
     }
 
@@ -103,6 +124,7 @@ def main() -> int:
     parser.add_argument("--sim-hours", type=float, default=3.0, help="simulation time to run (default 3 h)")
     parser.add_argument("--sample-every", type=float, default=5.0, help="seconds between journal sizes")
     parser.add_argument("--no-ros2", action="store_true", help="no --record-ros2")
+    parser.add_argument("--goals", action="store_true", help="--goals --mode lockstep instead of --loop")
     parser.add_argument(
         "--up", action="append", default=[], metavar="ARG", help="one more argument of invent up (--up=--composed)"
     )
@@ -112,11 +134,13 @@ def main() -> int:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as temporary:
         report_dir = Path(args.keep) if args.keep else Path(temporary) / "run"
-        result = soak(args.sim_hours, args.sample_every, not args.no_ros2, report_dir, args.up)
+        commander = ["--goals", "--mode", "lockstep"] if args.goals else ["--loop"]
+        result = soak(args.sim_hours, args.sample_every, not args.no_ros2, report_dir, commander, args.up)
     RESULTS.parent.mkdir(exist_ok=True)
     RESULTS.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))
-    return 0 if result["exit_code"] == 0 and result["each_file_readable_alone"] else 1
+    fine = result["exit_code"] == 0 and result["each_file_readable_alone"] and result["report_again"]["exit_code"] == 0
+    return 0 if fine else 1
 
 
 if __name__ == "__main__":

@@ -129,13 +129,13 @@ def test_a_recording_keeping_the_newest_removes_its_oldest_files_each_left_reada
 
 @pytest.mark.slow
 @pytest.mark.kinematic
-def test_a_goals_run_keeping_the_newest_stays_within_its_budget_and_its_report_reads_it(tmp_path):
-    """``--goals`` stands for ``--loop`` here: ``invent up --loop`` records nothing (services/launch/up.py)."""
+def test_a_loop_run_keeping_the_newest_stays_within_its_budget_and_its_report_reads_it(tmp_path):
+    """``invent up --loop`` keeps the newest by default; ``--record-ros2`` beside it rotates the bag too."""
     max_size, split_size = 4, 1
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     process = start_up(
-        *("--goals", "--mode", "lockstep", "--composed", "--engine", "kinematic", "--ros2", "--record-ros2"),
-        *("--set", "record.keep=newest", "--set", f"record.max_size={max_size}"),
+        *("--loop", "--composed", "--engine", "kinematic", "--ros2", "--record-ros2"),
+        *("--set", f"record.max_size={max_size}"),
         *("--set", f"record.split_size={split_size}", "--report", str(tmp_path), "--listen", endpoint),
     )
     journals = tmp_path / "journals"

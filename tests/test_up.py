@@ -231,10 +231,14 @@ def test_a_stop_latched_in_the_motor_state_file_aborts_the_scenario_naming_it(tm
 
 
 def test_loop_ends_with_the_outcome_of_the_pass_that_gave_up(tmp_path):
-    result = _up("--loop", "--composed", "--set", "sim.world=bump", *NO_MONITOR, "--scenario", "straight", cwd=tmp_path)
+    result = _up(
+        *("--loop", "--composed", "--set", "sim.world=bump", *NO_MONITOR, "--scenario", "straight"),
+        *("--report", str(tmp_path / "run")),
+    )
     assert result.returncode == 3, result.stdout[-4000:]
     assert "outcome: aborted (bumped into 'box'" in result.stdout
-    assert "done; no recording, no report (--loop)" in result.stdout
+    report = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert report["outcome"]["outcome"] == "aborted", report["outcome"]
 
 
 def _sets(overrides: tuple[str, ...]) -> list[str]:
@@ -369,12 +373,13 @@ def test_a_view_on_any_free_port_is_refused_naming_the_flag():
     assert result.returncode == 2 and "--view" in result.stderr
 
 
-def test_loop_repeats_the_scenario_until_ctrl_c_with_flat_memory(tmp_path):
+def test_loop_repeats_the_scenario_until_ctrl_c_recording_with_flat_memory(tmp_path):
     from schemas.keys import Keys, Service
     from tests.harness import call, peer_session
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    process = start_up("--loop", "--composed", "--scenario", "straight", "--listen", endpoint)
+    report = tmp_path / "run"
+    process = start_up("--loop", "--composed", "--scenario", "straight", "--listen", endpoint, "--report", str(report))
     output: list[str] = []
     try:
         _started_pids(process, output)
@@ -396,7 +401,7 @@ def test_loop_repeats_the_scenario_until_ctrl_c_with_flat_memory(tmp_path):
             process.communicate()
     text = "".join(output) + rest
     assert process.returncode == 0, text[-3000:]
-    assert "done; no recording, no report (--loop)" in text and "torques: late" in text
+    assert "torques: late" in text and (report / "report.json").exists(), "its recording and report written"
     assert rss_late - rss_early < 20, f"memory grew from {rss_early:.0f} to {rss_late:.0f} MB over six passes"
 
 

@@ -209,8 +209,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--loop",
         action="store_true",
         help="repeat the scenario until Ctrl-C, or until a pass is given up (its outcome and exit status: "
-        "docs/drive.md, Outcomes); a long-running stack to watch and probe; records nothing, so memory stays "
-        "flat, and prints the run's health at the end",
+        "docs/drive.md, Outcomes); a long-running stack to watch and probe; its recording keeps the newest "
+        "files within record.max_size (record.keep = newest), and its report is written at the end",
     )
     parser.add_argument(
         "--secure",

@@ -58,14 +58,13 @@ def check_ros2_flags(plan: UpPlan) -> None:
         given = {
             "without --ros2": not plan.ros2,
             "with --no-record": plan.no_record,
-            "with --loop": plan.loop,
             "with --teleop": plan.teleop,
         }
         wrong = [flag for flag, conflicting in given.items() if conflicting]
         if wrong:
             raise ConfigError(
                 f"--record-ros2 {', '.join(wrong)}: the bag of the bridges' topics is written with run.mcap at the end "
-                "of a recorded run with --ros2 (beside a --teleop or --loop run, record it with `invent record --ros2`)"
+                "of a recorded run with --ros2 (beside a --teleop run, record it with `invent record --ros2`)"
             )
 
 

@@ -11,7 +11,7 @@ aborted or timed out; services/drive/outcome.py), and the sim holds at the step 
 command (``--until-drive-ends``): ``up`` then reads the services' status, publishes the
 run's summary (``up/run``), stops every child with SIGINT, makes ``run.mcap`` of what they
 published (:class:`RunRecorder`) and builds the report from it, as ``invent report run.mcap``
-does (``--no-record``: no recording, no report, for long runs and benchmarks). A child that dies
+does (``--no-record``: no recording, no report, for benchmarks). A child that dies
 early makes ``up`` say which one and how, stop the others and exit 1, unless the run's restart
 policy (``--restart``, services/launch/restart.py) starts it again: then the run goes on, and its
 summary and report name each restart (past the policy's limit, the run ends so). Ctrl-C stops everything cleanly
@@ -93,7 +93,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     journals = len(robots.each) * (len(robot_services) + 1) + sum(len(_beside(r.extensions)) for r in robots.each) + 2
     record = first.config.record
     bag = BagRecording(report_dir, record, len(robots.each), first.config.ros2.distro) if plan.record_ros2 else None
-    recording = not (plan.no_record or plan.loop or plan.teleop)
+    recording = not (plan.no_record or plan.teleop)
     recorder = RunRecorder(report_dir, record, journals) if recording else None
     health: dict[str, dict[str, Any]] = {}
     sim_started = False
@@ -244,7 +244,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         restarted = [restarts_line(restarts)] if restarts else []
         for line in [*outcome_lines, *robots.health_lines(health), *restarted, *map(degradation_line, degraded)]:
             print(line, flush=True)
-        why = "--teleop" if plan.teleop else "--loop" if plan.loop else "--no-record"
+        why = "--teleop" if plan.teleop else "--no-record"
         return verdict(plan.strict, degraded, f"done; no recording, no report ({why})", outcome_code, not_completed)
     degraded, written = robots.report(report_dir)
     if early is not None:
