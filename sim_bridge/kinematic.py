@@ -32,6 +32,9 @@ from sim_bridge.sensors import Imu, Lidar
 from sim_bridge.world import World
 
 _NO_CONTACTS: tuple[Contact, ...] = ()
+_FAR_MARGIN = 1e-6
+"""m: a footprint this much further than an obstacle's bounding box is surely clear of it (the
+distance's rounding is far smaller), so the obstacle's exact distance is not needed."""
 
 
 class KinematicRobot(WheelCommands):
@@ -76,7 +79,8 @@ class KinematicRobot(WheelCommands):
         rotation = np.array(self.rotation()).reshape(3, 3)
         starts, ends = lidar.rays((plant.x, plant.y, self.axle_height), rotation)
         positions = [(robot.plant.x, robot.plant.y) for robot in world.robots]
-        return lidar.scan(tm, world.rays.cast(self.index, positions, starts, ends), world.rays.names)
+        bodies, fractions = world.rays.first_hits(self.index, positions, starts, ends)
+        return lidar.scan_of(tm, bodies, fractions, world.rays.names)
 
     def imu_sample(self, tm: Time) -> ImuSample:
         assert self.imu is not None
@@ -108,6 +112,12 @@ class KinematicSimulator(WorldOfRobots[KinematicRobot]):
         self.step_s = self.step_ns / NANOSECONDS_PER_SECOND
         self.robots = tuple(KinematicRobot(placement, sim, index) for index, placement in enumerate(self.placements))
         self.obstacles = world_shapes(world)
+        self._bounds = tuple(
+            (shape.x, shape.y, half_width + _FAR_MARGIN, half_height + _FAR_MARGIN)
+            for shape in self.obstacles
+            for half_width, half_height in [shape.extent()]
+        )
+        """Each obstacle's centre and the half sizes of its bounding box, widened by ``_FAR_MARGIN``."""
         self.rays = RayCaster(self.obstacles, [(r.name, r.body_radius, r.body_top) for r in self.robots])
         for body in self.robots:
             body.world = self
@@ -144,7 +154,9 @@ class KinematicSimulator(WorldOfRobots[KinematicRobot]):
         footprint touches (overlaps, or would go further into) is added to ``touches``."""
         x, y, reach = body.plant.x, body.plant.y, body.reach
         blocked = False
-        for index, shape in enumerate(self.obstacles):
+        for index, (shape, (cx, cy, half_width, half_height)) in enumerate(zip(self.obstacles, self._bounds)):
+            if abs(x - cx) > half_width + reach or abs(y - cy) > half_height + reach:
+                continue
             gap, (px, py) = footprint_gap(shape, x, y, reach)
             if gap <= 0.0:
                 deeper = gap < footprint_gap(shape, x0, y0, reach)[0]

@@ -24,6 +24,7 @@ GRAVITY = 9.81
 FOOTPRINT_CLEARANCE = 0.001
 """m beyond the robot's own footprint where its rays start: a ray never sees its own robot."""
 Array = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
 RayHit = tuple[int, int, float, Sequence[float], Sequence[float]]
 """One ray's result as PyBullet's ``rayTestBatch`` gives it: body id (-1: none), link, hit
 fraction along the ray, hit position, hit normal."""
@@ -75,21 +76,28 @@ class Lidar:
         return origin + self.local_from @ rotation.T, origin + self.local_to @ rotation.T
 
     def scan(self, tm: Time, hits: Sequence[RayHit], names: Mapping[int, str]) -> LaserScan:
-        """The scan of ``hits`` (one per ray, in ray order): the range of each hit from the lidar,
-        with its noise, and what it hit by name (``names``: body id -> name)."""
-        lidar = self.config
+        """The scan of ``hits`` (one per ray, in ray order; PyBullet's): :meth:`scan_of` their
+        bodies and fractions."""
         columns = tuple(zip(*hits, strict=True))
-        bodies: tuple[int, ...] = columns[0]
-        ranges = self.starts + np.array(columns[2]) * self.lengths
+        return self.scan_of(tm, np.array(columns[0], dtype=np.int64), np.array(columns[2], dtype=np.float64), names)
+
+    def scan_of(self, tm: Time, bodies: IntArray, fractions: Array, names: Mapping[int, str]) -> LaserScan:
+        """The scan of each ray's first hit, in ray order: the body it hit (``NO_HIT``: none;
+        ``names``: body id -> name) and how far along the ray (1.0: none). Its range from the
+        lidar, with its noise."""
+        lidar = self.config
+        ranges = self.starts + fractions * self.lengths
         if self._noise > 0.0:
             # drawn for every ray, hit or not, so that each scan takes the same share of the stream
             ranges = np.clip(ranges + self._rng.normal(0.0, self._noise, ranges.size), lidar.range_min, lidar.range_max)
-        readings: list[float | None] = [
-            None if body == NO_HIT else reading for body, reading in zip(bodies, ranges.tolist(), strict=True)
-        ]
-        seen = sorted(set(bodies) - {NO_HIT})
-        index_of = {body: index for index, body in enumerate(seen)}
-        index_of[NO_HIT] = NO_HIT
+        readings: list[float | None] = ranges.tolist()
+        for ray in np.flatnonzero(bodies == NO_HIT).tolist():
+            readings[ray] = None
+        # counted by body id + 1 (NO_HIT is -1); a body's rank among those seen is its index in
+        # the scan's list, NO_HIT's slot always counted first so that it ranks -1
+        present = np.bincount(bodies + 1, minlength=1) > 0
+        present[0] = True
+        index_of = np.cumsum(present) - 2
         return LaserScan(
             tm=tm,
             angle_min=lidar.angle_min,
@@ -97,8 +105,8 @@ class Lidar:
             range_min=lidar.range_min,
             range_max=lidar.range_max,
             ranges=readings,
-            bodies=[names.get(body, f"body {body}") for body in seen],
-            hits=[index_of[body] for body in bodies],
+            bodies=[names.get(body, f"body {body}") for body in np.flatnonzero(present[1:]).tolist()],
+            hits=index_of[bodies + 1].tolist(),
         )
 
 
