@@ -12,11 +12,12 @@ map counts as free: the planner may plan through the unknown (and the lidar sees
 
 A scan (:meth:`Costmap.mark_scan`) is traced in one vectorised pass: every ray's cells are the cells
 its segment crosses (exact grid traversal, a cell touched at a corner counted), cleared first for all
-the rays, then every return within ``obstacle_range`` marked. The inflation is recomputed lazily, when
-:attr:`Costmap.costs` is read after a change, and only over the window the change can reach
-(the changed cells' bounding box grown by the inflation radius, its distances taken from a window
-grown by the radius again): a scan changes cells within ``raytrace_range`` of the lidar, not the
-whole grid.
+the rays, then every return within ``obstacle_range`` marked; a scan that repeats the last one from
+the same pose (a robot at rest, a lidar without noise) would change nothing and is not traced again.
+The inflation is recomputed lazily, when :attr:`Costmap.costs` is read after a change, and only over
+the windows the change can reach (the bounding box of each cluster of changed cells grown by the
+inflation radius, its distances taken from a window grown by the radius again): a scan changes cells
+within ``raytrace_range`` of the lidar, mostly on a few walls, not the whole grid.
 """
 
 from __future__ import annotations
@@ -58,6 +59,8 @@ Costs = npt.NDArray[np.uint8]
 Floats = npt.NDArray[np.float64]
 Indices = npt.NDArray[np.intp]
 Bools = npt.NDArray[np.bool_]
+Box = tuple[int, int, int, int]
+"""Rows [r0, r1) and columns [c0, c1) of the grid."""
 
 
 def _occupancy_table() -> npt.NDArray[np.int8]:
@@ -81,18 +84,18 @@ def _axis_crossings(
     """The crossings of the grid lines normal to one axis: ``(segment, entered, across)``, the cell
     index entered along that axis and the one across it (both, near a corner)."""
     count = np.abs(last - first)
-    most = int(count.max(initial=0))
-    if most == 0:
+    total = int(count.sum())
+    if total == 0:
         empty = np.zeros(0, dtype=np.intp)
         return empty, empty, empty
-    which, step = np.nonzero(np.arange(1, most + 1)[None, :] <= count[:, None])
-    step += 1
-    forward = delta_along[which] > 0.0
-    base = first[which]
-    entered = np.where(forward, base + step, base - step)
-    line = np.where(forward, entered, entered + 1).astype(np.float64)
-    t = (line - along[which]) / delta_along[which]
-    at = across[which] + t * delta_across[which]
+    # each segment's values repeated once per crossing (sequential copies, cheaper than gathers)
+    which = np.repeat(np.arange(count.size), count)
+    backward = delta_along < 0.0
+    step = np.arange(1, total + 1) - np.repeat(np.cumsum(count) - count, count)  # 1, 2, ... along each segment
+    entered = np.repeat(first, count) + step * np.repeat(np.where(backward, -1, 1), count)
+    line = (entered + np.repeat(backward, count)).astype(np.float64)  # backward: the line above the cell entered
+    t = (line - np.repeat(along, count)) / np.repeat(delta_along, count)
+    at = np.repeat(across, count) + t * np.repeat(delta_across, count)
     low = np.floor(at - CORNER_TOLERANCE).astype(np.intp)
     high = np.floor(at + CORNER_TOLERANCE).astype(np.intp)
     corner = low != high
@@ -157,14 +160,18 @@ class Costmap:
         self._costs = np.zeros(shape, dtype=np.uint8)
         self._reach = math.ceil(max(settings.inflation_radius, self.inscribed_radius) / geometry.resolution) + 1
         """Cells beyond which an obstacle changes no cost."""
-        self._dirty: tuple[int, int, int, int] | None = (0, shape[0], 0, shape[1])
-        """The rows [r0, r1) and columns [c0, c1) whose obstacles changed since the last inflation."""
+        self._dirty: list[Box] = [(0, shape[0], 0, shape[1])]
+        """Boxes of rows [r0, r1) and columns [c0, c1) whose obstacles changed since the last inflation."""
+        self._last_scan: tuple[tuple[float, ...], list[float | None], dict[str, int]] | None = None
+        """The last scan traced (its pose and limits, its ranges) and what it counted, while tracing it
+        again would change nothing."""
         self._counters = {
             "scans": 0,
             "rays": 0,
             "rays_clipped": 0,
             "rays_below_range_min": 0,
             "scans_changing": 0,
+            "scans_repeated": 0,
             "clears": 0,
             "inflations": 0,
             "inflated_cells": 0,
@@ -187,10 +194,17 @@ class Costmap:
                 f"the lidar's pose ({lidar_x!r}, {lidar_y!r}, {lidar_yaw!r}) is not on the costmap "
                 f"(extent {describe_extent(geometry)})"
             )
+        repeat = (lidar_x, lidar_y, lidar_yaw, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max)
+        if self._last_scan is not None and self._last_scan[0] == repeat and self._last_scan[1] == scan.ranges:
+            # tracing a scan is idempotent: the same rays again clear and mark the same cells to the same end
+            for name, value in self._last_scan[2].items():
+                self._counters[name] += value
+            self._counters["scans_repeated"] += 1
+            return
         settings = self.settings
         resolution = geometry.resolution
         count = len(scan.ranges)
-        ranges = np.array([math.nan if value is None else value for value in scan.ranges], dtype=np.float64)
+        ranges = np.array(scan.ranges, dtype=np.float64)  # None (no return) reads as NaN
         no_return = np.isnan(ranges) | (ranges > scan.range_max)
         below = ~no_return & (ranges < scan.range_min)
         used = ~below
@@ -227,7 +241,8 @@ class Costmap:
 
         obstacles = self._obstacles.reshape(-1)
         seen = self._seen.reshape(-1)
-        touched = np.concatenate((cleared, marked))
+        # what may change: the obstacles on the cleared cells (few), and the marked cells
+        touched = np.concatenate((cleared[obstacles[cleared]], marked))
         before = obstacles[touched]
         obstacles[cleared] = False
         obstacles[marked] = True
@@ -235,34 +250,44 @@ class Costmap:
         changed = changed[~self._static.reshape(-1)[changed]]  # under a static obstacle: the costs stay
         seen[cleared] = True
         seen[marked] = True
-        self._counters["scans"] += 1
-        self._counters["rays"] += count
-        self._counters["rays_below_range_min"] += int(below.sum())
-        self._counters["rays_clipped"] += int(clipped.sum())
+        counted = {
+            "scans": 1,
+            "rays": count,
+            "rays_below_range_min": int(np.count_nonzero(below)),
+            "rays_clipped": int(np.count_nonzero(clipped)),
+        }
+        for name, value in counted.items():
+            self._counters[name] += value
+        self._last_scan = (repeat, list(scan.ranges), counted)
         if changed.size:
             self._counters["scans_changing"] += 1
             rows_changed, cols_changed = np.divmod(changed, geometry.width)
-            self._touch(
-                int(rows_changed.min()),
-                int(rows_changed.max()) + 1,
-                int(cols_changed.min()),
-                int(cols_changed.max()) + 1,
-            )
+            for box in _clusters(rows_changed, cols_changed, 2 * self._reach):
+                self._touch(box)
 
     def clear_obstacles(self) -> None:
         """Forget the obstacle layer (a recovery); the static layer stays."""
         self._counters["clears"] += 1
+        self._last_scan = None  # the same scan again would mark anew
         forgotten = self._obstacles & ~self._static
         self._obstacles[:] = False
         if forgotten.any():
             rows, cols = np.nonzero(forgotten)
-            self._touch(int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)
+            self._touch((int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1))
 
-    def _touch(self, r0: int, r1: int, c0: int, c1: int) -> None:
-        if self._dirty is not None:
-            d0, d1, e0, e1 = self._dirty
-            r0, r1, c0, c1 = min(r0, d0), max(r1, d1), min(c0, e0), max(c1, e1)
-        self._dirty = (r0, r1, c0, c1)
+    def _touch(self, box: Box) -> None:
+        """Add a box of changed cells to those waiting for the inflation, merged with any whose reach it
+        shares (one window rather than two overlapping ones)."""
+        r0, r1, c0, c1 = box
+        near = 2 * self._reach
+        apart = []
+        for d0, d1, e0, e1 in self._dirty:
+            if d0 - near < r1 and r0 < d1 + near and e0 - near < c1 and c0 < e1 + near:
+                r0, r1, c0, c1 = min(r0, d0), max(r1, d1), min(c0, e0), max(c1, e1)
+            else:
+                apart.append((d0, d1, e0, e1))
+        apart.append((r0, r1, c0, c1))
+        self._dirty = apart
 
     # -- costs -------------------------------------------------------------------------------
 
@@ -271,9 +296,9 @@ class Costmap:
         """The costs ``[row, col]`` (read-only): :data:`LETHAL` at obstacles (static or seen),
         :data:`INSCRIBED` within the inscribed radius of one, the decaying inflation out to
         ``inflation_radius``, :data:`FREE` beyond; unknown cells count as free."""
-        if self._dirty is not None:
-            self._inflate(*self._dirty)
-            self._dirty = None
+        for box in self._dirty:
+            self._inflate(*box)
+        self._dirty = []
         view = self._costs.view()
         view.flags.writeable = False
         return view
@@ -361,8 +386,8 @@ class Costmap:
 
     def status(self) -> dict[str, Any]:
         """Counters: scans traced, rays, rays clipped at the grid's edge, rays below ``range_min``,
-        scans that changed an obstacle, clears, inflations and the cells they recomputed; the cells
-        of each layer now."""
+        scans that changed an obstacle, scans that repeated the last one from the same pose (not traced
+        again), clears, inflations and the cells they recomputed; the cells of each layer now."""
         return {
             **self._counters,
             "obstacle_cells": int(np.count_nonzero(self._obstacles)),
@@ -370,6 +395,27 @@ class Costmap:
             "known_cells": int(np.count_nonzero(self.known())),
             "cells": self.geometry.width * self.geometry.height,
         }
+
+
+def _clusters(rows: Indices, cols: Indices, gap: int) -> list[Box]:
+    """The bounding boxes of groups of cells (``rows``, ``cols``), split where more than ``gap`` rows,
+    then within a band more than ``gap`` columns, lie between them: a scan's changes on walls on either
+    side of the robot are inflated in two small windows rather than one spanning both."""
+    boxes = []
+    by_row = np.argsort(rows, kind="stable")
+    rows, cols = rows[by_row], cols[by_row]
+    row_breaks = np.flatnonzero(np.diff(rows) > gap) + 1
+    for band_rows, band_cols in zip(np.split(rows, row_breaks), np.split(cols, row_breaks), strict=True):
+        by_col = np.argsort(band_cols, kind="stable")
+        band_rows, band_cols = band_rows[by_col], band_cols[by_col]
+        col_breaks = np.flatnonzero(np.diff(band_cols) > gap) + 1
+        for group_rows, group_cols in zip(
+            np.split(band_rows, col_breaks), np.split(band_cols, col_breaks), strict=True
+        ):
+            boxes.append(
+                (int(group_rows.min()), int(group_rows.max()) + 1, int(group_cols[0]), int(group_cols[-1]) + 1)
+            )
+    return boxes
 
 
 def _exit(start: float, direction: Floats, cells: int) -> Floats:
