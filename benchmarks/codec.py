@@ -22,9 +22,8 @@ from typing import Any
 
 import msgspec
 
-from schemas.codec import decode, encode
+from schemas.codec import MESSAGE_TYPES, decode, encode
 from schemas.messages import (
-    MESSAGE_TYPES,
     NANOSECONDS_PER_SECOND,
     BumpEvent,
     NoArguments,

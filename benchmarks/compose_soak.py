@@ -37,7 +37,8 @@ from benchmarks.compose_stack import KEYS, Stack
 from benchmarks.loop import service_status as status
 from benchmarks.machine import describe
 from benchmarks.soak import SERVICES, slope_per_hour
-from schemas.keys import Method, MethodFamily, Service
+from schemas.keys import Service
+from schemas.topics import Method, MethodFamily
 from services.runtime.session import stop_on_signals
 
 RESULTS = Path(__file__).resolve().parent / "results" / "compose-soak.json"

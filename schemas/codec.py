@@ -10,7 +10,7 @@ from typing import TypeVar
 
 import msgspec
 
-from schemas.messages import MESSAGE_TYPES
+from schemas import messages, navigation
 
 ENCODING = "application/json"
 
@@ -24,6 +24,39 @@ class BadInput(ValueError):
 class BadMessage(BadInput):
     """A payload that does not decode into the expected message type."""
 
+
+MESSAGE_TYPES: tuple[type[msgspec.Struct], ...] = (
+    messages.Time,
+    messages.TimedDoubleSeq,
+    messages.TimedVelocity,
+    messages.TimedPosition,
+    messages.BumpEvent,
+    messages.LaserScan,
+    messages.ImuSample,
+    messages.PDGains,
+    messages.NoArguments,
+    messages.Obstacle,
+    messages.SimWorld,
+    messages.PlannedPath,
+    messages.RunSummary,
+    messages.ServiceRestart,
+    messages.MotorStateReport,
+    messages.ScenarioOutcome,
+    messages.SetOdometry,
+    messages.SetOdometryReply,
+    navigation.GoalRequest,
+    navigation.GoalReply,
+    navigation.CancelRequest,
+    navigation.CancelReply,
+    navigation.GoalTarget,
+    navigation.GoalFeedback,
+    navigation.OccupancyGrid,
+    navigation.GoalPlan,
+    navigation.InitialPose,
+    navigation.LocalizationReply,
+    navigation.ParticleCloud,
+)
+"""Every message type of the contract (schemas/messages.py, schemas/navigation.py): a decoder each, made at import."""
 
 _encoder = msgspec.json.Encoder()
 _decoders: dict[type, msgspec.json.Decoder] = {t: msgspec.json.Decoder(t) for t in MESSAGE_TYPES}

@@ -1,7 +1,8 @@
 """The four message types of docs/protocol.md section 1, mirroring the seeds' IDL field for field, and the
 project's own: the bump event, the Motor methods' payloads, and what a viewer or a report needs
 besides the loop's data (the sim's world, the drive's planned path, the summary of a run), and the
-simulated sensors (the lidar's scan, the IMU's sample).
+simulated sensors (the lidar's scan, the IMU's sample), the motor's state, a scenario's outcome and
+the odometry's ``set_pose``. Goal mode's and the particle filter's are in :mod:`schemas.navigation`.
 
 Every float must be finite: a Struct checks it in ``__post_init__``, which msgspec also runs while decoding, so a NaN or inf can
 neither be built nor received.
@@ -30,7 +31,7 @@ Ids = Annotated[list[int], msgspec.Meta(max_length=MAX_ID_LENGTH)]
 Errors = Annotated[list[float], msgspec.Meta(max_length=MAX_ID_LENGTH)]
 
 
-def _require_finite(*values: float) -> None:
+def require_finite(*values: float) -> None:
     for value in values:
         if not math.isfinite(value):
             raise ValueError(f"non-finite number {value!r}")
@@ -60,7 +61,7 @@ class TimedDoubleSeq(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     data: DoubleSeq
 
     def __post_init__(self) -> None:
-        _require_finite(*self.data)
+        require_finite(*self.data)
 
 
 class TimedVelocity(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -74,7 +75,7 @@ class TimedVelocity(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     error: Errors
 
     def __post_init__(self) -> None:
-        _require_finite(self.vx, self.vy, self.w, *self.error)
+        require_finite(self.vx, self.vy, self.w, *self.error)
 
 
 class TimedPosition(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -88,7 +89,7 @@ class TimedPosition(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     error: Errors
 
     def __post_init__(self) -> None:
-        _require_finite(self.x, self.y, self.theta, *self.error)
+        require_finite(self.x, self.y, self.theta, *self.error)
 
 
 class BumpEvent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -104,7 +105,7 @@ class BumpEvent(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     z: float
 
     def __post_init__(self) -> None:
-        _require_finite(self.x, self.y, self.z)
+        require_finite(self.x, self.y, self.z)
 
 
 MAX_OBSTACLES = 256
@@ -142,7 +143,7 @@ class LaserScan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     hits: Annotated[list[int], msgspec.Meta(max_length=MAX_SCAN_RAYS)] = []
 
     def __post_init__(self) -> None:
-        _require_finite(self.angle_min, self.angle_increment, self.range_min, self.range_max)
+        require_finite(self.angle_min, self.angle_increment, self.range_min, self.range_max)
         if not 0.0 <= self.range_min < self.range_max:
             raise ValueError(f"range limits [{self.range_min!r}, {self.range_max!r}] are not 0 <= min < max")
         for value in self.ranges:
@@ -183,7 +184,7 @@ class ImuSample(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """m/s² along the IMU frame's x, y, z."""
 
     def __post_init__(self) -> None:
-        _require_finite(*self.orientation, *self.angular_velocity, *self.linear_acceleration)
+        require_finite(*self.orientation, *self.angular_velocity, *self.linear_acceleration)
         if self.orientation_source != "none":
             norm = math.sqrt(sum(value * value for value in self.orientation))
             if abs(norm - 1.0) > 1e-3:
@@ -203,7 +204,7 @@ class Obstacle(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     size: tuple[float, float, float]
 
     def __post_init__(self) -> None:
-        _require_finite(self.x, self.y, self.yaw, *self.size)
+        require_finite(self.x, self.y, self.yaw, *self.size)
 
 
 class SimWorld(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -222,57 +223,7 @@ class PlannedPath(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     points: Annotated[list[tuple[float, float]], msgspec.Meta(max_length=MAX_PATH_POINTS)]
 
     def __post_init__(self) -> None:
-        _require_finite(*(value for point in self.points for value in point))
-
-
-MAX_GRID_CELLS = 4_194_304
-"""The most cells an ``OccupancyGrid`` carries (2048 x 2048: 102 m square at 5 cm)."""
-OCCUPANCY_UNKNOWN = -1
-"""``OccupancyGrid.data``: a cell nobody has seen (stored as the byte 255)."""
-_OCCUPANCY_BYTES = bytes(range(101)) + bytes([255])
-
-
-class OccupancyGrid(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """``drive/map`` and ``drive/costmap``: a grid of cells over the ``map`` frame (project extension;
-    nav_msgs/OccupancyGrid's fields). Cell (col, row) covers [origin_x + col·resolution, + resolution)
-    × [origin_y + row·resolution, + resolution); ``data`` is row-major from row 0 (the lowest y), one
-    signed byte a cell: 0 (free) to 100 (occupied, or a costmap's lethal cost), -1 unknown (the byte
-    255). JSON carries the bytes as base64."""
-
-    tm: Time
-    resolution: PositiveFloat
-    """Metres per cell side."""
-    width: Annotated[int, msgspec.Meta(ge=1)]
-    """Cells along x."""
-    height: Annotated[int, msgspec.Meta(ge=1)]
-    """Cells along y."""
-    origin_x: float
-    """The map-frame x of cell (0, 0)'s lower-left corner, m."""
-    origin_y: float
-    data: bytes
-
-    def __post_init__(self) -> None:
-        _require_finite(self.resolution, self.origin_x, self.origin_y)
-        cells = self.width * self.height
-        if cells > MAX_GRID_CELLS:
-            raise ValueError(f"{self.width} x {self.height} cells: more than {MAX_GRID_CELLS}")
-        if len(self.data) != cells:
-            raise ValueError(f"{len(self.data)} bytes of data for {self.width} x {self.height} cells")
-        if self.data.translate(None, _OCCUPANCY_BYTES):
-            raise ValueError("a cell is neither -1 (unknown) nor 0 to 100")
-
-
-class GoalPlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """``drive/plan``: the path the drive's planner has for the running goal, from the robot to the
-    goal, (x, y) in m in ``map`` (project extension; nav_msgs/Path's poses), latched; published at
-    each plan and, empty, when the goal ends."""
-
-    tm: Time
-    goal_id: GoalId
-    points: Annotated[list[tuple[float, float]], msgspec.Meta(max_length=MAX_PATH_POINTS)]
-
-    def __post_init__(self) -> None:
-        _require_finite(*(value for point in self.points for value in point))
+        require_finite(*(value for point in self.points for value in point))
 
 
 class ServiceRestart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -353,115 +304,12 @@ class ScenarioOutcome(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """The goal that ended (``drive/goal``'s ``id``), in goal mode; ``""`` for a scenario."""
 
     def __post_init__(self) -> None:
-        _require_finite(self.elapsed_s)
+        require_finite(self.elapsed_s)
 
 
 MAX_GOAL_ID_LENGTH = 64
 GoalId = Annotated[str, msgspec.Meta(max_length=MAX_GOAL_ID_LENGTH, pattern=r"\A[A-Za-z0-9_.\-]*\Z")]
 """A goal's id: letters, digits, ``_``, ``.``, ``-``; at most 64 (a ROS goal's UUID is 32 hex digits)."""
-PositiveFloat = Annotated[float, msgspec.Meta(gt=0.0)]
-GoalFrame = Literal["map", "odom"]
-"""The frame of a goal's pose (docs/protocol.md section 7.3): ``map`` is the world frame of
-``odometry/pose`` and the simulator; ``odom`` is the frame in which the robot started at the origin
-facing +x (the configured initial pose is ``odom``'s origin in ``map``)."""
-
-
-MAX_GOAL_SECONDS = 1e9
-"""The most simulated seconds a goal's ``time_limit`` (and a goal file's ``at``, a scenario file's
-time limit and durations) may say, about 32 years: its nanoseconds stay within int64 and its
-seconds within a ROS Duration's int32, where ``1e308`` s overflowed the drive's conversion to nanoseconds."""
-
-
-class GoalRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """Payload of ``drive/goal/send``: where to go. Omitted fields take the ``[goals]`` defaults."""
-
-    x: float
-    y: float
-    theta: float | None = None
-    """The heading to end at (rad); None: any heading (the goal ends where it arrives)."""
-    frame: str = "map"
-    """:data:`GoalFrame`; another is rejected (a string here so that the reply can name it)."""
-    position_tolerance: float | None = None
-    """m; > 0; None: ``goals.position_tolerance``."""
-    heading_tolerance: float | None = None
-    """rad; > 0; None: ``goals.heading_tolerance``."""
-    time_limit: float | None = None
-    """Simulated seconds the goal may take; > 0, at most :data:`MAX_GOAL_SECONDS`; None: the drive's
-    rule (as for a scenario)."""
-    id: GoalId = ""
-    """The caller's id for the goal (a ROS goal's UUID); ``""``: the drive makes one."""
-
-
-class GoalReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Reply of ``drive/goal/send``: accepted (with its id), or rejected and why."""
-
-    accepted: bool
-    id: str
-    """The goal's id when accepted (the caller's, or the drive's ``g<n>``); ``""`` when rejected."""
-    reason: str = ""
-    """Why the goal was rejected; ``""`` when accepted."""
-
-
-class CancelRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Payload of ``drive/goal/cancel``: the goal to cancel; ``""`` (or an empty payload): whatever runs."""
-
-    id: GoalId = ""
-
-
-class CancelReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Reply of ``drive/goal/cancel``: the goals now canceling (none, or the one that ran), or why none."""
-
-    canceling: list[str]
-    reason: str = ""
-    """Why nothing is canceling (no goal runs, an unknown id, the goal already ended); ``""`` otherwise."""
-
-
-class GoalTarget(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """``drive/goal``: the goal the drive has started, in ``map`` (latched; project extension)."""
-
-    tm: Time
-    """The tick at which the goal started."""
-    id: GoalId
-    x: float
-    y: float
-    theta: float | None
-    frame: str
-    """The frame the goal was given in (its pose here is already in ``map``)."""
-    position_tolerance: PositiveFloat
-    heading_tolerance: PositiveFloat
-    time_limit_s: PositiveFloat | None
-
-    def __post_init__(self) -> None:
-        _require_finite(self.x, self.y, self.position_tolerance, self.heading_tolerance)
-        for value in (self.theta, self.time_limit_s):
-            if value is not None:
-                _require_finite(value)
-
-
-GoalStateName = Literal["executing", "canceling"]
-
-
-class GoalFeedback(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """``drive/goal/feedback``: a running goal's progress, at ``goals.feedback_rate`` per simulated second."""
-
-    tm: Time
-    id: GoalId
-    state: GoalStateName
-    x: float
-    y: float
-    theta: float
-    """The robot's pose (``odometry/pose``, in ``map``)."""
-    distance_remaining: float
-    """m along the plan while the goal navigates, else straight to the goal's position."""
-    elapsed_s: float
-    """Simulated seconds since the goal started."""
-    estimated_remaining_s: float
-    """Simulated seconds still needed by the drive's plan (turn, drive, turn) from here."""
-    recoveries: Annotated[int, msgspec.Meta(ge=0)] = 0
-    """Recoveries the goal's navigation has tried so far (NavigateToPose's ``number_of_recoveries``)."""
-
-    def __post_init__(self) -> None:
-        _require_finite(self.x, self.y, self.theta, self.distance_remaining, self.elapsed_s, self.estimated_remaining_s)
 
 
 NonNegativeGain = Annotated[float, msgspec.Meta(ge=0.0)]
@@ -476,45 +324,11 @@ class PDGains(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     d_gain_r: NonNegativeGain
 
     def __post_init__(self) -> None:
-        _require_finite(self.p_gain_l, self.p_gain_r, self.d_gain_l, self.d_gain_r)
+        require_finite(self.p_gain_l, self.p_gain_r, self.d_gain_l, self.d_gain_r)
 
 
 class NoArguments(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Payload of the argument-less Motor methods: ``{}`` (an empty payload is accepted too)."""
-
-
-MAX_PARTICLES = 20_000
-"""The most particles a ``localization/particles`` message carries (``amcl.max_particles`` is at most this)."""
-COVARIANCE_LENGTH = 6
-"""A planar pose's covariance as sent: the upper triangle of the 3 × 3 matrix over (x, y, θ), row by
-row: xx, xy, xθ, yy, yθ, θθ (m², m², m·rad, m², m·rad, rad²)."""
-Covariance = Annotated[list[float], msgspec.Meta(max_length=COVARIANCE_LENGTH)]
-
-
-class InitialPose(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """Payload of ``localization/initial_pose``: where the robot is, about (RViz's "2D Pose Estimate",
-    ROS's ``/initialpose``). The filter is seeded again around it, whenever it comes."""
-
-    x: float
-    y: float
-    theta: float
-    covariance: Covariance = msgspec.field(default_factory=list)
-    """:data:`COVARIANCE_LENGTH` values (xx, xy, xθ, yy, yθ, θθ), or none: ``amcl.initial_sigma_xy``
-    and ``amcl.initial_sigma_theta``."""
-
-    def __post_init__(self) -> None:
-        _require_finite(self.x, self.y, self.theta, *self.covariance)
-        if self.covariance and len(self.covariance) != COVARIANCE_LENGTH:
-            raise ValueError(f"covariance has {len(self.covariance)} values, not {COVARIANCE_LENGTH} (or none)")
-
-
-class LocalizationReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Reply of ``localization/initial_pose`` and ``localization/global_localization``: taken, or
-    refused and why."""
-
-    accepted: bool
-    reason: str = ""
-    """Why it was refused; ``""`` when accepted."""
 
 
 class SetOdometry(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -530,7 +344,7 @@ class SetOdometry(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_on
     sample integrated."""
 
     def __post_init__(self) -> None:
-        _require_finite(self.x, self.y, self.theta)
+        require_finite(self.x, self.y, self.theta)
 
 
 class SetOdometryReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -542,55 +356,3 @@ class SetOdometryReply(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     tm: Time | None = None
     """The stamp it applies at; None when refused, or taken before any wheel-angle sample (then
     the pose the first sample starts from)."""
-
-
-ParticleValues = Annotated[list[float], msgspec.Meta(max_length=MAX_PARTICLES)]
-
-
-class ParticleCloud(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """``localization/particles``: the filter's particles in the ``map`` frame (project extension;
-    nav2_amcl's ``/particle_cloud``), one entry per particle in each list; the weights sum to 1."""
-
-    tm: Time
-    x: ParticleValues
-    y: ParticleValues
-    theta: ParticleValues
-    weight: ParticleValues
-
-    def __post_init__(self) -> None:
-        _require_finite(*self.x, *self.y, *self.theta, *self.weight)
-        if not len(self.x) == len(self.y) == len(self.theta) == len(self.weight):
-            raise ValueError("x, y, theta and weight must have one entry per particle")
-
-
-MESSAGE_TYPES: tuple[type[msgspec.Struct], ...] = (
-    Time,
-    TimedDoubleSeq,
-    TimedVelocity,
-    TimedPosition,
-    BumpEvent,
-    LaserScan,
-    ImuSample,
-    PDGains,
-    NoArguments,
-    Obstacle,
-    SimWorld,
-    PlannedPath,
-    RunSummary,
-    ServiceRestart,
-    MotorStateReport,
-    ScenarioOutcome,
-    GoalRequest,
-    GoalReply,
-    CancelRequest,
-    CancelReply,
-    GoalTarget,
-    GoalFeedback,
-    OccupancyGrid,
-    GoalPlan,
-    InitialPose,
-    LocalizationReply,
-    ParticleCloud,
-    SetOdometry,
-    SetOdometryReply,
-)

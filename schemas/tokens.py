@@ -7,17 +7,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from schemas.keys import (
-    ALIVE,
-    OBSERVES,
-    ROOT,
-    TICKS,
-    Service,
-    ServiceName,
-    Topic,
-    own_suffix_error,
-    service_name,
-)
+from schemas.keys import ALIVE, OBSERVES, ROOT, TICKS, Service, ServiceName, own_suffix_error, service_name
+from schemas.topics import Topic
 
 
 def _service_chunk(chunk: str) -> ServiceName | None:

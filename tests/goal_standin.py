@@ -16,7 +16,8 @@ import zenoh
 
 from schemas.codec import ENCODING, decode, encode
 from schemas.keys import Keys, Service
-from schemas.messages import CancelReply, CancelRequest, GoalReply, GoalRequest, ScenarioOutcome
+from schemas.messages import ScenarioOutcome
+from schemas.navigation import CancelReply, CancelRequest, GoalReply, GoalRequest
 from tests.harness import wait_until
 
 GOAL_REFUSED = encode(GoalReply(accepted=False, id="", reason="a test"))

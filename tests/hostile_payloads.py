@@ -12,7 +12,8 @@ from typing import Any
 
 from hypothesis import strategies as st
 
-from schemas.messages import MAX_GOAL_ID_LENGTH, MAX_GOAL_SECONDS, MAX_SCAN_RAYS
+from schemas.messages import MAX_GOAL_ID_LENGTH, MAX_SCAN_RAYS
+from schemas.navigation import MAX_GOAL_SECONDS
 from services.config import InputConfig
 from tests import ros_client
 from tests.test_fuzz import malformed

@@ -7,8 +7,9 @@ from __future__ import annotations
 import math
 
 from schemas.codec import encode
-from schemas.keys import Keys, Method, MethodFamily, Service
+from schemas.keys import Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedVelocity
+from schemas.topics import Method, MethodFamily
 from services.config import SimMode
 from services.exits import ExitStatus
 from services.launch.plan import UpPlan

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from schemas.messages import MAX_GOAL_SECONDS
+from schemas.navigation import MAX_GOAL_SECONDS
 from services.config import ConfigError, DriveConfig
 from services.drive.outcome import EXIT_CODES, OUTCOME_OF_EXIT_CODE, GiveUpRule, Outcome, time_limit
 from services.drive.path_following import STOPPED

@@ -18,7 +18,8 @@ from typing import Any
 import pytest
 import zenoh
 
-from schemas.keys import Keys, Method, MethodFamily, Service
+from schemas.keys import Keys, Service
+from schemas.topics import Method, MethodFamily
 from services.security import Role
 from tests.harness import REPO, call, free_port, peer_session, start_up, wait_until
 from tests.test_extension_up import Output

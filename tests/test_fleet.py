@@ -24,7 +24,8 @@ from pathlib import Path
 
 import pytest
 
-from schemas.keys import Keys, Topic
+from schemas.keys import Keys
+from schemas.topics import Topic
 from services.config import RobotConfig
 from services.drive.outcome import Outcome
 from services.recording.mcap_files import read_messages

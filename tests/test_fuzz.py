@@ -29,8 +29,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from schemas.codec import encode
-from schemas.keys import Keys, Method, MethodFamily, Service
+from schemas.keys import Keys, Service
 from schemas.messages import MAX_ID_LENGTH, MAX_SEQUENCE_LENGTH, Time, TimedVelocity
+from schemas.topics import Method, MethodFamily
 from services.config import InputConfig, MotorConfig
 from tests.harness import InventProcess, peer_session, running_router, wait_alive, wait_until
 

@@ -19,8 +19,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput, decode, encode
-from schemas.keys import Keys, Topic
-from schemas.messages import GoalFeedback, GoalTarget, ScenarioOutcome, Time, TimedDoubleSeq, TimedPosition
+from schemas.keys import Keys
+from schemas.messages import ScenarioOutcome, Time, TimedDoubleSeq, TimedPosition
+from schemas.navigation import GoalFeedback, GoalTarget
+from schemas.topics import Topic
 from services.config import Config, load_config
 from services.recording.goal_scene import ENDED_GOALS, OUTCOME_COLORS, RUNNING
 from services.recording.record import SceneBuilder, Sink

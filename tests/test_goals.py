@@ -9,10 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from schemas.messages import MAX_GOAL_SECONDS, CancelRequest, GoalRequest
+from schemas.navigation import MAX_GOAL_SECONDS, CancelRequest, GoalRequest
 from services.config import ConfigError, DriveConfig, GoalsConfig, InputConfig, NavigationConfig
+from services.drive.goal_approach import Phase
 from services.drive.goal_file import GoalSchedule, parse_goal_file
-from services.drive.goals import MAX_ATTEMPTS, MAX_WAITING, Goals, Phase, Tick, odom_to_map
+from services.drive.goals import MAX_ATTEMPTS, MAX_WAITING, Goals, Tick, odom_to_map
 from services.drive.outcome import GiveUpRule, Outcome
 from services.drive.path_following import STOPPED
 from services.drive.scenarios import goal_duration

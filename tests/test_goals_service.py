@@ -13,15 +13,8 @@ import zenoh
 
 from schemas.codec import encode
 from schemas.keys import Keys, Service
-from schemas.messages import (
-    GoalFeedback,
-    GoalTarget,
-    LaserScan,
-    MotorStateReport,
-    ScenarioOutcome,
-    Time,
-    TimedVelocity,
-)
+from schemas.messages import LaserScan, MotorStateReport, ScenarioOutcome, Time, TimedVelocity
+from schemas.navigation import GoalFeedback, GoalTarget
 from services.clock.lockstep import encode_mark
 from services.config import GoalsConfig
 from services.exits import ExitStatus

@@ -13,7 +13,8 @@ import pytest
 
 from schemas.codec import encode
 from schemas.keys import Keys
-from schemas.messages import GoalFeedback, GoalReply, GoalRequest, GoalTarget, ScenarioOutcome, Time
+from schemas.messages import ScenarioOutcome, Time
+from schemas.navigation import GoalFeedback, GoalReply, GoalRequest, GoalTarget
 from services.exits import ExitStatus
 from tests.goal_standin import StandInDrive
 from tests.harness import InventProcess, peer_session, refused, run_invent, running_router, wait_until

@@ -11,7 +11,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import decode, encode
-from schemas.messages import CancelReply, GoalFeedback, GoalReply, GoalRequest, GoalTarget, ScenarioOutcome, Time
+from schemas.messages import ScenarioOutcome, Time
+from schemas.navigation import CancelReply, GoalFeedback, GoalReply, GoalRequest, GoalTarget
 from services.drive.outcome import EXIT_CODES, Outcome
 from services.exits import ExitStatus
 from services.goto.core import (

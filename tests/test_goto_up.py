@@ -27,8 +27,9 @@ import pytest
 import zenoh
 
 from schemas.codec import decode
-from schemas.keys import Keys, Service, Topic
+from schemas.keys import Keys, Service
 from schemas.messages import TimedDoubleSeq
+from schemas.topics import Topic
 from services.config import DriveConfig, GoalsConfig
 from services.exits import ExitStatus
 from services.planar import Pose, wrap_angle

@@ -21,8 +21,9 @@ import pytest
 import zenoh
 
 from schemas.codec import encode
-from schemas.keys import CONTROL, LOOP_SERVICES, Keys, Method, MethodFamily, Service
+from schemas.keys import CONTROL, LOOP_SERVICES, Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition, TimedVelocity
+from schemas.topics import Method, MethodFamily
 from services.config import DriveConfig, LocalizationConfig
 from tests.harness import call, free_port, peer_session, start_up, wait_until
 

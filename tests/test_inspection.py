@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from schemas.keys import Keys, Method, MethodFamily, Service
+from schemas.keys import Keys, Service
+from schemas.topics import Method, MethodFamily
 from tests.harness import InventProcess, call, free_port, peer_session, wait_alive, wait_until
 
 pytestmark = pytest.mark.slow

@@ -15,15 +15,8 @@ import zenoh
 
 from schemas.codec import encode
 from schemas.keys import Keys, Service
-from schemas.messages import (
-    InitialPose,
-    LaserScan,
-    LocalizationReply,
-    ParticleCloud,
-    Time,
-    TimedDoubleSeq,
-    TimedPosition,
-)
+from schemas.messages import LaserScan, Time, TimedDoubleSeq, TimedPosition
+from schemas.navigation import InitialPose, LocalizationReply, ParticleCloud
 from services.config import LidarConfig
 from services.config.amcl import AmclConfig
 from services.navigation.grid import FREE, OCCUPIED, Grid, GridGeometry

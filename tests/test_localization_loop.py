@@ -34,14 +34,8 @@ import pytest
 
 from schemas.codec import decode
 from schemas.keys import Keys, Service
-from schemas.messages import (
-    NANOSECONDS_PER_SECOND,
-    InitialPose,
-    LocalizationReply,
-    OccupancyGrid,
-    TimedDoubleSeq,
-    TimedPosition,
-)
+from schemas.messages import NANOSECONDS_PER_SECOND, TimedDoubleSeq, TimedPosition
+from schemas.navigation import InitialPose, LocalizationReply, OccupancyGrid
 from services.navigation.grid import OCCUPIED, Grid
 from services.navigation.map_file import read_map
 from services.planar import Pose, wrap_angle

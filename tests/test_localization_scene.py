@@ -16,8 +16,10 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from schemas.codec import BadInput, encode
-from schemas.keys import Keys, Topic
-from schemas.messages import ParticleCloud, Time, TimedPosition
+from schemas.keys import Keys
+from schemas.messages import Time, TimedPosition
+from schemas.navigation import ParticleCloud
+from schemas.topics import Topic
 from services.config import Config, load_config
 from services.recording.localization_scene import (
     COVARIANCE_TOPIC,

@@ -13,7 +13,8 @@ import zenoh
 
 from schemas.codec import decode, encode
 from schemas.keys import Keys, Service
-from schemas.messages import InitialPose, LocalizationReply, NoArguments
+from schemas.messages import NoArguments
+from schemas.navigation import InitialPose, LocalizationReply
 from services.cli.localize import covariance
 from services.exits import ExitStatus
 from tests.harness import peer_session, refused, run_invent, running_router, wait_until

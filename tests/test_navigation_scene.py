@@ -27,8 +27,10 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 
 from schemas.codec import BadInput, decode, encode
-from schemas.keys import Keys, Service, Topic
-from schemas.messages import MAX_PATH_POINTS, GoalPlan, OccupancyGrid, PlannedPath, Time, TimedDoubleSeq
+from schemas.keys import Keys, Service
+from schemas.messages import MAX_PATH_POINTS, PlannedPath, Time, TimedDoubleSeq
+from schemas.navigation import GoalPlan, OccupancyGrid
+from schemas.topics import Topic
 from services.config import Config, load_config
 from services.navigation.grid import GridGeometry
 from services.recording.navigation_scene import (

@@ -18,8 +18,9 @@ import pytest
 import zenoh
 
 from schemas.codec import encode
-from schemas.keys import Keys, Service, Topic
+from schemas.keys import Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+from schemas.topics import Topic
 from services.clock.lockstep import encode_mark
 from services.config import load_config
 from services.odometry.core import Branch, Odometry, Step

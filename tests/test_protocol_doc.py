@@ -15,8 +15,9 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from schemas.keys import METHOD_ARGUMENTS, TOPIC_TYPES, Keys, Method, MethodFamily, Service, Topic
-from schemas.messages import MESSAGE_TYPES
+from schemas.codec import MESSAGE_TYPES
+from schemas.keys import Keys, Service
+from schemas.topics import METHOD_ARGUMENTS, TOPIC_TYPES, Method, MethodFamily, Topic
 from services.clock.lockstep import OUTPUTS
 
 ROOT = Path(__file__).resolve().parent.parent

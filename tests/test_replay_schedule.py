@@ -2,7 +2,8 @@
 
 import pytest
 
-from schemas.keys import Keys, Service, Topic
+from schemas.keys import Keys, Service
+from schemas.topics import Topic
 from services.config import ConfigError
 from services.recording.mcap_files import RecordedMessage, replay_schedule
 from services.recording.replay import parse_topics

@@ -9,8 +9,9 @@ import signal
 import pytest
 
 from schemas.codec import encode
-from schemas.keys import Keys, Method, MethodFamily, Service
+from schemas.keys import Keys, Service
 from schemas.messages import PDGains, Time, TimedDoubleSeq, TimedPosition
+from schemas.topics import Method, MethodFamily
 from tests.harness import Collector, InventProcess, call, wait_alive, wait_until
 from tests.sim_presence import SimPresence
 

@@ -28,7 +28,8 @@ import zenoh
 
 from schemas.codec import BadInput, decode, encode
 from schemas.keys import Keys, Service
-from schemas.messages import InitialPose, LocalizationReply, ParticleCloud, Time, TimedDoubleSeq, TimedPosition
+from schemas.messages import Time, TimedDoubleSeq, TimedPosition
+from schemas.navigation import InitialPose, LocalizationReply, ParticleCloud
 from services.config import load_config
 from services.planar import Pose
 from services.ros2 import graph, interfaces, navigate, wire

@@ -25,7 +25,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
-from schemas.messages import GoalFeedback, Time
+from schemas.messages import Time
+from schemas.navigation import GoalFeedback
 from services.config import load_config
 from services.planar import Pose
 from services.ros2 import core, goal_book, graph, interfaces, navigate

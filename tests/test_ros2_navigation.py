@@ -35,7 +35,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from schemas.codec import BadInput, decode, encode
 from schemas.keys import Keys, Service
-from schemas.messages import GoalPlan, OccupancyGrid, Time, TimedDoubleSeq
+from schemas.messages import Time, TimedDoubleSeq
+from schemas.navigation import GoalPlan, OccupancyGrid
 from services.config import load_config
 from services.recording.rosbag import write_bag_from_journals
 from services.ros2 import core, graph, interfaces, wire

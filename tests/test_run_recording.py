@@ -12,8 +12,9 @@ from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan as FoxgloveLaserScan
 
 from schemas.codec import decode, encode
-from schemas.keys import TOPIC_TYPES, Keys, Service, Topic
+from schemas.keys import Keys, Service
 from schemas.messages import ImuSample, LaserScan, Time, TimedDoubleSeq, TimedPosition
+from schemas.topics import TOPIC_TYPES, Topic
 from services.config import RecordConfig, load_config
 from services.recording.mcap_files import (
     RECORDING_STOPPED_TOPIC,

@@ -12,8 +12,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput, encode
-from schemas.keys import Keys, Topic
+from schemas.keys import Keys
 from schemas.messages import Obstacle, PlannedPath, SimWorld, Time, TimedDoubleSeq, TimedPosition, TimedVelocity
+from schemas.topics import Topic
 from services.config import Config, load_config
 from services.recording.record import SceneBuilder, Sink
 from services.recording.scene import (
@@ -29,9 +30,8 @@ from services.recording.scene import (
     WHEEL_SPEEDS_TOPIC,
     WORLD_FRAME,
     Scene,
-    rotation_quaternion,
-    yaw_quaternion,
 )
+from services.recording.scene_shapes import rotation_quaternion, yaw_quaternion
 
 CONFIG = Config()
 ROBOT = CONFIG.robot

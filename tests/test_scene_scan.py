@@ -16,8 +16,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput, encode
-from schemas.keys import Keys, Topic
+from schemas.keys import Keys
 from schemas.messages import MAX_SCAN_RAYS, LaserScan, Time
+from schemas.topics import Topic
 from services.config import Config, LidarConfig, load_config
 from services.recording.record import SceneBuilder, Sink
 from services.recording.scene import LIDAR_FRAME, ROBOT_FRAME, SCAN_TOPIC, TRANSFORMS_TOPIC, Scene

@@ -27,9 +27,9 @@ from schemas import (
     encode,
     schema_for_key,
 )
-from schemas.keys import TOPIC_TYPES
-from schemas.messages import (
-    MESSAGE_TYPES,
+from schemas.codec import MESSAGE_TYPES
+from schemas.messages import ImuSample, LaserScan, MotorStateReport, PlannedPath, RunSummary, ScenarioOutcome, SimWorld
+from schemas.navigation import (
     CancelReply,
     CancelRequest,
     GoalFeedback,
@@ -37,17 +37,11 @@ from schemas.messages import (
     GoalReply,
     GoalRequest,
     GoalTarget,
-    ImuSample,
-    LaserScan,
-    MotorStateReport,
     OccupancyGrid,
     ParticleCloud,
-    PlannedPath,
-    RunSummary,
-    ScenarioOutcome,
-    SimWorld,
 )
 from schemas.tokens import parse_alive_key
+from schemas.topics import TOPIC_TYPES
 from services.clock.lockstep import decode_mark
 
 finite = st.floats(allow_nan=False, allow_infinity=False)

@@ -18,8 +18,10 @@ import zenoh
 import zenoh.ext
 
 from schemas.codec import encode
-from schemas.keys import LATCHED_TOPICS, LOOP_SERVICES, Keys, Method, MethodFamily, Service, Topic, all_robots_status
-from schemas.messages import GoalReply, GoalRequest, ScenarioOutcome, Time, TimedPosition, TimedVelocity
+from schemas.keys import LOOP_SERVICES, Keys, Service, all_robots_status
+from schemas.messages import ScenarioOutcome, Time, TimedPosition, TimedVelocity
+from schemas.navigation import GoalReply, GoalRequest
+from schemas.topics import LATCHED_TOPICS, Method, MethodFamily, Topic
 from services.exits import ExitStatus
 from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, BridgeGraph
 from services.security import (

@@ -17,16 +17,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from schemas.keys import (
-    LATCHED_TOPICS,
-    Keys,
-    LocalizationMethod,
-    Method,
-    MethodFamily,
-    Service,
-    Topic,
-    all_robots_status,
-)
+from schemas.keys import Keys, Service, all_robots_status
+from schemas.topics import LATCHED_TOPICS, LocalizationMethod, Method, MethodFamily, Topic
 from services.cli.flags import robot_names
 from services.cli.tools import run_secrets
 from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, BridgeGraph

@@ -21,7 +21,7 @@ import zenoh
 
 from schemas.codec import encode
 from schemas.keys import Keys, Service
-from schemas.messages import LocalizationReply
+from schemas.navigation import LocalizationReply
 from services.config.sections import LocalizationMode
 from services.security import Flow, Message, Profile, Role, grants, write_profile
 from tests.harness import call, free_port, run_invent, wait_until

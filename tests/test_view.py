@@ -36,8 +36,9 @@ from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan as FoxgloveLaserSc
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from schemas.codec import decode, encode
-from schemas.keys import Keys, Service, Topic, schema_for_key
+from schemas.keys import Keys, Service, schema_for_key
 from schemas.messages import ImuSample, LaserScan, Time, TimedDoubleSeq
+from schemas.topics import Topic
 from services.config import Config
 from services.exits import ExitStatus
 from services.recording.navigation_scene import COSTMAP_TOPIC, MAP_TOPIC

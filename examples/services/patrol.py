@@ -19,7 +19,8 @@ from typing import Any
 
 import msgspec
 
-from schemas.messages import GoalReply, GoalRequest, ScenarioOutcome
+from schemas.messages import ScenarioOutcome
+from schemas.navigation import GoalReply, GoalRequest
 from services.extension.api import Context, Reply, Time, UserService
 
 CORNERS = ((1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (0.0, 0.0))

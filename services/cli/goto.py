@@ -25,22 +25,14 @@ import zenoh
 
 from schemas.codec import ENCODING, BadMessage, decode, encode
 from schemas.keys import DEFAULT_ROBOT, Keys, Service
-from schemas.messages import (
-    CancelReply,
-    CancelRequest,
-    GoalFeedback,
-    GoalFrame,
-    GoalReply,
-    GoalRequest,
-    GoalTarget,
-    ScenarioOutcome,
-)
+from schemas.messages import ScenarioOutcome
+from schemas.navigation import CancelReply, CancelRequest, GoalFeedback, GoalFrame, GoalReply, GoalRequest, GoalTarget
 from services.cli.flags import finite_number, positive_seconds, robot_name, session_from_args
-from services.cli.tools import no_answer, typed_reply
+from services.cli.tools import ask
 from services.config import GoalsConfig
 from services.exits import ExitStatus
 from services.goto.core import Progress, accepted_line, cancel_line, goal_request, rejected_line
-from services.runtime.session import has_match, open_session, stop_on_signals
+from services.runtime.session import open_session, stop_on_signals
 
 DEFAULT_WAIT_S = 5.0
 """Wall seconds the tool waits for the drive to answer a goal or a cancel (``--wait``)."""
@@ -182,30 +174,7 @@ class Goto:
     def _send(self, request: GoalRequest) -> GoalReply | int:
         """The drive's reply to the goal, or the exit status when there is none (said): nothing
         answered, the reply was not a GoalReply, or Ctrl-C came before the goal was sent."""
-        key = self.keys.drive_goal_send
-        querier = self.session.declare_querier(key, timeout=self.wait_s)
-        try:
-            deadline = time.monotonic() + self.wait_s
-            while not has_match(querier) and time.monotonic() < deadline:
-                if self.stop.is_set():
-                    _error("interrupted before the goal was sent")
-                    return ExitStatus.INTERRUPTED
-                time.sleep(0.005)
-            matched = has_match(querier)
-            replies = list(querier.get(payload=encode(request), encoding=zenoh.Encoding(ENCODING)))
-        finally:
-            querier.undeclare()
-        answer = typed_reply(replies, key, GoalReply, _error)
-        if answer is not None:
-            return answer
-        hint = (
-            "; in a secure deployment only the operator and the ROS 2 bridge may send goals (the router drops "
-            "the others' unanswered)"
-            if matched
-            else "; a drive takes goals in goal mode (`invent drive --goals`, `invent up --goals`)"
-        )
-        _error(no_answer(self.session, key, matched, self.wait_s) + hint)
-        return ExitStatus.FAILURE
+        return ask(self.session, self.keys.drive_goal_send, request, GoalReply, self.wait_s, _error, _hint, self.stop)
 
     def _follow(self, progress: Progress) -> int:
         """Print the goal's progress until its outcome; cancel it on Ctrl-C and wait (bounded) for that outcome."""
@@ -293,3 +262,13 @@ DESCRIPTION = (
     "(--zenoh-config operator.json5): the observer may not send goals."
 )
 GROUPS: tuple[str, ...] = ("connection",)
+
+
+def _hint(matched: bool) -> str:
+    """Why no drive may have answered a goal: the ACL, or no drive in goal mode."""
+    if matched:
+        return (
+            "; in a secure deployment only the operator and the ROS 2 bridge may send goals (the router drops "
+            "the others' unanswered)"
+        )
+    return "; a drive takes goals in goal mode (`invent drive --goals`, `invent up --goals`)"

@@ -11,14 +11,15 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 
 import zenoh
 
-from schemas.codec import ENCODING, encode
 from schemas.keys import DEFAULT_ROBOT, Keys, Service
-from schemas.messages import InitialPose, LocalizationReply, NoArguments
+from schemas.messages import NoArguments
+from schemas.navigation import InitialPose, LocalizationReply
 from services.cli.flags import finite_number, non_negative_float, positive_seconds, robot_name, session_from_args
-from services.cli.tools import no_answer, typed_reply, wait_for_match
+from services.cli.tools import ask
 from services.exits import ExitStatus
 from services.runtime.session import open_session
 
@@ -124,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     key = keys.localization_initial_pose if isinstance(request, InitialPose) else keys.localization_global_localization
     # Client mode, as the one-shot tools (docs/protocol.md section 11.4).
     with open_session(session_from_args(args, mode="client")) as session:
-        reply = _ask(session, keys, key, request, args.wait)
+        reply = ask(session, key, request, LocalizationReply, args.wait, _error, partial(_hint, session, keys))
     if not isinstance(reply, LocalizationReply):
         return reply
     what = f"initial pose {_pose_text(request)}" if isinstance(request, InitialPose) else "global localization"
@@ -133,23 +134,6 @@ def run(args: argparse.Namespace) -> int:
         return ExitStatus.FAILURE
     print(f"{what} accepted by {keys.robot}'s localization", flush=True)
     return ExitStatus.OK
-
-
-def _ask(
-    session: zenoh.Session, keys: Keys, key: str, request: InitialPose | NoArguments, wait_s: float
-) -> LocalizationReply | int:
-    """The localization's reply on ``key``, or the exit status when there is none (said)."""
-    querier = session.declare_querier(key, timeout=wait_s)
-    try:
-        matched = wait_for_match(querier, wait_s)
-        replies = list(querier.get(payload=encode(request), encoding=zenoh.Encoding(ENCODING)))
-    finally:
-        querier.undeclare()
-    answer = typed_reply(replies, key, LocalizationReply, _error)
-    if answer is not None:
-        return answer
-    _error(no_answer(session, key, matched, wait_s) + _hint(session, keys, matched))
-    return ExitStatus.FAILURE
 
 
 def _hint(session: zenoh.Session, keys: Keys, matched: bool) -> str:

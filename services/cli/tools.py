@@ -18,7 +18,7 @@ from typing import Any, TypeVar
 import msgspec
 import zenoh
 
-from schemas.codec import ENCODING, BadMessage, decode
+from schemas.codec import ENCODING, BadMessage, decode, encode
 from schemas.keys import Keys, all_robots_alive, schema_for_key
 from services.config import ConfigError
 from services.config.sections import LocalizationMode
@@ -145,13 +145,44 @@ def run_echo(session: zenoh.Session, key_expr: str, count: int | None, stop: thr
     return ExitStatus.OK
 
 
-def wait_for_match(querier: zenoh.Querier, timeout: float) -> bool:
+def wait_for_match(querier: zenoh.Querier, timeout: float, stop: threading.Event | None = None) -> bool:
+    """Whether something serves the querier's key within ``timeout`` s (False at once once ``stop`` is set)."""
     deadline = time.monotonic() + timeout
     while not has_match(querier):
-        if time.monotonic() > deadline:
+        if time.monotonic() > deadline or (stop is not None and stop.is_set()):
             return False
         time.sleep(0.005)
     return True
+
+
+def ask(
+    session: zenoh.Session,
+    key: str,
+    request: msgspec.Struct,
+    reply_type: type[MessageT],
+    timeout: float,
+    error: Callable[[str], None],
+    hint: Callable[[bool], str],
+    stop: threading.Event | None = None,
+) -> MessageT | ExitStatus:
+    """The reply to ``request`` on ``key`` as a ``reply_type``, or the exit status when there is
+    none, said through ``error``: an error reply or one that does not decode (FAILURE); nothing
+    answered within ``timeout`` s (FAILURE; why, then ``hint(matched)``: what may be wrong, knowing
+    whether anything served the key); ``stop`` set before the request was sent (INTERRUPTED)."""
+    querier = session.declare_querier(key, timeout=timeout)
+    try:
+        matched = wait_for_match(querier, timeout, stop)
+        if stop is not None and stop.is_set():
+            error(f"interrupted before the request on {key} was sent")
+            return ExitStatus.INTERRUPTED
+        replies = list(querier.get(payload=encode(request), encoding=zenoh.Encoding(ENCODING)))
+    finally:
+        querier.undeclare()
+    answer = typed_reply(replies, key, reply_type, error)
+    if answer is not None:
+        return answer
+    error(no_answer(session, key, matched, timeout) + hint(matched))
+    return ExitStatus.FAILURE
 
 
 def typed_reply(

@@ -13,7 +13,7 @@ from typing import Annotated
 
 import msgspec
 
-from schemas.messages import MAX_PARTICLES
+from schemas.navigation import MAX_PARTICLES
 from services.config.fields import METRES, RADIANS, NonNegative, Positive, Section
 
 Particles = Annotated[int, msgspec.Meta(ge=1, le=MAX_PARTICLES)]

@@ -27,7 +27,8 @@ from typing import Annotated
 
 import msgspec
 
-from schemas.messages import MAX_GOAL_SECONDS, NANOSECONDS_PER_SECOND, CancelRequest, GoalId, GoalRequest
+from schemas.messages import NANOSECONDS_PER_SECOND, GoalId
+from schemas.navigation import MAX_GOAL_SECONDS, CancelRequest, GoalRequest
 from services.config import ConfigError, convert_toml
 
 MAX_GOAL_FILE_ENTRIES = 10_000

@@ -4,7 +4,7 @@
 each answered at once, accepted or rejected with the reason) and plays them at the drive's ticks
 (:meth:`Goals.step`): an accepted goal starts at the next tick, preempting the one that runs; a
 goal is reached with the scenarios' path follower (turn toward it if it lies far off the heading,
-drive, stop), then a turn in place to its heading; it ends ``completed`` at rest within its
+drive, stop) or its navigator, then a turn in place to its heading (services/drive/goal_approach.py); it ends ``completed`` at rest within its
 tolerances, ``canceled`` once braked to a stop after a cancel (or at once when preempted), and
 ``aborted`` or ``timed_out`` when the drive gives it up (:meth:`Goals.give_up`, by the rule of
 services/drive/outcome.py).
@@ -15,82 +15,27 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from enum import StrEnum
 
-from schemas.messages import (
-    MAX_GOAL_SECONDS,
-    NANOSECONDS_PER_SECOND,
-    CancelReply,
-    CancelRequest,
-    GoalReply,
-    GoalRequest,
-)
+from schemas.messages import NANOSECONDS_PER_SECOND
+from schemas.navigation import MAX_GOAL_SECONDS, CancelReply, CancelRequest, GoalReply, GoalRequest
 from services.config import DriveConfig, GoalsConfig, InputConfig, NavigationConfig
+from services.drive.goal_approach import Goal, GoalApproach, Phase, RunningGoal
 from services.drive.outcome import Outcome
-from services.drive.path_following import STOPPED, Command, PathFollower, limit_rate
+from services.drive.path_following import STOPPED, Command
 from services.drive.scenarios import goal_duration
 from services.navigation.costmap import Costmap
-from services.navigation.navigator import Navigator, NavigatorPhase
+from services.navigation.navigator import NavigatorPhase
 from services.planar import Pose, wrap_angle
 
 GOAL_FRAMES = ("map", "odom")
 """The frames a goal may be given in (docs/protocol.md section 7.3)."""
 MAX_ATTEMPTS = 3
 """Approaches of one goal: a robot at rest outside the tolerances drives again, up to this many times."""
-SETTLE_S = 0.2
-"""Simulated seconds the robot's pose must stay still, the command zero, before the drive judges
-where it came to rest."""
-STILL_M = 0.001
-STILL_RAD = 0.002
-"""How far the pose may move between two ticks and still count as still (a wheel the motor is
-still braking turns the body on after the command is zero)."""
 MAX_WAITING = 16
 """Goals accepted and replaced before the next tick (each to end ``canceled`` at that tick) that may
 wait at once; more are rejected (a flood of goals, or a drive whose clock has stopped)."""
 REMEMBERED_RESULTS = 16
 """Ended goals whose outcome a cancel of their id is told (the oldest forgotten first)."""
-
-
-class Phase(StrEnum):
-    APPROACH = "approach"
-    """Following the straight path from where the robot is to the goal's position."""
-    ALIGN = "align"
-    """Turning in place to the goal's heading."""
-    SETTLE = "settle"
-    """Commanding zero until the robot is at rest, then judging."""
-    CANCELING = "canceling"
-    """Braking to a stop after a cancel."""
-
-
-@dataclass(frozen=True)
-class Goal:
-    """An accepted goal, its pose already in ``map``."""
-
-    id: str
-    x: float
-    y: float
-    theta: float | None
-    frame: str
-    position_tolerance: float
-    heading_tolerance: float
-    time_limit: float | None
-    """The caller's limit (simulated s); None: the drive's rule, from the pose the goal starts at."""
-
-
-@dataclass
-class RunningGoal:
-    goal: Goal
-    start_ns: int
-    time_limit_s: float | None
-    phase: Phase = Phase.APPROACH
-    attempts: int = 1
-    follower: PathFollower | None = None
-    navigator: Navigator | None = None
-    """The goal's navigation while it approaches (None: the straight line, or not approaching)."""
-    settle_since_ns: int | None = None
-    """Since when the pose has been still, with the command zero, while settling."""
-    settle_pose: Pose | None = None
-    cancel_reason: str = ""
 
 
 @dataclass(frozen=True)
@@ -162,7 +107,7 @@ class Goals:
         if (costmap is None) != (navigation is None):
             raise ValueError("a costmap goes with its navigation settings")
         self.costmap = costmap
-        self.navigation = navigation
+        self.approach = GoalApproach(drive, costmap, navigation)
         self.drive = drive
         self.defaults = goals
         self.bounds = bounds
@@ -333,7 +278,7 @@ class Goals:
         if running is None:
             self.command = STOPPED
             return tick
-        command = self._drive(running, now_ns, pose, dt, held_by)
+        command = self.approach.step(running, self.command, now_ns, pose, dt, held_by)
         navigator = running.navigator
         if navigator is not None and navigator.phase is NavigatorPhase.FAILED:
             self.command = command
@@ -342,7 +287,7 @@ class Goals:
             return tick
         if running.phase is Phase.CANCELING and command == STOPPED:
             self._end_running(tick, now_ns, Outcome.CANCELED, running.cancel_reason)
-        elif running.phase is Phase.SETTLE and pose is not None and self._settled(running, now_ns):
+        elif running.phase is Phase.SETTLE and pose is not None and self.approach.settled(running, now_ns):
             self._judge(tick, running, now_ns, pose)
         self.command = command
         tick.command = command
@@ -355,58 +300,6 @@ class Goals:
             limit = self.drive.time_limit_factor * planned + self.drive.time_limit_margin
         self.running = RunningGoal(goal, now_ns, limit)
         return Started(goal, limit)
-
-    def _drive(self, running: RunningGoal, now_ns: int, pose: Pose | None, dt: float, held_by: str) -> Command:
-        params = self.drive
-        if running.phase is Phase.CANCELING:
-            return limit_rate(self.command, STOPPED, dt, params.max_acceleration, params.max_angular_acceleration)
-        if pose is None:  # no fresh pose: hold still, and drive on with a ramp from rest
-            if running.follower is not None:
-                running.follower.command = STOPPED
-            return STOPPED
-        goal = running.goal
-        if running.phase is Phase.APPROACH and self.costmap is not None:
-            assert self.navigation is not None
-            if running.navigator is None:
-                running.navigator = Navigator((goal.x, goal.y), self.costmap, params, self.navigation, self.command)
-            command = running.navigator.step(now_ns, pose, dt, held_by)
-            if running.navigator.phase is not NavigatorPhase.ARRIVED:
-                return command
-            running.phase = Phase.ALIGN if goal.theta is not None else Phase.SETTLE
-        if running.phase is Phase.APPROACH:
-            if running.follower is None:
-                running.follower = PathFollower([(goal.x, goal.y)], params, self.command)
-            command = running.follower.step(pose, dt)
-            if not running.follower.done:
-                return command
-            running.follower = None
-            running.phase = Phase.ALIGN if goal.theta is not None else Phase.SETTLE
-        if running.phase is Phase.ALIGN:
-            assert goal.theta is not None
-            error = wrap_angle(goal.theta - pose.theta)
-            target = STOPPED
-            if abs(error) > params.heading_tolerance:
-                rate = min(params.max_turn_rate, math.sqrt(params.max_angular_acceleration * abs(error)))
-                target = Command(0.0, math.copysign(rate, error))
-            command = limit_rate(self.command, target, dt, params.max_acceleration, params.max_angular_acceleration)
-            if target == STOPPED and command == STOPPED:
-                running.phase = Phase.SETTLE
-            else:
-                return command
-        last = running.settle_pose
-        moved = last is None or (
-            math.hypot(pose.x - last.x, pose.y - last.y) > STILL_M
-            or abs(wrap_angle(pose.theta - last.theta)) > STILL_RAD
-        )
-        running.settle_pose = pose
-        if running.settle_since_ns is None or moved or self.command != STOPPED:
-            running.settle_since_ns = now_ns
-        return limit_rate(self.command, STOPPED, dt, params.max_acceleration, params.max_angular_acceleration)
-
-    @staticmethod
-    def _settled(running: RunningGoal, now_ns: int) -> bool:
-        since = running.settle_since_ns
-        return since is not None and now_ns - since >= round(SETTLE_S * NANOSECONDS_PER_SECOND)
 
     def _judge(self, tick: Tick, running: RunningGoal, now_ns: int, pose: Pose) -> None:
         """At rest: ``completed`` within the tolerances, else drive again (or give up after
@@ -464,14 +357,8 @@ class Goals:
             return None
         goal = running.goal
         canceling = running.phase is Phase.CANCELING
-        distance = math.hypot(goal.x - pose.x, goal.y - pose.y)
-        estimate = goal_duration(pose, goal.x, goal.y, goal.theta, self.drive)
+        distance, estimate = self.approach.remaining(running, pose)
         navigator = running.navigator
-        tracker = None if navigator is None else navigator.tracker
-        if tracker is not None:
-            along = math.dist((pose.x, pose.y), tracker.remaining_points()[0]) + tracker.remaining
-            estimate += (along - distance) / self.drive.cruise_speed
-            distance = along
         return Progress(
             goal=goal,
             canceling=canceling,

@@ -21,7 +21,8 @@ from collections import deque
 from typing import Any
 
 from schemas.codec import BadInput
-from schemas.messages import NANOSECONDS_PER_SECOND, GoalPlan, LaserScan, Time
+from schemas.messages import NANOSECONDS_PER_SECOND, LaserScan, Time
+from schemas.navigation import GoalPlan
 from services.clock.sim_time import PeriodicSchedule, check_stamp_near
 from services.config import Config
 from services.mapping.builder import LidarMount, MapBuilder

@@ -37,7 +37,8 @@ from typing import Annotated
 
 import msgspec
 
-from schemas.messages import MAX_GOAL_SECONDS, NANOSECONDS_PER_SECOND
+from schemas.messages import NANOSECONDS_PER_SECOND
+from schemas.navigation import MAX_GOAL_SECONDS
 from services.config import ConfigError, DriveConfig, convert_toml
 from services.drive.path_following import STOPPED, Command, PathFollower, Phase, Point
 from services.planar import Pose, wrap_angle

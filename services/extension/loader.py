@@ -10,10 +10,13 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 from schemas.keys import UserServiceName, user_service_name, validate_own_key
 from services.errors import ConfigError
 from services.extension.api import Drives, Lockstep, UserService
+
+DeclarationT = TypeVar("DeclarationT", Lockstep, Drives)
 
 
 @dataclass(frozen=True)
@@ -73,32 +76,35 @@ def check_declarations(spec: str, service: type[UserService]) -> UserServiceName
             validate_own_key(call)
     except ValueError as error:
         raise ConfigError(f"{spec}: {error}") from None
-    lockstep = service.lockstep
+    lockstep = _declared(spec, service, "lockstep", Lockstep, "Lockstep(output, rate_hz)")
     if lockstep is not None:
-        if not isinstance(lockstep, Lockstep):
-            raise ConfigError(f"{spec}: {service.__name__}.lockstep must be a Lockstep(output, rate_hz) or None")
-        _check_rate(spec, "lockstep", lockstep.rate_hz)
         try:
             validate_own_key(lockstep.output)
         except ValueError as error:
             raise ConfigError(f"{spec}: lockstep.output: {error}") from None
-    drives = service.drives
-    if drives is not None:
-        if not isinstance(drives, Drives):
-            raise ConfigError(f"{spec}: {service.__name__}.drives must be a Drives(rate_hz) or None")
-        _check_rate(spec, "drives", drives.rate_hz)
-        # it runs as the drive, with exactly the drive's rights: no keys, queryables or calls of its own
-        if lockstep is not None or service.calls:
-            what = "lockstep" if lockstep is not None else "calls"
-            raise ConfigError(
-                f"{spec}: {service.__name__}.drives with {what}: a service that drives is the drive's participant and has the drive's rights only"
-            )
+    drives = _declared(spec, service, "drives", Drives, "Drives(rate_hz)")
+    # it runs as the drive, with exactly the drive's rights: no keys, queryables or calls of its own
+    if drives is not None and (lockstep is not None or service.calls):
+        what = "lockstep" if lockstep is not None else "calls"
+        raise ConfigError(
+            f"{spec}: {service.__name__}.drives with {what}: a service that drives is the drive's participant and has the drive's rights only"
+        )
     return checked
 
 
-def _check_rate(spec: str, attribute: str, rate_hz: object) -> None:
+def _declared(
+    spec: str, service: type[UserService], attribute: str, kind: type[DeclarationT], form: str
+) -> DeclarationT | None:
+    """``service.<attribute>``: None, or a ``kind`` with a finite rate > 0; ConfigError otherwise."""
+    declared = getattr(service, attribute)
+    if declared is None:
+        return None
+    if not isinstance(declared, kind):
+        raise ConfigError(f"{spec}: {service.__name__}.{attribute} must be a {form} or None")
+    rate_hz = declared.rate_hz
     if not (isinstance(rate_hz, int | float) and math.isfinite(rate_hz) and rate_hz > 0):
         raise ConfigError(f"{spec}: {attribute}.rate_hz must be a finite number > 0, got {rate_hz!r}")
+    return declared
 
 
 def driving(loaded: Sequence[Loaded]) -> Loaded | None:

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from schemas.messages import CancelReply, GoalFeedback, GoalReply, GoalRequest, GoalTarget, ScenarioOutcome
+from schemas.messages import ScenarioOutcome
+from schemas.navigation import CancelReply, GoalFeedback, GoalReply, GoalRequest, GoalTarget
 from services.drive.outcome import Outcome
 
 PROGRESS_INTERVAL_S = 1.0

@@ -20,8 +20,9 @@ from typing import Any
 
 import zenoh
 
-from schemas.keys import Keys, Service, Topic
+from schemas.keys import Keys, Service
 from schemas.messages import TimedDoubleSeq, TimedPosition
+from schemas.topics import Topic
 from services.calibration.benchmark import Benchmark, Lap, PathPoint, RunPaths, wheelbase
 from services.calibration.settings import UmbmarkSettings
 from services.calibration.umbmark import Calibration, Direction, evaluate, square

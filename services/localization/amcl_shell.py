@@ -30,17 +30,8 @@ from typing import Any
 import numpy as np
 
 from schemas.codec import BadInput, BadMessage, decode
-from schemas.messages import (
-    NANOSECONDS_PER_SECOND,
-    InitialPose,
-    LaserScan,
-    LocalizationReply,
-    NoArguments,
-    ParticleCloud,
-    Time,
-    TimedDoubleSeq,
-    TimedPosition,
-)
+from schemas.messages import NANOSECONDS_PER_SECOND, LaserScan, NoArguments, Time, TimedDoubleSeq, TimedPosition
+from schemas.navigation import InitialPose, LocalizationReply, ParticleCloud
 from services.clock.sim_time import PeriodicSchedule, StampClock
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, ConfigError

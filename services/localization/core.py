@@ -31,8 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from schemas.codec import BadInput
-from schemas.keys import SIM_POSE_LENGTH
 from schemas.messages import NANOSECONDS_PER_SECOND
+from schemas.topics import SIM_POSE_LENGTH
 from services.clock.sim_time import ClockRestart, PeriodicSchedule, StampClock
 from services.config import Config, InputConfig
 from services.planar import Pose, check_coordinates, wrap_angle

@@ -23,8 +23,9 @@ from dataclasses import dataclass
 from typing import Protocol, TypeVar
 
 from schemas.codec import BadInput, decode
-from schemas.keys import Keys, Topic, parse_data_key
+from schemas.keys import Keys, parse_data_key
 from schemas.messages import LaserScan, TimedDoubleSeq, TimedPosition
+from schemas.topics import Topic
 from services.config import Config
 from services.errors import ConfigError
 from services.mapping.builder import DEFAULT_RESOLUTION, DEFAULT_SETTINGS, LidarMount, MapBuilder

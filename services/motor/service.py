@@ -28,7 +28,7 @@ from typing import Any
 import msgspec
 
 from schemas.codec import BadInput, decode
-from schemas.keys import METHOD_ARGUMENTS, Method, MethodFamily, Service, Topic
+from schemas.keys import Service
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
     LaserScan,
@@ -41,6 +41,7 @@ from schemas.messages import (
     TimedDoubleSeq,
     TimedVelocity,
 )
+from schemas.topics import METHOD_ARGUMENTS, Method, MethodFamily, Topic
 from services.clock.lockstep import Hold, decode_mark, observed
 from services.clock.sim_time import ClockRestart
 from services.clock.sim_watch import HeldSample, SimulatorWatch

@@ -9,7 +9,7 @@ import math
 from collections.abc import Sequence
 
 from schemas.codec import BadInput
-from schemas.keys import BODY_POSE_LENGTH
+from schemas.topics import BODY_POSE_LENGTH
 from services.config import MotorConfig
 from services.planar import wrap_angle
 

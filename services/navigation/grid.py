@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from schemas.messages import OCCUPANCY_UNKNOWN, OccupancyGrid, Time
+from schemas.messages import Time
+from schemas.navigation import OCCUPANCY_UNKNOWN, OccupancyGrid
 
 OCCUPIED = 100
 FREE = 0

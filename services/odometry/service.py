@@ -21,8 +21,9 @@ from typing import Any
 import msgspec
 
 from schemas.codec import BadInput, BadMessage, decode
-from schemas.keys import Service, Topic
+from schemas.keys import Service
 from schemas.messages import SetOdometry, SetOdometryReply, Time, TimedDoubleSeq, TimedPosition
+from schemas.topics import Topic
 from services.clock.lockstep import Hold, observed
 from services.clock.sim_time import ClockRestart
 from services.clock.sim_watch import HeldSample, SimulatorWatch

@@ -20,7 +20,8 @@ from schemas.messages import NANOSECONDS_PER_SECOND
 from services.calibration.benchmark import RunPaths
 from services.calibration.umbmark import Direction, Umbmark, square
 from services.recording.mcap_files import McapWriter
-from services.recording.scene import WORLD_FRAME, foxglove_pose, ground_line
+from services.recording.scene import WORLD_FRAME
+from services.recording.scene_shapes import foxglove_pose, ground_line
 
 PATHS_TOPIC = "/umbmark/paths"
 RUNS_TOPIC = "/umbmark/runs"

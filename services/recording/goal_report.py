@@ -11,7 +11,8 @@ from collections import Counter
 from collections.abc import Sequence
 from typing import Any
 
-from schemas.messages import GoalFeedback, GoalTarget, ScenarioOutcome
+from schemas.messages import ScenarioOutcome
+from schemas.navigation import GoalFeedback, GoalTarget
 from services.drive.scenarios import distance_to_path
 from services.planar import Pose, wrap_angle
 

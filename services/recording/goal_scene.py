@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from foxglove.messages import (
@@ -35,9 +34,6 @@ from foxglove.messages import (
     Color,
     LinePrimitive,
     LinePrimitiveLineType,
-    Point3,
-    Pose,
-    Quaternion,
     SceneEntity,
     SpherePrimitive,
     TextPrimitive,
@@ -45,7 +41,9 @@ from foxglove.messages import (
     Vector3,
 )
 
-from schemas.messages import GoalFeedback, GoalTarget, ScenarioOutcome
+from schemas.messages import ScenarioOutcome
+from schemas.navigation import GoalFeedback, GoalTarget
+from services.recording.scene_shapes import foxglove_pose, ground_line, yaw_quaternion
 
 ENDED_GOALS = 8
 """Ended goals drawn besides the running one (the newest)."""
@@ -165,7 +163,7 @@ class GoalDrawing:
         if goal is not None:
             current.add_goal(goal, ARROW_LENGTH_M, _label(goal), with_tolerances=True)
             if len(goal.path.points) > 1:
-                path.lines.append(_line(goal.path.points, _color(goal), 0.03, GROUND_Z))
+                path.lines.append(ground_line(goal.path.points, _color(goal), 0.03, GROUND_Z))
         ended = _Primitives()
         for old in self.ended:
             ended.add_goal(old, ARROW_LENGTH_M / 2, f"{old.target.id}: {_outcome_word(old)}", with_tolerances=False)
@@ -218,11 +216,13 @@ class _Primitives:
         target, color = goal.target, _color(goal)
         if target.theta is None:
             diameter = Vector3(x=MARKER_DIAMETER_M, y=MARKER_DIAMETER_M, z=MARKER_DIAMETER_M)
-            self.spheres.append(SpherePrimitive(pose=_pose(target.x, target.y, GROUND_Z), size=diameter, color=color))
+            self.spheres.append(
+                SpherePrimitive(pose=foxglove_pose(target.x, target.y, GROUND_Z), size=diameter, color=color)
+            )
         else:
             self.arrows.append(
                 ArrowPrimitive(
-                    pose=_pose(target.x, target.y, GROUND_Z, target.theta),
+                    pose=foxglove_pose(target.x, target.y, GROUND_Z, yaw_quaternion(target.theta)),
                     shaft_length=0.7 * length,
                     shaft_diameter=0.08 * length,
                     head_length=0.3 * length,
@@ -236,17 +236,17 @@ class _Primitives:
                 (target.x + radius * math.cos(angle), target.y + radius * math.sin(angle))
                 for angle in (2.0 * math.pi * i / CIRCLE_SEGMENTS for i in range(CIRCLE_SEGMENTS))
             ]
-            self.lines.append(_line(circle, color, 0.01, GROUND_Z, LinePrimitiveLineType.LineLoop))
+            self.lines.append(ground_line(circle, color, 0.01, GROUND_Z, LinePrimitiveLineType.LineLoop))
             if target.theta is not None:
                 wedge: list[tuple[float, float]] = []
                 for side in (-1.0, 1.0):
                     heading = target.theta + side * target.heading_tolerance
                     end = (target.x + length * math.cos(heading), target.y + length * math.sin(heading))
                     wedge += [(target.x, target.y), end]
-                self.lines.append(_line(wedge, color, 0.005, GROUND_Z, LinePrimitiveLineType.LineList))
+                self.lines.append(ground_line(wedge, color, 0.005, GROUND_Z, LinePrimitiveLineType.LineList))
         self.texts.append(
             TextPrimitive(
-                pose=_pose(target.x, target.y, LABEL_Z),
+                pose=foxglove_pose(target.x, target.y, LABEL_Z),
                 billboard=True,
                 font_size=14.0,
                 scale_invariant=True,
@@ -265,26 +265,3 @@ class _Primitives:
             lines=self.lines,
             texts=self.texts,
         )
-
-
-def _pose(x: float, y: float, z: float, yaw: float = 0.0) -> Pose:
-    return Pose(
-        position=Vector3(x=x, y=y, z=z),
-        orientation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2.0), w=math.cos(yaw / 2.0)),
-    )
-
-
-def _line(
-    points: Iterable[tuple[float, float]],
-    color: Color,
-    thickness: float,
-    z: float,
-    kind: LinePrimitiveLineType = LinePrimitiveLineType.LineStrip,
-) -> LinePrimitive:
-    return LinePrimitive(
-        type=kind,
-        pose=_pose(0.0, 0.0, 0.0),
-        thickness=thickness,
-        points=[Point3(x=x, y=y, z=z) for x, y in points],
-        color=color,
-    )

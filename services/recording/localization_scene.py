@@ -33,17 +33,15 @@ from foxglove.messages import (
     Color,
     LinePrimitive,
     LinePrimitiveLineType,
-    Point3,
-    Pose,
-    Quaternion,
     SceneEntity,
     SceneUpdate,
     Timestamp,
-    Vector3,
 )
 
 from schemas.codec import BadInput
-from schemas.messages import COVARIANCE_LENGTH, ParticleCloud, Time, TimedPosition
+from schemas.messages import Time, TimedPosition
+from schemas.navigation import COVARIANCE_LENGTH, ParticleCloud
+from services.recording.scene_shapes import ground_line
 
 PARTICLES_TOPIC = "/localization/particles"
 COVARIANCE_TOPIC = "/localization/covariance"
@@ -63,7 +61,6 @@ PARTICLES_COLOR = Color(r=1.0, g=0.55, b=0.0, a=0.7)
 COVARIANCE_COLOR = Color(r=0.95, g=0.1, b=0.6, a=1.0)
 
 Shown = list[tuple[str, SceneUpdate]]
-_UPRIGHT = Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
 
 
 def covariance_matrix(values: list[float]) -> np.ndarray:
@@ -113,18 +110,6 @@ def drawn_particles(count: int) -> range | list[int]:
     return [index * count // PARTICLES_DRAWN for index in range(PARTICLES_DRAWN)]
 
 
-def _line(
-    kind: LinePrimitiveLineType, points: list[tuple[float, float]], z: float, color: Color, thickness: float = 0.01
-) -> LinePrimitive:
-    return LinePrimitive(
-        type=kind,
-        pose=_UPRIGHT,
-        thickness=thickness,
-        points=[Point3(x=px, y=py, z=z) for px, py in points],
-        color=color,
-    )
-
-
 class LocalizationDrawing:
     """The particles and the estimate's covariance of one robot; ``topics``: the robot's topics by
     :data:`PARTICLES_TOPIC` and :data:`COVARIANCE_TOPIC` (``/<robot>/localization/particles`` in a
@@ -150,17 +135,18 @@ class LocalizationDrawing:
             return [self._update(COVARIANCE_TOPIC, "covariance", message.tm, [])]
         covariance = covariance_matrix(message.error)
         lines = [
-            _line(
-                LinePrimitiveLineType.LineLoop,
+            ground_line(
                 ellipse_points(message.x, message.y, covariance),
-                COVARIANCE_Z,
                 COVARIANCE_COLOR,
+                0.01,
+                COVARIANCE_Z,
+                LinePrimitiveLineType.LineLoop,
             ),
-            _line(
-                LinePrimitiveLineType.LineStrip,
+            ground_line(
                 wedge_points(message.x, message.y, message.theta, float(covariance[2, 2])),
-                COVARIANCE_Z,
                 COVARIANCE_COLOR,
+                0.01,
+                COVARIANCE_Z,
             ),
         ]
         self.covariance_shown = True
@@ -172,7 +158,9 @@ class LocalizationDrawing:
         for index in drawn_particles(len(cloud.x)):
             x, y, theta = cloud.x[index], cloud.y[index], cloud.theta[index]
             points += [(x, y), (x + PARTICLE_LENGTH_M * math.cos(theta), y + PARTICLE_LENGTH_M * math.sin(theta))]
-        lines = [_line(LinePrimitiveLineType.LineList, points, PARTICLES_Z, PARTICLES_COLOR, 0.005)] if points else []
+        lines = (
+            [ground_line(points, PARTICLES_COLOR, 0.005, PARTICLES_Z, LinePrimitiveLineType.LineList)] if points else []
+        )
         return [self._update(PARTICLES_TOPIC, "particles", cloud.tm, lines)]
 
     def _update(self, topic: str, entity: str, tm: Time, lines: list[LinePrimitive]) -> tuple[str, SceneUpdate]:

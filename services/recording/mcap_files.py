@@ -35,8 +35,9 @@ from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 if TYPE_CHECKING:
     from _typeshed import ReadableBuffer
 
-from schemas.keys import LATCHED_TOPICS, Topic, parse_data_key, schema_for_key
+from schemas.keys import parse_data_key, schema_for_key
 from schemas.messages import NANOSECONDS_PER_SECOND, Time
+from schemas.topics import LATCHED_TOPICS, Topic
 from services.config import ConfigError, RecordConfig
 from services.runtime.journal import ALWAYS_KEPT
 

@@ -38,7 +38,8 @@ from foxglove.messages import (
     Vector3,
 )
 
-from schemas.messages import OccupancyGrid, Time
+from schemas.messages import Time
+from schemas.navigation import OccupancyGrid
 
 MAP_TOPIC = "/map"
 COSTMAP_TOPIC = "/costmap"

@@ -33,8 +33,9 @@ from typing import Any, Protocol
 import zenoh
 
 from schemas.codec import BadInput, decode
-from schemas.keys import LATCHED_TOPICS, TOPIC_TYPES, Keys, Topic
+from schemas.keys import Keys
 from schemas.messages import NANOSECONDS_PER_SECOND
+from schemas.topics import LATCHED_TOPICS, TOPIC_TYPES, Topic
 from services.config import Config, RecordConfig
 from services.recording.mcap_files import (
     LATEST_STAMP_NS,

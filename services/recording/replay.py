@@ -22,8 +22,9 @@ from dataclasses import dataclass
 import zenoh
 
 from schemas.codec import ENCODING
-from schemas.keys import Keys, Topic
+from schemas.keys import Keys
 from schemas.messages import NANOSECONDS_PER_SECOND
+from schemas.topics import Topic
 from services.config import ConfigError
 from services.errors import ConsumerStalled
 from services.exits import ExitStatus

@@ -16,10 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from schemas.codec import BadInput, decode
-from schemas.keys import Keys, Service, Topic, UserServiceName, parse_data_key
+from schemas.keys import Keys, Service, UserServiceName, parse_data_key
 from schemas.messages import (
-    GoalFeedback,
-    GoalTarget,
     PlannedPath,
     RunSummary,
     ScenarioOutcome,
@@ -28,6 +26,8 @@ from schemas.messages import (
     TimedPosition,
     TimedVelocity,
 )
+from schemas.navigation import GoalFeedback, GoalTarget
+from schemas.topics import Topic
 from services.config import Config, ConfigError, InputConfig, RobotConfig
 from services.drive.scenarios import planned_path_for
 from services.planar import Pose, check_coordinates

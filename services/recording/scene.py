@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterable
 from typing import Any
 
 from foxglove.messages import (
@@ -48,24 +47,17 @@ from foxglove.messages import (
     FrameTransforms,
     LaserScan,
     LinePrimitive,
-    Point3,
-    Pose,
     PoseInFrame,
     Quaternion,
     SceneEntity,
     SceneUpdate,
-    SpherePrimitive,
     Timestamp,
     Vector3,
 )
 
 from schemas.codec import BadInput
-from schemas.keys import Topic
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
-    GoalFeedback,
-    GoalPlan,
-    GoalTarget,
     ScenarioOutcome,
     SimWorld,
     Time,
@@ -74,12 +66,21 @@ from schemas.messages import (
     TimedVelocity,
 )
 from schemas.messages import LaserScan as ScanMessage
-from services.body.geometry import robot_body
+from schemas.navigation import GoalFeedback, GoalPlan, GoalTarget
+from schemas.topics import Topic
 from services.config import CalibratedGeometry, LidarConfig, OdometryConfig, RobotConfig, SimConfig
 from services.recording.goal_scene import GoalDrawing
 from services.recording.localization_scene import COVARIANCE_TOPIC, PARTICLES_TOPIC, LocalizationDrawing
 from services.recording.navigation_scene import COSTMAP_TOPIC, MAP_TOPIC, NavigationDrawing
 from services.recording.report import pose_from_body_pose
+from services.recording.scene_shapes import (
+    foxglove_pose,
+    ground_line,
+    robot_entity,
+    rotation_quaternion,
+    timestamp,
+    yaw_quaternion,
+)
 
 WORLD_FRAME = "world"
 ROBOT_FRAME = "base_link"
@@ -113,55 +114,12 @@ WHEEL_SPEEDS_SCHEMA: dict[str, Any] = {
     },
 }
 
-_BODY = Color(r=0.85, g=0.85, b=0.9, a=0.8)
-_WHEEL = Color(r=0.15, g=0.15, b=0.15, a=1.0)
 _OBSTACLE = Color(r=0.8, g=0.4, b=0.2, a=0.9)
 _PATH = Color(r=0.2, g=0.5, b=1.0, a=1.0)
 PLAN_COLOR = Color(r=0.7, g=0.3, b=0.95, a=1.0)
 """The running goal's plan (``drive/plan``): violet, where the scenario's planned path is blue."""
 _TRUTH = Color(r=0.1, g=0.7, b=0.2, a=1.0)
 _ODOMETRY = Color(r=0.9, g=0.2, b=0.2, a=1.0)
-_UPRIGHT = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
-_WHEEL_AXIS_ALONG_Y = Quaternion(x=math.sqrt(0.5), y=0.0, z=0.0, w=math.sqrt(0.5))
-
-
-def timestamp(tm: Time) -> Timestamp:
-    return Timestamp(tm.sec, tm.nsec)
-
-
-def yaw_quaternion(yaw: float) -> Quaternion:
-    return Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2.0), w=math.cos(yaw / 2.0))
-
-
-def rotation_quaternion(m: list[float]) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of a row-major 3x3 rotation matrix (Shepperd's method: stable for any rotation)."""
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
-    trace = m00 + m11 + m22
-    if trace > 0.0:
-        s = 2.0 * math.sqrt(trace + 1.0)
-        return (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, 0.25 * s
-    if m00 > m11 and m00 > m22:
-        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
-        return 0.25 * s, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s
-    if m11 > m22:
-        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
-        return (m01 + m10) / s, 0.25 * s, (m12 + m21) / s, (m02 - m20) / s
-    s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
-    return (m02 + m20) / s, (m12 + m21) / s, 0.25 * s, (m10 - m01) / s
-
-
-def foxglove_pose(x: float, y: float, z: float, orientation: Quaternion = _UPRIGHT) -> Pose:
-    return Pose(position=Vector3(x=x, y=y, z=z), orientation=orientation)
-
-
-def ground_line(points: Iterable[tuple[float, float]], color: Color, thickness: float) -> LinePrimitive:
-    """A path drawn on the ground of its frame, through ``points`` (x, y), 1 cm up."""
-    return LinePrimitive(
-        pose=foxglove_pose(0.0, 0.0, 0.0),
-        thickness=thickness,
-        points=[Point3(x=x, y=y, z=0.01) for x, y in points],
-        color=color,
-    )
 
 
 class _Trail:
@@ -216,7 +174,7 @@ class Scene:
             for topic in (ODOMETRY_TOPIC, LOCALIZATION_TOPIC, WHEEL_SPEEDS_TOPIC, SCAN_TOPIC, MAP_TOPIC, COSTMAP_TOPIC)
             + (PARTICLES_TOPIC, COVARIANCE_TOPIC)
         }
-        self._robot_entity = _robot_entity(robot, sim)
+        self._robot_entity = robot_entity(robot, sim)
         self._cylinders: list[CylinderPrimitive] = []
         self._cubes: list[CubePrimitive] = []
         self._path: list[tuple[float, float]] = []
@@ -398,14 +356,11 @@ class Scene:
     ) -> SceneEntity:
         """A path on the ground of the world (the scenario's planned path, a goal's plan), 5 mm up;
         no points, an empty entity (a viewer that seeks back before it shows none)."""
-        path = [Point3(x=x, y=y, z=0.005) for x, y in points]
         return SceneEntity(
             timestamp=stamp,
             frame_id=WORLD_FRAME,
             id=self._ids[entity],
-            lines=[LinePrimitive(pose=foxglove_pose(0.0, 0.0, 0.0), thickness=0.01, points=path, color=color)]
-            if path
-            else [],
+            lines=[ground_line(points, color, 0.01, z=0.005)] if points else [],
         )
 
     def _scene_update(self, tm: Time) -> SceneUpdate:
@@ -436,35 +391,3 @@ def _pose_in_world(message: TimedPosition) -> PoseInFrame:
         frame_id=WORLD_FRAME,
         pose=foxglove_pose(message.x, message.y, 0.0, yaw_quaternion(message.theta)),
     )
-
-
-def _robot_entity(robot: RobotConfig, sim: SimConfig) -> dict[str, Any]:
-    """The robot's primitives in ``base_link`` (the axle centre, at axle height), as the sim builds it."""
-    shape = robot_body(robot, sim)
-    body_diameter = 2.0 * shape.body_radius
-    wheels = [
-        CylinderPrimitive(
-            pose=foxglove_pose(0.0, wheel.y, 0.0, _WHEEL_AXIS_ALONG_Y),
-            size=Vector3(x=2.0 * wheel.radius, y=2.0 * wheel.radius, z=wheel.width),
-            bottom_scale=1.0,
-            top_scale=1.0,
-            color=_WHEEL,
-        )
-        for wheel in shape.wheels
-    ]
-    body = CylinderPrimitive(
-        pose=foxglove_pose(0.0, 0.0, shape.body_height / 2.0),
-        size=Vector3(x=body_diameter, y=body_diameter, z=shape.body_height),
-        bottom_scale=1.0,
-        top_scale=1.0,
-        color=_BODY,
-    )
-    casters = [
-        SpherePrimitive(
-            pose=foxglove_pose(caster.x, 0.0, caster.z),
-            size=Vector3(x=2 * caster.radius, y=2 * caster.radius, z=2 * caster.radius),
-            color=_WHEEL,
-        )
-        for caster in shape.casters
-    ]
-    return {"cylinders": [body, *wheels], "spheres": casters}

@@ -46,19 +46,21 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from schemas.codec import BadInput, encode
-from schemas.messages import (
-    NANOSECONDS_PER_SECOND,
-    CancelReply,
-    CancelRequest,
-    GoalFeedback,
-    GoalReply,
-    GoalRequest,
-    GoalTarget,
-    ScenarioOutcome,
-)
+from schemas.messages import NANOSECONDS_PER_SECOND, ScenarioOutcome
+from schemas.navigation import CancelReply, CancelRequest, GoalFeedback, GoalReply, GoalRequest, GoalTarget
 from services.config import Config
 from services.ros2 import graph, interfaces, navigate, wire
-from services.ros2.action_calls import Caller, Publisher, Tokens, cancel_reply, goal_reply
+from services.ros2.action_calls import (
+    Caller,
+    Publisher,
+    Tokens,
+    caller_of,
+    cancel_reply,
+    goal_reply,
+    reply_error,
+    request_payload,
+    serve,
+)
 from services.ros2.goal_book import (
     CancelCode,
     ErrorCode,
@@ -132,14 +134,7 @@ class NavigateServer:
         self.results: HeldResults[Caller] = HeldResults()
         self._frame_errors = RateLimitedLog(node.log)
         self.publishers = {topic: publisher(entity) for topic, entity in graph.ACTION_TOPICS.items()}
-        self.service_keys: dict[ActionService, str] = {}
-        self._declarations: list[Any] = []
-        for service, entity in graph.ACTION_SERVICES.items():
-            key = self.service_keys[service] = bridge.key(entity)
-            tokens.declare(wire.EntityKind.SERVICE, entity)
-            self._declarations.append(
-                node.session.declare_queryable(key, partial(self._on_query, service, key), complete=True)
-            )
+        self.service_keys, self._declarations = serve(node, tokens, graph.ACTION_SERVICES, self._take_call)
         self.goal_pose_key = bridge.key(graph.GOAL_POSE)
         tokens.declare(wire.EntityKind.SUBSCRIPTION, graph.GOAL_POSE)
         node.subscribe_bytes(self.goal_pose_key, self._on_goal_pose, Delivery.QUEUED)
@@ -160,32 +155,19 @@ class NavigateServer:
 
     # -- requests from ROS (zenoh's thread posts them to the service thread) ---------------------
 
-    def _on_query(self, service: ActionService, key: str, query: zenoh.Query) -> None:
-        """zenoh's thread: a call on exactly the service's key goes to the service thread; any
-        other query (a wildcard) is dropped, unanswered: looking never acts."""
-        if str(query.key_expr) == key:
-            self._post(key, self._take_call, (service, key, query))
-
     def _post(self, key: str, handle: Callable[[Any], None], item: Any) -> None:
         """Run ``handle(item)`` on the service thread (from zenoh's), a bug counted under ``key``."""
         self.node.executor.post(partial(self.node.guard, key, handle), item)
 
-    def _take_call(self, call: tuple[ActionService, str, zenoh.Query]) -> None:
-        service, key, query = call
+    def _take_call(self, service: ActionService, key: str, query: zenoh.Query) -> None:
         try:
-            attachment = wire.Attachment.decode(query.attachment.to_bytes() if query.attachment is not None else None)
+            caller = caller_of(query, key)
         except BadInput as error:
             self.node.bad_inputs.record(key, str(error))
-            try:
-                query.reply_err(str(error).encode())
-            finally:
-                query.drop()
+            reply_error(query, str(error))
             return
-        caller = Caller(query, key, attachment)
         try:
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            if len(payload) > MAX_REQUEST_PAYLOAD[service]:
-                raise BadInput(f"{len(payload)} bytes, more than a {service} request's {MAX_REQUEST_PAYLOAD[service]}")
+            payload = request_payload(query, MAX_REQUEST_PAYLOAD[service], f"{service} request")
             request_type = graph.ACTION_SERVICES[service].interface + "_Request"
             request = interfaces.deserialize(payload, request_type)
         except BadInput as error:
@@ -202,8 +184,7 @@ class NavigateServer:
     def _refuse(self, service: ActionService, caller: Caller, reason: str) -> None:
         """A request the bridge cannot take, answered with its type's refusal."""
         if service is ActionService.SEND_GOAL:
-            self._rejected(reason)
-            caller.reply(navigate.send_goal_response(False, self.now_ns))
+            self._rejected(reason, caller)
         elif service is ActionService.CANCEL_GOAL:
             caller.reply(navigate.cancel_response(CancelCode.REJECTED, []))
         else:
@@ -252,9 +233,7 @@ class NavigateServer:
         try:
             self.book.send(uuid)
         except BadInput as error:
-            self._rejected(str(error))
-            if caller is not None:
-                caller.reply(navigate.send_goal_response(False, self.now_ns))
+            self._rejected(str(error), caller)
             return
         now_ns = self.now_ns
         self.book.accepted(uuid, now_ns)
@@ -279,9 +258,7 @@ class NavigateServer:
                 raise BadInput(f"{PENDING_SENDS} goals already wait for the drive's reply")
             self.book.send(uuid)
         except BadInput as error:
-            self._rejected(str(error))
-            if caller is not None:
-                caller.reply(navigate.send_goal_response(False, self.now_ns))
+            self._rejected(str(error), caller)
             return
         call_id = next(self._call_ids)
         self._pending[call_id] = PendingSend(uuid, caller, source)
@@ -315,9 +292,7 @@ class NavigateServer:
             return
         self.book.rejected(pending.uuid)
         reason = reply.reason if not reply.accepted else f"the drive accepted it as {reply.id!r}, not {goal_id!r}"
-        self._rejected(f"the drive refused goal {goal_id}: {reason}")
-        if pending.caller is not None:
-            pending.caller.reply(navigate.send_goal_response(False, self.now_ns))
+        self._rejected(f"the drive refused goal {goal_id}: {reason}", pending.caller)
 
     def _drive_done(self, call_id: int) -> None:
         """The send's query ended: a goal still pending got no reply (no drive serves goals)."""
@@ -326,10 +301,13 @@ class NavigateServer:
                 (call_id, GoalReply(False, "", "no drive answered (is `invent drive --goals` running?)"))
             )
 
-    def _rejected(self, reason: str) -> None:
+    def _rejected(self, reason: str, caller: Caller | None = None) -> None:
+        """A goal refused: counted, logged, and answered so to ``caller`` (None: a ``goal_pose``)."""
         self.counters.rejected += 1
         self.counters.last_rejection = reason
         self.node.log.info("%s: goal refused: %s", self.action, reason)
+        if caller is not None:
+            caller.reply(navigate.send_goal_response(False, self.now_ns))
 
     def _cancel_goal(self, request: Any, caller: Caller) -> None:
         self.counters.cancel_requests += 1

@@ -22,15 +22,8 @@ from typing import Any
 import numpy as np
 
 from schemas.codec import BadInput
-from schemas.messages import (
-    COVARIANCE_LENGTH,
-    NANOSECONDS_PER_SECOND,
-    GoalPlan,
-    OccupancyGrid,
-    ParticleCloud,
-    TimedDoubleSeq,
-    TimedPosition,
-)
+from schemas.messages import NANOSECONDS_PER_SECOND, TimedDoubleSeq, TimedPosition
+from schemas.navigation import COVARIANCE_LENGTH, GoalPlan, OccupancyGrid, ParticleCloud
 from services.body.geometry import RobotBody
 from services.config import Config, Ros2Config
 from services.motor.core import check_target_velocity

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 
-from schemas.keys import Method
+from schemas.topics import Method
 from services.config import Config, ConfigError, TfLayout
 from services.ros2 import interfaces, wire
 

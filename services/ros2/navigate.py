@@ -27,7 +27,8 @@ from typing import Any
 import numpy as np
 
 from schemas.codec import BadInput
-from schemas.messages import NANOSECONDS_PER_SECOND, GoalFeedback, GoalRequest, InitialPose
+from schemas.messages import NANOSECONDS_PER_SECOND
+from schemas.navigation import GoalFeedback, GoalRequest, InitialPose
 from services.planar import Pose
 from services.ros2 import core, interfaces
 from services.ros2.goal_book import CancelCode, Goal, GoalStatus

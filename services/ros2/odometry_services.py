@@ -18,14 +18,13 @@ move.
 
 from __future__ import annotations
 
-from functools import partial
 from typing import Any
 
 import zenoh
 
 from schemas.codec import BadInput
-from services.ros2 import interfaces, wire
-from services.ros2.action_calls import Caller, Tokens
+from services.ros2 import interfaces
+from services.ros2.action_calls import Tokens, caller_of, reply_error, request_payload, serve
 from services.ros2.core import ContinuousOdometry
 from services.ros2.graph import OdometryService
 from services.runtime.node import Node
@@ -41,39 +40,18 @@ class OdometryServices:
         self.node = node
         self.odometry = odometry
         self.calls = {"reset": 0, "set": 0, "refused": 0}
-        self.keys: dict[OdometryService, str] = {}
-        self._queryables: list[Any] = []
-        bridge = tokens.bridge
-        for service, entity in bridge.odometry_services.items():
-            key = self.keys[service] = bridge.key(entity)
-            tokens.declare(wire.EntityKind.SERVICE, entity)
-            self._queryables.append(
-                node.session.declare_queryable(key, partial(self._on_query, service, key), complete=True)
-            )
+        self.keys, self._queryables = serve(node, tokens, tokens.bridge.odometry_services, self._take_call)
 
-    def _on_query(self, service: OdometryService, key: str, query: zenoh.Query) -> None:
-        """zenoh's thread: a call on exactly the service's key goes to the service thread; any
-        other query (a wildcard) is dropped, unanswered: looking never acts."""
-        if str(query.key_expr) == key:
-            self.node.executor.post(partial(self.node.guard, key, self._take_call), (service, key, query))
-
-    def _take_call(self, call: tuple[OdometryService, str, zenoh.Query]) -> None:
-        service, key, query = call
+    def _take_call(self, service: OdometryService, key: str, query: zenoh.Query) -> None:
         try:
-            attachment = wire.Attachment.decode(query.attachment.to_bytes() if query.attachment is not None else None)
+            caller = caller_of(query, key)
         except BadInput as error:
             self._refused(key, str(error))
-            try:
-                query.reply_err(str(error).encode())
-            finally:
-                query.drop()
+            reply_error(query, str(error))
             return
-        caller = Caller(query, key, attachment)
         setting = service is OdometryService.SET
         try:
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            if len(payload) > MAX_REQUEST_PAYLOAD:
-                raise BadInput(f"{len(payload)} bytes, more than a {service} request's {MAX_REQUEST_PAYLOAD}")
+            payload = request_payload(query, MAX_REQUEST_PAYLOAD, f"{service} request")
             request = interfaces.deserialize(
                 payload, interfaces.SET_ODOMETRY_REQUEST if setting else interfaces.EMPTY_REQUEST
             )

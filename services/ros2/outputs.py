@@ -25,15 +25,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from schemas.codec import BadInput
-from schemas.messages import (
-    GoalPlan,
-    ImuSample,
-    LaserScan,
-    OccupancyGrid,
-    ParticleCloud,
-    TimedDoubleSeq,
-    TimedPosition,
-)
+from schemas.messages import ImuSample, LaserScan, TimedDoubleSeq, TimedPosition
+from schemas.navigation import GoalPlan, OccupancyGrid, ParticleCloud
 from services.body.geometry import robot_body
 from services.clock.sim_time import PeriodicSchedule, StampClock
 from services.config import Config

@@ -20,7 +20,8 @@ One node in the ROS graph (``ros2.node_name``, in ``--namespace``) with:
   (at most ``ros2.cmd_vel_rate`` per simulated second, the newest kept between two), so the motor's
   command timeout works as diff_drive_controller's ``cmd_vel_timeout``;
 - services ``motor/stop``, ``motor/clear``, ``motor/start``, ``motor/finish`` (std_srvs/Trigger),
-  each calling the Motor method of that name (``motor/gui/<method>``, as an operator would);
+  each calling the Motor method of that name (``motor/gui/<method>``, as an operator would;
+  services/ros2/motor_services.py);
 - the action ``navigate_to_pose`` (nav2_msgs/NavigateToPose: its three services and two topics)
   and the subscription ``goal_pose`` (RViz's 2D Goal Pose), each goal sent to the drive's
   ``drive/goal/send`` (services/ros2/action_server.py), unless ``ros2.navigate_to_pose`` is off;
@@ -42,43 +43,41 @@ observed steps: the bridge holds an observer token for each of its rates (docs/p
 malformed CDR, a twist not finite or implausible) is counted under its ROS key and dropped, a
 scan, IMU sample, map, costmap or plan malformed, not finite or out of order under its key;
 nothing from ROS reaches the motor unchecked. Several bridges may share one session (a composed
-fleet): their nodes' and entities' ids come from one counter per session, as in one ROS context.
+fleet): their nodes' and entities' ids come from one counter per session, as in one ROS context
+(services/ros2/node_entities.py).
 """
 
 from __future__ import annotations
 
 import itertools
 import logging
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import zenoh
-import zenoh.ext
 
-from schemas.codec import BadInput, decode, encode
-from schemas.keys import Method, MethodFamily, Service
+from schemas.codec import BadInput, encode
+from schemas.keys import Service
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
-    GoalPlan,
     ImuSample,
     LaserScan,
-    LocalizationReply,
-    OccupancyGrid,
-    ParticleCloud,
     Time,
     TimedDoubleSeq,
     TimedPosition,
     TimedVelocity,
 )
+from schemas.navigation import GoalPlan, LocalizationReply, OccupancyGrid, ParticleCloud
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, ConfigError
 from services.ros2 import core, graph, interfaces, navigate, wire
+from services.ros2.action_calls import localization_reply
 from services.ros2.action_server import NavigateServer
+from services.ros2.motor_services import MotorServices
+from services.ros2.node_entities import GraphTokens, RosPublisher
 from services.ros2.odometry_services import OdometryServices
 from services.ros2.outputs import Outgoing, RosOutputs
 from services.runtime.inputs import Delivery
@@ -87,12 +86,6 @@ from services.runtime.logs import RateLimitedLog
 from services.runtime.node import Node, Wait
 from services.service import ServiceCommand, journal_limits
 
-SERVICE_CALL_TIMEOUT_S = 2.0
-"""How long a service call waits for the motor's answer before it answers ``success: false``."""
-PENDING_CALLS = 16
-"""Service calls waiting for the motor at once; beyond, a call is answered ``success: false`` at once."""
-MAX_REQUEST_PAYLOAD = 64
-"""Bytes: a Trigger request is 5 (CDR header, one byte); a larger one is bad input."""
 INITIAL_POSE_TIMEOUT_S = 2.0
 """How long an ``initialpose`` waits for the localization's reply."""
 PENDING_INITIAL_POSES = 4
@@ -100,99 +93,6 @@ PENDING_INITIAL_POSES = 4
 MAX_INITIAL_POSE_PAYLOAD = 4096
 """Bytes: an ``initialpose`` larger than this is bad input, refused before it is decoded (one is 344
 bytes of CDR with a frame id of a few characters)."""
-SPORADIC_HEARTBEAT_S = 1.0
-"""rmw_zenoh's heartbeat period for a reliable transient-local publisher's sample-miss detection."""
-
-
-_CONTEXT_IDS: dict[str, Iterator[int]] = {}
-"""rmw_zenoh's id counter of a context, per zenoh session (by its id): the bridges composed on one
-session (a fleet's, ``invent ros2 --fleet``) draw their nodes' and entities' ids from one counter,
-as the nodes of one rclcpp context do, so no two nodes of a session share an id."""
-
-
-def context_ids(session: zenoh.Session) -> Iterator[int]:
-    return _CONTEXT_IDS.setdefault(str(session.zid()), itertools.count())
-
-
-class GraphTokens:
-    """This bridge's node in the ROS graph: its liveliness token, and one token per entity, each
-    with an id of its own, drawn after the node's from its session's counter."""
-
-    def __init__(self, session: zenoh.Session, bridge: graph.BridgeGraph) -> None:
-        self.session = session
-        self.bridge = bridge
-        self._ids = context_ids(session)
-        self.identity = wire.NodeIdentity(
-            bridge.domain, str(session.zid()), bridge.namespace, bridge.node_name, node_id=next(self._ids)
-        )
-        self._tokens: list[Any] = [session.liveliness().declare_token(self.identity.token())]
-
-    def declare(self, kind: wire.EntityKind, entity: graph.Entity) -> str:
-        """Hold the token of one more entity; returns it."""
-        token = self.identity.entity_token(
-            next(self._ids), kind, self.bridge.name(entity), entity.interface, self.bridge.type_hash(entity), entity.qos
-        )
-        self._tokens.append(self.session.liveliness().declare_token(token))
-        return token
-
-    def close(self) -> None:
-        for token in reversed(self._tokens):
-            token.undeclare()
-        self._tokens.clear()
-
-
-class RosPublisher:
-    """One ROS topic's publisher: CDR payloads, each with its attachment (sequence from 1, one GID).
-    A transient-local one is a zenoh-ext advanced publisher with a cache of ``depth`` samples,
-    publisher detection and (reliable) sample-miss detection, as rmw_zenoh declares it, so a late
-    subscriber gets the last message. Each message is also kept in ``journal``, if given, with its
-    simulation time (``invent up --record-ros2``'s bag is made of those)."""
-
-    def __init__(self, tokens: GraphTokens, entity: graph.Entity, journal: Journal | None = None) -> None:
-        self.name = tokens.bridge.name(entity)
-        self.key = tokens.bridge.key(entity)
-        self._journal = journal
-        self.sequence = wire.Sequence(wire.gid_of(tokens.declare(wire.EntityKind.PUBLISHER, entity)))
-        qos = entity.qos
-        self._publisher: Any
-        if qos.transient_local:
-            self._publisher = zenoh.ext.declare_advanced_publisher(
-                tokens.session,
-                self.key,
-                cache=zenoh.ext.CacheConfig(qos.depth),
-                publisher_detection=True,
-                sample_miss_detection=zenoh.ext.MissDetectionConfig(
-                    heartbeat=None, sporadic_heartbeat=SPORADIC_HEARTBEAT_S
-                )
-                if qos.reliability is wire.Reliability.RELIABLE
-                else None,
-            )
-        else:
-            self._publisher = tokens.session.declare_publisher(self.key)
-
-    @property
-    def published(self) -> int:
-        return self.sequence.last
-
-    def put(self, message: Any, stamp_ns: int) -> None:
-        """Publish ``message``, which carries the simulation time ``stamp_ns``."""
-        payload = interfaces.serialize(message)
-        self._publisher.put(payload, attachment=self.sequence.next(time.time_ns()))
-        if self._journal is not None:
-            self._journal.write(self.key, payload, time_ns=stamp_ns, stamp_ns=stamp_ns)
-
-    def undeclare(self) -> None:
-        self._publisher.undeclare()
-
-
-@dataclass
-class PendingCall:
-    """A ROS service call waiting for the motor's answer."""
-
-    query: zenoh.Query
-    key: str
-    attachment: wire.Attachment
-    method: Method
 
 
 @dataclass(frozen=True)
@@ -232,8 +132,6 @@ class Ros2Bridge:
         self._pending_twist: tuple[float, float] | None = None
         self._last_forward_ns: int | None = None
         self.cmd_vel = {"received": 0, "forwarded": 0, "coalesced": 0}
-        self.calls = {"answered": 0, "failed": 0}
-        self._pending_calls: dict[int, PendingCall] = {}
         self._call_ids = itertools.count(1)
 
         # Every sample, not the newest: sim/clock comes only at the observed steps, and one taken
@@ -303,18 +201,7 @@ class Ros2Bridge:
             key = self.cmd_vel_keys[entity.interface] = bridge.key(entity)
             tokens.declare(wire.EntityKind.SUBSCRIPTION, entity)
             node.subscribe_bytes(key, partial(self._on_cmd_vel, entity.interface), Delivery.EVERY)
-        self._queryables: list[Any] = []
-        self._motor_methods: dict[Method, Any] = {}
-        self.service_keys: dict[Method, str] = {}
-        for method, entity in graph.MOTOR_SERVICES.items():
-            key = self.service_keys[method] = bridge.key(entity)
-            tokens.declare(wire.EntityKind.SERVICE, entity)
-            self._queryables.append(
-                node.session.declare_queryable(key, partial(self._on_query, method, key), complete=True)
-            )
-            self._motor_methods[method] = node.session.declare_querier(
-                node.keys.method(MethodFamily.GUI, method), timeout=SERVICE_CALL_TIMEOUT_S
-            )
+        self.motor_services = MotorServices(node, tokens)
         self.odometry_services = OdometryServices(node, tokens, outputs.odometry)
         self.frames = navigate.GoalFrames(settings.map_frame, outputs.prefix + settings.odom_frame)
         """The frames an ``initialpose`` may be given in."""
@@ -421,7 +308,7 @@ class Ros2Bridge:
         self._localization.get(
             zenoh.handlers.Callback(
                 lambda reply: post(
-                    partial(guard, key, self._localization_replied), (call_id, _localization_reply(reply))
+                    partial(guard, key, self._localization_replied), (call_id, localization_reply(reply))
                 ),
                 lambda: post(partial(guard, key, self._localization_done), call_id),
             ),
@@ -456,60 +343,6 @@ class Ros2Bridge:
                 pose,
             )
 
-    def _on_query(self, method: Method, key: str, query: zenoh.Query) -> None:
-        """zenoh's thread: a call on a Motor service's exact key goes to the service thread; any
-        other query that reaches the queryable (a wildcard) is dropped, unanswered: looking never acts."""
-        if str(query.key_expr) == key:
-            self.node.executor.post(self._take_call, (method, key, query))
-
-    def _take_call(self, call: tuple[Method, str, zenoh.Query]) -> None:
-        method, key, query = call
-        try:
-            attachment = wire.Attachment.decode(query.attachment.to_bytes() if query.attachment is not None else None)
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            if len(payload) > MAX_REQUEST_PAYLOAD:
-                raise BadInput(f"{len(payload)} bytes, more than a Trigger request's {MAX_REQUEST_PAYLOAD}")
-            interfaces.deserialize(payload, interfaces.TRIGGER_REQUEST)
-        except BadInput as error:
-            self.node.bad_inputs.record(key, str(error))
-            query.drop()
-            return
-        pending = PendingCall(query, key, attachment, method)
-        if len(self._pending_calls) >= PENDING_CALLS:
-            self._answer(pending, False, f"{PENDING_CALLS} calls already wait for the motor")
-            return
-        call_id = next(self._call_ids)
-        self._pending_calls[call_id] = pending
-        post = self.node.executor.post
-        self._motor_methods[method].get(
-            zenoh.handlers.Callback(
-                lambda reply: post(self._motor_replied, (call_id, *_reply_text(reply))),
-                lambda: post(self._motor_done, call_id),
-            ),
-            payload=b"{}",
-        )
-
-    def _motor_replied(self, reply: tuple[int, bool, str]) -> None:
-        call_id, ok, text = reply
-        pending = self._pending_calls.pop(call_id, None)
-        if pending is not None:
-            self._answer(pending, ok, text)
-
-    def _motor_done(self, call_id: int) -> None:
-        pending = self._pending_calls.pop(call_id, None)
-        if pending is not None:
-            self._answer(pending, False, "the motor did not answer (is `invent motor` running?)")
-
-    def _answer(self, pending: PendingCall, success: bool, message: str) -> None:
-        response = interfaces.message_class(interfaces.TRIGGER_RESPONSE)(success=success, message=message)
-        attachment = wire.Attachment(pending.attachment.sequence_number, time.time_ns(), pending.attachment.gid)
-        try:
-            pending.query.reply(pending.key, interfaces.serialize(response), attachment=attachment.encode())
-        finally:
-            pending.query.drop()
-        self.calls["answered" if success else "failed"] += 1
-        self.node.log.info("%s: %s", pending.key, message)
-
     def status(self) -> dict[str, Any]:
         identity = self.tokens.identity
         return {
@@ -523,7 +356,7 @@ class Ros2Bridge:
             "time_base_restarts": self.clock.restart.restarts,
             "published": {publisher.name: publisher.published for publisher in self.publishers.values()},
             "cmd_vel": dict(self.cmd_vel),
-            "service_calls": {**self.calls, "waiting": len(self._pending_calls)},
+            "service_calls": self.motor_services.status(),
             "odometry_services": self.odometry_services.status(),
             **({"navigate": self.navigate.status()} if self.navigate is not None else {}),
             **(
@@ -544,13 +377,11 @@ class Ros2Bridge:
         if self.navigate is not None:
             self.navigate.close()
         self.odometry_services.close()
-        for pending in self._pending_calls.values():
-            pending.query.drop()
-        self._pending_calls.clear()
+        self.motor_services.close()
         if self._localization is not None:
             self._localization.undeclare()
-        for entity in (*self._queryables, *self._motor_methods.values(), *self.publishers.values()):
-            entity.undeclare()
+        for publisher in self.publishers.values():
+            publisher.undeclare()
         self.tokens.close()
         if self.bag_journal is not None:
             self.bag_journal.close()
@@ -568,29 +399,6 @@ def _bag_journal(options: Ros2Options, config: Config) -> Journal | None:
         )
     except OSError as error:
         raise ConfigError(f"--bag-journal {directory}: {error.strerror}") from None
-
-
-def _localization_reply(reply: zenoh.Reply) -> LocalizationReply:
-    """zenoh's thread: the localization's reply to an initial pose (a refusal naming why, for an
-    error reply or one that does not decode)."""
-    if reply.ok is None:
-        text = reply.err.payload.to_bytes().decode(errors="replace") if reply.err is not None else ""
-        return LocalizationReply(False, f"the localization answered an error: {text}")
-    try:
-        return decode(LocalizationReply, reply.ok.payload.to_bytes())
-    except BadInput as error:
-        return LocalizationReply(False, f"the localization's reply does not decode: {error}")
-
-
-def _reply_text(reply: zenoh.Reply) -> tuple[bool, str]:
-    """zenoh's thread: (ok, what to tell the ROS caller) of the motor's reply."""
-    if reply.ok is None:
-        return False, f"the motor refused: {reply.err.payload.to_bytes().decode(errors='replace') if reply.err else ''}"
-    try:
-        state = msgspec.json.decode(reply.ok.payload.to_bytes()).get("state", "?")
-    except (msgspec.DecodeError, UnicodeDecodeError, AttributeError):
-        state = "?"
-    return True, f"motor state: {state}"
 
 
 COMMAND = ServiceCommand(service=Service.ROS2, factory=Ros2Bridge, timestamped=True)

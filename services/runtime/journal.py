@@ -34,7 +34,7 @@ from pathlib import Path
 
 import msgspec
 
-from schemas.keys import Topic
+from schemas.topics import Topic
 
 SUFFIX = ".journal"
 BATCH_SAMPLES = 4096

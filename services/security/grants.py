@@ -14,19 +14,8 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
-from schemas.keys import (
-    LATCHED_TOPICS,
-    ROOT,
-    GoalMethod,
-    Keys,
-    LocalizationMethod,
-    Method,
-    MethodFamily,
-    Service,
-    Topic,
-    UserServiceName,
-    all_robots_status,
-)
+from schemas.keys import ROOT, Keys, Service, UserServiceName, all_robots_status
+from schemas.topics import LATCHED_TOPICS, GoalMethod, LocalizationMethod, Method, MethodFamily, Topic
 from services.config import Config
 from services.config.sections import LocalizationMode
 from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, MOTOR_SERVICES, SUBSCRIPTIONS, BridgeGraph, bridge_graph

@@ -6,7 +6,7 @@ from typing import Any
 
 import msgspec
 
-from schemas.messages import GoalReply, GoalRequest
+from schemas.navigation import GoalReply, GoalRequest
 from services.extension.api import BadInput, Context, Delivery, Lockstep, Reply, Time, UserService
 
 
