@@ -344,7 +344,7 @@ def _measure(session: zenoh.Session, run: UpRun | ServicesRun, warmup_s: float, 
     steps = last["steps"] - first["steps"]
     wall = last_wall - first_wall
     counters = {name: last["counters"][name] - first["counters"][name] for name in last["counters"]}
-    late_counter = "late_torques" if last["mode"] == "lockstep" else "realtime_late_steps"
+    late_counter = "long_waits" if last["mode"] == "lockstep" else "realtime_late_steps"
     first_rt, last_rt = first.get("rt") or {}, last.get("rt") or {}
     gc = (
         {

@@ -10,15 +10,15 @@ what it owes. A finite run (``--duration S``) ends by publishing the state at S,
 
 - **lockstep** (default): before stepping, wait for the ``motor/torque`` whose ``tm`` is this
   step's; a torque with any other ``tm`` is stale (counted, ignored). The wait happens only
-  while a motor control is alive (its liveliness token ``motor/alive``): with none, steps run
-  without waiting, zero torque. An answer later than ``sim.lockstep_timeout`` means zero
-  torque, a (rate-limited) warning and the next step. After ``sim.lockstep_max_late`` late
-  answers in a row the motor control counts as silent: each step then waits only one
-  real-time period for its torque (the sim runs at real-time pace, zero torque, slow enough
-  for a motor control to work off its backlog) until a torque from it arrives again.
+  while a motor control is alive (its liveliness token ``motor/alive``), however long it takes
+  (each ``sim.lockstep_timeout`` it goes on is said): with none, steps run without waiting, zero
+  torque. A motor control that comes after the first step is silent until its first torque:
+  each step then waits only one real-time period for its torque (the sim runs at real-time pace,
+  zero torque, slow enough for a motor control to work off its backlog).
   The whole loop is in lockstep too (services/clock/lockstep.py): at each tick of a participant (the
   drive, the localization: liveliness tokens ``<service>/ticks/<rate>``) the step also waits for
-  its output, and the marks of the steps' wheel angles say what the motor and odometry hold
+  its output, as long as its token lives (one whose token goes is dropped at once, named in the
+  status), and the marks of the steps' wheel angles say what the motor and odometry hold
   their samples for. ``--wait-for`` and ``--until-drive-ends`` make a run start and end at
   the same step every time.
 - **realtime**: steps paced to the wall clock times ``sim.realtime_factor``; each applies the

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from schemas.codec import encode
-from schemas.keys import Method, MethodFamily, Service, ServiceName
+from schemas.keys import Service, ServiceName
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
     BumpEvent,
@@ -26,6 +26,7 @@ from schemas.messages import (
     TimedPosition,
     TimedVelocity,
 )
+from schemas.topics import Method, MethodFamily
 from services.clock.lockstep import OUTPUTS, StampedOutput, TickBarrier, encode_mark
 from services.clock.observation import ObservedSteps
 from services.config import SimConfig, SimMode
@@ -48,7 +49,7 @@ _BUMP_STOP_PAYLOAD = encode(NoArguments())
 
 COUNTERS = (
     "torques_applied",
-    "late_torques",
+    "long_waits",
     "missing_torques",
     "stale_torques",
     "bumps",
@@ -57,7 +58,6 @@ COUNTERS = (
     "bump_stop_errors",
     "realtime_resyncs",
     "realtime_late_steps",
-    "tick_timeouts",
     "refused_participants",
     "braked_steps",
     "scans",
@@ -73,25 +73,23 @@ class TorqueLog:
     def __init__(self, log: logging.Logger, warn: RateLimitedLog, parameters: SimConfig, prefix: str) -> None:
         self._log, self._warn, self._parameters, self._prefix = log, warn, parameters, prefix
 
-    def late(self, tm_ns: int) -> None:
+    def waiting(self, tm_ns: int, waited_s: float) -> None:
         self._warn(
-            "late_torque",
+            "long_torque_wait",
             logging.WARNING,
-            "%sno motor/torque for t = %.3f s within %.3f s: zero torque",
+            "%sstill waiting for motor/torque for t = %.3f s after %.1f s: its motor control is alive",
             self._prefix,
             tm_ns / NANOSECONDS_PER_SECOND,
-            self._parameters.lockstep_timeout,
+            waited_s,
         )
 
     def silent(self) -> None:
-        self._log.warning(
-            "%smotor control alive but silent for %d steps: stepping at real-time pace until it answers",
-            self._prefix,
-            self._parameters.lockstep_max_late,
+        self._log.info(
+            "%smotor control alive after the first step: stepping at real-time pace until it answers", self._prefix
         )
 
     def answering(self) -> None:
-        self._log.info("%smotor control answers again: steps wait for its torques", self._prefix)
+        self._log.info("%smotor control answers: steps wait for its torques", self._prefix)
 
     def braking(self) -> None:
         self._log.warning(
@@ -360,6 +358,7 @@ class RobotLink:
             torque_latency=self.latency.summary(),
             late_fraction=late_fraction(self.counters, status["steps"], self._lockstep),
             lockstep_participants=self.barrier.status(),
+            dropped_participants=list(self.liveness.dropped),
             observed_steps=self.observation.count,
             observed_rates=self.observation.rates(),
             drive_ended=self.liveness.drive_ended,

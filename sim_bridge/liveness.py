@@ -2,7 +2,8 @@
 motor control (``motor/alive``), the lockstep participants (``<service>/ticks/<rate>``) whose ticks
 the steps wait at, the observers (``<service>/observes/<rate>``) whose steps are observed too, and
 the drive's end. The link's zenoh callbacks hand each change over to the service thread, which
-calls these."""
+calls these: a lockstep wait in progress wakes for it, so a participant whose token goes is dropped
+at once (named in the status's ``dropped_participants``)."""
 
 from __future__ import annotations
 
@@ -43,6 +44,13 @@ class Liveness:
     """Its motor control was alive and has gone: until one is back, nothing its participants
     command can move the robot, so the world does not wait at their ticks (in a fleet, the
     other robots go on at their pace)."""
+    steps_over: bool = field(default=False, init=False)
+    """The lockstep loop has stopped stepping: a participant that goes now (the run's end) is not dropped."""
+    dropped: list[dict[str, object]] = field(default_factory=list, init=False)
+    """The participants whose token went while the lockstep run stepped and before their last
+    output: ``{"service": name, "sim_time_s": the latest step's time}``, in order."""
+    _long_wait_ns: int = field(default=-1, init=False)
+    """The tick whose wait was last counted in ``long_waits``: counted once per tick."""
     drive_ended: bool = field(default=False, init=False)
     """The drive's last target (its scenario ended) has arrived, or the drive has gone: its token
     and its last target travel separately, and the token may come first."""
@@ -53,6 +61,8 @@ class Liveness:
             return
         self.motor_lost = torque.motor_alive and not alive
         torque.set_motor_alive(alive)
+        if torque.silent:
+            return  # said by the policy's event
         if alive:
             effect = "steps wait for its torques" if self.torque.lockstep else "applying its torques"
         else:
@@ -84,12 +94,34 @@ class Liveness:
                 self.log.info("%s%s ticks at %g Hz: steps at its ticks wait for its output", prefix, service, rate_hz)
             return
         self.observation.remove(key)
+        ended = self.barrier.final(service)
         if self.barrier.withdraw(service):
             self.owed_changed()
-            if lockstep:
+            if lockstep and not ended and self.progress.started and not self.steps_over:
+                self._drop(service)
+            elif lockstep:
                 self.log.info("%s%s gone: its ticks are not waited for", prefix, service)
             if service is Service.DRIVE:
                 self.drive_ended = True
+
+    def _drop(self, service: ServiceName) -> None:
+        t_s = max(self.progress.published_ns, 0) / NANOSECONDS_PER_SECOND
+        self.dropped.append({"service": str(service), "sim_time_s": t_s})
+        self.log.warning(
+            "%s%s gone at t = %.3f s (its liveliness token): dropped, its ticks are not waited for",
+            self.prefix,
+            service,
+            t_s,
+        )
+
+    def _ended_after_its_token(self, service: ServiceName) -> None:
+        """A participant's last output came after its token had gone (they travel separately, and
+        the token may come first): it ended, it was not dropped."""
+        for index in range(len(self.dropped) - 1, -1, -1):
+            if self.dropped[index]["service"] == str(service):
+                del self.dropped[index]
+                self.log.info("%s%s had ended: its last output came after its token", self.prefix, service)
+                return
 
     def observer_changed(self, key: str, alive: bool) -> None:
         parsed = parse_observes_key(key)
@@ -106,21 +138,28 @@ class Liveness:
         self, service: ServiceName, message: TimedVelocity | TimedPosition | StampedOutput, attachment: bytes | None
     ) -> None:
         final = attachment == FINAL
+        if final:
+            self._ended_after_its_token(service)
         self.barrier.took(service, message.tm.to_nanoseconds(), self.progress.published_ns, final=final)
         self.owed_changed()
         if final and service is Service.DRIVE and not self.drive_ended:
             self.drive_ended = True
             self.log.info("%sthe drive's scenario ended at t = %.3f s", self.prefix, message.tm.to_seconds())
 
-    def tick_timed_out(self, service: ServiceName, tm_ns: int) -> None:
-        self.barrier.gave_up(service)
-        self.counters["tick_timeouts"] += 1
+    def still_waiting(self, missing: list[ServiceName], tm_ns: int, waited_s: float) -> None:
+        """The tick at ``tm_ns`` has waited ``waited_s`` (another ``sim.lockstep_timeout``) for the
+        outputs of ``missing``, whose tokens live: it waits on. Said (rate-limited), counted once
+        per tick in ``long_waits``."""
+        if tm_ns != self._long_wait_ns:
+            self._long_wait_ns = tm_ns
+            self.counters["long_waits"] += 1
         self.warn(
-            f"tick_timeout_{service}",
+            "long_tick_wait",
             logging.WARNING,
-            "%sno %s for t = %.3f s within %.3f s: stepping on; waiting for it again once it outputs",
+            "%sstill waiting for %s for t = %.3f s after %.1f s: %s alive",
             self.prefix,
-            self.barrier.output(service),
+            ", ".join(self.barrier.output(service) for service in missing),
             tm_ns / NANOSECONDS_PER_SECOND,
-            self.parameters.lockstep_timeout,
+            waited_s,
+            "its token" if len(missing) == 1 else "their tokens",
         )

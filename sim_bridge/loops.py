@@ -1,6 +1,6 @@
 """The sim bridge's two loops over every robot link (the mode's rules: :mod:`sim_bridge.bridge`):
-lockstep, each step waiting for its torques and at the participants' ticks for their outputs;
-realtime, steps paced to the wall clock. Their steps run at thousands a second: the per-step
+lockstep, each step waiting for its torques and at the participants' ticks for their outputs,
+for as long as their liveliness tokens say they live; realtime, steps paced to the wall clock. Their steps run at thousands a second: the per-step
 code takes its attributes once and calls as little as it can (benchmarks/README.md)."""
 
 from __future__ import annotations
@@ -83,16 +83,20 @@ class Loop:
     # --- lockstep ---
 
     def run_lockstep(self, stop: threading.Event) -> None:
-        while not stop.is_set():
-            final = self.final()
-            tm_ns = self._publish_state(final)
-            self._lockstep_torques(tm_ns, stop, final)
-            self._after_torques(tm_ns)
-            self._lockstep_ticks(tm_ns, stop)
-            if final or self.ended():
-                return
-            if self._step():
-                self._lockstep_bump_stops(stop)
+        try:
+            while not stop.is_set():
+                final = self.final()
+                tm_ns = self._publish_state(final)
+                self._lockstep_torques(tm_ns, stop, final)
+                self._after_torques(tm_ns)
+                self._lockstep_ticks(tm_ns, stop)
+                if final or self.ended():
+                    return
+                if self._step():
+                    self._lockstep_bump_stops(stop)
+        finally:
+            for liveness in self.liveness:
+                liveness.steps_over = True
 
     def _lockstep_torques(self, tm_ns: int, stop: threading.Event, final: bool) -> None:
         """Set this step's torque of every robot: its motor's answer for ``tm_ns``, or zero."""
@@ -106,25 +110,31 @@ class Loop:
             link.torque.end_wait(step_index, final)
 
     def _lockstep_torque(self, link: RobotLink, tm_ns: int, stop: threading.Event, final: bool) -> None:
-        """Wait for ``link``'s torque for ``tm_ns``; a torque that does not come counts as late or
-        missing, but for the ``final`` state's, which is never applied."""
+        """Wait for ``link``'s torque for ``tm_ns`` while its motor control is alive, however long
+        it takes (said at each ``sim.lockstep_timeout``); a silent one's for one real-time period."""
         torque = link.torque
-        if torque.motor_alive:
-            silent = torque.silent
-            deadline = time.monotonic() + torque.wait_s
-            spin_until = self.node.executor.spin_until  # the step's messages in one call, not one each
-            settled = torque.settled
-            while True:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0.0:
-                    if not settled():
-                        torque.wait_ran_out(tm_ns, silent, final)
-                    return
-                if spin_until(settled, min(remaining, STOP_POLL_S), link.torque_input) or stop.is_set():
-                    return
-        else:
+        if not torque.motor_alive:
             self.node.drain()
             torque.not_awaited(final)
+            return
+        spin_until = self.node.executor.spin_until  # the step's messages in one call, not one each
+        settled, torque_input = torque.settled, link.torque_input
+        interval = self.parameters.lockstep_timeout
+        began = time.monotonic()
+        said = began + interval
+        while not stop.is_set():
+            silent = torque.silent  # a motor control that goes and comes back mid-wait is silent
+            until = began + torque.silent_wait_s if silent else said
+            if spin_until(settled, max(0.0, min(until - time.monotonic(), STOP_POLL_S)), torque_input):
+                return
+            now = time.monotonic()
+            if now < until:
+                continue
+            if silent:
+                torque.silent_wait_ran_out(final)
+                return
+            torque.still_waiting(tm_ns, now - began)
+            said += interval
 
     def _lockstep_bump_stops(self, stop: threading.Event) -> None:
         """Wait until the step's ``motor/bump/stop`` calls have finished (answered, or past their
@@ -139,7 +149,9 @@ class Loop:
             self.node.executor.spin_until(finished, STOP_POLL_S)
 
     def _lockstep_ticks(self, tm_ns: int, stop: threading.Event) -> None:
-        """Wait for the outputs of the participants with a tick at ``tm_ns`` (or give up on them)."""
+        """Wait for the outputs of the participants with a tick at ``tm_ns``, each for as long as its
+        token lives (said at each ``sim.lockstep_timeout``): one whose token goes is dropped, and a
+        robot whose motor control has gone waits for none."""
         due = []
         for link in self.links:  # a loop, not a comprehension: this runs at every step
             if link.barrier.ticks(tm_ns):
@@ -147,19 +159,22 @@ class Loop:
         if not due:
             return
         node = self.node
-        deadline = time.monotonic() + self.parameters.lockstep_timeout
+        interval = self.parameters.lockstep_timeout
+        began = time.monotonic()
+        said = began + interval
         for link in due:
-            if link.liveness.motor_lost:
-                for service in link.barrier.missing():
-                    link.barrier.gave_up(service)
-                continue
-            while (missing := link.barrier.missing()) and not stop.is_set():
-                remaining = deadline - time.monotonic()
-                if remaining <= 0.0:
+            barrier, liveness = link.barrier, link.liveness
+            while (missing := barrier.missing()) and not stop.is_set():
+                if liveness.motor_lost:
                     for service in missing:
-                        link.liveness.tick_timed_out(service, tm_ns)
+                        barrier.gave_up(service)
                     break
-                node.spin_once(min(remaining, STOP_POLL_S), link.outputs[missing[0]])
+                now = time.monotonic()
+                if now >= said:
+                    liveness.still_waiting(missing, tm_ns, now - began)
+                    said += interval
+                    continue
+                node.spin_once(min(said - now, STOP_POLL_S), link.outputs[missing[0]])
 
     # --- realtime ---
 

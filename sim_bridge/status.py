@@ -44,8 +44,9 @@ def robot_summary(counters: dict[str, int], pose: dict[str, float]) -> str:
 
 
 def late_fraction(counters: dict[str, int], steps: int, lockstep: bool) -> float:
-    """Steps whose torque came late: past the timeout (lockstep), after the step (realtime)."""
-    late = counters["late_torques" if lockstep else "realtime_late_steps"]
+    """Steps that came late: that waited past ``sim.lockstep_timeout`` (lockstep, ``long_waits``),
+    whose torque came after the step (realtime)."""
+    late = counters["long_waits" if lockstep else "realtime_late_steps"]
     return late / steps if steps else 0.0
 
 
@@ -102,7 +103,6 @@ class RunStatus:
                 "observe_every": parameters.observe_every,
                 "duration": self.duration,
                 "lockstep_timeout": parameters.lockstep_timeout,
-                "lockstep_max_late": parameters.lockstep_max_late,
                 "realtime_factor": parameters.realtime_factor,
                 "torque_max_age": parameters.torque_max_age,
                 "brake_after": parameters.brake_after,

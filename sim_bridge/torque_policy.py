@@ -6,10 +6,12 @@ loop asks it at each step; it applies its choice to the robot's :class:`Wheels` 
 
 - **lockstep**: a step waits for the torque whose ``tm`` is its own (:meth:`~TorquePolicy.begin_wait`);
   a torque with any other ``tm``, or a second one, is stale (counted, ignored). The wait happens
-  only while a motor control is alive. An answer later than ``sim.lockstep_timeout`` is late:
-  zero torque; after ``sim.lockstep_max_late`` late answers in a row the motor control counts as
-  silent, and each step then waits only one real-time period (``sim.step / sim.realtime_factor``)
-  until a torque from it arrives again. The ``final`` state of a finite run takes its torque
+  only while a motor control is alive (its liveliness token), and then for as long as it takes:
+  past ``sim.lockstep_timeout`` it is only said (:meth:`~TorquePolicy.still_waiting`, counted once
+  per step). A motor control that comes after the first step is *silent* until it answers the
+  step waited for in time (it may have missed that step's wheel angles, or the drive's command
+  a step's mark owes): each step then waits only one real-time period
+  (``sim.step / sim.realtime_factor``). The ``final`` state of a finite run takes its torque
   without applying it.
 - **realtime**: each step applies the newest torque, or none when the newest is older than
   ``sim.torque_max_age``; a torque stamped after the latest step published is from the future
@@ -37,7 +39,7 @@ from sim_bridge.progress import RunProgress
 
 TORQUE_COUNTERS = (
     "torques_applied",
-    "late_torques",
+    "long_waits",
     "missing_torques",
     "stale_torques",
     "realtime_late_steps",
@@ -64,16 +66,17 @@ class Wheels(Protocol):
 class TorqueEvents(Protocol):
     """What the policy has the log say (the bridge's link words each line)."""
 
-    def late(self, tm_ns: int) -> None:
-        """No torque for the step at ``tm_ns`` within ``sim.lockstep_timeout``: zero torque."""
+    def waiting(self, tm_ns: int, waited_s: float) -> None:
+        """The step at ``tm_ns`` has waited ``waited_s`` (another ``sim.lockstep_timeout``) for its
+        torque, and waits on: its motor control is alive."""
         ...
 
     def silent(self) -> None:
-        """The motor control counts as silent: steps at real-time pace until it answers."""
+        """A motor control came after the first step: steps at real-time pace until it answers."""
         ...
 
     def answering(self) -> None:
-        """The silent motor control answers again."""
+        """The silent motor control answers: steps wait for its torques."""
         ...
 
     def braking(self) -> None:
@@ -88,8 +91,8 @@ def brake_steps(brake_after: float | None, step_ns: int) -> int | None:
 
 class TorquePolicy:
     """One robot's torque state: the lockstep wait for its step's torque, the newest torque
-    (realtime), the late answers in a row and the silence they lead to, the last step a torque
-    was applied at (for the brakes)."""
+    (realtime), whether the motor control is silent (come after the first step, not answering
+    yet), the last step a torque was applied at (for the brakes)."""
 
     def __init__(
         self,
@@ -116,20 +119,19 @@ class TorquePolicy:
         """The clock of the torque latency (``time.perf_counter_ns``)."""
         self.lockstep = sim.mode == SimMode.LOCKSTEP
         """The mode, as the per-step code asks it (an enum comparison costs more than the attribute)."""
-        self.timeout_s = sim.lockstep_timeout
         self.silent_wait_s = sim.step / sim.realtime_factor
-        """Lockstep, the motor control silent: one real-time period per step."""
-        self.wait_s = self.timeout_s
-        """How long this step waits for its torque: :attr:`timeout_s`, or :attr:`silent_wait_s` while silent."""
-        self.max_late = sim.lockstep_max_late
+        """Lockstep, the motor control silent: how long a step waits for its torque (one real-time period)."""
         self.max_age_ns = round(sim.torque_max_age * NANOSECONDS_PER_SECOND)
         self.brake_steps = brake_steps(sim.brake_after, step_ns)
         self.motor_alive = False
         self.silent = False
-        """Alive but not answering: lockstep steps at real-time pace until its next torque."""
-        self.late_in_a_row = 0
+        """Lockstep: alive since after the first step, and no step answered in time yet: it may have
+        subscribed too late for a step's wheel angles or for the output a mark owes (which it would
+        hold the step for), so steps go at real-time pace until it answers one."""
         self.awaited_ns = -1
         self.answered = False
+        self.waited_long = False
+        """This step's wait has passed ``sim.lockstep_timeout`` (counted once in ``long_waits``)."""
         self.newest_torque: Sequence[float] | None = None
         """The newest answer (torques, or wheel speed targets: :attr:`newest_apply` says which)."""
         self.newest_apply: Callable[[Sequence[float]], None] = wheels.set_torques
@@ -159,11 +161,12 @@ class TorquePolicy:
         tm_ns = torque.tm.to_nanoseconds()
         self._latency.answered(tm_ns, self._now_ns())
         if self.lockstep:
-            if self.silent:
-                self._set_silent(False)
             if tm_ns != self.awaited_ns or self.answered:
                 self._counters["stale_torques"] += 1
                 return
+            # The step waited for, answered in time: the motor control is in step with the loop
+            # (it holds no sample for an output it subscribed too late to get), so steps wait for it.
+            self._set_silent(False)
             apply(torque.data)
             self.answered = True
         elif tm_ns > self._progress.published_ns:
@@ -176,16 +179,16 @@ class TorquePolicy:
             self.newest_torque, self.newest_ns, self.newest_apply = torque.data, tm_ns, apply
 
     def set_motor_alive(self, alive: bool) -> None:
-        """A motor control came or went: either way it is not silent (yet)."""
+        """A motor control came or went. In lockstep one that comes after the first step is silent
+        until it answers; one there before is waited for from the first step (the start-up
+        handshakes make sure it sees the first wheel angles)."""
         self.motor_alive = alive
-        self._set_silent(False)
+        self._set_silent(self.lockstep and alive and self._progress.started)
 
     def _set_silent(self, silent: bool) -> None:
-        self.late_in_a_row = 0
         if silent == self.silent:
             return
         self.silent = silent
-        self.wait_s = self.silent_wait_s if silent else self.timeout_s
         if silent:
             self._events.silent()
         elif self.motor_alive:
@@ -194,19 +197,24 @@ class TorquePolicy:
     # --- lockstep ---
 
     def begin_wait(self, tm_ns: int) -> None:
-        self.awaited_ns, self.answered = tm_ns, False
+        self.awaited_ns, self.answered, self.waited_long = tm_ns, False, False
 
     def settled(self) -> bool:
         """The wait for this step's torque is over: it came, or the motor has gone."""
         return self.answered or not self.motor_alive
 
-    def wait_ran_out(self, tm_ns: int, silent: bool, final: bool) -> None:
-        """The wait for the step at ``tm_ns`` ran out unsettled: a late answer if the motor control
-        was answering (``silent`` as the wait began), a missing one if it was silent (but for the
-        ``final`` state's, which is never applied)."""
-        if not silent:
-            self._late(tm_ns)
-        elif not final:
+    def still_waiting(self, tm_ns: int, waited_s: float) -> None:
+        """The step at ``tm_ns`` has waited ``waited_s`` for its torque (another
+        ``sim.lockstep_timeout``) and waits on: said each time, counted once per step."""
+        if not self.waited_long:
+            self.waited_long = True
+            self._counters["long_waits"] += 1
+        self._events.waiting(tm_ns, waited_s)
+
+    def silent_wait_ran_out(self, final: bool) -> None:
+        """A silent motor control's one real-time period passed without this step's torque: it is
+        missing (but for the ``final`` state's, which is never applied)."""
+        if not final:
             self._counters["missing_torques"] += 1
 
     def not_awaited(self, final: bool) -> None:
@@ -215,13 +223,6 @@ class TorquePolicy:
         if not (self.answered or final):
             self._counters["missing_torques"] += 1
 
-    def _late(self, tm_ns: int) -> None:
-        self._counters["late_torques"] += 1
-        self._events.late(tm_ns)
-        self.late_in_a_row += 1
-        if self.late_in_a_row >= self.max_late:
-            self._set_silent(True)
-
     def end_wait(self, step_index: int, final: bool) -> None:
         """After the wait for this step's torque: count it, or apply zero torque (or brake). The
         ``final`` state's torque is taken, never applied: the run ends there."""
@@ -229,7 +230,6 @@ class TorquePolicy:
         if final:
             return
         if self.answered:
-            self.late_in_a_row = 0
             self._counters["torques_applied"] += 1
             self.torque_step = step_index
         else:

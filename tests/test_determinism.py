@@ -32,8 +32,10 @@ from mcap.reader import make_reader
 
 from benchmarks.loop import cpu_seconds
 from schemas.codec import decode
-from schemas.keys import Keys, Service, Topic, schema_for_key
-from schemas.messages import GoalPlan, GoalTarget, ImuSample, LaserScan, ScenarioOutcome, TimedDoubleSeq, TimedPosition
+from schemas.keys import Keys, Service, schema_for_key
+from schemas.messages import ImuSample, LaserScan, ScenarioOutcome, TimedDoubleSeq, TimedPosition
+from schemas.navigation import GoalPlan, GoalTarget
+from schemas.topics import Topic
 from services.config import GoalsConfig
 from services.recording.mcap_files import read_messages
 from services.recording.scene import LOCALIZATION_TOPIC, ODOMETRY_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
@@ -65,11 +67,6 @@ SCHEMA_CHECKED = 500
 GOAL_TOPICS = (Topic.DRIVE_GOAL, Topic.DRIVE_GOAL_FEEDBACK, Topic.DRIVE_MAP, Topic.DRIVE_COSTMAP, Topic.DRIVE_PLAN)
 """Published in goal mode only (the navigation's too): a scenario's run has none."""
 BURNERS = 2
-PATIENT = ("--set", "sim.lockstep_timeout=5")
-"""Every run's lockstep waits give up after 5 s, not the default 0.5 s: beside two burners (and
-the run's recorder) on two cores, a wait for the drive's tick command, which waits for the
-odometry's pose, went past 0.5 s twice in about ten runs. The run then says so (a degraded run),
-but this test is about what a slow machine computes, not about how fast it answers."""
 BURNER_MIN_SHARE = 0.25
 """Each burner must have had at least this share of a core while it ran: enough to prove the loop
 shared the machine, whatever the loop's own speed (which a busy CI machine makes noisy)."""
@@ -127,7 +124,6 @@ def _run(report_dir: Path, recorded: tuple[str, ...], *flags: str, ask_status: b
                 str(report_dir),
                 "--connect",
                 endpoint,
-                *PATIENT,
                 *flags,
             ),
             cwd=REPO,
@@ -146,7 +142,11 @@ def _run(report_dir: Path, recorded: tuple[str, ...], *flags: str, ask_status: b
                         samples[key].append(sample.payload.to_bytes())
                 return process.poll() is not None
 
-            wait_until(collect, 300, "the run to end")
+            try:
+                wait_until(collect, 300, "the run to end")
+            except AssertionError as error:
+                process.kill()
+                raise AssertionError(f"{error}; its output:\n{process.stdout.read()[-6000:]}") from None
             collect()
             output = process.stdout.read()
         finally:
@@ -170,6 +170,13 @@ def runs(tmp_path_factory) -> dict[str, SquareRun]:
 
 def _comparable(report: dict) -> dict:
     return {name: value for name, value in report.items() if name not in (*WALL_CLOCK_FIELDS, "composed")}
+
+
+def _assert_loaded(run: SquareRun) -> None:
+    """The run did share the machine with the burners (checked after its samples, so that a
+    machine too busy for the burners still shows whether the samples matched)."""
+    assert run.burner_shares is not None and len(run.burner_shares) == BURNERS
+    assert min(run.burner_shares) >= BURNER_MIN_SHARE, f"the burners did not load the machine: {run.burner_shares}"
 
 
 def _assert_same_samples(first: SquareRun, second: SquareRun) -> None:
@@ -248,16 +255,13 @@ def test_every_step_of_the_run_is_recorded(runs):
 def test_composed_on_a_quiet_machine_and_separate_beside_burners_give_the_same_samples_and_report(runs):
     loaded, composed = runs["loaded"], runs["composed"]
     assert loaded.returncode == 0, loaded.output[-4000:]
-    assert loaded.burner_shares is not None and len(loaded.burner_shares) == BURNERS
-    assert min(loaded.burner_shares) >= BURNER_MIN_SHARE, (
-        f"the burners did not load the machine: {loaded.burner_shares}"
-    )
-    assert loaded.report["degraded"] == [], "a lockstep wait timed out: the machine was loaded past PATIENT"
+    assert loaded.report["degraded"] == [], "lockstep waits for what lives: nothing degrades"
     assert composed.returncode == 0, composed.output[-4000:]
     assert "(pid" not in composed.output, "composed mode must not start child processes"
     assert composed.report["composed"] is True
     _assert_same_samples(composed, loaded)
     assert _comparable(loaded.report) == _comparable(composed.report)
+    _assert_loaded(loaded)
 
 
 def test_no_service_refuses_anything_of_its_own_loop(runs):
@@ -427,9 +431,9 @@ def test_goals_sent_at_fixed_simulation_times_end_the_same_on_a_quiet_and_a_load
     home = decode(TimedDoubleSeq, quiet.samples[KEYS.sim_body_pose][-1]).data
     assert math.hypot(home[0], home[1]) <= GoalsConfig().position_tolerance, "the ground truth at the last goal"
     assert [decode(GoalTarget, sample).id for sample in quiet.samples[KEYS.drive_goal]] == ["g1", "corner", "g2"]
-    assert loaded.burner_shares is not None and min(loaded.burner_shares) >= BURNER_MIN_SHARE, loaded.burner_shares
     assert loaded.returncode == quiet.returncode, loaded.output[-4000:]
     _assert_same_samples(quiet, loaded)
+    _assert_loaded(loaded)
 
 
 DETOUR_GOAL_FILE = REPO / "examples" / "goals" / "u_trap.toml"
@@ -460,9 +464,9 @@ def test_a_goal_navigated_around_a_u_gives_the_same_plans_costmaps_and_outcome_q
     assert len(plans) >= 2, "replanned as the U came into view"
     assert any(abs(y) > 1.1 for plan in plans for _x, y in plan.points), "a plan round an arm of the U"
     assert plans[-1].points == [], "the plan cleared as the goal ended"
-    assert loaded.burner_shares is not None and min(loaded.burner_shares) >= BURNER_MIN_SHARE, loaded.burner_shares
     assert loaded.returncode == quiet.returncode, loaded.output[-4000:]
     _assert_same_samples(quiet, loaded)
+    _assert_loaded(loaded)
 
 
 AMCL_RECORDED = (
@@ -497,6 +501,6 @@ def test_a_seeded_particle_filter_gives_the_same_estimates_quiet_and_loaded(amcl
     estimates = [decode(TimedPosition, sample) for sample in quiet.samples[KEYS.localization_pose]]
     assert len(estimates) > 100 and all(len(estimate.error) == 6 for estimate in estimates), "amcl's, with covariance"
     assert quiet.samples[KEYS.localization_particles], "the particles were published"
-    assert loaded.burner_shares is not None and min(loaded.burner_shares) >= BURNER_MIN_SHARE, loaded.burner_shares
     assert loaded.returncode == quiet.returncode, loaded.output[-4000:]
     _assert_same_samples(quiet, loaded)
+    _assert_loaded(loaded)

@@ -7,8 +7,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from schemas.codec import BadInput
-from schemas.keys import Keys, Service, Topic, user_service_name
+from schemas.keys import Keys, Service, user_service_name
 from schemas.tokens import parse_ticks_key
+from schemas.topics import Topic
 from services.clock.lockstep import (
     MAX_PARTICIPANTS,
     Hold,
@@ -73,7 +74,7 @@ def test_missing_lists_the_outputs_not_yet_taken_and_an_output_completes_its_tic
     assert barrier.owed() == {Topic.DRIVE_TARGET_VELOCITY: 0, Topic.LOCALIZATION_POSE: 0}
 
 
-def test_one_that_timed_out_is_waited_for_again_only_once_it_outputs_again():
+def test_one_given_up_on_is_waited_for_again_only_once_it_outputs_again():
     barrier = TickBarrier()
     barrier.announce(Service.DRIVE, 50.0, from_start=True)
     assert barrier.ticks(0) == [Service.DRIVE]
@@ -82,6 +83,15 @@ def test_one_that_timed_out_is_waited_for_again_only_once_it_outputs_again():
     assert not any(barrier.ticks(k * MS) for k in range(1, 100))
     barrier.took(Service.DRIVE, 100 * MS, 100 * MS)
     assert barrier.ticks(120 * MS) == [Service.DRIVE]
+
+
+def test_one_that_rejoins_behind_the_present_is_waited_for_from_its_first_tick_after_it():
+    """Its output stamped 100 ms arrives at 1005 ms (the steps did not wait for it): the ticks
+    in between, and a catch-up tick at the next step, are none it would answer."""
+    barrier = TickBarrier()
+    barrier.announce(Service.DRIVE, 50.0, from_start=False)
+    barrier.took(Service.DRIVE, 100 * MS, 1005 * MS)
+    assert [k for k in range(1006, 1041) if barrier.ticks(k * MS)] == [1020, 1040]
 
 
 def test_a_withdrawn_or_finished_participant_is_not_waited_for():

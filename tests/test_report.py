@@ -143,3 +143,16 @@ def test_recorded_status_replies_never_break_the_health_only_the_readable_count(
     health = recorded_health(readable)
     degradations(health)
     assert set(health["services"]) <= set(readable) <= set(statuses)
+
+
+def test_a_participant_dropped_mid_run_is_named_and_degrades_it_but_long_waits_do_not():
+    sim = {
+        **_sim("lockstep", 20_000, long_waits=3),
+        "dropped_participants": [{"service": "localization", "sim_time_s": 3.2}],
+    }
+    health = loop_health(sim, {"sim": _service()})
+    assert "long_waits" not in health["lockstep"], "how long waits took is the machine's, as the wall time"
+    (reason,) = degradations(health)
+    assert reason == "localization dropped at t = 3.200 s (its token went first)"
+    health = loop_health(_sim("lockstep", 20_000, long_waits=3), {"sim": _service()})
+    assert degradations(health) == [], "a wait that went on is only slower: the run is the same"

@@ -15,8 +15,9 @@ import pytest
 import zenoh
 
 from schemas.codec import ENCODING, decode, encode
-from schemas.keys import Keys, Method, MethodFamily, Service
+from schemas.keys import Keys, Service
 from schemas.messages import BumpEvent, NoArguments, TimedDoubleSeq
+from schemas.topics import Method, MethodFamily
 from services.clock.lockstep import StepMark, decode_mark, observed
 from services.config import SimConfig
 from services.runtime.inputs import contents
@@ -167,7 +168,7 @@ def test_wheel_angles_every_step_body_pose_and_clock_at_the_observed_steps(sessi
     assert all(mark is not None and mark.owed == {} for mark in source.marks), "lockstep, no participant"
     assert all(len(a.data) == 2 for a in answered) and all(len(p.data) == 12 for p in poses)
     # The end state's torque is taken, never applied: the run ends there.
-    assert "finished: 500 steps" in err and "torques_applied 500" in err and "late_torques 0" in err
+    assert "finished: 500 steps" in err and "torques_applied 500" in err and "long_waits 0" in err
 
 
 @pytest.mark.parametrize("every", [30, 1000])
@@ -250,32 +251,36 @@ def test_lockstep_without_a_torque_source_finishes_a_one_second_run(session, end
     assert max(a.tm.to_nanoseconds() for a in angles.drain()) == 1000 * STEP_NS, "and the end state at 1 s"
 
 
-def test_a_silent_motor_control_costs_the_timeout_then_is_paced_until_it_answers(session, endpoint):
+def test_a_motor_control_alive_is_waited_for_as_long_as_it_lives_said_at_each_timeout(session, endpoint):
     source = TorqueSource(session, constant(2.0, 2.0))
     source.declare_alive()
     try:
         with sim_process(endpoint, "--set", "sim.lockstep_timeout=0.05") as sim:
             wait_alive(session, KEYS.alive(Service.SIM))
-            silent = wait_until(lambda: (reply := status(session))["motor_silent"] and reply, what="a silent motor")
-            assert silent["counters"]["late_torques"] == silent["parameters"]["lockstep_max_late"] == 3
-            assert silent["counters"]["torques_applied"] == 0
-            wait_until(lambda: status(session)["steps"] > silent["steps"] + 50, what="paced steps with zero torque")
+            waiting = wait_until(
+                lambda: (reply := status(session))["counters"]["long_waits"] and reply, what="a long wait"
+            )
+            time.sleep(0.5)  # ten timeouts: a give-up would have stepped on
+            still = status(session)
+            assert waiting["steps"] == still["steps"] == 0, "the first step waits for its torque"
+            assert still["counters"]["long_waits"] == 1, "counted once per step, however long it waits"
+            assert still["counters"]["missing_torques"] == 0 and still["motor_silent"] is False
 
             while (answered := status(session))["counters"]["torques_applied"] < 200:
-                source.answer(100)  # the backlog first: stale answers, but they show the motor is back
-            assert answered["motor_silent"] is False and answered["torques"] == [2.0, 2.0]
+                source.answer(100)
+            assert answered["torques"] == [2.0, 2.0] and answered["counters"]["missing_torques"] == 0
             code, _out, err = sim.stop()
         assert code == 0, err
-        assert "no motor/torque for t = 0.000 s within 0.050 s: zero torque" in err
-        assert "motor control alive but silent for 3 steps" in err and "motor control answers again" in err
+        assert "still waiting for motor/torque for t = 0.000 s after " in err
+        assert "s: its motor control is alive" in err
     finally:
         source.close()
 
 
-def test_a_late_torque_source_is_picked_up_and_a_dead_one_dropped(session, endpoint):
+def test_a_late_torque_source_is_paced_until_it_answers_then_waited_for_and_a_dead_one_dropped(session, endpoint):
     source = TorqueSource(session, constant(2.0, 2.0))
     try:
-        with sim_process(endpoint, "--set", "sim.lockstep_timeout=5") as sim:
+        with sim_process(endpoint) as sim:
             wait_alive(session, KEYS.alive(Service.SIM))
             wait_until(lambda: status(session)["steps"] > 200, what="free running without a motor")
             assert status(session)["motor_alive"] is False
@@ -285,12 +290,12 @@ def test_a_late_torque_source_is_picked_up_and_a_dead_one_dropped(session, endpo
             wait_until(lambda: status(session)["bad_input"]["total"] >= 1, what="the 3-torque message counted")
 
             source.declare_alive()
-            wait_until(lambda: status(session)["motor_alive"], what="the sim to see the torque source")
+            silent = wait_until(lambda: (reply := status(session))["motor_silent"] and reply, what="a silent motor")
+            wait_until(lambda: status(session)["steps"] > silent["steps"] + 50, what="paced steps with zero torque")
             while (before := status(session))["counters"]["torques_applied"] < 300:
                 source.answer(100)  # first the backlog from the free-running steps, all stale
             assert before["counters"]["stale_torques"] >= 1, "answers to samples from before the wait are ignored"
-            assert before["counters"]["late_torques"] == 0
-            assert before["torques"] == [2.0, 2.0]
+            assert before["motor_silent"] is False and before["torques"] == [2.0, 2.0]
 
             waiting_on = decode(TimedDoubleSeq, source.samples.get(timeout=5)[0]).tm.to_nanoseconds() // STEP_NS
             for _ in range(3):
@@ -301,6 +306,8 @@ def test_a_late_torque_source_is_picked_up_and_a_dead_one_dropped(session, endpo
             wait_until(lambda: status(session)["steps"] > waiting_on + 500, timeout=5, what="stepping on")
             code, _out, err = sim.stop()
         assert code == 0, err
+        assert "motor control alive after the first step: stepping at real-time pace" in err
+        assert "motor control answers: steps wait for its torques" in err
     finally:
         source.close()
 

@@ -1,5 +1,5 @@
 """The sim bridge's torque policy (sim_bridge/torque_policy.py) on its own: which torque a step
-applies when torques come late, not at all, or too old. Plain values, no zenoh, no PyBullet: the
+applies when torques come late, not at all, or too old, and when a lockstep step waits on. Plain values, no zenoh, no PyBullet: the
 wheels are a list of torques and a brake flag, as :class:`~sim_bridge.simulator.SimulatedRobot`
 keeps them; the events are the lines the log would say."""
 
@@ -50,8 +50,8 @@ class Wheels:
 class Events:
     said: list[tuple[str, int]] = field(default_factory=list)
 
-    def late(self, tm_ns: int) -> None:
-        self.said.append(("late", tm_ns))
+    def waiting(self, tm_ns: int, waited_s: float) -> None:
+        self.said.append(("waiting", tm_ns))
 
     def silent(self) -> None:
         self.said.append(("silent", 0))
@@ -86,17 +86,20 @@ class Rig:
         self.progress.published_ns = tm_ns
         self.latency.published(tm_ns, tm_ns)
 
-    def lockstep_step(self, step_index: int, answered: bool, final: bool = False) -> None:
-        """One lockstep step with a motor alive: its torque comes in time, or its wait runs out."""
+    def lockstep_step(self, step_index: int, answered: bool, final: bool = False, intervals: int = 0) -> None:
+        """One lockstep step with a motor alive: ``intervals`` times ``sim.lockstep_timeout`` pass,
+        then its torque comes; or, the motor silent, its one real-time period runs out."""
         tm_ns = step_index * STEP_NS
         self.publish(tm_ns)
         policy = self.policy
-        silent = policy.silent
         policy.begin_wait(tm_ns)
+        for interval in range(1, intervals + 1):
+            policy.still_waiting(tm_ns, interval * SimConfig().lockstep_timeout)
         if answered:
             self.torque(tm_ns)
         if not policy.settled():
-            policy.wait_ran_out(tm_ns, silent, final)
+            assert policy.silent, "only a silent motor control's wait runs out: an answering one's lasts while it lives"
+            policy.silent_wait_ran_out(final)
         policy.end_wait(step_index, final)
 
 
@@ -117,6 +120,14 @@ def rig(mode: SimMode = SimMode.LOCKSTEP, *, motor_alive: bool = True, **sim: fl
     )
     policy.set_motor_alive(motor_alive)
     return Rig(policy, wheels, events, counters, progress, latency, clock_ns)
+
+
+def joined_rig(**sim: float | None) -> Rig:
+    """A lockstep rig whose motor control came after the first step: silent until it answers."""
+    r = rig(motor_alive=False, **sim)
+    r.progress.started = True
+    r.policy.set_motor_alive(True)
+    return r
 
 
 # --- lockstep ---
@@ -170,65 +181,73 @@ def test_a_torque_with_another_number_of_wheels_is_bad_input_and_changes_nothing
     assert not r.policy.answered and r.wheels.torques == [0.0, 0.0]
 
 
-def test_a_late_answer_is_zero_torque_counted_and_said():
+def test_a_wait_past_the_timeout_is_said_each_interval_and_counted_once_per_step_and_its_torque_applied():
     r = rig()
-    r.wheels.set_torques([1.0, 1.0])
-    r.lockstep_step(1, answered=False)
-    assert r.wheels.torques == [0.0, 0.0] and not r.wheels.braking
-    assert r.counters["late_torques"] == 1 and r.counters["torques_applied"] == 0
-    assert r.events.said == [("late", STEP_NS)]
-
-
-def test_lockstep_max_late_late_answers_in_a_row_make_the_motor_silent_and_its_wait_one_real_time_period():
-    r = rig(lockstep_max_late=3, step=0.001, realtime_factor=0.5)
-    for step in range(1, 3):
-        r.lockstep_step(step, answered=False)
-    assert not r.policy.silent and r.policy.wait_s == r.policy.timeout_s
-    r.lockstep_step(3, answered=False)
-    assert r.policy.silent and r.policy.wait_s == pytest.approx(0.002)
-    assert r.events.kinds() == ["late", "late", "late", "silent"]
-
-
-def test_an_answered_step_starts_the_late_answers_in_a_row_again():
-    r = rig(lockstep_max_late=2)
-    r.lockstep_step(1, answered=False)
+    r.lockstep_step(1, answered=True, intervals=3)
+    assert r.wheels.torques == [1.0, 2.0] and r.counters["torques_applied"] == 1
+    assert r.counters["long_waits"] == 1 and r.events.said == [("waiting", STEP_NS)] * 3
     r.lockstep_step(2, answered=True)
-    r.lockstep_step(3, answered=False)
-    assert not r.policy.silent and r.counters["late_torques"] == 2
+    r.lockstep_step(3, answered=True, intervals=1)
+    assert r.counters["long_waits"] == 2 and r.counters["missing_torques"] == 0
 
 
-def test_a_silent_motors_unanswered_step_counts_as_missing_not_late():
-    r = rig(lockstep_max_late=1)
+def test_a_motor_control_there_before_the_first_step_is_waited_for_from_it():
+    r = rig()
+    assert r.policy.motor_alive and not r.policy.silent and r.events.said == []
+
+
+def test_a_motor_control_that_comes_after_the_first_step_is_silent_its_wait_one_real_time_period():
+    r = joined_rig(step=0.001, realtime_factor=0.5)
+    assert r.policy.silent and r.policy.silent_wait_s == pytest.approx(0.002)
+    assert r.events.kinds() == ["silent"]
+
+
+def test_realtime_knows_no_silent_motor_control():
+    r = rig(SimMode.REALTIME, motor_alive=False)
+    r.progress.started = True
+    r.policy.set_motor_alive(True)
+    assert not r.policy.silent and r.events.said == []
+
+
+def test_a_silent_motors_unanswered_step_counts_as_missing():
+    r = joined_rig()
     r.lockstep_step(1, answered=False)
-    assert r.policy.silent
-    r.lockstep_step(2, answered=False)
-    assert r.counters["late_torques"] == 1 and r.counters["missing_torques"] == 1
+    assert r.policy.silent and r.counters["missing_torques"] == 1 and r.counters["long_waits"] == 0
 
 
-def test_any_torque_from_a_silent_motor_even_a_stale_one_ends_its_silence():
-    r = rig(lockstep_max_late=1)
+def test_only_a_silent_motors_answer_to_the_step_waited_for_ends_its_silence_a_stale_one_does_not():
+    r = joined_rig()
     r.lockstep_step(1, answered=False)
     r.policy.begin_wait(2 * STEP_NS)
     r.torque(STEP_NS)
-    assert not r.policy.silent and r.policy.wait_s == r.policy.timeout_s
-    assert r.counters["stale_torques"] == 1 and r.events.kinds()[-1] == "answering"
+    assert r.policy.silent and r.counters["stale_torques"] == 1, "it may still hold a step for an output it missed"
+    r.torque(2 * STEP_NS)
+    assert not r.policy.silent and r.policy.settled() and r.events.kinds()[-1] == "answering"
 
 
 def test_a_motor_that_goes_while_silent_is_no_longer_silent_and_not_said_to_answer():
-    r = rig(lockstep_max_late=1)
+    r = joined_rig()
     r.lockstep_step(1, answered=False)
     r.policy.set_motor_alive(False)
     assert not r.policy.silent and "answering" not in r.events.kinds()
+
+
+def test_a_motor_that_comes_back_after_the_first_step_is_silent_again():
+    r = joined_rig()
+    r.lockstep_step(1, answered=True)
+    r.policy.set_motor_alive(False)
+    r.policy.set_motor_alive(True)
+    assert r.policy.silent and r.events.kinds() == ["silent", "answering", "silent"]
 
 
 def test_the_final_state_counts_neither_its_torque_nor_a_missing_one():
     r = rig()
     r.lockstep_step(7, answered=True, final=True)
     assert r.policy.answered and r.counters["torques_applied"] == 0
-    r = rig(lockstep_max_late=1)
+    r = joined_rig()
     r.lockstep_step(1, answered=False)
     r.lockstep_step(2, answered=False, final=True)
-    assert r.counters["missing_torques"] == 0 and not r.wheels.braking
+    assert r.counters["missing_torques"] == 1 and not r.wheels.braking
 
 
 def test_a_step_that_waited_for_no_motor_counts_its_torque_missing_unless_one_came_or_it_is_final():
@@ -271,12 +290,13 @@ def test_without_brake_after_the_wheels_never_brake():
 
 
 def test_a_torque_after_braking_releases_the_brakes_and_restarts_the_count():
-    r = rig(brake_after=0.002, lockstep_max_late=100)
+    r = joined_rig(brake_after=0.002)
     for step in range(3):
         r.lockstep_step(step, answered=False)
     assert r.wheels.braking
     r.lockstep_step(3, answered=True)
     assert not r.wheels.braking and r.policy.torque_step == 3
+    r.policy.set_motor_alive(False)
     r.lockstep_step(4, answered=False)
     assert not r.wheels.braking
 
@@ -360,32 +380,32 @@ def test_a_lockstep_wait_applies_exactly_the_first_torque_of_its_step_and_counts
 
 
 @settings(max_examples=200)
-@given(st.lists(st.booleans(), max_size=60), st.integers(1, 5))
-def test_the_motor_is_silent_exactly_after_lockstep_max_late_late_answers_in_a_row(answers: list[bool], max_late: int):
-    r = rig(lockstep_max_late=max_late)
-    silent, in_a_row, late, missing = False, 0, 0, 0
-    for step, answered in enumerate(answers):
-        r.lockstep_step(step, answered)
-        if answered:
-            silent, in_a_row = False, 0
-        elif silent:
-            missing += 1
-        else:
-            late += 1
-            in_a_row += 1
-            silent = in_a_row >= max_late
-            in_a_row = 0 if silent else in_a_row
-        assert r.policy.silent == silent
-    assert (r.counters["late_torques"], r.counters["missing_torques"]) == (late, missing)
-    assert r.counters["torques_applied"] == sum(answers)
+@given(st.integers(0, 20), st.lists(st.integers(0, 4), max_size=40))
+def test_a_joined_motor_is_silent_until_its_first_torque_then_every_step_waits_for_its_own(
+    unanswered: int, intervals: list[int]
+):
+    """Silent: ``unanswered`` steps go by, each missing; then each step waits, ``intervals`` times
+    ``sim.lockstep_timeout`` (said each time, counted once per step), for the torque it applies."""
+    r = joined_rig()
+    for step in range(unanswered):
+        r.lockstep_step(step, answered=False)
+        assert r.policy.silent
+    for offset, waited in enumerate(intervals):
+        r.lockstep_step(unanswered + offset, answered=True, intervals=waited)
+        assert not r.policy.silent
+    assert r.counters["missing_torques"] == unanswered
+    assert r.counters["torques_applied"] == len(intervals)
+    assert r.counters["long_waits"] == sum(1 for waited in intervals if waited)
+    assert r.events.kinds().count("waiting") == sum(intervals)
 
 
 @settings(max_examples=200)
 @given(st.lists(st.booleans(), max_size=80), st.integers(1, 10))
 def test_the_wheels_brake_at_each_step_brake_after_or_more_past_the_last_torque(answers: list[bool], brake: int):
-    r = rig(brake_after=brake * STEP_NS / NANOSECONDS_PER_SECOND, lockstep_max_late=1000)
+    r = rig(brake_after=brake * STEP_NS / NANOSECONDS_PER_SECOND)
     last_torque, braked = 0, 0
     for step, answered in enumerate(answers):
+        r.policy.set_motor_alive(answered)  # a step without torque: no motor control alive
         r.lockstep_step(step, answered)
         if answered:
             last_torque = step

@@ -115,7 +115,7 @@ def test_the_sim_follows_wheel_speed_targets(session, endpoint, engine: str):
     answered, poses, err = run_with_source(
         session, endpoint, constant(3.0, 3.0), "--engine", engine, "--duration", "1", *VELOCITY, source=source
     )
-    assert len(answered) == 1001 and "late_torques 0" in err
+    assert len(answered) == 1001 and "long_waits 0" in err
     x, y = poses[-1].data[0], poses[-1].data[1]
     assert x == pytest.approx(0.3, abs=0.01) and abs(y) < 1e-3, "3 rad/s of a 0.1 m wheel for 1 s"
 

@@ -12,8 +12,9 @@ tick grid of their own are stepped too; they are the *participants*:
 - The simulator, at a step that is a tick of a participant, waits for that participant's
   output stamped with the step's time before it steps (:class:`TickBarrier`). A participant
   whose token was there when the simulator started is waited for from its first tick; one that
-  comes later, from its first output; one that misses a tick (the wait times out) or withdraws
-  its token is not waited for again until it outputs again.
+  comes later, from its first output. It is waited for as long as its token lives, however long
+  that takes (a loaded machine only slows the run); one that withdraws its token (it ended or
+  died) is dropped at once, and waited for again only once it outputs again.
 - Each lockstep step's wheel angles carry a :class:`StepMark` attachment whose ``owed`` says,
   for each participant's output key, the stamp of the newest output the simulator took. A
   consumer takes the sample only once it has taken that output too (:class:`Hold`): the motor
@@ -42,8 +43,9 @@ from typing import Generic, TypeVar
 import msgspec
 
 from schemas.codec import BadInput
-from schemas.keys import Service, ServiceName, Topic
+from schemas.keys import Service, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND, Time
+from schemas.topics import Topic
 from services.clock.sim_time import PeriodicSchedule
 
 SampleT = TypeVar("SampleT")
@@ -230,8 +232,9 @@ class TickBarrier:
     """The simulator's side: which participants' outputs a step must wait for.
 
     Per step, in order: :meth:`ticks` (the participants with a tick at this step), then
-    :meth:`missing` until it is empty (each :meth:`took` output may complete it), or
-    :meth:`gave_up` on one that times out; :meth:`owed` is the next step's attachment.
+    :meth:`missing` until it is empty (each :meth:`took` output may complete it, each
+    :meth:`withdraw` too), or :meth:`gave_up` on those a step does not wait for (their robot's
+    motor control has gone); :meth:`owed` is the next step's attachment.
     """
 
     def __init__(self) -> None:
@@ -285,8 +288,11 @@ class TickBarrier:
         if participant.taken_ns is None or stamp_ns > participant.taken_ns:
             participant.taken_ns = stamp_ns
         if participant.schedule is None:
+            # Waited for from its first tick after the present: a tick between its output and the
+            # present it would never answer (it may not even see that step's clock), and the wait
+            # for it would last as long as the participant lives.
             participant.schedule = PeriodicSchedule(participant.rate_hz, 0)
-            participant.schedule.due(stamp_ns)
+            participant.schedule.due(max(stamp_ns, now_ns))
             self._next_tick_ns = -1
         participant.final = participant.final or final
 
@@ -319,7 +325,7 @@ class TickBarrier:
         return list(self._awaited)
 
     def gave_up(self, service: ServiceName) -> None:
-        """Its output did not come in time: it is waited for again once it outputs again."""
+        """Its output is not waited for at this tick: it is waited for again once it outputs again."""
         self._awaited.pop(service, None)
         participant = self._participants.get(service)
         if participant is not None:

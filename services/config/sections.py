@@ -271,9 +271,11 @@ class SimConfig(Section, frozen=True):
     the motor's simulated poses, ``odometry/pose``; docs/protocol.md section 2.7). 1 = every
     step, the seeds' every-cycle behaviour. A recorded run records every step all the same."""
     lockstep_timeout: Annotated[Positive, WALL_SECONDS] = 0.5
-    """How long a lockstep step waits for its torque before applying zero and going on."""
-    lockstep_max_late: Annotated[int, msgspec.Meta(ge=1)] = 3
-    """Late torques in a row after which lockstep steps at real-time pace until the motor control answers again."""
+    """Lockstep: every how long a step that still waits for its torque, or for a participant's
+    output at its tick, says so (``long_waits``): it waits on for as long as the motor control's or
+    the participant's liveliness token lives (the drive waits so for a tick's pose). How long the
+    particle filter waits for a tick's scan, and the drive for a pose from an odometry that came
+    back mid-run, at most."""
     realtime_factor: Positive = 1.0
     """Realtime mode: simulated seconds per wall second."""
     torque_max_age: Annotated[Positive, SIMULATED_SECONDS] = 0.01

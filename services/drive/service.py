@@ -1,32 +1,28 @@
 """``invent drive``: the velocity source (the seed's DriveControlRTC), docs/protocol.md section 7.
 
-Publishes ``drive/target_velocity`` at ``drive.rate`` per second of simulation time. The
-clock is the stamps on ``sim/clock`` (the simulator's observed steps, among them each of the
-drive's ticks: its ticks token asks for them, docs/protocol.md section 2.7): the ticks are the grid ``round(k·1e9/rate)`` ns,
-each taken by the first stamp at or after it; scenario time starts at the first stamp seen once
-someone (the motor) subscribes to the target velocity, and a command is stamped with the stamp
-that took its tick. When the scenario starts, it publishes the path it plans on ``drive/path``
-(latched: a query gets it too). Waypoint segments close the loop on ``odometry/pose`` (odometry is reset by
-every ``localization/pose`` fix, so this is the localized pose corrected by odometry). Both
-inputs are sampled (:attr:`~services.runtime.inputs.Delivery.SAMPLED`): the drive acts on the newest clock
-stamp and pose, never on a backlog.
+Publishes ``drive/target_velocity`` at ``drive.rate`` per second of simulation time. The clock is the
+stamps on ``sim/clock`` (the simulator's observed steps, among them each tick: docs/protocol.md section
+2.7): the ticks are the grid ``round(k·1e9/rate)`` ns, each taken by the first stamp at or after it;
+scenario time starts at the first stamp once the motor subscribes, and a command is stamped with the
+stamp that took its tick. It publishes the path it plans on ``drive/path`` (latched). Waypoint segments
+close the loop on ``odometry/pose`` (reset by every ``localization/pose`` fix). Both inputs are sampled
+(:attr:`~services.runtime.inputs.Delivery.SAMPLED`): the newest clock stamp and pose, never a backlog.
 
 The drive is a lockstep participant (services/clock/lockstep.py): once the motor subscribes it holds
 the token ``drive/ticks/<rate>``, and in lockstep (the clock's samples carry the simulator's
 attachment) a tick's command is computed from the odometry pose stamped with that tick, waited
-for while odometry is alive (at most ``sim.lockstep_timeout`` of wall time).
+for as long as odometry is alive and in step (one that came back mid-run: at most
+``sim.lockstep_timeout`` of wall time, until it gives a tick's pose in time).
 
 When the scenario ends the drive publishes zero velocity on :data:`FINAL_ZERO_TICKS`
 successive ticks, so the stop is not lost, the last with the attachment
 :data:`~services.clock.lockstep.FINAL`, then its outcome on ``drive/outcome`` (latched), and exits
-with the outcome's code (services/drive/outcome.py): 0 ``completed``; 3 ``aborted``, given up
-because the motor stayed latched stopped (``motor/state``; ``sim/bump`` names what it bumped into),
-or its collision monitor held the robot (``motor/state``'s ``held_by``), for
-``drive.give_up_after_stop``; 4 ``timed_out``, a pass past the scenario's time limit. A
-``--twist`` holds its target until Ctrl-C and gives nothing up.
+with the outcome's code (services/drive/outcome.py): 0 ``completed``; 3 ``aborted``, the motor latched
+stopped (``sim/bump`` names what it bumped into) or held by its collision monitor (``held_by``) for
+``drive.give_up_after_stop``; 4 ``timed_out``, a pass past the scenario's time limit. A ``--twist``
+holds its target until Ctrl-C and gives nothing up.
 
-A restarted simulator (its liveliness token appears, then its clock goes back) starts the
-scenario over from its first stamp: a new simulator is a new run, the robot back at its start.
+A restarted simulator (its token appears, its clock goes back) starts the scenario over: a new run.
 
 In goal mode (``--goals``, ``--goal-file``; services/drive/goal_shell.py) there is no scenario and
 no planned path: the drive answers ``drive/goal/send`` and ``drive/goal/cancel``, commands zero
@@ -126,6 +122,10 @@ class DriveService:
         self._pass_elapsed_s = 0.0
         self.finished = False
         self.odometry_alive = False
+        self.odometry_in_step = False
+        """Odometry was there before the first tick, or has since given a tick's pose in time: a
+        tick's pose is then waited for as long as odometry lives (said every ``pose_wait_s``). One
+        that came back mid-run may hold its poses for a fix it missed: waited for ``pose_wait_s``."""
         self.pose_wait_s = config.sim.lockstep_timeout
         self.pose_wait_timeouts = 0
         """Lockstep ticks whose pose did not come within ``pose_wait_s``: computed from an older one."""
@@ -215,6 +215,7 @@ class DriveService:
 
     def _on_odometry_liveliness(self, alive: bool) -> None:
         self.odometry_alive = alive
+        self.odometry_in_step = alive and self.schedule is None
         if not alive:
             self._complete_tick()
 
@@ -291,12 +292,20 @@ class DriveService:
 
     def _complete_tick(self, stepped_on: bool = False) -> None:
         """Command the pending lockstep tick once the pose of its stamp has come, odometry is gone,
-        the wait is over, or the simulator has ``stepped_on`` without this tick's command."""
+        the wait is over (odometry not in step), or the simulator has ``stepped_on`` without this
+        tick's command."""
         if self._pending_tick is None:
             return
         tick_ns, deadline = self._pending_tick
         if self.pose_stamp_ns is None or self.pose_stamp_ns < tick_ns:
             if self.odometry_alive and not stepped_on and time.monotonic() < deadline:
+                return
+            if self.odometry_alive and not stepped_on and self.odometry_in_step:
+                self.node.log.warning(
+                    "still waiting for odometry/pose for t = %.3f s: odometry is alive",
+                    tick_ns / NANOSECONDS_PER_SECOND,
+                )
+                self._pending_tick = (tick_ns, time.monotonic() + self.pose_wait_s)
                 return
             if self.odometry_alive and not stepped_on:
                 self.pose_wait_timeouts += 1
@@ -305,6 +314,8 @@ class DriveService:
                     tick_ns / NANOSECONDS_PER_SECOND,
                     self.pose_wait_s,
                 )
+        else:
+            self.odometry_in_step = self.odometry_alive
         self._pending_tick = None
         self._command(tick_ns)
 

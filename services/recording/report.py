@@ -150,6 +150,7 @@ def loop_health(sim_status: dict[str, Any] | None, statuses: Mapping[str, dict[s
             "timeouts": counters.get("late_torques", 0) if lockstep else 0,
             "tick_timeouts": counters.get("tick_timeouts", 0) if lockstep else 0,
             "pose_wait_timeouts": drive.get("pose_wait_timeouts", 0) if lockstep else 0,
+            "dropped_participants": (sim_status or {}).get("dropped_participants", []) if lockstep else [],
         },
         "realtime": {"resyncs": counters.get("realtime_resyncs", 0)},
         "safety": {
@@ -265,8 +266,9 @@ def degradations(health: dict[str, Any]) -> list[str]:
             f"{health['lockstep']['tick_timeouts']} lockstep tick timeouts (steps that went on without a drive "
             "command or a localization fix they waited for)"
         )
-    # .get: recordings made before the drive's waits were reported have no such field.
-    if pose_waits := health["lockstep"].get("pose_wait_timeouts", 0):
+    for dropped in health["lockstep"].get("dropped_participants", []):  # .get: absent from older recordings
+        reasons.append(f"{dropped['service']} dropped at t = {dropped['sim_time_s']:.3f} s (its token went first)")
+    if pose_waits := health["lockstep"].get("pose_wait_timeouts", 0):  # .get: absent from older recordings
         reasons.append(
             f"{pose_waits} drive ticks commanded from an older pose (odometry's pose "
             "of the tick did not come within sim.lockstep_timeout)"
