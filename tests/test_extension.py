@@ -16,7 +16,8 @@ import pytest
 import zenoh
 
 from schemas.keys import Keys, Service, user_service_name
-from schemas.messages import GoalReply, Time
+from schemas.messages import Time
+from schemas.navigation import GoalReply
 from schemas.tokens import parse_alive_key, parse_participant_key, parse_ticks_key
 from services.clock.lockstep import OUTPUTS
 from services.config import Config
@@ -108,8 +109,10 @@ def test_invent_service_and_up_with_exit_2_naming_a_bad_spec(capsys):
     assert code == 2 and "Named" in err and "built-in" in err
     code, _out, err = refused(capsys, "up", "--with", _spec("Missing"), "--report", "/nonexistent/never")
     assert code == 2 and "defines no Missing" in err
-    code, _out, err = refused(capsys, "up", "--composed", "--with", f"{ODOMETER}:Odometer")
-    assert code == 2 and "--with with --composed" in err
+    code, _out, err = refused(
+        capsys, "up", "--composed", "--restart", "motor=on-failure", "--with", f"{ODOMETER}:Odometer"
+    )
+    assert code == 2 and "--restart motor=on-failure: no such service in this run (one of odometer)" in err
 
 
 # --- the API against real zenoh ---

@@ -21,7 +21,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from schemas.keys import Keys, Method, MethodFamily, Service
+from schemas.keys import Keys, Service
+from schemas.topics import Method, MethodFamily
 from services.exits import ExitStatus
 from tests.harness import REPO, Collector, call, free_port, invent_command, peer_session, wait_until
 
@@ -179,3 +180,38 @@ def test_a_motor_killed_in_lockstep_rejoins_and_past_the_limit_ends_the_run_nami
     report = run.report_json()
     assert (report["outcome"]["outcome"], report["outcome"]["service"]) == ("service_died", "motor")
     assert [restart["service"] for restart in report["restarts"]] == ["motor"]
+
+
+FIX_LEDGER = "examples/services/fix_ledger.py:FixLedger"
+
+
+def test_a_service_beside_a_composed_run_killed_comes_back_and_its_ticks_are_waited_for_again(tmp_path: Path) -> None:
+    """``--composed --with``: the user's service is a process of its own beside the composed loop, under
+    the restart policy; killed, it is started again, and the steps wait at its ticks again."""
+    flags = ("--composed", "--mode", "lockstep", "--with", FIX_LEDGER)
+    with restart_run(tmp_path, *flags) as run:
+
+        def pids() -> list[int]:
+            return [int(pid) for pid in re.findall(r"started fixes \(pid (\d+)\)", run.output.read_text())]
+
+        def alive() -> bool:
+            return any(True for _ in run.session.liveliness().get(KEYS.alive("fixes"), timeout=1.0))
+
+        wait_until(alive, 30, "the fix ledger's token")
+        os.kill(pids()[-1], signal.SIGKILL)
+        wait_until(lambda: len(pids()) == 2 or run.up.poll() is not None, 30, "the service started again")
+        assert run.up.poll() is None, run.output.read_text()[-3000:]
+        wait_until(alive, 30, "its token again")
+        outputs = Collector(run.session, f"{KEYS.prefix}/fixes/travelled")
+        try:
+            wait_until(lambda: outputs.samples.qsize() >= 3, 60, "three outputs of the service started again")
+        finally:
+            outputs.close()
+        run.up.send_signal(signal.SIGINT)
+        code = run.up.wait(120)
+    output = run.output.read_text()
+    assert code == ExitStatus.OK, output[-3000:]
+    assert "fixes killed by SIGKILL: starting it again in 0.1 s (restart 1 of at most 5" in output
+    assert output.count("fixes ticks at 1 Hz: steps at its ticks wait for its output") == 2, "waited for again"
+    restarts = run.report_json()["restarts"]
+    assert [(r["service"], r["signal"]) for r in restarts] == [("fixes", "SIGKILL")], restarts

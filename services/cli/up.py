@@ -113,13 +113,15 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
 
 def restart_plan(args: argparse.Namespace) -> RestartPlan:
     """``--restart``, ``--restart-limit`` and ``--restart-backoff`` as the run's :class:`RestartPlan`;
-    ConfigError (exit 2) naming a policy that is neither, or ``--restart`` with ``--composed``."""
+    ConfigError (exit 2) naming a policy that is neither, or ``--restart`` with ``--composed`` and no
+    service beside the composition (``--with``)."""
     default, by_service = parse_restarts(args.restart or ())
     plan = RestartPlan(default, by_service, args.restart_limit, args.restart_backoff)
-    if plan.restarts_any and args.composed:
+    if plan.restarts_any and args.composed and not args.with_services:
         raise ConfigError(
             "--restart with --composed: the services run as threads of this one process and share its session; "
-            "one that fails cannot be started again alone (run them as processes, without --composed)"
+            "one that fails cannot be started again alone (run them as processes, without --composed; the "
+            "services of your own beside a composed run, --with, are processes and can be)"
         )
     return plan
 
@@ -298,7 +300,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "for one service (motor=on-failure; router, control, a --with service's name too), over the other; never "
         "the drive (the sim ends the run's steps when its token goes); "
         "never (the default): a service that ends ends the run. The report names every restart "
-        "(docs/deploy.md, Restarts); not with --composed",
+        "(docs/deploy.md, Restarts); with --composed, only the services beside it (--with)",
     )
     parser.add_argument(
         "--restart-limit",
@@ -323,7 +325,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         metavar="FILE.py:NAME",
         help="also run this service of your own (a UserService subclass; docs/extending.md) beside the loop, "
-        "supervised as the built-ins are (repeatable; not with --composed; a fleet file says it with `with`); one whose "
+        "supervised as the built-ins are, a process of its own also beside a --composed run (repeatable; a fleet "
+        "file says it with `with`); one whose "
         "class drives runs in the built-in drive's place until Ctrl-C (not with --scenario, --loop, --goals, "
         "--goal-file, --teleop)",
     )

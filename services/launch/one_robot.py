@@ -39,11 +39,6 @@ def check_before_start(plan: UpPlan, config: Config) -> None:
     if plan.view == 0:
         raise ConfigError("--view: the view's port must be fixed (1..65535), for the address to open in Foxglove")
     check_ros2_flags(plan)
-    if plan.with_services and plan.composed:
-        raise ConfigError(
-            "--with with --composed: a user service runs as a process of its own, beside the loop's; a composed "
-            "run takes none (run it with invent service FILE.py:NAME --connect ... beside the composed run)"
-        )
     if plan.goal_file is not None:
         load_goal_file(plan.goal_file)
     elif not (plan.teleop or plan.goal_mode):

@@ -153,6 +153,35 @@ class Access:
         return ["--config", str(self.profile.router_config)] if self.profile else ["--listen", endpoint]
 
 
+class Beside:
+    """A composed run with the user's own services (``--with``) beside it: each a process of its own,
+    supervised as in a run of separate processes (the run's restart policy), connected to the
+    composed session; the loop's services composed in this process."""
+
+    def __init__(self, composition: Composition, supervisor: Supervisor) -> None:
+        self.composition = composition
+        self.supervisor = supervisor
+        self.bus = composition.bus
+
+    def start(self, name: str, argv: Sequence[str]) -> Any:
+        """``invent service ...`` as a child process; any other service composed."""
+        return (self.supervisor if argv[0] == "service" else self.composition).start(name, argv)
+
+    def exited(self, exclude: str | None = None) -> tuple[str, int, str] | None:
+        return self.composition.exited(exclude) or self.supervisor.exited(exclude)
+
+    def exits(self) -> dict[str, tuple[int, str]]:
+        return {**self.composition.exits(), **self.supervisor.exits()}
+
+    def stop(self) -> dict[str, int]:
+        """The processes first (they are connected to the composed session), then the composition."""
+        codes = self.supervisor.stop()
+        return {**codes, **self.composition.stop()}
+
+    def idle(self) -> None:
+        self.composition.idle()
+
+
 @contextmanager
 def launch_services(
     plan: UpPlan,
@@ -179,6 +208,8 @@ def launch_services(
         with open_session(mode_config) as session:
             composition = Composition(session, parse, intra_process=plan.intra_process)
             launcher: Launcher = composition
+            if plan.with_services:
+                launcher = Beside(composition, supervisor or Supervisor())
             if assignment and max(assignment.values()) > 0:
                 worker_flags = ["--connect", endpoint, "--log-level", connection.log_level]
                 worker_flags += [] if plan.intra_process else ["--no-intra-process"]

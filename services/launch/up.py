@@ -259,7 +259,8 @@ def _restart_plan(plan: UpPlan, robots: Robots, drivers: dict[str, Loaded | None
     the run's steps when its token goes (``--until-drive-ends``), so a new one would drive nothing."""
     drives = {str(Service.DRIVE), *(driver.name for driver in drivers.values() if driver is not None)}
     users = {user.name for robot in robots.each for user in robot.extensions}
-    plan.restarts.check_services({"router", CONTROL, *Service, *users})
+    # composed, only the user's own services are processes (services/launch/run.py, Beside)
+    plan.restarts.check_services(users if plan.composed else {"router", CONTROL, *Service, *users})
     return plan.restarts.never(drives, "the sim ends the run's steps when the drive's token goes (--until-drive-ends)")
 
 
