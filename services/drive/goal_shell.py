@@ -10,21 +10,13 @@ the drive's rule (services/drive/outcome.py).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from typing import Any
 
 from schemas.codec import BadMessage, decode
-from schemas.messages import (
-    NANOSECONDS_PER_SECOND,
-    CancelReply,
-    CancelRequest,
-    GoalFeedback,
-    GoalReply,
-    GoalRequest,
-    GoalTarget,
-    ScenarioOutcome,
-    Time,
-)
+from schemas.messages import NANOSECONDS_PER_SECOND, ScenarioOutcome, Time
+from schemas.navigation import CancelReply, CancelRequest, GoalFeedback, GoalReply, GoalRequest, GoalTarget
 from services.clock.sim_time import PeriodicSchedule
 from services.config import Config
 from services.drive.goal_file import GoalFile, GoalSchedule
@@ -33,6 +25,7 @@ from services.drive.outcome import GiveUp, GiveUpRule, Outcome
 from services.drive.path_following import Command
 from services.navigation.costmap import Costmap
 from services.planar import Pose
+from services.runtime.logs import RateLimitedLog
 from services.runtime.node import Node
 
 GOALS_SCENARIO = "goals"
@@ -54,6 +47,8 @@ class GoalDrive:
     ) -> None:
         """``costmap``: goals navigate on it (``navigation.enabled``); None: the straight line."""
         self.node = node
+        self._refusals = RateLimitedLog(node.log)
+        """A rejected goal or cancel is said once a second at most: anyone may send them at will."""
         odometry = config.odometry
         self.goals = Goals(
             config.drive,
@@ -103,7 +98,7 @@ class GoalDrive:
         if reply.accepted:
             self.node.log.info("goal %r accepted: (%g, %g) in %s", reply.id, request.x, request.y, request.frame)
         else:
-            self.node.log.warning("goal rejected: %s", reply.reason)
+            self._refusals("goal_rejected", logging.WARNING, "goal rejected: %s", reply.reason)
         return reply
 
     def _on_cancel(self, payload: bytes) -> CancelReply:
@@ -120,7 +115,7 @@ class GoalDrive:
         if reply.canceling:
             self.node.log.info("canceling %s", ", ".join(map(repr, reply.canceling)))
         else:
-            self.node.log.warning("cancel refused: %s", reply.reason)
+            self._refusals("cancel_refused", logging.WARNING, "cancel refused: %s", reply.reason)
         return reply
 
     def tick(self, tick_ns: int, pose: Pose | None, costmap_updated: bool = False) -> Command:
