@@ -167,6 +167,8 @@ def test_a_loop_run_keeping_the_newest_stays_within_its_budget_and_its_report_re
             assert sum(1 for _ in make_reader(file).iter_messages()) > 0, f"{part.name} readable alone"
     bag_files = list((tmp_path / "rosbag2").glob("*.mcap"))
     assert bag_files and sum(file.stat().st_size for file in bag_files) <= max_size * MB
+    numbers = sorted(int(re.fullmatch(r"rosbag2_(\d+)\.mcap", file.name).group(1)) for file in bag_files)  # type: ignore[union-attr]
+    assert numbers == list(range(numbers[0], numbers[0] + len(numbers))), f"the bag's own files in a row: {numbers}"
     with Reader(tmp_path / "rosbag2") as reader:
         assert reader.message_count > 0 and sum(1 for _ in reader.messages()) == reader.message_count
     report = json.loads((tmp_path / "report.json").read_text())

@@ -311,3 +311,19 @@ def test_a_bag_keeping_the_newest_removes_its_oldest_files_and_its_metadata_list
     with Reader(path) as reader:
         kept = [timestamp for _c, timestamp, _raw in reader.messages()]
     assert kept == stamps[-len(kept) :], "the newest, in order, read by rosbags"
+
+
+def test_a_bag_of_journals_that_removed_files_numbers_its_own_files_in_a_row(tmp_path):
+    """The journals' removed files are said in the bag's ``dropped`` (as write_bag_from_journals
+    passes them), not counted among the bag's own: its files are numbered one after another."""
+    scan_topic = next(topic for topic in bag_topics(_bridge()).values() if topic.name == "/scan")
+    path = tmp_path / "bag"
+    writer = BagWriter(path, RecordConfig(keep=RecordKeep.NEWEST, max_size=30, split_size=1))
+    writer.dropped.extend(["sim.journal", "sim.1.journal", "sim.2.journal"])
+    for index in range(300):
+        stamp_ns = index * 100 * MS
+        scan = LaserScan(Time.from_nanoseconds(stamp_ns), 0.0, 0.001, 0.1, 10.0, [1.0] * 4096)
+        writer.write(scan_topic, interfaces.serialize(laser_scan(scan, "base_scan", 10.0)), stamp_ns)
+    result = writer.close()
+    assert [file.name for file in result.files] == [f"bag_{index}.mcap" for index in range(len(result.files))]
+    assert len(result.files) > 2

@@ -38,16 +38,10 @@ from typing import TYPE_CHECKING, Any, Literal
 from ruamel.yaml import YAML
 
 from schemas.codec import BadInput, decode
-from schemas.keys import Keys, Topic, parse_data_key
-from schemas.messages import (
-    NANOSECONDS_PER_SECOND,
-    GoalPlan,
-    ImuSample,
-    LaserScan,
-    OccupancyGrid,
-    TimedDoubleSeq,
-    TimedPosition,
-)
+from schemas.keys import Keys, parse_data_key
+from schemas.messages import NANOSECONDS_PER_SECOND, ImuSample, LaserScan, TimedDoubleSeq, TimedPosition
+from schemas.navigation import GoalPlan, OccupancyGrid
+from schemas.topics import Topic
 from services.config import Config, RecordConfig
 from services.recording.mcap_files import read_run
 from services.ros2 import interfaces, wire
@@ -212,6 +206,9 @@ class BagWriter:
         self.dropped: list[str] = []
         """With ``record.keep = "newest"``: the files removed, oldest first."""
         self._part = _Part(path, 0)
+        self._files_begun = 1
+        """Its own files, removed or not: the next one's number (the journals' removed files, also
+        said in ``dropped``, are not the bag's)."""
         self._written = 0
         self._next_disk_check = 0
         self.messages = 0
@@ -253,7 +250,8 @@ class BagWriter:
         if by_size or by_time:
             self._parts.append(part.close())
             self._part_bytes.append(part.message_bytes)
-            self._part = _Part(self.path, len(self._parts) + len(self.dropped))
+            self._part = _Part(self.path, self._files_begun)
+            self._files_begun += 1
             if self._newest:
                 self._drop_oldest()
 
