@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import event, given, settings
+from hypothesis import event, example, given, settings
 from hypothesis import strategies as st
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
@@ -287,6 +287,8 @@ def assert_legal(costs: np.ndarray, cells: list[int]) -> None:
 
 @settings(max_examples=150, deadline=None)
 @given(rectangles, points, points, st.floats(0.05, 0.3), st.sampled_from([0.0, 1.0, 3.0, 20.0]))
+# pyastar2d left its start out of this one's path (the start escaping the inscribed zone)
+@example([(1.0, 0.0, 1.0, 1.0), (-0.375, -0.5, 1.0, 0.75)], (0.0, 0.25), (0.0, -1.0), 0.10546875, 3.0)
 def test_every_plan_keeps_off_obstacles_and_ends_where_asked_and_exact_a_star_is_the_cheapest(
     boxes, start, goal, body, weight
 ):

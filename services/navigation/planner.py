@@ -134,7 +134,10 @@ def route(costs: npt.NDArray[np.uint8], start: int, goal: int, cost_weight: floa
     found = pyastar2d.astar_path(weights, divmod(origin, width), divmod(goal, width), allow_diagonal=True)
     if found is None:  # the same region: never, but say so rather than fail
         return None
-    cells = _round_corners(enterable, (found[:, 0] * width + found[:, 1]).tolist(), width)
+    path = (found[:, 0] * width + found[:, 1]).tolist()
+    # pyastar2d may leave its start out (seen: a start reached again from a cell of the same cost): the
+    # exact search then, as for a path that squeezes between blocked cells
+    cells = _round_corners(enterable, path, width) if path[0] == origin else None
     if cells is None:
         cells = search(costs, origin, goal, cost_weight)
         if cells is None:
