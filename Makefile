@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-fast test-kinematic lint fuzz bench soak compose-bench compose-soak stress profile secrets clean
+.PHONY: run test test-fast test-kinematic lint fuzz bench soak soak-day compose-bench compose-soak stress profile secrets clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -43,6 +43,9 @@ bench-smoke: $(STAMP)  ## every benchmark section with --quick, checking every f
 
 soak: $(STAMP)  ## the stack left running an hour (DURATION=3600): memory, open files, health -> benchmarks/results/soak.json
 	$(BIN)/python -m benchmarks.soak --duration $(or $(DURATION),3600)
+
+soak-day: $(STAMP)  ## 24 simulated hours of errands (SIM_HOURS=24) in one composed lockstep run, faults injected on a schedule -> benchmarks/results/soak_day.json
+	$(BIN)/python -m benchmarks.soak_day --sim-hours $(or $(SIM_HOURS),24)
 
 compose-bench: $(STAMP)  ## the sim's late steps bare and under docker compose, one cause at a time (Docker and `make secrets`; skipped, saying so, without Docker) -> benchmarks/results/compose.json
 	$(BIN)/python -m benchmarks.compose $(ARGS)

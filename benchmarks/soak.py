@@ -2,7 +2,7 @@
 
 Two runs side by side for ``--duration`` seconds (default one hour), each with its own router:
 
-- ``invent up --loop --mode realtime --scenario square``: the long-running stack, recording nothing;
+- ``invent up --loop --no-record --mode realtime --scenario square``: the long-running stack, recording nothing;
 - ``invent up --mode realtime --scenario <a circle lasting the soak>``: a recorded run, which ends
   by itself (outcome ``completed``) and writes its ``run.mcap`` and report.
 
@@ -63,12 +63,12 @@ class Watched:
     def processes(self) -> dict[str, int]:
         """``up`` and its children, by name (the child's ``invent`` command)."""
         found = {"up": self.process.pid}
-        for pid in _children(self.process.pid):
-            found[_command_name(pid)] = pid
+        for pid in children_of(self.process.pid):
+            found[command_name(pid)] = pid
         return found
 
 
-def _children(parent: int) -> list[int]:
+def children_of(parent: int) -> list[int]:
     children = []
     for entry in os.listdir("/proc"):
         if not entry.isdigit():
@@ -82,7 +82,7 @@ def _children(parent: int) -> list[int]:
     return children
 
 
-def _command_name(pid: int) -> str:
+def command_name(pid: int) -> str:
     try:
         words = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
     except OSError:
@@ -94,7 +94,7 @@ def _command_name(pid: int) -> str:
     return after[-1] if after else str(pid)
 
 
-def _rss_mb(pid: int) -> float | None:
+def rss_mb(pid: int) -> float | None:
     try:
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
             if line.startswith("VmRSS:"):
@@ -111,7 +111,7 @@ def _open_files(pid: int) -> int | None:
         return None
 
 
-def _health(session: zenoh.Session) -> tuple[dict[str, Any] | None, dict[str, float]]:
+def loop_health_of(session: zenoh.Session) -> tuple[dict[str, Any] | None, dict[str, float]]:
     """The loop's health from its services' status replies (as ``invent up`` reports it), and each
     service's C allocations in use (MB, ``status.memory``: what its resident size would be without
     the allocator's high-water mark)."""
@@ -136,8 +136,16 @@ def _health(session: zenoh.Session) -> tuple[dict[str, Any] | None, dict[str, fl
     return health, in_use
 
 
-def _directory_mb(directory: Path) -> float:
-    return sum(path.stat().st_size for path in directory.rglob("*") if path.is_file()) / 1e6
+def directory_mb(directory: Path) -> float:
+    """What the files under ``directory`` hold, in MB; a file removed meanwhile (a recording that
+    keeps the newest) counts nothing."""
+    total = 0
+    for path in directory.rglob("*"):
+        try:
+            total += path.stat().st_size if path.is_file() else 0
+        except FileNotFoundError:
+            continue
+    return total / 1e6
 
 
 def slope_per_hour(points: list[tuple[float, float]]) -> float:
@@ -185,14 +193,14 @@ def _join(run: Watched, stack: ExitStack) -> None:
 def _sample(run: Watched, elapsed: float) -> None:
     sample: dict[str, Any] = {"t_s": elapsed, "processes": {}}
     for name, pid in run.processes().items():
-        sample["processes"][name] = {"rss_mb": _rss_mb(pid), "open_files": _open_files(pid)}
+        sample["processes"][name] = {"rss_mb": rss_mb(pid), "open_files": _open_files(pid)}
     if run.session is not None:
-        health, in_use = _health(run.session)
+        health, in_use = loop_health_of(run.session)
         run.health = health or run.health
         sample["allocated_mb"] = in_use
     sample["health"] = run.health
     if run.report_dir is not None and (run.report_dir / "journals").exists():
-        sample["journals_mb"] = _directory_mb(run.report_dir / "journals")
+        sample["journals_mb"] = directory_mb(run.report_dir / "journals")
     run.samples.append(sample)
 
 
@@ -252,7 +260,7 @@ def soak(duration_s: float, sample_every_s: float, warm_up_s: float, work: Path)
     scenario.write_text(
         f'name = "soak circle"\n[[segments]]\ntype = "constant"\nvx = 0.25\nw = 0.5\nduration = {duration_s}\n'
     )
-    looping = _start("loop", work, "--loop", "--mode", "realtime", "--scenario", "square")
+    looping = _start("loop", work, "--loop", "--no-record", "--mode", "realtime", "--scenario", "square")
     recorded = _start(
         "recorded",
         work,
@@ -310,7 +318,7 @@ def soak(duration_s: float, sample_every_s: float, warm_up_s: float, work: Path)
     report = json.loads(report_path.read_text()) if report_path.exists() else {}
     sim_time_s = report.get("sim_time_s") or 0.0
     size_mb = recording.stat().st_size / 1e6 if recording.exists() else None
-    leftovers = [pid for run in runs for pid in _children(run.process.pid)]
+    leftovers = [pid for run in runs for pid in children_of(run.process.pid)]
     return {
         "duration_s": duration_s,
         "sample_every_s": sample_every_s,

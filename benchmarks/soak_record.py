@@ -110,6 +110,7 @@ def soak(
         "each_file_readable_alone": all(_readable_alone(part) > 0 for part in parts),
         "bag_mb": round(_size(bag) / MB, 1) if ros2 else None,
         "bag_messages": _bag_messages(bag) if ros2 else None,
+        "bag_files_readable_alone": all(_readable_alone(part) > 0 for part in bag.glob("*.mcap")) if ros2 else None,
         "rotated": report["rotated"],
         "report_again": {
             "exit_code": again.returncode,
