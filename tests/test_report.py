@@ -2,7 +2,7 @@
 when a run counts as degraded; the outcome of a run that ended early, what a report lacks, and the
 health rebuilt from recorded status replies, whatever they hold."""
 
-from hypothesis import given
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from services.recording.report import (
@@ -120,6 +120,8 @@ json_values = st.recursive(
 )
 
 
+# nested JSON is slow to draw on a loaded machine: the draws are the point, not their speed
+@settings(suppress_health_check=[HealthCheck.too_slow])
 @given(
     st.dictionaries(
         st.sampled_from(["sim", "motor", "drive", "odometer"]),
