@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import signal
 import sys
 from collections.abc import Sequence
@@ -96,8 +97,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _run(argv)
     except KeyboardInterrupt:
         # SIGINT before the command took over its signals (while it imports or starts: invent up
-        # stopping every service as one fails to start): a line, not a traceback.
-        print("invent: interrupted while starting", file=sys.stderr)
+        # stopping every service as one fails to start): a line, not a traceback. Then out at once:
+        # the interpreter's own exit, with zenoh's threads half started, can crash (seen: SIGSEGV,
+        # once in a test run) or wait on a session half open.
+        print("invent: interrupted while starting", file=sys.stderr, flush=True)
+        if argv is None:  # the program itself, not a caller in its own process (a test)
+            sys.stdout.flush()
+            os._exit(ExitStatus.INTERRUPTED)
         return ExitStatus.INTERRUPTED
 
 
