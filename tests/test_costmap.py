@@ -22,6 +22,7 @@ from services.navigation.costmap import (
     LETHAL,
     MAX_INFLATED,
     OCCUPANCY_OF_COST,
+    SAME_SCAN_M,
     Costmap,
     crossed_cells,
 )
@@ -539,6 +540,23 @@ def test_a_repeated_scan_is_counted_not_traced_and_after_a_clear_marks_again():
     assert costs.status()["obstacle_cells"] == 2
     costs.mark_scan(scan, LIDAR[0] + 0.01, LIDAR[1], LIDAR[2])
     assert costs.status()["scans_repeated"] == 1, "from another pose: traced"
+
+
+def test_a_scan_within_a_micron_of_the_last_traced_is_a_repeat_and_one_beyond_is_traced():
+    """A robot at rest creeps by nanometres: its scans repeat to within ``SAME_SCAN_M``, measured from
+    the last scan traced (a creep that adds up past it is traced again)."""
+    costs = costmap()
+    costs.mark_scan(rays([2.0, 1.0, None], increment=math.pi / 2), *LIDAR)
+    near = SAME_SCAN_M / 2
+    costs.mark_scan(
+        rays([2.0 + near, 1.0 - near, None], increment=math.pi / 2), LIDAR[0] + near, LIDAR[1], LIDAR[2] - near
+    )
+    assert costs.status()["scans_repeated"] == 1
+    costs.mark_scan(rays([2.0, 1.0, None], increment=math.pi / 2), LIDAR[0] + 3 * near, LIDAR[1], LIDAR[2])
+    assert costs.status()["scans_repeated"] == 1, "1.5 microns from the last scan traced: traced"
+    costs.mark_scan(rays([2.0, 1.0, 1.0], increment=math.pi / 2), LIDAR[0] + 3 * near, LIDAR[1], LIDAR[2])
+    assert costs.status()["scans_repeated"] == 1, "a ray that now returns: traced"
+    assert costs.status()["scans"] == 4
 
 
 def test_changes_on_walls_far_apart_are_inflated_in_separate_windows():

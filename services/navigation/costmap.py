@@ -12,8 +12,9 @@ map counts as free: the planner may plan through the unknown (and the lidar sees
 
 A scan (:meth:`Costmap.mark_scan`) is traced in one vectorised pass: every ray's cells are the cells
 its segment crosses (exact grid traversal, a cell touched at a corner counted), cleared first for all
-the rays, then every return within ``obstacle_range`` marked; a scan that repeats the last one from
-the same pose (a robot at rest, a lidar without noise) would change nothing and is not traced again.
+the rays, then every return within ``obstacle_range`` marked; a scan that repeats the last one traced,
+from the same pose to within ``SAME_SCAN_M`` (a robot at rest, a lidar without noise), is not traced
+again.
 The inflation is recomputed lazily, when :attr:`Costmap.costs` is read after a change, and only over
 the windows the change can reach (the bounding box of each cluster of changed cells grown by the
 inflation radius, its distances taken from a window grown by the radius again): a scan changes cells
@@ -36,6 +37,13 @@ from services.navigation.grid import UNKNOWN, Grid, GridGeometry, Occupancy
 
 FREE = 0
 """No cost (Nav2's ``FREE_SPACE``)."""
+TracedScan = tuple[npt.NDArray[np.float64], tuple[float, ...], npt.NDArray[np.float64], dict[str, int]]
+"""The last scan traced: the lidar's pose, the scan's angles and limits, its ranges (NaN: no return), its counters."""
+SAME_SCAN_M = 1e-6
+"""A scan whose lidar position (m), heading (rad) and every range (m) are within this of the last scan
+traced is that scan again, and is not traced. A robot at rest creeps by nanometres while its wheel
+control settles, so its scans are never bit for bit the same; a micron moves a ray's end across a
+cell's edge (5 cm) about once in 25,000 rays, and the next scan traced from farther sets it right."""
 MAX_INFLATED = 252
 """The highest cost of the decaying inflation, just outside the inscribed radius."""
 INSCRIBED = 253
@@ -162,7 +170,7 @@ class Costmap:
         """Cells beyond which an obstacle changes no cost."""
         self._dirty: list[Box] = [(0, shape[0], 0, shape[1])]
         """Boxes of rows [r0, r1) and columns [c0, c1) whose obstacles changed since the last inflation."""
-        self._last_scan: tuple[tuple[float, ...], list[float | None], dict[str, int]] | None = None
+        self._last_scan: TracedScan | None = None
         """The last scan traced (its pose and limits, its ranges) and what it counted, while tracing it
         again would change nothing."""
         self._counters = {
@@ -194,17 +202,18 @@ class Costmap:
                 f"the lidar's pose ({lidar_x!r}, {lidar_y!r}, {lidar_yaw!r}) is not on the costmap "
                 f"(extent {describe_extent(geometry)})"
             )
-        repeat = (lidar_x, lidar_y, lidar_yaw, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max)
-        if self._last_scan is not None and self._last_scan[0] == repeat and self._last_scan[1] == scan.ranges:
+        ranges = np.array(scan.ranges, dtype=np.float64)  # None (no return) reads as NaN
+        lidar = np.array((lidar_x, lidar_y, lidar_yaw))
+        frame = (scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max)
+        if self._last_scan is not None and self._repeats(self._last_scan, lidar, frame, ranges):
             # tracing a scan is idempotent: the same rays again clear and mark the same cells to the same end
-            for name, value in self._last_scan[2].items():
+            for name, value in self._last_scan[3].items():
                 self._counters[name] += value
             self._counters["scans_repeated"] += 1
             return
         settings = self.settings
         resolution = geometry.resolution
         count = len(scan.ranges)
-        ranges = np.array(scan.ranges, dtype=np.float64)  # None (no return) reads as NaN
         no_return = np.isnan(ranges) | (ranges > scan.range_max)
         below = ~no_return & (ranges < scan.range_min)
         used = ~below
@@ -258,12 +267,29 @@ class Costmap:
         }
         for name, value in counted.items():
             self._counters[name] += value
-        self._last_scan = (repeat, list(scan.ranges), counted)
+        self._last_scan = (lidar, frame, ranges, counted)
         if changed.size:
             self._counters["scans_changing"] += 1
             rows_changed, cols_changed = np.divmod(changed, geometry.width)
             for box in _clusters(rows_changed, cols_changed, 2 * self._reach):
                 self._touch(box)
+
+    @staticmethod
+    def _repeats(
+        last: TracedScan,
+        lidar: npt.NDArray[np.float64],
+        frame: tuple[float, ...],
+        ranges: npt.NDArray[np.float64],
+    ) -> bool:
+        """Whether a scan is the ``last`` one traced again, to within ``SAME_SCAN_M`` (the same rays
+        returning, the same ones not)."""
+        last_lidar, last_frame, last_ranges, _ = last
+        return (
+            last_frame == frame
+            and last_ranges.shape == ranges.shape
+            and bool(np.all(np.abs(last_lidar - lidar) <= SAME_SCAN_M))
+            and bool(np.allclose(last_ranges, ranges, rtol=0.0, atol=SAME_SCAN_M, equal_nan=True))
+        )
 
     def clear_obstacles(self) -> None:
         """Forget the obstacle layer (a recovery); the static layer stays."""
