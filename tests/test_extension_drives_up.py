@@ -1,6 +1,7 @@
 """``invent up --with examples/services/wander.py:Wander``: the wanderer drives in the built-in drive's
-place (kinematic engine, lockstep) for over 60 simulated seconds in the ``room`` world and in the
-furnished ``living_room``, with no bump and no hold of the collision monitor, until Ctrl-C; in a
+place (kinematic engine, lockstep) for over 60 simulated seconds in the ``room`` world (the loop in
+separate processes) and in the furnished ``living_room`` (the loop ``--composed``, the wanderer a
+process beside it), with no bump and no hold of the collision monitor, until Ctrl-C; in a
 ``--secure`` run it connects with the drive's credentials, and killed mid-run it ends the run naming
 it, leaving ``report.json``; stopped by the motor's emergency stop, it gives up as the drive does.
 One run of the loop per world, shared by the tests that read it."""
@@ -38,6 +39,7 @@ class WanderRun:
     output: str
     code: int
     report: dict[str, Any]
+    flags: tuple[str, ...] = ()
 
 
 def _sim_time(session: zenoh.Session, run: Output) -> float:
@@ -68,7 +70,7 @@ def _wander(report_dir: Path, world: str, *flags: str, until: Callable[[Output, 
     finally:
         if run.process.poll() is None:
             run.process.kill()
-    return WanderRun(run.text, code, json.loads((report_dir / "report.json").read_text()))
+    return WanderRun(run.text, code, json.loads((report_dir / "report.json").read_text()), flags)
 
 
 def _ctrl_c_after_a_minute(run: Output, report_dir: Path) -> None:
@@ -82,15 +84,19 @@ def run_endpoint(run: Output) -> str:
     return str(args[args.index("--listen") + 1])
 
 
-@pytest.fixture(scope="module", params=["room", "living_room"])
+@pytest.fixture(scope="module", params=[("room", ()), ("living_room", ("--composed",))], ids=["room", "composed"])
 def wandered(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> WanderRun:
-    return _wander(tmp_path_factory.mktemp(request.param), request.param, until=_ctrl_c_after_a_minute)
+    world, flags = request.param
+    return _wander(tmp_path_factory.mktemp(world), world, *flags, until=_ctrl_c_after_a_minute)
 
 
 def test_the_wanderer_drives_a_minute_in_the_drives_place_without_a_bump_or_a_hold_until_ctrl_c(wandered):
     assert wandered.code == 0, wandered.output
     assert "drives the robot at 10 Hz, in the drive's place" in wandered.output
     assert "started drive " not in wandered.output, "no built-in drive"
+    assert "started wander (pid " in wandered.output, "the wanderer a process of its own"
+    if "--composed" in wandered.flags:
+        assert "started sim in this process" in wandered.output, "the loop composed beside it"
     report = wandered.report
     assert report["scenario"] == "wander" and report["mode"] == "lockstep"
     assert report["sim_time_s"] >= WANDERED_S
