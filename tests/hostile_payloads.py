@@ -16,7 +16,7 @@ from schemas.messages import MAX_GOAL_ID_LENGTH, MAX_SCAN_RAYS
 from schemas.navigation import MAX_GOAL_SECONDS
 from services.config import InputConfig
 from tests import ros_client
-from tests.test_fuzz import malformed
+from tests.fuzz_payloads import malformed
 
 LIMITS = InputConfig()
 NOT_UTF8 = [b"\xff", b"\xc3(", b"\xed\xa0\x80", b"\xf8\x88\x80\x80\x80", b"\x80", b"\xe2\x82"]
@@ -44,7 +44,7 @@ def not_utf8_string(draw: st.DrawFn, fields: dict[str, object], field: str) -> b
 # --- the drive's goal queryables ------------------------------------------------------------------
 
 GOAL = {"x": 1.0, "y": 0.0, "frame": "map"}
-"""Only fields none of tests/test_fuzz.py's mistyped values makes valid (an ``id`` of ``"x"`` would be)."""
+"""Only fields none of tests/fuzz_payloads.py's mistyped values makes valid (an ``id`` of ``"x"`` would be)."""
 
 
 @st.composite

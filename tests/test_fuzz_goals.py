@@ -37,6 +37,7 @@ from hypothesis import strategies as st
 
 from schemas.keys import Keys, Service
 from tests import ros_client
+from tests.fuzz_payloads import BATCH, PAYLOADS_PER_KEY
 from tests.harness import REPO, free_port, invent_command, peer_session, wait_alive, wait_until
 from tests.hostile_payloads import (
     Call,
@@ -49,7 +50,6 @@ from tests.hostile_payloads import (
     scans,
     send_goal_calls,
 )
-from tests.test_fuzz import BATCH, PAYLOADS_PER_KEY
 
 pytestmark = [pytest.mark.slow, pytest.mark.kinematic]
 
