@@ -42,8 +42,9 @@ TracedScan = tuple[npt.NDArray[np.float64], tuple[float, ...], npt.NDArray[np.fl
 SAME_SCAN_M = 1e-6
 """A scan whose lidar position (m), heading (rad) and every range (m) are within this of the last scan
 traced is that scan again, and is not traced. A robot at rest creeps by nanometres while its wheel
-control settles, so its scans are never bit for bit the same; a micron moves a ray's end across a
-cell's edge (5 cm) about once in 25,000 rays, and the next scan traced from farther sets it right."""
+control settles, so its scans are never bit for bit the same. A micron in a 5 cm cell: a ray's end
+crosses a cell's edge about once in 25,000 rays (by that ratio), and the next scan traced from
+farther sets it right."""
 MAX_INFLATED = 252
 """The highest cost of the decaying inflation, just outside the inscribed radius."""
 INSCRIBED = 253
