@@ -19,9 +19,9 @@ window, as :func:`benchmarks.loop._measure` does:
   localizations), so neither the process nor the thread separates the sim's own work from the
   services'; the share is null there (:data:`COMPOSED_SIM_SHARE_NOTE`).
 
-``late_fraction`` sums every robot's ``late_torques`` and ``missing_torques`` over the window per
-robot-step: a lockstep run that waited out its timeouts would show here, and its speed would say
-nothing about the stack.
+``late_fraction`` sums every robot's ``missing_torques`` over the window per robot-step (a lockstep
+step waits for its torque while the motor control lives; one that went on without it shows here, and
+its speed would say nothing about the stack).
 
 ``python -m benchmarks.fleet RESULTS.json PLOT.png`` draws a results file's ``fleet`` section
 (benchmarks/fleet-scaling.png is drawn so).
@@ -197,11 +197,7 @@ def _wait_running(session: zenoh.Session, run: FleetUpRun, first: str) -> None:
 
 
 def _late(statuses: Sequence[dict[str, Any] | None]) -> int:
-    return sum(
-        status["counters"].get("late_torques", 0) + status["counters"].get("missing_torques", 0)
-        for status in statuses
-        if status is not None
-    )
+    return sum(status["counters"].get("missing_torques", 0) for status in statuses if status is not None)
 
 
 def measure_fleet(count: int, mode: str, warmup_s: float, window_s: float) -> FleetResult:

@@ -123,15 +123,17 @@ DEGRADED_FRACTION = 0.01
 
 def loop_health(sim_status: dict[str, Any] | None, statuses: Mapping[str, dict[str, Any] | None]) -> dict[str, Any]:
     """What the loop actually did, from the services' last status replies: the sim's torque
-    figures, the lockstep waits that timed out (the sim's, the drive's for its poses) and each
-    service's bad-input, internal-error and dropped-event counts."""
+    figures, the lockstep participants it dropped, the drive's ticks commanded from an older pose,
+    and each service's bad-input, internal-error and dropped-event counts. A lockstep step is never
+    late: it waits for its torque as long as the motor control lives (how long is the machine's, as
+    the wall time, and not in the health)."""
     counters = (sim_status or {}).get("counters", {})
     drive = statuses.get(str(Service.DRIVE)) or {}
     motor = statuses.get(str(Service.MOTOR)) or {}
     navigation = drive.get("navigation") or {}
     steps = (sim_status or {}).get("steps", 0)
     lockstep = (sim_status or {}).get("mode") == "lockstep"
-    late = counters.get("late_torques" if lockstep else "realtime_late_steps", 0)
+    late = 0 if lockstep else counters.get("realtime_late_steps", 0)
     missing = counters.get("missing_torques", 0)
 
     def fraction(count: int) -> float:
@@ -147,8 +149,6 @@ def loop_health(sim_status: dict[str, Any] | None, statuses: Mapping[str, dict[s
             "missing_fraction": fraction(missing),
         },
         "lockstep": {
-            "timeouts": counters.get("late_torques", 0) if lockstep else 0,
-            "tick_timeouts": counters.get("tick_timeouts", 0) if lockstep else 0,
             "pose_wait_timeouts": drive.get("pose_wait_timeouts", 0) if lockstep else 0,
             "dropped_participants": (sim_status or {}).get("dropped_participants", []) if lockstep else [],
         },
@@ -259,13 +259,6 @@ def degradations(health: dict[str, Any]) -> list[str]:
                 f"{kind} torques on {torques[f'{kind}_fraction']:.1%} of the steps ({torques[kind]}; "
                 f"more than {DEGRADED_FRACTION:.0%})"
             )
-    if health["lockstep"]["timeouts"]:
-        reasons.append(f"{health['lockstep']['timeouts']} lockstep timeouts (steps that went on with zero torque)")
-    if health["lockstep"]["tick_timeouts"]:
-        reasons.append(
-            f"{health['lockstep']['tick_timeouts']} lockstep tick timeouts (steps that went on without a drive "
-            "command or a localization fix they waited for)"
-        )
     for dropped in health["lockstep"].get("dropped_participants", []):  # .get: absent from older recordings
         reasons.append(f"{dropped['service']} dropped at t = {dropped['sim_time_s']:.3f} s (its token went first)")
     if pose_waits := health["lockstep"].get("pose_wait_timeouts", 0):  # .get: absent from older recordings
@@ -305,8 +298,7 @@ def health_lines(health: dict[str, Any]) -> list[str]:
     return [
         (
             f"torques: late {torques['late']} ({torques['late_fraction']:.2%}), missing {torques['missing']} "
-            f"({torques['missing_fraction']:.2%}), stale {torques['stale']}; lockstep timeouts "
-            f"{health['lockstep']['timeouts']} (ticks {health['lockstep']['tick_timeouts']}), "
+            f"({torques['missing_fraction']:.2%}), stale {torques['stale']}; "
             f"realtime resyncs {health['realtime']['resyncs']}"
         ),
         "bad inputs: " + ", ".join(f"{name} {counts['bad_inputs']}" for name, counts in services.items()),
