@@ -23,7 +23,8 @@ import zenoh
 
 from services.runtime.session import DEFAULT_ENDPOINT
 from tests.harness import wait_until
-from tests.netns import REPO, Event, HostProcess, Network, RemoteSession, Stream, netns_unavailable, network
+from tests.netns import REPO, HostProcess, Network, netns_unavailable, network
+from tests.remote_session import Event, RemoteSession, Stream
 
 PREFIX = "fleet-test"
 PERIOD_S = 0.02

@@ -36,7 +36,8 @@ import pytest
 from services.fleet.description import Fleet, load_fleet, robot_flags
 from services.runtime.session import DEFAULT_ENDPOINT
 from tests.harness import wait_until
-from tests.netns import Event, HostProcess, Network, RemoteSession, Stream, netns_unavailable, network
+from tests.netns import HostProcess, Network, netns_unavailable, network
+from tests.remote_session import Event, RemoteSession, Stream
 
 pytestmark = pytest.mark.slow
 
