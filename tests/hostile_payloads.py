@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from schemas.messages import MAX_GOAL_ID_LENGTH, MAX_SCAN_RAYS
 from schemas.navigation import MAX_GOAL_SECONDS
 from services.config import InputConfig
-from tests import ros_client
+from tests import ros_client, ros_services
 from tests.fuzz_payloads import malformed
 
 LIMITS = InputConfig()
@@ -195,7 +195,7 @@ def _decodes(payload: bytes, store: Any, message_type: str) -> bool:
 
 @st.composite
 def bad_cdr(
-    draw: st.DrawFn, valid: bytes, message_type: str, most: int, store: Any = ros_client.ACTION_TYPESTORE
+    draw: st.DrawFn, valid: bytes, message_type: str, most: int, store: Any = ros_services.ACTION_TYPESTORE
 ) -> Call:
     """``valid``'s message broken: random bytes, cut short, followed by more than CDR's padding of up
     to 3 bytes, beyond ``most`` bytes (never one that decodes), or with an attachment that is not one."""
@@ -215,7 +215,7 @@ def bad_cdr(
 def _pose(
     x: float = 1.0, y: float = 0.0, q: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0), frame: str = "map", store: Any = None
 ) -> Any:
-    pose = ros_client.pose_stamped(x, y, 0.0, frame, store)
+    pose = ros_services.pose_stamped(x, y, 0.0, frame, store)
     orientation = pose.pose.orientation
     orientation.x, orientation.y, orientation.z, orientation.w = q
     return pose
@@ -237,7 +237,7 @@ def bad_poses(draw: st.DrawFn) -> dict[str, Any]:
 
 
 def _send_goal(pose: Any) -> bytes:
-    return ros_client.send_goal_request(bytes(range(16)), pose)
+    return ros_services.send_goal_request(bytes(range(16)), pose)
 
 
 def _goal_pose(pose: Any) -> bytes:
@@ -255,7 +255,7 @@ def _frame_not_utf8(serialize: Callable[[Any], bytes], bad: bytes, store: Any = 
 def send_goal_calls(draw: st.DrawFn) -> Call:
     kind = draw(st.sampled_from(["cdr", "pose", "not_utf8"]))
     if kind == "cdr":
-        return draw(bad_cdr(_send_goal(_pose()), f"{ros_client.NAVIGATE}_SendGoal_Request", 4096))
+        return draw(bad_cdr(_send_goal(_pose()), f"{ros_services.NAVIGATE}_SendGoal_Request", 4096))
     if kind == "pose":
         return _attached(_send_goal(_pose(**draw(bad_poses()))))
     return _attached(_frame_not_utf8(_send_goal, draw(st.sampled_from(NOT_UTF8))))
@@ -263,13 +263,13 @@ def send_goal_calls(draw: st.DrawFn) -> Call:
 
 @st.composite
 def cancel_goal_calls(draw: st.DrawFn) -> Call:
-    valid = ros_client.cancel_request(draw(uuids), draw(st.integers(min_value=0, max_value=(2**31 - 1) * 10**9)))
+    valid = ros_services.cancel_request(draw(uuids), draw(st.integers(min_value=0, max_value=(2**31 - 1) * 10**9)))
     return draw(bad_cdr(valid, "action_msgs/srv/CancelGoal_Request", 64))
 
 
 @st.composite
 def get_result_calls(draw: st.DrawFn) -> Call:
-    return draw(bad_cdr(ros_client.result_request(draw(uuids)), f"{ros_client.NAVIGATE}_GetResult_Request", 64))
+    return draw(bad_cdr(ros_services.result_request(draw(uuids)), f"{ros_services.NAVIGATE}_GetResult_Request", 64))
 
 
 @st.composite

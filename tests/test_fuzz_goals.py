@@ -36,7 +36,7 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from schemas.keys import Keys, Service
-from tests import ros_client
+from tests import ros_client, ros_services
 from tests.fuzz_payloads import BATCH, PAYLOADS_PER_KEY
 from tests.harness import REPO, free_port, invent_command, peer_session, wait_alive, wait_until
 from tests.hostile_payloads import (
@@ -99,11 +99,11 @@ class Surface:
 
 SCAN_CONSUMERS = (Service.MOTOR, Service.DRIVE, Service.ROS2)
 """Who takes ``sim/scan`` in goal mode: the collision monitor, the costmap, the bridge's ``/scan``."""
-NAVIGATE = ros_client.NAVIGATE
+NAVIGATE = ros_services.NAVIGATE
 
 
 def _ros(endpoint: str, payloads: st.SearchStrategy[Call], refusal: Callable[[bytes], bool]) -> Surface:
-    key = ros_client.action_key(0, ACTION, endpoint)
+    key = ros_services.action_key(0, ACTION, endpoint)
     return Surface(f"NavigateToPose {endpoint}", key, payloads, ((Service.ROS2, bad_input_on(key)),), refusal, True)
 
 
@@ -128,17 +128,17 @@ SURFACES = [
     _ros(
         "send_goal",
         send_goal_calls(),
-        lambda reply: not ros_client.action_decode(reply, f"{NAVIGATE}_SendGoal_Response").accepted,
+        lambda reply: not ros_services.action_decode(reply, f"{NAVIGATE}_SendGoal_Response").accepted,
     ),
     _ros(
         "cancel_goal",
         cancel_goal_calls(),
-        lambda reply: ros_client.action_decode(reply, "action_msgs/srv/CancelGoal_Response").return_code == 1,
+        lambda reply: ros_services.action_decode(reply, "action_msgs/srv/CancelGoal_Response").return_code == 1,
     ),
     _ros(
         "get_result",
         get_result_calls(),
-        lambda reply: ros_client.action_decode(reply, f"{NAVIGATE}_GetResult_Response").status == 0,
+        lambda reply: ros_services.action_decode(reply, f"{NAVIGATE}_GetResult_Response").status == 0,
     ),
     Surface("goal_pose", GOAL_POSE_KEY, goal_pose_samples(), ((Service.ROS2, bad_input_on(GOAL_POSE_KEY)),), ros=True),
 ]
@@ -249,11 +249,11 @@ def test_bad_payloads_are_refused_counted_and_harmless(stack: Stack, surface: Su
 
 def test_a_goal_completes_after_the_fuzz(stack: Stack) -> None:
     """Through the whole path: a ROS client's goal, the bridge, the drive; the result SUCCEEDED."""
-    client = ros_client.ActionClient(stack.session, ACTION)
+    client = ros_services.ActionClient(stack.session, ACTION)
     uuid, reply = client.send_goal(1.0, 0.5, math.pi / 2)
     assert reply.response.accepted, stack.status(Service.ROS2)["navigate"]
     result = client.get_result(uuid, timeout=120.0).response
-    assert result.status == ros_client.STATUS_CODES["succeeded"], result
+    assert result.status == ros_services.STATUS_CODES["succeeded"], result
     assert stack.status(Service.DRIVE)["goals"]["completed"] == 1
     _alive_and_sound(stack)
 

@@ -25,7 +25,7 @@ import pytest
 import zenoh
 
 from schemas.keys import Keys, Service
-from tests import ros_client
+from tests import ros_client, ros_services
 from tests.harness import REPO, call, free_port, invent_command, peer_session, wait_alive, wait_until
 
 pytestmark = [pytest.mark.slow, pytest.mark.kinematic]
@@ -46,7 +46,7 @@ TF_ERROR = 9002
 class Run:
     session: zenoh.Session
     recorder: ros_client.Recorder
-    client: ros_client.ActionClient
+    client: ros_services.ActionClient
     node: ros_client.RosNode
 
     def status(self, service: Service) -> dict[str, Any]:
@@ -63,7 +63,7 @@ class Run:
         return x + distance * math.cos(theta), y + distance * math.sin(theta), theta
 
     def paths(self) -> list[tuple[bytes, list[int]]]:
-        return ros_client.status_paths([sample.payload for sample in self.recorder.of(STATUS)])
+        return ros_services.status_paths([sample.payload for sample in self.recorder.of(STATUS)])
 
     def path(self, uuid: bytes) -> list[int]:
         """The goal's statuses (its last life, if its UUID was taken again)."""
@@ -76,7 +76,7 @@ class Run:
 
     def listed(self, uuid: bytes) -> bool:
         samples = self.recorder.of(STATUS)
-        return bool(samples) and uuid in ros_client.goal_statuses(samples[-1].payload)
+        return bool(samples) and uuid in ros_services.goal_statuses(samples[-1].payload)
 
     def navigate(self) -> dict[str, Any]:
         return self.status(Service.ROS2)["navigate"]
@@ -95,7 +95,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
                 recorder = ros_client.Recorder(session, "0/**")
                 wait_alive(session, KEYS.alive(Service.ROS2), STARTUP_TIMEOUT_S)
                 wait_alive(session, KEYS.alive(Service.DRIVE), STARTUP_TIMEOUT_S)
-                loop = Run(session, recorder, ros_client.ActionClient(session, ACTION), ros_client.RosNode(session))
+                loop = Run(session, recorder, ros_services.ActionClient(session, ACTION), ros_client.RosNode(session))
                 wait_until(lambda: loop.navigate()["drive_serves_goals"], STARTUP_TIMEOUT_S, "the drive's goals")
                 wait_until(lambda: recorder.of("tf"), STARTUP_TIMEOUT_S, "the first /tf")
                 yield loop
@@ -178,7 +178,7 @@ def test_a_goal_in_a_frame_the_bridge_cannot_transform_is_accepted_then_aborted_
     assert "frame_id 'earth'" in result.result.error_msg and "not in the bridge's TF tree" in result.result.error_msg
     assert run.wait_status(uuid, ABORTED) == [1, EXECUTING, ABORTED]
     listed = {goal for goal, _ in run.paths()}
-    run.node.put("goal_pose", ros_client.pose_stamped(1.0, 0.0, 0.0, "earth", ros_client.TYPESTORE))
+    run.node.put("goal_pose", ros_services.pose_stamped(1.0, 0.0, 0.0, "earth", ros_client.TYPESTORE))
     new = wait_until(lambda: [g for g, path in run.paths() if g not in listed and path[-1] == ABORTED], 10.0, "it")
     assert len(new) == 1, "through goal_pose too: a goal aborted in the status, never vanishing"
     assert run.navigate()["sent"] == sent_before and run.navigate()["frame_errors"] >= 2, "none reached the drive"
@@ -188,12 +188,14 @@ def test_results_are_kept_for_result_timeout_beyond_sixteen_and_a_uuid_refused_m
     burst = [run.client.send_goal(1.0, 0.0, 0.0, frame="earth")[0] for _ in range(20)]
     first = burst[0]
     assert run.client.get_result(first).response.status == ABORTED, "the first of 20 results still kept"
-    again = run.client.call("send_goal", ros_client.send_goal_request(first, ros_client.pose_stamped(1.0, 0.0, 0.0)))
+    again = run.client.call(
+        "send_goal", ros_services.send_goal_request(first, ros_services.pose_stamped(1.0, 0.0, 0.0))
+    )
     assert not again.response.accepted, "its UUID is not taken again while its result is kept"
     assert "exists already" in run.navigate()["last_rejection"]
     wait_until(lambda: not run.listed(first), 3 * RESULT_TIMEOUT_S + 30.0, "the result forgotten after its time")
     assert run.client.get_result(first).response.status == 0, "unknown once forgotten, as rcl_action"
-    reused = ros_client.send_goal_request(first, ros_client.pose_stamped(1.0, 0.0, 0.0, "earth"))
+    reused = ros_services.send_goal_request(first, ros_services.pose_stamped(1.0, 0.0, 0.0, "earth"))
     assert run.client.call("send_goal", reused).response.accepted, "the UUID taken again"
 
 
@@ -219,6 +221,6 @@ def test_cancel_by_stamp_cancels_the_goals_accepted_at_or_before_it(run):
 def test_every_goals_statuses_through_the_run_follow_rcl_actions_state_machine(run):
     paths = run.paths()
     assert len(paths) > 25
-    deviations = {goal.hex(): found for goal, path in paths if (found := ros_client.state_machine_deviations(path))}
+    deviations = {goal.hex(): found for goal, path in paths if (found := ros_services.state_machine_deviations(path))}
     assert deviations == {}, deviations
     assert run.status(Service.ROS2)["internal_errors"] == 0

@@ -24,7 +24,7 @@ import zenoh.ext
 from schemas.codec import decode
 from schemas.keys import Keys, Service
 from schemas.messages import TimedPosition
-from tests import ros_client
+from tests import ros_client, ros_services
 from tests.harness import call, invent_command, peer_session, running_router, wait_alive, wait_until
 
 pytestmark = pytest.mark.slow
@@ -153,7 +153,7 @@ def test_the_graph_shows_one_node_with_its_publishers_subscriptions_and_services
         kind: {
             (
                 f"%navigate_to_pose%_action%{endpoint}",
-                *ros_client.action_key_type(ros_client.ACTION_ENDPOINTS[endpoint]).split("/"),
+                *ros_services.action_key_type(ros_services.ACTION_ENDPOINTS[endpoint]).split("/"),
                 qos,
             )
             for endpoint, (endpoint_kind, qos) in ACTION.items()
@@ -174,7 +174,7 @@ def test_the_graph_shows_one_node_with_its_publishers_subscriptions_and_services
         | {
             (
                 "%" + service.replace("/", "%"),
-                *ros_client.odometry_service_key_type(interface).split("/"),
+                *ros_services.odometry_service_key_type(interface).split("/"),
                 "::,10:,:,:,,",
             )
             for service, interface in ODOMETRY_SERVICES.items()

@@ -35,7 +35,7 @@ from rosbags.rosbag2 import Reader
 from schemas.keys import Keys, Service
 from services.planar import Pose
 from services.ros2 import core
-from tests import ros_client
+from tests import ros_client, ros_services
 from tests.harness import (
     REPO,
     InventProcess,
@@ -162,7 +162,7 @@ def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_type
         expected |= {("MS", _mangled(f"{namespace}/cmd_vel"), ros_client.key_type(i)) for i in SUBSCRIBED}
         expected |= {("SS", _mangled(f"{namespace}/{s}"), ros_client.TRIGGER_KEY_TYPE) for s in SERVICES}
         expected |= {
-            ("SS", _mangled(f"{namespace}/invent_bridge/{s}"), ros_client.odometry_service_key_type(i))
+            ("SS", _mangled(f"{namespace}/invent_bridge/{s}"), ros_services.odometry_service_key_type(i))
             for s, i in (("reset_odometry", "std_srvs/srv/Empty"), ("set_odometry", "control_msgs/srv/SetOdometry"))
         }
         expected.add(("MS", _mangled(f"{namespace}/{GOAL_POSE[0]}"), ros_client.key_type(GOAL_POSE[1])))
@@ -170,7 +170,7 @@ def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_type
             (
                 kind,
                 _mangled(f"{namespace}/navigate_to_pose/_action/{endpoint}"),
-                ros_client.action_key_type(ros_client.ACTION_ENDPOINTS[endpoint]),
+                ros_services.action_key_type(ros_services.ACTION_ENDPOINTS[endpoint]),
             )
             for endpoint, kind in ACTION_ENDPOINTS.items()
         }
@@ -381,7 +381,7 @@ class Goals:
     """rh1's action as a ROS client sees it, and what the test reads of the fleet."""
 
     fleet: Fleet
-    client: ros_client.ActionClient
+    client: ros_services.ActionClient
     drive: InventProcess
 
     def ground_truth(self, robot: str = GOAL_ROBOT) -> Pose:
@@ -397,7 +397,7 @@ class Goals:
         """The goal's status in each ``_action/status`` sample that lists it, repeats left out."""
         seen: list[int] = []
         for sample in self.fleet.recorder.of(STATUS):
-            status = ros_client.goal_statuses(sample.payload).get(uuid)
+            status = ros_services.goal_statuses(sample.payload).get(uuid)
             if status is not None and (not seen or seen[-1] != status):
                 seen.append(status)
         return seen
@@ -409,7 +409,7 @@ class Goals:
 
     def feedback(self, uuid: bytes) -> list[Any]:
         messages = (
-            ros_client.action_decode(sample.payload, f"{ros_client.NAVIGATE}_FeedbackMessage")
+            ros_services.action_decode(sample.payload, f"{ros_services.NAVIGATE}_FeedbackMessage")
             for sample in self.fleet.recorder.of(FEEDBACK)
         )
         return [message.feedback for message in messages if bytes(bytearray(message.goal_id.uuid)) == uuid]
@@ -434,13 +434,13 @@ class Goals:
     def goal_pose(self, pose: Pose) -> bytes:
         """Publish ``pose`` (in odom) on rh1's ``goal_pose`` as RViz does; the UUID the bridge gave its goal."""
         listed = self.fleet.recorder.of(STATUS)
-        before = set(ros_client.goal_statuses(listed[-1].payload)) if listed else set()
+        before = set(ros_services.goal_statuses(listed[-1].payload)) if listed else set()
         topic = f"{NAMESPACES[GOAL_ROBOT]}/goal_pose"
-        self.fleet.node.put(topic, ros_client.pose_stamped(pose.x, pose.y, pose.theta, "odom", ros_client.TYPESTORE))
+        self.fleet.node.put(topic, ros_services.pose_stamped(pose.x, pose.y, pose.theta, "odom", ros_client.TYPESTORE))
         return wait_until(
             lambda: (
                 (listed := self.fleet.recorder.of(STATUS))
-                and next(iter(set(ros_client.goal_statuses(listed[-1].payload)) - before), None)
+                and next(iter(set(ros_services.goal_statuses(listed[-1].payload)) - before), None)
             ),
             10.0,
             "a new goal in the status",
@@ -459,7 +459,7 @@ def goals(fleet: Fleet) -> Iterator[Goals]:
             STARTUP_TIMEOUT_S,
             "rh1's bridge to see the drive's goal queryable",
         )
-        yield Goals(fleet, ros_client.ActionClient(fleet.session, GOAL_ACTION), drive)
+        yield Goals(fleet, ros_services.ActionClient(fleet.session, GOAL_ACTION), drive)
         code, _out, err = drive.stop()
     assert code == 0, err[-3000:]
 
@@ -511,9 +511,9 @@ def test_a_navigate_to_pose_goal_to_the_second_robot_is_reached_with_feedback_an
     assert fleet.status(GOAL_ROBOT, Service.DRIVE)["goals"]["accepted"] == 1, "rh1's drive got one goal, rh1's"
     with peer_session(fleet.endpoint) as late:  # a node started after the goal ended: the cached status
         cached = ros_client.cached_samples(late, DOMAIN, {STATUS: "action_msgs/msg/GoalStatusArray"}, 10.0)
-    assert ros_client.goal_statuses(cached[STATUS])[uuid] == 4
+    assert ros_services.goal_statuses(cached[STATUS])[uuid] == 4
 
-    other = ros_client.ActionClient(fleet.session, f"{NAMESPACES['rh0']}/navigate_to_pose")
+    other = ros_services.ActionClient(fleet.session, f"{NAMESPACES['rh0']}/navigate_to_pose")
     _goal, refused = other.send_goal(rh0_after.x + 0.5, rh0_after.y, 0.0)
     assert not refused.response.accepted
     rh0 = fleet.status("rh0", Service.ROS2)["navigate"]
@@ -595,12 +595,12 @@ def test_hostile_requests_are_refused_in_the_reply_counted_and_the_running_goal_
     assert reply.response.accepted
     goals.wait_status(running, 2)
     sent_before = fleet.status(GOAL_ROBOT, Service.ROS2)["navigate"]["sent"]
-    good = ros_client.send_goal_request(os.urandom(16), ros_client.pose_stamped(1.0, 0.0, 0.0))
+    good = ros_services.send_goal_request(os.urandom(16), ros_services.pose_stamped(1.0, 0.0, 0.0))
     send_key, cancel_key, result_key = (goals.client.key(e) for e in ("send_goal", "cancel_goal", "get_result"))
     goal_pose_key = ros_client.topic_key(DOMAIN, f"{NAMESPACES[GOAL_ROBOT]}/goal_pose", "geometry_msgs/msg/PoseStamped")
     refused_goals = [
-        (ros_client.send_goal_request(os.urandom(16), ros_client.pose_stamped(math.nan, 0.0, 0.0)), "not finite"),
-        (ros_client.send_goal_request(running, ros_client.pose_stamped(1.0, 0.0, 0.0)), "exists already"),
+        (ros_services.send_goal_request(os.urandom(16), ros_services.pose_stamped(math.nan, 0.0, 0.0)), "not finite"),
+        (ros_services.send_goal_request(running, ros_services.pose_stamped(1.0, 0.0, 0.0)), "exists already"),
         (b"\x00\x01\x00\x00" + b"\x07" * 9, "malformed CDR"),
         (good + bytes(5000), "more than a send_goal request's"),
     ]
@@ -612,13 +612,13 @@ def test_hostile_requests_are_refused_in_the_reply_counted_and_the_running_goal_
     unattached = goals.client.call("send_goal", good, with_attachment=False)
     assert unattached.error is not None and "no attachment" in unattached.error, "an error reply: nothing to echo"
     assert goals.client.call("cancel_goal", b"\x00\x01\x00\x00\x01").response.return_code == 1
-    assert goals.client.call("cancel_goal", ros_client.cancel_request() + bytes(100)).response.return_code == 1
+    assert goals.client.call("cancel_goal", ros_services.cancel_request() + bytes(100)).response.return_code == 1
     assert goals.client.call("get_result", b"\x00\x01\x00\x00").response.status == 0
     assert goals.bad_inputs(cancel_key) == 2 and goals.bad_inputs(result_key) == 1
     for payload, attached in (
         (b"\x00\x01\x00\x00\x02", True),
-        (ros_client.cdr(ros_client.pose_stamped(math.inf, 0.0, 0.0, "map", ros_client.TYPESTORE)), True),
-        (ros_client.cdr(ros_client.pose_stamped(1.0, 0.0, 0.0, "map", ros_client.TYPESTORE)), False),
+        (ros_client.cdr(ros_services.pose_stamped(math.inf, 0.0, 0.0, "map", ros_client.TYPESTORE)), True),
+        (ros_client.cdr(ros_services.pose_stamped(1.0, 0.0, 0.0, "map", ros_client.TYPESTORE)), False),
         (bytes(5000), True),
     ):
         counted = goals.bad_inputs(goal_pose_key)

@@ -33,7 +33,7 @@ from services.ros2 import core, goal_book, graph, interfaces, navigate
 from services.ros2.goal_book import CancelCode, ErrorCode, Goal, GoalStatus
 from services.ros2.graph import ActionService, ActionTopic, bridge_graph
 from services.ros2.tf_tree import Rigid, TfTree, TransformError, unit_quaternion
-from tests import ros_client
+from tests import ros_client, ros_services
 from tests.test_ros2_localization import pose_estimate
 
 DATA = Path(__file__).parent / "data" / "ros2_interfaces"
@@ -105,11 +105,11 @@ def test_the_bridge_announces_the_action_in_its_namespace_with_rcl_actions_names
     }
     for service, endpoint in expected.items():
         entity = graph.ACTION_SERVICES[service]
-        assert bridge.key(entity) == ros_client.action_key(0, "/robot1/navigate_to_pose", endpoint)
+        assert bridge.key(entity) == ros_services.action_key(0, "/robot1/navigate_to_pose", endpoint)
         assert entity.qos.token_chunk() == "::,10:,:,:,,"
     for topic, endpoint in ((ActionTopic.FEEDBACK, "feedback"), (ActionTopic.STATUS, "status")):
         entity = graph.ACTION_TOPICS[topic]
-        assert bridge.key(entity) == ros_client.action_key(0, "/robot1/navigate_to_pose", endpoint)
+        assert bridge.key(entity) == ros_services.action_key(0, "/robot1/navigate_to_pose", endpoint)
     assert graph.ACTION_TOPICS[ActionTopic.STATUS].qos.token_chunk() == ":1:,1:,:,:,,", "reliable, transient-local, 1"
     assert graph.ACTION_TOPICS[ActionTopic.FEEDBACK].qos.token_chunk() == "::,10:,:,:,,"
     assert bridge.key(graph.GOAL_POSE) == ros_client.topic_key(0, "/robot1/goal_pose", interfaces.POSE_STAMPED)
@@ -118,7 +118,7 @@ def test_the_bridge_announces_the_action_in_its_namespace_with_rcl_actions_names
 
 def _read(message: object, name: str) -> object:
     """What a ROS node reads of the bridge's CDR (a typestore made from ROS's descriptions alone)."""
-    return ros_client.action_decode(interfaces.serialize(message), name)
+    return ros_services.action_decode(interfaces.serialize(message), name)
 
 
 def test_the_bridges_cdr_reads_back_with_ross_own_type_descriptions():
@@ -135,9 +135,9 @@ def test_the_bridges_cdr_reads_back_with_ross_own_type_descriptions():
     cancel = _read(navigate.cancel_response(CancelCode.NONE, [goal]), interfaces.CANCEL_GOAL_RESPONSE)
     assert cancel.return_code == 0 and bytes(bytearray(cancel.goals_canceling[0].goal_id.uuid)) == uuid
     array = navigate.status_array([goal, Goal(bytes(16), 5, GoalStatus.EXECUTING)])
-    assert ros_client.goal_statuses(interfaces.serialize(array)) == {uuid: 6, bytes(16): 2}
+    assert ros_services.goal_statuses(interfaces.serialize(array)) == {uuid: 6, bytes(16): 2}
     shown = navigate.status_array([goal], {uuid: GoalStatus.EXECUTING})
-    assert ros_client.goal_statuses(interfaces.serialize(shown)) == {uuid: 2}, "a step it passes through"
+    assert ros_services.goal_statuses(interfaces.serialize(shown)) == {uuid: 2}, "a step it passes through"
     feedback = GoalFeedback(Time(3, 0), uuid.hex(), "executing", 1.0, 2.0, 0.5, 1.25, 3.5, 4.75)
     message = _read(navigate.feedback_message(uuid, feedback, "map"), f"{interfaces.NAVIGATE_TO_POSE}_FeedbackMessage")
     current = message.feedback.current_pose
@@ -153,11 +153,13 @@ def test_the_bridges_cdr_reads_back_with_ross_own_type_descriptions():
 
 
 def test_a_ros_clients_requests_decode_and_malformed_ones_are_bad_input():
-    request = ros_client.send_goal_request(bytes(range(16)), ros_client.pose_stamped(1.5, 0.5, 1.57, "odom"), "bt.xml")
+    request = ros_services.send_goal_request(
+        bytes(range(16)), ros_services.pose_stamped(1.5, 0.5, 1.57, "odom"), "bt.xml"
+    )
     decoded = interfaces.deserialize(request, f"{interfaces.NAVIGATE_TO_POSE_SEND_GOAL}_Request")
     assert navigate.uuid_bytes(decoded.goal_id) == bytes(range(16)) and decoded.goal.behavior_tree == "bt.xml"
     assert decoded.goal.pose.header.frame_id == "odom" and decoded.goal.pose.pose.position.x == 1.5
-    cancel = interfaces.deserialize(ros_client.cancel_request(bytes(16), 7), interfaces.CANCEL_GOAL_REQUEST)
+    cancel = interfaces.deserialize(ros_services.cancel_request(bytes(16), 7), interfaces.CANCEL_GOAL_REQUEST)
     assert cancel.goal_info.stamp.nanosec == 7
     for malformed in (b"", request[:30], b"\x00\x01\x00\x00" + bytes(3), b"not cdr"):
         with pytest.raises(BadInput, match="malformed CDR"):
@@ -199,7 +201,7 @@ def _tree(map_to_odom: Pose | None = None, odom_to_base: Pose | None = None) -> 
 
 def _goal(x: float, y: float, theta: float, frame: str, tree: TfTree) -> object:
     return navigate.goal_request(
-        ros_client.pose_stamped(x, y, theta, frame, interfaces.messages()), tree, "map", "a", 1e3
+        ros_services.pose_stamped(x, y, theta, frame, interfaces.messages()), tree, "map", "a", 1e3
     )
 
 
@@ -266,7 +268,7 @@ def test_a_goal_in_a_frame_the_tree_cannot_turn_into_map_is_a_transform_error_na
 
 
 def _pose(x: float = 1.0, y: float = 0.0, frame: str = "map", q: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0)) -> object:
-    pose = ros_client.pose_stamped(x, y, 0.0, frame, interfaces.messages())
+    pose = ros_services.pose_stamped(x, y, 0.0, frame, interfaces.messages())
     qx, qy, qz, qw = q
     pose.pose.orientation.x, pose.pose.orientation.y, pose.pose.orientation.z, pose.pose.orientation.w = qx, qy, qz, qw
     return pose

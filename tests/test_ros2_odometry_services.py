@@ -29,7 +29,7 @@ from services.config import load_config
 from services.planar import Pose, compose
 from services.ros2.graph import bridge_graph
 from services.ros2.outputs import RosOutputs
-from tests import ros_client
+from tests import ros_client, ros_services
 from tests.harness import InventProcess, call, peer_session, running_router, wait_until
 
 MS = 1_000_000
@@ -143,10 +143,10 @@ class Stand:
         pose, q = message.pose.pose.position, message.pose.pose.orientation
         return Pose(pose.x, pose.y, 2.0 * math.atan2(q.z, q.w))
 
-    def call(self, service: str, request: Any, with_attachment: bool = True) -> ros_client.ServiceReply:
+    def call(self, service: str, request: Any, with_attachment: bool = True) -> ros_services.ServiceReply:
         """One call as an rmw_zenoh client: the request's CDR and attachment; the reply decoded."""
         interface = SERVICES[service]
-        key = f"{DOMAIN}/invent_bridge/{service}/{ros_client.odometry_service_key_type(interface)}"
+        key = f"{DOMAIN}/invent_bridge/{service}/{ros_services.odometry_service_key_type(interface)}"
         querier = self.session.declare_querier(key, timeout=5.0)
         try:
             wait_until(lambda: querier.matching_status.matching, 10.0, f"a service on {key}")
@@ -159,9 +159,9 @@ class Stand:
         assert len(replies) == 1, f"{key}: {len(replies)} replies"
         (reply,) = replies
         if reply.ok is None:
-            return ros_client.ServiceReply(None, reply.err.payload.to_bytes().decode(), None, sequence_number)
-        store = ros_client.ODOMETRY_SERVICES_TYPESTORE
-        return ros_client.ServiceReply(
+            return ros_services.ServiceReply(None, reply.err.payload.to_bytes().decode(), None, sequence_number)
+        store = ros_services.ODOMETRY_SERVICES_TYPESTORE
+        return ros_services.ServiceReply(
             store.deserialize_cdr(reply.ok.payload.to_bytes(), f"{interface}_Response"),
             None,
             ros_client.read_attachment(reply.ok.attachment.to_bytes()),
@@ -175,16 +175,16 @@ class Stand:
 
 
 def _cdr(value: Any) -> bytes:
-    return bytes(ros_client.ODOMETRY_SERVICES_TYPESTORE.serialize_cdr(value, value.__msgtype__))
+    return bytes(ros_services.ODOMETRY_SERVICES_TYPESTORE.serialize_cdr(value, value.__msgtype__))
 
 
 def set_request(x: float, y: float, yaw: float, z: float = 0.0) -> Any:
-    request = ros_client.ODOMETRY_SERVICES_TYPESTORE.types[f"{SET_ODOMETRY}_Request"]
+    request = ros_services.ODOMETRY_SERVICES_TYPESTORE.types[f"{SET_ODOMETRY}_Request"]
     return request(x=x, y=y, z=z, roll=0.0, pitch=0.0, yaw=yaw)
 
 
 def reset_request() -> Any:
-    return ros_client.ODOMETRY_SERVICES_TYPESTORE.types[f"{EMPTY}_Request"]()
+    return ros_services.ODOMETRY_SERVICES_TYPESTORE.types[f"{EMPTY}_Request"]()
 
 
 @pytest.fixture(scope="module")
@@ -211,7 +211,7 @@ def test_the_services_are_the_nodes_own_with_ross_types_and_hashes(stand):
         "the odometry services' tokens",
     )
     assert {(c[9], c[10], c[11]) for c in tokens} == {
-        (f"%invent_bridge%{service}", *ros_client.odometry_service_key_type(interface).split("/"))
+        (f"%invent_bridge%{service}", *ros_services.odometry_service_key_type(interface).split("/"))
         for service, interface in SERVICES.items()
     }
 
@@ -261,7 +261,7 @@ def test_reset_odometry_zeroes_odom(stand):
 def test_a_bad_call_is_refused_counted_and_moves_nothing(stand, service, request_, with_attachment, refusal):
     stand.tick(1)
     before = stand.odom(stand.clock_ns - 10 * MS)
-    key = f"{DOMAIN}/invent_bridge/{service}/{ros_client.odometry_service_key_type(SERVICES[service])}"
+    key = f"{DOMAIN}/invent_bridge/{service}/{ros_services.odometry_service_key_type(SERVICES[service])}"
     counted = stand.status()["bad_input"]["by_key"].get(key, {"count": 0})["count"]
     reply = stand.call(service, request_, with_attachment=with_attachment)
     if refusal == "success false":

@@ -382,12 +382,12 @@ def test_router_lets_the_ros2_bridge_serve_its_navigate_to_pose_action_and_no_ot
     bridge's status (a transient-local advanced publisher, as the bridge declares it) reaches a late
     ROS node from its cache, its feedback a subscribed one."""
     from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, ActionService, ActionTopic
-    from tests import ros_client
+    from tests import ros_services
 
     ros = DEFAULT_ROS
     send_goal = ros.key(ACTION_SERVICES[ActionService.SEND_GOAL])
     status, feedback = (ros.key(ACTION_TOPICS[topic]) for topic in (ActionTopic.STATUS, ActionTopic.FEEDBACK))
-    assert send_goal == ros_client.action_key(0, "/navigate_to_pose", "send_goal")
+    assert send_goal == ros_services.action_key(0, "/navigate_to_pose", "send_goal")
     with _secured_router(tmp_path, tls=False) as (_profile, open_as):
         bridge, ros_node, impostor = open_as(Role.ROS2), open_as(Role.ROS_NODE), open_as(Role.OPERATOR)
         served: list[str] = []
