@@ -24,7 +24,7 @@ directory's size and the simulation time. At the end (the last errand done, the 
 the report's goals, restarts, internal errors, late or missing torques and bad inputs; each process's
 memory growth per simulated hour after the first (and after its last start), also with the step a
 burst of hostile input sets left out (zenoh's buffers grow once, to the burst's high water, and stay:
-six bursts into one router measured +36 MB at the first, +0.04 MB over the next five); the recording
+``python -m benchmarks.burst_memory`` measures it on a router alone); the recording
 against ``record.max_size``; the wall time. Exits 1 unless every errand completed, every fault was
 survived, no internal error, memory flat (under :data:`FLAT_MB_PER_HOUR` past the high water) and
 the recording within its budget. Writes ``benchmarks/results/soak_day.json``; benchmarks/README.md
@@ -335,7 +335,7 @@ def since(faults: list[dict[str, Any]], kind: str | None, warm_up_h: float) -> f
 
 def past_high_water(faults: list[dict[str, Any]], kind: str | None, warm_up_h: float) -> float:
     """From :func:`since` on, and past the first burst of hostile input the process then lived through
-    (its buffers' high water; a burst that ends a run's samples leaves :func:`since`)."""
+    (its buffers' high water, :mod:`benchmarks.burst_memory`); with no such burst, :func:`since`."""
     start = since(faults, kind, warm_up_h)
     bursts = [fault["done_at_sim_h"] for fault in faults if fault["kind"] == "hostile" and fault["at_sim_h"] >= start]
     return bursts[0] if bursts else start

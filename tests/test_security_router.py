@@ -1,6 +1,6 @@
-"""The secure profile's router with real sessions (TCP and TLS): each role lets through only its grants,
-for the services, the operator, the ROS 2 bridge and `invent goto`; and `invent up --secure` with the
-real services (tests/test_security.py: the roles, their grants and the files `invent secrets` writes).
+"""The secure profile's router with real sessions (TCP and TLS): it lets each role do only what it is
+granted, for the services, the operator, the ROS 2 bridge and `invent goto`; and `invent up --secure`
+with the real services (tests/test_security.py: the roles, their grants and the files `invent secrets` writes).
 """
 
 from __future__ import annotations
