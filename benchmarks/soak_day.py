@@ -86,6 +86,8 @@ FAULTS = (
 (``--sim-hours``) has them at the same fractions of its length."""
 PROGRESS = re.compile(r"sim +([\d.]+) s \|")
 STARTED = re.compile(rf"started {BESIDE_NAME} \(pid (\d+)\)")
+GOAL_ENDED = re.compile(r"invent\.drive: goal '([^']+)' (\w+) after [\d.]+ s")
+"""The drive's own line for each goal's end (INFO when completed, WARNING otherwise)."""
 HOSTILE_PER_KEY = 300
 BACK_TIMEOUT_S = 120.0
 STATUS_TIMEOUT_S = 5.0
@@ -172,8 +174,11 @@ class Day:
     faults: list[dict[str, Any]] = field(default_factory=list)
     router_starts: int = 1
     outcomes: dict[str, list[str]] = field(default_factory=dict)
-    """Each goal's end (``drive/outcome``), by outcome: the ids. Over the whole run, which a
-    recording that keeps the newest no longer holds."""
+    """Each goal's end as the drive logged it, by outcome: the ids. Over the whole run, which a
+    recording that keeps the newest no longer holds, and whatever the router does."""
+    outcomes_through_the_router: dict[str, list[str]] = field(default_factory=dict)
+    """The same from ``drive/outcome``, subscribed through the router: an end published while the
+    router was down (or up not yet connected to its new one) is not among them."""
     loop_ended: bool = False
     """Up has begun writing its recording: the loop is over, and its memory no longer the loop's."""
 
@@ -187,6 +192,8 @@ class Day:
                 self.sim_s = float(progress.group(1))
             elif (started := STARTED.search(line)) is not None:
                 self.beside_pids.append(int(started.group(1)))
+            elif (ended := GOAL_ENDED.search(line)) is not None:
+                self.outcomes.setdefault(ended.group(2), []).append(ended.group(1))
             self.tail.append(line)
             del self.tail[:-200]
             if "WARNING" in line or "ERROR" in line or "restart" in line:
@@ -196,7 +203,7 @@ class Day:
     def on_outcome(self, sample: zenoh.Sample) -> None:
         """A zenoh callback: only notes the end (nothing of zenoh's is called from here)."""
         outcome = decode(ScenarioOutcome, sample.payload.to_bytes())
-        self.outcomes.setdefault(outcome.outcome, []).append(outcome.goal_id)
+        self.outcomes_through_the_router.setdefault(outcome.outcome, []).append(outcome.goal_id)
 
     def sample(self) -> None:
         if self.loop_ended:
@@ -452,6 +459,10 @@ def summary(
         "errands": errands_sent,
         "goals": {outcome: len(ids) for outcome, ids in day.outcomes.items()},
         "goals_not_completed": {outcome: ids for outcome, ids in day.outcomes.items() if outcome != "completed"},
+        "goals_through_the_router": {outcome: len(ids) for outcome, ids in day.outcomes_through_the_router.items()},
+        "goals_missed_through_the_router": sorted(
+            set(day.outcomes.get("completed", [])) - set(day.outcomes_through_the_router.get("completed", []))
+        ),
         "goals_in_the_kept_recording": {
             "count": len(kept_goals),
             "not_completed": [
