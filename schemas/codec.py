@@ -78,6 +78,8 @@ def decode(message_type: type[MessageT], payload: bytes) -> MessageT:
     except msgspec.ValidationError as error:
         raise BadMessage(str(error)) from None
     except msgspec.DecodeError as error:
+        if "UTF-8" in str(error):  # msgspec 0.23 says so in a DecodeError, for a key that is not UTF-8
+            raise BadMessage(f"not UTF-8: {error}") from None
         raise BadMessage(f"not JSON: {error}") from None
-    except UnicodeDecodeError as error:  # what msgspec raises for a string that is not UTF-8
+    except UnicodeDecodeError as error:  # what msgspec raises for a string that is not UTF-8 (0.22: keys too)
         raise BadMessage(f"not UTF-8: {error}") from None

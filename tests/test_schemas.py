@@ -112,7 +112,8 @@ def test_a_goal_id_ending_in_a_newline_is_refused_it_is_matched_whole():
 
 @pytest.mark.parametrize("message_type", MESSAGE_TYPES, ids=lambda t: t.__name__)
 def test_a_string_that_is_not_utf_8_is_bad_input_for_every_message_type(message_type):
-    """msgspec raises UnicodeDecodeError, not a DecodeError, for it: the codec refuses it as any bad payload."""
+    """msgspec raises UnicodeDecodeError for it (0.22), or a DecodeError naming UTF-8 (0.23, for a key):
+    the codec refuses it as any bad payload, saying so."""
     with pytest.raises(BadMessage, match="not UTF-8"):
         decode(message_type, b'{"\xff": 1}')
 
