@@ -21,9 +21,9 @@ from services.navigation.costmap import (
     LETHAL,
     SAME_SCAN_M,
     Costmap,
-    crossed_cells,
 )
 from services.navigation.grid import OCCUPIED, UNKNOWN, GridGeometry
+from services.navigation.traversal import crossed_cells
 from tests.test_costmap import GEOMETRY, LIDAR, costmap, empty_map, rays
 
 # -- line costs and the traversal -------------------------------------------------------------

@@ -56,7 +56,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.calibration\.(umbmark|measured|benchmark|settings)", CORE),
     (r"services\.goto\.core", CORE),
     (r"services\.extension\.driving", CORE),
-    (r"services\.navigation\.(grid|map_file|rasterize|costmap|planner|tracker|navigator)", CORE),
+    (r"services\.navigation\.(grid|map_file|rasterize|traversal|costmap|planner|tracker|navigator)", CORE),
     (r"services\.body\.geometry", CORE),
     (
         r"sim_bridge\.(simulator|robot|world|building|ray_world|sensors|latency|display|torque_policy|progress|status|"

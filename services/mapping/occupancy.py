@@ -24,8 +24,8 @@ import numpy as np
 import numpy.typing as npt
 
 from services.config.navigation import MAX_COSTMAP_CELLS_PER_SIDE
-from services.navigation.costmap import crossed_cells
 from services.navigation.grid import FREE, OCCUPIED, UNKNOWN, Grid, GridGeometry
+from services.navigation.traversal import crossed_cells
 
 Floats = npt.NDArray[np.float64]
 Bools = npt.NDArray[np.bool_]
