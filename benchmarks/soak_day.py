@@ -49,17 +49,15 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from hypothesis import HealthCheck, Phase, given, settings
-from hypothesis import strategies as st
 
-from benchmarks.soak import directory_mb, rss_mb, slope_per_hour
-from schemas.codec import BadMessage, decode
+from benchmarks.day_memory import FLAT_MB_PER_HOUR, growth, past_high_water, since, steps_at_bursts
+from benchmarks.hostile_bursts import Burst, draw_bursts
+from benchmarks.soak import directory_mb, rss_mb
+from schemas.codec import decode
 from schemas.keys import Keys, Service
 from schemas.messages import ScenarioOutcome
-from schemas.navigation import CancelRequest
 from services.config import load_config
 from services.runtime.session import ROUTER_LISTENING, free_port, open_session, session_config
-from tests.hostile_payloads import cancel_requests, goal_requests, scans
 
 RESULTS = Path(__file__).resolve().parent / "results" / "soak_day.json"
 KEYS = Keys()
@@ -88,13 +86,10 @@ PROGRESS = re.compile(r"sim +([\d.]+) s \|")
 STARTED = re.compile(rf"started {BESIDE_NAME} \(pid (\d+)\)")
 GOAL_ENDED = re.compile(r"invent\.drive: goal '([^']+)' (\w+) after [\d.]+ s")
 """The drive's own line for each goal's end (INFO when completed, WARNING otherwise)."""
-HOSTILE_PER_KEY = 300
 BACK_TIMEOUT_S = 120.0
 STATUS_TIMEOUT_S = 5.0
 END_TIMEOUT_S = 3600.0
 """How long the run may take, once its errands are done, to write its recording and report."""
-FLAT_MB_PER_HOUR = 1.0
-"""The issue's bound on a process's memory growth, MB per simulated hour."""
 SCAN_CONSUMERS = (Service.MOTOR, Service.DRIVE, Service.LOCALIZATION)
 """Who takes ``sim/scan`` here: the collision monitor, the costmap, amcl."""
 
@@ -110,41 +105,6 @@ def errands(sim_hours: float, period_s: float, seed: int) -> str:
         lines += [f"time_limit = {period_s - ERRAND_LIMIT_MARGIN_S:.1f}", f'id = "errand_{index}"']
         here = there
     return "\n".join(lines) + "\n"
-
-
-def draw_payloads(strategy: st.SearchStrategy[bytes], count: int) -> list[bytes]:
-    """``count`` payloads of a hypothesis strategy, no database, no shrinking."""
-    drawn: list[bytes] = []
-
-    @settings(
-        max_examples=count,
-        database=None,
-        phases=[Phase.generate],
-        suppress_health_check=list(HealthCheck),
-        deadline=None,
-    )
-    @given(strategy)
-    def collect(payload: bytes) -> None:
-        drawn.append(payload)
-
-    collect()
-    return drawn[:count]
-
-
-def cancels_whatever_runs(payload: bytes) -> bool:
-    """A cancel the drive obeys while an errand runs (refused by ``make fuzz`` while none does): an
-    empty payload, or one that decodes with no id, however it is spelled."""
-    if not payload.strip():
-        return True
-    try:
-        return decode(CancelRequest, payload).id == ""
-    except BadMessage:
-        return False
-
-
-def bad_cancels() -> st.SearchStrategy[bytes]:
-    """The hostile cancels that are refused whatever runs."""
-    return cancel_requests().filter(lambda payload: not cancels_whatever_runs(payload))
 
 
 def wait_for(predicate: Callable[[], Any], timeout_s: float) -> float | None:
@@ -276,26 +236,6 @@ def kill_the_router(day: Day, session: zenoh.Session) -> dict[str, Any]:
     return {"back_within_s": back_s, "survived": back_s is not None}
 
 
-@dataclass
-class Burst:
-    """One burst's hostile payloads, drawn before the day starts."""
-
-    goals: list[bytes]
-    cancels: list[bytes]
-    scans: list[bytes]
-
-
-def draw_bursts(count: int) -> list[Burst]:
-    return [
-        Burst(
-            draw_payloads(goal_requests(), HOSTILE_PER_KEY),
-            draw_payloads(bad_cancels(), HOSTILE_PER_KEY),
-            draw_payloads(scans(), HOSTILE_PER_KEY),
-        )
-        for _ in range(count)
-    ]
-
-
 def hostile_burst(session: zenoh.Session, burst: Burst) -> dict[str, Any]:
     """Each payload refused by its reply (the queryables) and counted by each service that takes it."""
     result: dict[str, Any] = {}
@@ -326,44 +266,6 @@ FAULT_ACTIONS: dict[str, Callable[[Day, zenoh.Session], dict[str, Any]]] = {
     "router": kill_the_router,
     "hostile": lambda day, session: hostile_burst(session, day.bursts.pop(0)),
 }
-
-
-def growth(samples: list[dict[str, Any]], name: str, since_h: float) -> float | None:
-    """``name``'s resident memory growth in MB per simulated hour from ``since_h`` on (the first hour
-    left out; for the router and the service beside, their last process's: the faults start them again)."""
-    points = [(s["sim_h"] * 3600, s["rss_mb"][name]) for s in samples if s["sim_h"] >= since_h and s["rss_mb"][name]]
-    return round(slope_per_hour(points), 3) if len(points) > 1 else None
-
-
-def since(faults: list[dict[str, Any]], kind: str | None, warm_up_h: float) -> float:
-    """The simulated hour from which a process's memory counts: after the warm-up, and after its last restart."""
-    return max([warm_up_h, *(fault["at_sim_h"] for fault in faults if fault["kind"] == kind)])
-
-
-def past_high_water(faults: list[dict[str, Any]], kind: str | None, warm_up_h: float) -> float:
-    """From :func:`since` on, and past the first burst of hostile input the process then lived through
-    (its buffers' high water, :mod:`benchmarks.burst_memory`); with no such burst, :func:`since`."""
-    start = since(faults, kind, warm_up_h)
-    bursts = [fault["done_at_sim_h"] for fault in faults if fault["kind"] == "hostile" and fault["at_sim_h"] >= start]
-    return bursts[0] if bursts else start
-
-
-def steps_at_bursts(samples: list[dict[str, Any]], faults: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Each process's resident memory just after each burst less just before it, MB."""
-    steps = []
-    for fault in faults:
-        if fault["kind"] != "hostile":
-            continue
-        before = [s for s in samples if s["sim_h"] <= fault["at_sim_h"]]
-        after = [s for s in samples if s["sim_h"] >= fault["done_at_sim_h"]]
-        if before and after:
-            step = {
-                name: round(after[0]["rss_mb"][name] - mb, 1)
-                for name, mb in before[-1]["rss_mb"].items()
-                if mb and after[0]["rss_mb"][name]
-            }
-            steps.append({"at_sim_h": fault["at_sim_h"], "mb": step})
-    return steps
 
 
 def soak_day(sim_hours: float, period_s: float, sample_every_s: float, work: Path) -> dict[str, Any]:

@@ -1,5 +1,5 @@
-"""What ``make soak-day`` judges a day by (benchmarks/soak_day.py), on made-up samples: which cancels
-it must not send as hostile (they cancel a running errand), from when a process's memory counts
+"""What ``make soak-day`` judges a day by (benchmarks/day_memory.py, hostile_bursts.py), on made-up
+samples: which cancels it must not send as hostile (they cancel a running errand), from when a process's memory counts
 (after its last start and past the first burst's high water), the step each burst leaves, and the
 growth per simulated hour."""
 
@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.soak_day import cancels_whatever_runs, growth, past_high_water, steps_at_bursts
+from benchmarks.day_memory import growth, past_high_water, steps_at_bursts
+from benchmarks.hostile_bursts import cancels_whatever_runs
 
 
 @pytest.mark.parametrize("payload", [b"", b"  ", b"{}", b"{ }", b'{"id": ""}', b'{"id":""}', b' {"id" : ""} '])
