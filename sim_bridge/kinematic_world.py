@@ -148,7 +148,7 @@ class _Rectangles:
         ox, oy = sx - self.x, sy - self.y
         lx, ly = cos * ox + sin * oy, -sin * ox + cos * oy
         ldx, ldy = cos * dx + sin * dy, -sin * dx + cos * dy
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # near-parallel: +-inf, as the slabs want
             x1, x2 = (-half_x - lx) / ldx, (half_x - lx) / ldx
             y1, y2 = (-half_y - ly) / ldy, (half_y - ly) / ldy
         x_in, x_out = np.fmin(x1, x2), np.fmax(x1, x2)
