@@ -70,6 +70,8 @@ class Run:
         return next((path for goal, path in reversed(self.paths()) if goal == uuid), [])
 
     def wait_status(self, uuid: bytes, status: int, timeout: float = 30.0) -> list[int]:
+        """The goal's statuses once the last is ``status``: the status topic and a result reply are
+        separate channels, so a result may come before the status array that ends the goal."""
         return wait_until(
             lambda: (path := self.path(uuid)) and path[-1] == status and path, timeout, f"status {status}"
         )
@@ -134,7 +136,7 @@ def test_a_preempted_goal_ends_aborted_as_nav2s_navigator_ends_it(run):
     second = _running(run)
     result = run.client.get_result(first).response
     assert result.status == ABORTED and second.hex() in result.result.error_msg, result
-    assert run.path(first)[-2:] == [EXECUTING, ABORTED], "never canceling nor canceled: no one asked"
+    assert run.wait_status(first, ABORTED)[-2:] == [EXECUTING, ABORTED], "never canceling nor canceled: no one asked"
     run.client.cancel(second)
     assert run.client.get_result(second).response.status == CANCELED
 
@@ -208,7 +210,7 @@ def test_cancel_by_stamp_cancels_the_goals_accepted_at_or_before_it(run):
     canceled = run.client.cancel(stamp_ns=stamp_ns).response
     assert [bytes(bytearray(g.goal_id.uuid)) for g in canceled.goals_canceling] == [uuid]
     assert run.client.get_result(uuid).response.status == CANCELED
-    assert run.path(uuid)[-3:] == [EXECUTING, CANCELING, CANCELED]
+    assert run.wait_status(uuid, CANCELED)[-3:] == [EXECUTING, CANCELING, CANCELED]
     other, _ = run.client.send_goal(*run.ahead(3.0))
     run.wait_status(other, EXECUTING)
     assert run.client.cancel(os.urandom(16)).response.return_code == 2, "an unknown id"
