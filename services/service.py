@@ -23,8 +23,9 @@ import zenoh
 
 from schemas.keys import Keys, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND
-from services.config import Config, ConfigError, RecordConfig
+from services.config import Config, ConfigError, RecordConfig, SimMode
 from services.runtime.executor import Executor
+from services.runtime.inputs import congestion
 from services.runtime.intraprocess import LocalBus
 from services.runtime.journal import MB, Journal, JournalLimits, journal_path
 from services.runtime.node import Node
@@ -141,7 +142,16 @@ def start_service(
     process's intra-process delivery, when services are composed (services/runtime/intraprocess.py)."""
     command, config = plan.command, plan.config
     journal = _journal(plan.journaling, command.service, config.record)
-    node = Node(session, Keys(config.robot.name), command.service, executor=executor, journal=journal, bus=bus)
+    lockstep = config.sim.mode == SimMode.LOCKSTEP
+    node = Node(
+        session,
+        Keys(config.robot.name),
+        command.service,
+        executor=executor,
+        journal=journal,
+        bus=bus,
+        congestion=congestion(lockstep),
+    )
     try:
         return node, command.factory(node, config, plan.options)
     except BaseException:

@@ -162,6 +162,7 @@ class SimService:
                         executor=node.executor,
                         journal=node.journal,
                         bus=node.bus,
+                        congestion=node.congestion,
                     )
                 )
                 self.links.append(

@@ -15,6 +15,7 @@ import yaml
 import zenoh
 
 from schemas.keys import Keys, Service, user_service_name
+from services.cli.control import composed_plans
 from services.cli.flags import config_from_args
 from services.cli.main import build_parser
 from services.security import DICTIONARY, ROUTER_CONFIG, Message, Role, UserServiceGrant, grants, user_service_grants
@@ -103,6 +104,19 @@ def test_every_service_is_a_client_with_only_its_own_roles_credentials(overrides
         holds_motor = name in (CONTROL, str(Service.MOTOR))
         assert spec.get("volumes", []) == (["motor-state:/state"] if holds_motor else []), name
         assert config_from_args(getattr(args, "service_cli", None), args).robot.name == "rh0"
+
+
+@pytest.mark.parametrize("overrides", [(), ("compose.split.yaml",)], ids=["composed", "split"])
+def test_every_service_is_told_the_deployment_runs_in_realtime_so_no_reader_delays_it(overrides):
+    """Each reads ``sim.mode`` realtime: a put that finds zenoh's queue full is dropped rather than
+    wait (docs/protocol.md section 2.6), which the description's default, lockstep, would make it do."""
+    parser = build_parser()
+    for name, spec in _services(*overrides).items():
+        args = parser.parse_args(spec["command"])
+        if name == CONTROL:
+            assert {str(plan.config.sim.mode) for _, plan in composed_plans(args)} == {"realtime"}
+        else:
+            assert config_from_args(getattr(args, "service_cli", None), args).sim.mode == "realtime", name
 
 
 @pytest.mark.parametrize("overrides", [(), ("compose.split.yaml",)], ids=["composed", "split"])

@@ -270,9 +270,11 @@ def test_no_service_refuses_anything_of_its_own_loop(runs):
         assert refusals == [], (name, refusals[:5])
 
 
-def test_composed_services_are_seen_by_outside_tools(runs):
-    seen = {line["service"] for line in map(json.loads, runs["composed"].outside_status.splitlines())}
-    assert {"sim", "motor", "odometry", "localization", "drive"} <= seen
+def test_composed_services_are_seen_by_outside_tools_and_publish_blocking_in_lockstep(runs):
+    statuses = {line["service"]: line for line in map(json.loads, runs["composed"].outside_status.splitlines())}
+    services = ("sim", "motor", "odometry", "localization", "drive")
+    assert set(services) <= set(statuses)
+    assert {statuses[name]["congestion"] for name in services} == {"block"}, "up gave each its run's mode"
 
 
 PER_STEP_TOPICS = (

@@ -248,6 +248,7 @@ def test_a_goal_behind_the_box_of_the_bump_world_is_reached_around_it_touching_n
     assert abs(wrap_angle(truth.theta)) <= GOALS.heading_tolerance, truth
     assert sim["counters"]["bumps"] == 0, "no bump"
     assert motor["collision_monitor"]["counters"]["holds"] == 0, "the collision monitor never held the robot"
+    assert (sim["congestion"], motor["congestion"]) == ("drop", "drop"), "realtime: a reader never delays the loop"
 
 
 def test_along_the_straight_line_a_goal_behind_the_box_ends_aborted_naming_it_and_goto_exits_3(tmp_path):

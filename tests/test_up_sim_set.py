@@ -93,6 +93,13 @@ def test_invent_control_gives_its_sim_set_to_the_sim_not_the_motor(capsys):
     assert "--sim-set motor.p_gain_l" in err
 
 
+@pytest.mark.parametrize("mode", ["realtime", "lockstep"])
+def test_invent_controls_mode_is_the_motors_too(mode):
+    """Its motor's publishers meet congestion as the run's mode says (docs/protocol.md section 2.6)."""
+    plans = dict(composed_plans(build_parser("control").parse_args(["control", "--mode", mode])))
+    assert plans["sim"].config.sim.mode == plans["motor"].config.sim.mode == mode
+
+
 def _poses(messages, key: str, body: bool) -> list[tuple[float, float, float]]:
     found = []
     for message in messages:

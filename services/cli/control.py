@@ -78,8 +78,13 @@ def composed_plans(args: argparse.Namespace) -> list[tuple[str, ServicePlan[Any]
     motor's with ``--sim-set`` after every ``--set`` (the later value of a key wins); ConfigError
     naming a ``--sim-set`` key that is not of the simulated body."""
     parse_sim_set(args.sim_set or ())
+    # --mode is the run's: the motor's publishers too meet congestion as the mode says (protocol §2.6)
+    mode = [f"sim.mode={args.mode}"] if args.mode else []
+    motor_args = argparse.Namespace(**{**vars(args), "set": [*(args.set or ()), *mode]})
     sim_args = argparse.Namespace(**{**vars(args), "set": [*(args.set or ()), *(args.sim_set or ())]})
-    return [(name, plan_from_args(service_cli(name), sim_args if name == Service.SIM else args)) for name in COMPOSED]
+    return [
+        (name, plan_from_args(service_cli(name), sim_args if name == Service.SIM else motor_args)) for name in COMPOSED
+    ]
 
 
 def run(args: argparse.Namespace) -> int:

@@ -262,7 +262,8 @@ class SimConfig(Section, frozen=True):
     "Engines")."""
     mode: SimMode = SimMode.LOCKSTEP
     """``lockstep``: every step waits for its torque; ``realtime``: steps paced to the wall clock
-    (docs/protocol.md section 6)."""
+    (docs/protocol.md section 6). Every service reads it: in lockstep its publishers wait for room
+    rather than drop a sample (protocol section 2.6); ``invent up`` gives every child its run's."""
     step: Annotated[Positive, SIMULATED_SECONDS] = 0.001
     """Simulation time of one physics step."""
     observe_every: Annotated[int, msgspec.Meta(ge=1), STEPS] = 20

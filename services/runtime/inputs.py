@@ -23,6 +23,18 @@ from services.runtime.intraprocess import LocalBus, LocalSink, Tap
 from services.runtime.journal import Journal
 from services.runtime.session import has_match
 
+LOCKSTEP_CONGESTION = zenoh.CongestionControl.BLOCK
+"""A lockstep run's publishers wait for room in zenoh's transmit queue rather than drop a sample:
+the run's time is the simulation's, so a slow reader (or a sending task descheduled on a loaded
+machine) may slow the run but never changes what any reader gets. zenoh's default, DROP, drops a
+sample after 1 ms without room (eclipse-zenoh/zenoh#847): measured, outside recorders of loaded
+lockstep runs missed samples so. A realtime run keeps DROP: a reader must never delay the loop."""
+
+
+def congestion(lockstep: bool) -> zenoh.CongestionControl:
+    """What a run's publishers do when zenoh's transmit queue is full (:data:`LOCKSTEP_CONGESTION`)."""
+    return LOCKSTEP_CONGESTION if lockstep else zenoh.CongestionControl.DROP
+
 
 class Delivery(StrEnum):
     """How a service takes an input's samples: named at every ``Node.subscribe``."""
@@ -85,22 +97,31 @@ class Publisher:
 
     With a ``bus`` (services composed in one process: services/runtime/intraprocess.py), a message
     goes to the process's own inputs of the key as it is, and through zenoh (encoded) only while a
-    subscriber outside the process matches."""
+    subscriber outside the process matches.
+
+    ``congestion``: what zenoh does with a sample when its transmit queue is full (a reader or the
+    sending task slow): :data:`LOCKSTEP_CONGESTION` or zenoh's default, DROP (docs/protocol.md §10.2)."""
 
     def __init__(
-        self, session: zenoh.Session, key: str, journal: Journal | None = None, bus: LocalBus | None = None
+        self,
+        session: zenoh.Session,
+        key: str,
+        journal: Journal | None = None,
+        bus: LocalBus | None = None,
+        congestion: zenoh.CongestionControl = zenoh.CongestionControl.DROP,
     ) -> None:
         self.key = key
         self._journal = journal
         self._bus = bus
+        encoding = zenoh.Encoding(ENCODING)
         if bus is None:
             self._local: list[LocalSink | Tap] | None = None
-            self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(ENCODING))
+            self._publisher = session.declare_publisher(key, encoding=encoding, congestion_control=congestion)
             self._remote = True
             return
         self._local = bus.sinks(key)
         self._publisher = session.declare_publisher(
-            key, encoding=zenoh.Encoding(ENCODING), allowed_destination=zenoh.Locality.REMOTE
+            key, encoding=encoding, congestion_control=congestion, allowed_destination=zenoh.Locality.REMOTE
         )
         self._remote_watch = self._publisher.declare_matching_listener(self._on_remote)
         self._remote = has_match(self._publisher)
@@ -128,6 +149,10 @@ class Publisher:
         step that is not observed, for a run recorded at every step (docs/protocol.md section 2.7)."""
         if self._journal is not None:
             self._journal.write(self.key, encode(message), stamp_ns=_stamp_ns(message))
+
+    @property
+    def congestion_control(self) -> zenoh.CongestionControl:
+        return self._publisher.congestion_control
 
     @property
     def remote_subscribers(self) -> bool:

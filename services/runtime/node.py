@@ -65,11 +65,8 @@ def _no_wait() -> Wait:
 
 
 class Node:
-    """One service's presence on zenoh. See the module docstring.
-
-    ``status`` is called on the service thread to build the ``status`` reply; the node adds
-    the service and robot names and the bad-input counters.
-    """
+    """One service's presence on zenoh. See the module docstring. ``status`` is called on the service
+    thread to build the ``status`` reply; the node adds the service and robot names and the counters."""
 
     def __init__(
         self,
@@ -80,9 +77,11 @@ class Node:
         executor: Executor | None = None,
         journal: Journal | None = None,
         bus: LocalBus | None = None,
+        congestion: zenoh.CongestionControl = zenoh.CongestionControl.DROP,
     ) -> None:
         self.session = session
         self.bus = bus
+        self.congestion = congestion  # its publishers': BLOCK in lockstep (inputs.LOCKSTEP_CONGESTION)
         """The process's intra-process delivery, when its services are composed (services/runtime/intraprocess.py)."""
         self.keys = keys
         self.service = service
@@ -131,6 +130,7 @@ class Node:
             "bad_input": self.bad_inputs.as_dict(),
             "internal_errors": self.internal_errors,
             "dropped_events": self.executor.dropped_events,
+            "congestion": "block" if self.congestion == zenoh.CongestionControl.BLOCK else "drop",
             "rt": realtime_status(),
             "memory": memory_status(),
         }
@@ -319,7 +319,7 @@ class Node:
         return dispatch
 
     def publisher(self, key: str) -> Publisher:
-        publisher = Publisher(self.session, key, self._journal, self.bus)
+        publisher = Publisher(self.session, key, self._journal, self.bus, self.congestion)
         self._publishers.append(publisher)
         return publisher
 
