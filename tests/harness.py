@@ -7,6 +7,7 @@ on conditions with timeouts (matching, liveliness, replies), never on bare sleep
 from __future__ import annotations
 
 import json
+import math
 import os
 import queue
 import signal
@@ -49,6 +50,18 @@ def wait_until(predicate: Callable[[], T], timeout: float = 10.0, what: str = "c
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         time.sleep(0.005)
+
+
+PoseT = TypeVar("PoseT", bound=Sequence[float])
+
+
+def at_rest(pose: Callable[[], PoseT], within_m: float = 0.001, window_s: float = 0.1) -> PoseT | None:
+    """The pose ``pose()`` gives (x, y first), once it moved less than ``within_m`` in ``window_s``
+    of wall time; None while it moves (for :func:`wait_until`)."""
+    before = pose()
+    time.sleep(window_s)  # a window of stillness, measured over wall time
+    after = pose()
+    return after if math.hypot(after[0] - before[0], after[1] - before[1]) < within_m else None
 
 
 def open_router(endpoint: str) -> zenoh.Session:

@@ -14,7 +14,6 @@ from __future__ import annotations
 import math
 import os
 import subprocess
-import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -26,7 +25,7 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from tests import ros_client, ros_services
-from tests.harness import REPO, call, free_port, invent_command, peer_session, wait_alive, wait_until
+from tests.harness import REPO, at_rest, call, free_port, invent_command, peer_session, wait_alive, wait_until
 
 pytestmark = [pytest.mark.slow, pytest.mark.kinematic]
 
@@ -141,14 +140,6 @@ def test_a_preempted_goal_ends_aborted_as_nav2s_navigator_ends_it(run):
     assert run.client.get_result(second).response.status == CANCELED
 
 
-def _at_rest(run: Run) -> bool:
-    """Whether the robot moved less than a millimetre in a tenth of a second of wall time."""
-    before = run.pose()
-    time.sleep(0.1)
-    after = run.pose()
-    return math.hypot(after[0] - before[0], after[1] - before[1]) < 0.001
-
-
 def _started(run: Run, uuid: bytes) -> dict[str, Any]:
     """The goal the drive started last (``drive/goal``, latched), once it is ``uuid``'s."""
     return wait_until(
@@ -159,7 +150,7 @@ def _started(run: Run, uuid: bytes) -> dict[str, Any]:
 
 
 def test_a_goal_in_base_link_is_relative_to_the_robot_and_reached(run):
-    wait_until(lambda: _at_rest(run), 20.0, "the robot at rest")
+    wait_until(lambda: at_rest(run.pose), 20.0, "the robot at rest")
     x, y, theta = run.pose()
     uuid, reply = run.client.send_goal(0.5, 0.0, 0.0, frame="base_link")
     assert reply.response.accepted

@@ -25,7 +25,7 @@ from schemas.codec import decode
 from schemas.keys import Keys, Service
 from schemas.messages import TimedPosition
 from tests import ros_client, ros_services
-from tests.harness import call, invent_command, peer_session, running_router, wait_alive, wait_until
+from tests.harness import at_rest, call, invent_command, peer_session, running_router, wait_alive, wait_until
 
 pytestmark = pytest.mark.slow
 
@@ -281,7 +281,7 @@ def test_cmd_vel_moves_the_robot_and_the_stop_service_stops_it(teleop):
     assert success and "stopped" in message
     assert (sequence_number, gid) == (sent, node.gid), "the reply echoes the request's sequence number and GID"
     assert teleop.status(Service.MOTOR)["state"] == "stopped"
-    stopped = wait_until(lambda: _at_rest(teleop), 10.0, "the robot at rest")
+    stopped = wait_until(lambda: at_rest(teleop.ground_truth), 10.0, "the robot at rest")
     _drive(teleop, node, ros_client.twist(0.3, 0.0), 1.0)
     still = teleop.ground_truth()
     assert math.hypot(still[0] - stopped[0], still[1] - stopped[1]) < 0.01, "a stopped robot stays stopped"
@@ -289,14 +289,6 @@ def test_cmd_vel_moves_the_robot_and_the_stop_service_stops_it(teleop):
     cleared = node.call_trigger("/motor/clear")
     assert cleared is not None and cleared[0][0]
     assert teleop.status(Service.ROS2)["service_calls"]["answered"] >= 2
-
-
-def _at_rest(loop: Loop) -> tuple[float, float, float] | None:
-    """The ground truth, once it moved less than a millimetre in a tenth of a second of wall time."""
-    before = loop.ground_truth()
-    time.sleep(0.1)
-    after = loop.ground_truth()
-    return after if math.hypot(after[0] - before[0], after[1] - before[1]) < 0.001 else None
 
 
 def _bad_input_entry(loop: Loop, key: str) -> dict[str, Any] | None:

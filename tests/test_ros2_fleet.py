@@ -39,6 +39,7 @@ from tests import ros_client, ros_services
 from tests.harness import (
     REPO,
     InventProcess,
+    at_rest,
     call,
     free_port,
     invent_command,
@@ -521,14 +522,6 @@ def test_a_navigate_to_pose_goal_to_the_second_robot_is_reached_with_feedback_an
     assert fleet.status(GOAL_ROBOT, Service.DRIVE)["goals"]["accepted"] == 1, "rh0's goal never reached rh1's drive"
 
 
-def _at_rest(goals: Goals) -> bool:
-    """Whether rh1 moved less than a millimetre in a tenth of a second of wall time."""
-    before = goals.ground_truth()
-    time.sleep(0.1)
-    after = goals.ground_truth()
-    return math.hypot(after.x - before.x, after.y - before.y) < 0.001
-
-
 def test_goals_canceled_by_id_and_canceled_all_end_canceled_and_a_preempted_one_aborted(goals):
     second, reply = goals.client.send_goal(*goals.ahead(3.0))
     assert reply.response.accepted
@@ -554,7 +547,7 @@ def test_goals_canceled_by_id_and_canceled_all_end_canceled_and_a_preempted_one_
     assert everything.response.return_code == 0, "a zero id and stamp: cancel all"
     assert [bytes(bytearray(g.goal_id.uuid)) for g in everything.response.goals_canceling] == [fourth]
     goals.wait_status(fourth, 5)
-    wait_until(lambda: _at_rest(goals), 10.0, "the robot at rest")
+    wait_until(lambda: at_rest(goals.ground_truth), 10.0, "the robot at rest")
     assert goals.client.cancel().response.return_code == 0, "cancel all with none running: none, no error"
 
 
