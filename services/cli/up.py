@@ -17,8 +17,8 @@ from services.cli.flags import (
     positive_seconds,
 )
 from services.cli.services import service_plan
-from services.config import SIM_BODY_KEYS, ConfigError, RecordRate, SimMode, TfLayout, parse_sim_set
-from services.launch.plan import DEFAULT_SCENARIO, UpPlan
+from services.config import SIM_BODY_KEYS, ConfigError, RecordRate, SimMode, TfLayout
+from services.launch.plan import DEFAULT_SCENARIO, DEPLOYMENT_SETTINGS, UpPlan
 from services.launch.restart import (
     DEFAULT_FIRST_DELAY_S,
     DEFAULT_LIMIT,
@@ -29,6 +29,7 @@ from services.launch.restart import (
 )
 from services.launch.ros2_run import BAG_DIRECTORY
 from services.launch.run import RECORDING_FILE, SECRETS_DIRECTORY
+from services.launch.stack import plan_from_stack, read_stack, stack_from_plan, stack_toml
 from services.launch.up import run_up
 from services.navigation.map_file import read_map
 from services.recording import view
@@ -36,7 +37,31 @@ from services.runtime.session import DEFAULT_ENDPOINT
 
 
 def run(args: argparse.Namespace) -> int:
-    return run_up(plan_from_args(args), service_plan)
+    plan = plan_from_stack(read_stack(args.stack)) if args.stack is not None else plan_from_args(args)
+    if args.stack is not None:
+        _refuse_flags_beside_the_stack(args)
+        plan.check()
+    if args.print_stack:
+        print(stack_toml(stack_from_plan(plan)), end="")
+        return 0
+    return run_up(plan, service_plan)
+
+
+def _refuse_flags_beside_the_stack(args: argparse.Namespace) -> None:
+    """ConfigError naming a run flag given with ``--stack``: the file says the whole run."""
+    # imported here: services.cli.main imports this module
+    from services.cli.main import build_parser
+
+    defaults = vars(build_parser("up").parse_args(["up"]))
+    given = sorted(
+        name for name, value in vars(args).items() if name not in _NOT_OF_THE_RUN and value != defaults.get(name)
+    )
+    if given:
+        flags = ", ".join("--" + name.replace("_", "-") for name in given)
+        raise ConfigError(f"--stack {args.stack} with {flags}: the stack file says the whole run (docs/stack.md)")
+
+
+_NOT_OF_THE_RUN = {"stack", "print_stack", "command", "handler"}
 
 
 def plan_from_args(args: argparse.Namespace) -> UpPlan:
@@ -57,14 +82,6 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
             "--split with --composed: --split runs a realtime run's sim and motor as two processes, --composed "
             "every service in one"
         )
-    restarts = restart_plan(args)
-    sim_set = tuple(args.sim_set or ())
-    parse_sim_set(sim_set)  # a key outside SIM_BODY_KEYS, or not KEY=VALUE: exit 2 naming it
-    if sim_set and args.fleet:
-        raise ConfigError(
-            "--sim-set with --fleet: a fleet's simulated robots are described by the fleet file; --sim-set changes "
-            "one robot's simulated body"
-        )
     if args.mapping and not goal_mode:
         raise ConfigError("--mapping builds the map as goals are driven: give --goals or --goal-file")
     if args.mapping and args.map is not None:
@@ -73,7 +90,7 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
         read_map(args.map)  # a map that does not load is refused before anything starts
     settings = [
         # a deployment's run keeps the newest of its recording (a --set record.keep given overrides it)
-        *(["record.keep=newest"] if goal_mode or args.loop else []),
+        *(DEPLOYMENT_SETTINGS if goal_mode or args.loop else ()),
         *description.settings,
         *([f"navigation.map={Path(args.map).resolve()}"] if args.map is not None else []),
         *(["navigation.mapping=true"] if args.mapping else []),
@@ -81,7 +98,7 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
         *([f"ros2.tf={args.tf}"] if args.tf else []),
         *([f"sim.engine={args.engine}"] if args.engine else []),
     ]
-    return UpPlan(
+    plan = UpPlan(
         connection=connection_from_args(args),
         description=dataclasses.replace(description, settings=tuple(settings)),
         scenario=args.scenario if args.scenario is not None else DEFAULT_SCENARIO,
@@ -99,34 +116,34 @@ def plan_from_args(args: argparse.Namespace) -> UpPlan:
         ros2=args.ros2,
         record_ros2=args.record_ros2,
         teleop=args.teleop,
-        goals=args.goals,
+        goals=args.goals and args.goal_file is None,  # both: the goal file's goals
         goal_file=args.goal_file,
         composed=args.composed,
         split=args.split,
         workers=args.workers,
         intra_process=not args.no_intra_process,
         with_services=tuple(args.with_services or ()),
-        restarts=restarts,
-        sim_set=sim_set,
+        restarts=RestartPlan(*parse_restarts(args.restart or ()), args.restart_limit, args.restart_backoff),
+        sim_set=tuple(args.sim_set or ()),
     )
-
-
-def restart_plan(args: argparse.Namespace) -> RestartPlan:
-    """``--restart``, ``--restart-limit`` and ``--restart-backoff`` as the run's :class:`RestartPlan`;
-    ConfigError (exit 2) naming a policy that is neither, or ``--restart`` with ``--composed`` and no
-    service beside the composition (``--with``)."""
-    default, by_service = parse_restarts(args.restart or ())
-    plan = RestartPlan(default, by_service, args.restart_limit, args.restart_backoff)
-    if plan.restarts_any and args.composed and not args.with_services:
-        raise ConfigError(
-            "--restart with --composed: the services run as threads of this one process and share its session; "
-            "one that fails cannot be started again alone (run them as processes, without --composed; the "
-            "services of your own beside a composed run, --with, are processes and can be)"
-        )
+    plan.check()
     return plan
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--stack",
+        metavar="FILE.toml",
+        help="run the stack this file describes (what drives, how the services are placed in processes, what is "
+        "recorded, who watches; docs/stack.md), and no other flag of the run: a key it does not know, or a "
+        "choice no run can make, exits 2 naming it",
+    )
+    parser.add_argument(
+        "--print-stack",
+        action="store_true",
+        help="print the stack of the flags given (or of --stack) as such a file, and run nothing: "
+        "invent up FLAGS --print-stack > s.toml; invent up --stack s.toml runs what the flags would",
+    )
     parser.add_argument(
         "--scenario",
         help=f"built-in scenario or TOML file (default {DEFAULT_SCENARIO}); with --fleet, of the robots that name none",

@@ -9,11 +9,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from services.config import Config, ConfigError, SimMode, load_config, parse_override
+from services.config import Config, ConfigError, SimMode, load_config, parse_override, parse_sim_set
 from services.launch.restart import RestartPlan
 
 GOALS = "goals"
 """What a ``--goals`` run's summary names as its scenario (the drive's ``drive/outcome`` says the same)."""
+DEPLOYMENT_SETTINGS = ("record.keep=newest",)
+"""What a deployment's run (``--loop``, goal mode) sets first, before every ``--set`` (which may
+override it): its recording keeps the newest files within its budget (docs/recording.md)."""
 DEFAULT_SCENARIO = "square"
 """The scenario of ``invent up`` when no ``--scenario`` (or goal mode) says otherwise."""
 
@@ -94,6 +97,22 @@ class UpPlan:
     sim_set: tuple[str, ...] = ()
     """``--sim-set SECTION.KEY=VALUE``, as given (keys of :data:`services.config.SIM_BODY_KEYS`): the
     simulated body's own settings, given to the sim alone after the common ``--set``."""
+
+    def check(self) -> None:
+        """ConfigError (exit 2) naming what this plan asks that no run can do, whether its flags or
+        its stack file (services/launch/stack.py) said it; the launcher checks the rest as it starts."""
+        parse_sim_set(self.sim_set)  # a key outside SIM_BODY_KEYS, or not KEY=VALUE
+        if self.sim_set and self.fleet:
+            raise ConfigError(
+                "--sim-set with --fleet: a fleet's simulated robots are described by the fleet file; --sim-set "
+                "changes one robot's simulated body"
+            )
+        if self.restarts.restarts_any and self.composed and not self.with_services:
+            raise ConfigError(
+                "--restart with --composed: the services run as threads of this one process and share its session; "
+                "one that fails cannot be started again alone (run them as processes, without --composed; the "
+                "services of your own beside a composed run, --with, are processes and can be)"
+            )
 
     def sim_flags(self, flag: str = "--set") -> list[str]:
         """The sim's own overrides as flags: ``--set K=V`` for ``invent sim``, ``--sim-set K=V`` for
