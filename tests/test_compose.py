@@ -18,8 +18,9 @@ from schemas.keys import Keys, Service, user_service_name
 from services.cli.control import composed_plans
 from services.cli.flags import config_from_args
 from services.cli.main import build_parser
+from services.exits import ExitStatus
 from services.security import DICTIONARY, ROUTER_CONFIG, Message, Role, UserServiceGrant, grants, user_service_grants
-from tests.harness import REPO
+from tests.harness import REPO, refused
 
 SECRETS_DIR = "./docker/secure/secrets"
 MOUNTED_SECRETS = "/secrets"
@@ -282,3 +283,51 @@ def test_the_real_time_override_gives_the_control_path_a_budget_within_the_daemo
     assert set(override) == {CONTROL}
     assert all(set(spec) == {"cpu_rt_runtime"} for spec in override.values())
     assert sum(spec["cpu_rt_runtime"] for spec in override.values()) <= 950_000
+
+
+def test_the_committed_compose_yaml_is_invent_composes_output(capsys):
+    code, out, err = refused(capsys, "compose")
+    assert code == ExitStatus.OK, err
+    assert out == (REPO / "compose.yaml").read_text(), "regenerate it: invent compose > compose.yaml"
+
+
+def test_the_compose_of_a_stack_gives_every_service_its_settings_and_runs_its_own_services(tmp_path, capsys):
+    flags = ["--scenario", "figure8", "--set", "lidar.noise=0.01", "--robot", "rh3"]
+    code, stack, err = refused(
+        capsys, "up", *flags, "--with", "examples/services/fix_ledger.py:FixLedger", "--print-stack"
+    )
+    assert code == ExitStatus.OK, err
+    (tmp_path / "s.toml").write_text(stack)
+    code, out, err = refused(capsys, "compose", "--stack", str(tmp_path / "s.toml"))
+    assert code == ExitStatus.OK, err
+    services = yaml.safe_load(out)["services"]
+    assert "view" not in services, "no live view in the stack, none in its compose"
+    assert "odometer" not in services
+    ledger = services["fixes"]  # the service's name, as its class says
+    assert ledger["profiles"] == ["extension"] and ledger["volumes"] == ["./examples/services:/services:ro"]
+    assert ledger["command"][:2] == ["service", "/services/fix_ledger.py:FixLedger"]
+    assert ledger["secrets"] == [{"source": "fixes", "target": "zenoh.json5"}]
+    parser = build_parser()
+    for name, spec in services.items():
+        if name == "router":
+            continue
+        args = parser.parse_args(spec["command"])
+        assert args.robot == "rh3" and "lidar.noise=0.01" in args.set, name
+    assert parser.parse_args(services["drive"]["command"]).scenario.name == "figure8"
+
+
+@pytest.mark.parametrize(
+    ("flags", "says"),
+    [
+        (["--fleet", str(REPO / "examples/fleets/two_squares.toml")], "a fleet"),
+        (["--mode", "lockstep"], "lockstep"),
+        (["--composed"], "composed processes"),
+    ],
+)
+def test_a_stack_no_compose_deployment_runs_exits_2_naming_what(tmp_path, capsys, flags, says):
+    code, stack, err = refused(capsys, "up", *flags, "--print-stack")
+    assert code == ExitStatus.OK, err
+    (tmp_path / "s.toml").write_text(stack)
+    code, _out, err = refused(capsys, "compose", "--stack", str(tmp_path / "s.toml"))
+    assert code == ExitStatus.CONFIG
+    assert f"invent compose: {says}" in err

@@ -38,6 +38,7 @@ SUBCOMMANDS = (
     "report",
     "replay",
     "up",
+    "compose",
     "calibrate",
     "map",
     "worker",
