@@ -87,7 +87,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         if plan.teleop
         else plan.mode or (SimMode.REALTIME if plan.goals and plan.goal_file is None else first.config.sim.mode)
     )
-    # every child is told the run's mode: in lockstep their publishers block rather than drop (protocol §10.2)
+    # every child is told the run's mode: in lockstep their publishers block rather than drop (protocol §2.6)
     common = [*common, "--set", f"sim.mode={mode}"]
     robot_services = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if plan.ros2 else ()))
     control_path_composed = composes_control_path(plan, mode)

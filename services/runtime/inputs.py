@@ -100,7 +100,7 @@ class Publisher:
     subscriber outside the process matches.
 
     ``congestion``: what zenoh does with a sample when its transmit queue is full (a reader or the
-    sending task slow): :data:`LOCKSTEP_CONGESTION` or zenoh's default, DROP (docs/protocol.md §10.2)."""
+    sending task slow): :data:`LOCKSTEP_CONGESTION` or zenoh's default, DROP (docs/protocol.md §2.6)."""
 
     def __init__(
         self,

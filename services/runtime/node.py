@@ -81,8 +81,8 @@ class Node:
     ) -> None:
         self.session = session
         self.bus = bus
-        self.congestion = congestion  # its publishers': BLOCK in lockstep (inputs.LOCKSTEP_CONGESTION)
         """The process's intra-process delivery, when its services are composed (services/runtime/intraprocess.py)."""
+        self.congestion = congestion  # its publishers': BLOCK in lockstep (inputs.LOCKSTEP_CONGESTION)
         self.keys = keys
         self.service = service
         self.log = log.getChild(str(service))
