@@ -90,6 +90,7 @@ INVALID = {
     ),
     "a sim-set of the motor": ('sim_set = ["motor.p_gain_l=1"]\n', "motor.p_gain_l"),
     "not TOML": ("[commander\n", "not TOML"),
+    "a log level that is none": ('[network]\nlog_level = "loud"\n', "network.log_level 'loud': one of debug, info"),
 }
 
 

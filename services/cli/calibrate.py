@@ -9,7 +9,7 @@ from pathlib import Path
 
 from services.calibration.settings import DEFAULT_PASSES, UmbmarkSettings
 from services.calibration.umbmark import CONVERGED, DEFAULT_RUNS, DEFAULT_SIDE
-from services.cli.flags import LOG_LEVELS, description_flags, overrides_from_args, positive_int, positive_length
+from services.cli.flags import description_flags, overrides_from_args, positive_int, positive_length
 from services.cli.services import service_plan
 from services.config import (
     SIM_BODY_KEYS,
@@ -22,6 +22,7 @@ from services.launch.calibrate import run_umbmark
 from services.launch.composition import Composition
 from services.launch.run import default_report_dir
 from services.recording.calibration_report import FIGURE_FILE, RECORDING_FILE, REPORT_FILE
+from services.runtime.logs import LOG_LEVELS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -16,14 +16,13 @@ import zenoh
 from schemas.keys import DEFAULT_ROBOT, validate_robot_name
 from services.config import Config, ConfigError, SimConfig, SimEngine, load_config
 from services.launch.plan import Connection, Description
+from services.runtime.logs import LOG_LEVELS
 from services.runtime.session import DEFAULT_ENDPOINT, LOOPBACK_LISTEN, ZENOH_CONFIG_VARIABLE, session_config
 from services.security import fleet_robots
 
 Commands: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
 """Where a subcommand's module adds its parser (``invent``'s subparsers)."""
 T = TypeVar("T")
-LOG_LEVELS = ("debug", "info", "warning", "error")
-"""``--log-level``'s choices: the services' and the calibration's."""
 
 
 class OwnFlags(Protocol):

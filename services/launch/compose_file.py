@@ -165,20 +165,22 @@ def _containers(stack: Stack) -> list[Container]:
             "The control path, the sim and the motor composed in one process (`invent control`, the control role's "
             "credentials): each step's wheel angles and torque are handed over in the process, not sent through the "
             "router four times. Measured on a 2-CPU VM, the sim's late steps: none in 45,002 (three runs) and none in "
-            "an hour, against 4.1-6.4 % as two containers (benchmarks/README.md, \"Compose\"). A container each for "
+            'an hour, against 4.1-6.4 % as two containers (benchmarks/README.md, "Compose"). A container each for '
             "the sim and the motor: `docker compose -f compose.yaml -f compose.split.yaml up` (docs/deploy.md).",
             _invent("control", stack, "--mode", str(SimMode.REALTIME), "--state", "/state/motor.json", "--rt"),
             "control",
             realtime=True,
             volumes=("motor-state:/state",),
-            extra=("    # An emergency stop survives a crash and `restart: unless-stopped`, and a re-created container.",),
+            extra=(
+                "    # An emergency stop survives a crash and `restart: unless-stopped`, and a re-created container.",
+            ),
         ),
         Container("odometry", "", _invent("odometry", stack), "odometry"),
         Container("localization", "", _invent("localization", stack), "localization"),
         Container(
             "drive",
             "A deployment that runs until stopped: an operator's stop holds the robot until cleared, and the drive "
-            "waits for the clear instead of giving its scenario up (docs/drive.md, \"Outcomes\"), which would only "
+            'waits for the clear instead of giving its scenario up (docs/drive.md, "Outcomes"), which would only '
             "have the container restarted into the same stop. The commander of the `scenario` profile, the default.",
             _invent(
                 "drive",
@@ -196,7 +198,7 @@ def _containers(stack: Stack) -> list[Container]:
         ),
         Container(
             "drive-goals",
-            "The drive in goal mode (docs/deploy.md, \"One commander\"): no scenario; it drives to each goal sent to "
+            'The drive in goal mode (docs/deploy.md, "One commander"): no scenario; it drives to each goal sent to '
             "drive/goal/send (the operator's right: `invent goto ... --zenoh-config .../operator.json5`), publishes "
             "its progress and outcome, and commands zero between goals. The commander of the `goals` profile, with "
             "the drive's credentials.",
@@ -243,7 +245,7 @@ def _user_containers(specs: Iterable[str], stack: Stack) -> list[Container]:
         containers.append(
             Container(
                 name,
-                "A service of your own (docs/extending.md; docs/deploy.md, \"Your own service\"), in the `extension` "
+                'A service of your own (docs/extending.md; docs/deploy.md, "Your own service"), in the `extension` '
                 "profile, beside a commander: `docker compose --profile scenario --profile extension up`. Its file's "
                 "directory is mounted at /services; its credentials (<name>.json5: its own keys only) are made by "
                 "`make secrets WITH=FILE.py:NAME`.",

@@ -20,6 +20,7 @@ from services.config import ConfigError, SimMode
 from services.config.writing import toml_value
 from services.launch.plan import DEFAULT_SCENARIO, DEPLOYMENT_SETTINGS, Connection, Description, UpPlan
 from services.launch.restart import DEFAULT_FIRST_DELAY_S, DEFAULT_LIMIT, RestartPlan, RestartPolicy, parse_restarts
+from services.runtime.logs import LOG_LEVELS
 
 
 class _Table(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_defaults=True, kw_only=True):
@@ -162,6 +163,8 @@ def plan_from_stack(stack: Stack) -> UpPlan:
     deployment = isinstance(commander, Goals) or isinstance(commander, Scenario) and commander.loop
     settings = (*(DEPLOYMENT_SETTINGS if deployment else ()), *described.settings)
     default, by_service = parse_restarts(stack.restarts.policies)
+    if stack.network.log_level not in LOG_LEVELS:
+        raise ConfigError(f"network.log_level {stack.network.log_level!r}: one of {', '.join(LOG_LEVELS)}")
     return UpPlan(
         connection=Connection(
             tuple(stack.network.connect),

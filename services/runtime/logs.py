@@ -78,6 +78,10 @@ class BadInputCounter:
         }
 
 
+LOG_LEVELS = ("debug", "info", "warning", "error")
+"""``--log-level``'s choices: the services' and the calibration's."""
+
+
 def configure_logging(level: str) -> None:
     logging.basicConfig(
         level=getattr(logging, level.upper()),
