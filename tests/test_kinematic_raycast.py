@@ -40,7 +40,7 @@ def rectangle_hits(shape: Rectangle, sx: Array, sy: Array, dx: Array, dy: Array)
     cos, sin = math.cos(shape.yaw), math.sin(shape.yaw)
     lx, ly = cos * (sx - shape.x) + sin * (sy - shape.y), -sin * (sx - shape.x) + cos * (sy - shape.y)
     ldx, ldy = cos * dx + sin * dy, -sin * dx + cos * dy
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # a near-parallel ray: inf, as the engine's
         x1, x2 = (-shape.half_x - lx) / ldx, (shape.half_x - lx) / ldx
         y1, y2 = (-shape.half_y - ly) / ldy, (shape.half_y - ly) / ldy
     x_in, x_out = np.fmin(x1, x2), np.fmax(x1, x2)
