@@ -7,7 +7,6 @@ to ``jq`` or read by tests, and errors as one line on stderr.
 from __future__ import annotations
 
 import json
-import queue
 import sys
 import threading
 import time
@@ -127,20 +126,22 @@ def _router_plugins(path: str) -> dict[str, Any]:
     return {"plugins_loading": {"enabled": loading["enabled"]}, "plugins": json.loads(config.get_json("plugins"))}
 
 
+ECHO_CAPACITY = 1024
+"""Samples ``invent echo`` holds before printing them: a full channel holds zenoh's receive back, so
+a lockstep run waits for the printing (docs/protocol.md 2.6) and a realtime one drops at its publishers."""
+ECHO_POLL_S = 0.01
+
+
 def run_echo(session: zenoh.Session, key_expr: str, count: int | None, stop: threading.Event) -> int:
     """Print one JSON line per sample on ``key_expr``; stop after ``count`` samples if given."""
-    # queue.Queue, not SimpleQueue: see the Executor's docstring (services/runtime/executor.py).
-    samples: queue.Queue[tuple[str, bytes]] = queue.Queue()
-    with session.declare_subscriber(
-        key_expr, lambda sample: samples.put((str(sample.key_expr), sample.payload.to_bytes()))
-    ):
+    with session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(ECHO_CAPACITY)) as samples:
         printed = 0
         while not stop.is_set() and (count is None or printed < count):
-            try:
-                key, payload = samples.get(timeout=0.1)
-            except queue.Empty:
+            sample = samples.try_recv()
+            if sample is None:
+                stop.wait(ECHO_POLL_S)
                 continue
-            _print_json(describe_sample(key, payload))
+            _print_json(describe_sample(str(sample.key_expr), sample.payload.to_bytes()))
             printed += 1
     return ExitStatus.OK
 
