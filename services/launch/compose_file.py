@@ -242,6 +242,7 @@ def _user_containers(specs: Iterable[str], stack: Stack) -> list[Container]:
         path, _, class_name = spec.rpartition(":")
         name = load(spec).name
         directory = Path(path).parent
+        mounted = directory.as_posix() if directory.is_absolute() else f"./{directory.as_posix()}"
         containers.append(
             Container(
                 name,
@@ -252,7 +253,7 @@ def _user_containers(specs: Iterable[str], stack: Stack) -> list[Container]:
                 _invent(f"service {USER_SERVICES_IN_CONTAINER}/{Path(path).name}:{class_name}", stack),
                 name,
                 profiles=("extension",),
-                volumes=(f"./{directory.as_posix()}:{USER_SERVICES_IN_CONTAINER}:ro",),
+                volumes=(f"{mounted}:{USER_SERVICES_IN_CONTAINER}:ro",),
             )
         )
     return containers
