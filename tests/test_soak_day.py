@@ -5,10 +5,13 @@ growth per simulated hour."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from benchmarks.day_memory import growth, past_high_water, steps_at_bursts
 from benchmarks.hostile_bursts import cancels_whatever_runs
+from benchmarks.soak_day import Day
 
 
 @pytest.mark.parametrize("payload", [b"", b"  ", b"{}", b"{ }", b'{"id": ""}', b'{"id":""}', b' {"id" : ""} '])
@@ -60,3 +63,20 @@ def test_growth_is_the_slope_in_mb_per_simulated_hour_from_the_hour_given():
     assert growth(samples, "up", 2.52) == pytest.approx(0.5), "past the step: the leak, if any"
     assert growth(samples, "up", 1.0) > 1.0, "with the step: more than the bound"
     assert growth(samples, "fixes", 1.0) is None, "never sampled"
+
+
+def test_a_goals_end_glued_after_a_progress_line_is_read_and_both_figures_kept():
+    """Up's progress line and a service's log line can share a line of up's output; a day read 719
+    of 720 goals' ends when a progress line hid one."""
+    day = Day(endpoint="tcp/127.0.0.1:1", report_dir=Path("run"), router=None, bursts=[])
+    day.read_line(
+        "[up          ] sim 3600.00 s | 17.10x real time | pose x +0.000 y +0.000 theta +0.000"
+        "14:06:44.077 INFO    invent.drive: goal 'errand_7' completed after 12.340 s\n"
+    )
+    day.read_line("14:06:45.000 WARNING invent.drive: goal 'errand_8' aborted after 3.000 s: blocked\n")
+    day.read_line(
+        "[up          ] started fixes (pid 42)14:07 INFO invent.drive: goal 'errand_9' completed after 1.0 s\n"
+    )
+    assert day.sim_s == 3600.0
+    assert day.outcomes == {"completed": ["errand_7", "errand_9"], "aborted": ["errand_8"]}
+    assert day.beside_pids == [42]

@@ -28,8 +28,10 @@ NAME_WIDTH = max(len(str(service)) for service in Service)
 
 
 def say(text: str) -> None:
-    """A line of ``invent up`` itself, prefixed as its children's are."""
-    print(f"[{'up':<{NAME_WIDTH}}] {text}", flush=True)
+    """A line of ``invent up`` itself, prefixed as its children's are: one write, so that another
+    thread's line (a child's, relayed) is never put inside it, as between print's text and its newline."""
+    sys.stdout.write(f"[{'up':<{NAME_WIDTH}}] {text}\n")
+    sys.stdout.flush()
 
 
 def _die_with_parent() -> None:
