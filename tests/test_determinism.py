@@ -274,7 +274,7 @@ def test_composed_services_are_seen_by_outside_tools_and_publish_blocking_in_loc
     statuses = {line["service"]: line for line in map(json.loads, runs["composed"].outside_status.splitlines())}
     services = ("sim", "motor", "odometry", "localization", "drive")
     assert set(services) <= set(statuses)
-    assert {statuses[name]["congestion"] for name in services} == {"block"}, "up gave each its run's mode"
+    assert {statuses[name]["status"]["congestion"] for name in services} == {"block"}, "up gave each its run's mode"
 
 
 PER_STEP_TOPICS = (
