@@ -119,11 +119,7 @@ class RosNode:
         key = f"{self.domain}/{service.strip('/')}/{TRIGGER_KEY_TYPE}"
         querier = self.session.declare_querier(key, timeout=timeout)
         try:
-            deadline = time.monotonic() + timeout
-            while not querier.matching_status.matching:
-                if time.monotonic() > deadline:
-                    raise AssertionError(f"no service on {key}")
-                time.sleep(0.01)
+            wait_until(lambda: querier.matching_status.matching, timeout, f"a service on {key}")
             sequence_number = next(self._sequence)
             replies = list(querier.get(payload=TRIGGER_REQUEST, attachment=attachment(sequence_number, self.gid)))
         finally:

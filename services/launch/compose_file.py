@@ -134,14 +134,15 @@ def _refuse_what_no_deployment_runs(stack: Stack) -> None:
         )
 
 
-def _invent(command: str, stack: Stack, *own: str) -> list[str]:
-    """An ``invent`` container's command: ``command`` (with ``service``, its ``FILE.py:NAME``), a
-    client of the router with its role's file, its own flags, then the stack's settings and the
-    deployment's mode (docs/protocol.md 2.6)."""
+def _invent(command: str, stack: Stack, *own: str, target: str | None = None) -> list[str]:
+    """An ``invent`` container's command: ``command`` (``service`` with its ``target``,
+    ``FILE.py:NAME``), a client of the router with its role's file, its own flags, then the stack's
+    settings and the deployment's mode (docs/protocol.md 2.6)."""
     settings = [*stack.description.settings, f"sim.mode={SimMode.REALTIME}"]
     robot = ["--robot", stack.description.robot] if stack.description.robot else []
     return [
-        *command.split(" "),
+        command,
+        *([target] if target else []),
         "--connect",
         ROUTER_ENDPOINT,
         "--zenoh-config",
@@ -250,7 +251,7 @@ def _user_containers(specs: Iterable[str], stack: Stack) -> list[Container]:
                 "profile, beside a commander: `docker compose --profile scenario --profile extension up`. Its file's "
                 "directory is mounted at /services; its credentials (<name>.json5: its own keys only) are made by "
                 "`make secrets WITH=FILE.py:NAME`.",
-                _invent(f"service {USER_SERVICES_IN_CONTAINER}/{Path(path).name}:{class_name}", stack),
+                _invent("service", stack, target=f"{USER_SERVICES_IN_CONTAINER}/{Path(path).name}:{class_name}"),
                 name,
                 profiles=("extension",),
                 volumes=(f"{mounted}:{USER_SERVICES_IN_CONTAINER}:ro",),
