@@ -21,9 +21,10 @@ from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
 import msgspec
 import zenoh
 
-from schemas.keys import Keys, ServiceName
+from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import Config, ConfigError, RecordConfig, SimMode
+from services.interfaces import declared
 from services.runtime.executor import Executor
 from services.runtime.inputs import congestion
 from services.runtime.intraprocess import LocalBus
@@ -143,14 +144,16 @@ def start_service(
     command, config = plan.command, plan.config
     journal = _journal(plan.journaling, command.service, config.record)
     lockstep = config.sim.mode == SimMode.LOCKSTEP
+    keys = Keys(config.robot.name)
     node = Node(
         session,
-        Keys(config.robot.name),
+        keys,
         command.service,
         executor=executor,
         journal=journal,
         bus=bus,
         congestion=congestion(lockstep),
+        interface=declared(command.service, keys, config) if isinstance(command.service, Service) else None,
     )
     try:
         return node, command.factory(node, config, plan.options)

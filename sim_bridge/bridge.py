@@ -49,6 +49,7 @@ from typing import Any
 
 from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND, SimWorld, Time
+from services import interfaces
 from services.config import Config, ImuConfig, LidarConfig, SimEngine, SimMode
 from services.fleet.description import Fleet
 from services.runtime.node import Node
@@ -163,6 +164,7 @@ class SimService:
                         journal=node.journal,
                         bus=node.bus,
                         congestion=node.congestion,
+                        interface=interfaces.sim(Keys(body.name), config),
                     )
                 )
                 self.links.append(

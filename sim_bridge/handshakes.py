@@ -70,7 +70,9 @@ def await_participants(node: Node, links: Sequence[RobotLink]) -> None:
     asked: dict[tuple[int, ServiceName], Any] = {}
     while waiting and time.monotonic() < deadline:
         for index, service in waiting - set(asked):
-            asked[index, service] = node.session.get(links[index].node.keys.status(service), timeout=STOP_POLL_S)
+            status = links[index].node.keys.status(service)
+            links[index].node.declared.query(status)
+            asked[index, service] = node.session.get(status, timeout=STOP_POLL_S)
         node.spin_once(STOP_POLL_S / 10.0)
         for participant, replies in list(asked.items()):
             try:

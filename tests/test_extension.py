@@ -238,13 +238,17 @@ def test_the_router_lets_a_user_service_put_and_serve_only_under_its_name_and_qu
         def open_file(path: Path) -> zenoh.Session:
             return stack.enter_context(zenoh.open(zenoh.Config.from_file(str(path))))
 
-        witness = open_file(profile.client_config(Role.DRIVE))  # serves the drive's goals and its status
+        # the witness reads every key and answers invent view's status; the drive serves its goals and status
+        witness = open_file(profile.client_config(Role.OBSERVER))
         received: queue.Queue[str] = queue.Queue()
         witness.declare_subscriber(KEYS.everything, lambda s: received.put(str(s.key_expr)))
-        for key in (KEYS.drive_goal_send, KEYS.drive_goal_cancel):
-            witness.declare_queryable(key, lambda q: q.reply(q.key_expr, b'{"accepted": true, "id": "g1"}'))
-        barrier = KEYS.status(Service.DRIVE)
+        barrier = KEYS.view_status
         witness.declare_queryable(barrier, lambda q: q.reply(barrier, b"{}"))
+        drive = open_file(profile.client_config(Role.DRIVE))
+        for key in (KEYS.drive_goal_send, KEYS.drive_goal_cancel):
+            drive.declare_queryable(key, lambda q: q.reply(q.key_expr, b'{"accepted": true, "id": "g1"}'))
+        drive_status = KEYS.status(Service.DRIVE)
+        drive.declare_queryable(drive_status, lambda q: q.reply(drive_status, b"{}"))
         user = open_file(profile.user_service_config(patrol))
         own, foreign = KEYS.own(patrol, "progress"), (KEYS.motor_torque, KEYS.drive_target_velocity)
         publishers = [user.declare_publisher(key) for key in (own, *foreign)]
@@ -252,13 +256,15 @@ def test_the_router_lets_a_user_service_put_and_serve_only_under_its_name_and_qu
         for publisher in publishers:
             publisher.put(b"{}")
         assert len([r for r in user.get(barrier, timeout=5.0) if r.ok]) == 1  # after its puts, in order
+        wait_until(lambda: [r for r in user.get(drive_status, timeout=1.0) if r.ok], 10, "the drive's queryables")
         delivered = set()
         while not received.empty():
             delivered.add(received.get())
         assert delivered == {own}, "only its own key's put gets through"
         assert [r.ok is not None for r in user.get(KEYS.drive_goal_send, timeout=2.0)] == [True]
         assert not [r for r in user.get(KEYS.drive_goal_cancel, timeout=2.0) if r.ok], "not in its calls"
-        assert [str(r.ok.key_expr) for r in user.get(KEYS.every_status, timeout=2.0) if r.ok] == [barrier]
+        statuses = sorted(str(r.ok.key_expr) for r in user.get(KEYS.every_status, timeout=2.0) if r.ok)
+        assert statuses == sorted([barrier, drive_status])
         tokens: set[str] = set()
         witness.liveliness().declare_subscriber(KEYS.every_alive, lambda s: tokens.add(str(s.key_expr)), history=True)
         witness.liveliness().declare_subscriber(KEYS.every_ticks, lambda s: tokens.add(str(s.key_expr)), history=True)

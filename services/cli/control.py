@@ -57,6 +57,7 @@ def serve_status(composition: Composition) -> None:
         services = {composed.name: composed.node.status() for composed in composition.services}
         return control_status(node.keys.robot, time.monotonic() - since, services)
 
+    node.declared.also_serve(node.keys.control_status)
     node.queryable(node.keys.control_status, status)
 
 
