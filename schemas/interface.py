@@ -43,8 +43,9 @@ class Interface:
     observes: tuple[float, ...] = ()
     """Observer tokens' rates: it takes what the loop observes at these rates (no one waits for it)."""
     follows_participants: bool = False
-    """It subscribes the output each lockstep participant's token names (the simulator): a user
-    service's output, under that service's own name, besides the built-ins' it lists."""
+    """It subscribes the output each lockstep participant's token names (the simulator), and asks
+    the participant's status at the start: a user service's, under that service's own name,
+    besides the built-ins' it lists."""
 
     def latched_published(self, keys: Keys) -> tuple[str, ...]:
         latched = {keys.topic(topic) for topic in LATCHED_TOPICS}

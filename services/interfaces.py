@@ -185,3 +185,9 @@ def declared(service: Service, keys: Keys, config: Config) -> Interface:
 def loop(keys: Keys, config: Config) -> tuple[Interface, ...]:
     """The closed loop's services (every one ``invent up`` always runs), in :data:`LOOP_SERVICES`' order."""
     return tuple(declared(service, keys, config) for service in LOOP_SERVICES)
+
+
+def published(keys: Keys, config: Config) -> tuple[str, ...]:
+    """Every key the closed loop's services publish, in the order they declare them: a recording's
+    channels (services/recording/mcap_files.py)."""
+    return tuple(dict.fromkeys(key for interface in loop(keys, config) for key in interface.publishes))

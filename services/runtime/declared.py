@@ -46,6 +46,8 @@ class DeclaredKeys:
         self._check(key, "serves", self._serves)
 
     def query(self, key: str) -> None:
+        if self._interface is not None and self._interface.follows_participants and self._a_user_services(key):
+            return  # a user participant's status: has it seen this simulator?
         self._check(key, "queries", self._queries)
 
     def _a_user_services(self, key: str) -> bool:

@@ -91,7 +91,8 @@ def interface_grants(interface: Interface, keys: Keys, followed: Sequence[UserSe
     what it publishes; subscribe (and be sent) what it subscribes; serve its status, its latched
     keys and what it serves; query what it queries and the latched keys it subscribes; hold its
     own tokens. Liveliness (tokens carry no data) it may watch everywhere. ``followed``: the user
-    services whose outputs a service that follows the lockstep participants (the sim) may subscribe."""
+    services whose outputs and status a service that follows the lockstep participants (the sim) may
+    subscribe and query."""
     everything = (f"{ROOT}/**",)
     service = interface.service
     subscribed = (
@@ -99,7 +100,8 @@ def interface_grants(interface: Interface, keys: Keys, followed: Sequence[UserSe
         *((f"{keys.prefix}/{name}/**" for name in followed) if interface.follows_participants else ()),
     )
     served = (keys.status(service), *interface.serves, *interface.latched_published(keys))
-    queried = interface.queries
+    followed_statuses = (keys.status(name) for name in followed) if interface.follows_participants else ()
+    queried = (*interface.queries, *followed_statuses)
     tokens = (
         keys.alive(service),
         *((keys.ticks_at_any_rate(service),) if interface.participates else ()),
