@@ -19,7 +19,16 @@ from services.cli.control import composed_plans
 from services.cli.flags import config_from_args
 from services.cli.main import build_parser
 from services.exits import ExitStatus
-from services.security import DICTIONARY, ROUTER_CONFIG, Message, Role, UserServiceGrant, grants, user_service_grants
+from services.security import (
+    DICTIONARY,
+    ROUTER_CONFIG,
+    Flow,
+    Message,
+    Role,
+    UserServiceGrant,
+    grants,
+    user_service_grants,
+)
 from tests.harness import REPO, refused
 
 SECRETS_DIR = "./docker/secure/secrets"
@@ -191,7 +200,10 @@ def _commanders() -> set[str]:
     return {
         name
         for name, role in ROLES.items()
-        if any(Message.PUT in grant.messages and target in grant.key_exprs for grant in grants(role, Keys("rh0")))
+        if any(
+            Message.PUT in grant.messages and grant.flow is Flow.INGRESS and target in grant.key_exprs
+            for grant in grants(role, Keys("rh0"))
+        )
     }
 
 

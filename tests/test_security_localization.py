@@ -100,9 +100,7 @@ def test_the_default_is_the_stub_no_other_service_depends_on_the_mode_and_only_t
 def test_the_localization_puts_its_own_keys_serves_its_status_and_in_amcl_its_queryables(mode):
     assert _allowed(Role.LOCALIZATION, Message.PUT, Flow.INGRESS, KEYS.localization_pose, mode)
     # only the particle filter has particles
-    assert _allowed(Role.LOCALIZATION, Message.PUT, Flow.INGRESS, KEYS.localization_particles, mode) == (
-        mode == "amcl"
-    )
+    assert _allowed(Role.LOCALIZATION, Message.PUT, Flow.INGRESS, KEYS.localization_particles, mode) == (mode == "amcl")
     assert not _allowed(Role.LOCALIZATION, Message.PUT, Flow.INGRESS, KEYS.odometry_pose, mode)
     assert _allowed(Role.LOCALIZATION, Message.DECLARE_QUERYABLE, Flow.INGRESS, KEYS.status(Service.LOCALIZATION), mode)
     for key in (KEYS.localization_initial_pose, KEYS.localization_global_localization):

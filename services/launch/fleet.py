@@ -126,7 +126,7 @@ def fleet_access(
         tls=plan.tls,
         bridges=fleet_bridge_graphs(fleet, plan.description.config, plan.description.overrides()),
         user_services={
-            robot: [UserServiceGrant(user.name, user.service.calls) for user in users]
+            robot: [UserServiceGrant(user.name, user.service.calls, user.service.reads) for user in users]
             for robot, users in (extensions or {}).items()
         },
         # each robot's localization granted what its mode reads (only the stub reads a ground truth)

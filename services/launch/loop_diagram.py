@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from schemas.interface import Interface
-from schemas.keys import Keys
+from schemas.keys import Keys, Service
 from services import interfaces
 from services.config import Config
 from services.drive.service import COMMAND as DRIVE
@@ -37,7 +37,7 @@ def _shell_file(command: ServiceCommand) -> str:
 def render() -> str:
     """The mermaid flowchart of the closed loop's declared interfaces, fenced (robot ``rh0``, the defaults)."""
     keys, config = Keys(), Config()
-    declared = {str(command.service): interfaces.declared(command.service, keys, config) for command in SHELLS}
+    declared = {str(c.service): interfaces.declared(Service(c.service), keys, config) for c in SHELLS}
     relative = len(keys.prefix) + 1
     lines = ["```mermaid", "flowchart LR"]
     lines += [f'    {command.service}["{command.service}<br/>{_shell_file(command)}"]' for command in SHELLS]

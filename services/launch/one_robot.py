@@ -89,7 +89,9 @@ def one_robot_access(plan: UpPlan, config: Config, report_dir: Path, extensions:
         ros=bridge_graph(config),
         # a service that drives connects with the drive's credentials: exactly the drive's rights
         user_services=[
-            UserServiceGrant(user.name, user.service.calls) for user in extensions if user.service.drives is None
+            UserServiceGrant(user.name, user.service.calls, user.service.reads)
+            for user in extensions
+            if user.service.drives is None
         ],
         localization=config.localization.mode,
     )

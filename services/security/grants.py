@@ -249,33 +249,29 @@ def grants(
 
 @dataclass(frozen=True)
 class UserServiceGrant:
-    """A user service of a secure run (services/extension/): its name and the queryables of other
-    services it calls (relative to the robot: ``drive/goal/send``)."""
+    """A user service of a secure run (services/extension/): its name, the keys of other services it
+    reads and the queryables it calls (each relative to the robot: ``odometry/pose``, ``drive/goal/send``)."""
 
     name: UserServiceName
     calls: tuple[str, ...] = ()
+    reads: tuple[str, ...] = ()
 
 
 def user_service_grants(user: UserServiceGrant, keys: Keys) -> list[Grant]:
-    """What a user service may do on robot ``keys.robot``: read what the observer reads; put,
-    serve queryables and hold liveliness tokens only under its own name (``invent/<robot>/<name>/**``:
-    its outputs, status, queryables, alive, ticks and observes tokens); query only its ``calls``."""
+    """What a user service may do on robot ``keys.robot``, as a built-in's (:func:`interface_grants`):
+    read its ``reads``, its own keys and ``sim/clock`` (its runtime's); put, serve queryables and hold
+    liveliness tokens only under its own name (``invent/<robot>/<name>/**``: its outputs, status,
+    queryables, alive, ticks and observes tokens); query only its ``calls``."""
     own = f"{keys.prefix}/{user.name}/**"
-    granted = [
-        *_reading(keys),
-        Grant(
-            (Message.LIVELINESS_TOKEN,),
-            Flow.INGRESS,
-            (keys.alive(user.name), keys.ticks_at_any_rate(user.name), keys.observes_at_any_rate(user.name)),
-        ),
-        Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (own,)),
-        # as for every service: queries (its status, on invent/*/*/status too) are delivered to it
-        Grant((Message.QUERY,), Flow.EGRESS, (f"{ROOT}/**",)),
-        Grant((Message.PUT,), Flow.INGRESS, (own,)),
-    ]
-    if user.calls:
-        granted.append(Grant((Message.QUERY,), Flow.INGRESS, tuple(f"{keys.prefix}/{call}" for call in user.calls)))
-    return granted
+    declared = Interface(
+        user.name,
+        publishes=(own,),
+        subscribes=(own, keys.sim_clock, *(f"{keys.prefix}/{key}" for key in user.reads)),
+        serves=(own,),
+        queries=tuple(f"{keys.prefix}/{call}" for call in user.calls),
+    )
+    lockstep = (keys.ticks_at_any_rate(user.name), keys.observes_at_any_rate(user.name))
+    return [*interface_grants(declared, keys), Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, lockstep)]
 
 
 def fleet_grants(
