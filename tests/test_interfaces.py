@@ -7,6 +7,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from mcap.reader import make_reader
 
 from schemas.interface import Interface, Participation
 from schemas.keys import LOOP_SERVICES, Keys, Service
@@ -14,6 +15,7 @@ from schemas.topics import Topic
 from services import interfaces
 from services.config import Config
 from services.launch import loop_diagram
+from services.recording.record import write_run_recording
 from services.runtime.declared import DeclaredKeys, UndeclaredKey
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node
@@ -158,3 +160,16 @@ def test_the_docs_loop_diagram_is_the_one_the_declarations_make():
         "docs/architecture.md's loop diagram is stale: python -m services.launch.loop_diagram"
     )
     assert 'drive -.->|"drive/target_velocity (tick barrier)"| sim' in loop_diagram.render()
+
+
+def test_a_runs_recording_holds_a_channel_for_every_key_the_loop_declares_it_publishes_from_its_start(tmp_path):
+    journals = tmp_path / "journals"
+    journals.mkdir()  # a run that published nothing yet: the channels are there all the same
+    written = write_run_recording(journals, tmp_path / "run.mcap", CONFIG)
+    with written.parts[0].open("rb") as recording:
+        summary = make_reader(recording).get_summary()
+    assert summary is not None
+    topics = [channel.topic for channel in sorted(summary.channels.values(), key=lambda channel: channel.id)]
+    declared = interfaces.published(Keys(CONFIG.robot.name), CONFIG)
+    assert topics[: len(declared)] == list(declared)
+    assert Keys(CONFIG.robot.name).motor_torque in declared and Keys(CONFIG.robot.name).sim_world in declared
