@@ -51,12 +51,15 @@ class Interface:
         latched = {keys.topic(topic) for topic in LATCHED_TOPICS}
         return tuple(key for key in self.publishes if key in latched)
 
+    def ticks(self, keys: Keys) -> tuple[str, ...]:
+        """Its participant's token (``ticks``), if it takes part in lockstep: what the simulator waits on."""
+        return () if self.participates is None else (keys.ticks(self.service, self.participates.rate_hz),)
+
     def tokens(self, keys: Keys) -> tuple[str, ...]:
         """The liveliness tokens it holds once started: ``alive``, its participant's ``ticks`` and its
-        observer's tokens (what a launcher waits for, what the simulator waits on)."""
-        ticks = () if self.participates is None else (keys.ticks(self.service, self.participates.rate_hz),)
+        observer's tokens (what a launcher waits for)."""
         return (
             keys.alive(self.service),
-            *ticks,
+            *self.ticks(keys),
             *(keys.observes(self.service, rate_hz) for rate_hz in self.observes),
         )

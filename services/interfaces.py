@@ -113,9 +113,10 @@ def localization_in(keys: Keys, mode: LocalizationMode, rate_hz: float) -> Inter
     )
 
 
-def drive(keys: Keys, config: Config) -> Interface:
+def drive(keys: Keys, config: Config, rate_hz: float | None = None) -> Interface:
     """The drive, in either mode: scenarios, or goals (served, with their feedback and outcome)
-    navigated on the map, the costmap of its lidar and the planner's plan."""
+    navigated on the map, the costmap of its lidar and the planner's plan; its ticks at
+    ``drive.rate``, or ``rate_hz`` (a service of one's own that drives in its place, as the drive)."""
     return Interface(
         Service.DRIVE,
         publishes=_topics(
@@ -134,7 +135,7 @@ def drive(keys: Keys, config: Config) -> Interface:
         ),
         serves=tuple(keys.goal_method(method) for method in GoalMethod),
         queries=(keys.motor_state,),
-        participates=Participation(config.drive.rate, keys.drive_target_velocity),
+        participates=Participation(config.drive.rate if rate_hz is None else rate_hz, keys.drive_target_velocity),
     )
 
 
@@ -185,6 +186,14 @@ def declared(service: Service, keys: Keys, config: Config) -> Interface:
 def loop(keys: Keys, config: Config) -> tuple[Interface, ...]:
     """The closed loop's services (every one ``invent up`` always runs), in :data:`LOOP_SERVICES`' order."""
     return tuple(declared(service, keys, config) for service in LOOP_SERVICES)
+
+
+def participants(keys: Keys, config: Config, drive_rate_hz: float | None = None) -> tuple[Interface, ...]:
+    """The loop's lockstep participants (the simulator waits for their outputs at their ticks): the
+    drive (ticking at ``drive_rate_hz`` when a service of one's own drives in its place) and a
+    localization that takes part."""
+    ticking = (drive(keys, config, drive_rate_hz), localization(keys, config))
+    return tuple(interface for interface in ticking if interface.participates is not None)
 
 
 def published(keys: Keys, config: Config) -> tuple[str, ...]:

@@ -4,6 +4,7 @@ them, and the docs' loop diagram is the one they make."""
 
 from __future__ import annotations
 
+import msgspec
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -173,3 +174,13 @@ def test_a_runs_recording_holds_a_channel_for_every_key_the_loop_declares_it_pub
     declared = interfaces.published(Keys(CONFIG.robot.name), CONFIG)
     assert topics[: len(declared)] == list(declared)
     assert Keys(CONFIG.robot.name).motor_torque in declared and Keys(CONFIG.robot.name).sim_world in declared
+
+
+@pytest.mark.parametrize(("mode", "ticking"), [("stub", 2), ("none", 1)])
+def test_the_lockstep_participants_the_launcher_waits_for_are_the_drive_and_a_localization_with_fixes(mode, ticking):
+    config = msgspec.structs.replace(CONFIG, localization=msgspec.structs.replace(CONFIG.localization, mode=mode))
+    participants = interfaces.participants(KEYS, config, drive_rate_hz=None)
+    assert [one.service for one in participants] == [Service.DRIVE, Service.LOCALIZATION][:ticking]
+    assert participants[0].ticks(KEYS) == (KEYS.ticks(Service.DRIVE, CONFIG.drive.rate),)
+    driven_by_a_user_service = interfaces.participants(KEYS, config, drive_rate_hz=4.0)[0]
+    assert driven_by_a_user_service.ticks(KEYS) == (KEYS.ticks(Service.DRIVE, 4.0),), "the drive's token at its rate"

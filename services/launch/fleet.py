@@ -29,6 +29,7 @@ from typing import Any
 from schemas.codec import decode
 from schemas.keys import Keys, Service, ServiceName, UserServiceName
 from schemas.messages import BumpEvent
+from services import interfaces
 from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
@@ -196,10 +197,9 @@ class FleetRobots:
         """Every driven robot's drive alive and its drive and localization holding their lockstep tokens, at once."""
         tokens = []
         for robot in driven:
-            keys, config = Keys(robot.name), robot.config
-            tokens += [keys.alive(Service.DRIVE), keys.ticks(Service.DRIVE, config.drive.rate)]
-            if config.localization.participates:
-                tokens.append(keys.ticks(Service.LOCALIZATION, config.localization.rate))
+            keys = Keys(robot.name)
+            tokens.append(keys.alive(Service.DRIVE))
+            tokens += [token for one in interfaces.participants(keys, robot.config) for token in one.ticks(keys)]
         return [tokens]
 
     def started_line(self, mode: str) -> str:

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from schemas.keys import Keys, Service, UserServiceName
+from services import interfaces
 from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
 from services.drive.outcome import Outcome
@@ -138,10 +139,8 @@ class OneRobot:
             return []
         keys, config = Keys(self.config.robot.name), self.config
         drives = None if self.driver is None else self.driver.service.drives
-        ticks = [keys.ticks(Service.DRIVE, config.drive.rate if drives is None else drives.rate_hz)]
-        if config.localization.participates:
-            ticks.append(keys.ticks(Service.LOCALIZATION, config.localization.rate))
-        return [[keys.alive(Service.DRIVE)], ticks]
+        participants = interfaces.participants(keys, config, None if drives is None else drives.rate_hz)
+        return [[keys.alive(Service.DRIVE)], [token for one in participants for token in one.ticks(keys)]]
 
     def started_line(self, mode: str) -> None:
         return None

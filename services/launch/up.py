@@ -34,7 +34,8 @@ from typing import Any
 
 from schemas.keys import CONTROL, Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, ServiceRestart, Time
-from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
+from services import interfaces
+from services.clock.lockstep import OUTPUTS
 from services.config import ConfigError, SimMode
 from services.errors import ChildDied, Interrupted
 from services.extension.loader import Loaded, driving
@@ -112,13 +113,12 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     if plan.teleop:  # no drive: the sim steps on until Ctrl-C, waiting for each robot's torque only
         ending = ["--wait-for", str(Service.MOTOR)]
     else:
-        # a localization without fixes (mode none) holds no ticks token: nothing to wait for
-        waited = [
-            service
-            for service in LOOP_BEFORE_FIRST_STEP
-            if service is not Service.LOCALIZATION
-            or all(robot.config.localization.participates for robot in robots.each)
+        # the motor, and the loop's participants every robot has (a localization without fixes, mode
+        # none, holds no ticks token: nothing to wait for)
+        participating = [
+            {one.service for one in interfaces.participants(Keys(robot.name), robot.config)} for robot in robots.each
         ]
+        waited = [Service.MOTOR, *(service for service in OUTPUTS if all(service in p for p in participating))]
         ending = ["--until-drive-ends", "--wait-for", *(str(service) for service in waited)]
         # a user participant's name, where every robot has it (the sim waits for each name on every robot)
         ending += sorted(set.intersection(*(set(robot.participants) for robot in robots.each)))
