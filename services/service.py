@@ -13,7 +13,7 @@ services can share one process and one session.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
@@ -88,6 +88,10 @@ class ClockedService(RunningService, Protocol):
 OptionsT = TypeVar("OptionsT")
 
 
+def no_check(_config: Config, _options: Any) -> None:
+    return None
+
+
 @dataclass(frozen=True)
 class ServiceCommand(Generic[OptionsT]):
     """A service as whatever runs it sees it: what it is, and how it is built from the robot
@@ -99,6 +103,9 @@ class ServiceCommand(Generic[OptionsT]):
     timestamped: bool = False
     """Its session stamps what it publishes (zenoh's ``timestamping``): a zenoh-ext advanced
     publisher with a cache, which the ROS 2 bridge's latched topics are, needs it."""
+    check: Callable[[Config, OptionsT], None] = no_check
+    """Refuses (ConfigError: exit 2) what its description and its options allow each alone but not
+    together (``invent sim --engine kinematic --gui``), before anything starts."""
 
 
 @dataclass(frozen=True)
@@ -124,11 +131,6 @@ class ServicePlan(Generic[OptionsT]):
     config: Config
     options: OptionsT
     journaling: Journaling = field(default_factory=Journaling)
-
-
-ServiceParse = Callable[[Sequence[str]], ServicePlan[Any]]
-"""What ``invent <service> ...``'s arguments (``["motor", "--robot", "rh1"]``) make: a composition
-starts services from such arguments (services/launch/composition.py); the command line provides it."""
 
 
 def start_service(

@@ -302,7 +302,7 @@ def test_a_fleet_file_runs_services_of_ones_own_beside_every_robot_or_one(tmp_pa
     }
     assert [robot.participants for robot in robots.each] == [("odometer",), ("odometer",)]
     access = robots.access(tmp_path / "run")
-    assert access.user_service_flags("odometer", "rh1") == []  # not secure: zenoh's defaults
+    assert access.user_service_file("odometer", "rh1") is None  # not secure: zenoh's defaults
     fleet_file.write_text(f'[[robots]]\nname = "rh0"\nwith = ["{_spec("Named")}"]\n')
     with pytest.raises(ConfigError, match="fleet robot 'rh0': .*built-in"):
         FleetRobots(UpPlan(fleet=str(fleet_file)), str(fleet_file))

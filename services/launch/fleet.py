@@ -36,7 +36,14 @@ from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.scenarios import load_scenario
 from services.errors import Interrupted
 from services.extension.loader import Loaded, load_all
-from services.fleet.description import Fleet, FleetRobot, bridge_flags, fleet_configs, load_fleet, robot_flags
+from services.fleet.description import (
+    Fleet,
+    FleetRobot,
+    bridge_settings,
+    fleet_configs,
+    load_fleet,
+    robot_settings,
+)
 from services.fleet.summary import bumps_between, closest_approach
 from services.launch.children import ServiceDied, say
 from services.launch.plan import UpPlan
@@ -173,8 +180,8 @@ class FleetRobots:
                 robot.name,
                 self.configs[robot.name],
                 _scenario(robot, plan),
-                tuple(robot_flags(robot)),
-                tuple(bridge_flags(fleet, robot)),
+                robot_settings(robot),
+                bridge_settings(fleet, robot),
                 in_fleet=True,
                 goal_file=None if plan.goal_mode else robot.goals,
                 extensions=self.extensions[robot.name],
@@ -184,7 +191,7 @@ class FleetRobots:
         self.scene = tuple(self.configs.values())
         self.records_statuses = False
         self.view_flags = ["--robot", fleet.names[0], "--fleet", fleet_file]
-        self.sim_flags = ["--fleet", fleet_file]
+        self.fleet_file: str | None = fleet_file
         self.teleop_line = "teleop: each robot follows ROS 2's /<namespace>/cmd_vel until Ctrl-C; see docs/ros2.md"
 
     def access(self, report_dir: Path) -> Access:

@@ -121,7 +121,7 @@ class OneRobot:
         self.scene: tuple[Config, ...] = ()
         self.records_statuses = True
         self.view_flags: list[str] = []
-        self.sim_flags: list[str] = []
+        self.fleet_file: str | None = None
         self.teleop_line = (
             "teleop: the robot follows ROS 2's /cmd_vel (Twist or TwistStamped) until Ctrl-C; see docs/ros2.md"
         )

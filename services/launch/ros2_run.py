@@ -33,6 +33,7 @@ from services.launch.children import say
 from services.launch.plan import UpPlan
 from services.recording.rosbag import write_bag_from_journals
 from services.ros2.graph import BridgeGraph, bridge_graph
+from services.ros2.service import Ros2Options
 from services.runtime.node import Node
 from services.service import RunningService, ServicePlan, start_service
 
@@ -118,7 +119,7 @@ def serve_bridges(session: zenoh.Session, plans: Mapping[str, ServicePlan], stop
 
 class BagRecording:
     """``--record-ros2``: the ``bridges`` bridges of the run keep what they publish in journals in
-    ``<report dir>/bag-journals/`` (:attr:`flags`), sharing ``record``'s bounds; :meth:`finish`
+    ``<report dir>/bag-journals/`` (:attr:`options`), sharing ``record``'s bounds; :meth:`finish`
     makes ``<report dir>/rosbag2/`` of them."""
 
     def __init__(self, report_dir: Path, record: RecordConfig, bridges: int, distro: str) -> None:
@@ -136,7 +137,7 @@ class BagRecording:
             self.directory.mkdir(parents=True, exist_ok=True)
         except OSError as error:
             raise ConfigError(f"--report {report_dir}: {error.strerror}") from None
-        self.flags = ["--bag-journal", str(self.directory), "--bag-journal-share", str(bridges)]
+        self.options = Ros2Options(self.directory, bridges)
         """What a bridge needs to keep its journal here."""
 
     def finish(self, started: bool) -> None:
