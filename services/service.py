@@ -3,7 +3,8 @@
 A service module defines one :class:`ServiceCommand` (its factory) and a frozen dataclass of its
 own options beside it. The command line (services/cli/) turns ``invent <service>``'s flags into a
 :class:`ServicePlan`: the command, the robot description (``--config`` file, then ``--set``
-overrides, then the service's own flags), the service's options and where it journals.
+overrides, then the service's own flags), the service's options and where it journals; the
+launcher builds the same of its typed plans (services/launch/service_plans.py).
 :func:`run_service` opens nothing: it builds the service around a
 :class:`~services.runtime.node.Node` on the session it is given and runs it until stopped or
 until it finishes by itself. :func:`start_service` builds one on an existing session, so several
