@@ -33,7 +33,7 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from schemas.messages import Time
-from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
+from services import interfaces
 from services.config import Config
 from services.motor.core import MotorCore
 from services.runtime.session import free_port, open_session, session_config
@@ -224,7 +224,9 @@ class ServicesRun:
             _wait(lambda service=service: _alive(session, service), f"the {service}", self)
         self._start("drive", ["drive", *connect, "--scenario", str(scenario_file(self._directory))])
         _wait(lambda: _alive(session, Service.DRIVE), "the drive", self)
-        wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
+        # the motor and the loop's lockstep participants, as the services declare them (invent up's waits)
+        participants = interfaces.participants(Keys(), Config())
+        wait_for = [str(Service.MOTOR), *(str(one.service) for one in participants)]
         self._start("sim", ["sim", *connect, *self._sim_flags, *self._control, "--wait-for", *wait_for])
 
     @property
