@@ -34,7 +34,7 @@ from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.scenarios import load_scenario
-from services.errors import Interrupted
+from services.errors import Interrupted, refuse_given
 from services.extension.loader import Loaded, load_all
 from services.fleet.description import (
     Fleet,
@@ -86,9 +86,7 @@ def check_fleet(plan: UpPlan, path: str) -> tuple[Fleet, dict[str, Config]]:
         "--connect": plan.connection.connect,
         "--goal-file": plan.goal_file,
     }
-    wrong = [f"{flag} ({UNSUPPORTED[flag]})" for flag, value in given.items() if value]
-    if wrong:
-        raise ConfigError(f"--fleet with {', '.join(wrong)}")
+    refuse_given({f"{flag} ({UNSUPPORTED[flag]})": value for flag, value in given.items()}, "--fleet with {}".format)
     if plan.workers is not None and (plan.workers < 1 or not plan.composed):
         raise ConfigError(f"--workers {plan.workers}: a number of processes >= 1, with --composed")
     check_ros2_flags(plan)

@@ -14,6 +14,7 @@ from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
 from services.drive.outcome import Outcome
 from services.drive.scenarios import load_scenario
+from services.errors import refuse_given
 from services.extension.loader import Loaded, driving, load_all
 from services.launch.children import say
 from services.launch.plan import UpPlan
@@ -60,12 +61,13 @@ def check_driver(plan: UpPlan, driver: Loaded | None) -> None:
         "--goal-file": plan.goal_file is not None,
         "--teleop": plan.teleop,
     }
-    conflicting = [flag for flag, value in given.items() if value]
-    if conflicting:
-        raise ConfigError(
-            f"{driver.spec} drives the robot in the built-in drive's place, and {', '.join(conflicting)} "
+    refuse_given(
+        given,
+        lambda named: (
+            f"{driver.spec} drives the robot in the built-in drive's place, and {named} "
             "gives the robot the built-in drive: one velocity source per robot"
-        )
+        ),
+    )
 
 
 def one_robot_access(plan: UpPlan, config: Config, report_dir: Path, extensions: tuple[Loaded, ...] = ()) -> Access:
@@ -75,12 +77,13 @@ def one_robot_access(plan: UpPlan, config: Config, report_dir: Path, extensions:
     if listen is None:
         return Access(None, connection.zenoh_config)
     given = {"--composed": plan.composed, "--connect": connection.connect, "--zenoh-config": connection.zenoh_config}
-    conflicting = [flag for flag, value in given.items() if value]
-    if conflicting:
-        raise ConfigError(
-            f"--secure with {', '.join(conflicting)}: a secure run starts its own router and runs every "
+    refuse_given(
+        given,
+        lambda named: (
+            f"--secure with {named}: a secure run starts its own router and runs every "
             "service as a client of it, each with its role's credentials"
-        )
+        ),
+    )
     profile = write_profile(
         report_dir / SECRETS_DIRECTORY,
         Keys(config.robot.name),

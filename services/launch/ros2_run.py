@@ -27,6 +27,7 @@ from typing import Any
 import zenoh
 
 from services.config import Config, ConfigError, RecordConfig, SimMode
+from services.errors import refuse_given
 from services.exits import ExitStatus
 from services.fleet.description import Fleet, bridge_configs
 from services.launch.children import say
@@ -49,24 +50,26 @@ def check_ros2_flags(plan: UpPlan) -> None:
     """ConfigError (exit 2) for ``--teleop`` or ``--record-ros2`` where they cannot work, before anything starts."""
     if plan.teleop:
         given = {"--ros2": not plan.ros2, "--mode lockstep": plan.mode == SimMode.LOCKSTEP, "--loop": plan.loop}
-        wrong = [flag for flag, conflicting in given.items() if conflicting]
-        if wrong:
-            raise ConfigError(
-                f"--teleop ({', '.join(wrong)}): it runs the loop in realtime with no scenario, the robots following "
+        refuse_given(
+            given,
+            lambda named: (
+                f"--teleop ({named}): it runs the loop in realtime with no scenario, the robots following "
                 "ROS 2's /cmd_vel through the bridge, so it needs --ros2 and takes neither --mode lockstep nor --loop"
-            )
+            ),
+        )
     if plan.record_ros2:
         given = {
             "without --ros2": not plan.ros2,
             "with --no-record": plan.no_record,
             "with --teleop": plan.teleop,
         }
-        wrong = [flag for flag, conflicting in given.items() if conflicting]
-        if wrong:
-            raise ConfigError(
-                f"--record-ros2 {', '.join(wrong)}: the bag of the bridges' topics is written with run.mcap at the end "
-                "of a recorded run with --ros2 (beside a --teleop run, record it with `invent record --ros2`)"
-            )
+        refuse_given(
+            given,
+            lambda named: (
+                f"--record-ros2 {named}: the bag of the bridges' topics is written with run.mcap at the "
+                "end of a recorded run with --ros2 (beside a --teleop run, record it with `invent record --ros2`)"
+            ),
+        )
 
 
 def fleet_bridges(fleet: Fleet, config_path: str | None, overrides: dict[str, Any]) -> dict[str, Config]:
