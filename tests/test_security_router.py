@@ -130,6 +130,35 @@ def test_router_delivers_each_roles_puts_only_on_the_keys_its_interface_declares
                 zenoh.open(_client_config(plain, str(Role.OBSERVER), "x"))
 
 
+SERVICE_ROLES = (Role.SIM, Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE, Role.ROS2, Role.CONTROL)
+
+
+@pytest.mark.parametrize("role", SERVICE_ROLES, ids=str)
+def test_a_services_role_puts_what_its_service_declares_and_the_router_refuses_every_other_data_key(tmp_path, role):
+    """One service kind through a real router: its credentials put on every data key of the robot;
+    a reader gets exactly the keys its service declares (services/interfaces.py), nothing else."""
+    declared = {Role(service.value): _declared_puts(service) for service in LOOP_SERVICES}
+    declared[Role.CONTROL] = declared[Role.SIM] | declared[Role.MOTOR]
+    declared[Role.ROS2] = set(interfaces.declared(Service.ROS2, KEYS, Config()).publishes)
+    with _secured_router(tmp_path, tls=False) as (_profile, open_as):
+        witness = open_as(Role.OBSERVER)
+        received = _witnessing(witness)
+        session = open_as(role)
+        publishers = [
+            session.declare_publisher(KEYS.topic(topic), congestion_control=zenoh.CongestionControl.BLOCK)
+            for topic in Topic
+        ]
+        wait_until(lambda: all(p.matching_status.matching for p in publishers), 10, "the witness to match")
+        for publisher in publishers:
+            publisher.put(str(role))
+        _all_put(role, session, witness)
+        delivered = set()
+        while not received.empty():
+            delivered.add(received.get())
+    assert delivered == {(key, str(role)) for key in declared[role]}
+    assert len(declared[role]) < len(Topic), "some keys are not its own: the router refused those"
+
+
 def test_router_routes_method_queries_only_from_the_operator_and_bump_stop_only_from_the_sim_and_control(tmp_path):
     with _secured_router(tmp_path, tls=False) as (_profile, open_as):
         motor = open_as(Role.MOTOR)
