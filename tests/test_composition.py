@@ -5,16 +5,14 @@ import threading
 from schemas import Keys, Service
 from services.cli.services import service_plan
 from services.launch.composition import Composition
-from tests.harness import call, wait_until
+from tests.harness import status_reply, wait_until
 
 KEYS = Keys("rh0")
 SERVICES = {"motor", "odometry", "localization", "sim", "drive"}
 
 
 def _status(session, service: Service) -> dict:
-    ok, reply = call(session, KEYS.status(service))
-    assert ok, reply
-    return reply
+    return status_reply(session, KEYS, service)
 
 
 def test_every_service_runs_on_the_sims_thread_and_the_drive_finishes_without_one(session):

@@ -1,7 +1,7 @@
 """Which services are there, and what they say: their liveliness tokens, then their ``status``
-replies (docs/protocol.md sections 2.5 and 11.1), each decoded with its kind's Struct
-(schemas/status_kinds.py), for the tools that look around (``invent status``, ``invent replay``)
-and ``invent up`` (:class:`StatusReader`)."""
+replies (docs/protocol.md sections 2.5 and 11.1), decoded with a Struct of schemas/status.py: for
+the tools that look around (``invent status``, ``invent replay``) and ``invent up``
+(:class:`StatusReader`)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,6 @@ import zenoh
 
 from schemas.keys import Keys, ServiceName
 from schemas.status import Reply, ServiceStatus
-from schemas.status_kinds import status_type
 from schemas.tokens import parse_alive_key
 from services.runtime.logs import RateLimitedLog, log
 
@@ -101,8 +100,9 @@ class ServiceReply(NamedTuple):
 def service_statuses(session: zenoh.Session, key_expr: str, timeout: float) -> list[ServiceReply]:
     """Each service whose liveliness token matches ``key_expr``, with its status: the tokens first
     (they reach a new session through the router at once), then each one's exact ``status`` key (a
-    query on a wildcard, sent before the queryables reached this session, would reach none), each
-    reply decoded as its kind's Struct."""
+    query on a wildcard, sent before the queryables reached this session, would reach none). Each
+    reply is decoded as what every service's status has (:class:`ServiceStatus`), all these tools
+    read: a real plant's ``sim/status``, its own (docs/plant.md), is one too."""
     reader = StatusReader(session, timeout)
     replies: list[ServiceReply] = []
     for token in alive_services(session, key_expr, timeout):
@@ -110,6 +110,6 @@ def service_statuses(session: zenoh.Session, key_expr: str, timeout: float) -> l
         if parsed is None:
             continue
         robot_name, service = parsed
-        decoded = reader.get_with_own(Keys(robot_name).status(service), status_type(service))
+        decoded = reader.get_with_own(Keys(robot_name).status(service), ServiceStatus)
         replies.append(ServiceReply(robot_name, service, *(decoded or (None, None))))
     return replies
