@@ -3,10 +3,16 @@ readers: each field given, none left to a default but the ones a test names."""
 
 from __future__ import annotations
 
+import msgspec
+
 from schemas.drive_status import DriveNavigationStatus, DriveStatus
 from schemas.status import (
     BadInputStatus,
+    CollisionMonitorStatus,
     DroppedParticipant,
+    LockstepHolds,
+    MotorCounters,
+    MotorStatus,
     PlanarPose,
     SensorsStatus,
     ServiceStatus,
@@ -14,8 +20,15 @@ from schemas.status import (
     SimParameters,
     SimStatus,
     TorqueLatencyStatus,
+    UserServiceStatus,
     Velocity,
 )
+
+
+class StateStatus(ServiceStatus, kw_only=True):
+    """A service's status with a state as its only field of its own: a test's node's."""
+
+    state: str
 
 
 def service_status(bad: int = 0, internal: int = 0, dropped: int = 0) -> ServiceStatus:
@@ -60,6 +73,50 @@ def sim_status(
         braking=False,
         sensors=SensorsStatus(lidar=None, imu=None),
     )
+
+
+def motor_status(bad: int = 0) -> MotorStatus:
+    """A running motor without a collision monitor."""
+    counters = MotorCounters(
+        nonfinite_torques=0,
+        wheel_angle_samples=0,
+        body_pose_samples=0,
+        target_velocity_samples=0,
+        targets_ignored=0,
+        command_timeouts=0,
+    )
+    return MotorStatus(
+        bad_input=BadInputStatus(total=bad),
+        state="running",
+        output="torque",
+        velocity_rate=None,
+        target_angle="seed",
+        gains={"p_gain_l": 5.0, "p_gain_r": 5.0, "d_gain_l": 2.0, "d_gain_r": 2.0},
+        geometry={},
+        offsets={},
+        limits={},
+        command_timeout=0.5,
+        target=Velocity(0.0, 0.0),
+        command=Velocity(0.0, 0.0),
+        command_timed_out=False,
+        counters=counters,
+        collision_monitor=CollisionMonitorStatus(enabled=False),
+        sim_alive=True,
+        torques_published=0,
+        wheel_velocities_published=0,
+        lockstep_holds=LockstepHolds(held=0, released_unanswered=0),
+        trace=None,
+        state_file="motor.state",
+        restored=None,
+    )
+
+
+def user_service_status(bad: int = 0, **own: object) -> bytes:
+    """A user service's reply: the runtime's fields, and ``own`` merged over them."""
+    runtime = UserServiceStatus(
+        bad_input=BadInputStatus(total=bad), sim_alive=True, sim_time_s=None, lockstep=None, outputs={}, calls={}
+    )
+    return msgspec.json.encode({**msgspec.to_builtins(runtime), **own})
 
 
 def drive_status(pose_wait_timeouts: int = 0, scans_late: int | None = None) -> DriveStatus:
