@@ -32,11 +32,11 @@ import zenoh
 
 from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import Time
-from schemas.status import SimStatus, TorqueLatencyStatus
+from schemas.status import SimStatus, StatusT, TorqueLatencyStatus
 from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
 from services.config import Config
 from services.motor.core import MotorCore
-from services.runtime.discovery import StatusReader, StatusT
+from services.runtime.discovery import StatusReader
 from services.runtime.session import free_port, open_session, session_config
 from sim_bridge.latency import percentiles
 

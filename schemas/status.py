@@ -1,7 +1,7 @@
 """The status replies (docs/protocol.md section 11): the fields every service's reply has
 (:class:`ServiceStatus`, which the runtime's node fills in), and one Struct per kind of service,
-built by the service and decoded by every reader (``invent up``, ``invent status``, the view, the
-report). The drive's and the ROS 2 bridge's are in :mod:`schemas.drive_status`.
+built by the service and decoded by every reader (``invent up`` and its report, ``invent status``,
+the benchmarks). The drive's and the ROS 2 bridge's are in :mod:`schemas.drive_status`.
 
 A reply that does not decode as its kind's Struct is a bad reply: a reader takes it as it takes no
 reply at all (:func:`decode_status`). Unknown fields are ignored, so that a reader still reads a
@@ -78,8 +78,8 @@ class Reply(msgspec.Struct, kw_only=True):
 
 class ServiceStatus(Reply, kw_only=True):
     """The fields every service's status has, around its own: the service builds its kind's
-    Struct, and its node fills these in (``services/runtime/node.py``). Decoding with this type
-    reads any service's reply, its own fields left out."""
+    Struct, and its node fills these in (``services/runtime/node.py``; the defaults are only what
+    they are until then). Decoding with this type reads any service's reply, its own fields left out."""
 
     inputs: dict[str, InputTaken] = {}
     bad_input: BadInputStatus = msgspec.field(default_factory=BadInputStatus)

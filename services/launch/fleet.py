@@ -30,7 +30,7 @@ from schemas.codec import decode
 from schemas.drive_status import DriveStatus
 from schemas.keys import Keys, Service, ServiceName, UserServiceName
 from schemas.messages import BumpEvent
-from schemas.status import ServiceStatus, SimStatus, UserServiceStatus
+from schemas.status import ServiceStatus, SimStatus, StatusT, UserServiceStatus
 from schemas.status_kinds import status_type
 from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
@@ -59,7 +59,6 @@ from services.launch.worker import assign
 from services.recording.mcap_files import read_run
 from services.recording.report import loop_health, summary, write_plots, write_report
 from services.recording.run_report import robot_report
-from services.runtime.discovery import StatusT
 from services.security import UserServiceGrant, write_fleet_profile
 from sim_bridge.world import load_world
 

@@ -22,7 +22,7 @@ import zenoh
 from schemas.drive_status import DriveStatus
 from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import ScenarioOutcome
-from schemas.status import SimStatus, ViewStatus
+from schemas.status import SimStatus, StatusT, ViewStatus
 from services.config import ConfigError
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.errors import ChildDied, Interrupted
@@ -31,7 +31,7 @@ from services.launch.children import Launcher, ServiceDied, Supervisor, describe
 from services.launch.composition import Composition
 from services.launch.plan import UpPlan
 from services.launch.worker import Workers
-from services.runtime.discovery import StatusReader, StatusT
+from services.runtime.discovery import StatusReader
 from services.runtime.intraprocess import LocalBus, Watch
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import DEFAULT_ENDPOINT, ROUTER_LISTENING, open_session, session_config, stop_on_signals

@@ -8,17 +8,15 @@ from __future__ import annotations
 import json
 import logging
 import queue
-from typing import Any, NamedTuple, TypeVar
+from typing import Any, NamedTuple
 
 import msgspec
 import zenoh
 
 from schemas.keys import Keys, ServiceName
-from schemas.status import Reply, ServiceStatus
+from schemas.status import ServiceStatus, StatusT
 from schemas.tokens import parse_alive_key
 from services.runtime.logs import RateLimitedLog, log
-
-StatusT = TypeVar("StatusT", bound=Reply)
 
 STATUS_QUERY_TIMEOUT_S = 2.0
 """How long a status query waits for its reply."""
