@@ -48,7 +48,11 @@ KINDS = (
 INT64 = 2**63 - 1
 
 json_values = st.recursive(
-    st.none() | st.booleans() | st.integers(-INT64, INT64) | st.floats(allow_nan=False) | st.text(max_size=5),
+    st.none()
+    | st.booleans()
+    | st.integers(-INT64, INT64)
+    | st.floats(allow_nan=False, allow_infinity=False)
+    | st.text(max_size=5),
     lambda children: st.lists(children, max_size=3) | st.dictionaries(st.text(max_size=8), children, max_size=3),
     max_leaves=8,
 )
