@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import msgspec
 from msgspec import UNSET, UnsetType
 
@@ -121,6 +119,46 @@ class DriveStatus(ServiceStatus, kw_only=True):
     calls: dict[str, int] | UnsetType = UNSET
 
 
+class NavigateWaiting(msgspec.Struct):
+    """The action's calls held: goals sent to the drive not yet answered, results not yet ended."""
+
+    sends: int
+    results: int
+
+
+class NavigateStatus(msgspec.Struct, kw_only=True):
+    """The NavigateToPose action server's (services/ros2/action_server.py, its counts: ``navigate.Counters``)."""
+
+    action: str
+    drive_serves_goals: bool
+    sent: int
+    accepted: int
+    rejected: int
+    succeeded: int
+    canceled: int
+    aborted: int
+    cancel_requests: int
+    result_requests: int
+    last_rejection: str
+    frame_errors: int
+    results_refused: int
+    expired: int
+    waiting: NavigateWaiting
+    goals: dict[str, str]
+    """Each goal kept, by id, and its status (lower case, as ``GoalStatus``)."""
+
+
+class InitialPoseStatus(msgspec.Struct, kw_only=True):
+    """``/initialpose``'s: the poses received and what the localization answered."""
+
+    received: int
+    accepted: int
+    refused: int
+    unanswered: int
+    waiting: int
+    last_refusal: str
+
+
 class Ros2Status(ServiceStatus, kw_only=True):
     """``ros2/status`` (docs/ros2.md): the node, what it published, forwarded and answered."""
 
@@ -136,8 +174,8 @@ class Ros2Status(ServiceStatus, kw_only=True):
     cmd_vel: dict[str, int]
     service_calls: dict[str, int]
     odometry_services: dict[str, int]
-    navigate: dict[str, Any] | UnsetType = UNSET
-    """The NavigateToPose action server's counts, waiting calls and goals, when it serves the action."""
-    initial_pose: dict[str, Any] | UnsetType = UNSET
-    """``/initialpose``'s counts and last refusal, when a localization takes it."""
+    navigate: NavigateStatus | UnsetType = UNSET
+    """When it serves the action."""
+    initial_pose: InitialPoseStatus | UnsetType = UNSET
+    """When a localization takes it."""
     odom: PlanarPose

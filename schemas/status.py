@@ -345,6 +345,25 @@ class LocalizationFix(msgspec.Struct):
     """The stub's: whether the fix is the initial pose."""
 
 
+class AmclEstimate(msgspec.Struct):
+    """The filter's estimate: its pose, and the covariance's upper triangle row by row (x, y, θ)."""
+
+    x: float
+    y: float
+    theta: float
+    covariance: list[float]
+
+
+class AmclFilterStatus(msgspec.Struct, kw_only=True):
+    particles: int
+    updates: int
+    resamples: int
+    recoveries: int
+    random_particles: int
+    jumps: int
+    last_jump: str
+
+
 class LocalizationStatus(ServiceStatus, kw_only=True):
     """``localization/status`` (docs/localization.md): the fields of its ``mode``, ``stub``,
     ``amcl`` or ``none``; those the mode has not are absent (unset)."""
@@ -364,8 +383,8 @@ class LocalizationStatus(ServiceStatus, kw_only=True):
     noise: dict[str, float] | UnsetType = UNSET
     first_fix_from_sim_pose: bool | None | UnsetType = UNSET
     # amcl
-    estimate: dict[str, Any] | UnsetType = UNSET
-    filter: dict[str, Any] | UnsetType = UNSET
+    estimate: AmclEstimate | UnsetType = UNSET
+    filter: AmclFilterStatus | UnsetType = UNSET
     counters: dict[str, int] | UnsetType = UNSET
     # none
     initial_published_at: float | None | UnsetType = UNSET

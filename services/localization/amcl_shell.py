@@ -31,7 +31,7 @@ import numpy as np
 from schemas.codec import BadInput, BadMessage, decode
 from schemas.messages import NANOSECONDS_PER_SECOND, LaserScan, NoArguments, Time, TimedDoubleSeq, TimedPosition
 from schemas.navigation import InitialPose, LocalizationReply, ParticleCloud
-from schemas.status import LocalizationFix, LocalizationStatus, PlanarPose
+from schemas.status import AmclEstimate, AmclFilterStatus, LocalizationFix, LocalizationStatus, PlanarPose
 from services.clock.sim_time import PeriodicSchedule, StampClock
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, ConfigError
@@ -326,19 +326,19 @@ class AmclLocalization:
             seed=self.seed,
             seed_from_config=self.config.seed is not None,
             initial_pose=PlanarPose(*self.initial),
-            estimate={**estimate.pose._asdict(), "covariance": covariance_values(estimate.covariance)},
+            estimate=AmclEstimate(*estimate.pose, covariance=covariance_values(estimate.covariance)),
             last_fix=None
             if fix is None
             else LocalizationFix(fix.tm.to_nanoseconds() / NANOSECONDS_PER_SECOND, fix.x, fix.y, fix.theta),
-            filter={
-                "particles": int(self.filter.xs.size),
-                "updates": self.filter.updates,
-                "resamples": self.filter.resamples,
-                "recoveries": self.filter.recoveries,
-                "random_particles": self.filter.random_particles,
-                "jumps": self.filter.jumps,
-                "last_jump": self.filter.last_jump,
-            },
+            filter=AmclFilterStatus(
+                particles=int(self.filter.xs.size),
+                updates=self.filter.updates,
+                resamples=self.filter.resamples,
+                recoveries=self.filter.recoveries,
+                random_particles=self.filter.random_particles,
+                jumps=self.filter.jumps,
+                last_jump=self.filter.last_jump,
+            ),
             counters=dict(self.counters),
             time_base_restarts=self._clock.restart.restarts,
             lockstep_participant=self.node.participating,

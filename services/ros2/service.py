@@ -61,7 +61,7 @@ import zenoh
 from msgspec import UNSET
 
 from schemas.codec import BadInput, encode
-from schemas.drive_status import Ros2Status
+from schemas.drive_status import InitialPoseStatus, Ros2Status
 from schemas.keys import Service
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
@@ -364,11 +364,11 @@ class Ros2Bridge:
             navigate=UNSET if self.navigate is None else self.navigate.status(),
             initial_pose=UNSET
             if self._localization is None
-            else {
+            else InitialPoseStatus(
                 **self.initial_pose,
-                "waiting": len(self._pending_initial_poses),
-                "last_refusal": self.last_initial_pose_refusal,
-            },
+                waiting=len(self._pending_initial_poses),
+                last_refusal=self.last_initial_pose_refusal,
+            ),
             odom=PlanarPose(*self.outputs.odometry.pose),
         )
 
