@@ -33,7 +33,7 @@ import zenoh
 from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import Time
 from schemas.status import SimStatus, StatusT, TorqueLatencyStatus
-from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
+from services import interfaces
 from services.config import Config
 from services.motor.core import MotorCore
 from services.runtime.discovery import StatusReader
@@ -227,7 +227,9 @@ class ServicesRun:
             _wait(lambda service=service: _alive(session, service), f"the {service}", self)
         self._start("drive", ["drive", *connect, "--scenario", str(scenario_file(self._directory))])
         _wait(lambda: _alive(session, Service.DRIVE), "the drive", self)
-        wait_for = [str(service) for service in LOOP_BEFORE_FIRST_STEP]
+        # the motor and the loop's lockstep participants, as the services declare them (invent up's waits)
+        participants = interfaces.participants(Keys(), Config())
+        wait_for = [str(Service.MOTOR), *(str(one.service) for one in participants)]
         self._start("sim", ["sim", *connect, *self._sim_flags, *self._control, "--wait-for", *wait_for])
 
     @property

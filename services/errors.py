@@ -4,10 +4,20 @@ anything may import it."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
+
 
 class ConfigError(ValueError):
     """An invalid configuration file, value or override (the robot description, a world, a
     scenario, a fleet, a flag); the message names the field, and the command exits with code 2."""
+
+
+def refuse_given(given: Mapping[str, object], why: Callable[[str], str]) -> None:
+    """ConfigError ``why(named)`` if any of ``given`` (what was asked, by name) is set: ``named``
+    lists those that are, in order (``"--loop, --gui"``)."""
+    named = [name for name, value in given.items() if value]
+    if named:
+        raise ConfigError(why(", ".join(named)))
 
 
 class SessionFailed(RuntimeError):

@@ -3,7 +3,8 @@
 A service module defines one :class:`ServiceCommand` (its factory) and a frozen dataclass of its
 own options beside it. The command line (services/cli/) turns ``invent <service>``'s flags into a
 :class:`ServicePlan`: the command, the robot description (``--config`` file, then ``--set``
-overrides, then the service's own flags), the service's options and where it journals.
+overrides, then the service's own flags), the service's options and where it journals; the
+launcher builds the same of its typed plans (services/launch/service_plans.py).
 :func:`run_service` opens nothing: it builds the service around a
 :class:`~services.runtime.node.Node` on the session it is given and runs it until stopped or
 until it finishes by itself. :func:`start_service` builds one on an existing session, so several
@@ -13,7 +14,7 @@ services can share one process and one session.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
@@ -21,9 +22,10 @@ from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
 import msgspec
 import zenoh
 
-from schemas.keys import Keys, ServiceName
+from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import Config, ConfigError, RecordConfig, SimMode
+from services.interfaces import declared
 from services.runtime.executor import Executor
 from services.runtime.inputs import congestion
 from services.runtime.intraprocess import LocalBus
@@ -87,6 +89,10 @@ class ClockedService(RunningService, Protocol):
 OptionsT = TypeVar("OptionsT")
 
 
+def no_check(_config: Config, _options: Any) -> None:
+    return None
+
+
 @dataclass(frozen=True)
 class ServiceCommand(Generic[OptionsT]):
     """A service as whatever runs it sees it: what it is, and how it is built from the robot
@@ -98,6 +104,9 @@ class ServiceCommand(Generic[OptionsT]):
     timestamped: bool = False
     """Its session stamps what it publishes (zenoh's ``timestamping``): a zenoh-ext advanced
     publisher with a cache, which the ROS 2 bridge's latched topics are, needs it."""
+    check: Callable[[Config, OptionsT], None] = no_check
+    """Refuses (ConfigError: exit 2) what its description and its options allow each alone but not
+    together (``invent sim --engine kinematic --gui``), before anything starts."""
 
 
 @dataclass(frozen=True)
@@ -125,11 +134,6 @@ class ServicePlan(Generic[OptionsT]):
     journaling: Journaling = field(default_factory=Journaling)
 
 
-ServiceParse = Callable[[Sequence[str]], ServicePlan[Any]]
-"""What ``invent <service> ...``'s arguments (``["motor", "--robot", "rh1"]``) make: a composition
-starts services from such arguments (services/launch/composition.py); the command line provides it."""
-
-
 def start_service(
     plan: ServicePlan,
     session: zenoh.Session,
@@ -143,14 +147,16 @@ def start_service(
     command, config = plan.command, plan.config
     journal = _journal(plan.journaling, command.service, config.record)
     lockstep = config.sim.mode == SimMode.LOCKSTEP
+    keys = Keys(config.robot.name)
     node = Node(
         session,
-        Keys(config.robot.name),
+        keys,
         command.service,
         executor=executor,
         journal=journal,
         bus=bus,
         congestion=congestion(lockstep),
+        interface=declared(command.service, keys, config) if isinstance(command.service, Service) else None,
     )
     try:
         return node, command.factory(node, config, plan.options)

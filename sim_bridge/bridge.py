@@ -49,6 +49,7 @@ from dataclasses import dataclass
 from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND, SimWorld, Time
 from schemas.status import SimStatus, SimWorldStatus
+from services import interfaces
 from services.config import Config, ImuConfig, LidarConfig, SimEngine, SimMode
 from services.fleet.description import Fleet
 from services.runtime.node import Node
@@ -63,7 +64,7 @@ from sim_bridge.link import MotorSeam, RobotLink
 from sim_bridge.loops import Loop
 from sim_bridge.progress import RunProgress
 from sim_bridge.status import RunStatus
-from sim_bridge.world import InitialPose, World, obstacles, read_world, resolve_world
+from sim_bridge.world import InitialPose, World, load_world, obstacles, read_world, resolve_world
 
 
 @dataclass(frozen=True)
@@ -79,6 +80,8 @@ class SimOptions:
     gui: bool = False
     fleet: Fleet | None = None
     """Every robot of this fleet in one world, each robot's keys under its name."""
+    fleet_file: str | None = None
+    """The file ``fleet`` was read from, as given (``--fleet``)."""
     fleet_robots: tuple[Config, ...] = ()
     """With ``fleet``: each robot's description, in the fleet's order."""
 
@@ -163,6 +166,7 @@ class SimService:
                         journal=node.journal,
                         bus=node.bus,
                         congestion=node.congestion,
+                        interface=interfaces.sim(Keys(body.name), config),
                     )
                 )
                 self.links.append(
@@ -244,4 +248,10 @@ class SimService:
         self.sim.close()
 
 
-COMMAND = ServiceCommand(service=Service.SIM, factory=SimService)
+def check(config: Config, options: SimOptions) -> None:
+    """A window the engine has not, a world file that does not load: exit 2 before anything starts."""
+    check_gui(config.sim, options.gui)
+    load_world(config.sim.world)
+
+
+COMMAND = ServiceCommand(service=Service.SIM, factory=SimService, check=check)

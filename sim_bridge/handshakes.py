@@ -71,7 +71,9 @@ def await_participants(node: Node, links: Sequence[RobotLink]) -> None:
     asked: dict[tuple[int, ServiceName], Any] = {}
     while waiting and time.monotonic() < deadline:
         for index, service in waiting - set(asked):
-            asked[index, service] = node.session.get(links[index].node.keys.status(service), timeout=STOP_POLL_S)
+            status = links[index].node.keys.status(service)
+            links[index].node.declared.query(status)
+            asked[index, service] = node.session.get(status, timeout=STOP_POLL_S)
         node.spin_once(STOP_POLL_S / 10.0)
         for participant, replies in list(asked.items()):
             try:
@@ -83,9 +85,9 @@ def await_participants(node: Node, links: Sequence[RobotLink]) -> None:
                 continue
             del asked[participant]  # answered: asked again unless it sees this simulator
             kind = status_type(participant[1])
-            status = None if reply.ok is None else decode_status(kind, reply.ok.payload.to_bytes())
+            answered = None if reply.ok is None else decode_status(kind, reply.ok.payload.to_bytes())
             # every participant's kind says sim_alive; a bad reply is no answer: asked again
-            if getattr(status, "sim_alive", False) is True:
+            if getattr(answered, "sim_alive", False) is True:
                 waiting.discard(participant)
     if waiting:
         names = sorted(f"{links[index].prefix}{service}" for index, service in waiting)

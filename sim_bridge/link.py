@@ -220,9 +220,7 @@ class RobotLink:
         self._observers_watch = node.session.liveliness().declare_subscriber(
             keys.every_observes, self._on_observes_token, history=True
         )
-        self._bump_stop = node.session.declare_querier(
-            keys.method(MethodFamily.BUMP, Method.STOP), timeout=BUMP_STOP_TIMEOUT_S
-        )
+        self._bump_stop = node.querier(keys.method(MethodFamily.BUMP, Method.STOP), timeout=BUMP_STOP_TIMEOUT_S)
         node.watch(Service.MOTOR, liveness.set_motor_alive)
         node.set_status(self.status)
 

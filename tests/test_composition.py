@@ -3,8 +3,10 @@
 import threading
 
 from schemas import Keys, Service
-from services.cli.services import service_plan
+from services.drive.scenarios import ConstantSegment, Scenario
+from services.drive.service import DriveOptions
 from services.launch.composition import Composition
+from services.launch.service_plans import BUILT_IN, ChildPlan
 from tests.harness import status_reply, wait_until
 
 KEYS = Keys("rh0")
@@ -16,12 +18,15 @@ def _status(session, service: Service) -> dict:
 
 
 def test_every_service_runs_on_the_sims_thread_and_the_drive_finishes_without_one(session):
-    composition = Composition(session, service_plan)
+    composition = Composition(session)
     threads_before = set(threading.enumerate())
     try:
         for service in ("motor", "odometry", "localization", "sim"):
-            composition.start(service, [service])
-        drive = composition.start("drive", ["drive", "--for", "0.3", "--vx", "0.2"])
+            command, options = BUILT_IN[service]
+            composition.start_service(ChildPlan(service, command, options()))
+        constant = Scenario(name="constant", segments=[ConstantSegment(vx=0.2, w=0.0, duration=0.3)])
+        command, _ = BUILT_IN["drive"]
+        drive = composition.start_service(ChildPlan("drive", command, DriveOptions("constant", constant)))
         wait_until(lambda: drive.finished() == 0, 60, "the drive to finish its 0.3 s")
         assert [c.name for c in composition.services if c.thread is not None] == ["sim"]
         started = {thread.name for thread in set(threading.enumerate()) - threads_before}

@@ -100,6 +100,7 @@ def test_tokens_of_user_services_parse_and_a_user_participant_names_its_output()
         (f"{SERVICES}:Nameless", "name must be set"),
         (f"{SERVICES}:BadRate", "rate_hz"),
         (f"{SERVICES}:Wildcard", "drive/**"),
+        (f"{SERVICES}:ReadsWildcard", "sim/**"),
         (f"{DATA / 'broken.py'}:Thing", "broken on purpose"),
     ],
 )
@@ -191,9 +192,13 @@ def test_the_api_inputs_outputs_queryables_calls_timers_status_and_its_end_over_
         assert code == [7], "ctx.finish(7): the service ends by itself with its code"
 
 
-def test_a_lockstep_output_must_be_declared_and_stamped():
+def test_a_lockstep_output_must_be_declared_and_stamped_and_an_input_read():
     with running_router() as endpoint, peer_session(endpoint) as session:
-        for name, why in (("UndeclaredOutput", "was not declared"), ("UnstampedOutput", "has no tm stamp")):
+        for name, why in (
+            ("UndeclaredOutput", "was not declared"),
+            ("UnstampedOutput", "has no tm stamp"),
+            ("ReadsUndeclared", "'invent/rh0/odometry/pose' is not in ReadsUndeclared.reads"),
+        ):
             loaded = load(_spec(name))
             with pytest.raises(ConfigError, match=why):
                 start_service(ServicePlan(command(loaded), Config(), UserOptions(loaded)), session)
@@ -248,31 +253,40 @@ def test_the_router_lets_a_user_service_put_and_serve_only_under_its_name_and_qu
         def open_file(path: Path) -> zenoh.Session:
             return stack.enter_context(zenoh.open(zenoh.Config.from_file(str(path))))
 
-        witness = open_file(profile.client_config(Role.DRIVE))  # serves the drive's goals and its status
+        # the witness reads every key and answers invent view's status; the drive serves its goals and status
+        witness = open_file(profile.client_config(Role.OBSERVER))
         received: queue.Queue[str] = queue.Queue()
         witness.declare_subscriber(KEYS.everything, lambda s: received.put(str(s.key_expr)))
-        for key in (KEYS.drive_goal_send, KEYS.drive_goal_cancel):
-            witness.declare_queryable(key, lambda q: q.reply(q.key_expr, b'{"accepted": true, "id": "g1"}'))
-        barrier = KEYS.status(Service.DRIVE)
+        barrier = KEYS.view_status
         witness.declare_queryable(barrier, lambda q: q.reply(barrier, b"{}"))
+        drive = open_file(profile.client_config(Role.DRIVE))
+        for key in (KEYS.drive_goal_send, KEYS.drive_goal_cancel):
+            drive.declare_queryable(key, lambda q: q.reply(q.key_expr, b'{"accepted": true, "id": "g1"}'))
+        drive_status = KEYS.status(Service.DRIVE)
+        drive.declare_queryable(drive_status, lambda q: q.reply(drive_status, b"{}"))
         user = open_file(profile.user_service_config(patrol))
         own, foreign = KEYS.own(patrol, "progress"), (KEYS.motor_torque, KEYS.drive_target_velocity)
         publishers = [user.declare_publisher(key) for key in (own, *foreign)]
         wait_until(lambda: all(p.matching_status.matching for p in publishers), 10, "the witness to match")
         for publisher in publishers:
             publisher.put(b"{}")
-        assert len([r for r in user.get(barrier, timeout=5.0) if r.ok]) == 1  # after its puts, in order
+        # after its puts, in order: the witness asks the user service's own status, which it serves
+        own_status = KEYS.status(patrol)
+        user.declare_queryable(own_status, lambda q: q.reply(own_status, b"{}"))
+        wait_until(lambda: [r for r in witness.get(own_status, timeout=1.0) if r.ok], 10, "its status")
+        wait_until(lambda: [r for r in witness.get(drive_status, timeout=1.0) if r.ok], 10, "the drive's queryables")
         delivered = set()
         while not received.empty():
             delivered.add(received.get())
         assert delivered == {own}, "only its own key's put gets through"
         assert [r.ok is not None for r in user.get(KEYS.drive_goal_send, timeout=2.0)] == [True]
         assert not [r for r in user.get(KEYS.drive_goal_cancel, timeout=2.0) if r.ok], "not in its calls"
-        assert [str(r.ok.key_expr) for r in user.get(KEYS.every_status, timeout=2.0) if r.ok] == [barrier]
+        answered = [str(r.ok.key_expr) for r in user.get(KEYS.every_status, timeout=2.0) if r.ok]
+        assert answered == [own_status], "no other service's status (not in its calls): only its own, in its session"
         tokens: set[str] = set()
         witness.liveliness().declare_subscriber(KEYS.every_alive, lambda s: tokens.add(str(s.key_expr)), history=True)
         witness.liveliness().declare_subscriber(KEYS.every_ticks, lambda s: tokens.add(str(s.key_expr)), history=True)
-        wait_until(lambda: user.get(barrier, timeout=5.0), 5, "the witness's subscribers")  # declared before
+        wait_until(lambda: witness.get(own_status, timeout=5.0), 5, "the witness's subscribers")  # declared before
         held = [user.liveliness().declare_token(KEYS.alive(patrol))]
         held.append(user.liveliness().declare_token(KEYS.alive(Service.DRIVE)))
         held.append(user.liveliness().declare_token(KEYS.ticks_with_output(patrol, 10.0, "progress")))
@@ -298,7 +312,7 @@ def test_a_fleet_file_runs_services_of_ones_own_beside_every_robot_or_one(tmp_pa
     }
     assert [robot.participants for robot in robots.each] == [("odometer",), ("odometer",)]
     access = robots.access(tmp_path / "run")
-    assert access.user_service_flags("odometer", "rh1") == []  # not secure: zenoh's defaults
+    assert access.user_service_file("odometer", "rh1") is None  # not secure: zenoh's defaults
     fleet_file.write_text(f'[[robots]]\nname = "rh0"\nwith = ["{_spec("Named")}"]\n')
     with pytest.raises(ConfigError, match="fleet robot 'rh0': .*built-in"):
         FleetRobots(UpPlan(fleet=str(fleet_file)), str(fleet_file))

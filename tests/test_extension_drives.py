@@ -182,6 +182,7 @@ def test_the_wanderer_drives_on_a_clear_way_and_turns_towards_the_open_side_of_a
         ("DrivesInLockstep", "drives with lockstep"),
         ("DrivesAndCalls", "drives with calls"),
         ("DrivesAtNoRate", "drives.rate_hz must be"),
+        ("DrivesReadingTheTruth", "reads sim/body_pose: a service that drives has the drive's rights"),
         ("DrivesTrue", "must be a Drives(rate_hz)"),
     ],
 )

@@ -16,19 +16,19 @@ from services.drive.scenarios import BUILTIN_SCENARIOS, ConstantSegment, is_buil
 from services.fleet import description
 from services.fleet.description import (
     bridge_configs,
-    bridge_flags,
-    drive_flags,
+    bridge_settings,
     load_fleet,
     parse_fleet,
     robot_config,
-    robot_flags,
     robot_overrides,
+    robot_settings,
 )
 from services.fleet.summary import bumps_between, closest_approach
 from services.launch.fleet import FleetRobots
 from services.launch.plan import UpPlan
-from services.launch.up import _drive_flags
-from services.launch.worker import robot_requests
+from services.launch.service_plans import own_flags, service_argv
+from services.launch.up import _drive_options
+from services.launch.worker import robot_plans
 from services.planar import Pose
 
 ISSUE_EXAMPLE = description.__doc__.split("```toml\n")[1].split("```")[0]
@@ -100,23 +100,23 @@ def test_a_missing_fleet_file_and_a_wrong_override_name_the_flag_and_the_robot(t
 
 def test_a_robots_services_are_started_with_its_name_overrides_and_start():
     robot = parse_fleet(ISSUE_EXAMPLE).robot("rh1")
-    flags = robot_flags(robot)
-    assert flags[:2] == ["--robot", "rh1"]
-    sets = dict(flag.split("=", 1) for flag in flags[3::2])
+    sets = dict(setting.split("=", 1) for setting in robot_settings(robot))
     assert sets["motor.p_gain_l"] == "6.0" and sets["odometry.initial_y"] == "3.0"
-    assert len(sets) == len(robot_overrides(robot)) - 1  # all but the name, which is --robot
+    assert len(sets) == len(robot_overrides(robot)) - 1  # all but the name, which is the description's robot
 
 
-def test_a_robot_names_a_goal_file_or_a_scenario_and_its_drive_is_started_with_it():
+def test_a_robot_names_a_goal_file_or_a_scenario_and_its_drive_is_started_with_it(monkeypatch):
+    monkeypatch.chdir(CORRIDOR_SWAP.parent.parent.parent)
     fleet = parse_fleet(
         '[[robots]]\nname = "rh0"\ngoals = "examples/goals/swap_east.toml"\n'
         '[[robots]]\nname = "rh1"\nscenario = "square"\n'
         '[[robots]]\nname = "rh2"\n'
     )
     assert fleet.robot("rh0").goals == "examples/goals/swap_east.toml" and fleet.robot("rh0").scenario is None
-    assert drive_flags(fleet.robot("rh0")) == ["--goal-file", "examples/goals/swap_east.toml"]
-    assert drive_flags(fleet.robot("rh1")) == ["--scenario", "square"]
-    assert drive_flags(fleet.robot("rh2")) == []  # the run's --scenario
+    drives = {child.name: own_flags(child.options) for child in robot_plans(fleet, fleet.names)}
+    assert drives["rh0/drive"] == ["--goal-file", "examples/goals/swap_east.toml"]
+    assert drives["rh1/drive"] == ["--scenario", "square"]
+    assert drives["rh2/drive"] == ["--scenario", "square"]  # up's default scenario
     assert fleet.robot("rh1").goals is None
 
 
@@ -126,12 +126,7 @@ def test_each_robots_bridge_is_in_its_namespace_and_only_the_first_publishes_clo
     assert {name: config.ros2.namespace for name, config in configs.items()} == {"rh0": "/rh0", "rh1": "/robot1"}
     assert {name: config.ros2.publish_clock for name, config in configs.items()} == {"rh0": True, "rh1": False}
     assert configs["rh1"].ros2.tf == "prefixed" and configs["rh1"].motor.p_gain_l == 6.0
-    assert bridge_flags(fleet, fleet.robot("rh1")) == [
-        "--set",
-        'ros2.namespace="/robot1"',
-        "--set",
-        "ros2.publish_clock=false",
-    ]
+    assert bridge_settings(fleet, fleet.robot("rh1")) == ('ros2.namespace="/robot1"', "ros2.publish_clock=false")
     unnamed = parse_fleet('[[robots]]\nname = "robot-1"')
     with pytest.raises(ConfigError, match="fleet robot 'robot-1': its name is not a ROS namespace.*`namespace`"):
         bridge_configs(unnamed, None, {})
@@ -225,20 +220,20 @@ def test_up_checks_each_robots_goal_file_before_it_starts_anything_and_names_wha
     fleet_file.write_text('[[robots]]\nname = "rh0"\ngoals = "none.toml"\n')
     waiting = FleetRobots(UpPlan(fleet=str(fleet_file), goals=True), str(fleet_file))
     assert [robot.scenario for robot in waiting.each] == ["goals"]
-    assert [_drive_flags(waiting.plan, robot) for robot in waiting.each] == [["--goals"]]
+    assert [own_flags(_drive_options(waiting.plan, robot)) for robot in waiting.each] == [["--goals"]]
 
 
 def test_up_starts_a_robots_drive_with_its_goal_file_in_its_own_process_or_a_worker(monkeypatch):
     monkeypatch.chdir(CORRIDOR_SWAP.parent.parent.parent)
     plan = UpPlan(fleet=str(CORRIDOR_SWAP))
     robots = FleetRobots(plan, str(CORRIDOR_SWAP))
-    assert [_drive_flags(plan, robot) for robot in robots.each] == [
+    assert [own_flags(_drive_options(plan, robot)) for robot in robots.each] == [
         ["--goal-file", "examples/goals/swap_east.toml"],
         ["--goal-file", "examples/goals/swap_west.toml"],
     ]
-    requests = {request[0]: request[1:] for request in robot_requests(robots.fleet, ["rh0", "rh1"], [])}
-    assert requests["rh1/drive"][-2:] == ["--goal-file", "examples/goals/swap_west.toml"]
-    assert "--goal-file" not in requests["rh1/motor"]
+    plans = {child.name: service_argv(child) for child in robot_plans(robots.fleet, ["rh0", "rh1"])}
+    assert plans["rh1/drive"][-2:] == ["--goal-file", "examples/goals/swap_west.toml"]
+    assert "--goal-file" not in plans["rh1/motor"]
     two_squares = str(CORRIDOR_SWAP.parent / "two_squares.toml")
     squares = FleetRobots(UpPlan(fleet=two_squares), two_squares)
-    assert [_drive_flags(squares.plan, robot) for robot in squares.each] == [["--scenario", "square"]] * 2
+    assert [own_flags(_drive_options(squares.plan, robot)) for robot in squares.each] == [["--scenario", "square"]] * 2

@@ -69,7 +69,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.localization\.amcl_shell", SHELL),
     (r"services\.ros2\.(action_server|action_calls|odometry_services|motor_services|node_entities)", SHELL),
     (r"sim_bridge\.(bridge|link|liveness|loops|handshakes)", SHELL),
-    (r"services\.service", SHELL_SUPPORT),
+    (r"services\.(service|interfaces)", SHELL_SUPPORT),
     (r"services\.clock\.sim_watch", SHELL_SUPPORT),
     (r"services\.extension\.(api|loader|hosting|drive_output)", SHELL_SUPPORT),
     (r"services\.(cli|launch|recording)(\..*)?", TOOL),
@@ -311,7 +311,7 @@ def test_each_service_room_holds_its_shell_and_its_core():
 
 def test_the_services_top_level_holds_subpackages_and_a_handful_of_shared_modules():
     modules = sorted(path.name for path in (ROOT / "services").glob("*.py"))
-    assert modules == ["__init__.py", "errors.py", "exits.py", "planar.py", "service.py"]
+    assert modules == ["__init__.py", "errors.py", "exits.py", "interfaces.py", "planar.py", "service.py"]
 
 
 @pytest.mark.parametrize(

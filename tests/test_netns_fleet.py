@@ -4,7 +4,7 @@ namespaces (tests/netns.py; root only, skipped with the reason elsewhere).
 The layout of docs/deploy.md, "Running a fleet": the ``sim`` host runs ``invent router`` and
 ``invent sim --fleet FILE --mode realtime``; each robot computer (``rh0``, ``rh1``) runs its own
 ``invent router --connect`` the sim server's, and that robot's motor, odometry, localization and
-drive, each ``--connect`` to its own host's router, with :func:`services.fleet.description.robot_flags`
+drive, each ``--connect`` to its own host's router, with :func:`services.fleet.description.robot_settings`
 (its name, start pose and overrides from the fleet file, as ``invent up --fleet`` passes them):
 rh0's as four processes, rh1's composed in one (``invent worker --fleet FILE --robots rh1``, one
 process per robot computer for its robots).
@@ -33,7 +33,7 @@ from typing import Any
 
 import pytest
 
-from services.fleet.description import Fleet, load_fleet, robot_flags
+from services.fleet.description import Fleet, load_fleet, robot_settings
 from services.runtime.session import DEFAULT_ENDPOINT
 from tests.harness import wait_until
 from tests.netns import HostProcess, Network, netns_unavailable, network
@@ -167,7 +167,8 @@ def _fleet_across_hosts(tmp_path: Path, overrides: str) -> Iterator[FleetHosts]:
                 fleet_flags = ["--fleet", str(fleet_file), "--robots", robot.name]
                 invent(robot.name, "worker", "worker", "--connect", DEFAULT_ENDPOINT, *fleet_flags)
                 continue
-            flags = ["--connect", DEFAULT_ENDPOINT, *robot_flags(robot)]
+            settings = [part for setting in robot_settings(robot) for part in ("--set", setting)]
+            flags = ["--connect", DEFAULT_ENDPOINT, "--robot", robot.name, *settings]
             # the motor's own state file: a stop latched in another run would otherwise persist
             state = ["--state", str(tmp_path / f"{robot.name}-motor.json")]
             for service, extra in (("motor", state), ("odometry", []), ("localization", [])):

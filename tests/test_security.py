@@ -11,6 +11,8 @@ import zenoh.ext
 
 from schemas.keys import LOOP_SERVICES, Keys, Service, all_robots_status
 from schemas.topics import LATCHED_TOPICS, Method, MethodFamily, Topic
+from services import interfaces
+from services.config import Config
 from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS, BridgeGraph
 from services.security import (
     CA_CERTIFICATE,
@@ -60,10 +62,13 @@ GOALS = {KEYS.drive_goal_send, KEYS.drive_goal_cancel}
 """The drive's goal queryables: sending and canceling goals is a right of its own."""
 
 
-def test_each_service_role_puts_exactly_the_keys_under_its_own_name():
+def test_each_service_role_puts_exactly_what_its_interface_declares_all_under_its_own_name():
     for service in LOOP_SERVICES:
-        expected = {KEYS.topic(topic) for topic in Topic if topic.split("/")[0] == service}
-        assert _put_keys(Role(service.value)) == expected, service
+        declared = set(interfaces.declared(service, KEYS, Config()).publishes)
+        assert _put_keys(Role(service.value)) == declared, service
+        assert declared <= {KEYS.topic(topic) for topic in Topic if topic.split("/")[0] == service}, service
+    # the stub localization publishes no particles (amcl does: tests/test_security_localization.py)
+    assert _put_keys(Role.LOCALIZATION) == {KEYS.localization_pose}
     assert _put_keys(Role.CONTROL) == _put_keys(Role.SIM) | _put_keys(Role.MOTOR), "the sim and the motor, composed"
     assert _put_keys(Role.OPERATOR) == {KEYS.drive_target_velocity, KEYS.run_summary}, "the run's summary: invent up"
     assert _put_keys(Role.OBSERVER) == set()
@@ -80,9 +85,14 @@ def test_the_ros2_role_puts_only_its_ros_keys_and_targets_and_calls_only_the_tri
     cache_keys.add(f"{ros.key(ACTION_TOPICS[ActionTopic.STATUS])}/@adv/**")
     assert _put_keys(Role.ROS2) == published | cache_keys | {KEYS.drive_target_velocity}
     assert all(key.startswith("0/") for key in published)
-    assert {KEYS.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES} | GOALS | {
-        KEYS.localization_initial_pose
-    } == (_queried_keys(Role.ROS2) - {all_robots_status()} - LATCHED)
+    # the drive's map and plan, latched, are asked for their last message; an initial pose only with amcl
+    latched = {KEYS.drive_map, KEYS.drive_plan}
+    trigger_methods = {KEYS.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES}
+    assert _queried_keys(Role.ROS2) == trigger_methods | GOALS | latched
+    amcl = {
+        key for g in grants(Role.ROS2, KEYS, localization="amcl") if Message.QUERY in g.messages for key in g.key_exprs
+    }
+    assert KEYS.localization_initial_pose in amcl
     assert KEYS.method(MethodFamily.GUI, Method.SET_PD_GAIN) not in _queried_keys(Role.ROS2)
     served = _granted(Role.ROS2, Message.DECLARE_QUERYABLE)
     services = (*MOTOR_SERVICES.values(), *ACTION_SERVICES.values(), *ros.odometry_services.values())
@@ -105,11 +115,17 @@ def test_only_the_operator_the_sim_the_control_path_and_the_ros2_bridge_query_mo
     assert _queried_keys(Role.OPERATOR) == status | _methods(MethodFamily.GUI) | GOALS | localize | {
         KEYS.odometry_set_pose
     }
-    assert _queried_keys(Role.SIM) == _queried_keys(Role.CONTROL) == status | _methods(MethodFamily.BUMP)
-    for role in (Role.OBSERVER, Role.MOTOR, Role.ODOMETRY, Role.DRIVE):
-        assert _queried_keys(role) == status, role
-    # the localization reads no ground truth: no sim/status, no latched keys (tests/test_security_localization.py)
-    assert _queried_keys(Role.LOCALIZATION) == {KEYS.status(s) for s in Service if s is not Service.SIM}
+    # the sim: the bump stop, and the status of the motor and the lockstep participants at the start
+    participants = {KEYS.status(service) for service in (Service.MOTOR, Service.DRIVE, Service.LOCALIZATION)}
+    assert (
+        _queried_keys(Role.SIM)
+        == _queried_keys(Role.CONTROL)
+        == participants | {KEYS.method(MethodFamily.BUMP, Method.STOP)}
+    )
+    assert _queried_keys(Role.OBSERVER) == status
+    assert _queried_keys(Role.DRIVE) == {KEYS.motor_state}, "the motor's state, latched"
+    for role in (Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION):
+        assert _queried_keys(role) == set(), role
     assert _queried_keys(Role.ROS_NODE) == status | {"0/**", "0/**/@adv/**", "@ros2_lv/0/**"}
 
 

@@ -96,7 +96,7 @@ def test_each_robots_service_roles_get_exactly_the_single_robot_grants_on_their_
     ros2_calls = _granted(Identity(Role.ROS2, "rh1"), Message.QUERY) - {all_robots_status()}
     assert ros2_calls - {RH1.topic(topic) for topic in LATCHED_TOPICS} == {
         RH1.method(MethodFamily.GUI, method) for method in MOTOR_SERVICES
-    } | _goals(RH1) | {RH1.localization_initial_pose}
+    } | _goals(RH1), "an initial pose only for a robot whose localization is amcl"
     assert _granted(Identity(Role.DRIVE, "rh1"), Message.DECLARE_QUERYABLE) == (
         {RH1.status(Service.DRIVE), RH1.drive_path, RH1.drive_outcome, RH1.drive_goal, RH1.drive_map, RH1.drive_plan}
         | _goals(RH1)
@@ -150,16 +150,17 @@ def test_the_fleet_sim_puts_serves_and_calls_the_sim_keys_and_bump_methods_of_ev
             for flow in Flow:
                 assert _single(Role.SIM, keys, message, flow) <= _granted(sim, message, flow), (keys, message, flow)
     assert _granted(sim, Message.PUT) == {keys.topic(t) for keys in (RH0, RH1) for t in Topic if t.startswith("sim/")}
-    assert _granted(sim, Message.QUERY) == (
-        {all_robots_status()}
-        | {keys.topic(topic) for keys in (RH0, RH1) for topic in LATCHED_TOPICS}
-        | _methods(RH0, MethodFamily.BUMP)
-        | _methods(RH1, MethodFamily.BUMP)
-    )
-    assert not _granted(sim, Message.QUERY) & (_methods(RH0, MethodFamily.GUI) | _methods(RH1, MethodFamily.GUI))
-    assert _granted(sim, Message.LIVELINESS_TOKEN) == {
-        token for keys in (RH0, RH1) for token in (keys.alive(Service.SIM), keys.ticks_at_any_rate(Service.SIM))
+    # each robot's bump stop, and the status of its motor and lockstep participants at the start
+    assert _granted(sim, Message.QUERY) == {
+        key
+        for keys in (RH0, RH1)
+        for key in (
+            keys.method(MethodFamily.BUMP, Method.STOP),
+            *(keys.status(service) for service in (Service.MOTOR, Service.DRIVE, Service.LOCALIZATION)),
+        )
     }
+    assert not _granted(sim, Message.QUERY) & (_methods(RH0, MethodFamily.GUI) | _methods(RH1, MethodFamily.GUI))
+    assert _granted(sim, Message.LIVELINESS_TOKEN) == {keys.alive(Service.SIM) for keys in (RH0, RH1)}
 
 
 def test_the_fleet_operator_and_observer_reach_every_robot_and_the_observer_puts_nothing():

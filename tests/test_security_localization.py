@@ -84,17 +84,23 @@ def test_each_mode_subscribes_exactly_its_inputs():
     assert not _allowed(Role.LOCALIZATION, Message.DECLARE_SUBSCRIBER, Flow.INGRESS, KEYS.sim_body_pose, "stub")
 
 
-def test_the_default_is_the_stub_and_every_other_role_reads_as_before():
+def test_the_default_is_the_stub_no_other_service_depends_on_the_mode_and_only_the_tools_read_everything():
     assert grants(Role.LOCALIZATION, KEYS) == grants(Role.LOCALIZATION, KEYS, localization="stub")
     for role in (Role.OBSERVER, Role.ODOMETRY, Role.DRIVE, Role.OPERATOR):
         assert grants(role, KEYS, localization="amcl") == grants(role, KEYS), role
-        assert _allowed(role, Message.DECLARE_SUBSCRIBER, Flow.INGRESS, KEYS.sim_body_pose)
+    for role in (Role.OBSERVER, Role.OPERATOR):
+        assert _allowed(role, Message.DECLARE_SUBSCRIBER, Flow.INGRESS, KEYS.sim_body_pose), role
+    # a service reads what it declares (services/interfaces.py): the ground truth is the motor's input alone
+    for role in (Role.ODOMETRY, Role.DRIVE):
+        assert not _allowed(role, Message.DECLARE_SUBSCRIBER, Flow.INGRESS, KEYS.sim_body_pose), role
+    assert _allowed(Role.MOTOR, Message.DECLARE_SUBSCRIBER, Flow.INGRESS, KEYS.sim_body_pose)
 
 
 @pytest.mark.parametrize("mode", MODES)
 def test_the_localization_puts_its_own_keys_serves_its_status_and_in_amcl_its_queryables(mode):
-    for key in (KEYS.localization_pose, KEYS.localization_particles):
-        assert _allowed(Role.LOCALIZATION, Message.PUT, Flow.INGRESS, key, mode)
+    assert _allowed(Role.LOCALIZATION, Message.PUT, Flow.INGRESS, KEYS.localization_pose, mode)
+    # only the particle filter has particles
+    assert _allowed(Role.LOCALIZATION, Message.PUT, Flow.INGRESS, KEYS.localization_particles, mode) == (mode == "amcl")
     assert not _allowed(Role.LOCALIZATION, Message.PUT, Flow.INGRESS, KEYS.odometry_pose, mode)
     assert _allowed(Role.LOCALIZATION, Message.DECLARE_QUERYABLE, Flow.INGRESS, KEYS.status(Service.LOCALIZATION), mode)
     for key in (KEYS.localization_initial_pose, KEYS.localization_global_localization):
@@ -104,7 +110,7 @@ def test_the_localization_puts_its_own_keys_serves_its_status_and_in_amcl_its_qu
         Role.LOCALIZATION, Message.DECLARE_LIVELINESS_SUBSCRIBER, Flow.INGRESS, KEYS.alive(Service.SIM), mode
     )
     assert _allowed(Role.LOCALIZATION, Message.LIVELINESS_TOKEN, Flow.INGRESS, KEYS.alive(Service.LOCALIZATION), mode)
-    assert _allowed(Role.LOCALIZATION, Message.QUERY, Flow.INGRESS, KEYS.status(Service.MOTOR), mode)
+    assert not _allowed(Role.LOCALIZATION, Message.QUERY, Flow.INGRESS, KEYS.status(Service.MOTOR), mode)
 
 
 def test_the_operator_and_the_bridge_may_give_an_initial_pose_and_no_one_else():

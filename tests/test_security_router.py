@@ -20,10 +20,12 @@ import zenoh
 import zenoh.ext
 
 from schemas.codec import encode
-from schemas.keys import Keys, Service, all_robots_status
+from schemas.keys import LOOP_SERVICES, Keys, Service, all_robots_status
 from schemas.messages import ScenarioOutcome, Time, TimedPosition, TimedVelocity
 from schemas.navigation import GoalReply, GoalRequest
 from schemas.topics import Method, MethodFamily, Topic
+from services import interfaces
+from services.config import Config
 from services.exits import ExitStatus
 from services.ros2.graph import MOTOR_SERVICES, PUBLICATIONS
 from services.security import (
@@ -34,7 +36,7 @@ from services.security import (
 )
 from tests.goal_standin import GOAL_REFUSED, StandInDrive
 from tests.harness import InventProcess, call, free_port, noting_replier, run_invent, start_up, wait_until
-from tests.test_security import FORGED_VX, GOALS, KEYS, _put_keys
+from tests.test_security import FORGED_VX, GOALS, KEYS
 
 
 @contextmanager
@@ -51,6 +53,34 @@ def _secured_router(tmp_path: Path, tls: bool) -> Iterator[tuple[Profile, Callab
         yield profile, open_as
 
 
+def _witnessing(witness: zenoh.Session) -> queue.Queue[tuple[str, str]]:
+    """What ``witness`` (an observer, who reads every key) receives: (key, payload); it answers invent
+    view's status, the barrier of the tools' sessions (:func:`_all_put`)."""
+    received: queue.Queue[tuple[str, str]] = queue.Queue()
+    witness.declare_subscriber(
+        KEYS.everything, lambda sample: received.put((str(sample.key_expr), sample.payload.to_string()))
+    )
+    witness.declare_queryable(KEYS.view_status, lambda query: query.reply(KEYS.view_status, b"{}"))
+    return received
+
+
+def _all_put(role: Role, session: zenoh.Session, witness: zenoh.Session) -> None:
+    """Return once everything ``session`` (logged in as ``role``) put has reached ``witness``: a
+    query and its reply cross the router after what their sender put before them (one transport
+    each way, in order). A tool's session asks the witness's status; a service may query none, so
+    the witness asks the service's own status, which the session now serves."""
+    if role in (Role.OPERATOR, Role.OBSERVER, Role.ROS_NODE):
+        assert len([reply.ok for reply in session.get(KEYS.view_status, timeout=5.0) if reply.ok]) == 1, role
+        return
+    own = KEYS.control_status if role is Role.CONTROL else KEYS.status(Service(role.value))
+    session.declare_queryable(own, lambda query: query.reply(own, b"{}"))
+    wait_until(lambda: [reply for reply in witness.get(own, timeout=1.0) if reply.ok], 10, f"{role}'s status")
+
+
+def _declared_puts(service: Service) -> set[str]:
+    return set(interfaces.declared(service, KEYS, Config()).publishes)
+
+
 def _client_config(endpoint: str, user: str | None = None, password: str | None = None) -> zenoh.Config:
     config = zenoh.Config()
     config.insert_json5("mode", '"client"')
@@ -63,18 +93,10 @@ def _client_config(endpoint: str, user: str | None = None, password: str | None 
 
 
 @pytest.mark.parametrize("tls", [False, True], ids=["tcp", "tls"])
-def test_router_lets_each_role_put_only_its_own_keys_and_refuses_strangers(tmp_path, tls):
+def test_router_delivers_each_roles_puts_only_on_the_keys_its_interface_declares_and_refuses_strangers(tmp_path, tls):
     with _secured_router(tmp_path, tls) as (profile, open_as):
-        # The witness holds the odometry role: it may serve odometry/status, which every role may
-        # query. A session's query reaches it after everything that session put before it (one
-        # transport each way, in order), so its arrival closes that session's puts.
-        witness = open_as(Role.ODOMETRY)
-        received: queue.Queue[tuple[str, str]] = queue.Queue()
-        witness.declare_subscriber(
-            KEYS.everything, lambda sample: received.put((str(sample.key_expr), sample.payload.to_string()))
-        )
-        barrier = KEYS.status(Service.ODOMETRY)
-        witness.declare_queryable(barrier, lambda query: query.reply(barrier, b"{}"))
+        witness = open_as(Role.OBSERVER)
+        received = _witnessing(witness)
         sessions = {role: open_as(role) for role in Role}
         # BLOCK, not zenoh's default DROP: hundreds of puts at once on a link just opened, on a loaded
         # machine, must not be dropped in transport (a flake once delivered none of them)
@@ -87,13 +109,16 @@ def test_router_lets_each_role_put_only_its_own_keys_and_refuses_strangers(tmp_p
         for role, publisher in publishers:
             publisher.put(f"{role}")
         for role, session in sessions.items():
-            assert len([reply.ok for reply in session.get(barrier, timeout=5.0) if reply.ok]) == 1, role
+            _all_put(role, session, witness)
         delivered = set()
         while not received.empty():
             delivered.add(received.get())
-        ours = {KEYS.topic(topic) for topic in Topic}
-        expected = {(key, str(role)) for role in Role for key in _put_keys(role) & ours}
-        assert delivered == expected
+        # what each service declares it publishes (services/interfaces.py), and nothing else
+        declared = {Role(service.value): _declared_puts(service) for service in LOOP_SERVICES}
+        declared[Role.CONTROL] = declared[Role.SIM] | declared[Role.MOTOR]
+        declared[Role.ROS2] = {KEYS.drive_target_velocity}
+        declared[Role.OPERATOR] = {KEYS.drive_target_velocity, KEYS.run_summary}
+        assert delivered == {(key, str(role)) for role, keys in declared.items() for key in keys}
 
         stranger_endpoint = profile.endpoint
         for user, password in ((None, None), (str(Role.OPERATOR), "not-the-password")):
@@ -103,6 +128,35 @@ def test_router_lets_each_role_put_only_its_own_keys_and_refuses_strangers(tmp_p
             plain = stranger_endpoint.replace("tls/", "tcp/")
             with pytest.raises(zenoh.ZError):
                 zenoh.open(_client_config(plain, str(Role.OBSERVER), "x"))
+
+
+SERVICE_ROLES = (Role.SIM, Role.MOTOR, Role.ODOMETRY, Role.LOCALIZATION, Role.DRIVE, Role.ROS2, Role.CONTROL)
+
+
+@pytest.mark.parametrize("role", SERVICE_ROLES, ids=str)
+def test_a_services_role_puts_what_its_service_declares_and_the_router_refuses_every_other_data_key(tmp_path, role):
+    """One service kind through a real router: its credentials put on every data key of the robot;
+    a reader gets exactly the keys its service declares (services/interfaces.py), nothing else."""
+    declared = {Role(service.value): _declared_puts(service) for service in LOOP_SERVICES}
+    declared[Role.CONTROL] = declared[Role.SIM] | declared[Role.MOTOR]
+    declared[Role.ROS2] = set(interfaces.declared(Service.ROS2, KEYS, Config()).publishes)
+    with _secured_router(tmp_path, tls=False) as (_profile, open_as):
+        witness = open_as(Role.OBSERVER)
+        received = _witnessing(witness)
+        session = open_as(role)
+        publishers = [
+            session.declare_publisher(KEYS.topic(topic), congestion_control=zenoh.CongestionControl.BLOCK)
+            for topic in Topic
+        ]
+        wait_until(lambda: all(p.matching_status.matching for p in publishers), 10, "the witness to match")
+        for publisher in publishers:
+            publisher.put(str(role))
+        _all_put(role, session, witness)
+        delivered = set()
+        while not received.empty():
+            delivered.add(received.get())
+    assert delivered == {(key, str(role)) for key in declared[role]}
+    assert len(declared[role]) < len(Topic), "some keys are not its own: the router refused those"
 
 
 def test_router_routes_method_queries_only_from_the_operator_and_bump_stop_only_from_the_sim_and_control(tmp_path):
@@ -139,21 +193,15 @@ def test_router_lets_the_control_path_put_and_serve_what_the_sim_and_the_motor_m
     and serves ``motor/gui/stop`` to the operator; its put on ``drive/target_velocity`` (neither the
     sim's nor the motor's) reaches no subscriber."""
     with _secured_router(tmp_path, tls=False) as (_profile, open_as):
-        # The witness, an observer, serves invent view's status, which every role may query: the
-        # control session's query reaches it after everything that session put before it, in order.
         witness = open_as(Role.OBSERVER)
-        received: queue.Queue[tuple[str, str]] = queue.Queue()
-        witness.declare_subscriber(
-            KEYS.everything, lambda sample: received.put((str(sample.key_expr), sample.payload.to_string()))
-        )
-        witness.declare_queryable(KEYS.view_status, lambda query: query.reply(KEYS.view_status, b"{}"))
+        received = _witnessing(witness)
         control = open_as(Role.CONTROL)
         keys = (KEYS.drive_target_velocity, KEYS.motor_torque, KEYS.sim_wheel_angles)  # the forbidden one first
         publishers = [control.declare_publisher(key) for key in keys]
         wait_until(lambda: all(p.matching_status.matching for p in publishers), 10, "the witness to match")
         for publisher in publishers:
             publisher.put("control")
-        assert len([reply.ok for reply in control.get(KEYS.view_status, timeout=5.0) if reply.ok]) == 1
+        _all_put(Role.CONTROL, control, witness)
         delivered = set()
         while not received.empty():
             delivered.add(received.get())
@@ -312,8 +360,8 @@ def test_router_lets_the_ros2_bridge_put_only_its_ros_keys_and_call_only_its_met
         ros_node.declare_subscriber(odom, lambda _sample: None)  # as rmw_zenoh subscribes: the topic's key
         at_bridge: queue.Queue[str] = queue.Queue()
         bridge.declare_subscriber(cmd_vel, lambda sample: at_bridge.put(str(sample.key_expr)))
-        at_motor: queue.Queue[str] = queue.Queue()
-        motor.declare_subscriber(KEYS.everything, lambda sample: at_motor.put(str(sample.key_expr)))
+        at_motor: queue.Queue[str] = queue.Queue()  # an observer's view: it reads every key
+        open_as(Role.OBSERVER).declare_subscriber(KEYS.everything, lambda sample: at_motor.put(str(sample.key_expr)))
         calls: list[str] = []
         for method in Method:
             key = KEYS.method(MethodFamily.GUI, method)
@@ -327,7 +375,7 @@ def test_router_lets_the_ros2_bridge_put_only_its_ros_keys_and_call_only_its_met
         bridge.put(KEYS.drive_target_velocity, b"a target")
         publisher.put(b"odom")
         assert at_node.get(timeout=5.0) == odom, "its own topic reaches the ROS node, the forgeries before it do not"
-        assert at_motor.get(timeout=5.0) == KEYS.drive_target_velocity, "and drive/target_velocity reaches us"
+        assert at_motor.get(timeout=5.0) == KEYS.drive_target_velocity, "and drive/target_velocity reaches a reader"
         assert at_node.empty() and at_motor.empty()
 
         wait_until(lambda: ros_node.declare_publisher(cmd_vel).matching_status.matching, 10, "the bridge's /cmd_vel")

@@ -48,7 +48,11 @@ class TorqueSource:
         self._subscriber = session.declare_subscriber(
             KEYS.sim_wheel_angles, lambda sample: self.samples.put(contents(sample))
         )
-        self.publisher = session.declare_publisher(KEYS.motor_torque, encoding=zenoh.Encoding(ENCODING))
+        # BLOCK, as a lockstep motor's: zenoh's default DROP loses a put that finds the transmit queue
+        # full, which a loaded machine does, and the sim then steps without that torque
+        self.publisher = session.declare_publisher(
+            KEYS.motor_torque, encoding=zenoh.Encoding(ENCODING), congestion_control=zenoh.CongestionControl.BLOCK
+        )
         self._token: zenoh.LivelinessToken | None = None
         self._status: zenoh.Queryable | None = None
         self._sim_alive = False

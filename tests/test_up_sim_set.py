@@ -22,8 +22,11 @@ from services.cli.main import build_parser
 from services.config import SIM_BODY_KEYS, ConfigError, RobotConfig, parse_sim_set
 from services.exits import ExitStatus
 from services.launch.plan import UpPlan
+from services.launch.service_plans import BUILT_IN, ChildPlan, ControlPlan, service_argv
+from services.motor.service import MotorOptions
 from services.recording.mcap_files import read_messages
 from services.runtime.session import free_port
+from sim_bridge.bridge import SimOptions
 from tests.harness import REPO, invent_command, refused
 
 KEYS = Keys("rh0")
@@ -48,8 +51,8 @@ def test_the_allowed_keys_are_the_body_and_the_sensors_noise_shared_with_calibra
 
 def test_the_sim_alone_gets_its_overrides_after_the_common_ones():
     plan = UpPlan(sim_set=("lidar.noise=0.02", "robot.radius_of_right_wheel=0.11"))
-    assert plan.sim_flags() == ["--set", "lidar.noise=0.02", "--set", "robot.radius_of_right_wheel=0.11"]
-    assert plan.sim_flags("--sim-set") == [
+    control = ControlPlan(ChildPlan("control", BUILT_IN["motor"][0], MotorOptions()), SimOptions(), plan.sim_set)
+    assert service_argv(control)[-4:] == [
         "--sim-set",
         "lidar.noise=0.02",
         "--sim-set",

@@ -34,6 +34,7 @@ class Fixes(msgspec.Struct, frozen=True):
 
 class FixLedger(UserService):
     name = "fixes"
+    reads = ("localization/pose",)
     lockstep = Lockstep(output="travelled", rate_hz=1.0)
 
     def __init__(self, ctx: Context) -> None:

@@ -43,6 +43,7 @@ MAX_STEP_M = 1.0
 
 class Odometer(UserService):
     name = "odometer"
+    reads = ("odometry/pose",)
     lockstep = Lockstep(output="distance", rate_hz=10.0)
 
     def __init__(self, ctx: Context) -> None:

@@ -43,6 +43,7 @@ class Progress(msgspec.Struct, frozen=True):
 
 class Patrol(UserService):
     name = "patrol"
+    reads = ("drive/outcome",)
     calls = ("drive/goal/send",)
 
     def __init__(self, ctx: Context) -> None:

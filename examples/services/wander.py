@@ -89,6 +89,7 @@ class Wanderer:
 
 class Wander(UserService):
     name = "wander"
+    reads = ("sim/scan",)
     drives = Drives(rate_hz=SCAN_RATE_HZ)
 
     def __init__(self, ctx: Context) -> None:

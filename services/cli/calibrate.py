@@ -4,13 +4,11 @@
 from __future__ import annotations
 
 import argparse
-import functools
 from pathlib import Path
 
 from services.calibration.settings import DEFAULT_PASSES, UmbmarkSettings
 from services.calibration.umbmark import CONVERGED, DEFAULT_RUNS, DEFAULT_SIDE
 from services.cli.flags import description_flags, overrides_from_args, positive_int, positive_length
-from services.cli.services import service_plan
 from services.config import (
     SIM_BODY_KEYS,
     ConfigError,
@@ -19,7 +17,6 @@ from services.config import (
     read_description,
 )
 from services.launch.calibrate import run_umbmark
-from services.launch.composition import Composition
 from services.launch.run import default_report_dir
 from services.recording.calibration_report import FIGURE_FILE, RECORDING_FILE, REPORT_FILE
 from services.runtime.logs import LOG_LEVELS
@@ -146,8 +143,7 @@ def settings_from_args(args: argparse.Namespace) -> UmbmarkSettings:
 
 
 def run(args: argparse.Namespace) -> int:
-    """``invent calibrate umbmark``: each simulated run's services are parsed as ``invent <service>``'s."""
-    return run_umbmark(settings_from_args(args), functools.partial(Composition, parse=service_plan))
+    return run_umbmark(settings_from_args(args))
 
 
 HELP = "calibrate the odometry: UMBmark, in the simulator or from return positions measured by hand"

@@ -20,7 +20,7 @@ from schemas.keys import Service
 from schemas.status import ComposedServices, ControlStatus, MotorStatus, SimStatus
 from services.cli.flags import session_from_args
 from services.cli.serve import add_journal_arguments, plan_from_args
-from services.cli.services import service_cli, service_plan
+from services.cli.services import service_cli
 from services.config import SIM_BODY_KEYS, ConfigError, parse_sim_set
 from services.launch.composition import Composition, run_composed
 from services.runtime.realtime import apply_realtime
@@ -58,6 +58,7 @@ def serve_status(composition: Composition) -> None:
         assert isinstance(sim, SimStatus) and isinstance(motor, MotorStatus), "the composition is the sim and the motor"
         return control_status(node.keys.robot, time.monotonic() - since, sim, motor)
 
+    node.declared.also_serve(node.keys.control_status)
     node.queryable(node.keys.control_status, status)
 
 
@@ -101,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     apply_realtime(rt, "invent control", control_path=True, composed=rt.enabled)
     stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args)) as session:
-        return run_composed(session, service_plan, plans, stop, serve_status)
+        return run_composed(session, plans, stop, serve_status)
 
 
 HELP = "the control path, the sim and the motor, composed in one process (no network hop between them)"

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from services.cli.flags import finite_number, parsed_by, positive_seconds
+from services.cli.flags import finite_number, given_as, parsed_by, positive_seconds
 from services.cli.serve import ServiceCli
-from services.config import Config, ConfigError, DriveConfig
+from services.config import ConfigError, DriveConfig
 from services.drive.goal_file import load_goal_file
 from services.drive.scenarios import (
     BUILTIN_SCENARIOS,
@@ -17,8 +17,7 @@ from services.drive.scenarios import (
     load_scenario,
     parse_waypoints,
 )
-from services.drive.service import COMMAND, GOALS_MODE, TWIST_PASS_S, DriveOptions
-from services.navigation.map_file import read_map
+from services.drive.service import COMMAND, TWIST_PASS_S, DriveOptions, goal_options, scenario_options
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     mode.add_argument(
         "--scenario",
-        type=parsed_by(load_scenario),
+        type=parsed_by(given_as(load_scenario)),
         metavar="NAME|FILE",
         help=f"a built-in scenario ({', '.join(BUILTIN_SCENARIOS)}) or a scenario TOML file (docs/drive.md)",
     )
@@ -62,7 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     mode.add_argument(
         "--goal-file",
-        type=parsed_by(load_goal_file),
+        type=parsed_by(given_as(load_goal_file)),
         metavar="FILE",
         help="goal mode with goals (and cancels) sent at fixed simulation times from a TOML file; ends once the "
         "last has ended, with its outcome's exit code (docs/drive.md, Goals)",
@@ -91,12 +90,6 @@ def overrides(args: argparse.Namespace) -> dict[str, Any]:
     return {"drive.rate": args.rate, "navigation.map": args.map}
 
 
-def check(config: Config, options: DriveOptions) -> None:
-    """A map that goals navigate on must load (exit 2 naming the field before anything starts)."""
-    if options.mode == GOALS_MODE and config.navigation.enabled and config.navigation.map is not None:
-        read_map(config.navigation.map)
-
-
 def options(args: argparse.Namespace) -> DriveOptions:
     """What the flags drive: a constant velocity for a duration, a twist held, a scenario or waypoints."""
     if args.duration is None and (args.vx is not None or args.w is not None):
@@ -104,13 +97,13 @@ def options(args: argparse.Namespace) -> DriveOptions:
     if args.goals or args.goal_file is not None:
         if args.loop:
             raise ConfigError("--loop goes with a scenario or waypoints, not with goals")
-        return DriveOptions(GOALS_MODE, None, goal_file=args.goal_file)
+        return goal_options(args.goal_file)
     if args.twist is not None:
         vx, w = args.twist
         twist = Scenario(name="twist", segments=[ConstantSegment(vx=vx, w=w, duration=TWIST_PASS_S)])
         return DriveOptions("twist", twist, loop=True)
     if args.scenario is not None:
-        return DriveOptions("scenario", args.scenario, args.loop)
+        return scenario_options(args.scenario, args.loop)
     if args.waypoints is not None:
         waypoints = Scenario(name="waypoints", segments=[WaypointSegment(waypoints=args.waypoints)])
         return DriveOptions("waypoints", waypoints, args.loop)
@@ -136,5 +129,4 @@ CLI = ServiceCli(
     add_arguments=add_arguments,
     options=options,
     overrides=overrides,
-    check=check,
 )

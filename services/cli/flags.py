@@ -190,6 +190,18 @@ def parsed_by(parse: Callable[[str], T]) -> Callable[[str], T]:
     return convert
 
 
+def given_as(load: Callable[[str], object]) -> Callable[[str], str]:
+    """A parser (for :func:`parsed_by`) that loads what ``text`` names, to refuse it now, and keeps
+    ``text`` as given: a service's plan names its scenario or goal file as its command line did."""
+
+    def check(text: str) -> str:
+        load(text)
+        return text
+
+    check.__name__ = load.__name__
+    return check
+
+
 def description_from_args(args: argparse.Namespace) -> Description:
     """The robot description flags as given (``--rt`` where the subcommand has it)."""
     return Description(args.robot, args.config, tuple(args.set or ()), getattr(args, "rt", False))

@@ -9,7 +9,8 @@ from typing import Any
 
 from services.cli.flags import fleet_flag, overrides_from_args, session_from_args
 from services.cli.serve import ServiceCli, journaling_from_args, serve
-from services.config import ConfigError, TfLayout
+from services.config import TfLayout
+from services.errors import refuse_given
 from services.fleet.description import load_fleet
 from services.ros2 import graph
 from services.ros2.service import COMMAND, Ros2Options
@@ -61,9 +62,7 @@ def serve_fleet(args: argparse.Namespace) -> int:
     from services.launch import ros2_run
 
     given = {"--robot": args.robot, "--namespace": args.namespace}
-    wrong = [flag for flag, value in given.items() if value]
-    if wrong:
-        raise ConfigError(f"--fleet with {', '.join(wrong)}: each robot's name and namespace are the fleet file's")
+    refuse_given(given, "--fleet with {}: each robot's name and namespace are the fleet file's".format)
     configs = ros2_run.fleet_bridges(load_fleet(args.fleet), args.config, overrides_from_args(CLI, args))
     journaling = journaling_from_args(args)
     plans = {name: ServicePlan(COMMAND, config, options(args), journaling) for name, config in configs.items()}

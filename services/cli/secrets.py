@@ -96,7 +96,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    users = [UserServiceGrant(user.name, user.service.calls) for user in load_all(args.with_services or ())]
+    users = [
+        UserServiceGrant(user.name, user.service.calls, user.service.reads)
+        for user in load_all(args.with_services or ())
+    ]
     return tools.run_secrets(
         Path(args.directory),
         Keys(args.robot),

@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Any, Generic
 
 from services.cli.flags import Commands, Parents, config_from_args, session_from_args
-from services.config import Config
 from services.runtime.realtime import CONTROL_PATH, apply_realtime
 from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 from services.service import Journaling, NoOptions, OptionsT, ServiceCommand, ServicePlan, run_service
@@ -23,10 +22,6 @@ def no_overrides(_args: argparse.Namespace) -> dict[str, Any]:
 
 def no_options(_args: argparse.Namespace) -> NoOptions:
     return NoOptions()
-
-
-def no_check(_config: Config, _options: Any) -> None:
-    return None
 
 
 @dataclass(frozen=True)
@@ -44,9 +39,6 @@ class ServiceCli(Generic[OptionsT]):
     """Maps the service's flags to config keys ({"motor.target_angle": args.target_angle}); None = unset."""
     run: Callable[[argparse.Namespace], int] | None = None
     """Its own handler, where it is more than :func:`serve` (``invent ros2 --fleet``)."""
-    check: Callable[[Config, OptionsT], None] = no_check
-    """Refuses (ConfigError: exit 2) what its description and its flags allow each alone but not
-    together (``invent sim --engine kinematic --gui``), before anything starts."""
 
 
 def add_parser(commands: Commands, parents: Parents, cli: ServiceCli[Any]) -> None:
@@ -65,7 +57,7 @@ def plan_from_args(cli: ServiceCli[OptionsT], args: argparse.Namespace) -> Servi
     """The service to start: its robot description (file, ``--set``, its flags), its options, its journal."""
     config = config_from_args(cli, args)
     options = cli.options(args)
-    cli.check(config, options)
+    cli.command.check(config, options)
     return ServicePlan(cli.command, config, options, journaling_from_args(args))
 
 

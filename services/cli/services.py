@@ -1,6 +1,7 @@
 """The service subcommands, ``invent sim``, ``motor``, ``odometry``, ``localization``, ``drive`` and
 ``ros2``, one module each; and :func:`service_plan`, which turns such a subcommand's arguments into
-the service to start, for a composition (``invent up --composed``, ``invent worker``)."""
+the service to start, as ``invent <service>`` does (tests/test_service_plans.py parses what the
+launcher renders of its plans with it)."""
 
 from __future__ import annotations
 
@@ -40,7 +41,6 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def service_plan(argv: Sequence[str]) -> ServicePlan:
-    """The service ``invent <argv>`` would run (``["motor", "--robot", "rh1"]``): a
-    :data:`~services.service.ServiceParse`."""
+    """The service ``invent <argv>`` would run (``["motor", "--robot", "rh1"]``)."""
     args = _parser().parse_args(list(argv))
     return plan_from_args(args.service_cli, args)

@@ -9,11 +9,10 @@ from schemas.keys import Service, ServiceName, service_name
 from services.cli.flags import engine_flag, fleet_flag, overrides_from_args, parsed_by, positive_seconds
 from services.cli.serve import ServiceCli
 from services.config import Config, ConfigError, SimConfig, SimMode
-from services.fleet.description import load_fleet, robot_config
+from services.fleet.description import load_fleet, robot_config, sim_overrides
 from sim_bridge.bridge import COMMAND, SimOptions
-from sim_bridge.engine import check_gui
 from sim_bridge.handshakes import START_HANDSHAKE_TIMEOUT_S
-from sim_bridge.world import DEFAULT_WORLD, builtin_worlds, load_world
+from sim_bridge.world import DEFAULT_WORLD, builtin_worlds
 
 
 def waited_service(text: str) -> ServiceName:
@@ -73,14 +72,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def overrides(args: argparse.Namespace) -> dict[str, Any]:
-    fleet = load_fleet(args.fleet) if args.fleet else None
+    of_fleet = sim_overrides(load_fleet(args.fleet)) if args.fleet else {}
     return {
+        **of_fleet,
         "sim.engine": args.engine,
         "sim.mode": args.mode,
         "sim.step": args.step,
         "sim.realtime_factor": args.realtime_factor,
-        "sim.world": args.world or (fleet.world if fleet else None),
-        "robot.name": fleet.robots[0].name if fleet else None,
+        "sim.world": args.world or of_fleet.get("sim.world"),
     }
 
 
@@ -96,14 +95,9 @@ def options(args: argparse.Namespace) -> SimOptions:
         wait_for=tuple(args.wait_for or ()),
         gui=args.gui,
         fleet=fleet,
+        fleet_file=args.fleet,
         fleet_robots=robots,
     )
-
-
-def check(config: Config, options: SimOptions) -> None:
-    """A window the engine has not, a world file that does not load: exit 2 before anything starts."""
-    check_gui(config.sim, options.gui)
-    load_world(config.sim.world)
 
 
 CLI = ServiceCli(
@@ -121,5 +115,4 @@ CLI = ServiceCli(
     add_arguments=add_arguments,
     options=options,
     overrides=overrides,
-    check=check,
 )

@@ -16,7 +16,6 @@ from services.cli.flags import (
     positive_int,
     positive_seconds,
 )
-from services.cli.services import service_plan
 from services.config import SIM_BODY_KEYS, ConfigError, RecordRate, SimMode, TfLayout
 from services.launch.plan import DEFAULT_SCENARIO, DEPLOYMENT_SETTINGS, UpPlan
 from services.launch.restart import (
@@ -44,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     if args.print_stack:
         print(stack_toml(stack_from_plan(plan)), end="")
         return 0
-    return run_up(plan, service_plan)
+    return run_up(plan)
 
 
 def _refuse_flags_beside_the_stack(args: argparse.Namespace) -> None:

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from services.cli.flags import fleet_flag, session_from_args
-from services.cli.services import service_plan
 from services.config import ConfigError
 from services.fleet.description import load_fleet
 from services.launch import worker
+from services.launch.service_plans import ChildPlan
 from services.runtime.session import SHUTDOWN_WATCHDOG_S, open_session, stop_on_signals
 
 
@@ -27,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    requests: list[list[str]] = []
+    plans: list[ChildPlan[Any]] = []
     if bool(args.fleet) != bool(args.robots):
         raise ConfigError("invent worker: --fleet and --robots go together (or neither: up sends the services)")
     if args.fleet:
@@ -36,21 +37,16 @@ def run(args: argparse.Namespace) -> int:
         unknown = [name for name in names if name not in fleet_file.names]
         if unknown or not names:
             raise ConfigError(f"--robots {args.robots}: not robots of {args.fleet} ({', '.join(fleet_file.names)})")
-        connection = [flag for endpoint in args.connect for flag in ("--connect", endpoint)]
-        if args.zenoh_config:
-            connection += ["--zenoh-config", args.zenoh_config]
-        requests = worker.robot_requests(fleet_file, names, [*connection, "--log-level", args.log_level])
+        plans = worker.robot_plans(fleet_file, names)
     stop = stop_on_signals(SHUTDOWN_WATCHDOG_S)
     with open_session(session_from_args(args)) as session:
-        return worker.run_worker(
-            session, service_plan, stop, intra_process=not args.no_intra_process, requests=requests
-        )
+        return worker.run_worker(session, stop, intra_process=not args.no_intra_process, plans=plans)
 
 
 HELP = "(started by invent up --fleet --composed) compose the services it is sent on standard input"
 DESCRIPTION = (
-    "A worker of a composed fleet (docs/fleet.md): reads one JSON array per line on standard "
-    'input, a service\'s name and the arguments `invent` takes (["rh1/motor", "motor", "--robot", "rh1"]), '
-    "starts each composed in this process and says so on standard output; stops on SIGINT or end of input."
+    "A worker of a composed fleet (docs/fleet.md): reads one service's plan per line on standard input (a JSON "
+    "array: its name, service, robot description, journal and options, as invent up sends them), builds each "
+    "composed in this process and says so on standard output; stops on SIGINT or end of input."
 )
 GROUPS: tuple[str, ...] = ("connection",)

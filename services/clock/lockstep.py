@@ -60,9 +60,6 @@ OUTPUTS: dict[Service, Topic] = {
 }
 """What each built-in participant outputs at its ticks; a user service's token names its own
 output (:func:`schemas.tokens.parse_participant_key`)."""
-LOOP_BEFORE_FIRST_STEP: tuple[Service, ...] = (Service.MOTOR, *OUTPUTS)
-"""What a lockstep simulator waits for before its first step (``invent sim --wait-for``), so a run
-of the whole loop starts at the same step every time: the motor and every participant."""
 
 
 class StampedOutput(msgspec.Struct, frozen=True):

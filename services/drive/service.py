@@ -57,12 +57,21 @@ from services.clock.lockstep import FINAL, decode_owed
 from services.clock.sim_time import PeriodicSchedule, StampClock, check_stamp_near
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config
-from services.drive.goal_file import GoalFile
+from services.drive.goal_file import GoalFile, load_goal_file
 from services.drive.goal_shell import GoalDrive
 from services.drive.navigation_shell import NavigationShell
 from services.drive.outcome import GiveUp, GiveUpRule, Outcome, time_limit
 from services.drive.path_following import STOPPED, Command
-from services.drive.scenarios import Scenario, ScenarioRunner, describe, is_builtin, placed, planned_path
+from services.drive.scenarios import (
+    Scenario,
+    ScenarioRunner,
+    describe,
+    is_builtin,
+    load_scenario,
+    placed,
+    planned_path,
+)
+from services.navigation.map_file import read_map
 from services.planar import Pose, check_coordinates
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node, Wait
@@ -88,6 +97,21 @@ class DriveOptions:
     """None in goal mode."""
     loop: bool = False
     goal_file: GoalFile | None = None
+    source: str | None = None
+    """The scenario (a built-in's name or a file) or the goal file as given: what names it on a
+    command line (services/launch/service_plans.py)."""
+
+
+def scenario_options(scenario: str, loop: bool = False) -> DriveOptions:
+    """The scenario ``scenario`` names (a built-in or a file; ConfigError naming it), over and over with ``loop``."""
+    return DriveOptions("scenario", load_scenario(scenario), loop, source=scenario)
+
+
+def goal_options(goal_file: str | None = None) -> DriveOptions:
+    """Goal mode: goals from queries, and from ``goal_file`` at its times if given (ConfigError naming it)."""
+    return DriveOptions(
+        GOALS_MODE, None, goal_file=None if goal_file is None else load_goal_file(goal_file), source=goal_file
+    )
 
 
 class DriveService:
@@ -445,4 +469,10 @@ class DriveService:
         """Nothing beyond the node to release."""
 
 
-COMMAND = ServiceCommand(service=Service.DRIVE, factory=DriveService)
+def check(config: Config, options: DriveOptions) -> None:
+    """A map that goals navigate on must load (exit 2 naming the field before anything starts)."""
+    if options.mode == GOALS_MODE and config.navigation.enabled and config.navigation.map is not None:
+        read_map(config.navigation.map)
+
+
+COMMAND = ServiceCommand(service=Service.DRIVE, factory=DriveService, check=check)

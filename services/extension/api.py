@@ -126,6 +126,10 @@ class UserService:
     name: ClassVar[str]
     """Its name: one key chunk, lower case (``[a-z][a-z0-9_]*``), not a built-in's (``motor``, ...):
     its keys are ``invent/<robot>/<name>/...``."""
+    reads: ClassVar[tuple[str, ...]] = ()
+    """The keys of other services it subscribes, relative to the robot (``"odometry/pose"``):
+    :meth:`Context.subscribe` refuses any other (its own keys it may always read), and a ``--secure``
+    run lets it subscribe only these (and ``sim/clock``, which its runtime reads)."""
     calls: ClassVar[tuple[str, ...]] = ()
     """The queryables of other services it calls, relative to the robot (``"drive/goal/send"``):
     :meth:`Context.call` refuses any other, and a ``--secure`` run lets it query only these."""
@@ -185,10 +189,15 @@ class Context:
         handler: Callable[[MessageT], None],
         delivery: Delivery = Delivery.EVERY,
     ) -> None:
-        """Call ``handler(message)`` for the samples of ``key`` (any key: ``ctx.keys.odometry_pose``)
-        that decode as ``message_type``. A sample that does not decode, and a handler that raises
-        :class:`BadInput` (or anything else), is counted in ``bad_input`` (``internal_errors``) and
-        logged at most once a second: the service lives on."""
+        """Call ``handler(message)`` for the samples of ``key`` (one of its own, or one the class's
+        ``reads`` lists: ``ctx.keys.odometry_pose``; ValueError otherwise) that decode as
+        ``message_type``. A sample that does not decode, and a handler that raises :class:`BadInput`
+        (or anything else), is counted in ``bad_input`` (``internal_errors``) and logged at most once
+        a second: the service lives on."""
+        relative = key.removeprefix(f"{self.keys.prefix}/")
+        own = relative.startswith(f"{self.name}/")
+        if relative == key or not (own or relative in self._service_type.reads):
+            raise ValueError(f"{key!r} is not in {self._service_type.__name__}.reads {self._service_type.reads}")
         self._node.subscribe(key, message_type, handler, _DELIVERIES[Delivery(delivery)])
 
     def watch(self, service: str, on_change: Callable[[bool], None]) -> None:

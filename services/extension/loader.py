@@ -12,7 +12,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TypeVar
 
-from schemas.keys import UserServiceName, user_service_name, validate_own_key
+from schemas.keys import Keys, Service, UserServiceName, user_service_name, validate_own_key
+from services import interfaces
+from services.config import Config
 from services.errors import ConfigError
 from services.extension.api import Drives, Lockstep, UserService
 
@@ -68,12 +70,14 @@ def check_declarations(spec: str, service: type[UserService]) -> UserServiceName
     name = getattr(service, "name", None)
     if not isinstance(name, str):
         raise ConfigError(f"{spec}: {service.__name__}.name must be set to the service's name (a str)")
-    if not isinstance(service.calls, tuple) or not all(isinstance(call, str) for call in service.calls):
-        raise ConfigError(f"{spec}: {service.__name__}.calls must be a tuple of keys (str), got {service.calls!r}")
+    for attribute in ("reads", "calls"):
+        declared = getattr(service, attribute)
+        if not isinstance(declared, tuple) or not all(isinstance(key, str) for key in declared):
+            raise ConfigError(f"{spec}: {service.__name__}.{attribute} must be a tuple of keys (str), got {declared!r}")
     try:
         checked = user_service_name(name)
-        for call in service.calls:
-            validate_own_key(call)
+        for key in (*service.reads, *service.calls):
+            validate_own_key(key)
     except ValueError as error:
         raise ConfigError(f"{spec}: {error}") from None
     lockstep = _declared(spec, service, "lockstep", Lockstep, "Lockstep(output, rate_hz)")
@@ -89,7 +93,22 @@ def check_declarations(spec: str, service: type[UserService]) -> UserServiceName
         raise ConfigError(
             f"{spec}: {service.__name__}.drives with {what}: a service that drives is the drive's participant and has the drive's rights only"
         )
+    if drives is not None:
+        _reads_as_the_drive(spec, service)
     return checked
+
+
+def _reads_as_the_drive(spec: str, service: type[UserService]) -> None:
+    """A service that drives connects as the drive: it may read only what the drive declares it subscribes."""
+    keys = Keys()
+    drive = interfaces.declared(Service.DRIVE, keys, Config()).subscribes
+    beyond = [key for key in service.reads if f"{keys.prefix}/{key}" not in drive]
+    if beyond:
+        allowed = ", ".join(key.removeprefix(f"{keys.prefix}/") for key in drive)
+        raise ConfigError(
+            f"{spec}: {service.__name__}.reads {', '.join(beyond)}: a service that drives has the drive's rights, "
+            f"and the drive reads only {allowed}"
+        )
 
 
 def _declared(

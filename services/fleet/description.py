@@ -191,12 +191,9 @@ def bridge_overrides(fleet: Fleet, robot: FleetRobot) -> dict[str, Any]:
     return {"ros2.namespace": ros_namespace(robot), "ros2.publish_clock": robot.name == fleet.clock_robot}
 
 
-def bridge_flags(fleet: Fleet, robot: FleetRobot) -> list[str]:
-    """What ``robot``'s ROS 2 bridge is started with after :func:`robot_flags`: :func:`bridge_overrides`."""
-    flags = []
-    for key, value in bridge_overrides(fleet, robot).items():
-        flags += ["--set", f"{key}={_toml(value)}"]
-    return flags
+def bridge_settings(fleet: Fleet, robot: FleetRobot) -> tuple[str, ...]:
+    """:func:`bridge_overrides` as ``--set`` takes them, after :func:`robot_settings`."""
+    return tuple(f"{key}={_toml(value)}" for key, value in bridge_overrides(fleet, robot).items())
 
 
 def bridge_configs(fleet: Fleet, config_path: str | Path | None, overrides: dict[str, Any]) -> dict[str, Config]:
@@ -236,18 +233,12 @@ def _toml(value: Any) -> str:
     return repr(value)
 
 
-def robot_flags(robot: FleetRobot) -> list[str]:
-    """What a robot's services are started with: its name, its overrides and its start pose."""
-    flags = []
-    for key, value in robot_overrides(robot).items():
-        if key != "robot.name":
-            flags += ["--set", f"{key}={_toml(value)}"]
-    return ["--robot", robot.name, *flags]
+def robot_settings(robot: FleetRobot) -> tuple[str, ...]:
+    """What a robot's services are given beside its name, as ``--set`` takes them: its overrides and its start pose."""
+    return tuple(f"{key}={_toml(value)}" for key, value in robot_overrides(robot).items() if key != "robot.name")
 
 
-def drive_flags(robot: FleetRobot) -> list[str]:
-    """What ``robot``'s drive runs as the fleet file says: its goal file (``--goal-file``), its
-    scenario (``--scenario``), or nothing (the run's own scenario)."""
-    if robot.goals is not None:
-        return ["--goal-file", robot.goals]
-    return ["--scenario", robot.scenario] if robot.scenario else []
+def sim_overrides(fleet: Fleet) -> dict[str, Any]:
+    """What the sim of ``fleet`` takes of it over the description: the fleet's world, if it names
+    one, and the first robot's name (the sim's own keys)."""
+    return {"robot.name": fleet.robots[0].name, **({"sim.world": fleet.world} if fleet.world else {})}

@@ -35,7 +35,7 @@ from services.calibration.umbmark import CONVERGED, Calibration, Direction, Umbm
 from services.config import ConfigError
 from services.errors import ChildDied, Interrupted, RunFailed
 from services.exits import ExitStatus
-from services.launch.umbmark_runs import Composer, Simulation, check_sim_config, say
+from services.launch.umbmark_runs import Simulation, check_sim_config, say
 from services.recording.calibration import write_figure, write_paths_recording
 from services.recording.calibration_report import (
     FIGURE_FILE,
@@ -50,13 +50,13 @@ from services.recording.calibration_report import (
 from services.runtime.session import stop_on_signals
 
 
-def run_umbmark(settings: UmbmarkSettings, compose: Composer) -> int:
-    """Calibrate as ``settings`` say: from the measured file, else in the simulator, each run's
-    loop built by ``compose``. The exit status; ConfigError for what the flags cannot give."""
+def run_umbmark(settings: UmbmarkSettings) -> int:
+    """Calibrate as ``settings`` say: from the measured file, else in the simulator. The exit
+    status; ConfigError for what the flags cannot give."""
     start = Calibration.of(settings.config.odometry)
     if settings.measured is not None:
         return _from_measured(settings, settings.measured, start)
-    return _in_simulation(settings, compose, start)
+    return _in_simulation(settings, start)
 
 
 def _from_measured(settings: UmbmarkSettings, path: Path, start: Calibration) -> int:
@@ -76,13 +76,13 @@ def _from_measured(settings: UmbmarkSettings, path: Path, start: Calibration) ->
     return _finish(settings, side, start, [benchmark], passes=1, inputs=inputs)
 
 
-def _in_simulation(settings: UmbmarkSettings, compose: Composer, start: Calibration) -> int:
+def _in_simulation(settings: UmbmarkSettings, start: Calibration) -> int:
     """The benchmark before, then passes: each applies the last benchmark's correction and runs the
     benchmark again, until ``--passes`` or until the next correction would be below :data:`CONVERGED`."""
     check_sim_config(settings)
     make_report_dir(settings.report_dir)
     interrupted = stop_on_signals()
-    simulation = Simulation(settings, compose, interrupted)
+    simulation = Simulation(settings, interrupted)
     try:
         benchmarks = [simulation.benchmark("before", start)]
         calibration, passes = start, 0

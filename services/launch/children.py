@@ -19,6 +19,7 @@ from schemas.keys import Service
 from schemas.messages import ServiceRestart
 from services.errors import ChildDied
 from services.launch.restart import History, RestartPlan, RestartPolicy, RestartRule
+from services.launch.service_plans import ChildPlan, ControlPlan, service_argv
 from services.runtime.intraprocess import LocalBus
 
 STOP_TIMEOUT_S = 10.0
@@ -205,6 +206,10 @@ class Supervisor:
         self.children.append(child)
         return child
 
+    def start_service(self, child: ChildPlan[Any] | ControlPlan) -> Child:
+        """Start the service ``child`` plans as a process of its own: its plan rendered as its command line."""
+        return self.start(child.name, service_argv(child))
+
     def _pump(
         self,
         name: str,
@@ -264,7 +269,9 @@ class Launcher(Protocol):
     """The intra-process delivery of the services composed in this process, if any: what watches
     their keys here taps it (services/runtime/intraprocess.py)."""
 
-    def start(self, name: str, argv: Sequence[str]) -> Any: ...
+    def start_service(self, child: ChildPlan[Any]) -> Any:
+        """Start the service ``child`` plans; what its end is watched by (its ``name``, ``finished()``)."""
+        ...
 
     def exited(self, exclude: str | None = None) -> tuple[str, int, str] | None: ...
 

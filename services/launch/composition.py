@@ -24,11 +24,12 @@ import zenoh
 
 from services.config import RtConfig
 from services.exits import ExitStatus
+from services.launch.service_plans import ChildPlan, service_argv
 from services.runtime.executor import STOP_POLL_S, Executor
 from services.runtime.intraprocess import LocalBus
 from services.runtime.node import Node
 from services.runtime.realtime import pin_loop_thread, settle_garbage_collector
-from services.service import ClockedService, RunningService, ServiceParse, ServicePlan, start_service
+from services.service import ClockedService, RunningService, ServicePlan, start_service
 
 log = logging.getLogger("invent.composed")
 
@@ -56,11 +57,8 @@ class Composition:
     """Builds and runs services on one shared session; the in-process twin of
     :class:`services.launch.children.Supervisor`."""
 
-    def __init__(self, session: zenoh.Session, parse: ServiceParse, *, intra_process: bool = True) -> None:
-        """``parse`` turns ``invent <service>``'s arguments into the service to start (the command
-        line's :func:`services.cli.services.service_plan`)."""
+    def __init__(self, session: zenoh.Session, *, intra_process: bool = True) -> None:
         self.session = session
-        self._parse = parse
         self._stop = threading.Event()
         self._shared = Executor()
         self.bus = LocalBus() if intra_process else None
@@ -68,13 +66,13 @@ class Composition:
         None: through the one session, as separate processes do."""
         self.services: list[ComposedService] = []
 
-    def start(self, name: str, argv: Sequence[str]) -> ComposedService:
-        """Build the service ``invent <argv>`` would run, here, and start its loop if it has one."""
-        return self.start_plan(name, self._parse(argv), argv)
+    def start_service(self, child: ChildPlan[Any]) -> ComposedService:
+        """Build the service ``child`` plans, here, and start its loop if it has one."""
+        return self.start_plan(child.name, child.service_plan(), " ".join(service_argv(child)))
 
-    def start_plan(self, name: str, plan: ServicePlan, argv: Sequence[str] = ()) -> ComposedService:
-        """Build the service ``plan`` says, here, and start its loop if it has one (``argv``: the
-        command line it came from, for the log)."""
+    def start_plan(self, name: str, plan: ServicePlan, command_line: str = "") -> ComposedService:
+        """Build the service ``plan`` says, here, under ``name``, and start its loop if it has one
+        (``command_line``: the one that would run it alone, for the log)."""
         config = plan.config
         node, service = start_service(plan, self.session, self._shared, self.bus)
         composed = ComposedService(name, node, service, None)
@@ -86,7 +84,7 @@ class Composition:
             )
             composed.thread.start()
         self.services.append(composed)
-        log.info("started %s in this process: invent %s", name, " ".join(argv) or plan.command.service)
+        log.info("started %s in this process: invent %s", name, command_line or plan.command.service)
         return composed
 
     def post(self, handle: Callable[[Any], None], item: Any) -> None:
@@ -149,7 +147,6 @@ class Composition:
 
 def run_composed(
     session: zenoh.Session,
-    parse: ServiceParse,
     plans: Sequence[tuple[str, ServicePlan]],
     stop: threading.Event,
     started: Callable[[Composition], None] | None = None,
@@ -159,7 +156,7 @@ def run_composed(
     of them ends by itself, then stop them all (``invent control``). The exit status: the code of
     the first to end by itself (the sim's 0 after ``--duration``, 1 for a crash), else the highest
     of their codes."""
-    composition = Composition(session, parse)
+    composition = Composition(session)
     ended: dict[str, tuple[int, str]] = {}
     try:
         for name, plan in plans:

@@ -32,13 +32,21 @@ from schemas.keys import Keys, Service, ServiceName, UserServiceName
 from schemas.messages import BumpEvent
 from schemas.status import ServiceStatus, SimStatus, StatusT, UserServiceStatus
 from schemas.status_kinds import status_type
+from services import interfaces
 from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.scenarios import load_scenario
-from services.errors import Interrupted
+from services.errors import Interrupted, refuse_given
 from services.extension.loader import Loaded, load_all
-from services.fleet.description import Fleet, FleetRobot, bridge_flags, fleet_configs, load_fleet, robot_flags
+from services.fleet.description import (
+    Fleet,
+    FleetRobot,
+    bridge_settings,
+    fleet_configs,
+    load_fleet,
+    robot_settings,
+)
 from services.fleet.summary import bumps_between, closest_approach
 from services.launch.children import ServiceDied, say
 from services.launch.plan import UpPlan
@@ -81,9 +89,7 @@ def check_fleet(plan: UpPlan, path: str) -> tuple[Fleet, dict[str, Config]]:
         "--connect": plan.connection.connect,
         "--goal-file": plan.goal_file,
     }
-    wrong = [f"{flag} ({UNSUPPORTED[flag]})" for flag, value in given.items() if value]
-    if wrong:
-        raise ConfigError(f"--fleet with {', '.join(wrong)}")
+    refuse_given({f"{flag} ({UNSUPPORTED[flag]})": value for flag, value in given.items()}, "--fleet with {}".format)
     if plan.workers is not None and (plan.workers < 1 or not plan.composed):
         raise ConfigError(f"--workers {plan.workers}: a number of processes >= 1, with --composed")
     check_ros2_flags(plan)
@@ -129,7 +135,7 @@ def fleet_access(
         tls=plan.tls,
         bridges=fleet_bridge_graphs(fleet, plan.description.config, plan.description.overrides()),
         user_services={
-            robot: [UserServiceGrant(user.name, user.service.calls) for user in users]
+            robot: [UserServiceGrant(user.name, user.service.calls, user.service.reads) for user in users]
             for robot, users in (extensions or {}).items()
         },
         # each robot's localization granted what its mode reads (only the stub reads a ground truth)
@@ -175,8 +181,8 @@ class FleetRobots:
                 robot.name,
                 self.configs[robot.name],
                 _scenario(robot, plan),
-                tuple(robot_flags(robot)),
-                tuple(bridge_flags(fleet, robot)),
+                robot_settings(robot),
+                bridge_settings(fleet, robot),
                 in_fleet=True,
                 goal_file=None if plan.goal_mode else robot.goals,
                 extensions=self.extensions[robot.name],
@@ -186,7 +192,7 @@ class FleetRobots:
         self.scene = tuple(self.configs.values())
         self.records_statuses = False
         self.view_flags = ["--robot", fleet.names[0], "--fleet", fleet_file]
-        self.sim_flags = ["--fleet", fleet_file]
+        self.fleet_file: str | None = fleet_file
         self.teleop_line = "teleop: each robot follows ROS 2's /<namespace>/cmd_vel until Ctrl-C; see docs/ros2.md"
 
     def access(self, report_dir: Path) -> Access:
@@ -199,10 +205,9 @@ class FleetRobots:
         """Every driven robot's drive alive and its drive and localization holding their lockstep tokens, at once."""
         tokens = []
         for robot in driven:
-            keys, config = Keys(robot.name), robot.config
-            tokens += [keys.alive(Service.DRIVE), keys.ticks(Service.DRIVE, config.drive.rate)]
-            if config.localization.participates:
-                tokens.append(keys.ticks(Service.LOCALIZATION, config.localization.rate))
+            keys = Keys(robot.name)
+            tokens.append(keys.alive(Service.DRIVE))
+            tokens += [token for one in interfaces.participants(keys, robot.config) for token in one.ticks(keys)]
         return [tokens]
 
     def started_line(self, mode: str) -> str:

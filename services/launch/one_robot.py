@@ -11,10 +11,12 @@ from typing import Any
 from schemas.keys import Keys, Service, UserServiceName
 from schemas.status import ServiceStatus, SimStatus, UserServiceStatus
 from schemas.status_kinds import status_type
+from services import interfaces
 from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
 from services.drive.outcome import Outcome
 from services.drive.scenarios import load_scenario
+from services.errors import refuse_given
 from services.extension.loader import Loaded, driving, load_all
 from services.launch.children import say
 from services.launch.plan import UpPlan
@@ -61,12 +63,13 @@ def check_driver(plan: UpPlan, driver: Loaded | None) -> None:
         "--goal-file": plan.goal_file is not None,
         "--teleop": plan.teleop,
     }
-    conflicting = [flag for flag, value in given.items() if value]
-    if conflicting:
-        raise ConfigError(
-            f"{driver.spec} drives the robot in the built-in drive's place, and {', '.join(conflicting)} "
+    refuse_given(
+        given,
+        lambda named: (
+            f"{driver.spec} drives the robot in the built-in drive's place, and {named} "
             "gives the robot the built-in drive: one velocity source per robot"
-        )
+        ),
+    )
 
 
 def one_robot_access(plan: UpPlan, config: Config, report_dir: Path, extensions: tuple[Loaded, ...] = ()) -> Access:
@@ -76,12 +79,13 @@ def one_robot_access(plan: UpPlan, config: Config, report_dir: Path, extensions:
     if listen is None:
         return Access(None, connection.zenoh_config)
     given = {"--composed": plan.composed, "--connect": connection.connect, "--zenoh-config": connection.zenoh_config}
-    conflicting = [flag for flag, value in given.items() if value]
-    if conflicting:
-        raise ConfigError(
-            f"--secure with {', '.join(conflicting)}: a secure run starts its own router and runs every "
+    refuse_given(
+        given,
+        lambda named: (
+            f"--secure with {named}: a secure run starts its own router and runs every "
             "service as a client of it, each with its role's credentials"
-        )
+        ),
+    )
     profile = write_profile(
         report_dir / SECRETS_DIRECTORY,
         Keys(config.robot.name),
@@ -91,7 +95,9 @@ def one_robot_access(plan: UpPlan, config: Config, report_dir: Path, extensions:
         ros=bridge_graph(config),
         # a service that drives connects with the drive's credentials: exactly the drive's rights
         user_services=[
-            UserServiceGrant(user.name, user.service.calls) for user in extensions if user.service.drives is None
+            UserServiceGrant(user.name, user.service.calls, user.service.reads)
+            for user in extensions
+            if user.service.drives is None
         ],
         localization=config.localization.mode,
     )
@@ -120,7 +126,7 @@ class OneRobot:
         self.scene: tuple[Config, ...] = ()
         self.records_statuses = True
         self.view_flags: list[str] = []
-        self.sim_flags: list[str] = []
+        self.fleet_file: str | None = None
         self.teleop_line = (
             "teleop: the robot follows ROS 2's /cmd_vel (Twist or TwistStamped) until Ctrl-C; see docs/ros2.md"
         )
@@ -138,10 +144,8 @@ class OneRobot:
             return []
         keys, config = Keys(self.config.robot.name), self.config
         drives = None if self.driver is None else self.driver.service.drives
-        ticks = [keys.ticks(Service.DRIVE, config.drive.rate if drives is None else drives.rate_hz)]
-        if config.localization.participates:
-            ticks.append(keys.ticks(Service.LOCALIZATION, config.localization.rate))
-        return [[keys.alive(Service.DRIVE)], ticks]
+        participants = interfaces.participants(keys, config, None if drives is None else drives.rate_hz)
+        return [[keys.alive(Service.DRIVE)], [token for one in participants for token in one.ticks(keys)]]
 
     def started_line(self, mode: str) -> None:
         return None

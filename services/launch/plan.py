@@ -114,11 +114,6 @@ class UpPlan:
                 "services of your own beside a composed run, --with, are processes and can be)"
             )
 
-    def sim_flags(self, flag: str = "--set") -> list[str]:
-        """The sim's own overrides as flags: ``--set K=V`` for ``invent sim``, ``--sim-set K=V`` for
-        ``invent control`` (whose motor keeps the description)."""
-        return [part for text in self.sim_set for part in (flag, text)]
-
     def sim_config(self) -> Config:
         """The sim's description: the robot's, then :attr:`sim_set`; ConfigError naming the ``--sim-set``
         that makes it invalid."""

@@ -17,7 +17,7 @@ from services.launch.children import say
 from services.recording.record import RunRecording, StatusPoll, write_run_recording
 from services.recording.report import rotated_line
 from services.runtime.journal import Journal, journal_path
-from services.service import journal_limits
+from services.service import Journaling, journal_limits
 
 JOURNALS_DIRECTORY = "journals"
 """Where the services keep what they publish while the run lasts (made into ``run.mcap`` at its end)."""
@@ -43,10 +43,12 @@ class RunRecorder:
             self.journal = Journal(journal_path(self.directory, "up"), journal_limits(record, journals))
         except OSError as error:
             raise ConfigError(f"--report {report_dir}: {error.strerror}") from None
-        self.share = ["--journal-share", str(journals)]
-        self.flags = ["--journal", str(self.directory), *self.share]
-        """What a service needs to keep its journal here."""
+        self.journals = journals
         self._statuses: StatusPoll | None = None
+
+    def journaling(self, directory: Path | None = None) -> Journaling:
+        """Where a service keeps its journal: ``directory`` (a fleet robot's own), else here."""
+        return Journaling(directory or self.directory, self.journals)
 
     def watch(self, session: zenoh.Session, keys: Keys) -> None:
         """Record the services' status from now on, at each :meth:`during`."""

@@ -5,15 +5,18 @@ fleet's, services/launch/fleet.py), including how it watches them once the sim r
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from schemas.keys import UserServiceName
 from schemas.status import SimStatus
 from services.config import Config
 from services.drive.outcome import Outcome
 from services.extension.loader import Loaded
+from services.launch.plan import Description
 from services.launch.run import Access, Outcomes, Run
 from services.recording.report import degradations
 from services.security import Role
@@ -27,10 +30,10 @@ class Robot:
     name: str
     config: Config
     scenario: str
-    flags: tuple[str, ...] = ()
-    """What its services are given beyond the run's flags: a fleet robot's ``--robot`` and ``--set``."""
-    bridge_flags: tuple[str, ...] = ()
-    """What its ROS 2 bridge is given beyond those: a fleet robot's namespace and frames."""
+    settings: tuple[str, ...] = ()
+    """What its services' description sets after the run's (each ``SECTION.KEY=VALUE``): a fleet robot's own."""
+    bridge_settings: tuple[str, ...] = ()
+    """What its ROS 2 bridge's sets after those: a fleet robot's namespace and frames."""
     in_fleet: bool = False
     goal_file: str | None = None
     """A fleet robot's own goal file (the fleet file's ``goals``): its drive plays it instead of a scenario."""
@@ -38,7 +41,7 @@ class Robot:
     """Its services of the user's own (``--with``; a fleet file's ``with``), run beside its loop."""
 
     @property
-    def participants(self) -> tuple[str, ...]:
+    def participants(self) -> tuple[UserServiceName, ...]:
         """Its user services taking part in lockstep: the sim waits for them before its first step."""
         return tuple(loaded.name for loaded in self.extensions if loaded.service.lockstep is not None)
 
@@ -50,13 +53,19 @@ class Robot:
         """Its own part of ``directory``: a fleet robot's folder of its name, the one robot's the directory itself."""
         return directory / self.name if self.in_fleet else directory
 
-    def credentials(self, access: Access, role: Role) -> list[str]:
-        """How its service of ``role`` connects: a fleet robot's own credentials when secure."""
-        return access.flags(role, self.name if self.in_fleet else None)
+    def description(self, run: Description) -> Description:
+        """Its services' description: the run's, and a fleet robot's name and own settings after it."""
+        if not self.in_fleet:
+            return run
+        return dataclasses.replace(run, robot=self.name, settings=(*run.settings, *self.settings))
 
-    def user_credentials(self, access: Access, name: str) -> list[str]:
-        """How its service of one's own ``name`` connects: a fleet robot's own credentials when secure."""
-        return access.user_service_flags(name, self.name if self.in_fleet else None)
+    def credentials(self, access: Access, role: Role) -> str | None:
+        """The file its service of ``role`` connects with: a fleet robot's own credentials when secure."""
+        return access.config_file(role, self.name if self.in_fleet else None)
+
+    def user_credentials(self, access: Access, name: str) -> str | None:
+        """The file its service of one's own ``name`` connects with: a fleet robot's own credentials when secure."""
+        return access.user_service_file(name, self.name if self.in_fleet else None)
 
     def label(self, line: str) -> str:
         """``line`` about this robot as ``up`` prints it: a fleet robot's prefixed with its name."""
@@ -96,8 +105,8 @@ class Robots(Protocol):
     """Whether ``up`` records its services' status replies in ``run.mcap``."""
     view_flags: list[str]
     """What the live view is given beyond the run's flags and its credentials."""
-    sim_flags: list[str]
-    """What the sim is given before its mode: which robots it simulates."""
+    fleet_file: str | None
+    """The fleet file whose robots the sim simulates; None: the one robot."""
     teleop_line: str
     """What ``--teleop`` says as the sim starts."""
 

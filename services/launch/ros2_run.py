@@ -27,12 +27,14 @@ from typing import Any
 import zenoh
 
 from services.config import Config, ConfigError, RecordConfig, SimMode
+from services.errors import refuse_given
 from services.exits import ExitStatus
 from services.fleet.description import Fleet, bridge_configs
 from services.launch.children import say
 from services.launch.plan import UpPlan
 from services.recording.rosbag import write_bag_from_journals
 from services.ros2.graph import BridgeGraph, bridge_graph
+from services.ros2.service import Ros2Options
 from services.runtime.node import Node
 from services.service import RunningService, ServicePlan, start_service
 
@@ -48,24 +50,26 @@ def check_ros2_flags(plan: UpPlan) -> None:
     """ConfigError (exit 2) for ``--teleop`` or ``--record-ros2`` where they cannot work, before anything starts."""
     if plan.teleop:
         given = {"--ros2": not plan.ros2, "--mode lockstep": plan.mode == SimMode.LOCKSTEP, "--loop": plan.loop}
-        wrong = [flag for flag, conflicting in given.items() if conflicting]
-        if wrong:
-            raise ConfigError(
-                f"--teleop ({', '.join(wrong)}): it runs the loop in realtime with no scenario, the robots following "
+        refuse_given(
+            given,
+            lambda named: (
+                f"--teleop ({named}): it runs the loop in realtime with no scenario, the robots following "
                 "ROS 2's /cmd_vel through the bridge, so it needs --ros2 and takes neither --mode lockstep nor --loop"
-            )
+            ),
+        )
     if plan.record_ros2:
         given = {
             "without --ros2": not plan.ros2,
             "with --no-record": plan.no_record,
             "with --teleop": plan.teleop,
         }
-        wrong = [flag for flag, conflicting in given.items() if conflicting]
-        if wrong:
-            raise ConfigError(
-                f"--record-ros2 {', '.join(wrong)}: the bag of the bridges' topics is written with run.mcap at the end "
-                "of a recorded run with --ros2 (beside a --teleop run, record it with `invent record --ros2`)"
-            )
+        refuse_given(
+            given,
+            lambda named: (
+                f"--record-ros2 {named}: the bag of the bridges' topics is written with run.mcap at the "
+                "end of a recorded run with --ros2 (beside a --teleop run, record it with `invent record --ros2`)"
+            ),
+        )
 
 
 def fleet_bridges(fleet: Fleet, config_path: str | None, overrides: dict[str, Any]) -> dict[str, Config]:
@@ -118,7 +122,7 @@ def serve_bridges(session: zenoh.Session, plans: Mapping[str, ServicePlan], stop
 
 class BagRecording:
     """``--record-ros2``: the ``bridges`` bridges of the run keep what they publish in journals in
-    ``<report dir>/bag-journals/`` (:attr:`flags`), sharing ``record``'s bounds; :meth:`finish`
+    ``<report dir>/bag-journals/`` (:attr:`options`), sharing ``record``'s bounds; :meth:`finish`
     makes ``<report dir>/rosbag2/`` of them."""
 
     def __init__(self, report_dir: Path, record: RecordConfig, bridges: int, distro: str) -> None:
@@ -136,7 +140,7 @@ class BagRecording:
             self.directory.mkdir(parents=True, exist_ok=True)
         except OSError as error:
             raise ConfigError(f"--report {report_dir}: {error.strerror}") from None
-        self.flags = ["--bag-journal", str(self.directory), "--bag-journal-share", str(bridges)]
+        self.options = Ros2Options(self.directory, bridges)
         """What a bridge needs to keep its journal here."""
 
     def finish(self, started: bool) -> None:

@@ -1,6 +1,5 @@
 """The pieces of every run of ``invent up`` (its sequence is ``services/launch/up.py``), for one
-robot and a fleet alike: where its files go, the flags its children are given
-(:func:`child_flags`), how its sessions are configured (:class:`Access`, :func:`secure_listen`),
+robot and a fleet alike: where its files go and where its children connect (:class:`Start`), how its sessions are configured (:class:`Access`, :func:`secure_listen`),
 how its services are launched (:func:`launch_services`), how it watches them (:class:`Run`), its
 live view, and how it ends: each robot's scenario outcome (:class:`Outcomes`) and the run's exit
 status (:func:`verdict`)."""
@@ -27,16 +26,17 @@ from services.config import ConfigError
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.errors import ChildDied, Interrupted
 from services.exits import ExitStatus
+from services.extension.hosting import UserOptions
 from services.launch.children import Launcher, ServiceDied, Supervisor, describe_exit, say
 from services.launch.composition import Composition
-from services.launch.plan import UpPlan
+from services.launch.plan import Connection, UpPlan
+from services.launch.service_plans import ChildPlan
 from services.launch.worker import Workers
 from services.runtime.discovery import StatusReader
 from services.runtime.intraprocess import LocalBus, Watch
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import DEFAULT_ENDPOINT, ROUTER_LISTENING, open_session, session_config, stop_on_signals
 from services.security import Profile, Role
-from services.service import ServiceParse
 
 STARTUP_TIMEOUT_S = 60.0
 END_TIMEOUT_S = 10.0
@@ -51,25 +51,6 @@ MOTOR_STATE_FILE = "motor-state.json"
 SERVICES_BEFORE_DRIVE = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION)
 
 
-def rt_flags(plan: UpPlan) -> list[str]:
-    """The flags that give a control-path child (the router, the sim, a motor) ``up``'s ``--rt``;
-    the ``rt.*`` overrides reach every child with the other ``--set``."""
-    return ["--rt"] if plan.description.rt else []
-
-
-def child_flags(plan: UpPlan, endpoint: str) -> list[str]:
-    """What every service of the run is given: where to connect, the log level, the robot description."""
-    description = plan.description
-    common = ["--connect", endpoint, "--log-level", plan.connection.log_level]
-    if description.robot:
-        common += ["--robot", description.robot]
-    if description.config:
-        common += ["--config", description.config]
-    for override in description.settings:
-        common += ["--set", override]
-    return common
-
-
 def secure_listen(plan: UpPlan) -> list[str] | None:
     """With ``--secure``, where the run's own router listens (its profile's endpoints); None without."""
     if plan.tls and not plan.secure:
@@ -82,12 +63,12 @@ def secure_listen(plan: UpPlan) -> list[str] | None:
 @dataclass(frozen=True)
 class Start:
     """What a run has settled before it launches anything: where its files go, how its sessions
-    are configured, where its services connect and the flags every one is given, and Ctrl-C."""
+    are configured, where its services connect (and their log level), and Ctrl-C."""
 
     report_dir: Path
     access: Access
     endpoint: str
-    common: list[str]
+    connection: Connection
     interrupted: threading.Event
 
 
@@ -97,7 +78,8 @@ def start(plan: UpPlan, access: Callable[[Path], Access]) -> Start:
     report_dir = plan.report or default_report_dir()
     made = access(report_dir)
     endpoint = run_endpoint(plan, made)
-    return Start(report_dir, made, endpoint, child_flags(plan, endpoint), stop_on_signals())
+    connection = Connection((endpoint,), log_level=plan.connection.log_level)
+    return Start(report_dir, made, endpoint, connection, stop_on_signals())
 
 
 def ended_early(error: ChildDied | Interrupted) -> int:
@@ -140,16 +122,10 @@ class Access:
         one robot's, or a fleet's fleet-wide sim), or None for zenoh's defaults."""
         return str(self.profile.client_config(role, robot)) if self.profile else self.zenoh_config
 
-    def flags(self, role: Role, robot: str | None = None) -> list[str]:
-        path = self.config_file(role, robot)
-        return ["--zenoh-config", path] if path else []
-
-    def user_service_flags(self, name: str, robot: str | None = None) -> list[str]:
-        """How user service ``name`` (of ``robot``'s, in a secure fleet) connects: its own credentials
-        when secure (services/extension/)."""
-        if self.profile:
-            return ["--zenoh-config", str(self.profile.user_service_config(name, robot))]
-        return ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
+    def user_service_file(self, name: str, robot: str | None = None) -> str | None:
+        """The file user service ``name`` (of ``robot``'s, in a secure fleet) connects with: its own
+        credentials when secure (services/extension/)."""
+        return str(self.profile.user_service_config(name, robot)) if self.profile else self.zenoh_config
 
     def router_flags(self, endpoint: str) -> list[str]:
         return ["--config", str(self.profile.router_config)] if self.profile else ["--listen", endpoint]
@@ -165,9 +141,11 @@ class Beside:
         self.supervisor = supervisor
         self.bus = composition.bus
 
-    def start(self, name: str, argv: Sequence[str]) -> Any:
-        """``invent service ...`` as a child process; any other service composed."""
-        return (self.supervisor if argv[0] == "service" else self.composition).start(name, argv)
+    def start_service(self, child: ChildPlan[Any]) -> Any:
+        """A service of the user's own as a child process; any other service composed."""
+        if isinstance(child.options, UserOptions):
+            return self.supervisor.start_service(child)
+        return self.composition.start_service(child)
 
     def exited(self, exclude: str | None = None) -> tuple[str, int, str] | None:
         return self.composition.exited(exclude) or self.supervisor.exited(exclude)
@@ -188,7 +166,6 @@ class Beside:
 def launch_services(
     plan: UpPlan,
     endpoint: str,
-    parse: ServiceParse,
     access: Access,
     assignment: dict[str, int] | None = None,
     supervisor: Supervisor | None = None,
@@ -208,7 +185,7 @@ def launch_services(
             else session_config(listen=[endpoint], mode="router", timestamping=plan.ros2)
         )
         with open_session(mode_config) as session:
-            composition = Composition(session, parse, intra_process=plan.intra_process)
+            composition = Composition(session, intra_process=plan.intra_process)
             launcher: Launcher = composition
             if plan.with_services:
                 launcher = Beside(composition, supervisor or Supervisor())
@@ -231,7 +208,7 @@ def launch_services(
                 *access.router_flags(endpoint),
                 "--log-level",
                 connection.log_level,
-                *rt_flags(plan),
+                *(["--rt"] if plan.description.rt else []),
                 *rt_settings,
             ]
             # Nothing connects before the router listens: a router that cannot (its port taken)

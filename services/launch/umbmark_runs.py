@@ -9,11 +9,11 @@ the square ends, and its paths are watched on the way (ground truth and odometry
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,13 +29,23 @@ from services.calibration.settings import UmbmarkSettings
 from services.calibration.umbmark import Calibration, Direction, evaluate, square
 from services.config import NONE, ConfigError, apply_overrides, config_from_description
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
+from services.drive.service import COMMAND as DRIVE
+from services.drive.service import scenario_options
 from services.errors import RunFailed
 from services.launch.composition import Composition
+from services.launch.plan import Description
 from services.launch.run import LOOK_INTERVAL_S, Outcomes, Run
+from services.launch.service_plans import ChildPlan
+from services.motor.service import COMMAND as MOTOR
+from services.motor.service import MotorOptions
+from services.odometry.service import COMMAND as ODOMETRY
+from services.odometry.service import OdometryOptions
 from services.recording.calibration_report import benchmark_line
 from services.recording.report import degradations, loop_health
 from services.runtime.intraprocess import LocalBus, Watch
 from services.runtime.session import free_port, open_session, session_config
+from sim_bridge.bridge import COMMAND as SIM
+from sim_bridge.bridge import SimOptions
 
 RUN_SETTINGS: dict[str, Any] = {
     "sim.world": NONE,
@@ -53,9 +63,6 @@ PROGRESS_S = 10.0
 PATH_SPACING_M = 0.01
 PATH_POINTS = 20_000
 """A run's paths keep a point every :data:`PATH_SPACING_M`, at most this many each."""
-
-Composer = Callable[[zenoh.Session], Composition]
-"""Builds a run's composition on its session (services/cli/ binds how a service's arguments are parsed)."""
 
 
 def say(text: str) -> None:
@@ -109,20 +116,15 @@ def _add(path: deque[PathPoint], x: float, y: float) -> None:
 class Simulation:
     """Runs of the square, each the loop composed in this process (a session of its own per run)."""
 
-    def __init__(self, settings: UmbmarkSettings, compose: Composer, interrupted: threading.Event) -> None:
-        self._compose = compose
+    def __init__(self, settings: UmbmarkSettings, interrupted: threading.Event) -> None:
         self._settings = settings
         self._interrupted = interrupted
         self._listen = settings.listen
         self._keys = Keys(settings.config.robot.name)
-        self._common = ["--log-level", settings.log_level]
-        if settings.robot:
-            self._common += ["--robot", settings.robot]
-        if settings.config_file:
-            self._common += ["--config", str(settings.config_file)]
-        for override in [*settings.sets, *(f"{key}={value}" for key, value in RUN_SETTINGS.items())]:
-            self._common += ["--set", override]
-        self._sim_flags = [flag for key, value in settings.sim_set.items() for flag in ("--set", f"{key}={value!r}")]
+        run_settings = (*settings.sets, *(f"{key}={value}" for key, value in RUN_SETTINGS.items()))
+        config_file = None if settings.config_file is None else str(settings.config_file)
+        self._description = Description(settings.robot, config_file, run_settings)
+        self._sim_set = tuple(f"{key}={value!r}" for key, value in settings.sim_set.items())
         self.scenarios = {direction: self._write_scenario(direction) for direction in Direction}
 
     def _write_scenario(self, direction: Direction) -> Path:
@@ -162,26 +164,29 @@ class Simulation:
 
     def _lap(self, label: str, direction: Direction, index: int, calibration: Calibration) -> Lap:
         name = f"{label}: {direction} run {index}/{self._settings.runs}"
-        common = [
-            *self._common,
-            *(f for key, value in calibration.overrides().items() for f in ("--set", f"{key}={value!r}")),
-        ]
+        calibrated = (
+            *self._description.settings,
+            *(f"{key}={value!r}" for key, value in calibration.overrides().items()),
+        )
+        description = dataclasses.replace(self._description, settings=calibrated)
+        sim_description = dataclasses.replace(description, settings=(*calibrated, *self._sim_set))
         listen = self._listen or f"tcp/127.0.0.1:{free_port()}"
         started = time.monotonic()
         with open_session(session_config(listen=[listen], mode="router")) as session:
-            composition = self._compose(session)
+            composition = Composition(session)
             paths = _PathWatch(session, self._keys, composition.bus)
             outcomes = Outcomes(session, [self._keys.robot], composition.bus)
             try:
                 run = Run(composition, session, self._keys, self._interrupted)
-                for service in (Service.MOTOR, Service.ODOMETRY):
-                    composition.start(str(service), [str(service), *common])
+                composition.start_service(ChildPlan("motor", MOTOR, MotorOptions(), description))
+                composition.start_service(ChildPlan("odometry", ODOMETRY, OdometryOptions(), description))
                 run.wait_alive((Service.MOTOR, Service.ODOMETRY))
-                drive = composition.start("drive", ["drive", *common, "--scenario", str(self.scenarios[direction])])
+                scenario = scenario_options(str(self.scenarios[direction]))
+                drive = composition.start_service(ChildPlan("drive", DRIVE, scenario, description))
                 run.wait_alive((Service.DRIVE,))
                 run.wait_tokens([self._keys.ticks(Service.DRIVE, self._settings.config.drive.rate)])
-                sim_argv = ["sim", *common, *self._sim_flags, "--until-drive-ends", "--wait-for", "motor", "drive"]
-                composition.start("sim", sim_argv)
+                waits = SimOptions(until_drive_ends=True, wait_for=(Service.MOTOR, Service.DRIVE))
+                composition.start_service(ChildPlan("sim", SIM, waits, sim_description))
                 code = self._wait_for_drive(run, drive.finished, name, started)
                 outcome = OUTCOME_OF_EXIT_CODE.get(code)
                 if outcome is not Outcome.COMPLETED:

@@ -27,16 +27,21 @@ of a fleet: what the two do their own way is given to it (services/launch/robots
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from contextlib import ExitStack
-from pathlib import Path
 from typing import Any
 
-from schemas.keys import CONTROL, Keys, Service
+from schemas.keys import CONTROL, Keys, Service, ServiceName, UserServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, ServiceRestart, Time
-from services.clock.lockstep import LOOP_BEFORE_FIRST_STEP
+from services import interfaces
+from services.clock.lockstep import OUTPUTS
 from services.config import ConfigError, SimMode
+from services.drive.service import COMMAND as DRIVE
+from services.drive.service import DriveOptions, goal_options, scenario_options
 from services.errors import ChildDied, Interrupted
+from services.extension.hosting import UserOptions
+from services.extension.hosting import command as hosted
 from services.extension.loader import Loaded, driving
 from services.launch.children import ServiceDied, Supervisor, say
 from services.launch.fleet import FleetRobots
@@ -57,18 +62,27 @@ from services.launch.run import (
     ended_early,
     launch_services,
     outcome_exit_code,
-    rt_flags,
     start,
     verdict,
 )
+from services.launch.service_plans import (
+    BUILT_IN,
+    ChildPlan,
+    ControlPlan,
+    connection_flags,
+    description_flags,
+    sim_options,
+)
+from services.motor.service import MotorOptions
 from services.recording.report import degradation_line, restart_degradation, restarts_line
 from services.recording.run_report import restart_entries
 from services.runtime.inputs import Publisher
 from services.security import Role
-from services.service import ServiceParse
+from services.service import Journaling, ServiceCommand
+from sim_bridge.bridge import COMMAND as SIM
 
 
-def run_up(plan: UpPlan, parse: ServiceParse) -> int:
+def run_up(plan: UpPlan) -> int:
     """``invent up``: the run ``plan`` asks for, of one robot or (``plan.fleet``) of a fleet; its exit status."""
     robots: Robots = FleetRobots(plan, plan.fleet) if plan.fleet else OneRobot(plan)
     drivers = {robot.name: driving(robot.extensions) for robot in robots.each}
@@ -79,7 +93,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     until_interrupted = plan.until_interrupted or any(drivers.values())
     supervisor = Supervisor(_restart_plan(plan, robots, drivers))
     begun = start(plan, robots.access)
-    report_dir, access, endpoint, common = begun.report_dir, begun.access, begun.endpoint, begun.common
+    report_dir, access, endpoint = begun.report_dir, begun.access, begun.endpoint
     first = robots.each[0]
     # --teleop and --goals wait for someone to drive the robot: paced by the wall clock (--goals: unless --mode says)
     mode = (
@@ -87,8 +101,10 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
         if plan.teleop
         else plan.mode or (SimMode.REALTIME if plan.goals and plan.goal_file is None else first.config.sim.mode)
     )
-    # every child is told the run's mode: in lockstep their publishers block rather than drop (protocol §2.6)
-    common = [*common, "--set", f"sim.mode={mode}"]
+    # every child is told the run's mode: in lockstep their publishers block rather than drop (protocol §2.6);
+    # --rt goes to the control path's children alone, the rt.* settings to all
+    described = plan.description
+    description = dataclasses.replace(described, settings=(*described.settings, f"sim.mode={mode}"), rt=False)
     robot_services = (*SERVICES_BEFORE_DRIVE, *((Service.ROS2,) if plan.ros2 else ()))
     control_path_composed = composes_control_path(plan, mode)
     # the journals: each robot's services', user services' and drive's, the sim's and up's own
@@ -102,27 +118,55 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
     early: ServiceDied | Interrupted | None = None
     """Why a recorded run ended before its end, once the sim had started: it still leaves its report."""
 
-    def journal(robot: Robot) -> list[str]:
+    def journaling(robot: Robot | None = None) -> Journaling:
+        """Where a service keeps its journal: a robot's in its folder, the sim's and control's in the run's."""
         if recorder is None:
-            return []
+            return Journaling()
+        if robot is None:
+            return recorder.journaling()
         directory = robot.folder(recorder.directory)
         directory.mkdir(exist_ok=True)
-        return ["--journal", str(directory), *recorder.share]
+        return recorder.journaling(directory)
+
+    def child(
+        robot: Robot, name: str, command: ServiceCommand[Any], options: Any, credentials: str | None
+    ) -> ChildPlan[Any]:
+        """``robot``'s service ``name`` as the run starts it, connecting with ``credentials``."""
+        connection = dataclasses.replace(begun.connection, zenoh_config=credentials)
+        return ChildPlan(
+            robot.child(name), command, options, robot.description(description), journaling(robot), connection
+        )
+
+    def robot_service(robot: Robot, service: Service) -> ChildPlan[Any]:
+        """``robot``'s ``service`` started before its drive: a motor keeps its state in the run's folder and
+        is given ``--rt``, a bridge its namespace and frames, and its bag's journal."""
+        command, options_type = BUILT_IN[service]
+        planned = child(robot, service, command, options_type(), robot.credentials(access, Role(service)))
+        if service == Service.MOTOR:
+            state = MotorOptions(state=robot.folder(report_dir) / MOTOR_STATE_FILE)
+            return dataclasses.replace(_described(planned, rt=described.rt), options=state)
+        if service == Service.ROS2:
+            bridge = _described(planned, settings=(*planned.description.settings, *robot.bridge_settings))
+            return dataclasses.replace(bridge, options=bag.options) if bag else bridge
+        return planned
 
     if plan.teleop:  # no drive: the sim steps on until Ctrl-C, waiting for each robot's torque only
-        ending = ["--wait-for", str(Service.MOTOR)]
+        waited: tuple[ServiceName, ...] = (Service.MOTOR,)
     else:
-        # a localization without fixes (mode none) holds no ticks token: nothing to wait for
-        waited = [
-            service
-            for service in LOOP_BEFORE_FIRST_STEP
-            if service is not Service.LOCALIZATION
-            or all(robot.config.localization.participates for robot in robots.each)
+        # the motor, and the loop's participants every robot has (a localization without fixes, mode
+        # none, holds no ticks token: nothing to wait for)
+        participating = [
+            {one.service for one in interfaces.participants(Keys(robot.name), robot.config)} for robot in robots.each
         ]
-        ending = ["--until-drive-ends", "--wait-for", *(str(service) for service in waited)]
+        waited = (Service.MOTOR, *(service for service in OUTPUTS if all(service in p for p in participating)))
         # a user participant's name, where every robot has it (the sim waits for each name on every robot)
-        ending += sorted(set.intersection(*(set(robot.participants) for robot in robots.each)))
-    simulation = [*robots.sim_flags, "--mode", mode, *ending, *(["--gui"] if plan.gui else []), *rt_flags(plan)]
+        participants: set[UserServiceName] = set.intersection(*(set(robot.participants) for robot in robots.each))
+        waited += tuple(sorted(participants))
+    simulation = sim_options(
+        description, robots.fleet_file, until_drive_ends=not plan.teleop, wait_for=waited, gui=plan.gui
+    )
+    # the sim's own settings after the common ones: the later value of a key wins
+    sim_description = dataclasses.replace(description, settings=(*description.settings, *plan.sim_set), rt=described.rt)
     if plan.sim_set:
         say(
             f"sim-set: the simulated robot differs from the description the other services read: {', '.join(plan.sim_set)}"
@@ -130,7 +174,7 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
 
     try:
         with (
-            launch_services(plan, endpoint, parse, access, robots.assignment(), supervisor) as (launcher, session),
+            launch_services(plan, endpoint, access, robots.assignment(), supervisor) as (launcher, session),
             ExitStack() as closing,
         ):
             run = Run(launcher, session, Keys(first.name), begun.interrupted)
@@ -143,28 +187,28 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
             if recorder and robots.records_statuses:
                 recorder.watch(session, run.keys)
             if plan.view is not None:
-                live_view = ViewProcess([*common, *access.flags(Role.OBSERVER), *robots.view_flags], plan.view)
+                observer = dataclasses.replace(begun.connection, zenoh_config=access.config_file(Role.OBSERVER))
+                view_flags = [*connection_flags(observer), *description_flags(description), *robots.view_flags]
+                live_view = ViewProcess(view_flags, plan.view)
                 closing.callback(live_view.close)
                 live_view.wait_serving(run)
             for robot in robots.each:
-                own = {
-                    Service.MOTOR: [*_motor_flags(robot, report_dir), *rt_flags(plan)],
-                    Service.ROS2: [*robot.bridge_flags, *(bag.flags if bag else [])],
-                }
                 for service in robot_services:
+                    planned = robot_service(robot, service)
                     if service == Service.MOTOR and control_path_composed:
                         # invent control: the sim and the motor in one child, its sim waiting for the
-                        # drive's and the participants' tokens (--wait-for) before its first step
-                        control = [*common, *access.flags(Role.CONTROL), *(recorder.flags if recorder else [])]
-                        control += [*simulation, *plan.sim_flags("--sim-set"), *_motor_flags(robot, report_dir)]
-                        launcher.start(CONTROL, [CONTROL, *control])
-                        continue
-                    flags = [*common, *robot.credentials(access, Role(service)), *robot.flags, *journal(robot)]
-                    launcher.start(robot.child(service), [str(service), *flags, *own.get(service, [])])
+                        # drive's and the participants' tokens (--wait-for) before its first step; such a
+                        # run's services are processes, so the supervisor is its launcher
+                        credentials = access.config_file(Role.CONTROL)
+                        connection = dataclasses.replace(planned.connection, zenoh_config=credentials)
+                        control = dataclasses.replace(planned, journaling=journaling(), connection=connection)
+                        supervisor.start_service(ControlPlan(control, simulation, plan.sim_set))
+                    else:
+                        launcher.start_service(planned)
             for robot in robots.each:  # the user's own (--with), beside them, supervised as they are
                 for user in _beside(robot.extensions):
-                    flags = [*common, *robot.user_credentials(access, user.name), *robot.flags, *journal(robot)]
-                    launcher.start(robot.child(user.name), ["service", user.spec, *flags])
+                    credentials = robot.user_credentials(access, user.name)
+                    launcher.start_service(child(robot, user.name, hosted(user), UserOptions(user), credentials))
             # Until the sim starts, any service that ends ends the run.
             run.wait_tokens(
                 [Keys(robot.name).alive(service) for robot in robots.each for service in robot_services]
@@ -173,21 +217,23 @@ def run_up(plan: UpPlan, parse: ServiceParse) -> int:
             driven = () if plan.teleop else robots.each
             drives = {}
             for robot in driven:
-                flags = [*common, *robot.credentials(access, Role.DRIVE), *robot.flags, *journal(robot)]
+                credentials = robot.credentials(access, Role.DRIVE)
                 driver = drivers[robot.name]
                 if driver is not None:  # in the drive's place, with the drive's credentials
-                    drives[robot.name] = launcher.start(robot.child(driver.name), ["service", driver.spec, *flags])
+                    drives[robot.name] = launcher.start_service(
+                        child(robot, driver.name, hosted(driver), UserOptions(driver), credentials)
+                    )
                     continue
-                flags += _drive_flags(plan, robot)
-                drives[robot.name] = launcher.start(robot.child(Service.DRIVE), [str(Service.DRIVE), *flags])
+                drive = child(robot, Service.DRIVE, DRIVE, _drive_options(plan, robot), credentials)
+                drives[robot.name] = launcher.start_service(drive)
             for tokens in robots.drive_waits(driven):
                 run.wait_tokens(tokens)
             if plan.teleop:
                 say(robots.teleop_line)
             if not control_path_composed:
-                sim_session = [*common, *access.flags(Role.SIM), *(recorder.flags if recorder else [])]
-                # the sim's own --set after the common ones: the later value of a key wins
-                launcher.start(str(Service.SIM), [str(Service.SIM), *sim_session, *simulation, *plan.sim_flags()])
+                sim_connection = dataclasses.replace(begun.connection, zenoh_config=access.config_file(Role.SIM))
+                sim = ChildPlan(str(Service.SIM), SIM, simulation, sim_description, journaling(), sim_connection)
+                launcher.start_service(sim)
             sim_started = True
             started = time.monotonic()
             if started_line := robots.started_line(mode):
@@ -289,18 +335,18 @@ def composes_control_path(plan: UpPlan, mode: SimMode) -> bool:
     return mode == SimMode.REALTIME and not (plan.fleet or plan.composed or plan.split)
 
 
-def _motor_flags(robot: Robot, report_dir: Path) -> list[str]:
-    """The motor's own: where it keeps its latched stop across restarts (docs/protocol.md)."""
-    return ["--state", str(robot.folder(report_dir) / MOTOR_STATE_FILE)]
+def _described(child: ChildPlan[Any], **changes: Any) -> ChildPlan[Any]:
+    """``child`` with its description changed as ``changes`` say (``settings``, ``rt``)."""
+    return dataclasses.replace(child, description=dataclasses.replace(child.description, **changes))
 
 
-def _drive_flags(plan: UpPlan, robot: Robot) -> list[str]:
+def _drive_options(plan: UpPlan, robot: Robot) -> DriveOptions:
     """What ``robot``'s drive runs: goals (``--goals``), a goal file (``--goal-file``, or a fleet robot's
     own), or its scenario (``--loop``: over and over)."""
     if plan.goal_file is not None:
-        return ["--goal-file", plan.goal_file]
+        return goal_options(plan.goal_file)
     if plan.goals:
-        return ["--goals"]
+        return goal_options()
     if robot.goal_file is not None:
-        return ["--goal-file", robot.goal_file]
-    return ["--scenario", robot.scenario, *(["--loop"] if plan.loop else [])]
+        return goal_options(robot.goal_file)
+    return scenario_options(robot.scenario, plan.loop)

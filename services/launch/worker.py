@@ -14,8 +14,8 @@ is one.
 On a machine of its own, ``invent worker --fleet FILE --robots R1,R2`` runs the services of those
 robots of the fleet file composed in one process, as ``up`` would start them: one process per service
 host for its robots (docs/deploy.md). Started by ``up``, a worker takes its services on its
-standard input instead, one JSON array per line
-(``[name, "motor", "--robot", ...]``: the name and the argv ``invent`` would take), starts each
+standard input instead, one plan per line (a JSON array:
+services/launch/service_plans.py's :func:`~services.launch.service_plans.encode_plan`), builds each
 in its composition and says so on its standard output (:data:`WORKER_PREFIX` lines); it says too
 when a service ends by itself (a drive at the end of its scenario, with its exit code), and every
 service's exit code when it stops (SIGINT, or its standard input closed: ``up`` is gone).
@@ -35,12 +35,14 @@ from typing import Any
 import zenoh
 
 from schemas.keys import Service
+from services.drive.service import goal_options, scenario_options
 from services.errors import ChildDied
-from services.fleet.description import Fleet, drive_flags, robot_flags
+from services.fleet.description import Fleet, robot_settings
 from services.launch.children import Supervisor, describe_exit
 from services.launch.composition import Composition
+from services.launch.plan import DEFAULT_SCENARIO, Description
+from services.launch.service_plans import BUILT_IN, ChildPlan, decode_plan, encode_plan
 from services.runtime.executor import STOP_POLL_S
-from services.service import ServiceParse
 
 WORKER_PREFIX = "@worker "
 STARTED, FAILED, ENDED, STOPPED = "started", "failed", "ended", "stopped"
@@ -63,49 +65,51 @@ def _say(kind: str, *fields: Any) -> None:
 ROBOT_SERVICES = (Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION, Service.DRIVE)
 
 
-def robot_requests(fleet: Fleet, robots: Sequence[str], connection: Sequence[str]) -> list[list[str]]:
-    """The services of ``robots`` (names in ``fleet``) as ``invent up --fleet`` starts them, as
-    requests (``[name, *argv]``): a service host's one process for its robots (docs/deploy.md)."""
-    requests = []
+def robot_plans(fleet: Fleet, robots: Sequence[str]) -> list[ChildPlan[Any]]:
+    """The services of ``robots`` (names in ``fleet``) as ``invent up --fleet`` starts them: a
+    service host's one process for its robots (docs/deploy.md). A robot's drive runs its goal file,
+    else its scenario, else ``up``'s default scenario."""
+    plans: list[ChildPlan[Any]] = []
     for name in robots:
         robot = fleet.robot(name)
+        description = Description(robot=name, settings=robot_settings(robot))
+        drive = goal_options(robot.goals) if robot.goals else scenario_options(robot.scenario or DEFAULT_SCENARIO)
         for service in ROBOT_SERVICES:
-            own = drive_flags(robot) if service is Service.DRIVE else []
-            requests.append([f"{name}/{service}", str(service), *connection, *robot_flags(robot), *own])
-    return requests
+            command, options_type = BUILT_IN[service]
+            options = drive if service is Service.DRIVE else options_type()
+            plans.append(ChildPlan(f"{name}/{service}", command, options, description))
+    return plans
 
 
 def run_worker(
     session: zenoh.Session,
-    parse: ServiceParse,
     stop: threading.Event,
     *,
     intra_process: bool = True,
-    requests: Sequence[list[str]] = (),
+    plans: Sequence[ChildPlan[Any]] = (),
 ) -> int:
-    """``invent worker``: compose ``requests``, then the services ``up`` sends on standard input
+    """``invent worker``: compose ``plans``, then the services ``up`` sends on standard input
     (none given), until stopped."""
-    composition = Composition(session, parse, intra_process=intra_process)
+    composition = Composition(session, intra_process=intra_process)
 
-    def start(request: list[str]) -> None:
-        name, *argv = request
+    def start(child: ChildPlan[Any]) -> None:
         try:
-            composition.start(name, argv)
+            composition.start_service(child)
         except BaseException as error:  # noqa: BLE001 (reported to up, which ends the run saying why)
-            _say(FAILED, name, f"{type(error).__name__}: {error}")
+            _say(FAILED, child.name, f"{type(error).__name__}: {error}")
             return
-        _say(STARTED, name)
+        _say(STARTED, child.name)
 
-    def read_requests() -> None:
+    def read_plans() -> None:
         for line in sys.stdin:
             if line.strip():
-                composition.post(start, json.loads(line))
+                composition.post(start, decode_plan(line))
         stop.set()  # up is gone, or done with us
 
-    for request in requests:
-        start(request)
-    if not requests:
-        threading.Thread(target=read_requests, name="invent-worker-requests", daemon=True).start()
+    for child in plans:
+        start(child)
+    if not plans:
+        threading.Thread(target=read_plans, name="invent-worker-plans", daemon=True).start()
     reported: set[str] = set()
     try:
         while not stop.is_set():
@@ -147,11 +151,12 @@ class _Worker:
             self._answered.notify_all()
         return True
 
-    def start(self, name: str, argv: Sequence[str]) -> None:
+    def start(self, child: ChildPlan[Any]) -> None:
+        name = child.name
         stdin = self.child.process.stdin
         assert stdin is not None
         self.started[name] = None
-        stdin.write(json.dumps([name, *argv]) + "\n")
+        stdin.write(encode_plan(child).decode() + "\n")
         stdin.flush()
         deadline = time.monotonic() + START_TIMEOUT_S
         with self._answered:
@@ -190,13 +195,14 @@ class Workers:
         self._supervisor = Supervisor()
         self._workers: dict[int, _Worker] = {}
 
-    def start(self, name: str, argv: Sequence[str]) -> Any:
+    def start_service(self, child: ChildPlan[Any]) -> Any:
+        name = child.name
         index = self.assignment.get(name.partition("/")[0], 0) if "/" in name else 0
         if index == 0:
-            return self.composition.start(name, argv)
+            return self.composition.start_service(child)
         if index not in self._workers:
             self._workers[index] = _Worker(index, self._supervisor, self._connection)
-        self._workers[index].start(name, argv)
+        self._workers[index].start(child)
         return None
 
     def exits(self) -> dict[str, tuple[int, str]]:

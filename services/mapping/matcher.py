@@ -114,6 +114,7 @@ class Match:
         return self.inliers >= settings.min_inliers
 
 
+@dataclass(frozen=True, eq=False)
 class SurfaceField:
     """What a scan is matched against, over the window of a map around a prior: for each facing, the
     distance from each cell to the nearest occupied cell of that facing (m, clipped at
@@ -121,26 +122,16 @@ class SurfaceField:
     its hits, finer than the cell) and, where its neighbours' surface points lie on a line, that
     line's normal. Arrays are indexed ``[facing, row, col]`` or by flat cell of ``geometry``."""
 
-    def __init__(
-        self,
-        geometry: GridGeometry,
-        max_distance: float,
-        distances: Floats,
-        nearest: Indices,
-        surface: Floats,
-        normals: Floats,
-        sides: Floats,
-    ) -> None:
-        self.geometry = geometry
-        self.max_distance = max_distance
-        self.distances = distances
-        self.nearest = nearest
-        self.surface = surface
-        """``[cell, 2]``: each cell's surface point in ``map``."""
-        self.normals = normals
-        """``[cell, 2]``: each cell's surface normal, (0, 0) where its neighbours make no line."""
-        self.sides = sides
-        """``[cell, 2]``: a direction towards the side each cell's surface was seen from."""
+    geometry: GridGeometry
+    max_distance: float
+    distances: Floats
+    nearest: Indices
+    surface: Floats
+    """``[cell, 2]``: each cell's surface point in ``map``."""
+    normals: Floats
+    """``[cell, 2]``: each cell's surface normal, (0, 0) where its neighbours make no line."""
+    sides: Floats
+    """``[cell, 2]``: a direction towards the side each cell's surface was seen from."""
 
     @classmethod
     def around(cls, grid: LogOddsGrid, x: float, y: float, radius: float, max_distance: float) -> SurfaceField | None:

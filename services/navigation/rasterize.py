@@ -20,7 +20,7 @@ import numpy.typing as npt
 
 from schemas.messages import Obstacle
 from services.config.navigation import MAX_COSTMAP_CELLS_PER_SIDE
-from services.navigation.grid import FREE, OCCUPIED, Grid, GridGeometry
+from services.navigation.grid import FREE, OCCUPIED, Grid, GridGeometry, Occupancy
 
 MIN_MAP_SIZE = 10.0
 """The shortest side a rasterised map has, m: a world smaller than this (or with no obstacle at all)
@@ -29,6 +29,8 @@ TOUCH = 1e-6
 """Overlap thinner than this fraction of a cell is touching, not overlapping (floating-point noise
 on a cell boundary)."""
 
+Floats = npt.NDArray[np.float64]
+Bools = npt.NDArray[np.bool_]
 Bounds = tuple[float, float, float, float]
 """``(min_x, min_y, max_x, max_y)``."""
 
@@ -112,7 +114,7 @@ def grid_geometry(
     return GridGeometry(resolution, cells[0], cells[1], origin[0], origin[1])
 
 
-def _mark(cells: npt.NDArray[np.int8], geometry: GridGeometry, obstacle: Obstacle) -> None:
+def _mark(cells: Occupancy, geometry: GridGeometry, obstacle: Obstacle) -> None:
     """Sets the cells an obstacle overlaps to occupied (only those of its bounding box are tested)."""
     min_x, min_y, max_x, max_y = bounds(obstacle)
     resolution = geometry.resolution
@@ -124,8 +126,8 @@ def _mark(cells: npt.NDArray[np.int8], geometry: GridGeometry, obstacle: Obstacl
         return
     centre_x = geometry.origin_x + (np.arange(col_0, col_1, dtype=np.float64) + 0.5) * resolution
     centre_y = geometry.origin_y + (np.arange(row_0, row_1, dtype=np.float64) + 0.5) * resolution
-    dx: npt.NDArray[np.float64] = centre_x[np.newaxis, :] - obstacle.x
-    dy: npt.NDArray[np.float64] = centre_y[:, np.newaxis] - obstacle.y
+    dx: Floats = centre_x[np.newaxis, :] - obstacle.x
+    dy: Floats = centre_y[:, np.newaxis] - obstacle.y
     half = resolution / 2.0
     touch = TOUCH * resolution
     if obstacle.shape == "cylinder":
@@ -137,15 +139,7 @@ def _mark(cells: npt.NDArray[np.int8], geometry: GridGeometry, obstacle: Obstacl
     cells[row_0:row_1, col_0:col_1][overlaps] = OCCUPIED
 
 
-def _rectangle_overlaps(
-    dx: npt.NDArray[np.float64],
-    dy: npt.NDArray[np.float64],
-    half: float,
-    hx: float,
-    hy: float,
-    yaw: float,
-    touch: float,
-) -> npt.NDArray[np.bool_]:
+def _rectangle_overlaps(dx: Floats, dy: Floats, half: float, hx: float, hy: float, yaw: float, touch: float) -> Bools:
     """Which squares of half side ``half`` centred (``dx``, ``dy``) from a rectangle's centre overlap
     it (half lengths ``hx``, ``hy`` along its own axes, turned by ``yaw``): no separating axis among
     the square's two and the rectangle's two."""
@@ -156,20 +150,14 @@ def _rectangle_overlaps(
     square_reach = half * (ac + as_)
     along_u = np.abs(dx * c + dy * s) < hx + square_reach - touch
     along_v = np.abs(-dx * s + dy * c) < hy + square_reach - touch
-    overlaps: npt.NDArray[np.bool_] = along_x & along_y & along_u & along_v
+    overlaps: Bools = along_x & along_y & along_u & along_v
     return overlaps
 
 
-def _circle_overlaps(
-    dx: npt.NDArray[np.float64],
-    dy: npt.NDArray[np.float64],
-    half: float,
-    radius: float,
-    touch: float,
-) -> npt.NDArray[np.bool_]:
+def _circle_overlaps(dx: Floats, dy: Floats, half: float, radius: float, touch: float) -> Bools:
     """Which squares of half side ``half`` centred (``dx``, ``dy``) from a circle's centre overlap it:
     the square's nearest point to the centre lies inside the circle."""
     gap_x = np.maximum(np.abs(dx) - half, 0.0)
     gap_y = np.maximum(np.abs(dy) - half, 0.0)
-    overlaps: npt.NDArray[np.bool_] = gap_x**2 + gap_y**2 < (radius - touch) ** 2
+    overlaps: Bools = gap_x**2 + gap_y**2 < (radius - touch) ** 2
     return overlaps

@@ -20,7 +20,7 @@ from __future__ import annotations
 import io
 import json
 import struct
-from collections.abc import Collection, Iterator
+from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -89,12 +89,16 @@ def key_json_schema(key: str) -> tuple[str, str, bytes] | None:
 class McapWriter:
     """One recording being written; :meth:`close` ends it with its index and summary."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, declared: Sequence[str] = ()) -> None:
+        """``declared``: keys whose channels the file holds from its start, in this order, published
+        on or not (what the services declare they publish: services/interfaces.py)."""
         self._file = _Flushing(io.FileIO(path, "wb"))
         self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
         self._writer.start(profile=PROFILE, library="invent-zenoh")
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
+        for key in declared:
+            self._channels[key] = self._writer.register_channel(key, JSON, self._key_schema(key))
         self.messages = 0
         self.message_bytes = 0
         """The messages' bytes, uncompressed (the file, compressed by chunks, is smaller)."""
@@ -326,8 +330,10 @@ class SplitWriter:
     that each is readable alone), removes the oldest files while they hold more than ``max_size``,
     and at :meth:`close` names those left ``<stem>.mcap``, ``<stem>_1.mcap``, ... in order."""
 
-    def __init__(self, output: Path, record: RecordConfig) -> None:
+    def __init__(self, output: Path, record: RecordConfig, declared: Sequence[str] = ()) -> None:
+        """``declared``: the channels each file holds from its start (:class:`McapWriter`)."""
         self._output = output
+        self._declared = declared
         self._newest = record.keeps_newest
         split_mb = record.rotation_size if self._newest else record.split_size
         self._split_bytes = None if split_mb is None else split_mb * MB
@@ -339,7 +345,7 @@ class SplitWriter:
         self._numbered = 1
         self.dropped: list[_Part] = []
         self._latched: dict[str, tuple[bytes, int, int | None]] = {}
-        self._writer = McapWriter(output)
+        self._writer = McapWriter(output, declared)
         self.latest_stamp_ns: int | None = None
 
     @property
@@ -380,7 +386,7 @@ class SplitWriter:
             current.message_bytes = self._writer.message_bytes
             self._kept.append(_Part(part_path(self._output, self._numbered), first_stamp_ns=stamp_ns))
             self._numbered += 1
-            self._writer = McapWriter(self._kept[-1].path)
+            self._writer = McapWriter(self._kept[-1].path, self._declared)
             if self._newest:
                 self._drop_oldest()
                 for key, (payload, log_time_ns, publish_time_ns) in self._latched.items():

@@ -36,6 +36,7 @@ from schemas.codec import BadInput, decode
 from schemas.keys import Keys
 from schemas.messages import NANOSECONDS_PER_SECOND
 from schemas.topics import LATCHED_TOPICS, TOPIC_TYPES, Topic
+from services import interfaces
 from services.config import Config, RecordConfig
 from services.recording.mcap_files import (
     LATEST_STAMP_NS,
@@ -306,7 +307,7 @@ def run_record(
     duration_s: float | None = None,
 ) -> int:
     """Record until ``stop`` or ``duration_s`` of wall time; the file is closed properly in every case."""
-    writer = McapWriter(output)
+    writer = McapWriter(output, interfaces.published(keys, config))
     observer = Observer(session, keys, key_exprs or [keys.everything], config, writer_sink(writer))
     log.info("recording %s into %s", ", ".join(key_exprs or [keys.everything]), output)
     try:
@@ -339,7 +340,8 @@ def write_run_recording(
 ) -> RunRecording:
     """``output`` (``invent up``'s ``run.mcap``) from the journals (services/runtime/journal.py) in
     ``journals`` and below it (a fleet's robots have a folder each), merged in publication order a
-    frame at a time, with the scene, as :func:`run_record` would have recorded them, within
+    frame at a time, with the scene, as :func:`run_record` would have recorded them (each file with a
+    channel for every key the loop's services declare they publish, from its start), within
     ``record``'s bounds: split into ``<stem>_1.mcap``, ... by ``split_size`` and ``split_duration``;
     stopped (but for what says how the run ended, :data:`ALWAYS_KEPT`) at ``max_size``, or where the
     first journal stopped (its limit, or a disk running low), which the last file then says on
@@ -348,7 +350,8 @@ def write_run_recording(
     :data:`RECORDING_ROTATED_TOPIC`."""
     record = record or RecordConfig()
     readers = [JournalReader(path) for path in sorted(journals.rglob(f"*{JOURNAL_SUFFIX}"))]
-    writer = SplitWriter(output, record)
+    declared = [key for robot in (fleet or (config,)) for key in interfaces.published(Keys(robot.robot.name), robot)]
+    writer = SplitWriter(output, record, declared)
     stopped: dict[str, Any] | None = None
     latest_stamp_ns: int | None = None
     dropped_journals: list[dict[str, Any]] = []

@@ -140,8 +140,8 @@ class NavigateServer:
         tokens.declare(wire.EntityKind.SUBSCRIPTION, graph.GOAL_POSE)
         node.subscribe_bytes(self.goal_pose_key, self._on_goal_pose, Delivery.QUEUED)
         keys = node.keys
-        self._send = node.session.declare_querier(keys.drive_goal_send, timeout=GOAL_CALL_TIMEOUT_S)
-        self._cancel = node.session.declare_querier(keys.drive_goal_cancel, timeout=GOAL_CALL_TIMEOUT_S)
+        self._send = node.querier(keys.drive_goal_send, timeout=GOAL_CALL_TIMEOUT_S)
+        self._cancel = node.querier(keys.drive_goal_cancel, timeout=GOAL_CALL_TIMEOUT_S)
         self._declarations += [self._send, self._cancel]
         # Every sample, in order with the queries: each changes a goal's state.
         node.subscribe(keys.drive_goal, GoalTarget, self._on_started, Delivery.QUEUED)

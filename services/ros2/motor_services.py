@@ -39,9 +39,7 @@ class MotorServices:
         self._call_ids = itertools.count(1)
         self.keys, self._queryables = serve(node, tokens, graph.MOTOR_SERVICES, self._take_call)
         self._methods = {
-            method: node.session.declare_querier(
-                node.keys.method(MethodFamily.GUI, method), timeout=SERVICE_CALL_TIMEOUT_S
-            )
+            method: node.querier(node.keys.method(MethodFamily.GUI, method), timeout=SERVICE_CALL_TIMEOUT_S)
             for method in graph.MOTOR_SERVICES
         }
 

@@ -196,9 +196,7 @@ class Ros2Bridge:
             self.initial_pose_key = bridge.key(graph.INITIAL_POSE)
             tokens.declare(wire.EntityKind.SUBSCRIPTION, graph.INITIAL_POSE)
             node.subscribe_bytes(self.initial_pose_key, self._on_initial_pose, Delivery.QUEUED)
-            self._localization = node.session.declare_querier(
-                keys.localization_initial_pose, timeout=INITIAL_POSE_TIMEOUT_S
-            )
+            self._localization = node.querier(keys.localization_initial_pose, timeout=INITIAL_POSE_TIMEOUT_S)
         self.cmd_vel_keys: dict[str, str] = {}
         for entity in graph.CMD_VEL_SUBSCRIPTIONS:
             key = self.cmd_vel_keys[entity.interface] = bridge.key(entity)

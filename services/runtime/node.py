@@ -21,8 +21,10 @@ import msgspec
 import zenoh
 
 from schemas.codec import ENCODING, BadInput, decode
+from schemas.interface import Interface
 from schemas.keys import Keys, Service, ServiceName
 from schemas.status import InputTaken, ServiceStatus
+from services.runtime.declared import DeclaredKeys
 from services.runtime.executor import STOP_POLL_S, Executor
 from services.runtime.inputs import (
     ChannelInput,
@@ -72,8 +74,11 @@ class Node:
         journal: Journal | None = None,
         bus: LocalBus | None = None,
         congestion: zenoh.CongestionControl = zenoh.CongestionControl.DROP,
+        interface: Interface | None = None,
     ) -> None:
+        """``interface``: the service's declaration; a key of ``invent/`` it does not hold is refused."""
         self.session = session
+        self.declared = DeclaredKeys(interface, keys)
         self.bus = bus
         """The process's intra-process delivery, when its services are composed (services/runtime/intraprocess.py)."""
         self.congestion = congestion  # its publishers': BLOCK in lockstep (inputs.LOCKSTEP_CONGESTION)
@@ -179,6 +184,7 @@ class Node:
         dispatch_message: DispatchMessage | None = None,
     ) -> NodeInput | None:
         """``dispatch_message``: for the messages of this process's publishers (with a bus)."""
+        self.declared.subscribe(key)
         if delivery is Delivery.QUEUED:
             post = self.executor.post
             if dispatch_message is not None:
@@ -240,7 +246,7 @@ class Node:
 
         self.subscribe(key, message_type, on_sample, Delivery.QUEUED)
         dispatch_reply = self._dispatch(key, on_reply, Delivery.QUEUED, count=False)
-        querier = self.session.declare_querier(key)
+        querier = self.querier(key)
         post = self.executor.post
         asked = False
 
@@ -270,6 +276,8 @@ class Node:
         ``key``; any other query is dropped in zenoh's callback, which finalizes it with no reply.
         Read-only handlers (``status``) answer wildcards.
         """
+
+        self.declared.serve(key)
 
         def answer(query: zenoh.Query) -> None:
             try:
@@ -319,6 +327,7 @@ class Node:
         return dispatch
 
     def publisher(self, key: str) -> Publisher:
+        self.declared.publish(key)
         publisher = Publisher(self.session, key, self._journal, self.bus, self.congestion)
         self._publishers.append(publisher)
         return publisher
@@ -330,6 +339,13 @@ class Node:
         latched = LatchedPublisher(self.publisher(key))
         self.queryable(key, lambda _payload: latched.last)
         return latched
+
+    def querier(self, key: str, timeout: float | None = None) -> zenoh.Querier:
+        """A querier of another service's queryable ``key`` (declared in its interface's ``queries``)."""
+        self.declared.query(key)
+        return (
+            self.session.declare_querier(key) if timeout is None else self.session.declare_querier(key, timeout=timeout)
+        )
 
     def post(self, callback: Callable[[], None]) -> None:
         """Run ``callback()`` on the service thread (thread-safe; usable from zenoh callbacks)."""

@@ -14,8 +14,10 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
+from schemas.interface import Interface
 from schemas.keys import ROOT, Keys, Service, UserServiceName, all_robots_status
-from schemas.topics import LATCHED_TOPICS, GoalMethod, LocalizationMethod, Method, MethodFamily, Topic
+from schemas.topics import LATCHED_TOPICS, GoalMethod, LocalizationMethod, Method, MethodFamily
+from services import interfaces
 from services.config import Config
 from services.config.sections import LocalizationMode
 from services.ros2.graph import ACTION_SERVICES, ACTION_TOPICS, MOTOR_SERVICES, SUBSCRIPTIONS, BridgeGraph, bridge_graph
@@ -24,14 +26,6 @@ from services.security.roles import FLEET_ROLES, SINGLE_ROBOT_ROLES, Identity, R
 
 DEFAULT_LOCALIZATION: LocalizationMode = "stub"
 """The localization mode a profile is granted for when none is said (``localization.mode``'s default)."""
-LOCALIZATION_INPUTS: dict[LocalizationMode, tuple[Topic, ...]] = {
-    "stub": (Topic.MOTOR_SIM_POSE_LOCALIZATION,),
-    "amcl": (Topic.SIM_SCAN, Topic.MOTOR_WHEEL_ANGLES),
-    "none": (Topic.MOTOR_WHEEL_ANGLES,),
-}
-"""What the localization subscribes in each mode; it is granted no other data key. Only the stub reads
-a ground truth (``motor/sim_pose/localization``, the sim's pose); amcl and none may not subscribe
-``sim/body_pose`` nor ``motor/sim_pose/*`` (docs/security.md)."""
 DEFAULT_ROS = bridge_graph(Config(), environ={})
 """The ROS graph the ROS roles are granted by default: domain 0, the bridge's default namespace and node."""
 
@@ -74,11 +68,6 @@ class Grant:
     key_exprs: tuple[str, ...]
 
 
-def _published_by(service: Service, keys: Keys) -> tuple[str, ...]:
-    """The data keys a service publishes: those under its own name (``sim/...`` for the sim)."""
-    return tuple(keys.topic(topic) for topic in Topic if topic.startswith(f"{service}/"))
-
-
 def _methods(keys: Keys, family: MethodFamily) -> tuple[str, ...]:
     return tuple(keys.method(family, method) for method in Method)
 
@@ -97,40 +86,49 @@ def _localization_methods(keys: Keys) -> tuple[str, ...]:
     return tuple(keys.localization_method(method) for method in LocalizationMethod)
 
 
-def _localization_grants(keys: Keys, mode: LocalizationMode) -> list[Grant]:
-    """The localization's rights in ``mode``, least privilege: not :func:`_reading` (every key), but
-    the data keys of :data:`LOCALIZATION_INPUTS` (subscribed, and sent to it), liveliness (the sim's
-    token, the lockstep's), the status of the services other than the sim and the control path (their
-    status holds the sim's pose); it serves its status and, in amcl mode, its two queryables, and puts
-    ``localization/*`` (``pose``, ``particles``)."""
+def interface_grants(interface: Interface, keys: Keys, followed: Sequence[UserServiceName] = ()) -> list[Grant]:
+    """What a service may do, exactly what its :class:`Interface` declares (least privilege): put
+    what it publishes; subscribe (and be sent) what it subscribes; serve its status, its latched
+    keys and what it serves; query what it queries and the latched keys it subscribes; hold its
+    own tokens. Liveliness (tokens carry no data) it may watch everywhere. ``followed``: the user
+    services whose outputs and status a service that follows the lockstep participants (the sim) may
+    subscribe and query."""
     everything = (f"{ROOT}/**",)
-    inputs = tuple(keys.topic(topic) for topic in LOCALIZATION_INPUTS[mode])
-    statuses = tuple(keys.status(service) for service in Service if service is not Service.SIM)
-    served = (keys.status(Service.LOCALIZATION), *(_localization_methods(keys) if mode == "amcl" else ()))
-    return [
-        Grant((Message.DECLARE_SUBSCRIBER,), Flow.INGRESS, inputs),
+    service = interface.service
+    subscribed = (
+        *interface.subscribes,
+        *((f"{keys.prefix}/{name}/**" for name in followed) if interface.follows_participants else ()),
+    )
+    served = (keys.status(service), *interface.serves, *interface.latched_published(keys))
+    followed_statuses = (keys.status(name) for name in followed) if interface.follows_participants else ()
+    queried = (*interface.queries, *followed_statuses)
+    tokens = (
+        keys.alive(service),
+        *((keys.ticks_at_any_rate(service),) if interface.participates else ()),
+        *((keys.observes_at_any_rate(service),) if interface.observes else ()),
+    )
+    granted = [
+        Grant((Message.PUT,), Flow.INGRESS, interface.publishes),
+        Grant((Message.DECLARE_SUBSCRIBER,), Flow.INGRESS, subscribed),
+        Grant((Message.PUT,), Flow.EGRESS, subscribed),
+        Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, served),
+        # Queries reach a queryable only if the querier was let in; this lets them be delivered
+        # (also a query on invent/*/*/status, which a rule must let through whole).
+        Grant((Message.QUERY,), Flow.EGRESS, everything),
+        Grant((Message.QUERY,), Flow.INGRESS, queried),
+        Grant((Message.REPLY,), Flow.EGRESS, queried),
+        Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, tokens),
         Grant((Message.DECLARE_LIVELINESS_SUBSCRIBER, Message.LIVELINESS_QUERY), Flow.INGRESS, everything),
-        # What it is sent: its inputs' samples, its status queries' replies, tokens, and the
-        # declarations that tell its publishers and queriers that someone matches (no data).
-        Grant((Message.PUT,), Flow.EGRESS, inputs),
-        Grant((Message.REPLY,), Flow.EGRESS, statuses),
+        # the tokens it watches, and the declarations that tell its publishers and queriers that
+        # someone matches (no data)
         Grant(
             (Message.LIVELINESS_TOKEN, Message.DECLARE_SUBSCRIBER, Message.DECLARE_QUERYABLE), Flow.EGRESS, everything
         ),
-        Grant((Message.QUERY,), Flow.INGRESS, statuses),
-        Grant(
-            (Message.LIVELINESS_TOKEN,),
-            Flow.INGRESS,
-            (keys.alive(Service.LOCALIZATION), keys.ticks_at_any_rate(Service.LOCALIZATION)),
-        ),
-        Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, served),
-        # Queries reach a queryable only if the querier was let in; this lets them be delivered.
-        Grant((Message.QUERY,), Flow.EGRESS, everything),
-        Grant((Message.PUT,), Flow.INGRESS, _published_by(Service.LOCALIZATION, keys)),
     ]
+    return [grant for grant in granted if grant.key_exprs]
 
 
-def _ros_grants(role: Role, keys: Keys, ros: BridgeGraph) -> list[Grant]:
+def _ros_grants(role: Role, ros: BridgeGraph) -> list[Grant]:
     """The ROS side of the bridge (``ros2``) or of a ROS node (``ros_node``): rmw_zenoh's keys of
     domain ``ros.domain``, the graph's tokens, and a zenoh-ext advanced publisher's own keys
     (``<key>/@adv/...``: its cache's queryable, its detection token, its heartbeats)."""
@@ -157,7 +155,7 @@ def _ros_grants(role: Role, keys: Keys, ros: BridgeGraph) -> list[Grant]:
     services = (*MOTOR_SERVICES.values(), *ACTION_SERVICES.values(), *ros.odometry_services.values())
     served = tuple(ros.key(entity) for entity in services)
     return [
-        Grant((Message.PUT,), Flow.INGRESS, (*published, *advanced, keys.drive_target_velocity)),
+        Grant((Message.PUT,), Flow.INGRESS, (*published, *advanced)),
         Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (*served, *advanced)),
         # a latched topic's cache answers a late subscriber with the samples, on the topic's own key
         Grant((Message.REPLY,), Flow.INGRESS, latched),
@@ -167,7 +165,6 @@ def _ros_grants(role: Role, keys: Keys, ros: BridgeGraph) -> list[Grant]:
         # a ROS node subscribing a topic of the bridge: the bridge's publisher matches it
         Grant((Message.DECLARE_SUBSCRIBER,), Flow.EGRESS, published),
         Grant((Message.QUERY,), Flow.EGRESS, (*served, *advanced)),
-        Grant((Message.QUERY,), Flow.INGRESS, tuple(keys.method(MethodFamily.GUI, m) for m in MOTOR_SERVICES)),
     ]
 
 
@@ -200,55 +197,44 @@ def _reading(keys: Keys) -> list[Grant]:
 
 
 def grants(
-    role: Role, keys: Keys, ros: BridgeGraph = DEFAULT_ROS, localization: LocalizationMode = DEFAULT_LOCALIZATION
+    role: Role,
+    keys: Keys,
+    ros: BridgeGraph = DEFAULT_ROS,
+    localization: LocalizationMode = DEFAULT_LOCALIZATION,
+    followed: Sequence[UserServiceName] = (),
 ) -> list[Grant]:
     """Everything ``role`` may do on robot ``keys.robot`` (and, for the ROS roles, in the ROS domain
-    and namespace of ``ros``); the router denies anything else. ``control`` gets the sim's and the
-    motor's grants merged (:func:`_merged`): exactly their union, and its own ``control/status``.
-    ``localization`` (``localization.mode``) is what the localization reads and serves
-    (:func:`_localization_grants`): every other role reads everything, the localization only its inputs."""
-    everything = (f"{ROOT}/**",)
-    reading = _reading(keys)
-    if role is Role.LOCALIZATION:
-        return _localization_grants(keys, localization)
+    and namespace of ``ros``); the router denies anything else. A service's role may do exactly what
+    its interface declares (services/interfaces.py, :func:`interface_grants`), the localization's
+    for ``localization.mode`` ``localization``; ``control`` gets the sim's and the motor's merged
+    (:func:`_merged`) and its own ``control/status``; the tools' roles (operator, observer, a ROS
+    node) read everything. ``followed``: the user services of the run, whose outputs the sim may
+    subscribe (a lockstep participant's)."""
+    config = Config()  # the rates of the tokens are not granted: every rate is
     if role is Role.CONTROL:
         # `invent control` runs the sim and the motor in one process on one session, logged in as
         # one user: it needs each one's rights (the sim's puts and bump queries, the motor's puts and
         # its methods served), and no more than the two together but the process's own status.
         process_status = Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (keys.control_status,))
-        return _merged([*grants(Role.SIM, keys, ros), *grants(Role.MOTOR, keys, ros), process_status])
+        sim_and_motor = [*grants(Role.SIM, keys, followed=followed), *grants(Role.MOTOR, keys)]
+        return _merged([*sim_and_motor, process_status])
     if role is Role.OBSERVER:
         # `invent view` answers its own status; the queries on it are delivered, also as
         # invent/*/*/status (a rule lets through the key expressions it includes).
         return [
-            *reading,
+            *_reading(keys),
             Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (keys.view_status,)),
             Grant((Message.QUERY,), Flow.EGRESS, (all_robots_status(),)),
         ]
-    if role in (Role.ROS2, Role.ROS_NODE):
-        own_status = [
-            Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (keys.status(Service.ROS2),)),
-            # as for every service: a query on invent/*/*/status must be let through to it whole
-            Grant((Message.QUERY,), Flow.EGRESS, everything),
-        ]
-        own_token = [
-            Grant(
-                (Message.LIVELINESS_TOKEN,),
-                Flow.INGRESS,
-                (keys.alive(Service.ROS2), keys.observes_at_any_rate(Service.ROS2)),
-            )
-        ]
-        # the bridge sends and cancels its robot's goals (ROS's NavigateToPose) and gives its localization
-        # an initial pose (ROS's /initialpose); a ROS node does neither
-        own_goals = [
-            Grant((Message.QUERY,), Flow.INGRESS, _goal_methods(keys)),
-            Grant((Message.QUERY,), Flow.INGRESS, (keys.localization_initial_pose,)),
-        ]
-        service_own = [*own_status, *own_token, *own_goals] if role is Role.ROS2 else []
-        return [*reading, *service_own, *_ros_grants(role, keys, ros)]
+    if role is Role.ROS_NODE:
+        return [*_reading(keys), *_ros_grants(role, ros)]
+    if role is Role.ROS2:
+        # the bridge of a robot whose localization is amcl offers its topics and /initialpose
+        graph = dataclasses.replace(ros, localization=ros.localization or localization == "amcl")
+        return [*interface_grants(interfaces.ros2(keys, config, graph), keys), *_ros_grants(role, graph)]
     if role is Role.OPERATOR:
         return [
-            *reading,
+            *_reading(keys),
             Grant((Message.PUT,), Flow.INGRESS, (keys.drive_target_velocity, keys.run_summary)),
             Grant((Message.QUERY,), Flow.INGRESS, _methods(keys, MethodFamily.GUI)),
             Grant((Message.QUERY,), Flow.INGRESS, _goal_methods(keys)),
@@ -256,56 +242,36 @@ def grants(
             Grant((Message.QUERY,), Flow.INGRESS, (keys.odometry_set_pose,)),  # invent call odometry/set_pose
         ]
     service = Service(role.value)
-    served = (keys.status(service),) + tuple(
-        keys.topic(topic) for topic in LATCHED_TOPICS if topic.startswith(f"{service}/")
-    )
-    if service is Service.MOTOR:
-        served += _methods(keys, MethodFamily.GUI) + _methods(keys, MethodFamily.BUMP)
-    if service is Service.DRIVE:
-        served += _goal_methods(keys)
-    if service is Service.ODOMETRY:
-        served += (keys.odometry_set_pose,)
-    own = [
-        Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, (keys.alive(service), keys.ticks_at_any_rate(service))),
-        Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, served),
-        # Queries reach a queryable only if the querier was let in; this lets them be delivered.
-        Grant((Message.QUERY,), Flow.EGRESS, everything),
-        Grant((Message.PUT,), Flow.INGRESS, _published_by(service, keys)),
-    ]
-    if service is Service.SIM:
-        own.append(Grant((Message.QUERY,), Flow.INGRESS, _methods(keys, MethodFamily.BUMP)))
-    return [*reading, *own]
+    if service is Service.LOCALIZATION:
+        return interface_grants(interfaces.localization_in(keys, localization, config.localization.rate), keys)
+    return interface_grants(interfaces.declared(service, keys, config), keys, followed)
 
 
 @dataclass(frozen=True)
 class UserServiceGrant:
-    """A user service of a secure run (services/extension/): its name and the queryables of other
-    services it calls (relative to the robot: ``drive/goal/send``)."""
+    """A user service of a secure run (services/extension/): its name, the keys of other services it
+    reads and the queryables it calls (each relative to the robot: ``odometry/pose``, ``drive/goal/send``)."""
 
     name: UserServiceName
     calls: tuple[str, ...] = ()
+    reads: tuple[str, ...] = ()
 
 
 def user_service_grants(user: UserServiceGrant, keys: Keys) -> list[Grant]:
-    """What a user service may do on robot ``keys.robot``: read what the observer reads; put,
-    serve queryables and hold liveliness tokens only under its own name (``invent/<robot>/<name>/**``:
-    its outputs, status, queryables, alive, ticks and observes tokens); query only its ``calls``."""
+    """What a user service may do on robot ``keys.robot``, as a built-in's (:func:`interface_grants`):
+    read its ``reads``, its own keys and ``sim/clock`` (its runtime's); put, serve queryables and hold
+    liveliness tokens only under its own name (``invent/<robot>/<name>/**``: its outputs, status,
+    queryables, alive, ticks and observes tokens); query only its ``calls``."""
     own = f"{keys.prefix}/{user.name}/**"
-    granted = [
-        *_reading(keys),
-        Grant(
-            (Message.LIVELINESS_TOKEN,),
-            Flow.INGRESS,
-            (keys.alive(user.name), keys.ticks_at_any_rate(user.name), keys.observes_at_any_rate(user.name)),
-        ),
-        Grant((Message.DECLARE_QUERYABLE, Message.REPLY), Flow.INGRESS, (own,)),
-        # as for every service: queries (its status, on invent/*/*/status too) are delivered to it
-        Grant((Message.QUERY,), Flow.EGRESS, (f"{ROOT}/**",)),
-        Grant((Message.PUT,), Flow.INGRESS, (own,)),
-    ]
-    if user.calls:
-        granted.append(Grant((Message.QUERY,), Flow.INGRESS, tuple(f"{keys.prefix}/{call}" for call in user.calls)))
-    return granted
+    declared = Interface(
+        user.name,
+        publishes=(own,),
+        subscribes=(own, keys.sim_clock, *(f"{keys.prefix}/{key}" for key in user.reads)),
+        serves=(own,),
+        queries=tuple(f"{keys.prefix}/{call}" for call in user.calls),
+    )
+    lockstep = (keys.ticks_at_any_rate(user.name), keys.observes_at_any_rate(user.name))
+    return [*interface_grants(declared, keys), Grant((Message.LIVELINESS_TOKEN,), Flow.INGRESS, lockstep)]
 
 
 def fleet_grants(
@@ -313,6 +279,7 @@ def fleet_grants(
     robots: Sequence[str],
     bridges: Mapping[str, BridgeGraph],
     localization: Mapping[str, LocalizationMode] | None = None,
+    followed: Mapping[str, Sequence[UserServiceName]] | None = None,
 ) -> list[Grant]:
     """Everything ``identity`` may do in the fleet of ``robots``, whose ROS 2 bridges are
     ``bridges[robot]``: a per-robot role exactly what :func:`grants` gives its role on its own robot,
@@ -321,6 +288,7 @@ def fleet_grants(
     for :data:`SINGLE_ROBOT_ROLES` (a fleet has no control role). ``localization[robot]`` is robot's
     ``localization.mode`` (default :data:`DEFAULT_LOCALIZATION`)."""
     modes = localization or {}
+    users = followed or {}
     if identity.role in SINGLE_ROBOT_ROLES:
         raise ValueError(f"a fleet has no {identity.role} role (it is one robot's)")
     if (identity.robot is None) != (identity.role in FLEET_ROLES):
@@ -329,11 +297,15 @@ def fleet_grants(
         if identity.robot not in robots:
             raise ValueError(f"robot {identity.robot!r} is not in the fleet {', '.join(robots)}")
         robot = identity.robot
-        return grants(identity.role, Keys(robot), bridges[robot], modes.get(robot, DEFAULT_LOCALIZATION))
+        return grants(
+            identity.role, Keys(robot), bridges[robot], modes.get(robot, DEFAULT_LOCALIZATION), users.get(robot, ())
+        )
     return _merged(
         grant
         for robot in robots
-        for grant in grants(identity.role, Keys(robot), bridges[robot], modes.get(robot, DEFAULT_LOCALIZATION))
+        for grant in grants(
+            identity.role, Keys(robot), bridges[robot], modes.get(robot, DEFAULT_LOCALIZATION), users.get(robot, ())
+        )
     )
 
 
@@ -351,10 +323,13 @@ def access_control(
     keys: Keys,
     ros: BridgeGraph = DEFAULT_ROS,
     localization: LocalizationMode = DEFAULT_LOCALIZATION,
+    followed: Sequence[UserServiceName] = (),
 ) -> dict[str, Any]:
     """The router's ``access_control`` section: one subject per role (by username), its grants (the
-    localization's for ``localization.mode`` ``localization``)."""
-    return _access_control((str(role), user, grants(role, keys, ros, localization)) for role, user in users.items())
+    localization's for ``localization.mode`` ``localization``; the sim's following ``followed``)."""
+    return _access_control(
+        (str(role), user, grants(role, keys, ros, localization, followed)) for role, user in users.items()
+    )
 
 
 def fleet_access_control(
@@ -362,11 +337,14 @@ def fleet_access_control(
     robots: Sequence[str],
     bridges: Mapping[str, BridgeGraph],
     localization: Mapping[str, LocalizationMode] | None = None,
+    followed: Mapping[str, Sequence[UserServiceName]] | None = None,
 ) -> dict[str, Any]:
     """The router's ``access_control`` section for a fleet: one subject per identity (by username),
-    its :func:`fleet_grants` (each robot's localization for its mode in ``localization``)."""
+    its :func:`fleet_grants` (each robot's localization for its mode in ``localization``, its sim
+    following the user services ``followed[robot]``)."""
     return _access_control(
-        (identity.user, user, fleet_grants(identity, robots, bridges, localization)) for identity, user in users.items()
+        (identity.user, user, fleet_grants(identity, robots, bridges, localization, followed))
+        for identity, user in users.items()
     )
 
 

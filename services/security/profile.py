@@ -149,7 +149,8 @@ def write_profile(
     a bad endpoint. ``localization`` is the robot's ``localization.mode``: the localization is granted
     what that mode reads and serves (only the stub reads a ground truth)."""
     credentials = fresh_credentials()
-    rules = access_control({role: c.user for role, c in credentials.items()}, keys, ros, localization)
+    followed = [user.name for user in user_services]
+    rules = access_control({role: c.user for role, c in credentials.items()}, keys, ros, localization, followed)
     users: dict[str, Credentials] = {user.name: Credentials(user.name, _fresh_password()) for user in user_services}
     for user in user_services:
         _add_subject(rules, user.name, users[user.name].user, user_service_grants(user, keys))
@@ -194,7 +195,9 @@ def write_fleet_profile(
         for index, robot in enumerate(fleet)
     }
     credentials = {identity: Credentials(identity.user, _fresh_password()) for identity in fleet_identities(fleet)}
-    rules = fleet_access_control({identity: c.user for identity, c in credentials.items()}, fleet, graphs, localization)
+    followed = {robot: [user.name for user in granted] for robot, granted in (user_services or {}).items()}
+    logins = {identity: c.user for identity, c in credentials.items()}
+    rules = fleet_access_control(logins, fleet, graphs, localization, followed)
     users: dict[str, Credentials] = {}
     for robot, granted in (user_services or {}).items():
         for user in granted:

@@ -10,6 +10,7 @@ class Forward(UserService):
     """Drives forward slowly on every scan: a second service that drives, beside the wanderer."""
 
     name = "forward"
+    reads = ("sim/scan",)
     drives = Drives(rate_hz=10.0)
 
     def __init__(self, ctx: Context) -> None:
@@ -31,6 +32,14 @@ class DrivesAndCalls(UserService):
     name = "drives_and_calls"
     drives = Drives(rate_hz=10.0)
     calls = ("drive/goal/send",)
+
+
+class DrivesReadingTheTruth(UserService):
+    """Claims to drive on the simulator's ground truth, which the drive does not read: refused."""
+
+    name = "drives_reading_the_truth"
+    drives = Drives(rate_hz=10.0)
+    reads = ("sim/body_pose",)
 
 
 class DrivesAtNoRate(UserService):

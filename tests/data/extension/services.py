@@ -127,6 +127,21 @@ class Wildcard(UserService):
     calls = ("drive/**",)
 
 
+class ReadsWildcard(UserService):
+    name = "reads_wildcard"
+    reads = ("sim/**",)
+
+
+class ReadsUndeclared(UserService):
+    """Subscribes the odometry's pose without declaring it in ``reads``: refused when it starts."""
+
+    name = "reads_undeclared"
+
+    def __init__(self, ctx: Context) -> None:
+        super().__init__(ctx)
+        ctx.subscribe(ctx.keys.odometry_pose, Number, lambda _number: None)
+
+
 class UndeclaredOutput(UserService):
     """Takes part in lockstep on an output it never declares: refused when it starts."""
 
