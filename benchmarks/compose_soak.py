@@ -38,6 +38,8 @@ from benchmarks.loop import service_status as status
 from benchmarks.machine import describe
 from benchmarks.soak import SERVICES, slope_per_hour
 from schemas.keys import Service
+from schemas.status import MotorStatus, SimStatus
+from schemas.status_kinds import status_type
 from schemas.topics import Method, MethodFamily
 from services.runtime.session import stop_on_signals
 
@@ -65,9 +67,8 @@ def _wait(predicate: Any, timeout: float, what: str) -> float:
 
 
 def _pose(observer: zenoh.Session) -> tuple[float, float] | None:
-    sim = status(observer, Service.SIM)
-    pose = (sim or {}).get("pose")
-    return (pose["x"], pose["y"]) if pose else None
+    sim = status(observer, Service.SIM, SimStatus, KEYS)
+    return None if sim is None else (sim.pose.x, sim.pose.y)
 
 
 def _moved(since: tuple[float, float] | None, now: tuple[float, float] | None) -> float:
@@ -77,8 +78,8 @@ def _moved(since: tuple[float, float] | None, now: tuple[float, float] | None) -
 
 
 def _motor_state(observer: zenoh.Session) -> str | None:
-    motor = status(observer, Service.MOTOR)
-    return None if motor is None else motor.get("state")
+    motor = status(observer, Service.MOTOR, MotorStatus, KEYS)
+    return None if motor is None else motor.state
 
 
 SPLIT = "compose.split.yaml"
@@ -109,7 +110,11 @@ def kill_and_restart(stack: Stack, name: str, observer: zenoh.Session, operator:
         f"{name}'s container restarted",
     )
     for service in SERVED_BY[name]:
-        _wait(lambda s=service: status(observer, s) is not None, RESTART_TIMEOUT_S, f"{service} answering again")
+        _wait(
+            lambda s=service: status(observer, s, status_type(s), KEYS) is not None,
+            RESTART_TIMEOUT_S,
+            f"{service} answering again",
+        )
     figures["back_after_s"] = round(time.monotonic() - killed, 1)
     figures["state_after_restart"] = _motor_state(observer)
     before = _pose(observer)
@@ -145,11 +150,11 @@ def sample(stack: Stack, containers: dict[str, str], observer: zenoh.Session, el
             "running": inspected["State"]["Running"],
         }
     for service in SERVICES:
-        answered = status(observer, service)
-        taken["internal_errors"][str(service)] = None if answered is None else answered.get("internal_errors")
-        if service is Service.SIM and answered is not None:
-            taken["steps"] = answered["steps"]
-            taken["late_steps"] = answered["counters"]["realtime_late_steps"]
+        answered = status(observer, service, status_type(service), KEYS)
+        taken["internal_errors"][str(service)] = None if answered is None else answered.internal_errors
+        if isinstance(answered, SimStatus):
+            taken["steps"] = answered.steps
+            taken["late_steps"] = answered.counters.realtime_late_steps
     return taken
 
 

@@ -16,8 +16,9 @@ from typing import Any
 
 import zenoh
 
-from benchmarks.loop import service_status
-from schemas.keys import Keys, Service
+from benchmarks.loop import sim_status
+from schemas.keys import Keys
+from schemas.status import SimStatus
 from services.runtime.session import open_session
 
 REPO = Path(__file__).resolve().parent.parent
@@ -117,12 +118,12 @@ def observer_session(role: str = "observer") -> Iterator[zenoh.Session]:
         yield session
 
 
-def wait_for_steps(session: zenoh.Session, steps: int = 1000, timeout: float = START_TIMEOUT_S) -> dict[str, Any]:
+def wait_for_steps(session: zenoh.Session, steps: int = 1000, timeout: float = START_TIMEOUT_S) -> SimStatus:
     """The sim's status once it has stepped ``steps`` times; RuntimeError after ``timeout``."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        sim = service_status(session, Service.SIM)
-        if sim is not None and sim.get("steps", 0) >= steps:
+        sim = sim_status(session, KEYS)
+        if sim is not None and sim.steps >= steps:
             return sim
         time.sleep(1.0)
     raise RuntimeError(f"the sim did not step {steps} times within {timeout:.0f} s")
@@ -130,11 +131,11 @@ def wait_for_steps(session: zenoh.Session, steps: int = 1000, timeout: float = S
 
 def late_over(session: zenoh.Session, window_s: float) -> dict[str, Any]:
     """The sim's late steps over ``window_s`` of wall time from now."""
-    before = service_status(session, Service.SIM)
+    before = sim_status(session, KEYS)
     time.sleep(window_s)
-    after = service_status(session, Service.SIM)
+    after = sim_status(session, KEYS)
     if before is None or after is None:
         raise RuntimeError("the sim did not answer its status")
-    steps = after["steps"] - before["steps"]
-    late = after["counters"]["realtime_late_steps"] - before["counters"]["realtime_late_steps"]
+    steps = after.steps - before.steps
+    late = after.counters.realtime_late_steps - before.counters.realtime_late_steps
     return {"steps": steps, "late_steps": late, "late_fraction": late / steps if steps else None}

@@ -44,7 +44,8 @@ from typing import Any
 import zenoh
 
 from benchmarks import loop
-from schemas.keys import Keys, Service
+from schemas.keys import Keys
+from schemas.status import SimStatus
 from services.runtime.session import open_session, session_config
 
 ROBOT_NAME_PREFIX = "rh"
@@ -180,24 +181,21 @@ class FleetUpRun(loop.UpRun):
         return None
 
 
-def _status(session: zenoh.Session, name: str) -> dict[str, Any] | None:
-    for reply in session.get(Keys(name).status(Service.SIM), timeout=loop.STATUS_TIMEOUT_S):
-        if reply.ok is not None:
-            return json.loads(reply.ok.payload.to_bytes())
-    return None
+def _status(session: zenoh.Session, name: str) -> SimStatus | None:
+    return loop.sim_status(session, Keys(name))
 
 
 def _wait_running(session: zenoh.Session, run: FleetUpRun, first: str) -> None:
     deadline = time.monotonic() + START_TIMEOUT_S
-    while (_status(session, first) or {}).get("state") != "running":
+    while loop._state(_status(session, first)) != "running":
         run.check()
         if time.monotonic() > deadline:
             raise RuntimeError(f"timed out waiting for the fleet's sim running:\n{run.output()}")
         time.sleep(loop.POLL_S)
 
 
-def _late(statuses: Sequence[dict[str, Any] | None]) -> int:
-    return sum(status["counters"].get("missing_torques", 0) for status in statuses if status is not None)
+def _late(statuses: Sequence[SimStatus | None]) -> int:
+    return sum(status.counters.missing_torques for status in statuses if status is not None)
 
 
 def measure_fleet(count: int, mode: str, warmup_s: float, window_s: float) -> FleetResult:
@@ -226,7 +224,7 @@ def measure_fleet(count: int, mode: str, warmup_s: float, window_s: float) -> Fl
             run.stop()
     if first is None or last is None:
         raise RuntimeError("the fleet's sim did not answer its status")
-    steps = last["steps"] - first["steps"]
+    steps = last.steps - first.steps
     wall = last_wall - first_wall
     cpu = last_cpu - first_cpu
     late = _late([last, *last_all]) - _late([first, *first_all])

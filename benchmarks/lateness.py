@@ -45,8 +45,8 @@ def sample(session: Any, seconds: float, interval: float) -> list[dict[str, floa
             raise RuntimeError("the sim did not answer its status")
         intervals.append(
             {
-                "late": status["counters"]["realtime_late_steps"] - previous["counters"]["realtime_late_steps"],
-                "steps": status["steps"] - previous["steps"],
+                "late": status.counters.realtime_late_steps - previous.counters.realtime_late_steps,
+                "steps": status.steps - previous.steps,
                 "steal_ms": (steal - previous_steal) * 1000.0,
             }
         )

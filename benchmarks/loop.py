@@ -16,7 +16,6 @@ the IMU when due, read the wheel angles, compute the torques, apply them, step.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import signal
@@ -31,11 +30,13 @@ from typing import Any
 
 import zenoh
 
-from schemas.keys import Keys, Service
+from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import Time
+from schemas.status import SimStatus, StatusT, TorqueLatencyStatus
 from services import interfaces
 from services.config import Config
 from services.motor.core import MotorCore
+from services.runtime.discovery import StatusReader
 from services.runtime.session import free_port, open_session, session_config
 from sim_bridge.latency import percentiles
 
@@ -127,17 +128,19 @@ def scenario_file(directory: Path) -> Path:
     return path
 
 
-def service_status(session: zenoh.Session, service: Service, keys: Keys = KEYS) -> dict[str, Any] | None:
-    """``service``'s status, or None when it does not answer."""
-    for reply in session.get(keys.status(service), timeout=STATUS_TIMEOUT_S):
-        if reply.ok is not None:
-            answered: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
-            return answered
-    return None
+def service_status(
+    session: zenoh.Session, service: ServiceName, status_type: type[StatusT], keys: Keys = KEYS
+) -> StatusT | None:
+    """``service``'s status, or None when it does not answer or its reply does not decode as ``status_type``."""
+    return StatusReader(session, STATUS_TIMEOUT_S).get(keys.status(service), status_type)
 
 
-def sim_status(session: zenoh.Session) -> dict[str, Any] | None:
-    return service_status(session, Service.SIM)
+def sim_status(session: zenoh.Session, keys: Keys = KEYS) -> SimStatus | None:
+    return service_status(session, Service.SIM, SimStatus, keys)
+
+
+def _state(status: SimStatus | None) -> str | None:
+    return None if status is None else status.state
 
 
 def _alive(session: zenoh.Session, service: Service) -> bool:
@@ -294,11 +297,11 @@ def measure_services(
             run.stop()
 
 
-def window_latency(first: dict[str, Any], last: dict[str, Any]) -> dict[str, float | None]:
+def window_latency(first: TorqueLatencyStatus, last: TorqueLatencyStatus) -> dict[str, float | None]:
     """p50, p99 and max (to the sim's bin width) of the torque latencies counted between two
     ``torque_latency`` status entries: the difference of their histograms."""
-    counts = dict(map(tuple, last["histogram"]))
-    for index, count in first["histogram"]:
+    counts = {index: count for index, count in last.histogram}
+    for index, count in first.histogram:
         counts[index] -= count
     window = {index: count for index, count in counts.items() if count > 0}
     p50, p99, top = percentiles(window, (0.50, 0.99, 1.0))
@@ -331,7 +334,7 @@ def cpu_seconds(roots: Sequence[int]) -> float:
 def wait_until_running(session: zenoh.Session, run: UpRun | ServicesRun) -> None:
     """Until the drive is alive and the sim steps (or ``run`` failed: RuntimeError)."""
     _wait(lambda: _alive(session, Service.DRIVE), "the drive", run)
-    _wait(lambda: (sim_status(session) or {}).get("state") == "running", "the sim running", run)
+    _wait(lambda: _state(sim_status(session)) == "running", "the sim running", run)
 
 
 def _measure(session: zenoh.Session, run: UpRun | ServicesRun, warmup_s: float, window_s: float) -> LoopResult:
@@ -343,32 +346,34 @@ def _measure(session: zenoh.Session, run: UpRun | ServicesRun, warmup_s: float, 
     run.check()
     if first is None or last is None:
         raise RuntimeError("the sim did not answer its status")
-    steps = last["steps"] - first["steps"]
+    steps = last.steps - first.steps
     wall = last_wall - first_wall
-    counters = {name: last["counters"][name] - first["counters"][name] for name in last["counters"]}
-    late_counter = "long_waits" if last["mode"] == "lockstep" else "realtime_late_steps"
-    first_rt, last_rt = first.get("rt") or {}, last.get("rt") or {}
+    late = (
+        last.counters.long_waits - first.counters.long_waits
+        if last.mode == "lockstep"
+        else last.counters.realtime_late_steps - first.counters.realtime_late_steps
+    )
+    missing = last.counters.missing_torques - first.counters.missing_torques
+    first_rt, last_rt = first.rt, last.rt
     gc = (
         {
-            "policy": last_rt["gc"],
-            "collections": [b - a for a, b in zip(first_rt["gc_collections"], last_rt["gc_collections"], strict=True)],
-            "pause_us_per_step": (last_rt["gc_total_pause_us"] - first_rt["gc_total_pause_us"]) / steps
-            if steps
-            else None,
-            "max_pause_us_since_start": last_rt["gc_max_pause_us"],
-            "sched": f"{last_rt['policy']} {last_rt['priority']}",
-            "cpus": last_rt["cpus"],
+            "policy": last_rt.gc,
+            "collections": [b - a for a, b in zip(first_rt.gc_collections, last_rt.gc_collections, strict=True)],
+            "pause_us_per_step": (last_rt.gc_total_pause_us - first_rt.gc_total_pause_us) / steps if steps else None,
+            "max_pause_us_since_start": last_rt.gc_max_pause_us,
+            "sched": f"{last_rt.policy} {last_rt.priority}",
+            "cpus": last_rt.cpus,
         }
-        if last_rt and first_rt
+        if last_rt is not None and first_rt is not None
         else None
     )
     return LoopResult(
         gc=gc,
         steps_per_s=steps / wall,
-        sim_seconds_per_s=(last["sim_time_s"] - first["sim_time_s"]) / wall,
-        latency_us=window_latency(first["torque_latency"], last["torque_latency"]),
-        late_fraction=counters[late_counter] / steps if steps else 1.0,
-        missing_fraction=counters["missing_torques"] / steps if steps else 1.0,
+        sim_seconds_per_s=(last.sim_time_s - first.sim_time_s) / wall,
+        latency_us=window_latency(first.torque_latency, last.torque_latency),
+        late_fraction=late / steps if steps else 1.0,
+        missing_fraction=missing / steps if steps else 1.0,
         steps=steps,
         window_s=wall,
         cpu_us_per_step=(last_cpu - first_cpu) / steps * 1e6 if steps else math.inf,

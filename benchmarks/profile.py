@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
                         loop.sim_status(session),
                         thread_cpu(process.pid),
                     )
-                    steps = (after or {}).get("steps", 0) - (before or {}).get("steps", 0)
+                    steps = (0 if after is None else after.steps) - (0 if before is None else before.steps)
                     threads = {key: value - threads_before.get(key, 0.0) for key, value in threads_after.items()}
                     windows[name] = (wall, steps, threads)
         finally:

@@ -117,8 +117,8 @@ def measure(count: int, ros2: bool, warmup_s: float, window_s: float) -> BridgeR
     first, last = first_all[0], last_all[0]
     if first is None or last is None:
         raise RuntimeError("the fleet's sim did not answer its status")
-    steps = last["steps"] - first["steps"]
-    simulated_s = last["sim_time_s"] - first["sim_time_s"]
+    steps = last.steps - first.steps
+    simulated_s = last.sim_time_s - first.sim_time_s
     late = fleet_bench._late(last_all) - fleet_bench._late(first_all)
     return BridgeRun(
         robots=count,

@@ -33,7 +33,10 @@ from typing import Any
 import zenoh
 
 from schemas.keys import Keys, Service
+from schemas.status import SimStatus
+from schemas.status_kinds import status_type
 from services.recording.report import loop_health
+from services.runtime.discovery import StatusReader
 from services.runtime.session import free_port, open_session, session_config, stop_on_signals
 
 RESULTS = Path(__file__).resolve().parent / "results" / "soak.json"
@@ -115,24 +118,19 @@ def loop_health_of(session: zenoh.Session) -> tuple[dict[str, Any] | None, dict[
     """The loop's health from its services' status replies (as ``invent up`` reports it), and each
     service's C allocations in use (MB, ``status.memory``: what its resident size would be without
     the allocator's high-water mark)."""
-    statuses: dict[str, dict[str, Any] | None] = {}
-    for service in SERVICES:
-        statuses[str(service)] = None
-        for reply in session.get(KEYS.status(service), timeout=STATUS_TIMEOUT_S):
-            if reply.ok is not None:
-                statuses[str(service)] = json.loads(reply.ok.payload.to_bytes())
-                break
+    reader = StatusReader(session, STATUS_TIMEOUT_S)
+    statuses = {str(service): reader.get(KEYS.status(service), status_type(service)) for service in SERVICES}
     in_use = {
-        name: status["memory"]["in_use_mb"]
+        name: status.memory.in_use_mb
         for name, status in statuses.items()
-        if status is not None and (status.get("memory") or {}).get("in_use_mb") is not None
+        if status is not None and status.memory is not None and isinstance(status.memory.in_use_mb, float)
     }
     sim = statuses.pop(str(Service.SIM))
-    if sim is None:
+    if not isinstance(sim, SimStatus):
         return None, in_use
     health = loop_health(sim, statuses)
-    health["steps"] = sim.get("steps", 0)
-    health["sim_time_s"] = sim.get("sim_time_s", 0.0)
+    health["steps"] = sim.steps
+    health["sim_time_s"] = sim.sim_time_s
     return health, in_use
 
 

@@ -54,9 +54,12 @@ from benchmarks.day_memory import FLAT_MB_PER_HOUR, growth, past_high_water, sin
 from benchmarks.hostile_bursts import Burst, draw_bursts
 from benchmarks.soak import directory_mb, rss_mb
 from schemas.codec import decode
-from schemas.keys import Keys, Service
+from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import ScenarioOutcome
+from schemas.status import ServiceStatus
+from schemas.status_kinds import status_type
 from services.config import load_config
+from services.runtime.discovery import StatusReader
 from services.runtime.session import ROUTER_LISTENING, free_port, open_session, session_config
 
 RESULTS = Path(__file__).resolve().parent / "results" / "soak_day.json"
@@ -200,20 +203,16 @@ def start_router(endpoint: str) -> subprocess.Popen[str]:
     raise RuntimeError(f"the router did not start: exit {router.wait()}")
 
 
-def status(
-    session: zenoh.Session, service: Service | str, timeout_s: float = STATUS_TIMEOUT_S
-) -> dict[str, Any] | None:
-    for reply in session.get(KEYS.status(service), timeout=timeout_s):
-        if reply.ok is not None:
-            return json.loads(reply.ok.payload.to_bytes())
-    return None
+def status(session: zenoh.Session, service: ServiceName, timeout_s: float = STATUS_TIMEOUT_S) -> ServiceStatus | None:
+    return StatusReader(session, timeout_s).get(KEYS.status(service), status_type(service))
 
 
 def bad_input_counts(session: zenoh.Session, key: str, services: tuple[Service, ...]) -> list[int]:
     counts = []
     for service in services:
-        entry = ((status(session, service) or {}).get("bad_input") or {}).get("by_key", {}).get(key)
-        counts.append(entry["count"] if entry else 0)
+        answered = status(session, service)
+        entry = None if answered is None else answered.bad_input.by_key.get(key)
+        counts.append(0 if entry is None else entry.count)
     return counts
 
 

@@ -45,10 +45,10 @@ import math
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any
 
 from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND, SimWorld, Time
+from schemas.status import SimStatus, SimWorldStatus
 from services import interfaces
 from services.config import Config, ImuConfig, LidarConfig, SimEngine, SimMode
 from services.fleet.description import Fleet
@@ -232,11 +232,11 @@ class SimService:
             self.node.serve(stop, finished=lambda: False)
         return 0
 
-    def world_status(self) -> dict[str, Any]:
+    def world_status(self) -> SimWorldStatus:
         """The part of every robot's ``sim/status`` that is the world's."""
         return self.run_status.world_status(self.finished)
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> SimStatus:
         return self.links[0].status()
 
     def close(self) -> None:

@@ -9,10 +9,11 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-import msgspec
 import zenoh
 
 from schemas.keys import Service, ServiceName
+from schemas.status import decode_status
+from schemas.status_kinds import status_type
 from services.runtime.executor import STOP_POLL_S
 from services.runtime.node import Node
 from sim_bridge.link import RobotLink
@@ -83,7 +84,10 @@ def await_participants(node: Node, links: Sequence[RobotLink]) -> None:
             if reply is None:
                 continue
             del asked[participant]  # answered: asked again unless it sees this simulator
-            if reply.ok is not None and msgspec.json.decode(reply.ok.payload.to_bytes()).get("sim_alive"):
+            kind = status_type(participant[1])
+            answered = None if reply.ok is None else decode_status(kind, reply.ok.payload.to_bytes())
+            # every participant's kind says sim_alive; a bad reply is no answer: asked again
+            if getattr(answered, "sim_alive", False) is True:
                 waiting.discard(participant)
     if waiting:
         names = sorted(f"{links[index].prefix}{service}" for index, service in waiting)

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
-from typing import Any
+
+from schemas.status import TorqueLatencyStatus
 
 BIN_NS = 10_000
 """Histogram bin width: latencies are resolved to 10 µs."""
@@ -79,15 +80,15 @@ class TorqueLatency:
         """The non-empty bins: ``{index: count}``, bin i holding latencies in [i, i + 1) x BIN_NS."""
         return {index: count for index, count in enumerate(self._bins) if count}
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> TorqueLatencyStatus:
         """Percentiles since the start in µs (None before the first latency), and the histogram."""
         counts = self.histogram()
         p50, p99 = percentiles(counts, (0.50, 0.99))
-        return {
-            "samples": self.samples,
-            "p50_us": p50,
-            "p99_us": p99,
-            "max_us": self.max_ns / NANOSECONDS_PER_MICROSECOND if self.samples else None,
-            "bin_us": BIN_NS / NANOSECONDS_PER_MICROSECOND,
-            "histogram": [[index, count] for index, count in counts.items()],
-        }
+        return TorqueLatencyStatus(
+            samples=self.samples,
+            p50_us=p50,
+            p99_us=p99,
+            max_us=self.max_ns / NANOSECONDS_PER_MICROSECOND if self.samples else None,
+            bin_us=BIN_NS / NANOSECONDS_PER_MICROSECOND,
+            histogram=[[index, count] for index, count in counts.items()],
+        )

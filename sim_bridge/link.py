@@ -11,8 +11,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+import msgspec
 import zenoh
 
 from schemas.codec import encode
@@ -26,6 +27,7 @@ from schemas.messages import (
     TimedPosition,
     TimedVelocity,
 )
+from schemas.status import ImuStatus, LidarStatus, NearestHit, SensorsStatus, SimCounters, SimStatus, SimWorldStatus
 from schemas.topics import Method, MethodFamily
 from services.clock.lockstep import OUTPUTS, StampedOutput, TickBarrier, encode_mark
 from services.clock.observation import ObservedSteps
@@ -122,7 +124,7 @@ class RobotLink:
         step_ns: int,
         progress: RunProgress,
         prefix: str,
-        world_status: Callable[[], dict[str, Any]],
+        world_status: Callable[[], SimWorldStatus],
         seam: MotorSeam = MotorSeam(),
     ) -> None:
         self.node = node
@@ -152,7 +154,7 @@ class RobotLink:
         self._lidar, self._imu = body.lidar, body.imu
         self.next_sensor_ns: float = 0 if self._lidar or self._imu else math.inf
         """The stamp of the next step at which a sensor of the robot is due (inf: it has none)."""
-        self.nearest: dict[str, Any] | None = None
+        self.nearest: NearestHit | None = None
         """What the latest scan's nearest ray hit (``body``, ``range``); None when it hit nothing."""
         warn = RateLimitedLog(node.log)
         self.torque = TorquePolicy(
@@ -344,29 +346,29 @@ class RobotLink:
     def summary(self) -> str:
         return robot_summary(self.counters, planar_pose(self.body.body_pose()))
 
-    def status(self) -> dict[str, Any]:
-        status = self._world_status()
+    def status(self) -> SimStatus:
+        world = self._world_status()
         torque = self.torque
-        status.update(
+        return SimStatus(
+            **msgspec.structs.asdict(world),
             motor_alive=torque.motor_alive,
             motor_silent=torque.silent,
             torques=list(self.body.applied_torques),
             pose=planar_pose(self.body.body_pose()),
-            counters=dict(self.counters),
+            counters=SimCounters(**self.counters),
             torque_latency=self.latency.summary(),
-            late_fraction=late_fraction(self.counters, status["steps"], self._lockstep),
+            late_fraction=late_fraction(self.counters, world.steps, self._lockstep),
             lockstep_participants=self.barrier.status(),
             dropped_participants=list(self.liveness.dropped),
             observed_steps=self.observation.count,
             observed_rates=self.observation.rates(),
             drive_ended=self.liveness.drive_ended,
             braking=self.body.braking,
-            sensors={
-                "lidar": None if self._lidar is None else {"rate": self._lidar.config.rate, "nearest": self.nearest},
-                "imu": None if self._imu is None else {"rate": self._imu.config.rate},
-            },
+            sensors=SensorsStatus(
+                lidar=None if self._lidar is None else LidarStatus(self._lidar.config.rate, self.nearest),
+                imu=None if self._imu is None else ImuStatus(self._imu.config.rate),
+            ),
         )
-        return status
 
     def close(self) -> None:
         self._ticks_watch.undeclare()

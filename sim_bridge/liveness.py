@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 from schemas.keys import Service, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND, TimedPosition, TimedVelocity
+from schemas.status import DroppedParticipant
 from schemas.tokens import parse_observes_key, parse_participant_key
 from services.clock.lockstep import FINAL, MAX_PARTICIPANTS, OUTPUTS, StampedOutput, TickBarrier
 from services.clock.observation import ObservedSteps
@@ -46,7 +47,7 @@ class Liveness:
     other robots go on at their pace)."""
     steps_over: bool = field(default=False, init=False)
     """The lockstep loop has stopped stepping: a participant that goes now (the run's end) is not dropped."""
-    dropped: list[dict[str, object]] = field(default_factory=list, init=False)
+    dropped: list[DroppedParticipant] = field(default_factory=list, init=False)
     """The participants whose token went while the lockstep run stepped and before their last
     output: ``{"service": name, "sim_time_s": the latest step's time}``, in order."""
     _long_wait_ns: int = field(default=-1, init=False)
@@ -106,7 +107,7 @@ class Liveness:
 
     def _drop(self, service: ServiceName) -> None:
         t_s = max(self.progress.published_ns, 0) / NANOSECONDS_PER_SECOND
-        self.dropped.append({"service": str(service), "sim_time_s": t_s})
+        self.dropped.append(DroppedParticipant(str(service), t_s))
         self.log.warning(
             "%s%s gone at t = %.3f s (its liveliness token): dropped, its ticks are not waited for",
             self.prefix,
@@ -118,7 +119,7 @@ class Liveness:
         """A participant's last output came after its token had gone (they travel separately, and
         the token may come first): it ended, it was not dropped."""
         for index in range(len(self.dropped) - 1, -1, -1):
-            if self.dropped[index]["service"] == str(service):
+            if self.dropped[index].service == str(service):
                 del self.dropped[index]
                 self.log.info("%s%s had ended: its last output came after its token", self.prefix, service)
                 return

@@ -8,9 +8,12 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from msgspec import UNSET
 
 from schemas.messages import NANOSECONDS_PER_SECOND, LaserScan
+from schemas.status import NearestHit, PlanarPose, SimParameters, SimWorldStatus
 from services.config import SimConfig
 from sim_bridge.progress import RunProgress
 
@@ -18,13 +21,13 @@ if TYPE_CHECKING:
     from sim_bridge.engine import Engine
 
 
-def planar_pose(body_pose: Sequence[float]) -> dict[str, float]:
+def planar_pose(body_pose: Sequence[float]) -> PlanarPose:
     """x, y and heading of ``sim/body_pose``'s axle centre (x, y, z, rotation row-major)."""
     x, y, _z, r00, _r01, _r02, r10 = body_pose[:7]
-    return {"x": x, "y": y, "theta": math.atan2(r10, r00)}
+    return PlanarPose(x, y, math.atan2(r10, r00))
 
 
-def nearest_hit(scan: LaserScan) -> dict[str, Any] | None:
+def nearest_hit(scan: LaserScan) -> NearestHit | None:
     """The nearest thing ``scan``'s rays hit: its name (when the scan names it) and range; None
     when they hit nothing."""
     best: tuple[float, int] | None = None
@@ -35,12 +38,12 @@ def nearest_hit(scan: LaserScan) -> dict[str, Any] | None:
         return None
     reading, ray = best
     body = scan.bodies[scan.hits[ray]] if scan.hits else None
-    return {"body": body, "range": reading, "angle": scan.angle_min + ray * scan.angle_increment}
+    return NearestHit(body, reading, scan.angle_min + ray * scan.angle_increment)
 
 
-def robot_summary(counters: dict[str, int], pose: dict[str, float]) -> str:
+def robot_summary(counters: dict[str, int], pose: PlanarPose) -> str:
     listed = ", ".join(f"{name} {count}" for name, count in counters.items())
-    return f"{listed}; pose x {pose['x']:.4f} m, y {pose['y']:.4f} m, theta {pose['theta']:.4f} rad"
+    return f"{listed}; pose x {pose.x:.4f} m, y {pose.y:.4f} m, theta {pose.theta:.4f} rad"
 
 
 def late_fraction(counters: dict[str, int], steps: int, lockstep: bool) -> float:
@@ -84,31 +87,29 @@ class RunStatus:
             return f"{head}; {robots[0]}"
         return head + "".join(f"; {name}: {robot}" for name, robot in zip(self.fleet, robots, strict=True))
 
-    def world_status(self, finished: bool) -> dict[str, Any]:
+    def world_status(self, finished: bool) -> SimWorldStatus:
         """The part of every robot's ``sim/status`` that is the world's."""
         sim, parameters = self.sim, self.parameters
         simulated = sim.time_ns / NANOSECONDS_PER_SECOND
         elapsed = self.elapsed()
-        status: dict[str, Any] = {
-            "state": "finished" if finished else ("running" if self.progress.started else "starting"),
-            "engine": parameters.engine,
-            "mode": parameters.mode,
-            "world": str(self.world_file),
-            "sim_time_s": simulated,
-            "steps": sim.step_index,
-            "steps_per_second": self.steps_per_second(),
-            "realtime_factor_achieved": simulated / elapsed if elapsed > 0.0 else 0.0,
-            "parameters": {
-                "step": parameters.step,
-                "observe_every": parameters.observe_every,
-                "duration": self.duration,
-                "lockstep_timeout": parameters.lockstep_timeout,
-                "realtime_factor": parameters.realtime_factor,
-                "torque_max_age": parameters.torque_max_age,
-                "brake_after": parameters.brake_after,
-                "max_wheel_torque": parameters.max_wheel_torque,
-            },
-        }
-        if self.fleet is not None:
-            status["fleet"] = list(self.fleet)
-        return status
+        return SimWorldStatus(
+            state="finished" if finished else ("running" if self.progress.started else "starting"),
+            engine=parameters.engine,
+            mode=parameters.mode,
+            world=str(self.world_file),
+            sim_time_s=simulated,
+            steps=sim.step_index,
+            steps_per_second=self.steps_per_second(),
+            realtime_factor_achieved=simulated / elapsed if elapsed > 0.0 else 0.0,
+            parameters=SimParameters(
+                step=parameters.step,
+                observe_every=parameters.observe_every,
+                duration=self.duration,
+                lockstep_timeout=parameters.lockstep_timeout,
+                realtime_factor=parameters.realtime_factor,
+                torque_max_age=parameters.torque_max_age,
+                brake_after=parameters.brake_after,
+                max_wheel_torque=parameters.max_wheel_torque,
+            ),
+            fleet=UNSET if self.fleet is None else list(self.fleet),
+        )

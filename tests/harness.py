@@ -25,6 +25,8 @@ import pytest
 import zenoh
 
 from schemas.codec import decode
+from schemas.keys import Keys, ServiceName
+from schemas.status_kinds import status_type
 from services.runtime.session import free_port, open_session, session_config
 
 REPO = Path(__file__).resolve().parent.parent
@@ -139,6 +141,15 @@ def call(
     reply = replies[0]
     sample = reply.ok if reply.ok is not None else reply.err
     return reply.ok is not None, json.loads(sample.payload.to_bytes())
+
+
+def status_reply(session: zenoh.Session, keys: Keys, service: ServiceName, timeout: float = 5.0) -> dict[str, Any]:
+    """``service``'s status reply as JSON, for a test that asserts on the wire, once it is checked
+    that the reply decodes (strictly) as its kind's Struct (schemas/status_kinds.py)."""
+    ok, reply = call(session, keys.status(service), timeout=timeout)
+    assert ok, reply
+    msgspec.json.decode(json.dumps(reply), type=status_type(service))
+    return reply
 
 
 def wait_alive(session: zenoh.Session, token_key: str, timeout: float = 20.0) -> None:

@@ -7,16 +7,14 @@ from services.drive.scenarios import ConstantSegment, Scenario
 from services.drive.service import DriveOptions
 from services.launch.composition import Composition
 from services.launch.service_plans import BUILT_IN, ChildPlan
-from tests.harness import call, wait_until
+from tests.harness import status_reply, wait_until
 
 KEYS = Keys("rh0")
 SERVICES = {"motor", "odometry", "localization", "sim", "drive"}
 
 
 def _status(session, service: Service) -> dict:
-    ok, reply = call(session, KEYS.status(service))
-    assert ok, reply
-    return reply
+    return status_reply(session, KEYS, service)
 
 
 def test_every_service_runs_on_the_sims_thread_and_the_drive_finishes_without_one(session):

@@ -82,7 +82,7 @@ def test_a_service_publishes_with_the_congestion_control_of_its_runs_mode_and_sa
     """``invent up`` gives every child ``--set sim.mode=`` of its run: the service takes it from there."""
     node, service = start_service(service_plan(["odometry", "--set", f"sim.mode={mode}"]), session)
     try:
-        assert node.status()["congestion"] == expected
+        assert node.status().congestion == expected
         publisher = node.publisher(KEYS.odometry_pose)
         assert publisher.congestion_control == (
             LOCKSTEP_CONGESTION if expected == "block" else zenoh.CongestionControl.DROP

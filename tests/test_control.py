@@ -4,11 +4,15 @@ up`` start it in place of the two (a plain function, no zenoh)."""
 
 from __future__ import annotations
 
+import json
 import math
+
+import msgspec
 
 from schemas.codec import encode
 from schemas.keys import Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedVelocity
+from schemas.status import ControlStatus
 from schemas.topics import Method, MethodFamily
 from services.config import SimMode
 from services.exits import ExitStatus
@@ -68,6 +72,8 @@ def test_one_invent_control_process_serves_the_sim_and_the_motor_and_a_target_ve
     assert whole["service"] == "control" and whole["state"] == "running", "the process's own status"
     assert set(whole["services"]) == {"sim", "motor"} and whole["steps"] >= sim["steps"]
     assert whole["internal_errors"] == 0
+    typed = msgspec.json.decode(json.dumps(whole), type=ControlStatus)
+    assert typed.services.sim.service == "sim" and typed.services.motor.state == "running", "each status as its kind's"
     assert "started motor in this process" in log and "started sim in this process" in log
     assert code == ExitStatus.OK, log
     assert stopped and restarted["state"] == "stopped", "an operator's stop held across the restart"

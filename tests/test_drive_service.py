@@ -21,7 +21,7 @@ from services.config import DriveConfig
 from services.drive.path_following import Command
 from services.drive.service import FINAL_ZERO_TICKS
 from services.planar import Pose
-from tests.harness import Collector, InventProcess, call, wait_alive, wait_until
+from tests.harness import Collector, InventProcess, call, status_reply, wait_alive, wait_until
 from tests.sim_presence import SimPresence
 from tests.test_path_following import unicycle
 
@@ -191,9 +191,7 @@ def test_a_restarted_simulator_starts_the_scenario_over(endpoint: str, session: 
     commands = Collector(session, KEYS.drive_target_velocity, TimedVelocity)
 
     def drive_status() -> dict:
-        ok, status = call(session, KEYS.status(Service.DRIVE))
-        assert ok, status
-        return status
+        return status_reply(session, KEYS, Service.DRIVE)
 
     with drive(endpoint, "--vx", "0.3", "--w", "0.1", "--for", "1") as process:
         wait_alive(session, KEYS.alive(Service.DRIVE))

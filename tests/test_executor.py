@@ -214,7 +214,7 @@ def test_a_blocked_receive_ends_when_its_timeout_is_over_and_the_wake_is_seen_by
     assert outcome and outcome[0][0] is False and 0.3 <= outcome[0][1] < 2.0
     assert not node.spin_once(0), "the wake sample is not an input"
     assert sampled.take() is False, "nor a sample for a sampled input of the same session"
-    assert handled == [] and node.status()["bad_input"]["total"] == 0
+    assert handled == [] and node.status().bad_input.total == 0
     assert elsewhere.drain() == [], "it never leaves the session"
     elsewhere.close()
     sampled.undeclare()

@@ -29,7 +29,17 @@ from services.launch.plan import UpPlan
 from services.security import Role, UserServiceGrant, user_service_grants, write_fleet_profile, write_profile
 from services.security.grants import Message
 from services.service import ServicePlan, run_service, start_service
-from tests.harness import REPO, call, free_port, peer_session, refused, running_router, wait_alive, wait_until
+from tests.harness import (
+    REPO,
+    call,
+    free_port,
+    peer_session,
+    refused,
+    running_router,
+    status_reply,
+    wait_alive,
+    wait_until,
+)
 
 KEYS = Keys()
 DATA = Path(__file__).parent / "data" / "extension"
@@ -145,7 +155,7 @@ def test_the_api_inputs_outputs_queryables_calls_timers_status_and_its_end_over_
         session.declare_subscriber(KEYS.own(doubler, "output"), lambda s: outputs.put(s.payload.to_bytes()))
         publisher = session.declare_publisher(KEYS.own(doubler, "input"))
         wait_until(lambda: publisher.matching_status.matching, 10, "the doubler to subscribe")
-        ok, status = call(session, KEYS.status(doubler))
+        status_reply(session, KEYS, doubler)  # the runtime's fields decode as a user service's, its own beside them
         wait_until(lambda: call(session, KEYS.status(doubler))[1]["outputs"] == {"output": 0}, 5, "its status")
         publisher.put(msgspec.json.encode(Number(tm=Time(sec=1, nsec=0), value=1.5)))
         assert msgspec.json.decode(outputs.get(timeout=5), type=Number).value == 3.0

@@ -270,7 +270,7 @@ def test_the_live_view_drops_and_counts_a_bad_goal_and_a_recorder_keeps_it_undra
     samples: list[str] = []
     view = SceneBuilder(CONFIG, Sink(lambda key, *_: samples.append(key), lambda *_: None), bad_input=counter)
     view.take(keys.drive_goal, bad, 0)
-    assert samples == [] and counter.as_dict()["by_key"][keys.drive_goal]["count"] == 1
+    assert samples == [] and counter.status().by_key[keys.drive_goal].count == 1
     recorder = SceneBuilder(CONFIG, Sink(lambda key, *_: samples.append(key), lambda *_: None))
     recorder.take(keys.drive_goal, bad, 0)
     assert samples == [keys.drive_goal], "the recording is the evidence"

@@ -19,7 +19,7 @@ from services.clock.lockstep import encode_mark
 from services.config import GoalsConfig
 from services.exits import ExitStatus
 from services.planar import Pose, wrap_angle
-from tests.harness import Collector, call, wait_alive, wait_until
+from tests.harness import Collector, call, status_reply, wait_alive, wait_until
 from tests.test_drive_service import TICK_NS, SyntheticLoop, drive
 
 KEYS = Keys()
@@ -27,9 +27,7 @@ GOALS = GoalsConfig()
 
 
 def drive_status(session: zenoh.Session) -> dict:
-    ok, status = call(session, KEYS.status(Service.DRIVE))
-    assert ok, status
-    return status
+    return status_reply(session, KEYS, Service.DRIVE)
 
 
 def until(loop: SyntheticLoop, command: TimedVelocity, done, max_ticks: int = 3000) -> TimedVelocity:

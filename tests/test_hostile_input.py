@@ -25,7 +25,7 @@ from schemas.keys import CONTROL, LOOP_SERVICES, Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition, TimedVelocity
 from schemas.topics import Method, MethodFamily
 from services.config import DriveConfig, LocalizationConfig
-from tests.harness import call, free_port, peer_session, start_up, wait_until
+from tests.harness import call, free_port, peer_session, start_up, status_reply, wait_until
 
 pytestmark = pytest.mark.slow
 
@@ -139,9 +139,7 @@ def _flood(session: zenoh.Session, clock: SimClock, motor_pid: int) -> tuple[flo
 
 
 def _status(session: zenoh.Session, service: Service) -> dict:
-    ok, status = call(session, KEYS.status(service), timeout=5.0)
-    assert ok, status
-    return status
+    return status_reply(session, KEYS, service)
 
 
 def refused(status: dict) -> dict[str, int]:

@@ -51,7 +51,7 @@ def test_a_composed_service_gets_the_very_message_its_neighbour_published_counte
     publisher.put(sent)
     _spin_until(motor, lambda: taken)
     assert taken == [sent] and taken[0] is sent, "handed over as it is: not encoded, not decoded"
-    assert motor.status()["inputs"][KEYS.sim_wheel_angles].samples == 1
+    assert motor.status().inputs[KEYS.sim_wheel_angles].samples == 1
 
 
 def test_every_message_in_order_and_a_flood_keeps_the_newest_of_a_channel_s_capacity(composed):

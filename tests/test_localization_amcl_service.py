@@ -21,7 +21,7 @@ from services.config import LidarConfig
 from services.config.amcl import AmclConfig
 from services.navigation.grid import FREE, OCCUPIED, Grid, GridGeometry
 from services.navigation.map_file import write_map
-from tests.harness import Collector, InventProcess, call, run_invent, wait_alive, wait_until
+from tests.harness import Collector, InventProcess, call, run_invent, status_reply, wait_alive, wait_until
 
 KEYS = Keys()
 LIDAR = LidarConfig()
@@ -89,9 +89,7 @@ def localization(endpoint: str, map_file: Path, mode: str = "amcl") -> InventPro
 
 
 def status(session: zenoh.Session) -> dict:
-    ok, reply = call(session, KEYS.status(Service.LOCALIZATION))
-    assert ok, reply
-    return reply
+    return status_reply(session, KEYS, Service.LOCALIZATION)
 
 
 def ask(session: zenoh.Session, key: str, payload: bytes) -> LocalizationReply:

@@ -15,7 +15,7 @@ from schemas.keys import Keys, Service
 from schemas.messages import Time, TimedDoubleSeq, TimedPosition
 from services.localization.core import Localizer, Noise
 from services.planar import Pose, wrap_angle
-from tests.harness import Collector, InventProcess, call, refused, wait_alive, wait_until
+from tests.harness import Collector, InventProcess, refused, status_reply, wait_alive, wait_until
 from tests.sim_presence import SimPresence
 
 KEYS = Keys()
@@ -63,9 +63,7 @@ def play(
 
 
 def localization_status(session: zenoh.Session) -> dict:
-    ok, status = call(session, KEYS.status(Service.LOCALIZATION))
-    assert ok, status
-    return status
+    return status_reply(session, KEYS, Service.LOCALIZATION)
 
 
 def localization(endpoint: str, *flags: str) -> InventProcess:

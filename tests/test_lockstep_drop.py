@@ -11,7 +11,7 @@ import time
 import zenoh
 
 from schemas.keys import Keys, Service
-from tests.harness import InventProcess, call, wait_alive, wait_until
+from tests.harness import InventProcess, status_reply, wait_alive, wait_until
 
 KEYS = Keys()
 TIMEOUT_S = 0.1
@@ -19,9 +19,7 @@ TIMEOUT_S = 0.1
 
 
 def sim_status(session: zenoh.Session) -> dict:
-    ok, reply = call(session, KEYS.status(Service.SIM))
-    assert ok, reply
-    return reply
+    return status_reply(session, KEYS, Service.SIM)
 
 
 def test_a_participant_is_waited_for_while_it_lives_and_dropped_at_once_when_its_process_is_killed(session, endpoint):

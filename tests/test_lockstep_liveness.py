@@ -12,6 +12,7 @@ import pytest
 
 from schemas.keys import Keys, Service
 from schemas.messages import Time, TimedVelocity
+from schemas.status import DroppedParticipant
 from services.clock.lockstep import FINAL, TickBarrier
 from services.clock.observation import ObservedSteps
 from services.config import SimConfig
@@ -97,7 +98,7 @@ def test_a_participant_gone_mid_wait_is_dropped_at_once_named_with_the_time_and_
     with caplog.at_level(logging.INFO, "test.liveness"):
         robot.participant_changed(LOCALIZATION_TOKEN, alive=False)
     assert robot.barrier.missing() == [Service.DRIVE], "the wait in progress no longer waits for it"
-    assert robot.dropped == [{"service": "localization", "sim_time_s": 1.0}]
+    assert robot.dropped == [DroppedParticipant("localization", 1.0)]
     assert "localization gone at t = 1.000 s (its liveliness token): dropped" in caplog.text
     assert not robot.barrier.announced(Service.LOCALIZATION)
 
@@ -149,7 +150,7 @@ def test_a_participant_whose_last_output_comes_after_its_token_had_ended_and_is_
     robot.progress.published_ns = 20 * MS
     robot.barrier.ticks(20 * MS)
     robot.participant_changed(DRIVE_TOKEN, alive=False)
-    assert robot.dropped == [{"service": "drive", "sim_time_s": 0.02}] and robot.drive_ended
+    assert robot.dropped == [DroppedParticipant("drive", 0.02)] and robot.drive_ended
     last = TimedVelocity(tm=Time.from_nanoseconds(20 * MS), id=[], vx=0.0, vy=0.0, w=0.0, error=[])
     robot.on_output(Service.DRIVE, last, FINAL)
     assert robot.dropped == []

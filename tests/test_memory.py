@@ -10,7 +10,7 @@ import pytest
 from services.runtime import memory
 from services.runtime.executor import Executor
 
-pytestmark = pytest.mark.skipif(memory.status()["allocator"] != "glibc", reason="trimming needs glibc's malloc_trim")
+pytestmark = pytest.mark.skipif(memory.status().allocator != "glibc", reason="trimming needs glibc's malloc_trim")
 
 
 def _rss_mb() -> float:
@@ -34,15 +34,15 @@ def _freed_in_the_middle(megabytes: int) -> ctypes.c_void_p:
 
 def test_an_idle_moment_after_the_trim_period_hands_the_freed_pages_back(monkeypatch):
     pinned = _freed_in_the_middle(64)
-    before, trims = _rss_mb(), memory.status()["trims"]
-    assert memory.status()["free_mb"] > 50, "freed, kept by the allocator"
+    before, trims = _rss_mb(), memory.status().trims
+    assert memory.status().free_mb > 50, "freed, kept by the allocator"
     # a period just begun, whatever the suite's earlier tests left: the last trim may be over a period ago
     monkeypatch.setattr(memory, "_next_trim", time.monotonic() + memory.TRIM_PERIOD_S)
     memory.trim_when_due()
-    assert memory.status()["trims"] == trims, "not before the period is over"
+    assert memory.status().trims == trims, "not before the period is over"
     monkeypatch.setattr(memory, "_next_trim", 0.0)
     Executor().spin_once(0.01)  # an executor about to wait is the idle moment
     after = _rss_mb()
     ctypes.CDLL(None).free(ctypes.c_void_p(pinned))
-    assert memory.status()["trims"] == trims + 1
+    assert memory.status().trims == trims + 1
     assert before - after > 40, f"RSS {before:.1f} -> {after:.1f} MB"

@@ -11,6 +11,7 @@ import pytest
 
 from schemas.codec import BadInput
 from schemas.messages import PDGains
+from schemas.status import Velocity
 from services.config import CalibratedGeometry, InputConfig, MotorConfig, OdometryConfig, RobotConfig, TargetAngleMode
 from services.motor.core import MotorCore, MotorState
 from services.motor.sim_pose import SimPoseConverter
@@ -91,7 +92,7 @@ def test_the_calibrated_geometry_turns_commands_into_wheel_speeds():
     motor_core.step(1 * MS, [0.0, 0.0])
     # b = 0.441 * 1.02 / 2 = 0.22491; dq_ref_L = (0.5 - 0.22491) / 0.0995, dq_ref_R = (0.5 + 0.22491) / 0.1005
     assert motor_core.dq_ref == pytest.approx((2.764723618, 7.213034826))
-    assert motor_core.status()["geometry"]["half_axle"] == pytest.approx(0.22491)
+    assert motor_core.status().geometry["half_axle"] == pytest.approx(0.22491)
 
 
 def test_non_default_wheel_ids_in_a_three_joint_vector():
@@ -382,11 +383,11 @@ def test_status_reports_state_gains_geometry_and_counters():
     motor_core = running(vx=0.5, max_vx=1.0)
     motor_core.step(1 * MS, [0.0, 0.0])
     status = motor_core.status()
-    assert status["state"] == "running"
-    assert status["target_angle"] == TargetAngleMode.SEED
-    assert status["gains"] == {"p_gain_l": 5.0, "p_gain_r": 5.0, "d_gain_l": 2.0, "d_gain_r": 2.0}
-    assert status["geometry"]["length_of_axle"] == 0.441
-    assert status["limits"]["max_vx"] == 1.0 and status["limits"]["max_ax"] is None
-    assert status["target"] == {"vx": 0.5, "w": 0.0}
-    assert status["counters"]["wheel_angle_samples"] == 2
-    assert status["counters"]["target_velocity_samples"] == 1
+    assert status.state == "running"
+    assert status.target_angle == TargetAngleMode.SEED
+    assert status.gains == {"p_gain_l": 5.0, "p_gain_r": 5.0, "d_gain_l": 2.0, "d_gain_r": 2.0}
+    assert status.geometry["length_of_axle"] == 0.441
+    assert status.limits["max_vx"] == 1.0 and status.limits["max_ax"] is None
+    assert status.target == Velocity(0.5, 0.0)
+    assert status.counters.wheel_angle_samples == 2
+    assert status.counters.target_velocity_samples == 1

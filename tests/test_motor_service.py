@@ -33,6 +33,7 @@ from tests.harness import (
     free_port,
     open_peer,
     open_router,
+    status_reply,
     wait_alive,
     wait_until,
 )
@@ -105,9 +106,7 @@ class MotorLink:
         self.publishers[key].put(payload)
 
     def status(self) -> dict[str, Any]:
-        ok, value = call(self.session, self.keys.status(Service.MOTOR))
-        assert ok, value
-        return value
+        return status_reply(self.session, self.keys, Service.MOTOR)
 
     def counter(self, name: str) -> int:
         return self.status()["counters"][name]

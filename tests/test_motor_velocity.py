@@ -41,7 +41,7 @@ def test_a_running_core_sends_the_wheel_speeds_of_its_command():
     targets = motor.step(1 * MS, [0.0, 0.0])
     assert targets == pytest.approx(list(wheel_speeds(0.3, 0.5)))
     assert motor.state is MotorState.RUNNING and motor.q_ref is None
-    assert motor.status()["output"] == "velocity" and motor.status()["velocity_rate"] == 100.0
+    assert motor.status().output == "velocity" and motor.status().velocity_rate == 100.0
 
 
 def test_targets_change_on_the_rate_grid_and_are_held_between():

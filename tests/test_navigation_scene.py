@@ -270,7 +270,7 @@ def test_a_grid_no_drive_publishes_is_dropped_by_the_view_and_kept_undrawn_by_a_
     drawn: list[str] = []
     sink = Sink(lambda key, *_: samples.append(key), lambda topic, *_: drawn.append(topic))
     SceneBuilder(CONFIG, sink, bad_input=counter).take(KEYS.drive_map, bad, 0)
-    assert samples == [] and drawn == [] and counter.as_dict()["by_key"][KEYS.drive_map]["count"] == 1
+    assert samples == [] and drawn == [] and counter.status().by_key[KEYS.drive_map].count == 1
     SceneBuilder(CONFIG, sink).take(KEYS.drive_map, bad, 0)
     assert samples == [KEYS.drive_map] and drawn == [], "the recording is the evidence"
 

@@ -27,11 +27,11 @@ from services.odometry.core import Branch, Odometry, Step
 from tests.harness import (
     Collector,
     InventProcess,
-    call,
     peer_session,
     refused,
     run_invent,
     running_router,
+    status_reply,
     wait_alive,
     wait_until,
 )
@@ -95,9 +95,7 @@ class OdometryLink:
         return self.send_wheels(self.time_ns + dt_ns, self.q_left + dq_left, self.q_right + dq_right)
 
     def status(self) -> dict[str, Any]:
-        ok, status = call(self.session, self.keys.status(Service.ODOMETRY))
-        assert ok, status
-        return status
+        return status_reply(self.session, self.keys, Service.ODOMETRY)
 
     def bad_input_count(self, key: str) -> int:
         entry = self.status()["bad_input"]["by_key"].get(key)

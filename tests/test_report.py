@@ -2,32 +2,29 @@
 when a run counts as degraded; the outcome of a run that ended early, what a report lacks, and the
 health rebuilt from recorded status replies, whatever they hold."""
 
+import json
+
+import msgspec
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from schemas.status import DroppedParticipant
 from services.recording.report import (
     DEGRADED_FRACTION,
     degradations,
     early_outcome,
     loop_health,
     missing_parts,
-    readable_statuses,
+    readable_status,
     recorded_health,
 )
-
-
-def _service(bad: int = 0, internal: int = 0, dropped: int = 0) -> dict:
-    return {"bad_input": {"total": bad}, "internal_errors": internal, "dropped_events": dropped}
-
-
-def _sim(mode: str, steps: int, **counters: int) -> dict:
-    return {"mode": mode, "steps": steps, "counters": counters}
+from tests.status_samples import drive_status, service_status, sim_status
 
 
 def test_realtime_late_and_missing_fractions_come_from_the_sims_counters():
     health = loop_health(
-        _sim("realtime", 15_490, realtime_late_steps=12_930, missing_torques=6_114, realtime_resyncs=3),
-        {"motor": _service(bad=2), "odometry": _service(), "sim": None},
+        sim_status("realtime", 15_490, realtime_late_steps=12_930, missing_torques=6_114, realtime_resyncs=3),
+        {"motor": service_status(bad=2), "odometry": service_status(), "sim": None},
     )
     assert health["torques"]["late_fraction"] == 12_930 / 15_490
     assert health["torques"]["missing_fraction"] == 6_114 / 15_490
@@ -43,16 +40,18 @@ def test_realtime_late_and_missing_fractions_come_from_the_sims_counters():
 def test_a_clean_run_is_not_degraded_and_the_threshold_is_exclusive():
     steps = 10_000
     at_threshold = round(steps * DEGRADED_FRACTION)
-    health = loop_health(_sim("realtime", steps, realtime_late_steps=at_threshold), {"motor": _service(bad=5)})
+    health = loop_health(
+        sim_status("realtime", steps, realtime_late_steps=at_threshold), {"motor": service_status(bad=5)}
+    )
     assert degradations(health) == [], "bad input refused is no degradation of the loop"
-    health = loop_health(_sim("realtime", steps, realtime_late_steps=at_threshold + 1), {})
+    health = loop_health(sim_status("realtime", steps, realtime_late_steps=at_threshold + 1), {})
     assert len(degradations(health)) == 1
 
 
 def test_an_internal_error_or_a_dropped_event_degrades_a_run_and_a_lockstep_step_is_never_late():
     health = loop_health(
-        _sim("lockstep", 20_000, missing_torques=3),
-        {"motor": _service(internal=1), "odometry": _service(dropped=7)},
+        sim_status("lockstep", 20_000, missing_torques=3),
+        {"motor": service_status(internal=1), "odometry": service_status(dropped=7)},
     )
     assert health["torques"]["late"] == 0 and health["torques"]["missing"] == 3, "a lockstep step waits"
     assert degradations(health) == ["motor: 1 internal errors", "odometry: 7 dropped events"]
@@ -64,17 +63,17 @@ def test_no_sim_status_gives_zeros_not_an_error():
 
 
 def test_a_drive_tick_commanded_from_an_older_pose_degrades_a_lockstep_run():
-    drive = {**_service(), "pose_wait_timeouts": 1}
-    health = loop_health(_sim("lockstep", 20_000), {"motor": _service(), "drive": drive})
+    drive = drive_status(pose_wait_timeouts=1)
+    health = loop_health(sim_status("lockstep", 20_000), {"motor": service_status(), "drive": drive})
     assert health["lockstep"]["pose_wait_timeouts"] == 1
     (reason,) = degradations(health)
     assert reason.startswith("1 drive ticks commanded from an older pose")
-    realtime = loop_health(_sim("realtime", 20_000), {"drive": drive})
+    realtime = loop_health(sim_status("realtime", 20_000), {"drive": drive})
     assert degradations(realtime) == [], "in realtime the drive never waits for a pose"
 
 
 def test_a_health_recorded_before_the_drive_was_reported_still_reads():
-    health = loop_health(_sim("lockstep", 20_000), {})
+    health = loop_health(sim_status("lockstep", 20_000), {})
     del health["lockstep"]["pose_wait_timeouts"]
     assert degradations(health) == []
 
@@ -139,20 +138,35 @@ json_values = st.recursive(
     )
 )
 def test_recorded_status_replies_never_break_the_health_only_the_readable_count(statuses):
-    readable = readable_statuses(statuses)
+    readable = {
+        name: status
+        for name, reply in statuses.items()
+        if (status := readable_status(name, json.dumps(reply).encode())) is not None
+    }
     health = recorded_health(readable)
     degradations(health)
     assert set(health["services"]) <= set(readable) <= set(statuses)
 
 
+def test_a_recorded_reply_of_its_kind_is_read_and_one_of_another_shape_is_not():
+    sim = msgspec.json.encode(sim_status("lockstep", 20_000, missing_torques=3))
+    readable = readable_status("sim", sim)
+    assert readable is not None and readable[0].counters.missing_torques == 3
+    assert readable_status("motor", sim) is None, "a sim's reply is no motor's"
+    assert readable_status("sim", sim.replace(b'"steps":20000', b'"steps":"many"')) is None
+    assert readable_status("sim", b"not json") is None
+    user = readable_status(
+        "odometer", b'{"poses": 3, "sim_alive": true, "sim_time_s": null, "lockstep": null, "outputs": {}, "calls": {}}'
+    )
+    assert user is not None and user[1]["poses"] == 3, "a user service's own fields come with it"
+    assert recorded_health({"odometer": user})["user_services"] == {"odometer": user[1]}
+
+
 def test_a_participant_dropped_mid_run_is_named_and_degrades_it_but_long_waits_do_not():
-    sim = {
-        **_sim("lockstep", 20_000, long_waits=3),
-        "dropped_participants": [{"service": "localization", "sim_time_s": 3.2}],
-    }
-    health = loop_health(sim, {"sim": _service()})
+    sim = sim_status("lockstep", 20_000, (DroppedParticipant("localization", 3.2),), long_waits=3)
+    health = loop_health(sim, {"sim": service_status()})
     assert "long_waits" not in health["lockstep"], "how long waits took is the machine's, as the wall time"
     (reason,) = degradations(health)
     assert reason == "localization dropped at t = 3.200 s (its token went first)"
-    health = loop_health(_sim("lockstep", 20_000, long_waits=3), {"sim": _service()})
+    health = loop_health(sim_status("lockstep", 20_000, long_waits=3), {"sim": service_status()})
     assert degradations(health) == [], "a wait that went on is only slower: the run is the same"

@@ -25,7 +25,17 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from tests import ros_client, ros_services
-from tests.harness import REPO, at_rest, call, free_port, invent_command, peer_session, wait_alive, wait_until
+from tests.harness import (
+    REPO,
+    at_rest,
+    call,
+    free_port,
+    invent_command,
+    peer_session,
+    status_reply,
+    wait_alive,
+    wait_until,
+)
 
 pytestmark = [pytest.mark.slow, pytest.mark.kinematic]
 
@@ -49,9 +59,7 @@ class Run:
     node: ros_client.RosNode
 
     def status(self, service: Service) -> dict[str, Any]:
-        ok, status = call(self.session, KEYS.status(service))
-        assert ok, status
-        return status
+        return status_reply(self.session, KEYS, service)
 
     def pose(self) -> tuple[float, float, float]:
         pose = self.status(Service.SIM)["pose"]

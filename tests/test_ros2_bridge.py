@@ -25,7 +25,16 @@ from schemas.codec import decode
 from schemas.keys import Keys, Service
 from schemas.messages import TimedPosition
 from tests import ros_client, ros_services
-from tests.harness import at_rest, call, invent_command, peer_session, running_router, wait_alive, wait_until
+from tests.harness import (
+    at_rest,
+    call,
+    invent_command,
+    peer_session,
+    running_router,
+    status_reply,
+    wait_alive,
+    wait_until,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -75,9 +84,7 @@ class Loop:
     output: Path
 
     def status(self, service: Service) -> dict[str, Any]:
-        ok, status = call(self.session, KEYS.status(service))
-        assert ok
-        return status
+        return status_reply(self.session, KEYS, service)
 
     def ground_truth(self) -> tuple[float, float, float]:
         """The simulated body's (x, y, yaw) now."""

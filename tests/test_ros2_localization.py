@@ -36,7 +36,7 @@ from services.ros2 import graph, interfaces, navigate, wire
 from services.ros2.graph import bridge_graph
 from services.ros2.outputs import RosOutputs
 from tests import ros_client
-from tests.harness import InventProcess, call, peer_session, running_router, wait_until
+from tests.harness import InventProcess, call, peer_session, running_router, status_reply, wait_until
 
 MS = 1_000_000
 S = 1_000 * MS
@@ -237,9 +237,7 @@ class Stand:
         return self.clock_ns
 
     def status(self) -> dict[str, Any]:
-        ok, status = call(self.session, KEYS.status(Service.ROS2))
-        assert ok
-        return status
+        return status_reply(self.session, KEYS, Service.ROS2)
 
     def received(self, topic: str, interface: str) -> list[Any]:
         key = ros_client.topic_key(DOMAIN, topic, interface)

@@ -16,11 +16,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import pytest
 
 from schemas.codec import encode
 from schemas.keys import Keys, Service, user_service_name
 from schemas.messages import PlannedPath, RunSummary, Time, TimedDoubleSeq
+from schemas.status import BadInputStatus
 from services.config import load_config
 from services.recording.mcap_files import McapWriter, read_messages, read_run
 from services.recording.record import write_run_recording
@@ -28,6 +30,7 @@ from services.recording.report import loop_health
 from services.recording.run_report import robot_report
 from services.runtime.journal import Journal, journal_path
 from tests.harness import REPO, free_port, peer_session, run_invent, start_up, wait_until
+from tests.status_samples import motor_status, sim_status, user_service_status
 
 KEYS = Keys()
 ODOMETER = f"{REPO / 'examples' / 'services' / 'odometer.py'}:Odometer"
@@ -194,11 +197,12 @@ def _journals(directory: Path, summary: RunSummary | None, steps: int = 4000) ->
     up = Journal(journal_path(directory, "up"))
     for half in range(steps // 500):
         at = PUBLISHED_NS + half * 500 * MS
-        counters = {"bad_input": {"total": half}, "internal_errors": 0, "dropped_events": 0}
-        sim_status = {**counters, "mode": "lockstep", "steps": half * 500, "counters": {"torques_applied": half * 500}}
-        up.write(KEYS.status(Service.SIM), json.dumps(sim_status).encode(), at)
-        up.write(KEYS.status(Service.MOTOR), json.dumps(counters).encode(), at + 1)
-        up.write(KEYS.status(ODOMETER_NAME), json.dumps({**counters, "distance_m": half}).encode(), at + 2)
+        sim = msgspec.structs.replace(
+            sim_status("lockstep", half * 500, torques_applied=half * 500), bad_input=BadInputStatus(total=half)
+        )
+        up.write(KEYS.status(Service.SIM), msgspec.json.encode(sim), at)
+        up.write(KEYS.status(Service.MOTOR), msgspec.json.encode(motor_status(bad=half)), at + 1)
+        up.write(KEYS.status(ODOMETER_NAME), user_service_status(bad=half, distance_m=half), at + 2)
     up.write(KEYS.status(Service.ODOMETRY), b'{"bad_input": "lots"}', PUBLISHED_NS + 3)
     if summary is not None:
         up.write(KEYS.run_summary, encode(summary), PUBLISHED_NS + steps * MS)
@@ -229,6 +233,7 @@ def test_a_recording_without_its_summary_takes_its_health_from_the_last_status_r
     services = report["health"]["services"]
     assert set(services) == {"sim", "motor", "odometer"}, "odometry's bad status left out, not fatal"
     assert services["motor"]["bad_inputs"] == 7, "the last reply recorded"
+    assert services["odometer"]["bad_inputs"] == 7 and services["sim"]["bad_inputs"] == 7
     assert report["health"]["user_services"]["odometer"]["distance_m"] == 7
     assert report["health"]["torques"]["applied"] == 3500
     assert report["missing"] == [

@@ -16,6 +16,7 @@ from services.runtime.inputs import Delivery
 from services.runtime.node import Node
 from services.runtime.session import DEFAULT_ENDPOINT, LOOPBACK_LISTEN, has_match, session_config, stop_on_signals
 from tests.harness import REPO, call, free_port, peer_session, refused, run_invent, wait_until
+from tests.status_samples import StateStatus
 
 
 @pytest.fixture
@@ -61,10 +62,10 @@ def test_bad_input_is_dropped_counted_and_logged_once_per_interval(session, node
         publisher.put(b'{"tm":{"sec":0,"nsec":2},"data":[1.0]}')
         _spin_until(node, lambda: received)
     assert received == [TimedDoubleSeq(Time(0, 2), [1.0])]
-    counts = node.status()["bad_input"]
-    assert counts["total"] == 2
-    assert counts["by_key"][key]["count"] == 2
-    assert "out of range" in counts["by_key"][key]["last_reason"]
+    counts = node.status().bad_input
+    assert counts.total == 2
+    assert counts.by_key[key].count == 2
+    assert "out of range" in counts.by_key[key].last_reason
     lines = [r.getMessage() for r in caplog.records if "bad input" in r.getMessage()]
     assert len(lines) == 1
     assert key in lines[0] and "not JSON" in lines[0]
@@ -97,11 +98,11 @@ def test_a_bug_in_a_handler_is_logged_counted_and_not_fatal(session, node):
     publisher.put(b'{"tm":{"sec":0,"nsec":2},"data":[4.0]}')
     _spin_until(node, lambda: seen)
     assert seen == [0.25]
-    assert node.status()["internal_errors"] == 1
+    assert node.status().internal_errors == 1
 
 
 def test_status_and_queryables_answer_from_the_service_thread(session, node):
-    node.set_status(lambda: {"state": "running"})
+    node.set_status(lambda: StateStatus(state="running"))
     stop = threading.Event()
     spinner = threading.Thread(target=node.serve, args=(stop, lambda: False))
     spinner.start()

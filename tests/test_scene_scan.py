@@ -141,6 +141,6 @@ def test_a_bad_scan_is_dropped_and_counted_by_a_view_and_kept_unshown_by_a_recor
     for name, payload in BAD_SCANS.items():
         counter = BadInputCounter("view")
         assert _taken(payload, counter) == {"samples": good[0], "shown": good[1]}, f"{name}: dropped, then goes on"
-        assert counter.as_dict()["by_key"][KEYS.sim_scan]["count"] == 1, name
+        assert counter.status().by_key[KEYS.sim_scan].count == 1, name
         recorded = _taken(payload, None)
         assert recorded == {"samples": [KEYS.sim_scan, *good[0]], "shown": good[1]}, f"{name}: recorded, not shown"

@@ -22,7 +22,7 @@ from services.clock.lockstep import StepMark, decode_mark, observed
 from services.config import SimConfig
 from services.runtime.inputs import contents
 from sim_bridge.display import DISPLAY_VARIABLE
-from tests.harness import Collector, InventProcess, call, refused, wait_alive, wait_until
+from tests.harness import Collector, InventProcess, refused, status_reply, wait_alive, wait_until
 
 KEYS = Keys()
 STEP_NS = 1_000_000
@@ -126,9 +126,7 @@ def finish(sim: InventProcess) -> str:
 
 
 def status(session: zenoh.Session) -> dict:
-    ok, reply = call(session, KEYS.status(Service.SIM))
-    assert ok, reply
-    return reply
+    return status_reply(session, KEYS, Service.SIM)
 
 
 def yaw(data: list[float]) -> float:

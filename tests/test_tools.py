@@ -8,12 +8,13 @@ import pytest
 from schemas import BadInput, Keys, Method, MethodFamily, Service, Time, TimedDoubleSeq
 from services.runtime.node import Node
 from tests.harness import Collector, InventProcess, free_port, json_lines, open_peer, run_invent, wait_until
+from tests.status_samples import StateStatus
 
 
 @pytest.fixture
 def node(session):
     """A service node spinning on its own thread, as a service would."""
-    node = Node(session, Keys("rh0"), Service.MOTOR, status=lambda: {"state": "idle"})
+    node = Node(session, Keys("rh0"), Service.MOTOR, status=lambda: StateStatus(state="idle"))
     stop = threading.Event()
     spinner = threading.Thread(target=node.serve, args=(stop, lambda: False))
     spinner.start()
@@ -82,7 +83,7 @@ def test_call_exits_non_zero_on_reply_err(endpoint, node):
     result = run_invent("call", key, "{}", "--connect", endpoint)
     assert result.returncode == 1
     assert "gains must be >= 0" in result.stderr
-    assert node.status()["bad_input"]["by_key"][key]["count"] == 1
+    assert node.status().bad_input.by_key[key].count == 1
 
 
 def test_call_against_nothing_exits_non_zero_with_a_clear_message(endpoint):

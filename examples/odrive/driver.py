@@ -37,6 +37,7 @@ from examples.odrive.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, AXIS_STA
 from schemas.codec import BadInput
 from schemas.keys import Keys, Service
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq
+from schemas.status import ServiceStatus
 from schemas.tokens import parse_observes_key, parse_ticks_key
 from services.clock.lockstep import encode_mark
 from services.clock.observation import ObservedSteps
@@ -69,6 +70,20 @@ COUNTERS = (
     "axis_faults",
     "rearms",
 )
+
+
+class ODrivePlantStatus(ServiceStatus, kw_only=True, tag_field="plant", tag="odrive"):
+    """This plant's ``sim/status``: its own, not the simulator's (``plant`` ``odrive`` says so)."""
+
+    state: str
+    output: str
+    time_s: float
+    rate_hz: float
+    counters: dict[str, int]
+    stray_lines: int
+    overlong_lines: int
+    axis_states: tuple[int, int] | None
+    observed_rates: dict[str, float]
 
 
 class Driver:
@@ -244,19 +259,18 @@ class Driver:
                 self._poll_states()
             step_index += 1
 
-    def status(self) -> dict[str, Any]:
-        return {
-            "state": "running",
-            "plant": "odrive",
-            "output": "velocity" if self.velocity else "torque",
-            "time_s": max(self.published_ns, 0) / NANOSECONDS_PER_SECOND,
-            "rate_hz": NANOSECONDS_PER_SECOND / self.step_ns,
-            "counters": dict(self.counters),
-            "stray_lines": self.odrive.stray_lines,
-            "overlong_lines": self.odrive.port.splitter.overlong,
-            "axis_states": self.states,
-            "observed_rates": self.observation.rates(),
-        }
+    def status(self) -> ODrivePlantStatus:
+        return ODrivePlantStatus(
+            state="running",
+            output="velocity" if self.velocity else "torque",
+            time_s=max(self.published_ns, 0) / NANOSECONDS_PER_SECOND,
+            rate_hz=NANOSECONDS_PER_SECOND / self.step_ns,
+            counters=dict(self.counters),
+            stray_lines=self.odrive.stray_lines,
+            overlong_lines=self.odrive.port.splitter.overlong,
+            axis_states=self.states,
+            observed_rates=self.observation.rates(),
+        )
 
     def close(self) -> None:
         for watch in self._watches:

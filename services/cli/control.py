@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import argparse
 import time
-from collections.abc import Mapping
 from typing import Any
 
 from schemas.keys import Service
+from schemas.status import ComposedServices, ControlStatus, MotorStatus, SimStatus
 from services.cli.flags import session_from_args
 from services.cli.serve import add_journal_arguments, plan_from_args
 from services.cli.services import service_cli
@@ -31,21 +31,20 @@ COMPOSED = (Service.MOTOR, Service.SIM)
 """Started in this order: the sim's thread runs the loop and handles the motor's inputs."""
 
 
-def control_status(robot: str, uptime_s: float, services: Mapping[str, dict[str, Any]]) -> dict[str, Any]:
+def control_status(robot: str, uptime_s: float, sim: SimStatus, motor: MotorStatus) -> ControlStatus:
     """The process's own status (``control/status``): the motor's state, the sim's steps and late
     fraction and both services' internal errors first, as a container's health check reads them,
     then each service's whole status under its name (the same as ``sim/status`` and ``motor/status``)."""
-    sim, motor = services[Service.SIM], services[Service.MOTOR]
-    return {
-        "service": "control",
-        "robot": robot,
-        "uptime_s": round(uptime_s, 3),
-        "state": motor.get("state"),
-        "steps": sim.get("steps"),
-        "late_fraction": sim.get("late_fraction"),
-        "internal_errors": sum(status.get("internal_errors", 0) for status in services.values()),
-        "services": dict(services),
-    }
+    return ControlStatus(
+        service="control",
+        robot=robot,
+        uptime_s=round(uptime_s, 3),
+        state=motor.state,
+        steps=sim.steps,
+        late_fraction=sim.late_fraction,
+        internal_errors=sim.internal_errors + motor.internal_errors,
+        services=ComposedServices(sim=sim, motor=motor),
+    )
 
 
 def serve_status(composition: Composition) -> None:
@@ -53,9 +52,11 @@ def serve_status(composition: Composition) -> None:
     node = composition.services[-1].node
     since = time.monotonic()
 
-    def status(_payload: bytes) -> dict[str, Any]:
+    def status(_payload: bytes) -> ControlStatus:
         services = {composed.name: composed.node.status() for composed in composition.services}
-        return control_status(node.keys.robot, time.monotonic() - since, services)
+        sim, motor = services[Service.SIM], services[Service.MOTOR]
+        assert isinstance(sim, SimStatus) and isinstance(motor, MotorStatus), "the composition is the sim and the motor"
+        return control_status(node.keys.robot, time.monotonic() - since, sim, motor)
 
     node.declared.also_serve(node.keys.control_status)
     node.queryable(node.keys.control_status, status)

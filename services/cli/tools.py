@@ -249,6 +249,6 @@ def run_status(session: zenoh.Session, robot: str | None, timeout: float) -> int
     if not statuses:
         print(f"invent status: no service alive on {key_expr}", file=sys.stderr)
         return ExitStatus.FAILURE
-    for robot_name, service, status in statuses:
-        _print_json({"robot": robot_name, "service": str(service), "alive": True, "status": status})
+    for robot_name, service, _status, reply in statuses:
+        _print_json({"robot": robot_name, "service": str(service), "alive": True, "status": reply})
     return ExitStatus.OK

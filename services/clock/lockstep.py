@@ -45,6 +45,7 @@ import msgspec
 from schemas.codec import BadInput
 from schemas.keys import Service, ServiceName
 from schemas.messages import NANOSECONDS_PER_SECOND, Time
+from schemas.status import LockstepParticipant
 from schemas.topics import Topic
 from services.clock.sim_time import PeriodicSchedule
 
@@ -350,16 +351,14 @@ class TickBarrier:
             if participant.taken_ns is not None and isinstance(service, Service) and service in OUTPUTS
         }
 
-    def status(self) -> dict[str, dict[str, object]]:
+    def status(self) -> dict[str, LockstepParticipant]:
         return {
-            str(service): {
-                "rate_hz": participant.rate_hz,
-                "output": participant.output,
-                "waited_for": participant.schedule is not None and not participant.final,
-                "last_output_s": None
-                if participant.taken_ns is None
-                else participant.taken_ns / NANOSECONDS_PER_SECOND,
-                "final": participant.final,
-            }
+            str(service): LockstepParticipant(
+                rate_hz=participant.rate_hz,
+                output=participant.output,
+                waited_for=participant.schedule is not None and not participant.final,
+                last_output_s=None if participant.taken_ns is None else participant.taken_ns / NANOSECONDS_PER_SECOND,
+                final=participant.final,
+            )
             for service, participant in self._participants.items()
         }

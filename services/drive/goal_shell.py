@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import Any
 
 from schemas.codec import BadMessage, decode
+from schemas.drive_status import GoalsStatus
 from schemas.messages import NANOSECONDS_PER_SECOND, ScenarioOutcome, Time
 from schemas.navigation import CancelReply, CancelRequest, GoalFeedback, GoalReply, GoalRequest, GoalTarget
 from services.clock.sim_time import PeriodicSchedule
@@ -230,10 +230,9 @@ class GoalDrive:
             self.schedule.sent = 0
         self._start_ns = self._last_tick_ns = None
 
-    def status(self) -> dict[str, Any]:
-        return {
-            **self.goals.status(),
-            "feedback_published": self.feedback_published,
-            "file_entries_sent": None if self.schedule is None else self.schedule.sent,
-            "file_entries": None if self.schedule is None else len(self.schedule.entries),
-        }
+    def status(self) -> GoalsStatus:
+        return self.goals.status(
+            feedback_published=self.feedback_published,
+            file_entries_sent=None if self.schedule is None else self.schedule.sent,
+            file_entries=None if self.schedule is None else len(self.schedule.entries),
+        )

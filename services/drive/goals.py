@@ -16,6 +16,7 @@ import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
+from schemas.drive_status import EndedGoal, GoalsStatus, RunningGoalStatus
 from schemas.messages import NANOSECONDS_PER_SECOND
 from schemas.navigation import MAX_GOAL_SECONDS, CancelReply, CancelRequest, GoalReply, GoalRequest
 from services.config import DriveConfig, GoalsConfig, InputConfig, NavigationConfig
@@ -378,25 +379,27 @@ class Goals:
             return None
         return running.goal.id, navigator.plan_version, navigator.plan.points
 
-    def status(self) -> dict[str, object]:
+    def status(self, feedback_published: int, file_entries_sent: int | None, file_entries: int | None) -> GoalsStatus:
+        """The goals' part of ``drive/status``, with what the shell published and sent from a goal file."""
         running = self.running
         last = self.last
-        return {
-            "running": None
+        return GoalsStatus(
+            running=None
             if running is None
-            else {
-                "id": running.goal.id,
-                "phase": str(running.phase),
-                "x": running.goal.x,
-                "y": running.goal.y,
-                "theta": running.goal.theta,
-                "attempt": running.attempts,
-                "time_limit_s": running.time_limit_s,
-                "navigation": None if running.navigator is None else running.navigator.status(),
-            },
-            "pending": None if self.pending is None else self.pending.id,
-            "last": None
-            if last is None
-            else {"id": last.goal.id, "outcome": str(last.outcome), "reason": last.reason, "elapsed_s": last.elapsed_s},
+            else RunningGoalStatus(
+                id=running.goal.id,
+                phase=str(running.phase),
+                x=running.goal.x,
+                y=running.goal.y,
+                theta=running.goal.theta,
+                attempt=running.attempts,
+                time_limit_s=running.time_limit_s,
+                navigation=None if running.navigator is None else running.navigator.status(),
+            ),
+            pending=None if self.pending is None else self.pending.id,
+            last=None if last is None else EndedGoal(last.goal.id, str(last.outcome), last.reason, last.elapsed_s),
             **self.counts,
-        }
+            feedback_published=feedback_published,
+            file_entries_sent=file_entries_sent,
+            file_entries=file_entries,
+        )

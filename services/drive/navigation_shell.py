@@ -18,9 +18,9 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
-from typing import Any
 
 from schemas.codec import BadInput
+from schemas.drive_status import DriveNavigationStatus
 from schemas.messages import NANOSECONDS_PER_SECOND, LaserScan, Time
 from schemas.navigation import GoalPlan
 from services.clock.sim_time import PeriodicSchedule, check_stamp_near
@@ -180,6 +180,8 @@ class NavigationShell:
             self._plan.put(GoalPlan(Time.from_nanoseconds(tick_ns), shown[0], []))
             self._plan_shown = None
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> DriveNavigationStatus:
         mapping = None if self.builder is None else dataclasses.asdict(self.builder.counters)
-        return {"map": self._map_file, **self.counters, "costmap": self.costmap.status(), "mapping": mapping}
+        return DriveNavigationStatus(
+            map=self._map_file, **self.counters, costmap=self.costmap.status(), mapping=mapping
+        )

@@ -36,10 +36,10 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any
 
 import msgspec
 
+from schemas.drive_status import DriveOutcome, DriveStatus
 from schemas.keys import Service
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
@@ -52,6 +52,7 @@ from schemas.messages import (
     TimedPosition,
     TimedVelocity,
 )
+from schemas.status import PlanarPose, Velocity
 from services.clock.lockstep import FINAL, decode_owed
 from services.clock.sim_time import PeriodicSchedule, StampClock, check_stamp_near
 from services.clock.sim_watch import SimulatorWatch
@@ -408,56 +409,53 @@ class DriveService:
             )
         return command, goal_drive.finished
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> DriveStatus:
         runner = self.runner
         if runner is None:
             assert self.goal_drive is not None
-            command = self.goal_drive.goals.command
-            return {
-                **self._common_status(),
-                "command": {"vx": command.vx, "w": command.w},
-                "goals": self.goal_drive.status(),
-                "navigation": None if self.navigation is None else self.navigation.status(),
-            }
-        return {
-            **self._common_status(),
-            "scenario": runner.scenario.name,
-            "loop": runner.loop,
-            "iteration": runner.iteration,
-            "segment_index": runner.segment_index,
-            "segments": len(runner.scenario.segments),
-            "elapsed_s": runner.elapsed_s,
-            "command": {"vx": runner.command.vx, "w": runner.command.w},
-            "waypoint_index": runner.waypoint_index,
-            "follower_phase": runner.phase,
-            "done": runner.done,
-        }
+            return msgspec.structs.replace(
+                self._common_status(self.goal_drive.goals.command),
+                goals=self.goal_drive.status(),
+                navigation=None if self.navigation is None else self.navigation.status(),
+            )
+        return msgspec.structs.replace(
+            self._common_status(runner.command),
+            scenario=runner.scenario.name,
+            loop=runner.loop,
+            iteration=runner.iteration,
+            segment_index=runner.segment_index,
+            segments=len(runner.scenario.segments),
+            elapsed_s=runner.elapsed_s,
+            waypoint_index=runner.waypoint_index,
+            follower_phase=runner.phase,
+            done=runner.done,
+        )
 
-    def _common_status(self) -> dict[str, Any]:
-        return {
-            "state": self.state,
-            "mode": self.mode,
-            "rate_hz": self.rate_hz,
-            "commands_published": self.commands_published,
-            "sim_alive": self.sim.alive,
-            "time_base_restarts": self.clock.restart.restarts,
-            "odometry_alive": self.odometry_alive,
-            "lockstep_participant": self.node.participating,
-            "pose_wait_timeouts": self.pose_wait_timeouts,
-            "time_limit_s": self.give_up.limit_s,
-            "motor_stopped_since_s": None
-            if self.give_up.stopped_since_ns is None
-            else self.give_up.stopped_since_ns / NANOSECONDS_PER_SECOND,
-            "motor_held_since_s": None
-            if self.give_up.held_since_ns is None
-            else self.give_up.held_since_ns / NANOSECONDS_PER_SECOND,
-            "motor_held_by": self.give_up.held_by,
-            "outcome": None
-            if self.outcome is None
-            else {"outcome": self.outcome.outcome, "reason": self.outcome.reason},
-            "pose": None if self.pose is None else self.pose._asdict(),
-            "pose_age_s": self.pose_age_s,
-        }
+    def _common_status(self, command: Command) -> DriveStatus:
+        give_up = self.give_up
+        return DriveStatus(
+            state=self.state,
+            mode=self.mode,
+            rate_hz=self.rate_hz,
+            commands_published=self.commands_published,
+            command=Velocity(command.vx, command.w),
+            sim_alive=self.sim.alive,
+            time_base_restarts=self.clock.restart.restarts,
+            odometry_alive=self.odometry_alive,
+            lockstep_participant=self.node.participating,
+            pose_wait_timeouts=self.pose_wait_timeouts,
+            time_limit_s=give_up.limit_s,
+            motor_stopped_since_s=None
+            if give_up.stopped_since_ns is None
+            else give_up.stopped_since_ns / NANOSECONDS_PER_SECOND,
+            motor_held_since_s=None
+            if give_up.held_since_ns is None
+            else give_up.held_since_ns / NANOSECONDS_PER_SECOND,
+            motor_held_by=give_up.held_by,
+            outcome=None if self.outcome is None else DriveOutcome(str(self.outcome.outcome), self.outcome.reason),
+            pose=None if self.pose is None else PlanarPose(*self.pose),
+            pose_age_s=self.pose_age_s,
+        )
 
     def _next_wait(self) -> Wait:
         # Waiting in the input needed next, the drive sees a lockstep tick's clock and then its pose

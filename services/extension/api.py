@@ -22,8 +22,10 @@ import msgspec
 import zenoh
 
 from schemas.codec import BadInput, decode, encode
+from schemas.drive_status import DriveStatus
 from schemas.keys import Keys, Service, UserServiceName, service_name, user_service_name, validate_own_key
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq
+from schemas.status import UserLockstep, UserServiceStatus
 from services.clock.sim_time import PeriodicSchedule
 from services.config import Config
 from services.extension.drive_output import DriveOutput
@@ -357,23 +359,31 @@ class Context:
         if self._service_type.drives is not None:
             raise ValueError(f"{what}: a service that drives publishes and serves only the drive's keys")
 
-    def _runtime_status(self) -> dict[str, Any]:
+    def _runtime_status(self) -> UserServiceStatus | DriveStatus:
+        """The runtime's part of its status (a driving service's: the drive's); the service's own
+        ``status()`` is merged over it on the wire."""
         lockstep = self._service_type.lockstep
         participating = None
         if lockstep is not None:
             output = self._outputs[lockstep.output]
-            participating = {"output": output.key, "rate_hz": lockstep.rate_hz, "matched": output.matched}
+            participating = UserLockstep(output=output.key, rate_hz=lockstep.rate_hz, matched=output.matched)
         driving = self._driving
-        matched = participating is None or participating["matched"]
-        return {
-            **({} if driving is None else driving.status()),
-            # the simulator's start handshake: a participant sees it, and its output has a subscriber
-            "sim_alive": self._sim_alive and matched and (driving is None or driving.publisher.matched),
-            "sim_time_s": None if self._sim_ns is None else self._sim_ns / NANOSECONDS_PER_SECOND,
-            "lockstep": participating,
-            "outputs": {key: output.published for key, output in self._outputs.items()},
-            "calls": dict(self._calls),
-        }
+        matched = participating is None or participating.matched
+        # the simulator's start handshake: a participant sees it, and its output has a subscriber
+        sim_alive = self._sim_alive and matched and (driving is None or driving.publisher.matched)
+        sim_time_s = None if self._sim_ns is None else self._sim_ns / NANOSECONDS_PER_SECOND
+        outputs = {key: output.published for key, output in self._outputs.items()}
+        if driving is not None:
+            return msgspec.structs.replace(
+                driving.status(sim_alive),
+                sim_time_s=sim_time_s,
+                lockstep=participating,
+                outputs=outputs,
+                calls=dict(self._calls),
+            )
+        return UserServiceStatus(
+            sim_alive=sim_alive, sim_time_s=sim_time_s, lockstep=participating, outputs=outputs, calls=dict(self._calls)
+        )
 
     def _on_sim(self, alive: bool) -> None:
         self._sim_alive = alive

@@ -7,9 +7,10 @@ the give-up rule, and ends as the drive does: its last zero marked final, then `
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
+from schemas.drive_status import DriveOutcome, DriveStatus
 from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, MotorStateReport, ScenarioOutcome, Time, TimedVelocity
+from schemas.status import Velocity
 from services.clock.lockstep import FINAL
 from services.config import Config
 from services.extension.driving import DrivingCore
@@ -69,27 +70,29 @@ class DriveOutput:
     def _on_bump(self, bump: BumpEvent) -> None:
         self.core.give_up.bump(bump.obstacle, bump.tm.to_nanoseconds())
 
-    def status(self) -> dict[str, Any]:
-        """The drive's status fields that a run's report and the sim's start handshake read."""
+    def status(self, sim_alive: bool) -> DriveStatus:
+        """The drive's status fields that a run's report and the sim's start handshake read
+        (``sim_alive``: the runtime's)."""
         core, give_up = self.core, self.core.give_up
         outcome = core.outcome
-        return {
-            "state": "done" if core.done else "ending" if outcome is not None else "running",
-            "mode": "user_service",
-            "driven_by": self.name,
-            "rate_hz": core.rate_hz,
-            "commands_published": core.commands,
-            "command": {"vx": core.command.vx, "w": core.command.w},
-            "lockstep_participant": self._node.participating,
-            "time_base_restarts": core.restarts,
-            "motor_state": self.motor_state,
-            "motor_held_by": give_up.held_by,
-            "motor_stopped_since_s": None
+        return DriveStatus(
+            state="done" if core.done else "ending" if outcome is not None else "running",
+            mode="user_service",
+            driven_by=self.name,
+            rate_hz=core.rate_hz,
+            commands_published=core.commands,
+            command=Velocity(core.command.vx, core.command.w),
+            lockstep_participant=self._node.participating,
+            time_base_restarts=core.restarts,
+            sim_alive=sim_alive,
+            motor_state=self.motor_state,
+            motor_held_by=give_up.held_by,
+            motor_stopped_since_s=None
             if give_up.stopped_since_ns is None
             else give_up.stopped_since_ns / NANOSECONDS_PER_SECOND,
-            "motor_held_since_s": None
+            motor_held_since_s=None
             if give_up.held_since_ns is None
             else give_up.held_since_ns / NANOSECONDS_PER_SECOND,
-            "outcome": None if outcome is None else {"outcome": outcome.outcome, "reason": outcome.reason},
-            "elapsed_s": core.elapsed_s,
-        }
+            outcome=None if outcome is None else DriveOutcome(str(outcome.outcome), outcome.reason),
+            elapsed_s=core.elapsed_s,
+        )

@@ -6,7 +6,6 @@ the drive's place: it runs as the drive) and merges its status with the runtime'
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from schemas.keys import Service
 from services.config import Config, ConfigError
@@ -41,7 +40,7 @@ class HostedService:
                 self.ctx._start_lockstep(loaded.service.lockstep)
         except (ValueError, TypeError) as error:
             raise ConfigError(f"{loaded.spec}: {error}") from None
-        node.set_status(self.status)
+        node.set_status(self.ctx._runtime_status, own=self.user.status)
         lockstep = loaded.service.lockstep
         node.log.info(
             "%s from %s%s",
@@ -57,9 +56,6 @@ class HostedService:
     def _finish(self, exit_code: int) -> None:
         self.finished = True
         self.exit_code = exit_code
-
-    def status(self) -> dict[str, Any]:
-        return {**self.ctx._runtime_status(), **self.user.status()}
 
     def close(self) -> None:
         self.user.close()

@@ -27,8 +27,11 @@ from pathlib import Path
 from typing import Any
 
 from schemas.codec import decode
+from schemas.drive_status import DriveStatus
 from schemas.keys import Keys, Service, ServiceName, UserServiceName
 from schemas.messages import BumpEvent
+from schemas.status import ServiceStatus, SimStatus, StatusT, UserServiceStatus
+from schemas.status_kinds import status_type
 from services import interfaces
 from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
@@ -243,11 +246,11 @@ class FleetRun:
         self.lost: dict[str, dict[str, str]] = {name: {} for name in fleet.names}
         """Per robot, the services that ended before the run did, and how."""
         self._drives = {f"{name}/{Service.DRIVE}" for name in fleet.names}
-        self.drive_statuses: dict[str, dict[str, Any] | None] = dict.fromkeys(fleet.names)
+        self.drive_statuses: dict[str, DriveStatus | None] = dict.fromkeys(fleet.names)
         """Each robot's drive's last status, taken while it runs: it exits at the end of its scenario."""
         self.outcomes_of: dict[str, Outcome] = {}
         """Each robot whose drive has ended its scenario, and how (its exit code)."""
-        self.sim_status: dict[str, Any] | None = None
+        self.sim_status: SimStatus | None = None
         """The sim's last status while it ran."""
 
     def look(self) -> None:
@@ -272,8 +275,8 @@ class FleetRun:
         robot, _, service = child.partition("/")
         return service in self.lost.get(robot, {}) or (child in self._drives and robot in self.outcomes_of)
 
-    def status(self, keys: Keys, service: ServiceName) -> dict[str, Any] | None:
-        return self.run.query(keys.status(service))
+    def status(self, keys: Keys, service: ServiceName, status_type: type[StatusT]) -> StatusT | None:
+        return self.run.statuses.get(keys.status(service), status_type)
 
     def _over(self) -> bool:
         """Whether every robot is done though the sim is not holding: a robot that lost a service
@@ -284,8 +287,8 @@ class FleetRun:
         for name in self.fleet.names:
             if self.lost[name]:
                 continue
-            status = self.status(Keys(name), Service.SIM)
-            if not (status and status.get("drive_ended")):
+            status = self.status(Keys(name), Service.SIM, SimStatus)
+            if status is None or not status.drive_ended:
                 return False
         return True
 
@@ -298,41 +301,46 @@ class FleetRun:
         next_progress = time.monotonic()
         while True:
             if until_interrupted and self.run.interrupted.is_set():
-                self.sim_status = self.status(first, Service.SIM) or self.sim_status
+                self.sim_status = self.status(first, Service.SIM, SimStatus) or self.sim_status
                 return
             self.look()
             if time.monotonic() >= next_progress:
                 for name in self.fleet.names:
                     if f"{name}/{Service.DRIVE}" not in self.launcher.exits():
-                        self.drive_statuses[name] = self.status(Keys(name), Service.DRIVE) or self.drive_statuses[name]
-                self.sim_status = self.status(first, Service.SIM) or self.sim_status
+                        drive = self.status(Keys(name), Service.DRIVE, DriveStatus)
+                        self.drive_statuses[name] = drive or self.drive_statuses[name]
+                self.sim_status = self.status(first, Service.SIM, SimStatus) or self.sim_status
                 next_progress = time.monotonic() + PROGRESS_INTERVAL_S
-                if self.sim_status:
-                    if self.sim_status.get("state") == "finished" or self._over():
+                if self.sim_status is not None:
+                    if self.sim_status.state == "finished" or self._over():
                         return
                     wall = time.monotonic() - started
-                    sim_time = self.sim_status.get("sim_time_s", 0.0)
+                    sim_time = self.sim_status.sim_time_s
                     say(f"sim {sim_time:7.2f} s | {sim_time / wall if wall > 0 else 0:5.2f}x real time")
             if between_looks:
                 between_looks()
             time.sleep(LOOK_INTERVAL_S)
 
-    def health(self, robot: str) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+    def health(self, robot: str) -> tuple[SimStatus | None, dict[str, Any]]:
         """``robot``'s own sim status (else the fleet's last) and its health, with the services it lost."""
-        keys = Keys(robot)
-        statuses = {
-            str(service): None if str(service) in self.lost[robot] else self.status(keys, service)
+        keys, lost = Keys(robot), self.lost[robot]
+        statuses: dict[str, ServiceStatus | None] = {
+            str(service): None if str(service) in lost else self.status(keys, service, status_type(service))
             for service in SERVICES_BEFORE_DRIVE
         }
-        statuses[str(Service.DRIVE)] = self.status(keys, Service.DRIVE) or self.drive_statuses[robot]
+        statuses[str(Service.DRIVE)] = self.status(keys, Service.DRIVE, DriveStatus) or self.drive_statuses[robot]
         users = {
-            str(name): None if str(name) in self.lost[robot] else self.status(keys, name)
+            str(name): None
+            if str(name) in lost
+            else self.run.statuses.get_with_own(keys.status(name), UserServiceStatus)
             for name in self.user_services.get(robot, ())
         }
-        robot_sim = self.status(keys, Service.SIM) or self.sim_status
-        health = loop_health(robot_sim, {**statuses, **users})
+        for name, user in users.items():
+            statuses[name] = None if user is None else user[0]
+        robot_sim = self.status(keys, Service.SIM, SimStatus) or self.sim_status
+        health = loop_health(robot_sim, statuses)
         if users:
-            health["user_services"] = users
+            health["user_services"] = {name: None if user is None else user[1] for name, user in users.items()}
         health["lost_services"] = dict(self.lost[robot])
         return robot_sim, health
 

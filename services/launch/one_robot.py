@@ -9,6 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from schemas.keys import Keys, Service, UserServiceName
+from schemas.status import ServiceStatus, SimStatus, UserServiceStatus
+from schemas.status_kinds import status_type
 from services import interfaces
 from services.config import Config, ConfigError
 from services.drive.goal_file import load_goal_file
@@ -176,16 +178,25 @@ class OneRobotWatch:
     def supervise(self, started: float, between_looks: Callable[[], None] | None, until_interrupted: bool) -> None:
         self.outcome = self.run.supervise(self.drive, started, between_looks, until_interrupted=until_interrupted)
 
-    def health(self, robot: str) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+    def health(self, robot: str) -> tuple[SimStatus | None, dict[str, Any]]:
         """From the services' status now, the sim's and the drive's last while they ran where they
         do not answer (the drive has exited at its end; a run that ended early, its dead service)."""
-        statuses = {str(service): self.run.status(service) for service in Service if service != Service.DRIVE}
-        statuses[str(Service.DRIVE)] = self.run.drive_status
-        sim_status = statuses[str(Service.SIM)] or self.run.sim_status
-        users = {str(name): self.run.status(name) for name in self.user_services}
-        health = loop_health(sim_status, {**statuses, **users})
+        run = self.run
+        statuses: dict[str, ServiceStatus | None] = {
+            str(service): run.status(service, status_type(service)) for service in Service if service != Service.DRIVE
+        }
+        statuses[str(Service.DRIVE)] = run.drive_status
+        sim_now = statuses[str(Service.SIM)]
+        sim_status = sim_now if isinstance(sim_now, SimStatus) else run.sim_status
+        users = {
+            str(name): run.statuses.get_with_own(run.keys.status(name), UserServiceStatus)
+            for name in self.user_services
+        }
+        for name, user in users.items():
+            statuses[name] = None if user is None else user[0]
+        health = loop_health(sim_status, statuses)
         if users:
-            health["user_services"] = users
+            health["user_services"] = {name: None if user is None else user[1] for name, user in users.items()}
         return sim_status, health
 
     def outcomes(self, published: Outcomes) -> dict[str, Outcome]:

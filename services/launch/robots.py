@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from schemas.keys import UserServiceName
+from schemas.status import SimStatus
 from services.config import Config
 from services.drive.outcome import Outcome
 from services.extension.loader import Loaded
@@ -83,7 +84,7 @@ class Watch(Protocol):
     def supervise(self, started: float, between_looks: Callable[[], None] | None, until_interrupted: bool) -> None:
         """Until the run is over (or, ``until_interrupted``, Ctrl-C), printing progress and calling ``between_looks``."""
 
-    def health(self, robot: str) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+    def health(self, robot: str) -> tuple[SimStatus | None, dict[str, Any]]:
         """``robot``'s last sim status and its loop's health, from its services' last status replies."""
 
     def outcomes(self, published: Outcomes) -> dict[str, Outcome]:

@@ -7,20 +7,21 @@ status (:func:`verdict`)."""
 from __future__ import annotations
 
 import datetime
-import json
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import zenoh
 
+from schemas.drive_status import DriveStatus
 from schemas.keys import Keys, Service, ServiceName
 from schemas.messages import ScenarioOutcome
+from schemas.status import SimStatus, StatusT, ViewStatus
 from services.config import ConfigError
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.errors import ChildDied, Interrupted
@@ -31,6 +32,7 @@ from services.launch.composition import Composition
 from services.launch.plan import Connection, UpPlan
 from services.launch.service_plans import ChildPlan
 from services.launch.worker import Workers
+from services.runtime.discovery import StatusReader
 from services.runtime.intraprocess import LocalBus, Watch
 from services.runtime.realtime import apply_realtime
 from services.runtime.session import DEFAULT_ENDPOINT, ROUTER_LISTENING, open_session, session_config, stop_on_signals
@@ -227,9 +229,14 @@ class Run:
     session: zenoh.Session
     keys: Keys
     interrupted: threading.Event
-    sim_status: dict[str, Any] | None = None
-    drive_status: dict[str, Any] | None = None
+    sim_status: SimStatus | None = None
+    drive_status: DriveStatus | None = None
     """The drive's, taken at every look while it runs: it exits at the end of its scenario."""
+    statuses: StatusReader = field(init=False)
+    """Its status queries: a bad reply is taken as none, and counted."""
+
+    def __post_init__(self) -> None:
+        self.statuses = StatusReader(self.session)
 
     def check(self, expected_to_finish: str | None = None) -> None:
         """Raise Interrupted on Ctrl-C, ServiceDied when a service other than ``expected_to_finish`` ended."""
@@ -262,15 +269,9 @@ class Run:
             for subscriber in subscribers:
                 subscriber.undeclare()
 
-    def status(self, service: ServiceName) -> dict[str, Any] | None:
-        return self.query(self.keys.status(service))
-
-    def query(self, key: str) -> dict[str, Any] | None:
-        """The first JSON reply to a query on ``key`` (a status), or None when nothing answers."""
-        for reply in self.session.get(key, timeout=2.0):
-            if reply.ok is not None:
-                return json.loads(reply.ok.payload.to_bytes())
-        return None
+    def status(self, service: ServiceName, status_type: type[StatusT]) -> StatusT | None:
+        """``service``'s status, or None when it does not answer or its reply does not decode as ``status_type``."""
+        return self.statuses.get(self.keys.status(service), status_type)
 
     def sim_at_end(self, drive: str = str(Service.DRIVE)) -> None:
         """Until the sim holds at the last command of ``drive`` (the drive's child, or the service that
@@ -278,8 +279,8 @@ class Run:
         deadline = time.monotonic() + END_TIMEOUT_S
         while time.monotonic() < deadline:
             self.check(expected_to_finish=drive)
-            self.sim_status = self.status(Service.SIM) or self.sim_status
-            if self.sim_status and self.sim_status.get("state") == "finished":
+            self.sim_status = self.status(Service.SIM, SimStatus) or self.sim_status
+            if self.sim_status is not None and self.sim_status.state == "finished":
                 return
             time.sleep(0.02)
         say(f"the sim did not stop at the drive's last command within {END_TIMEOUT_S} s")
@@ -299,17 +300,17 @@ class Run:
         next_progress = time.monotonic()
         while True:
             if until_interrupted and self.interrupted.is_set():
-                self.sim_status = self.status(Service.SIM) or self.sim_status
-                self.drive_status = self.status(Service.DRIVE) or self.drive_status
+                self.sim_status = self.status(Service.SIM, SimStatus) or self.sim_status
+                self.drive_status = self.status(Service.DRIVE, DriveStatus) or self.drive_status
                 return None
             self.check(expected_to_finish=drive.name if drive else None)
             code = drive.finished() if drive else None
             if drive and code is None:
-                self.drive_status = self.status(Service.DRIVE) or self.drive_status
+                self.drive_status = self.status(Service.DRIVE, DriveStatus) or self.drive_status
             if time.monotonic() >= next_progress or code is not None:
-                self.sim_status = self.status(Service.SIM) or self.sim_status
+                self.sim_status = self.status(Service.SIM, SimStatus) or self.sim_status
                 next_progress = time.monotonic() + PROGRESS_INTERVAL_S
-                if self.sim_status:
+                if self.sim_status is not None:
                     _progress(self.sim_status, time.monotonic() - started)
             if drive is not None and code in OUTCOME_OF_EXIT_CODE:
                 self.sim_at_end(drive.name)
@@ -369,13 +370,13 @@ class ViewProcess:
         listens, so the address printed works at once. (Opening a connection to the port instead
         would be a client that never speaks, whose failed handshake the server logs as an error.)"""
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while (status := run.query(run.keys.view_status)) is None:
+        while (status := run.statuses.get(run.keys.view_status, ViewStatus)) is None:
             run.check()
             self._child.check_running()
             if time.monotonic() > deadline:
                 raise ChildDied(f"the view did not serve on port {self._port} within {STARTUP_TIMEOUT_S} s")
             time.sleep(LOOK_INTERVAL_S)
-        say(f"Foxglove live view: {status['url']} (Foxglove → Open connection)")
+        say(f"Foxglove live view: {status.url} (Foxglove → Open connection)")
 
     def close(self) -> None:
         code = self._children.stop()["view"]
@@ -403,10 +404,9 @@ def verdict(
     return ExitStatus.OK
 
 
-def _progress(sim_status: dict[str, Any], wall_s: float) -> None:
-    sim_time = sim_status.get("sim_time_s", 0.0)
-    pose = sim_status.get("pose") or {}
+def _progress(sim_status: SimStatus, wall_s: float) -> None:
+    sim_time, pose = sim_status.sim_time_s, sim_status.pose
     say(
         f"sim {sim_time:7.2f} s | {sim_time / wall_s if wall_s > 0 else 0:5.2f}x real time | "
-        f"pose x {pose.get('x', 0.0):+.3f} y {pose.get('y', 0.0):+.3f} theta {pose.get('theta', 0.0):+.3f}"
+        f"pose x {pose.x:+.3f} y {pose.y:+.3f} theta {pose.theta:+.3f}"
     )

@@ -22,6 +22,7 @@ import zenoh
 
 from schemas.keys import Keys, Service
 from schemas.messages import TimedDoubleSeq, TimedPosition
+from schemas.status import MotorStatus, OdometryStatus, SimStatus
 from schemas.topics import Topic
 from services.calibration.benchmark import Benchmark, Lap, PathPoint, RunPaths, wheelbase
 from services.calibration.settings import UmbmarkSettings
@@ -193,10 +194,10 @@ class Simulation:
                     raise RunFailed(f"{name}: the drive did not complete the square ({reason})")
                 run.sim_at_end()
                 sim_status = run.sim_status
-                statuses = {str(service): run.status(service) for service in (Service.MOTOR, Service.ODOMETRY)}
-                odometry = statuses[str(Service.ODOMETRY)]
-                if not sim_status or not odometry:
+                odometry = run.status(Service.ODOMETRY, OdometryStatus)
+                if sim_status is None or odometry is None:
                     raise RunFailed(f"{name}: the sim's or the odometry's status did not come")
+                statuses = {str(Service.MOTOR): run.status(Service.MOTOR, MotorStatus), str(Service.ODOMETRY): odometry}
                 for reason in degradations(loop_health(sim_status, statuses)):
                     say(f"WARNING: {name} degraded: {reason}")
             finally:
@@ -206,15 +207,15 @@ class Simulation:
         lap = Lap(
             direction=direction,
             index=index,
-            sim_time_s=sim_status["sim_time_s"],
+            sim_time_s=sim_status.sim_time_s,
             wall_s=time.monotonic() - started,
             paths=RunPaths(
                 f"{direction} {index}",
                 direction,
                 tuple(paths.truth),
                 tuple(paths.odometry),
-                truth_end=(sim_status["pose"]["x"], sim_status["pose"]["y"]),
-                odometry_end=(odometry["pose"]["x"], odometry["pose"]["y"]),
+                truth_end=(sim_status.pose.x, sim_status.pose.y),
+                odometry_end=(odometry.pose.x, odometry.pose.y),
             ),
         )
         (x, y), (odometry_x, odometry_y), (error_x, error_y) = lap.truth_end, lap.odometry_end, lap.error
@@ -230,12 +231,12 @@ class Simulation:
         while (code := finished()) is None:
             run.check(expected_to_finish=str(Service.DRIVE))
             if time.monotonic() >= next_progress:
-                status = run.status(Service.SIM) or {}
-                pose = status.get("pose") or {}
-                say(
-                    f"{name}: {status.get('sim_time_s', 0.0):.1f} s simulated, at "
-                    f"({pose.get('x', 0.0):+.3f}, {pose.get('y', 0.0):+.3f}) m"
-                )
+                status = run.status(Service.SIM, SimStatus)
+                if status is not None:
+                    say(
+                        f"{name}: {status.sim_time_s:.1f} s simulated, at "
+                        f"({status.pose.x:+.3f}, {status.pose.y:+.3f}) m"
+                    )
                 next_progress = time.monotonic() + PROGRESS_S
             time.sleep(LOOK_INTERVAL_S)
         return int(code)

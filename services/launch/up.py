@@ -256,13 +256,13 @@ def run_up(plan: UpPlan) -> int:
                     summaries[robot.name].put(
                         RunSummary(
                             tm=Time.from_nanoseconds(
-                                round((sim_status or {}).get("sim_time_s", 0.0) * NANOSECONDS_PER_SECOND)
+                                0 if sim_status is None else round(sim_status.sim_time_s * NANOSECONDS_PER_SECOND)
                             ),
                             scenario=robot.scenario,
                             mode=mode,
                             composed=plan.composed,
                             wall_time_s=wall_time_s,
-                            steps=int(sim_status["steps"]) if sim_status else 0,
+                            steps=0 if sim_status is None else sim_status.steps,
                             health=health[robot.name],
                             **(early_end(early) if early is not None else {}),
                             restarts=_restarts_of(robot, supervisor.restarted),

@@ -25,13 +25,13 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from typing import Any
 
 import numpy as np
 
 from schemas.codec import BadInput, BadMessage, decode
 from schemas.messages import NANOSECONDS_PER_SECOND, LaserScan, NoArguments, Time, TimedDoubleSeq, TimedPosition
 from schemas.navigation import InitialPose, LocalizationReply, ParticleCloud
+from schemas.status import AmclEstimate, AmclFilterStatus, LocalizationFix, LocalizationStatus, PlanarPose
 from services.clock.sim_time import PeriodicSchedule, StampClock
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, ConfigError
@@ -315,34 +315,34 @@ class AmclLocalization:
         self.node.log.info("particles spread over the map's free cells")
         return LocalizationReply(True)
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> LocalizationStatus:
         estimate = self.filter.estimate()
         fix = self.last_fix
-        return {
-            "state": "running" if self._schedule is not None else "waiting_for_subscriber",
-            "mode": "amcl",
-            "sim_alive": self.sim.alive,
-            "rate_hz": self.config.rate,
-            "seed": self.seed,
-            "seed_from_config": self.config.seed is not None,
-            "initial_pose": self.initial._asdict(),
-            "estimate": {**estimate.pose._asdict(), "covariance": covariance_values(estimate.covariance)},
-            "last_fix": None
+        return LocalizationStatus(
+            state="running" if self._schedule is not None else "waiting_for_subscriber",
+            mode="amcl",
+            sim_alive=self.sim.alive,
+            rate_hz=self.config.rate,
+            seed=self.seed,
+            seed_from_config=self.config.seed is not None,
+            initial_pose=PlanarPose(*self.initial),
+            estimate=AmclEstimate(*estimate.pose, covariance=covariance_values(estimate.covariance)),
+            last_fix=None
             if fix is None
-            else {"t": fix.tm.to_nanoseconds() / NANOSECONDS_PER_SECOND, "x": fix.x, "y": fix.y, "theta": fix.theta},
-            "filter": {
-                "particles": int(self.filter.xs.size),
-                "updates": self.filter.updates,
-                "resamples": self.filter.resamples,
-                "recoveries": self.filter.recoveries,
-                "random_particles": self.filter.random_particles,
-                "jumps": self.filter.jumps,
-                "last_jump": self.filter.last_jump,
-            },
-            "counters": dict(self.counters),
-            "time_base_restarts": self._clock.restart.restarts,
-            "lockstep_participant": self.node.participating,
-        }
+            else LocalizationFix(fix.tm.to_nanoseconds() / NANOSECONDS_PER_SECOND, fix.x, fix.y, fix.theta),
+            filter=AmclFilterStatus(
+                particles=int(self.filter.xs.size),
+                updates=self.filter.updates,
+                resamples=self.filter.resamples,
+                recoveries=self.filter.recoveries,
+                random_particles=self.filter.random_particles,
+                jumps=self.filter.jumps,
+                last_jump=self.filter.last_jump,
+            ),
+            counters=dict(self.counters),
+            time_base_restarts=self._clock.restart.restarts,
+            lockstep_participant=self.node.participating,
+        )
 
     def close(self) -> None:
         """Nothing beyond the node to release."""

@@ -19,10 +19,9 @@ never polls.
 
 from __future__ import annotations
 
-from typing import Any
-
 from schemas.keys import Service
 from schemas.messages import NANOSECONDS_PER_SECOND, Time, TimedDoubleSeq, TimedPosition
+from schemas.status import LocalizationFix, LocalizationStatus, PlanarPose
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config
 from services.localization.amcl_shell import AmclLocalization
@@ -33,10 +32,10 @@ from services.runtime.node import Node, Wait
 from services.service import NoOptions, ServiceCommand
 
 
-def _pose_dict(fix: Fix | None) -> dict[str, Any] | None:
+def _fix_status(fix: Fix | None) -> LocalizationFix | None:
     if fix is None:
         return None
-    return {"t": fix.stamp_ns / NANOSECONDS_PER_SECOND, **fix.pose._asdict(), "initial": fix.initial}
+    return LocalizationFix(fix.stamp_ns / NANOSECONDS_PER_SECOND, *fix.pose, initial=fix.initial)
 
 
 class StubLocalization:
@@ -85,26 +84,26 @@ class StubLocalization:
             stamp = Time.from_nanoseconds(fix.stamp_ns)
             self.publisher.put(TimedPosition(tm=stamp, id=[], x=x, y=y, theta=theta, error=[]))
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> LocalizationStatus:
         if self.localizer.started:
             state = "running"
         else:
             state = "waiting_for_sim_pose" if self.localizer.last_sim_pose is None else "waiting_for_subscriber"
-        return {
-            "state": state,
-            "mode": "stub",
-            "fixes_published": self.localizer.fixes,
-            "time_base_restarts": self.localizer.time_base_restarts,
-            "sim_alive": self.sim.alive,
-            "last_fix": _pose_dict(self.localizer.last_fix),
-            "rate_hz": self.config.rate,
-            "noise": {"x": self.config.noise_x, "y": self.config.noise_y, "theta": self.config.noise_theta},
-            "seed": self.seed,
-            "seed_from_config": self.config.seed is not None,
-            "initial_pose": self.localizer.initial._asdict(),
-            "first_fix_from_sim_pose": self.localizer.first_fix_from_sim_pose,
-            "lockstep_participant": self.node.participating,
-        }
+        return LocalizationStatus(
+            state=state,
+            mode="stub",
+            fixes_published=self.localizer.fixes,
+            time_base_restarts=self.localizer.time_base_restarts,
+            sim_alive=self.sim.alive,
+            last_fix=_fix_status(self.localizer.last_fix),
+            rate_hz=self.config.rate,
+            noise={"x": self.config.noise_x, "y": self.config.noise_y, "theta": self.config.noise_theta},
+            seed=self.seed,
+            seed_from_config=self.config.seed is not None,
+            initial_pose=PlanarPose(*self.localizer.initial),
+            first_fix_from_sim_pose=self.localizer.first_fix_from_sim_pose,
+            lockstep_participant=self.node.participating,
+        )
 
     def close(self) -> None:
         """Nothing beyond the node to release."""
@@ -145,17 +144,17 @@ class NoLocalization:
         self.publisher.put(TimedPosition(tm=sample.tm, id=[], x=x, y=y, theta=theta, error=[]))
         self.initial_published_at = stamp_ns
 
-    def status(self) -> dict[str, Any]:
-        return {
-            "state": "running",
-            "mode": "none",
-            "initial_pose": self.initial._asdict(),
-            "initial_published_at": None
+    def status(self) -> LocalizationStatus:
+        return LocalizationStatus(
+            state="running",
+            mode="none",
+            initial_pose=PlanarPose(*self.initial),
+            initial_published_at=None
             if self.initial_published_at is None
             else self.initial_published_at / NANOSECONDS_PER_SECOND,
-            "initial_skipped": self.skipped_initial,
-            "lockstep_participant": False,
-        }
+            initial_skipped=self.skipped_initial,
+            lockstep_participant=False,
+        )
 
     def close(self) -> None:
         """Nothing beyond the node to release."""

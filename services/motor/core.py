@@ -19,12 +19,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from enum import StrEnum
-from typing import Any
 
 import msgspec
 
 from schemas.codec import BadInput
 from schemas.messages import NANOSECONDS_PER_SECOND, PDGains
+from schemas.status import MotorCoreStatus, MotorCounters, Velocity
 from services.clock.sim_time import StampGap, check_stamp_near
 from services.config import CalibratedGeometry, InputConfig, MotorConfig, OdometryConfig, RobotConfig, TargetAngleMode
 from services.motor.monitor import CollisionMonitor
@@ -404,20 +404,20 @@ class MotorCore:
         self._target_stamp_ns = self._stamp_ns
         self._timed_out = False
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> MotorCoreStatus:
         robot, motor = self.robot, self.motor
-        return {
-            "state": str(self.state),
-            "output": motor.output,
-            "velocity_rate": motor.velocity_rate if self.velocity_output is not None else None,
-            "target_angle": motor.target_angle,
-            "gains": {
+        return MotorCoreStatus(
+            state=str(self.state),
+            output=motor.output,
+            velocity_rate=motor.velocity_rate if self.velocity_output is not None else None,
+            target_angle=str(motor.target_angle),
+            gains={
                 "p_gain_l": self.gains.p_gain_l,
                 "p_gain_r": self.gains.p_gain_r,
                 "d_gain_l": self.gains.d_gain_l,
                 "d_gain_r": self.gains.d_gain_r,
             },
-            "geometry": {
+            geometry={
                 "left_wheel_id": robot.left_wheel_id,
                 "right_wheel_id": robot.right_wheel_id,
                 "radius_of_left_wheel": robot.radius_of_left_wheel,
@@ -425,22 +425,22 @@ class MotorCore:
                 "length_of_axle": robot.length_of_axle,
                 **self.geometry._asdict(),
             },
-            "offsets": {
+            offsets={
                 "simulated_offset_x": motor.simulated_offset_x,
                 "simulated_offset_y": motor.simulated_offset_y,
                 "simulated_offset_angle": motor.simulated_offset_angle,
             },
-            "limits": limits_status(motor),
-            "command_timeout": motor.command_timeout,
-            "target": {"vx": self.target[0], "w": self.target[1]},
-            "command": {"vx": self.command[0], "w": self.command[1]},
-            "command_timed_out": self._timed_out,
-            "counters": {
-                "nonfinite_torques": self.nonfinite_torques,
-                "wheel_angle_samples": self.wheel_angle_samples,
-                "body_pose_samples": self.body_pose_samples,
-                "target_velocity_samples": self.target_velocity_samples,
-                "targets_ignored": self.targets_ignored,
-                "command_timeouts": self.command_timeouts,
-            },
-        }
+            limits=limits_status(motor),
+            command_timeout=motor.command_timeout,
+            target=Velocity(*self.target),
+            command=Velocity(*self.command),
+            command_timed_out=self._timed_out,
+            counters=MotorCounters(
+                nonfinite_torques=self.nonfinite_torques,
+                wheel_angle_samples=self.wheel_angle_samples,
+                body_pose_samples=self.body_pose_samples,
+                target_velocity_samples=self.target_velocity_samples,
+                targets_ignored=self.targets_ignored,
+                command_timeouts=self.command_timeouts,
+            ),
+        )

@@ -13,9 +13,9 @@ cause, and is not a state of the Motor state machine (the motor stays ``running`
 from __future__ import annotations
 
 from collections import deque
-from typing import Any
 
 from schemas.messages import NANOSECONDS_PER_SECOND, LaserScan
+from schemas.status import CollisionCounters, CollisionMonitorStatus, NearestObstacle
 from services.clock.sim_time import StampGap, check_stamp_near
 from services.config import RobotConfig
 from services.config.sensors import CollisionMonitorConfig, LidarConfig
@@ -153,29 +153,31 @@ class CollisionMonitor:
     def _release(self) -> None:
         self._cause, self.held_by, self.held_since_ns = None, "", None
 
-    def status(self) -> dict[str, Any]:
+    def status(self, bad_scans: int) -> CollisionMonitorStatus:
+        """Its settings, what it sees now and its counters (``bad_scans``: the node counts them)."""
         settings, nearest = self.settings, self.nearest
-        return {
-            "enabled": True,
-            "stop_distance": settings.stop_distance,
-            "slow_distance": settings.slow_distance,
-            "slow_factor": settings.slow_factor,
-            "margin": settings.margin,
-            "scan_timeout": settings.scan_timeout,
-            "min_points": settings.min_points,
-            "monitoring": self.scan_ns is not None,
-            "held_by": self.held_by,
-            "zone": str(self.verdict.zone),
-            "factor": self._factor if self.scan_ns is not None else 1.0,
-            "last_scan_s": None if self.scan_ns is None else self.scan_ns / NANOSECONDS_PER_SECOND,
-            "nearest": None
+        return CollisionMonitorStatus(
+            enabled=True,
+            stop_distance=settings.stop_distance,
+            slow_distance=settings.slow_distance,
+            slow_factor=settings.slow_factor,
+            margin=settings.margin,
+            scan_timeout=settings.scan_timeout,
+            min_points=settings.min_points,
+            monitoring=self.scan_ns is not None,
+            held_by=self.held_by,
+            zone=str(self.verdict.zone),
+            factor=self._factor if self.scan_ns is not None else 1.0,
+            last_scan_s=None if self.scan_ns is None else self.scan_ns / NANOSECONDS_PER_SECOND,
+            nearest=None
             if nearest is None
-            else {"body": nearest.body, "distance": round(nearest.clearance, 4), "x": nearest.x, "y": nearest.y},
-            "counters": {
-                "scans": self.scans,
-                "scan_rays": self.scan_rays,
-                "holds": self.holds,
-                "holds_by": dict(self.holds_by),
-                "slowdowns": self.slowdowns,
-            },
-        }
+            else NearestObstacle(nearest.body, round(nearest.clearance, 4), nearest.x, nearest.y),
+            counters=CollisionCounters(
+                scans=self.scans,
+                scan_rays=self.scan_rays,
+                holds=self.holds,
+                holds_by=dict(self.holds_by),
+                slowdowns=self.slowdowns,
+                bad_scans=bad_scans,
+            ),
+        )

@@ -41,6 +41,7 @@ from schemas.messages import (
     TimedDoubleSeq,
     TimedVelocity,
 )
+from schemas.status import CollisionMonitorStatus, LockstepHolds, MotorStatus, ServiceStatus
 from schemas.topics import METHOD_ARGUMENTS, Method, MethodFamily, Topic
 from services.clock.lockstep import Hold, decode_mark, observed
 from services.clock.sim_time import ClockRestart
@@ -318,7 +319,7 @@ class MotorService:
             self.node.log.debug("stopped: target velocity ignored until clear")
         self.target_hold.took(stamp_ns)
 
-    def _call(self, family: MethodFamily, method: Method, payload: bytes) -> dict[str, Any]:
+    def _call(self, family: MethodFamily, method: Method, payload: bytes) -> ServiceStatus:
         arguments = _decode_arguments(method, payload)
         core = self.core
         if method is Method.SET_PD_GAIN:
@@ -349,27 +350,26 @@ class MotorService:
         self.node.log.log(level, "%s/%s: state %s", family, method, core.state)
         return self.node.status()
 
-    def status(self) -> dict[str, Any]:
-        status = self.core.status()
-        status["counters"]["time_base_restarts"] = self.sim.restart.restarts
+    def status(self) -> MotorStatus:
+        core = self.core.status()
+        core.counters.time_base_restarts = self.sim.restart.restarts
         monitor = self.monitor
         if monitor is None:
-            collision: dict[str, Any] = {"enabled": False}
+            collision = CollisionMonitorStatus(enabled=False)
         else:
-            collision = monitor.status()
             bad = self.node.bad_inputs.by_key.get(self.node.keys.sim_scan)
-            collision["counters"]["bad_scans"] = 0 if bad is None else bad.count
-        return {
-            **status,
-            "collision_monitor": collision,
-            "sim_alive": self.sim.alive,
-            "torques_published": 0 if self.velocity_output else self.outputs_published,
-            "wheel_velocities_published": self.outputs_published if self.velocity_output else 0,
-            "lockstep_holds": {"held": self.target_hold.holds, "released_unanswered": self.target_hold.overflows},
-            "trace": None if self._trace is None else self._trace.path,
-            "state_file": str(self._state_file.path),
-            "restored": self.restored,
-        }
+            collision = monitor.status(bad_scans=0 if bad is None else bad.count)
+        return MotorStatus(
+            **msgspec.structs.asdict(core),
+            collision_monitor=collision,
+            sim_alive=self.sim.alive,
+            torques_published=0 if self.velocity_output else self.outputs_published,
+            wheel_velocities_published=self.outputs_published if self.velocity_output else 0,
+            lockstep_holds=LockstepHolds(self.target_hold.holds, self.target_hold.overflows),
+            trace=None if self._trace is None else self._trace.path,
+            state_file=str(self._state_file.path),
+            restored=self.restored,
+        )
 
     def _next_wait(self) -> Wait:
         """While a wheel-angle sample is held, the drive's target is what comes next, not a wheel sample."""

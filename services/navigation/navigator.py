@@ -26,10 +26,10 @@ import math
 import re
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any
 
 import numpy as np
 
+from schemas.drive_status import NavigatorStatus
 from schemas.messages import NANOSECONDS_PER_SECOND
 from services.config import DriveConfig, NavigationConfig
 from services.drive.path_following import STOPPED, Command, limit_rate
@@ -363,13 +363,13 @@ class Navigator:
     def _brake(self, dt: float) -> Command:
         return self._ramp(STOPPED, dt)
 
-    def status(self) -> dict[str, Any]:
-        return {
-            "phase": str(self.phase),
-            "recovery": self.recovery,
-            "recoveries": self.recoveries,
-            "replans": self.replans,
-            "plan_length": None if self.plan is None else self.plan.length,
-            "remaining": None if self.tracker is None else self.tracker.remaining,
-            "failure": self.failure,
-        }
+    def status(self) -> NavigatorStatus:
+        return NavigatorStatus(
+            phase=str(self.phase),
+            recovery=self.recovery,
+            recoveries=self.recoveries,
+            replans=self.replans,
+            plan_length=None if self.plan is None else self.plan.length,
+            remaining=None if self.tracker is None else self.tracker.remaining,
+            failure=self.failure,
+        )

@@ -16,13 +16,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import partial
-from typing import Any
 
 import msgspec
 
 from schemas.codec import BadInput, BadMessage, decode
 from schemas.keys import Service
 from schemas.messages import SetOdometry, SetOdometryReply, Time, TimedDoubleSeq, TimedPosition
+from schemas.status import LockstepHolds, OdometryCounters, OdometryStatus, OdometryVelocity, PlanarPose, PoseSet
 from schemas.topics import Topic
 from services.clock.lockstep import Hold, observed
 from services.clock.sim_time import ClockRestart
@@ -60,7 +60,7 @@ class OdometryService:
         self.samples = 0
         self.localization_resets = 0
         self.pose_sets = 0
-        self.last_pose_set: dict[str, Any] | None = None
+        self.last_pose_set: PoseSet | None = None
         self.sim = SimulatorWatch(node, ClockRestart(config.input.stamp_horizon_ns))
         self.branches = dict.fromkeys(Branch, 0)
         self.last_tm: Time | None = None
@@ -121,31 +121,31 @@ class OdometryService:
             return SetOdometryReply(False, f"{kind}: {error}")
         self.pose_sets += 1
         tm = None if applied_ns is None else Time.from_nanoseconds(applied_ns)
-        self.last_pose_set = {"x": request.x, "y": request.y, "theta": request.theta, "tm": tm}
+        self.last_pose_set = PoseSet(request.x, request.y, request.theta, tm)
         when = "as the starting pose" if tm is None else f"at {tm.to_seconds():.3f} s"
         self.node.log.info("pose set to (%g, %g, %g) %s", request.x, request.y, request.theta, when)
         return SetOdometryReply(True, tm=tm)
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> OdometryStatus:
         pose = self.odometry.pose
         v, omega = self.odometry.velocity
         odometry = self.odometry
-        return {
-            "state": STATE_RUNNING if self.odometry.initialised else STATE_IDLE,
-            "sim_alive": self.sim.alive,
-            "pose": pose._asdict(),
-            "velocity": {"v": v, "omega": omega},
-            "last_wheel_angles_tm": self.last_tm,
-            "last_pose_set": self.last_pose_set,
-            "counters": {
-                "wheel_angle_samples": self.samples,
-                "localization_resets": self.localization_resets,
-                "pose_sets": self.pose_sets,
-                "time_base_restarts": self.sim.restart.restarts,
-                "lockstep_holds": {"held": self.fix_hold.holds, "released_unanswered": self.fix_hold.overflows},
-                "branches": {str(branch): count for branch, count in self.branches.items()},
-            },
-            "parameters": {
+        return OdometryStatus(
+            state=STATE_RUNNING if self.odometry.initialised else STATE_IDLE,
+            sim_alive=self.sim.alive,
+            pose=PlanarPose(pose.x, pose.y, pose.theta),
+            velocity=OdometryVelocity(v, omega),
+            last_wheel_angles_tm=self.last_tm,
+            last_pose_set=self.last_pose_set,
+            counters=OdometryCounters(
+                wheel_angle_samples=self.samples,
+                localization_resets=self.localization_resets,
+                pose_sets=self.pose_sets,
+                time_base_restarts=self.sim.restart.restarts,
+                lockstep_holds=LockstepHolds(self.fix_hold.holds, self.fix_hold.overflows),
+                branches={str(branch): count for branch, count in self.branches.items()},
+            ),
+            parameters={
                 "left_wheel_id": odometry.robot.left_wheel_id,
                 "right_wheel_id": odometry.robot.right_wheel_id,
                 "radius_of_left_wheel": odometry.robot.radius_of_left_wheel,
@@ -154,7 +154,7 @@ class OdometryService:
                 **msgspec.structs.asdict(odometry.config),
                 **odometry.geometry._asdict(),
             },
-        }
+        )
 
     def close(self) -> None:
         if self._trace is not None:

@@ -13,7 +13,6 @@ exit 0, once those consumers have taken every sample.
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
@@ -24,6 +23,7 @@ import zenoh
 from schemas.codec import ENCODING
 from schemas.keys import Keys
 from schemas.messages import NANOSECONDS_PER_SECOND
+from schemas.status import ServiceStatus, decode_status
 from schemas.topics import Topic
 from services.config import ConfigError
 from services.errors import ConsumerStalled
@@ -55,9 +55,11 @@ class _Consumer:
 
     def poll(self) -> None:
         for reply in self.querier.get():
-            if reply.ok is not None:
-                status = json.loads(reply.ok.payload.to_bytes())
-                self.taken = status["inputs"][self.key]["samples"] - self.taken_before
+            # a bad reply (one that does not decode, or without this input) is taken as none
+            status = None if reply.ok is None else decode_status(ServiceStatus, reply.ok.payload.to_bytes())
+            taken = None if status is None else status.inputs.get(self.key)
+            if taken is not None:
+                self.taken = taken.samples - self.taken_before
 
 
 class _Consumers:
@@ -68,12 +70,11 @@ class _Consumers:
         self.sent = dict.fromkeys(replayed_keys, 0)
         self._last_key: dict[str, str] = {}
         """The key each consumer was last sent a sample of, by service."""
-        for _robot, service, status in service_statuses(session, keys.every_alive, DISCOVERY_TIMEOUT_S):
-            inputs = status.get("inputs", {}) if isinstance(status, dict) else {}
-            for key, taken in inputs.items():
-                if key in self._by_key and taken["every_sample"]:
+        for _robot, service, status, _reply in service_statuses(session, keys.every_alive, DISCOVERY_TIMEOUT_S):
+            for key, taken in ({} if status is None else status.inputs).items():
+                if key in self._by_key and taken.every_sample:
                     querier = session.declare_querier(keys.status(service), timeout=DISCOVERY_TIMEOUT_S)
-                    self._by_key[key].append(_Consumer(str(service), key, querier, taken["samples"]))
+                    self._by_key[key].append(_Consumer(str(service), key, querier, taken.samples))
 
     @property
     def consumed_keys(self) -> set[str]:

@@ -14,7 +14,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import msgspec
+from msgspec import UNSET, UnsetType
+
+from schemas.drive_status import DriveNavigationStatus, DriveStatus
 from schemas.keys import Service
+from schemas.status import MotorStatus, ServiceStatus, SimCounters, SimStatus, decode_status
+from schemas.status_kinds import status_type
 from services.config import CalibratedGeometry
 from services.drive.scenarios import distance_to_path
 from services.motor.sim_pose import SimPoseConverter
@@ -121,83 +127,87 @@ DEGRADED_FRACTION = 0.01
 """A run whose late or missing torques exceed this fraction of its steps degraded."""
 
 
-def loop_health(sim_status: dict[str, Any] | None, statuses: Mapping[str, dict[str, Any] | None]) -> dict[str, Any]:
+def loop_health(sim_status: SimStatus | None, statuses: Mapping[str, ServiceStatus | None]) -> dict[str, Any]:
     """What the loop actually did, from the services' last status replies: the sim's torque
     figures, the lockstep participants it dropped, the drive's ticks commanded from an older pose,
     and each service's bad-input, internal-error and dropped-event counts. A lockstep step is never
     late: it waits for its torque as long as the motor control lives (how long is the machine's, as
     the wall time, and not in the health)."""
-    counters = (sim_status or {}).get("counters", {})
-    drive = statuses.get(str(Service.DRIVE)) or {}
-    motor = statuses.get(str(Service.MOTOR)) or {}
-    navigation = drive.get("navigation") or {}
-    steps = (sim_status or {}).get("steps", 0)
-    lockstep = (sim_status or {}).get("mode") == "lockstep"
-    late = 0 if lockstep else counters.get("realtime_late_steps", 0)
-    missing = counters.get("missing_torques", 0)
+    counters = SimCounters() if sim_status is None else sim_status.counters
+    drive, motor = statuses.get(str(Service.DRIVE)), statuses.get(str(Service.MOTOR))
+    steps = 0 if sim_status is None else sim_status.steps
+    lockstep = sim_status is not None and sim_status.mode == "lockstep"
+    late = 0 if lockstep else counters.realtime_late_steps
+    missing = counters.missing_torques
 
     def fraction(count: int) -> float:
         return count / steps if steps else 0.0
 
     return {
         "torques": {
-            "applied": counters.get("torques_applied", 0),
+            "applied": counters.torques_applied,
             "late": late,
             "missing": missing,
-            "stale": counters.get("stale_torques", 0),
+            "stale": counters.stale_torques,
             "late_fraction": fraction(late),
             "missing_fraction": fraction(missing),
         },
         "lockstep": {
-            "pose_wait_timeouts": drive.get("pose_wait_timeouts", 0) if lockstep else 0,
-            "dropped_participants": (sim_status or {}).get("dropped_participants", []) if lockstep else [],
+            "pose_wait_timeouts": _pose_wait_timeouts(drive) if lockstep else 0,
+            "dropped_participants": msgspec.to_builtins(sim_status.dropped_participants)
+            if sim_status is not None and lockstep
+            else [],
         },
-        "realtime": {"resyncs": counters.get("realtime_resyncs", 0)},
-        "safety": {
-            "bumps": counters.get("bumps", 0),
-            "collision_monitor_holds": ((motor.get("collision_monitor") or {}).get("counters") or {}).get("holds", 0),
-        },
+        "realtime": {"resyncs": counters.realtime_resyncs},
+        "safety": {"bumps": counters.bumps, "collision_monitor_holds": _collision_monitor_holds(motor)},
         # not the scans taken: the drive's status is last read while it runs, a moment of the wall
         # clock; the late ones degrade a run, and are none in a lockstep run that did not
-        "navigation": {"scans_late": navigation.get("scans_late", 0) if lockstep else 0},
+        "navigation": {"scans_late": _scans_late(drive) if lockstep else 0},
         "services": {
             name: {
-                "bad_inputs": status["bad_input"]["total"],
-                "internal_errors": status["internal_errors"],
-                "dropped_events": status.get("dropped_events", 0),
+                "bad_inputs": status.bad_input.total,
+                "internal_errors": status.internal_errors,
+                "dropped_events": status.dropped_events,
             }
             for name, status in statuses.items()
-            if status
+            if status is not None
         },
     }
 
 
-def readable_statuses(statuses: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """The status replies, by service, that :func:`loop_health` can read (a recorded reply that it
-    cannot is someone's bad input on a status key, not the service's)."""
-
-    def readable(name: str, status: Any) -> bool:
-        if not isinstance(status, dict):
-            return False
-        if name == Service.SIM and not (
-            isinstance(status.get("steps", 0), int) and isinstance(status.get("mode", ""), str)
-        ):
-            return False
-        try:
-            degradations(loop_health(status if name == Service.SIM else None, {name: status}))
-        except (TypeError, KeyError, AttributeError, ValueError, OverflowError):
-            return False
-        return True
-
-    return {name: status for name, status in statuses.items() if readable(name, status)}
+def _pose_wait_timeouts(drive: ServiceStatus | None) -> int:
+    """The drive's ticks commanded from an older pose (none from a user service that drives)."""
+    timeouts = drive.pose_wait_timeouts if isinstance(drive, DriveStatus) else UNSET
+    return 0 if isinstance(timeouts, UnsetType) else timeouts
 
 
-def recorded_health(statuses: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """The loop's health as ``up`` takes it at a run's end, from the last status replies a recording
-    holds (:func:`readable_statuses`): for a run without its summary. A service of one's own's
-    status (not one of :class:`Service`) is also under ``user_services``, as ``up`` puts it."""
-    health = loop_health(statuses.get(Service.SIM), statuses)
-    users = {name: status for name, status in statuses.items() if name not in Service._value2member_map_}
+def _scans_late(drive: ServiceStatus | None) -> int:
+    """The scans that reached the drive after their tick (goal mode with navigation only)."""
+    navigation = drive.navigation if isinstance(drive, DriveStatus) else None
+    return navigation.scans_late if isinstance(navigation, DriveNavigationStatus) else 0
+
+
+def _collision_monitor_holds(motor: ServiceStatus | None) -> int:
+    counters = motor.collision_monitor.counters if isinstance(motor, MotorStatus) else UNSET
+    return 0 if isinstance(counters, UnsetType) else counters.holds
+
+
+def readable_status(name: str, payload: bytes) -> tuple[ServiceStatus, dict[str, Any]] | None:
+    """A recorded status reply of service ``name`` as its kind's Struct, with the reply as a JSON
+    object (a user service's own fields); None for one that does not decode: someone's bad input
+    on a status key, not the service's."""
+    status = decode_status(status_type(name), payload)
+    return None if status is None else (status, json.loads(payload))
+
+
+def recorded_health(statuses: Mapping[str, tuple[ServiceStatus, dict[str, Any]]]) -> dict[str, Any]:
+    """The loop's health as ``up`` takes it at a run's end, from the last readable status replies a
+    recording holds (:func:`readable_status`): for a run without its summary. A service of one's
+    own's status (not one of :class:`Service`) is also under ``user_services``, as ``up`` puts it."""
+    typed = {name: status for name, (status, _reply) in statuses.items()}
+    sim = typed.get(Service.SIM)
+    health = loop_health(sim if isinstance(sim, SimStatus) else None, typed)
+    users = {name: reply for name, (_status, reply) in statuses.items() if name not in Service._value2member_map_}
     if users:
         health["user_services"] = users
     return health

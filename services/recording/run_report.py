@@ -27,6 +27,7 @@ from schemas.messages import (
     TimedVelocity,
 )
 from schemas.navigation import GoalFeedback, GoalTarget
+from schemas.status import ServiceStatus, SimStatus
 from schemas.topics import Topic
 from services.config import Config, ConfigError, InputConfig, RobotConfig
 from services.drive.scenarios import planned_path_for
@@ -46,7 +47,7 @@ from services.recording.report import (
     early_outcome,
     missing_parts,
     pose_from_body_pose,
-    readable_statuses,
+    readable_status,
     recorded_health,
     restart_degradation,
     write_plots,
@@ -135,19 +136,20 @@ def robot_report(path: Path, read: ReadResult, config: Config) -> tuple[dict[str
     messages, keys = read.messages, Keys(config.robot.name)
     _check_robot_recorded(path, messages, keys)
     summary = run_summary(messages, keys)
-    statuses = {} if summary else readable_statuses(recorded_statuses(messages, keys))
-    sim_status = statuses.get(str(Service.SIM), {})
+    statuses = {} if summary else recorded_statuses(messages, keys)
+    sim = statuses.get(str(Service.SIM))
+    sim_status = sim[0] if sim is not None and isinstance(sim[0], SimStatus) else None
     until_s = summary.tm.to_seconds() if summary else None
     recording = recording_from(messages, keys, config.robot, config.input, until_s)
     targets = decoded(messages, keys.drive_goal, GoalTarget)
     report = build_report(
         recording,
         scenario=summary.scenario if summary else None,
-        mode=summary.mode if summary else sim_status.get("mode"),
+        mode=summary.mode if summary else None if sim_status is None else sim_status.mode,
         # goal mode: no one planned path (each goal's is the straight line to it: its path_error_max_m)
         planned_path=None if targets else _planned_path(summary, messages, keys, recording),
         wall_time_s=summary.wall_time_s if summary else None,
-        steps=summary.steps if summary else sim_status.get("steps"),
+        steps=summary.steps if summary else None if sim_status is None else sim_status.steps,
         health=summary.health if summary else recorded_health(statuses),
     )
     report["composed"] = summary.composed if summary else None
@@ -195,18 +197,18 @@ def _check_robot_recorded(path: Path, messages: list[RecordedMessage], keys: Key
         raise ConfigError(f"--robot {keys.robot}: {path} holds no keys of this robot; robots recorded: {found}")
 
 
-def recorded_statuses(messages: list[RecordedMessage], keys: Keys) -> dict[str, Any]:
-    """Each service's last status reply recorded on ``<service>/status`` (the view's left out), by
-    name: what a recording without its run's summary tells of the loop's health."""
-    statuses: dict[str, Any] = {}
+def recorded_statuses(messages: list[RecordedMessage], keys: Keys) -> dict[str, tuple[ServiceStatus, dict[str, Any]]]:
+    """Each service's last readable status reply recorded on ``<service>/status`` (the view's left
+    out; :func:`readable_status`), by name: what a recording without its run's summary tells of the
+    loop's health."""
+    statuses: dict[str, tuple[ServiceStatus, dict[str, Any]]] = {}
     prefix, suffix = f"{keys.prefix}/", "/status"
     for message in messages:
         name = message.topic.removeprefix(prefix).removesuffix(suffix)
         if "/" not in name and message.topic == keys.status(UserServiceName(name)) != keys.view_status:
-            try:
-                statuses[name] = json.loads(message.data)
-            except ValueError:  # someone's bad input on a status key: not the service's
-                continue
+            readable = readable_status(name, message.data)
+            if readable is not None:
+                statuses[name] = readable
     return statuses
 
 

@@ -37,10 +37,12 @@ from collections.abc import Sequence
 from typing import Any
 
 import foxglove
+import msgspec
 import zenoh
 
 from schemas.codec import ENCODING
 from schemas.keys import VIEW, Keys
+from schemas.status import ViewStatus
 from services.config import Config
 from services.exits import ExitStatus
 from services.recording.mcap_files import JSON, JSON_SCHEMA, key_json_schema
@@ -132,16 +134,16 @@ def _answer_status(
     read-only, so a wildcard query (``invent/*/*/status``) gets it too."""
     while (query := queries.try_recv()) is not None:
         try:
-            status = {
-                "service": VIEW,
-                "robot": keys.robot,
-                "uptime_s": round(time.monotonic() - started, 3),
-                "url": url,
-                "channels": channels.count,
-                "messages": channels.messages,
-                "bad_input": bad_input.as_dict(),
-            }
-            query.reply(keys.view_status, json.dumps(status), encoding=zenoh.Encoding(ENCODING))
+            status = ViewStatus(
+                service=VIEW,
+                robot=keys.robot,
+                uptime_s=round(time.monotonic() - started, 3),
+                url=url,
+                channels=channels.count,
+                messages=channels.messages,
+                bad_input=bad_input.status(),
+            )
+            query.reply(keys.view_status, msgspec.json.encode(status), encoding=zenoh.Encoding(ENCODING))
         finally:
             query.drop()
 

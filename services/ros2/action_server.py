@@ -46,6 +46,7 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from schemas.codec import BadInput, encode
+from schemas.drive_status import NavigateStatus, NavigateWaiting
 from schemas.messages import NANOSECONDS_PER_SECOND, ScenarioOutcome
 from schemas.navigation import CancelReply, CancelRequest, GoalFeedback, GoalReply, GoalRequest, GoalTarget
 from services.config import Config
@@ -402,14 +403,14 @@ class NavigateServer:
             self.counters.expired += len(expired)
             self._publish_status()
 
-    def status(self) -> dict[str, Any]:
-        return {
-            "action": self.action,
-            "drive_serves_goals": has_match(self._send),
+    def status(self) -> NavigateStatus:
+        return NavigateStatus(
+            action=self.action,
+            drive_serves_goals=has_match(self._send),
             **dataclasses.asdict(self.counters),
-            "waiting": {"sends": len(self._pending), "results": len(self.results)},
-            "goals": {goal.id: goal.status.name.lower() for goal in self.book.status_list()},
-        }
+            waiting=NavigateWaiting(sends=len(self._pending), results=len(self.results)),
+            goals={goal.id: goal.status.name.lower() for goal in self.book.status_list()},
+        )
 
     def close(self) -> None:
         for caller in self.results.drain():

@@ -12,10 +12,10 @@ from __future__ import annotations
 import itertools
 from typing import Any
 
-import msgspec
 import zenoh
 
 from schemas.codec import BadInput
+from schemas.status import MotorStatus, decode_status
 from schemas.topics import Method, MethodFamily
 from services.ros2 import graph, interfaces
 from services.ros2.action_calls import Caller, Tokens, caller_of, request_payload, serve
@@ -99,8 +99,5 @@ def _reply_text(reply: zenoh.Reply) -> tuple[bool, str]:
     """zenoh's thread: (ok, what to tell the ROS caller) of the motor's reply."""
     if reply.ok is None:
         return False, f"the motor refused: {reply.err.payload.to_bytes().decode(errors='replace') if reply.err else ''}"
-    try:
-        state = msgspec.json.decode(reply.ok.payload.to_bytes()).get("state", "?")
-    except (msgspec.DecodeError, UnicodeDecodeError, AttributeError):
-        state = "?"
-    return True, f"motor state: {state}"
+    status = decode_status(MotorStatus, reply.ok.payload.to_bytes())  # the motor's status; a bad one says nothing
+    return True, f"motor state: {'?' if status is None else status.state}"

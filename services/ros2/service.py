@@ -58,8 +58,10 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
+from msgspec import UNSET
 
 from schemas.codec import BadInput, encode
+from schemas.drive_status import InitialPoseStatus, Ros2Status
 from schemas.keys import Service
 from schemas.messages import (
     NANOSECONDS_PER_SECOND,
@@ -71,6 +73,7 @@ from schemas.messages import (
     TimedVelocity,
 )
 from schemas.navigation import GoalPlan, LocalizationReply, OccupancyGrid, ParticleCloud
+from schemas.status import PlanarPose
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config, ConfigError
 from services.ros2 import core, graph, interfaces, navigate, wire
@@ -341,35 +344,31 @@ class Ros2Bridge:
                 pose,
             )
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> Ros2Status:
         identity = self.tokens.identity
-        return {
-            "state": "waiting_for_clock" if self.clock.last_ns is None else "running",
-            "domain": identity.domain,
-            "namespace": identity.namespace,
-            "node": wire.full_name(identity.namespace, identity.name),
-            "zid": identity.zid,
-            "sim_alive": self.sim.alive,
-            "sim_time_s": None if self.clock.last_ns is None else self.clock.last_ns / NANOSECONDS_PER_SECOND,
-            "time_base_restarts": self.clock.restart.restarts,
-            "published": {publisher.name: publisher.published for publisher in self.publishers.values()},
-            "cmd_vel": dict(self.cmd_vel),
-            "service_calls": self.motor_services.status(),
-            "odometry_services": self.odometry_services.status(),
-            **({"navigate": self.navigate.status()} if self.navigate is not None else {}),
-            **(
-                {
-                    "initial_pose": {
-                        **self.initial_pose,
-                        "waiting": len(self._pending_initial_poses),
-                        "last_refusal": self.last_initial_pose_refusal,
-                    }
-                }
-                if self._localization is not None
-                else {}
+        return Ros2Status(
+            state="waiting_for_clock" if self.clock.last_ns is None else "running",
+            domain=identity.domain,
+            namespace=identity.namespace,
+            node=wire.full_name(identity.namespace, identity.name),
+            zid=identity.zid,
+            sim_alive=self.sim.alive,
+            sim_time_s=None if self.clock.last_ns is None else self.clock.last_ns / NANOSECONDS_PER_SECOND,
+            time_base_restarts=self.clock.restart.restarts,
+            published={publisher.name: publisher.published for publisher in self.publishers.values()},
+            cmd_vel=dict(self.cmd_vel),
+            service_calls=self.motor_services.status(),
+            odometry_services=self.odometry_services.status(),
+            navigate=UNSET if self.navigate is None else self.navigate.status(),
+            initial_pose=UNSET
+            if self._localization is None
+            else InitialPoseStatus(
+                **self.initial_pose,
+                waiting=len(self._pending_initial_poses),
+                last_refusal=self.last_initial_pose_refusal,
             ),
-            "odom": self.outputs.odometry.pose._asdict(),
-        }
+            odom=PlanarPose(*self.outputs.odometry.pose),
+        )
 
     def close(self) -> None:
         if self.navigate is not None:

@@ -394,14 +394,3 @@ class LatestSample(NodeInput):
             return False
         self.handle(newest)
         return True
-
-
-class InputTaken(msgspec.Struct):
-    """What a service took of one input, in its ``status`` (``inputs``, by key): a tool feeding it
-    (``invent replay --rate 0``) waits on ``samples`` so that it never sends faster than the
-    service takes."""
-
-    every_sample: bool
-    """False for an input of which only the newest sample counts (skipped samples are not taken)."""
-    samples: int = 0
-    """Samples handed to the service, bad ones included."""

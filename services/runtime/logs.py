@@ -13,6 +13,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from schemas.status import BadInputCount, BadInputStatus
+
 LOG_INTERVAL_S = 1.0
 """At most one line per kind (bad input per key, internal errors per key, ...) per interval."""
 
@@ -71,11 +73,10 @@ class BadInputCounter:
     def reset(self) -> None:
         self.by_key.clear()
 
-    def as_dict(self) -> dict[str, Any]:
-        return {
-            "total": self.total,
-            "by_key": {key: {"count": e.count, "last_reason": e.last_reason} for key, e in self.by_key.items()},
-        }
+    def status(self) -> BadInputStatus:
+        return BadInputStatus(
+            self.total, {key: BadInputCount(e.count, e.last_reason) for key, e in self.by_key.items()}
+        )
 
 
 LOG_LEVELS = ("debug", "info", "warning", "error")

@@ -19,6 +19,8 @@ import ctypes.util
 import time
 from typing import Any
 
+from schemas.status import MemoryStatus
+
 TRIM_PERIOD_S = 60.0
 """Wall seconds between two trims: each walks the allocator's arenas (about a millisecond)."""
 MB = 1_000_000
@@ -63,15 +65,15 @@ def trim_when_due() -> None:
     _max_trim_us = max(_max_trim_us, (done - now) * 1e6)
 
 
-def status() -> dict[str, Any]:
+def status() -> MemoryStatus:
     """The allocator's memory in use and free (MB), and the trims done (every node's ``status.memory``)."""
     if _libc is None:
-        return {"allocator": None}
+        return MemoryStatus(allocator=None)
     info = _libc.mallinfo2()
-    return {
-        "allocator": "glibc",
-        "in_use_mb": round((info.uordblks + info.hblkhd) / MB, 3),
-        "free_mb": round(info.fordblks / MB, 3),
-        "trims": _trims,
-        "max_trim_us": round(_max_trim_us, 1),
-    }
+    return MemoryStatus(
+        allocator="glibc",
+        in_use_mb=round((info.uordblks + info.hblkhd) / MB, 3),
+        free_mb=round(info.fordblks / MB, 3),
+        trims=_trims,
+        max_trim_us=round(_max_trim_us, 1),
+    )

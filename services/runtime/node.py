@@ -23,6 +23,7 @@ import zenoh
 from schemas.codec import ENCODING, BadInput, decode
 from schemas.interface import Interface
 from schemas.keys import Keys, Service, ServiceName
+from schemas.status import InputTaken, ServiceStatus
 from services.runtime.declared import DeclaredKeys
 from services.runtime.executor import STOP_POLL_S, Executor
 from services.runtime.inputs import (
@@ -30,7 +31,6 @@ from services.runtime.inputs import (
     Delivery,
     Dispatch,
     DispatchMessage,
-    InputTaken,
     LatchedPublisher,
     LatestSample,
     NodeInput,
@@ -49,8 +49,6 @@ MessageT = TypeVar("MessageT", bound=msgspec.Struct)
 ContentT = TypeVar("ContentT")
 """A sample's payload (bytes), or a message a publisher of this process offered as it is."""
 
-_QueryHandler = Callable[[bytes], Any]
-
 
 @dataclass(frozen=True)
 class Wait:
@@ -62,20 +60,16 @@ class Wait:
     """A time (``time.monotonic()``) at which the service has something to settle, if any."""
 
 
-def _no_wait() -> Wait:
-    return Wait()
-
-
 class Node:
-    """One service's presence on zenoh. See the module docstring. ``status`` is called on the service
-    thread to build the ``status`` reply; the node adds the service and robot names and the counters."""
+    """One service's presence on zenoh. See the module docstring. ``status`` builds the ``status`` reply
+    (schemas/status.py) on the service thread; the node fills in the service and robot names and the counters."""
 
     def __init__(
         self,
         session: zenoh.Session,
         keys: Keys,
         service: ServiceName,
-        status: Callable[[], dict[str, Any]] = dict,
+        status: Callable[[], ServiceStatus] = ServiceStatus,
         executor: Executor | None = None,
         journal: Journal | None = None,
         bus: LocalBus | None = None,
@@ -97,6 +91,7 @@ class Node:
         """Whether it holds a lockstep participant's token (:meth:`participate`)."""
         self._internal_error_log = RateLimitedLog(self.log)
         self._status = status
+        self._own_status: Callable[[], dict[str, Any]] | None = None
         self.executor = executor or Executor()
         self._declarations: list[Any] = []
         self._inputs: list[NodeInput] = []
@@ -112,8 +107,8 @@ class Node:
         samples of every step kept too; else only the observed steps' are."""
         self._taken: dict[str, InputTaken] = {}
         self._started = time.monotonic()
-        self._next_wait: Callable[[], Wait] = _no_wait
-        self.queryable(keys.status(service), lambda _payload: self.status())
+        self._next_wait: Callable[[], Wait] = Wait
+        self.queryable(keys.status(service), lambda _payload: self._status_reply())
         self._declarations.append(session.liveliness().declare_token(keys.alive(service)))
 
     @property
@@ -122,23 +117,28 @@ class Node:
         process (the fleet simulator's, one per robot) may write to it too."""
         return self._journal
 
-    def set_status(self, status: Callable[[], dict[str, Any]]) -> None:
-        self._status = status
+    def set_status(self, status: Callable[[], ServiceStatus], own: Callable[[], dict[str, Any]] | None = None) -> None:
+        """``own``: a user service's own fields, free-form, merged over the typed reply's on the wire."""
+        self._status, self._own_status = status, own
 
-    def status(self) -> dict[str, Any]:
-        return {
-            "service": str(self.service),
-            "robot": self.keys.robot,
-            "uptime_s": round(time.monotonic() - self._started, 3),
-            **self._status(),
-            "inputs": dict(self._taken),
-            "bad_input": self.bad_inputs.as_dict(),
-            "internal_errors": self.internal_errors,
-            "dropped_events": self.executor.dropped_events,
-            "congestion": "block" if self.congestion == zenoh.CongestionControl.BLOCK else "drop",
-            "rt": realtime_status(),
-            "memory": memory_status(),
-        }
+    def status(self) -> ServiceStatus:
+        return msgspec.structs.replace(
+            self._status(),
+            service=str(self.service),
+            robot=self.keys.robot,
+            uptime_s=round(time.monotonic() - self._started, 3),
+            inputs=dict(self._taken),
+            bad_input=self.bad_inputs.status(),
+            internal_errors=self.internal_errors,
+            dropped_events=self.executor.dropped_events,
+            congestion="block" if self.congestion == zenoh.CongestionControl.BLOCK else "drop",
+            rt=realtime_status(),
+            memory=memory_status(),
+        )
+
+    def _status_reply(self) -> ServiceStatus | dict[str, Any]:
+        status = self.status()
+        return status if self._own_status is None else {**msgspec.to_builtins(status), **self._own_status()}
 
     def subscribe(
         self,
@@ -263,7 +263,7 @@ class Node:
         self._declarations.append(querier)
         self._declarations.append(querier.declare_matching_listener(lambda status: post(ask, status.matching)))
 
-    def queryable(self, key: str, handler: _QueryHandler, *, mutates: bool = False) -> None:
+    def queryable(self, key: str, handler: Callable[[bytes], Any], *, mutates: bool = False) -> None:
         """Answer queries on ``key`` from the service thread.
 
         ``handler(payload)`` returns a JSON-encodable reply (None: no reply), or raises BadInput,

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from schemas.keys import Service
+from schemas.status import RealtimeStatus
 from services.config import ConfigError, CpuChoice, GcPolicy, RtConfig
 
 log = logging.getLogger("invent.rt")
@@ -228,17 +229,17 @@ def collect_when_idle() -> None:
     gc.collect(2 if _state.idle_collections % IDLE_FULL_EVERY == 0 else 0)
 
 
-def status() -> dict[str, Any]:
+def status() -> RealtimeStatus:
     """What was applied and what the collector did (every node's ``status.rt``)."""
-    return {
-        "enabled": _state.enabled,
-        "policy": _state.policy,
-        "priority": _state.priority,
-        "memory_locked": _state.memory_locked,
-        "cpus": _state.cpus,
-        "refused": list(_state.refused),
-        "gc": _state.gc,
-        "gc_collections": list(_state.collections),
-        "gc_max_pause_us": round(_state.max_pause_us, 1),
-        "gc_total_pause_us": round(_state.total_pause_us, 1),
-    }
+    return RealtimeStatus(
+        enabled=_state.enabled,
+        policy=_state.policy,
+        priority=_state.priority,
+        memory_locked=_state.memory_locked,
+        cpus=_state.cpus,
+        refused=list(_state.refused),
+        gc=_state.gc,
+        gc_collections=list(_state.collections),
+        gc_max_pause_us=round(_state.max_pause_us, 1),
+        gc_total_pause_us=round(_state.total_pause_us, 1),
+    )
