@@ -3,8 +3,8 @@
 import threading
 
 from schemas import Keys, Service
+from services.drive.options import DriveOptions
 from services.drive.scenarios import ConstantSegment, Scenario
-from services.drive.service import DriveOptions
 from services.launch.composition import Composition
 from services.launch.service_plans import BUILT_IN, ChildPlan
 from tests.harness import status_reply, wait_until

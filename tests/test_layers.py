@@ -49,7 +49,7 @@ LAYERS: tuple[tuple[str, str], ...] = (
     (r"services\.mapping\.(occupancy|matcher|builder|from_recording)", CORE),
     (r"services\.motor\.state", CORE),
     (r"services\.motor\.(sim_pose|speed_limiter|wheel_velocity|collision|monitor)", CORE),
-    (r"services\.drive\.(scenarios|path_following|outcome|goals|goal_approach|goal_file)", CORE),
+    (r"services\.drive\.(scenarios|path_following|outcome|goals|goal_approach|goal_file|options)", CORE),
     (r"services\.clock\.(sim_time|lockstep|observation)", CORE),
     (r"services\.planar", CORE),
     (r"services\.fleet\.(description|summary)", CORE),

@@ -17,8 +17,9 @@ from services.cli.control import composed_plans
 from services.cli.flags import connection_from_args
 from services.cli.main import build_parser
 from services.cli.services import service_plan
+from services.drive.options import DriveOptions, goal_options, scenario_options
 from services.drive.scenarios import BUILTIN_SCENARIOS, ConstantSegment, Scenario, WaypointSegment
-from services.drive.service import TWIST_PASS_S, DriveOptions, goal_options, scenario_options
+from services.drive.service import TWIST_PASS_S
 from services.launch.plan import Connection, Description
 from services.launch.service_plans import (
     BUILT_IN,

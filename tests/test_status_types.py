@@ -27,8 +27,8 @@ from schemas.status import (
     ViewStatus,
 )
 from schemas.status_kinds import STATUS_TYPES, status_type
+from services.drive.options import DriveOptions
 from services.drive.scenarios import ConstantSegment, Scenario
-from services.drive.service import DriveOptions
 from services.launch.composition import Composition
 from services.launch.service_plans import BUILT_IN, ChildPlan
 from services.recording.report import loop_health

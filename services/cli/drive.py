@@ -9,6 +9,7 @@ from services.cli.flags import finite_number, given_as, parsed_by, positive_seco
 from services.cli.serve import ServiceCli
 from services.config import ConfigError, DriveConfig
 from services.drive.goal_file import load_goal_file
+from services.drive.options import DriveOptions, goal_options, scenario_options
 from services.drive.scenarios import (
     BUILTIN_SCENARIOS,
     ConstantSegment,
@@ -17,7 +18,7 @@ from services.drive.scenarios import (
     load_scenario,
     parse_waypoints,
 )
-from services.drive.service import COMMAND, TWIST_PASS_S, DriveOptions, goal_options, scenario_options
+from services.drive.service import COMMAND, TWIST_PASS_S
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 import msgspec
 
@@ -57,21 +56,18 @@ from services.clock.lockstep import FINAL, decode_owed
 from services.clock.sim_time import PeriodicSchedule, StampClock, check_stamp_near
 from services.clock.sim_watch import SimulatorWatch
 from services.config import Config
-from services.drive.goal_file import GoalFile, load_goal_file
 from services.drive.goal_shell import GoalDrive
 from services.drive.navigation_shell import NavigationShell
+from services.drive.options import GOALS_MODE, DriveOptions, check
 from services.drive.outcome import GiveUp, GiveUpRule, Outcome, time_limit
 from services.drive.path_following import STOPPED, Command
 from services.drive.scenarios import (
-    Scenario,
     ScenarioRunner,
     describe,
     is_builtin,
-    load_scenario,
     placed,
     planned_path,
 )
-from services.navigation.map_file import read_map
 from services.planar import Pose, check_coordinates
 from services.runtime.inputs import Delivery
 from services.runtime.node import Node, Wait
@@ -81,37 +77,6 @@ FINAL_ZERO_TICKS = 3
 """Ticks on which the final zero velocity is published before the drive exits."""
 TWIST_PASS_S = 1.0
 """``--twist``: the constant segment played over and over (its path is this much of the arc ahead)."""
-
-
-GOALS_MODE = "goals"
-
-
-@dataclass(frozen=True)
-class DriveOptions:
-    """What ``invent drive`` drives: ``mode`` (``constant``, ``twist``, ``scenario``,
-    ``waypoints`` or ``goals``, as its status says), the scenario, whether it starts over when it
-    ends; in goal mode, the goal file (None: goals come only from queries)."""
-
-    mode: str
-    scenario: Scenario | None
-    """None in goal mode."""
-    loop: bool = False
-    goal_file: GoalFile | None = None
-    source: str | None = None
-    """The scenario (a built-in's name or a file) or the goal file as given: what names it on a
-    command line (services/launch/service_plans.py)."""
-
-
-def scenario_options(scenario: str, loop: bool = False) -> DriveOptions:
-    """The scenario ``scenario`` names (a built-in or a file; ConfigError naming it), over and over with ``loop``."""
-    return DriveOptions("scenario", load_scenario(scenario), loop, source=scenario)
-
-
-def goal_options(goal_file: str | None = None) -> DriveOptions:
-    """Goal mode: goals from queries, and from ``goal_file`` at its times if given (ConfigError naming it)."""
-    return DriveOptions(
-        GOALS_MODE, None, goal_file=None if goal_file is None else load_goal_file(goal_file), source=goal_file
-    )
 
 
 class DriveService:
@@ -467,12 +432,6 @@ class DriveService:
 
     def close(self) -> None:
         """Nothing beyond the node to release."""
-
-
-def check(config: Config, options: DriveOptions) -> None:
-    """A map that goals navigate on must load (exit 2 naming the field before anything starts)."""
-    if options.mode == GOALS_MODE and config.navigation.enabled and config.navigation.map is not None:
-        read_map(config.navigation.map)
 
 
 COMMAND = ServiceCommand(service=Service.DRIVE, factory=DriveService, check=check)

@@ -23,8 +23,8 @@ import msgspec
 
 from schemas.keys import CONTROL
 from services.config import load_config
+from services.drive.options import GOALS_MODE, DriveOptions
 from services.drive.service import COMMAND as DRIVE
-from services.drive.service import GOALS_MODE, DriveOptions
 from services.extension.hosting import UserOptions
 from services.fleet.description import load_fleet, robot_config, sim_overrides
 from services.launch.plan import Connection, Description

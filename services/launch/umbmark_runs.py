@@ -28,9 +28,9 @@ from services.calibration.benchmark import Benchmark, Lap, PathPoint, RunPaths, 
 from services.calibration.settings import UmbmarkSettings
 from services.calibration.umbmark import Calibration, Direction, evaluate, square
 from services.config import NONE, ConfigError, apply_overrides, config_from_description
+from services.drive.options import scenario_options
 from services.drive.outcome import OUTCOME_OF_EXIT_CODE, Outcome
 from services.drive.service import COMMAND as DRIVE
-from services.drive.service import scenario_options
 from services.errors import RunFailed
 from services.launch.composition import Composition
 from services.launch.plan import Description

@@ -37,8 +37,8 @@ from schemas.messages import NANOSECONDS_PER_SECOND, RunSummary, ServiceRestart,
 from services import interfaces
 from services.clock.lockstep import OUTPUTS
 from services.config import ConfigError, SimMode
+from services.drive.options import DriveOptions, goal_options, scenario_options
 from services.drive.service import COMMAND as DRIVE
-from services.drive.service import DriveOptions, goal_options, scenario_options
 from services.errors import ChildDied, Interrupted
 from services.extension.hosting import UserOptions
 from services.extension.hosting import command as hosted

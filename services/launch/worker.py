@@ -35,7 +35,7 @@ from typing import Any
 import zenoh
 
 from schemas.keys import Service
-from services.drive.service import goal_options, scenario_options
+from services.drive.options import goal_options, scenario_options
 from services.errors import ChildDied
 from services.fleet.description import Fleet, robot_settings
 from services.launch.children import Supervisor, describe_exit

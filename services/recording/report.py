@@ -193,9 +193,8 @@ def _collision_monitor_holds(motor: ServiceStatus | None) -> int:
 
 
 def readable_status(name: str, payload: bytes) -> tuple[ServiceStatus, dict[str, Any]] | None:
-    """A recorded status reply of service ``name`` as its kind's Struct, with the reply as a JSON
-    object (a user service's own fields); None for one that does not decode: someone's bad input
-    on a status key, not the service's."""
+    """A recorded status reply of service ``name`` as its kind's Struct and as a JSON object (a user
+    service's own fields); None for one that does not decode (bad input on a status key)."""
     status = decode_status(status_type(name), payload)
     return None if status is None else (status, json.loads(payload))
 

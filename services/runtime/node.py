@@ -9,18 +9,18 @@ clock (the simulator) has a loop of its own.
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, TypeVar
 
 import msgspec
 import zenoh
 
-from schemas.codec import ENCODING, BadInput, decode
+from schemas.codec import BadInput, decode
 from schemas.interface import Interface
 from schemas.keys import Keys, Service, ServiceName
 from schemas.status import InputTaken, ServiceStatus
@@ -41,6 +41,7 @@ from services.runtime.intraprocess import LocalBus, LocalSink
 from services.runtime.journal import Journal
 from services.runtime.logs import BadInputCounter, RateLimitedLog, log
 from services.runtime.memory import status as memory_status
+from services.runtime.queries import answer
 from services.runtime.realtime import status as realtime_status
 
 LIVELINESS_QUERY_TIMEOUT_S = 1.0
@@ -267,8 +268,7 @@ class Node:
         """Answer queries on ``key`` from the service thread.
 
         ``handler(payload)`` returns a JSON-encodable reply (None: no reply), or raises BadInput,
-        which becomes a ``reply_err`` naming the reason. The query is finalized right after the
-        reply, so the caller's ``get`` returns at once.
+        which becomes a ``reply_err`` naming the reason (services/runtime/queries.py).
 
         Looking never acts: a wildcard or prefix query (``invent/rh0/**``, what zenoh tools and
         the REST plugin send to look around) reaches every queryable its key expression
@@ -278,32 +278,14 @@ class Node:
         """
 
         self.declared.serve(key)
-
-        def answer(query: zenoh.Query) -> None:
-            try:
-                payload = query.payload.to_bytes() if query.payload is not None else b""
-                try:
-                    reply = handler(payload)
-                except BadInput as error:
-                    self.bad_inputs.record(key, str(error))
-                    query.reply_err(json.dumps({"error": str(error)}), encoding=zenoh.Encoding(ENCODING))
-                    return
-                except Exception as error:  # noqa: BLE001 (a bug must not kill the service; it is logged and counted)
-                    self._internal_error(key, error)
-                    query.reply_err(
-                        json.dumps({"error": f"internal error: {error}"}), encoding=zenoh.Encoding(ENCODING)
-                    )
-                    return
-                if reply is not None:
-                    query.reply(key, msgspec.json.encode(reply), encoding=zenoh.Encoding(ENCODING))
-            finally:
-                query.drop()
-
+        answer_query = partial(
+            answer, key=key, handler=handler, bad_inputs=self.bad_inputs, internal_error=self._internal_error
+        )
         post = self.executor.post
 
         def on_query(query: zenoh.Query) -> None:
             if not mutates or str(query.key_expr) == key:
-                post(answer, query)
+                post(answer_query, query)
 
         self._declarations.append(self.session.declare_queryable(key, on_query))
 
