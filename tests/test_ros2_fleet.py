@@ -9,138 +9,48 @@ into a bag. Then, with rh1's drive in goal mode (``invent drive --goals --robot 
 NavigateToPose action: a goal on ``/robot1/navigate_to_pose`` reached with feedback and SUCCEEDED,
 rh0 unmoved (rh0's action refuses goals: its robot has no goal-mode drive); goals canceled by id
 and canceled all CANCELED in the status, a preempted one ABORTED (Nav2's); ``/robot1/goal_pose``
-in odom; hostile requests refused while a goal runs. One fleet run serves every test of the module. (What each robot's bridge
-may do with its robot's credentials in a secure fleet is tests/test_security_fleet.py's.)
+in odom; hostile requests refused while a goal runs. One fleet run (tests/ros2_fleet_run.py) serves every test
+of the module; what each robot's bridge may do in a secure fleet is tests/test_security_fleet.py's.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import signal
-import subprocess
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
 import pytest
-import zenoh
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2 import Reader
 
-from schemas.keys import Keys, Service
+from schemas.keys import Service
 from services.planar import Pose
 from services.ros2 import core
 from tests import ros_client, ros_services
-from tests.harness import (
-    REPO,
-    InventProcess,
-    at_rest,
-    call,
-    free_port,
-    invent_command,
-    peer_session,
-    run_invent,
-    running_router,
-    wait_alive,
-    wait_until,
+from tests.harness import InventProcess, at_rest, peer_session, run_invent, running_router, wait_until
+from tests.ros2_fleet_run import (  # noqa: F401 (the fixtures fleet and goals)  # what the tests share
+    ACTION_ENDPOINTS,
+    CLOCK,
+    DOMAIN,
+    FLEET,
+    GOAL_ACTION,
+    GOAL_POSE,
+    GOAL_ROBOT,
+    NAMESPACES,
+    PUBLISHED,
+    SERVICES,
+    STATUS,
+    SUBSCRIBED,
+    drive,
+    fleet_run,
+    goals_run,
+    mangled,
+    moved_by,
+    shipped_hash,
 )
 
 pytestmark = pytest.mark.slow
-
-DOMAIN = 0
-NAMESPACES = {"rh0": "/rh0", "rh1": "/robot1"}
-"""Each robot's namespace: rh0's its name (the default), rh1's set in the fleet file."""
-FLEET = """world = "empty"
-[[robots]]
-name = "rh0"
-start = { x = 0.0, y = 0.0, theta = 0.0 }
-[[robots]]
-name = "rh1"
-namespace = "robot1"
-start = { x = 0.0, y = 3.0, theta = 0.0 }
-"""
-PUBLISHED = {
-    "odom": "nav_msgs/msg/Odometry",
-    "tf": "tf2_msgs/msg/TFMessage",
-    "tf_static": "tf2_msgs/msg/TFMessage",
-    "joint_states": "sensor_msgs/msg/JointState",
-    "robot_description": "std_msgs/msg/String",
-    "scan": "sensor_msgs/msg/LaserScan",
-    "imu": "sensor_msgs/msg/Imu",
-}
-"""What each robot's bridge publishes in its namespace (Nav2's multi-robot layout: tf in the namespace)."""
-CLOCK = ("/clock", "rosgraph_msgs/msg/Clock")
-SUBSCRIBED = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped")
-SERVICES = ("motor/stop", "motor/clear", "motor/start", "motor/finish")
-GOAL_POSE = ("goal_pose", "geometry_msgs/msg/PoseStamped")
-ACTION_ENDPOINTS = {"send_goal": "SS", "cancel_goal": "SS", "get_result": "SS", "feedback": "MP", "status": "MP"}
-"""Each robot's NavigateToPose action (``<ns>/navigate_to_pose/_action/<endpoint>``), by kind of token."""
-STARTUP_TIMEOUT_S = 90.0
-SHIPPED = REPO / "tests" / "data" / "ros2_interfaces"
-
-
-@dataclass
-class Fleet:
-    endpoint: str
-    session: zenoh.Session
-    recorder: ros_client.Recorder
-    node: ros_client.RosNode
-    directory: Path
-
-    def status(self, robot: str, service: Service) -> dict[str, Any]:
-        ok, status = call(self.session, Keys(robot).status(service))
-        assert ok
-        return status
-
-    def position(self, robot: str) -> tuple[float, float]:
-        pose = self.status(robot, Service.SIM)["pose"]
-        return pose["x"], pose["y"]
-
-
-@pytest.fixture(scope="module")
-def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
-    """The two-robot fleet in teleop, each service its own process; the test's session a ROS node's
-    peer session, its domain's samples recorded from before the bridges start."""
-    directory = tmp_path_factory.mktemp("ros2-fleet")
-    (directory / "fleet.toml").write_text(FLEET)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    log = (directory / "up.log").open("w")
-    flags = ["--fleet", str(directory / "fleet.toml"), "--ros2", "--teleop", "--listen", endpoint]
-    up = subprocess.Popen(
-        invent_command("up", *flags, "--report", str(directory / "report")),
-        cwd=REPO,
-        stdout=log,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    try:
-        with peer_session(endpoint) as session:
-            recorder = ros_client.Recorder(session, f"{DOMAIN}/**")
-            for robot in NAMESPACES:
-                wait_alive(session, Keys(robot).alive(Service.ROS2), STARTUP_TIMEOUT_S)
-            wait_alive(session, Keys("rh0").alive(Service.SIM), STARTUP_TIMEOUT_S)
-            for namespace in NAMESPACES.values():
-                wait_until(lambda n=namespace: recorder.of(f"{n}/odom"), STARTUP_TIMEOUT_S, f"{namespace}/odom")
-            yield Fleet(endpoint, session, recorder, ros_client.RosNode(session), directory)
-            recorder.close()
-    finally:
-        up.send_signal(signal.SIGINT)
-        try:
-            up.wait(60)
-        except subprocess.TimeoutExpired:
-            up.kill()
-            up.wait()
-        log.close()
-    assert up.returncode == 0, (directory / "up.log").read_text()[-3000:]
-
-
-def _mangled(name: str) -> str:
-    return name.replace("/", "%")
 
 
 def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_types_and_one_clock(fleet):
@@ -151,32 +61,32 @@ def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_type
         "the tokens",
     )
     nodes = {chunks[7]: chunks for chunks in tokens if chunks[5] == "NN"}
-    assert set(nodes) == {_mangled(ns) for ns in NAMESPACES.values()}
+    assert set(nodes) == {mangled(ns) for ns in NAMESPACES.values()}
     assert all(node[8] == "invent_bridge" for node in nodes.values())
     entities: dict[str, set[tuple[str, str, str]]] = {}
     for chunks in tokens:
         if chunks[5] != "NN":
             entities.setdefault(chunks[7], set()).add((chunks[5], chunks[9], "/".join(chunks[10:12])))
-    clock = ("MP", _mangled(CLOCK[0]), ros_client.key_type(CLOCK[1]))
+    clock = ("MP", mangled(CLOCK[0]), ros_client.key_type(CLOCK[1]))
     for robot, namespace in NAMESPACES.items():
-        expected = {("MP", _mangled(f"{namespace}/{t}"), ros_client.key_type(i)) for t, i in PUBLISHED.items()}
-        expected |= {("MS", _mangled(f"{namespace}/cmd_vel"), ros_client.key_type(i)) for i in SUBSCRIBED}
-        expected |= {("SS", _mangled(f"{namespace}/{s}"), ros_client.TRIGGER_KEY_TYPE) for s in SERVICES}
+        expected = {("MP", mangled(f"{namespace}/{t}"), ros_client.key_type(i)) for t, i in PUBLISHED.items()}
+        expected |= {("MS", mangled(f"{namespace}/cmd_vel"), ros_client.key_type(i)) for i in SUBSCRIBED}
+        expected |= {("SS", mangled(f"{namespace}/{s}"), ros_client.TRIGGER_KEY_TYPE) for s in SERVICES}
         expected |= {
-            ("SS", _mangled(f"{namespace}/invent_bridge/{s}"), ros_services.odometry_service_key_type(i))
+            ("SS", mangled(f"{namespace}/invent_bridge/{s}"), ros_services.odometry_service_key_type(i))
             for s, i in (("reset_odometry", "std_srvs/srv/Empty"), ("set_odometry", "control_msgs/srv/SetOdometry"))
         }
-        expected.add(("MS", _mangled(f"{namespace}/{GOAL_POSE[0]}"), ros_client.key_type(GOAL_POSE[1])))
+        expected.add(("MS", mangled(f"{namespace}/{GOAL_POSE[0]}"), ros_client.key_type(GOAL_POSE[1])))
         expected |= {
             (
                 kind,
-                _mangled(f"{namespace}/navigate_to_pose/_action/{endpoint}"),
+                mangled(f"{namespace}/navigate_to_pose/_action/{endpoint}"),
                 ros_services.action_key_type(ros_services.ACTION_ENDPOINTS[endpoint]),
             )
             for endpoint, kind in ACTION_ENDPOINTS.items()
         }
         expected |= {clock} if robot == "rh0" else set()
-        assert entities[_mangled(namespace)] == expected, robot
+        assert entities[mangled(namespace)] == expected, robot
 
     topics = {ros_client.topic_key(DOMAIN, f"{ns}/{t}", i) for ns in NAMESPACES.values() for t, i in PUBLISHED.items()}
     topics.add(ros_client.topic_key(DOMAIN, *CLOCK))
@@ -196,13 +106,6 @@ def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_type
         )
 
 
-def _shipped_hash(name: str) -> str:
-    """The RIHS01 hash in the type description ROS ships for ``name`` (tests/data/ros2_interfaces)."""
-    package, _msg, type_name = name.split("/")
-    description = json.loads((SHIPPED / package / "msg" / f"{type_name}.json").read_text())
-    return next(e["hash_string"] for e in description["type_hashes"] if e["type_name"] == name)
-
-
 def test_each_robots_scan_and_imu_decode_with_ross_hashes_and_their_frames_are_in_its_tf_tree(fleet):
     """The simulator's lidar and IMU through each robot's bridge: ``/<ns>/scan`` and ``/<ns>/imu``
     on keys with the hashes ROS ships, decoded; ``base_scan`` and ``imu_link`` reach ``map`` through
@@ -215,7 +118,7 @@ def test_each_robots_scan_and_imu_decode_with_ross_hashes_and_their_frames_are_i
     for robot, namespace in NAMESPACES.items():
         for topic in ("scan", "imu"):
             (key,) = {sample.key for sample in fleet.recorder.of(f"{namespace}/{topic}")}
-            assert key.endswith(f"_/{_shipped_hash(PUBLISHED[topic])}"), key
+            assert key.endswith(f"_/{shipped_hash(PUBLISHED[topic])}"), key
         scan = ros_client.TYPESTORE.deserialize_cdr(
             fleet.recorder.of(f"{namespace}/scan")[-1].payload, PUBLISHED["scan"]
         )
@@ -237,24 +140,12 @@ def test_each_robots_scan_and_imu_decode_with_ross_hashes_and_their_frames_are_i
             assert chain == [frame, "base_link", "odom", "map"], (robot, chain)
 
 
-def _drive(fleet: Fleet, namespace: str, vx: float, seconds: float) -> None:
-    """Twists at 20 Hz on ``namespace``'s cmd_vel for ``seconds`` of wall time (teleop is realtime)."""
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        fleet.node.put(f"{namespace}/cmd_vel", ros_client.twist(vx, 0.0))
-        time.sleep(0.05)
-
-
-def _moved(before: tuple[float, float], after: tuple[float, float]) -> float:
-    return math.hypot(after[0] - before[0], after[1] - before[1])
-
-
 def test_a_twist_on_the_second_robots_cmd_vel_moves_it_and_not_the_first(fleet):
     before = {robot: fleet.position(robot) for robot in NAMESPACES}
-    _drive(fleet, NAMESPACES["rh1"], 0.3, 1.5)
+    drive(fleet, NAMESPACES["rh1"], 0.3, 1.5)
     after = {robot: fleet.position(robot) for robot in NAMESPACES}
-    assert _moved(before["rh1"], after["rh1"]) > 0.2, "rh1 follows /robot1/cmd_vel"
-    assert _moved(before["rh0"], after["rh0"]) < 0.005, "rh0 does not"
+    assert moved_by(before["rh1"], after["rh1"]) > 0.2, "rh1 follows /robot1/cmd_vel"
+    assert moved_by(before["rh0"], after["rh0"]) < 0.005, "rh0 does not"
     assert fleet.status("rh1", Service.ROS2)["cmd_vel"]["forwarded"] > 0
     assert fleet.status("rh0", Service.ROS2)["cmd_vel"]["received"] == 0
 
@@ -272,8 +163,8 @@ def test_the_first_robots_motor_stop_stops_only_it(fleet):
             fleet.node.put(f"{namespace}/cmd_vel", ros_client.twist(0.3, 0.0))
         time.sleep(0.05)
     after = {robot: fleet.position(robot) for robot in NAMESPACES}
-    assert _moved(before["rh0"], after["rh0"]) < 0.005, "the stopped robot ignores its twists"
-    assert _moved(before["rh1"], after["rh1"]) > 0.1, "the other robot still follows its own"
+    assert moved_by(before["rh0"], after["rh0"]) < 0.005, "the stopped robot ignores its twists"
+    assert moved_by(before["rh1"], after["rh1"]) > 0.1, "the other robot still follows its own"
     cleared = fleet.node.call_trigger(f"{NAMESPACES['rh0']}/motor/clear")
     assert cleared is not None and cleared[0][0]
     assert fleet.status("rh0", Service.MOTOR)["state"] != "stopped"
@@ -304,8 +195,8 @@ def test_malformed_cdr_on_a_namespaced_cmd_vel_is_bad_input_counted_and_the_brid
     assert status["cmd_vel"]["forwarded"] == forwarded and status["internal_errors"] == 0
     assert fleet.status("rh1", Service.MOTOR)["counters"]["target_velocity_samples"] == motor_before
     before = fleet.position("rh1")
-    _drive(fleet, NAMESPACES["rh1"], 0.3, 1.0)
-    assert _moved(before, fleet.position("rh1")) > 0.1, "the bridge lives on: the next good twist moves the robot"
+    drive(fleet, NAMESPACES["rh1"], 0.3, 1.0)
+    assert moved_by(before, fleet.position("rh1")) > 0.1, "the bridge lives on: the next good twist moves the robot"
     assert key not in fleet.status("rh0", Service.ROS2)["bad_input"]["by_key"], "rh0's bridge never saw it"
 
 
@@ -364,105 +255,6 @@ def test_invent_record_ros2_records_the_fleets_graph_into_a_bag(fleet):
 
 
 # -- goals: each robot's NavigateToPose action and goal_pose, against rh1's drive in goal mode ------
-
-GOAL_ROBOT = "rh1"
-"""The robot whose drive runs in goal mode for the goal tests (rh0 has none: its goals are refused)."""
-NEAR_M, NEAR_RAD = 0.1, 0.3
-"""How near the simulated body must end to a goal the drive completed. The drive holds a goal to its
-tolerances (5 cm, 0.1 rad) by ``odometry/pose``, not the ground truth: here, on a loaded machine
-(load average 9 to 12 on two cores), the body ended 0.107 and 0.216 rad off a completed goal's
-heading; a goal sent wrong (frame, robot, heading) misses by far more. What the bridge sent is
-checked exactly, on the drive's ``drive/goal``."""
-GOAL_ACTION = f"{NAMESPACES[GOAL_ROBOT]}/navigate_to_pose"
-FEEDBACK, STATUS = f"{GOAL_ACTION}/_action/feedback", f"{GOAL_ACTION}/_action/status"
-
-
-@dataclass
-class Goals:
-    """rh1's action as a ROS client sees it, and what the test reads of the fleet."""
-
-    fleet: Fleet
-    client: ros_services.ActionClient
-    drive: InventProcess
-
-    def ground_truth(self, robot: str = GOAL_ROBOT) -> Pose:
-        pose = self.fleet.status(robot, Service.SIM)["pose"]
-        return Pose(pose["x"], pose["y"], pose["theta"])
-
-    def ahead(self, distance: float, turn: float = 0.0) -> tuple[float, float, float]:
-        """A goal (in map) ``distance`` ahead of rh1, its heading turned by ``turn``."""
-        pose = self.ground_truth()
-        return pose.x + distance * math.cos(pose.theta), pose.y + distance * math.sin(pose.theta), pose.theta + turn
-
-    def statuses(self, uuid: bytes) -> list[int]:
-        """The goal's status in each ``_action/status`` sample that lists it, repeats left out."""
-        seen: list[int] = []
-        for sample in self.fleet.recorder.of(STATUS):
-            status = ros_services.goal_statuses(sample.payload).get(uuid)
-            if status is not None and (not seen or seen[-1] != status):
-                seen.append(status)
-        return seen
-
-    def wait_status(self, uuid: bytes, status: int, timeout: float = 30.0) -> list[int]:
-        return wait_until(
-            lambda: (seen := self.statuses(uuid)) and seen[-1] == status and seen, timeout, f"status {status}"
-        )
-
-    def feedback(self, uuid: bytes) -> list[Any]:
-        messages = (
-            ros_services.action_decode(sample.payload, f"{ros_services.NAVIGATE}_FeedbackMessage")
-            for sample in self.fleet.recorder.of(FEEDBACK)
-        )
-        return [message.feedback for message in messages if bytes(bytearray(message.goal_id.uuid)) == uuid]
-
-    def started(self, uuid: bytes) -> dict[str, Any]:
-        """The goal rh1's drive started last (``drive/goal``, latched): it must be ``uuid``'s."""
-        ok, target = call(self.fleet.session, Keys(GOAL_ROBOT).drive_goal)
-        assert ok and target["id"] == uuid.hex(), target
-        return target
-
-    def near(self, x: float, y: float, theta: float) -> bool:
-        truth = self.ground_truth()
-        return (
-            math.hypot(truth.x - x, truth.y - y) <= NEAR_M
-            and abs(math.remainder(truth.theta - theta, math.tau)) <= NEAR_RAD
-        )
-
-    def bad_inputs(self, key: str) -> int:
-        entry = self.fleet.status(GOAL_ROBOT, Service.ROS2)["bad_input"]["by_key"].get(key)
-        return entry["count"] if entry else 0
-
-    def goal_pose(self, pose: Pose) -> bytes:
-        """Publish ``pose`` (in odom) on rh1's ``goal_pose`` as RViz does; the UUID the bridge gave its goal."""
-        listed = self.fleet.recorder.of(STATUS)
-        before = set(ros_services.goal_statuses(listed[-1].payload)) if listed else set()
-        topic = f"{NAMESPACES[GOAL_ROBOT]}/goal_pose"
-        self.fleet.node.put(topic, ros_services.pose_stamped(pose.x, pose.y, pose.theta, "odom", ros_client.TYPESTORE))
-        return wait_until(
-            lambda: (
-                (listed := self.fleet.recorder.of(STATUS))
-                and next(iter(set(ros_services.goal_statuses(listed[-1].payload)) - before), None)
-            ),
-            10.0,
-            "a new goal in the status",
-        )
-
-
-@pytest.fixture(scope="module")
-def goals(fleet: Fleet) -> Iterator[Goals]:
-    """rh1's drive in goal mode (``invent drive --goals --robot rh1``), started once the teleop tests
-    before are done (a goal-mode drive commands zero between goals, which twists would fight)."""
-    with InventProcess("drive", "--goals", "--robot", GOAL_ROBOT, "--connect", fleet.endpoint, drain=True) as drive:
-        wait_alive(fleet.session, Keys(GOAL_ROBOT).alive(Service.DRIVE), STARTUP_TIMEOUT_S)
-        # the drive's queryable reaches the bridge's session asynchronously: a goal before it is refused
-        wait_until(
-            lambda: fleet.status(GOAL_ROBOT, Service.ROS2)["navigate"]["drive_serves_goals"],
-            STARTUP_TIMEOUT_S,
-            "rh1's bridge to see the drive's goal queryable",
-        )
-        yield Goals(fleet, ros_services.ActionClient(fleet.session, GOAL_ACTION), drive)
-        code, _out, err = drive.stop()
-    assert code == 0, err[-3000:]
 
 
 def test_a_navigate_to_pose_goal_to_the_second_robot_is_reached_with_feedback_and_moves_only_it(goals):
@@ -645,10 +437,10 @@ def test_invent_ros2_fleet_runs_a_node_per_robot_on_one_session_each_with_ids_of
         assert code == 0, err
     assert len({chunks[2] for chunks in tokens}) == 1, "one session"
     nodes = {chunks[7]: int(chunks[3]) for chunks in tokens if chunks[5] == "NN"}
-    assert set(nodes) == {_mangled(namespace) for namespace in NAMESPACES.values()}
+    assert set(nodes) == {mangled(namespace) for namespace in NAMESPACES.values()}
     ids = [int(chunks[4]) for chunks in tokens]
     assert sorted(ids) == list(range(len(tokens))), "one counter: every node and entity an id of its own"
     for chunks in tokens:
         assert int(chunks[3]) == nodes[chunks[7]], "each entity names its own node's id"
-    clocks = [chunks[7] for chunks in tokens if chunks[5] == "MP" and chunks[9] == _mangled(CLOCK[0])]
-    assert clocks == [_mangled(NAMESPACES["rh0"])]
+    clocks = [chunks[7] for chunks in tokens if chunks[5] == "MP" and chunks[9] == mangled(CLOCK[0])]
+    assert clocks == [mangled(NAMESPACES["rh0"])]
