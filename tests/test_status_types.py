@@ -27,13 +27,11 @@ from schemas.status import (
     ViewStatus,
 )
 from schemas.status_kinds import STATUS_TYPES, status_type
-from services.drive.options import DriveOptions
-from services.drive.scenarios import ConstantSegment, Scenario
 from services.launch.composition import Composition
-from services.launch.service_plans import BUILT_IN, ChildPlan
 from services.recording.report import loop_health
 from services.runtime.discovery import StatusReader
 from tests.harness import wait_until
+from tests.test_composition import compose_the_loop
 
 KEYS = Keys("rh0")
 KINDS = (
@@ -118,12 +116,7 @@ def _reply(session: zenoh.Session, service: Service) -> bytes:
 def test_every_service_of_a_real_loop_answers_a_status_its_kind_decodes(session):
     composition = Composition(session)
     try:
-        for service in ("motor", "odometry", "localization", "sim"):
-            command, options = BUILT_IN[service]
-            composition.start_service(ChildPlan(service, command, options()))
-        constant = Scenario(name="constant", segments=[ConstantSegment(vx=0.2, w=0.0, duration=0.3)])
-        command, _ = BUILT_IN["drive"]
-        drive = composition.start_service(ChildPlan("drive", command, DriveOptions("constant", constant)))
+        drive = compose_the_loop(composition)
         wait_until(lambda: drive.finished() == 0, 60, "the drive to finish its 0.3 s")
         loop = (Service.SIM, Service.MOTOR, Service.ODOMETRY, Service.LOCALIZATION, Service.DRIVE)
         statuses = {

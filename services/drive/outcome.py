@@ -85,6 +85,16 @@ class GiveUpRule:
         """The simulation time from which the collision monitor has held the robot; None while it does not."""
         self.held_by = ""
 
+    @property
+    def stopped_since_s(self) -> float | None:
+        """:attr:`stopped_since_ns` in seconds (the status's ``motor_stopped_since_s``)."""
+        return None if self.stopped_since_ns is None else self.stopped_since_ns / NANOSECONDS_PER_SECOND
+
+    @property
+    def held_since_s(self) -> float | None:
+        """:attr:`held_since_ns` in seconds (the status's ``motor_held_since_s``)."""
+        return None if self.held_since_ns is None else self.held_since_ns / NANOSECONDS_PER_SECOND
+
     def motor_state(self, state: str, stamp_ns: int, stopped_by: str, held_by: str = "") -> None:
         """The motor's state changed at ``stamp_ns`` (its wheel-angle time); ``held_by``: why its
         collision monitor holds the robot ("" while it does not). A hold whose cause changes goes on."""

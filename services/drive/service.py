@@ -410,12 +410,8 @@ class DriveService:
             lockstep_participant=self.node.participating,
             pose_wait_timeouts=self.pose_wait_timeouts,
             time_limit_s=give_up.limit_s,
-            motor_stopped_since_s=None
-            if give_up.stopped_since_ns is None
-            else give_up.stopped_since_ns / NANOSECONDS_PER_SECOND,
-            motor_held_since_s=None
-            if give_up.held_since_ns is None
-            else give_up.held_since_ns / NANOSECONDS_PER_SECOND,
+            motor_stopped_since_s=give_up.stopped_since_s,
+            motor_held_since_s=give_up.held_since_s,
             motor_held_by=give_up.held_by,
             outcome=None if self.outcome is None else DriveOutcome(str(self.outcome.outcome), self.outcome.reason),
             pose=None if self.pose is None else PlanarPose(*self.pose),

@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from schemas.drive_status import DriveOutcome, DriveStatus
-from schemas.messages import NANOSECONDS_PER_SECOND, BumpEvent, MotorStateReport, ScenarioOutcome, Time, TimedVelocity
+from schemas.messages import BumpEvent, MotorStateReport, ScenarioOutcome, Time, TimedVelocity
 from schemas.status import Velocity
 from services.clock.lockstep import FINAL
 from services.config import Config
@@ -87,12 +87,8 @@ class DriveOutput:
             sim_alive=sim_alive,
             motor_state=self.motor_state,
             motor_held_by=give_up.held_by,
-            motor_stopped_since_s=None
-            if give_up.stopped_since_ns is None
-            else give_up.stopped_since_ns / NANOSECONDS_PER_SECOND,
-            motor_held_since_s=None
-            if give_up.held_since_ns is None
-            else give_up.held_since_ns / NANOSECONDS_PER_SECOND,
+            motor_stopped_since_s=give_up.stopped_since_s,
+            motor_held_since_s=give_up.held_since_s,
             outcome=None if outcome is None else DriveOutcome(str(outcome.outcome), outcome.reason),
             elapsed_s=core.elapsed_s,
         )
