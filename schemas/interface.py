@@ -54,12 +54,3 @@ class Interface:
     def ticks(self, keys: Keys) -> tuple[str, ...]:
         """Its participant's token (``ticks``), if it takes part in lockstep: what the simulator waits on."""
         return () if self.participates is None else (keys.ticks(self.service, self.participates.rate_hz),)
-
-    def tokens(self, keys: Keys) -> tuple[str, ...]:
-        """The liveliness tokens it holds once started: ``alive``, its participant's ``ticks`` and its
-        observer's tokens (what a launcher waits for)."""
-        return (
-            keys.alive(self.service),
-            *self.ticks(keys),
-            *(keys.observes(self.service, rate_hz) for rate_hz in self.observes),
-        )

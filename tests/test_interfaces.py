@@ -64,12 +64,13 @@ def test_the_localization_declares_what_its_mode_reads_and_only_the_stub_the_gro
     assert (declared.participates is None) == (mode == "none")
 
 
-def test_the_tokens_a_service_holds_are_its_alive_its_ticks_at_its_rate_and_its_observer_rates():
+def test_a_participant_holds_its_ticks_at_its_rate_and_the_bridge_observes_at_its_rates():
     drive = interfaces.declared(Service.DRIVE, KEYS, CONFIG)
-    assert drive.tokens(KEYS) == (KEYS.alive(Service.DRIVE), KEYS.ticks(Service.DRIVE, CONFIG.drive.rate))
+    assert drive.ticks(KEYS) == (KEYS.ticks(Service.DRIVE, CONFIG.drive.rate),)
     bridge = interfaces.declared(Service.ROS2, KEYS, CONFIG)
-    rates = sorted({CONFIG.ros2.publish_rate, CONFIG.ros2.clock_rate})
-    assert bridge.tokens(KEYS) == (KEYS.alive(Service.ROS2), *(KEYS.observes(Service.ROS2, r) for r in rates))
+    assert bridge.ticks(KEYS) == () and bridge.observes == tuple(
+        sorted({CONFIG.ros2.publish_rate, CONFIG.ros2.clock_rate})
+    )
 
 
 @pytest.mark.parametrize("service", LOOP_SERVICES)

@@ -23,11 +23,14 @@ class DeclaredKeys:
     def __init__(self, interface: Interface | None, keys: Keys) -> None:
         self._interface = interface
         self._keys = keys
-        declared = interface or Interface(Service.SIM)  # unchecked: the lists are not read
-        self._publishes = frozenset(declared.publishes)
-        self._subscribes = frozenset(declared.subscribes)
-        self._serves = frozenset((keys.status(declared.service), *declared.serves, *declared.latched_published(keys)))
-        self._queries = frozenset(declared.queries)
+        self._publishes = self._subscribes = self._serves = self._queries = frozenset[str]()
+        if interface is not None:
+            self._publishes = frozenset(interface.publishes)
+            self._subscribes = frozenset(interface.subscribes)
+            self._serves = frozenset(
+                (keys.status(interface.service), *interface.serves, *interface.latched_published(keys))
+            )
+            self._queries = frozenset(interface.queries)
 
     def also_serve(self, key: str) -> None:
         """Let the node serve ``key`` too: a queryable of the process it runs in, not of the service

@@ -7,11 +7,10 @@ zenoh program opens a session as that role with ``zenoh.Config.from_file``. Ever
 secure deployment is a **client**: zenoh applies access control on the router's transports only,
 and peers talking directly would bypass it.
 
-What each role may do is :func:`grants`; the rules are built from :class:`~schemas.keys.Keys`,
-so they name exactly the keys the services use. Reading (subscribing, liveliness, queries on
-``status`` and the latched keys) is open to every authenticated role; every put and every method
-query (the Motor's, the drive's goals) that no grant names is denied, and a session without valid credentials is refused
-at connection.
+What each role may do is :func:`grants`: a service's role exactly what its service declares
+(:mod:`services.interfaces`: the keys it puts, subscribes, serves and queries), the tools' roles
+(operator, observer, a ROS node) reading every key. Every put, subscription and query that no grant
+names is denied, and a session without valid credentials is refused at connection.
 
 A **fleet** (several robots in one world, :func:`write_fleet_profile`) has one user per robot for
 each of :data:`PER_ROBOT_ROLES` (``rh1-motor``: the motor of ``rh1``, granted exactly what the

@@ -1,9 +1,10 @@
-"""What each role may do: the access-control rules of a secure deployment, built from the key space.
+"""What each role may do: the access-control rules of a secure deployment, made from what the services declare.
 
 :func:`grants` gives a role's rules on one robot, :func:`fleet_grants` an identity's in a fleet;
 :func:`access_control` and :func:`fleet_access_control` turn them into the router's
-``access_control`` section (default deny). The rules name exactly the keys the services use
-(:class:`~schemas.keys.Keys`, and for the ROS roles the ROS graph of :mod:`services.ros2.graph`).
+``access_control`` section (default deny). A service's role is granted exactly its declaration
+(:mod:`services.interfaces`, :func:`interface_grants`), which its node enforces; the ROS roles'
+ROS side is the ROS graph of :mod:`services.ros2.graph`; the tools' roles read every key.
 """
 
 from __future__ import annotations
@@ -89,8 +90,7 @@ def _localization_methods(keys: Keys) -> tuple[str, ...]:
 def interface_grants(interface: Interface, keys: Keys, followed: Sequence[UserServiceName] = ()) -> list[Grant]:
     """What a service may do, exactly what its :class:`Interface` declares (least privilege): put
     what it publishes; subscribe (and be sent) what it subscribes; serve its status, its latched
-    keys and what it serves; query what it queries and the latched keys it subscribes; hold its
-    own tokens. Liveliness (tokens carry no data) it may watch everywhere. ``followed``: the user
+    keys and what it serves; query (and be answered on) what it queries; hold its own tokens. Liveliness (tokens carry no data) it may watch everywhere. ``followed``: the user
     services whose outputs and status a service that follows the lockstep participants (the sim) may
     subscribe and query."""
     everything = (f"{ROOT}/**",)
@@ -169,7 +169,8 @@ def _ros_grants(role: Role, ros: BridgeGraph) -> list[Grant]:
 
 
 def _reading(keys: Keys) -> list[Grant]:
-    """What every role may do to read: subscribe, liveliness, ``status`` and the latched keys."""
+    """What the tools' roles (operator, observer, a ROS node) may do to read: subscribe to every key,
+    liveliness, ``status`` and the latched keys."""
     everything = (f"{ROOT}/**",)
     return [
         Grant(
