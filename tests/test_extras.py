@@ -28,8 +28,8 @@ KEYS = Keys("rh0")
 EXTRAS_PACKAGES = sorted(EXTRA_OF_PACKAGE)
 LAZY_BASE_PACKAGES = ("cryptography",)
 """Base packages a service process must not load either: the certificates' (services/security/tls.py)."""
-NOT_IN_MOTOR_NOR_ODOMETRY = ("ruamel",)
-"""A base package only the map files need (drive and localization ``--map``)."""
+NOT_IN_MOTOR_NOR_ODOMETRY = ("ruamel", "scipy", "pyastar2d")
+"""Base packages only the map files (drive and localization ``--map``) and the navigation need."""
 STOP_TIMEOUT_S = 15.0
 
 PROBE = """
@@ -67,11 +67,12 @@ SERVICES: dict[str, tuple[ServiceName, tuple[str, ...]]] = {
     "motor": (Service.MOTOR, ()),
     "odometry": (Service.ODOMETRY, ()),
     "drive": (Service.DRIVE, ("--twist", "0.1", "0")),
+    "control": (Service.MOTOR, ("--engine", "kinematic", "--mode", "realtime")),  # the sim and the motor, composed
 }
 
 
 @pytest.mark.parametrize("command", list(SERVICES))
-def test_a_motor_odometry_or_drive_process_imports_no_package_of_an_extra(
+def test_a_motor_odometry_drive_or_control_process_imports_no_package_of_an_extra(
     command: str, endpoint: str, session: zenoh.Session, tmp_path: Path
 ) -> None:
     """Started for real against a router, alive (its token, its status reply), stopped: what it

@@ -18,18 +18,20 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
 from services.config import RtConfig
 from services.exits import ExitStatus
-from services.launch.service_plans import ChildPlan, service_argv
 from services.runtime.executor import STOP_POLL_S, Executor
 from services.runtime.intraprocess import LocalBus
 from services.runtime.node import Node
 from services.runtime.realtime import pin_loop_thread, settle_garbage_collector
 from services.service import ClockedService, RunningService, ServicePlan, start_service
+
+if TYPE_CHECKING:
+    from services.launch.service_plans import ChildPlan
 
 log = logging.getLogger("invent.composed")
 
@@ -68,6 +70,10 @@ class Composition:
 
     def start_service(self, child: ChildPlan[Any]) -> ComposedService:
         """Build the service ``child`` plans, here, and start its loop if it has one."""
+        # Imported here: the plans import every service's module (and scipy with the navigation's),
+        # which `invent control`, composing only the sim and the motor from its own plans, never needs.
+        from services.launch.service_plans import service_argv
+
         return self.start_plan(child.name, child.service_plan(), " ".join(service_argv(child)))
 
     def start_plan(self, name: str, plan: ServicePlan, command_line: str = "") -> ComposedService:
