@@ -36,7 +36,7 @@ from tests.harness import (
     wait_until,
 )
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.serial]  # serial: a realtime teleop run
 
 KEYS = Keys()
 DOMAIN = 0

@@ -34,7 +34,8 @@ from tests.harness import (
     wait_until,
 )
 
-pytestmark = pytest.mark.slow
+# serial: its runs in realtime and teleop are paced by the wall clock
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
 
 KEYS = Keys()
 KINEMATIC = ("--engine", "kinematic")
