@@ -53,6 +53,11 @@ PUBLISHED = {
     "imu": "sensor_msgs/msg/Imu",
 }
 """What each robot's bridge publishes in its namespace (Nav2's multi-robot layout: tf in the namespace)."""
+PUBLISHED_ONCE = {
+    f"{ns}/{topic}": PUBLISHED[topic] for ns in NAMESPACES.values() for topic in ("tf_static", "robot_description")
+}
+"""The topics each bridge publishes once, at its start (transient local: a late node gets them from
+the bridge's cache). The fleet starts its own router, so the test's session may join after them."""
 CLOCK = ("/clock", "rosgraph_msgs/msg/Clock")
 SUBSCRIBED = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped")
 SERVICES = ("motor/stop", "motor/clear", "motor/start", "motor/finish")
@@ -84,7 +89,8 @@ class Fleet:
 @pytest.fixture(scope="module", name="fleet")
 def fleet_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
     """The two-robot fleet in teleop, each service its own process; the test's session a ROS node's
-    peer session, its domain's samples recorded from before the bridges start."""
+    peer session, its domain's samples recorded from when it joins the fleet's router (a fleet starts
+    its own: what the bridges published before, :data:`PUBLISHED_ONCE`, is in their caches)."""
     directory = tmp_path_factory.mktemp("ros2-fleet")
     (directory / "fleet.toml").write_text(FLEET)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
