@@ -273,6 +273,15 @@ def parse_data_key(key: str) -> tuple[str, Topic] | None:
     return parts[1], Topic(parts[2])
 
 
+def parse_status_key(key: str) -> tuple[str, str] | None:
+    """(robot, name) of a concrete status key, ``invent/<robot>/<name>/status`` (a service's, or
+    ``view``'s or ``control``'s), or None when ``key`` is not one."""
+    parts = key.split("/")
+    if len(parts) != 4 or parts[0] != ROOT or parts[3] != _STATUS or not parts[1] or not parts[2]:
+        return None
+    return parts[1], parts[2]
+
+
 def schema_for_key(key: str) -> type[TopicMessage] | None:
     """The message type a concrete data key carries, or None when the key is not a data key."""
     parsed = parse_data_key(key)

@@ -34,6 +34,7 @@ from benchmarks.loop import cpu_seconds
 from schemas.codec import decode
 from schemas.keys import Keys, Service, schema_for_key
 from schemas.messages import ImuSample, LaserScan, TimedDoubleSeq
+from schemas.status_kinds import status_type_of_key
 from schemas.topics import Topic
 from services.recording.mcap_files import read_messages
 from services.recording.scene import LOCALIZATION_TOPIC, ODOMETRY_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
@@ -296,8 +297,8 @@ SCENE_SCHEMAS = {
 
 @pytest.mark.parametrize("name", ["loaded", "composed"])
 def test_the_recording_has_every_key_valid_against_its_schema_and_the_foxglove_scene(runs, name):
-    """Every message of both runs is decoded with the project's types, which the schemas are
-    generated from; the separate run's first :data:`SCHEMA_CHECKED` of each key are also checked against
+    """Every message of both runs, each service's status replies too, is decoded with the project's
+    types, which the schemas are generated from; the separate run's first :data:`SCHEMA_CHECKED` of each key are also checked against
     the JSON schema in the file (about 100 µs each: every one of a full-rate run's 10^5 took 15 s)."""
     run = runs[name]
     checked = SCHEMA_CHECKED if name == "loaded" else 1
@@ -312,9 +313,11 @@ def test_the_recording_has_every_key_valid_against_its_schema_and_the_foxglove_s
         for schema, channel, message in reader.iter_messages():
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
             schemas[channel.topic] = (schema.name, schema.encoding) if schema else ("", "")
-            message_type = schema_for_key(channel.topic)
+            topic_type = schema_for_key(channel.topic)
+            message_type = topic_type or status_type_of_key(channel.topic)
             if message_type is not None:
                 assert channel.message_encoding == "json" and schema.encoding == "jsonschema"
+                assert schema.name == message_type.__name__, channel.topic
                 validator = validators.get(schema.id)
                 if validator is None:
                     schema_document = json.loads(schema.data)
@@ -323,7 +326,8 @@ def test_the_recording_has_every_key_valid_against_its_schema_and_the_foxglove_s
                 if counts[channel.topic] <= checked:
                     validator.validate(json.loads(message.data))
                 decoded = decode(message_type, message.data)
-                assert message.publish_time == decoded.tm.to_nanoseconds()
+                if topic_type is not None:
+                    assert message.publish_time == decoded.tm.to_nanoseconds()
     # no bump in the room, no goals in a scenario, no particles from the stub localization, no wheel
     # speed targets from a motor sending torques
     absent = (Topic.SIM_BUMP, Topic.LOCALIZATION_PARTICLES, Topic.MOTOR_WHEEL_VELOCITY, *GOAL_TOPICS)

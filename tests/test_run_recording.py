@@ -73,7 +73,7 @@ def test_the_journals_make_one_recording_in_publication_order_with_the_scene(tmp
     assert by_topic[KEYS.sim_body_pose].schema_name == "TimedDoubleSeq"
     assert by_topic[KEYS.odometry_pose].schema_name == "TimedPosition"
     assert by_topic[KEYS.odometry_pose].publish_time_ns == 2 * MS, "publish time: the message's stamp"
-    assert by_topic[KEYS.status(Service.MOTOR)].schema_name is None
+    assert by_topic[KEYS.status(Service.MOTOR)].schema_name == "MotorStatus", "a status: its service's kind"
     assert by_topic[TRANSFORMS_TOPIC].schema_name == "foxglove.FrameTransforms"
     assert by_topic[ODOMETRY_TOPIC].schema_name == "foxglove.PoseInFrame"
 

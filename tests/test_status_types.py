@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from schemas import Keys, Service
 from schemas.drive_status import DriveStatus, Ros2Status
+from schemas.keys import user_service_name
 from schemas.status import (
     ControlStatus,
     LocalizationStatus,
@@ -26,8 +27,9 @@ from schemas.status import (
     UserServiceStatus,
     ViewStatus,
 )
-from schemas.status_kinds import STATUS_TYPES, status_type
+from schemas.status_kinds import STATUS_TYPES, status_type, status_type_of_key
 from services.launch.composition import Composition
+from services.recording.mcap_files import key_json_schema
 from services.recording.report import loop_health
 from services.runtime.discovery import StatusReader
 from tests.harness import wait_until
@@ -105,6 +107,38 @@ def test_each_status_round_trips_through_its_json(kind, data):
 def test_every_built_in_service_has_its_kind_and_any_other_name_is_a_user_services():
     assert set(STATUS_TYPES) == set(Service)
     assert status_type("odometer") is UserServiceStatus
+
+
+def test_a_status_key_names_its_kind_for_the_recordings_and_the_views_channel_schema():
+    assert {service: status_type_of_key(KEYS.status(service)) for service in Service} == STATUS_TYPES
+    assert status_type_of_key(KEYS.view_status) is ViewStatus
+    assert status_type_of_key(KEYS.control_status) is ControlStatus
+    assert status_type_of_key(Keys("rh1").status(user_service_name("odometer"))) is UserServiceStatus
+    name, encoding, schema = key_json_schema(KEYS.status(Service.MOTOR)) or ("", "", b"")
+    assert (name, encoding, json.loads(schema)) == ("MotorStatus", "jsonschema", msgspec.json.schema(MotorStatus))
+
+
+STACK_CHUNKS = ("invent", "rh0", "status", "motor", "view", "control", "up", "odometer", "Bad", "")
+CHUNK = st.sampled_from(STACK_CHUNKS) | st.text(max_size=8)
+"""A key's chunk: one the stack's keys have, or any text (a slash in it makes more chunks)."""
+
+
+@given(
+    key=st.lists(CHUNK, min_size=1, max_size=5).map("/".join) | st.builds("invent/{}/{}/status".format, CHUNK, CHUNK)
+)
+def test_no_key_but_a_status_key_of_a_name_a_service_may_have_has_a_status_kind(key):
+    parts = key.split("/")
+    named = len(parts) == 4 and parts[0] == "invent" and parts[1] != "" and parts[3] == "status"
+    may_be = named and (parts[2] in (*Service, "view", "control") or _user_name(parts[2]))
+    assert (status_type_of_key(key) is not None) == may_be, key
+
+
+def _user_name(name: str) -> bool:
+    try:
+        user_service_name(name)
+    except ValueError:
+        return False
+    return True
 
 
 def _reply(session: zenoh.Session, service: Service) -> bytes:

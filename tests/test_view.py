@@ -33,6 +33,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from schemas.codec import decode
 from schemas.keys import Keys, Service
 from schemas.messages import ImuSample, LaserScan, TimedDoubleSeq
+from schemas.status import MotorStatus
 from schemas.topics import Topic
 from services.config import Config
 from services.recording.navigation_scene import COSTMAP_TOPIC, MAP_TOPIC
@@ -73,12 +74,12 @@ SUBSCRIBED = {
     ODOMETRY_TOPIC: "foxglove.PoseInFrame",
     WHEEL_SPEEDS_TOPIC: WHEEL_SPEEDS_SCHEMA["title"],
     KEYS.sim_body_pose: TimedDoubleSeq.__name__,
-    KEYS.status(Service.MOTOR): None,
+    KEYS.status(Service.MOTOR): MotorStatus.__name__,
     SCAN_TOPIC: "foxglove.LaserScan",
     KEYS.sim_scan: LaserScan.__name__,
     KEYS.sim_imu: ImuSample.__name__,
 }
-"""The channels the client subscribes to, and the schema each must have (None: schemaless)."""
+"""The channels the client subscribes to, and the name of the schema each must have."""
 
 
 SCENE_TOPICS = (
@@ -225,11 +226,7 @@ def test_a_foxglove_client_sees_the_running_loop_live(tmp_path: Path) -> None:
     assert watched.subprotocol == "foxglove.sdk.v1"
     assert watched.server_info["op"] == "serverInfo" and watched.server_info["name"] == f"invent {KEYS.robot}"
     for topic, schema_name in SUBSCRIBED.items():
-        channel = watched.channels[topic]
-        if schema_name is None:
-            assert channel["encoding"] == "json" and channel["schema"] == "", channel
-        else:
-            assert channel["schemaName"] == schema_name, channel
+        assert watched.channels[topic]["schemaName"] == schema_name, watched.channels[topic]
     assert watched.channels[KEYS.sim_body_pose]["schemaEncoding"] == "jsonschema"
     assert json.loads(watched.channels[WHEEL_SPEEDS_TOPIC]["schema"]) == WHEEL_SPEEDS_SCHEMA
 

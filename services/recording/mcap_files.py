@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 
 from schemas.keys import parse_data_key, schema_for_key
 from schemas.messages import NANOSECONDS_PER_SECOND, Time
+from schemas.status_kinds import status_type_of_key
 from schemas.topics import LATCHED_TOPICS, Topic
 from services.config import ConfigError, RecordConfig
 from services.runtime.journal import ALWAYS_KEPT
@@ -78,9 +79,10 @@ def publish_time(payload: bytes, log_time_ns: int) -> int:
 
 
 def key_json_schema(key: str) -> tuple[str, str, bytes] | None:
-    """(name, encoding, data) of the JSON schema of ``key``'s message type, named after the type, as
-    a recording and the live view hold it; None for a key outside the project's key space."""
-    message_type = schema_for_key(key)
+    """(name, encoding, data) of the JSON schema of ``key``'s message type (a status key's: its
+    service's status Struct), named after the type, as a recording and the live view hold it; None
+    for a key that is neither a data key nor a status key."""
+    message_type: type | None = schema_for_key(key) or status_type_of_key(key)
     if message_type is None:
         return None
     return message_type.__name__, JSON_SCHEMA, json.dumps(msgspec.json.schema(message_type)).encode()

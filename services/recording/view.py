@@ -7,7 +7,8 @@ status replies every 0.5 s, and hands them, with the robot's Foxglove scene
 
 - one channel per zenoh key, named by the key, JSON messages as published, with the JSON schema
   of the key's message type (named ``TimedDoubleSeq``, ``TimedPosition``, ..., the schema a
-  recording holds); keys outside the project's key space (the status replies) schemaless JSON;
+  recording holds; a status reply's: its service's status Struct, ``MotorStatus``, ...); other
+  keys (a user service's own) schemaless JSON;
 - ``/tf``, ``/odometry/pose``, ``/localization/pose``, ``/scene``, ``/scan`` in Foxglove's
   well-known (protobuf) schemas, and ``/plot/wheel_speeds`` as JSON of ``WHEEL_SPEEDS_SCHEMA``.
 
