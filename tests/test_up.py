@@ -34,7 +34,8 @@ from tests.harness import (
     wait_until,
 )
 
-pytestmark = pytest.mark.slow
+# serial: its runs in realtime and teleop are paced by the wall clock
+pytestmark = [pytest.mark.slow, pytest.mark.serial]
 
 KEYS = Keys()
 KINEMATIC = ("--engine", "kinematic")
@@ -257,7 +258,6 @@ def _started_pids(process: subprocess.Popen[str], output: list[str]) -> dict[str
     return _child_pids("".join(output))
 
 
-@pytest.mark.serial  # a realtime run, its stall timed on the wall clock
 def test_a_realtime_run_with_a_stalled_motor_reports_its_degradation_and_strict_exits_1(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     # paced at twice the wall clock: the straight's 7.5 simulated seconds in under 4 s; --split: the
