@@ -17,9 +17,8 @@ run: $(STAMP)  ## the whole loop: router, sim, motor, odometry, localization, dr
 
 TEST_WORKERS ?= 2
 
-test: test-fast  ## the whole suite (but the benchmarks' own smoke: make bench-smoke): test-fast, the loop's lockstep runs over TEST_WORKERS processes, then those that run on the wall clock (marked serial) one at a time
-	$(BIN)/python -m pytest -m "slow and not serial and not bench_smoke" -n $(TEST_WORKERS) --dist loadfile --durations=25
-	$(BIN)/python -m pytest -m "slow and serial and not bench_smoke" --durations=25
+test: test-fast  ## the whole suite (but the benchmarks' own smoke: make bench-smoke): test-fast, then the loop's runs one at a time
+	$(BIN)/python -m pytest -m "slow and not bench_smoke" --durations=25
 
 test-fast: $(STAMP)  ## the suite without the end-to-end runs of the whole loop (the edit-test loop), over TEST_WORKERS processes
 	$(BIN)/python -m pytest -m "not slow and not bench_smoke" -n $(TEST_WORKERS)

@@ -53,7 +53,7 @@ from tests.fuzz_payloads import (
 )
 from tests.harness import InventProcess, peer_session, running_router, wait_alive, wait_until
 
-pytestmark = [pytest.mark.slow, pytest.mark.serial]  # serial: a realtime sim
+pytestmark = pytest.mark.slow
 
 # --- the running services --------------------------------------------------------------------------
 

@@ -37,7 +37,7 @@ from services.recording.mcap_files import read_run
 from services.recording.report import pose_from_body_pose
 from tests.harness import REPO, InventProcess, call, free_port, invent_command, peer_session, wait_until
 
-pytestmark = [pytest.mark.slow, pytest.mark.serial]  # serial: realtime runs, goals timed on the wall clock
+pytestmark = pytest.mark.slow
 
 KEYS = Keys()
 STARTUP_TIMEOUT_S = 90.0

@@ -27,7 +27,7 @@ from schemas.topics import Method, MethodFamily
 from services.config import DriveConfig, LocalizationConfig
 from tests.harness import call, free_port, peer_session, start_up, status_reply, wait_until
 
-pytestmark = [pytest.mark.slow, pytest.mark.serial]  # serial: a realtime run, its memory measured
+pytestmark = pytest.mark.slow
 
 KEYS = Keys()
 ROUNDS = 20

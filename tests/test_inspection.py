@@ -15,7 +15,7 @@ from schemas.keys import Keys, Service
 from schemas.topics import Method, MethodFamily
 from tests.harness import InventProcess, call, free_port, peer_session, wait_alive, wait_until
 
-pytestmark = [pytest.mark.slow, pytest.mark.serial]  # serial: a realtime sim
+pytestmark = pytest.mark.slow
 
 KEYS = Keys("inspected")
 ROBOT_FLAGS = ("--robot", KEYS.robot)

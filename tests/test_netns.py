@@ -149,7 +149,6 @@ def _max_gap(events: list[Event], start: float, end: float) -> float:
 
 
 @pytest.mark.slow
-@pytest.mark.serial
 def test_a_link_cut_shorter_than_the_lease_delays_that_host_and_loses_nothing(fleet: Fleet) -> None:
     """A 2 s cut: TCP holds the link (zenoh's lease is 10 s), the token stays, host2's samples
     stop and then arrive late, every one of them; host1 never notices."""
@@ -178,7 +177,6 @@ def test_a_link_cut_shorter_than_the_lease_delays_that_host_and_loses_nothing(fl
 
 
 @pytest.mark.slow
-@pytest.mark.serial
 def test_a_link_cut_longer_than_the_lease_drops_that_host_until_its_router_reconnects(fleet: Fleet) -> None:
     """The hub drops host2 after the lease (its token goes, its queryable is gone); host1 never
     notices; once the cable is back, host2's router reconnects by itself, within its retry period:

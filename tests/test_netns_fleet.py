@@ -39,7 +39,7 @@ from tests.harness import wait_until
 from tests.netns import HostProcess, Network, netns_unavailable, network
 from tests.remote_session import Event, RemoteSession, Stream
 
-pytestmark = [pytest.mark.slow, pytest.mark.serial]  # serial: a realtime fleet, link cuts timed against leases
+pytestmark = pytest.mark.slow
 
 ROBOTS = ("rh0", "rh1")
 ONE_PROCESS = "rh1"

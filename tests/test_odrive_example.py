@@ -375,7 +375,6 @@ def _truth_now(emulator: subprocess.Popen[str], report: Path) -> dict[str, Any]:
 
 
 @pytest.mark.slow
-@pytest.mark.serial
 def test_the_square_closes_against_the_emulated_odrive(square_run):
     outcome, truth = square_run["outcome"], square_run["truth"]
     assert outcome.outcome == "completed" and square_run["drive_exit"] == 0, (outcome, square_run["logs"])
@@ -391,7 +390,6 @@ def test_the_square_closes_against_the_emulated_odrive(square_run):
 
 
 @pytest.mark.slow
-@pytest.mark.serial
 def test_odometry_from_the_drivers_wheel_angles_is_the_emulators_truth(square_run):
     # Ideal rolling in the emulator: odometry is off only by the encoder's counts and its arcs' chords,
     # if the driver maps axes, signs and the gear right (a wrong sign or ratio misses by metres).
@@ -402,7 +400,6 @@ def test_odometry_from_the_drivers_wheel_angles_is_the_emulators_truth(square_ru
 
 
 @pytest.mark.slow
-@pytest.mark.serial
 def test_the_driver_served_the_run_and_left_the_axes_idle(square_run):
     counters = square_run["driver"]["counters"]
     assert square_run["driver_exit"] == 0, square_run["driver_log"]

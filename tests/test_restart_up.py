@@ -26,7 +26,7 @@ from schemas.topics import Method, MethodFamily
 from services.exits import ExitStatus
 from tests.harness import REPO, Collector, call, free_port, invent_command, peer_session, wait_until
 
-pytestmark = [pytest.mark.slow, pytest.mark.kinematic, pytest.mark.serial]  # serial: a restart timed on the wall clock
+pytestmark = [pytest.mark.slow, pytest.mark.kinematic]
 
 KEYS = Keys()
 STARTUP_TIMEOUT_S = 90.0

@@ -36,7 +36,7 @@ from tests.harness import (
     wait_until,
 )
 
-pytestmark = [pytest.mark.slow, pytest.mark.serial]  # serial: a realtime teleop run
+pytestmark = pytest.mark.slow
 
 KEYS = Keys()
 DOMAIN = 0

@@ -18,8 +18,7 @@ from tests import ros_client
 from tests.harness import invent_command, peer_session, running_router
 from tests.test_ros2_bridge import DOMAIN, KEYS, _key
 
-# serial: it compares /clock with the wall clock; a realtime teleop run
-pytestmark = [pytest.mark.slow, pytest.mark.serial]
+pytestmark = pytest.mark.slow
 
 
 def test_a_lockstep_run_publishes_clock_faster_than_wall_time_and_stamps_its_poses(tmp_path):

@@ -51,7 +51,7 @@ from tests.ros2_fleet_run import (  # noqa: F401 (the fixtures fleet and goals) 
     shipped_hash,
 )
 
-pytestmark = [pytest.mark.slow, pytest.mark.serial]  # serial: a realtime teleop fleet
+pytestmark = pytest.mark.slow
 
 
 def test_each_robot_is_a_node_in_its_namespace_with_its_topics_services_and_types_and_one_clock(fleet):

@@ -37,7 +37,7 @@ import zenoh
 from schemas.keys import Keys, Service
 from tests.harness import REPO, InventProcess, call, free_port, invent_command, peer_session, wait_alive, wait_until
 
-pytestmark = [pytest.mark.slow, pytest.mark.kinematic, pytest.mark.serial]  # serial: a realtime teleop run
+pytestmark = [pytest.mark.slow, pytest.mark.kinematic]
 
 RELEASES = ("1.6.2", "1.9.0")
 """The eclipse-zenoh releases rmw_zenoh bundles (1.9.0 for 1.8.0, which has no wheel)."""

@@ -34,8 +34,7 @@ from tests.harness import (
     wait_until,
 )
 
-# serial: its runs in realtime and teleop are paced by the wall clock
-pytestmark = [pytest.mark.slow, pytest.mark.serial]
+pytestmark = pytest.mark.slow
 
 KEYS = Keys()
 KINEMATIC = ("--engine", "kinematic")
